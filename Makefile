@@ -1,0 +1,33 @@
+# make demo: fresh machine -> venv, install, train Hopper-v5 with the default preset, evaluate, print the score.
+# make test: fresh machine -> venv, install, run the whole suite.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+DEMO_DIR ?= runs/demo
+
+.PHONY: install test demo bench clean docs
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[test]"
+	touch $@
+
+test: install
+	$(PY) -m pytest -q
+
+demo: install
+	rm -rf $(DEMO_DIR)
+	$(VENV)/bin/canter train Hopper-v5 --seed 0 --out-dir $(DEMO_DIR)
+	$(VENV)/bin/canter eval $$(ls -d $(DEMO_DIR)/*/ | head -n 1) --episodes 10
+
+docs: install
+	$(PY) -m canter.docs README.md
+
+bench: install
+	bash benchmarks/ppo_speed/run.sh
+
+clean:
+	rm -rf $(VENV) build *.egg-info src/*.egg-info

@@ -1,0 +1,45 @@
+"""canter: fast, correct PPO for continuous control on MuJoCo, on an ordinary CPU.
+
+    import canter
+    result = canter.train(canter.build_config("Hopper-v5", total_steps=200_000))
+    policy = canter.load(result.run_dir)
+    actions = policy(observations)
+"""
+
+from canter.config import Config, build_config
+from canter.errors import CanterError
+
+__version__ = "0.1.0"
+__all__ = ["Config", "CanterError", "build_config", "train", "load", "evaluate", "RunResult", "Policy"]
+
+
+def train(config: Config, *, quiet: bool = True, resume=None, run_dir=None):
+    """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return)."""
+    from canter.trainer import train as _train
+
+    return _train(config, quiet=quiet, resume=resume, run_dir=run_dir)
+
+
+def load(run_dir):
+    """Load the newest checkpoint of a run folder as a callable `Policy`."""
+    from canter.policy import load as _load
+
+    return _load(run_dir)
+
+
+def evaluate(policy, episodes: int = 10, deterministic: bool = True, seed: int = 0, env_id=None):
+    from canter.evaluate import evaluate as _evaluate
+
+    return _evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id)
+
+
+def __getattr__(name):
+    if name == "RunResult":
+        from canter.trainer import RunResult
+
+        return RunResult
+    if name == "Policy":
+        from canter.policy import Policy
+
+        return Policy
+    raise AttributeError(name)

@@ -1,0 +1,1 @@
+"""Proximal Policy Optimization: pure loss, pure update, and the jitted iteration."""

@@ -1,0 +1,86 @@
+"""The jitted unit of PPO training: one iteration = rollout, GAE, update. The host loop calls it repeatedly and
+logs, checkpoints and handles signals between calls."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from canter.algos.ppo.learner import make_optimizer, ppo_update
+from canter.algos.ppo.losses import Minibatch
+from canter.config import Config
+from canter.envs.base import EnvSpec
+from canter.gae import compute_gae
+from canter.networks import Params, init_params
+from canter.normalize import RunningStats, init_stats
+from canter.rollout import EnvCarry, collect
+
+
+class TrainState(NamedTuple):
+    """Everything a checkpoint must hold to continue learning exactly."""
+    params: Params
+    opt_state: Any
+    obs_stats: RunningStats
+    return_stats: RunningStats
+    key: jax.Array
+    iteration: jnp.ndarray
+    global_step: jnp.ndarray
+
+
+def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
+    key = jax.random.key_data(jax.random.key(config.run.seed)).astype(jnp.uint32)
+    key, init_key = jax.random.split(jax.random.wrap_key_data(key))
+    params = init_params(init_key, config.net, obs_dim, act_dim)
+    return TrainState(params=params, opt_state=make_optimizer(config).init(params), obs_stats=init_stats((obs_dim,)),
+                      return_stats=init_stats(()), key=jax.random.key_data(key),
+                      iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64))
+
+
+def _explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
+    count = jnp.maximum(mask.sum(), 1.0)
+
+    def var(x):
+        mean = (x * mask).sum() / count
+        return (jnp.square(x - mean) * mask).sum() / count
+
+    target_var = var(target)
+    return jnp.where(target_var > 0, 1.0 - var(target - predicted) / target_var, jnp.nan)
+
+
+def make_iteration(config: Config, spec: EnvSpec, env_step):
+    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit."""
+    low = jnp.asarray(spec.action_low, jnp.float32)
+    high = jnp.asarray(spec.action_high, jnp.float32)
+
+    def iteration(state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray):
+        key, rollout_key, update_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
+        obs_stats, return_stats, carry, tr, bootstrap = collect(
+            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
+        values = jnp.concatenate([tr.value, bootstrap[None]], axis=0)
+        advantages, returns = compute_gae(tr.reward, values, tr.terminated, tr.done, tr.valid,
+                                          config.ppo.gamma, config.ppo.gae_lambda)
+        mask = tr.valid.astype(jnp.float32)
+        flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
+        batch = Minibatch(flat(tr.obs), flat(tr.action), flat(tr.log_prob), flat(tr.value), flat(advantages),
+                          flat(returns), flat(mask))
+        critic_lr = config.ppo.critic_lr if config.ppo.critic_lr is not None else config.ppo.lr
+        fraction = lr_fraction if config.ppo.anneal_lr else jnp.float32(1.0)
+        actor_lr, critic_lr = config.ppo.lr * fraction, critic_lr * fraction
+        params, opt_state, diagnostics = ppo_update(state.params, state.opt_state, batch, update_key,
+                                                    actor_lr, critic_lr, config)
+        steps = tr.valid.sum().astype(jnp.int64)
+        finite = (jnp.all(jnp.isfinite(tr.obs)) & jnp.all(jnp.isfinite(tr.reward))
+                  & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)])))
+        metrics = dict(diagnostics)
+        metrics.update(
+            explained_variance=_explained_variance(batch.values, batch.returns, batch.mask),
+            learning_rate=jnp.asarray(actor_lr, jnp.float32), steps=steps, finite=finite,
+            finished=tr.finished, episode_return=tr.episode_return, episode_length=tr.episode_length,
+            episode_info=tr.episode_info)
+        new_state = TrainState(params, opt_state, obs_stats, return_stats, jax.random.key_data(key),
+                               state.iteration + 1, state.global_step + steps)
+        return new_state, carry, metrics
+
+    return iteration

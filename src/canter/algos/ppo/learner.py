@@ -1,0 +1,80 @@
+"""One PPO update over a collected batch: epochs of shuffled minibatches, all under jit.
+
+Gradients of actor and critic are clipped together by global norm, then Adam moments are computed once and the
+step is scaled by a learning rate per part, so a separate critic learning rate costs nothing extra.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from canter.algos.ppo.losses import Minibatch, ppo_loss
+from canter.config import Config
+from canter.networks import Params
+
+
+def make_optimizer(config: Config) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(config.ppo.max_grad_norm),
+                       optax.scale_by_adam(eps=config.ppo.adam_eps))
+
+
+def _apply_lrs(updates: Params, actor_lr: Any, critic_lr: Any) -> Params:
+    return {k: jax.tree_util.tree_map(lambda u: (-(critic_lr if k == "critic" else actor_lr) * u).astype(u.dtype), v)
+            for k, v in updates.items()}
+
+
+class UpdateResult(NamedTuple):
+    params: Params
+    opt_state: Any
+    diagnostics: dict
+
+
+def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array, actor_lr: Any, critic_lr: Any,
+               config: Config) -> UpdateResult:
+    """Run `epochs` passes of `num_minibatches` gradient steps; stop early on target KL if configured."""
+    optimizer = make_optimizer(config)
+    batch_size = batch.mask.shape[0]
+    num_minibatches = batch_size // config.ppo.minibatch_size
+    target_kl = config.ppo.target_kl
+    grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+    zero_diag = {k: jnp.float32(0.0) for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")}
+
+    def minibatch_step(carry, indices):
+        params, opt_state = carry
+        minibatch = jax.tree_util.tree_map(lambda x: x[indices], batch)
+        (_, diag), grads = grad_fn(params, minibatch, config.net, config.ppo)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        params = optax.apply_updates(params, _apply_lrs(updates, actor_lr, critic_lr))
+        return (params, opt_state), diag
+
+    def epoch(carry, epoch_key):
+        params, opt_state, stopped, sums, count = carry
+
+        def run(operand):
+            params, opt_state = operand
+            permutation = jax.random.permutation(epoch_key, batch_size)
+            (params, opt_state), diags = jax.lax.scan(
+                minibatch_step, (params, opt_state), permutation.reshape(num_minibatches, -1))
+            return params, opt_state, diags
+
+        def skip(operand):
+            params, opt_state = operand
+            return params, opt_state, {k: jnp.zeros((num_minibatches,), jnp.float32) for k in zero_diag}
+
+        params, opt_state, diags = jax.lax.cond(stopped, skip, run, (params, opt_state))
+        ran = 1.0 - stopped.astype(jnp.float32)
+        sums = {k: sums[k] + ran * diags[k].mean() for k in sums}
+        if target_kl is not None:
+            stopped = stopped | (diags["approx_kl"][-1] > target_kl)
+        return (params, opt_state, stopped, sums, count + ran), None
+
+    keys = jax.random.split(key, config.ppo.epochs)
+    init = (params, opt_state, jnp.asarray(False), zero_diag, jnp.float32(0.0))
+    (params, opt_state, _, sums, count), _ = jax.lax.scan(epoch, init, keys)
+    diagnostics = {k: v / jnp.maximum(count, 1.0) for k, v in sums.items()}
+    diagnostics["epochs_run"] = count
+    return UpdateResult(params, opt_state, diagnostics)

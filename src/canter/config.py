@@ -1,0 +1,408 @@
+"""One typed, frozen configuration tree.
+
+Every key is addressable as `section.key`, both from `--set section.key=value` and from TOML files. Layers are
+applied in this order: built-in defaults < preset < `--config file.toml` < `--set`. Validation lives here, in one
+place, and raises `CanterError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from canter.errors import CanterError
+
+
+def _doc(text: str, **kwargs: Any) -> Any:
+    return field(metadata={"doc": text}, **kwargs)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    id: str = _doc("Environment id, e.g. Hopper-v5, or `module:EnvId` for a custom Gymnasium env.", default="")
+    backend: str = _doc("`auto` (EnvPool where it has the id, else Gymnasium), `envpool` or `gymnasium`.",
+                        default="auto")
+    num_envs: int = _doc("Parallel environments stepped per rollout step.", default=1)
+    normalize_obs: bool = _doc("Running observation normalization (stats saved with the policy).", default=True)
+    clip_obs: float = _doc("Clip normalized observations to +-clip_obs.", default=10.0)
+    normalize_reward: bool = _doc("Divide rewards by the running std of the discounted return.", default=True)
+    clip_reward: float = _doc("Clip scaled rewards to +-clip_reward.", default=10.0)
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    hidden: tuple[int, ...] = _doc("Hidden layer sizes of the actor (and of the critic unless critic_hidden is set).",
+                                   default=(64, 64))
+    critic_hidden: tuple[int, ...] = _doc("Hidden sizes of the critic; empty means the same as `hidden`.",
+                                          default=())
+    activation: str = _doc("Hidden activation: tanh, relu or elu.", default="tanh")
+    log_std_init: float = _doc("Initial log standard deviation of the Gaussian policy.", default=0.0)
+    state_dependent_std: bool = _doc("Predict log std from the observation instead of a learned vector.",
+                                     default=False)
+    ortho_init: bool = _doc("Orthogonal initialization (gain sqrt 2 hidden, 0.01 policy head, 1 value head).",
+                            default=True)
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    n_steps: int = _doc("Rollout steps per environment per iteration (batch = n_steps * num_envs).", default=2048)
+    minibatch_size: int = _doc("Samples per minibatch; must divide the batch.", default=64)
+    epochs: int = _doc("Passes over the batch per iteration.", default=10)
+    lr: float = _doc("Adam learning rate (actor, and critic unless critic_lr is set).", default=3e-4)
+    critic_lr: float | None = _doc("Separate critic learning rate; `none` uses lr.", default=None)
+    anneal_lr: bool = _doc("Anneal learning rates linearly to 0 over the run, once per iteration.", default=True)
+    adam_eps: float = _doc("Adam epsilon.", default=1e-5)
+    gamma: float = _doc("Discount factor.", default=0.99)
+    gae_lambda: float = _doc("GAE lambda.", default=0.95)
+    clip: float = _doc("Clipping range of the probability ratio.", default=0.2)
+    clip_vloss: bool = _doc("Clip the value loss around the old values, with the same range.", default=True)
+    norm_adv: bool = _doc("Normalize advantages per minibatch.", default=True)
+    ent_coef: float = _doc("Entropy bonus coefficient.", default=0.0)
+    vf_coef: float = _doc("Value loss coefficient.", default=0.5)
+    max_grad_norm: float = _doc("Global gradient-norm clip (actor and critic together).", default=0.5)
+    target_kl: float | None = _doc("Stop the epochs of an iteration once approx KL exceeds this; `none` is off.",
+                                   default=None)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    algo: str = _doc("Algorithm.", default="ppo")
+    preset: str = _doc("Name of the preset this config was built from (recorded, not applied).", default="none")
+    seed: int = _doc("Run seed: network init, sampling and the derived per-env seeds.", default=0)
+    total_steps: int = _doc("Environment steps to train for (reset steps of EnvPool are not counted).",
+                            default=1_000_000)
+    out_dir: str = _doc("Folder that receives run folders.", default="runs")
+    checkpoint_every: int = _doc("Write a checkpoint every this many env steps (0: only at the end).",
+                                 default=200_000)
+    keep_checkpoints: int = _doc("Keep the newest K checkpoints.", default=3)
+    stop_at_return: float | None = _doc("Stop once the mean return of the last 20 training episodes reaches this.",
+                                        default=None)
+    max_minutes: float | None = _doc("Stop cleanly, with a checkpoint, after this many wall minutes.", default=None)
+    tensorboard: bool = _doc("Write TensorBoard event files.", default=True)
+
+
+@dataclass(frozen=True)
+class Config:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    net: NetConfig = field(default_factory=NetConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+    @property
+    def batch_size(self) -> int:
+        return self.ppo.n_steps * self.env.num_envs
+
+    @property
+    def num_minibatches(self) -> int:
+        return self.batch_size // self.ppo.minibatch_size
+
+    def num_iterations(self, total_steps: int | None = None) -> int:
+        total = self.run.total_steps if total_steps is None else total_steps
+        return max(1, math.ceil(total / self.batch_size))
+
+
+SECTIONS = tuple(f.name for f in fields(Config))
+
+
+# --------------------------------------------------------------------------------------------------- parsing values
+
+def _section_type(name: str) -> type:
+    return type(getattr(Config(), name))
+
+
+def _field_types(section: str) -> dict[str, Any]:
+    cls = _section_type(section)
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in fields(cls)}
+
+
+def _is_optional(tp: Any) -> tuple[bool, Any]:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return True, args[0]
+    return False, tp
+
+
+def _type_name(tp: Any) -> str:
+    optional, inner = _is_optional(tp)
+    if typing.get_origin(inner) is tuple:
+        base = "comma-separated integers"
+    else:
+        base = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(inner, str(inner))
+    return f"{base} or none" if optional else base
+
+
+def coerce(key: str, tp: Any, value: Any) -> Any:
+    """Convert a TOML value or a `--set` string to the field's type, or raise a one-line CanterError."""
+    optional, inner = _is_optional(tp)
+    bad = CanterError(f"{key}: expected {_type_name(tp)}, got {value!r}")
+    if optional and (value is None or (isinstance(value, str) and value.strip().lower() in ("none", "null", ""))):
+        return None
+    if typing.get_origin(inner) is tuple:
+        if isinstance(value, str):
+            parts = [p for p in value.replace("-", ",").split(",") if p.strip()] if value.strip() else []
+            try:
+                return tuple(int(p) for p in parts)
+            except ValueError:
+                raise bad from None
+        if isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            return tuple(value)
+        raise bad
+    if inner is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.strip().lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+            return value.strip().lower() in ("true", "1", "yes", "on")
+        raise bad
+    if inner is int:
+        if isinstance(value, bool):
+            raise bad
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, str):
+            try:
+                number = float(value)
+            except ValueError:
+                raise bad from None
+            if number.is_integer():
+                return int(number)
+        raise bad
+    if inner is float:
+        if isinstance(value, bool):
+            raise bad
+        if isinstance(value, (int, float)):
+            return float(value)
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                raise bad from None
+        raise bad
+    if inner is str:
+        if isinstance(value, str):
+            return value
+        raise bad
+    raise bad
+
+
+def _unknown_key_error(key: str, source: str) -> CanterError:
+    known = all_keys()
+    close = difflib.get_close_matches(key, known, n=3, cutoff=0.5)
+    hint = f"; did you mean {', '.join(close)}?" if close else f"; sections are {', '.join(SECTIONS)}"
+    return CanterError(f"unknown config key '{key}' in {source}{hint}")
+
+
+def all_keys() -> list[str]:
+    return [f"{s}.{name}" for s in SECTIONS for name in _field_types(s)]
+
+
+def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> Config:
+    """Apply `{"section.key": value}` overrides, checking names and types."""
+    sections: dict[str, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        section, _, name = key.partition(".")
+        if section not in SECTIONS or name not in _field_types(section):
+            raise _unknown_key_error(key, source)
+        sections.setdefault(section, {})[name] = coerce(key, _field_types(section)[name], value)
+    changes = {s: replace(getattr(config, s), **values) for s, values in sections.items()}
+    return replace(config, **changes)
+
+
+def parse_set_args(items: list[str]) -> dict[str, str]:
+    overrides: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CanterError(f"--set expects section.key=value, got {item!r}")
+        overrides[key.strip()] = value.strip()
+    return overrides
+
+
+def flatten_toml(data: dict[str, Any], source: str) -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for section, values in data.items():
+        if not isinstance(values, dict):
+            raise _unknown_key_error(section, source)
+        for name, value in values.items():
+            if isinstance(value, dict):
+                raise _unknown_key_error(f"{section}.{name}", source)
+            flat[f"{section}.{name}"] = value
+    return flat
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise CanterError(f"config file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise CanterError(f"malformed TOML in {path}: {exc}") from None
+    except UnicodeDecodeError:
+        raise CanterError(f"config file {path} is not UTF-8 text") from None
+
+
+def apply_toml_file(config: Config, path: str | Path) -> Config:
+    return apply_overrides(config, flatten_toml(load_toml(path), str(path)), str(path))
+
+
+# ---------------------------------------------------------------------------------------------------------- presets
+
+def preset_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("canter.presets").iterdir() if p.name.endswith(".toml"))
+
+
+def preset_overrides(name: str, env_id: str) -> dict[str, Any]:
+    """A preset's base keys plus those of its `[env."pattern"]` tables that match env_id (fnmatch)."""
+    import fnmatch
+
+    if name not in preset_names():
+        raise CanterError(f"unknown preset '{name}'; choose one of: {', '.join(preset_names())}")
+    text = resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
+    data = tomllib.loads(text)
+    per_env = data.pop("env_overrides", {})
+    flat = flatten_toml(data, f"preset {name}")
+    base_id = env_id.split(":")[-1]
+    for pattern, tables in per_env.items():
+        if fnmatch.fnmatch(base_id, pattern):
+            flat.update(flatten_toml(tables, f"preset {name}"))
+    return flat
+
+
+def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
+                 sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None) -> Config:
+    """Resolve defaults < preset < config file < --set (< explicit flags), then validate."""
+    file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
+    set_data = parse_set_args(sets or [])
+    resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
+    if not resolved_id:
+        raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
+    config = Config()
+    config = apply_overrides(config, {"env.id": resolved_id, "run.preset": preset}, "arguments")
+    config = apply_overrides(config, preset_overrides(preset, str(resolved_id)), f"preset {preset}")
+    config = apply_overrides(config, file_data, str(config_file))
+    config = apply_overrides(config, set_data, "--set")
+    flags: dict[str, Any] = {}
+    if env_id:
+        flags["env.id"] = env_id
+    if seed is not None:
+        flags["run.seed"] = seed
+    if total_steps is not None:
+        flags["run.total_steps"] = total_steps
+    config = apply_overrides(config, flags, "arguments")
+    validate(config)
+    return config
+
+
+# ------------------------------------------------------------------------------------------------------- validation
+
+def validate(config: Config) -> None:
+    env, net, ppo, run = config.env, config.net, config.ppo, config.run
+
+    def need(ok: bool, message: str) -> None:
+        if not ok:
+            raise CanterError(message)
+
+    need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
+    need(env.backend in ("auto", "envpool", "gymnasium"), f"env.backend must be auto, envpool or gymnasium, "
+                                                          f"got '{env.backend}'")
+    need(env.num_envs >= 1, f"env.num_envs must be >= 1, got {env.num_envs}")
+    need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
+    need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
+    need(len(net.hidden) >= 1 and all(h > 0 for h in net.hidden),
+         f"net.hidden must be positive sizes such as 64,64, got {net.hidden}")
+    need(all(h > 0 for h in net.critic_hidden), f"net.critic_hidden must be positive sizes, got {net.critic_hidden}")
+    need(net.activation in ("tanh", "relu", "elu"), f"net.activation must be tanh, relu or elu, "
+                                                    f"got '{net.activation}'")
+    need(run.algo == "ppo", f"run.algo '{run.algo}' is not available; this version trains: ppo")
+    need(ppo.n_steps >= 1, f"ppo.n_steps must be >= 1, got {ppo.n_steps}")
+    need(ppo.minibatch_size >= 1, f"ppo.minibatch_size must be >= 1, got {ppo.minibatch_size}")
+    need(config.batch_size % ppo.minibatch_size == 0,
+         f"ppo.minibatch_size {ppo.minibatch_size} does not divide the batch {config.batch_size} "
+         f"(ppo.n_steps {ppo.n_steps} x env.num_envs {env.num_envs}); pick a divisor")
+    need(ppo.epochs >= 1, f"ppo.epochs must be >= 1, got {ppo.epochs}")
+    for key in ("lr", "adam_eps", "clip", "max_grad_norm"):
+        value = getattr(ppo, key)
+        need(math.isfinite(value) and value > 0, f"ppo.{key} must be > 0, got {value}")
+    if ppo.critic_lr is not None:
+        need(math.isfinite(ppo.critic_lr) and ppo.critic_lr > 0, f"ppo.critic_lr must be > 0, got {ppo.critic_lr}")
+    if ppo.target_kl is not None:
+        need(ppo.target_kl > 0, f"ppo.target_kl must be > 0 or none, got {ppo.target_kl}")
+    need(0 < ppo.gamma <= 1, f"ppo.gamma must be in (0, 1], got {ppo.gamma}")
+    need(0 <= ppo.gae_lambda <= 1, f"ppo.gae_lambda must be in [0, 1], got {ppo.gae_lambda}")
+    for key in ("ent_coef", "vf_coef"):
+        need(getattr(ppo, key) >= 0, f"ppo.{key} must be >= 0, got {getattr(ppo, key)}")
+    need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
+    need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
+    need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
+    if run.max_minutes is not None:
+        need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")
+
+
+# ------------------------------------------------------------------------------------------------- TOML round trip
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf") if not math.isnan(
+            value) else "nan"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        return f'"{escaped}"'
+    raise TypeError(value)
+
+
+def to_toml(config: Config) -> str:
+    """The complete resolved config; `none` values are written as comments, since TOML has no null."""
+    lines: list[str] = []
+    for section in SECTIONS:
+        lines.append(f"[{section}]")
+        for f in fields(getattr(config, section)):
+            value = getattr(getattr(config, section), f.name)
+            lines.append(f"# {f.name} = none" if value is None else f"{f.name} = {_toml_value(value)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def from_toml_text(text: str, source: str) -> Config:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CanterError(f"malformed TOML in {source}: {exc}") from None
+    config = apply_overrides(Config(), flatten_toml(data, source), source)
+    validate(config)
+    return config
+
+
+def to_dict(config: Config) -> dict[str, dict[str, Any]]:
+    return {s: dataclasses.asdict(getattr(config, s)) for s in SECTIONS}
+
+
+def docs_table() -> str:
+    """Markdown table of every key, generated from the dataclasses so the README cannot drift."""
+    rows = ["| key | type | default | meaning |", "|---|---|---|---|"]
+    defaults = Config()
+    for section in SECTIONS:
+        types_ = _field_types(section)
+        for f in fields(getattr(defaults, section)):
+            default = getattr(getattr(defaults, section), f.name)
+            shown = "none" if default is None else (
+                ",".join(map(str, default)) if isinstance(default, tuple) else str(default).lower()
+                if isinstance(default, bool) else str(default))
+            rows.append(f"| `{section}.{f.name}` | {_type_name(types_[f.name])} | `{shown or '(empty)'}` "
+                        f"| {f.metadata.get('doc', '')} |")
+    return "\n".join(rows)

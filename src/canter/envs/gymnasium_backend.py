@@ -1,0 +1,116 @@
+"""Gymnasium backend: any registered or custom env, one Python env object per slot.
+
+It reproduces EnvPool's episode semantics (see `canter.envs.base`), so the learner trains identically on both.
+Inside jit the step is an ordered `io_callback`; it is slower than EnvPool but runs everywhere.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
+from canter.errors import CanterError
+
+
+def _space_error(env_id: str, space: Any) -> CanterError:
+    return CanterError(f"{env_id}: observation space {space} is not supported; canter needs a Box or a Dict of "
+                       f"Boxes (wrap the env to produce one)")
+
+
+def make_single(env_id: str, **kwargs: Any) -> Any:
+    """gym.make with a flattened Dict observation, checked to be continuous-control."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, **kwargs)
+    obs_space = env.observation_space
+    if isinstance(obs_space, gym.spaces.Dict):
+        if not all(isinstance(s, gym.spaces.Box) for s in obs_space.spaces.values()):
+            raise _space_error(env_id, obs_space)
+        env = gym.wrappers.FlattenObservation(env)
+    elif not isinstance(obs_space, gym.spaces.Box):
+        raise _space_error(env_id, obs_space)
+    if not isinstance(env.action_space, gym.spaces.Box):
+        raise CanterError(f"{env_id}: action space {env.action_space} is not continuous; canter trains Box actions")
+    return env
+
+
+class GymnasiumVecEnv:
+    def __init__(self, env_id: str, num_envs: int, seeds: list[int], **kwargs: Any) -> None:
+        self._envs = [make_single(env_id, **kwargs) for _ in range(num_envs)]
+        first = self._envs[0]
+        self._num_envs = num_envs
+        self._needs_reset = np.zeros(num_envs, bool)
+        observations, infos = zip(*(env.reset(seed=int(seed)) for env, seed in zip(self._envs, seeds)))
+        self._first_obs = np.stack([np.asarray(o, np.float32).reshape(-1) for o in observations])
+        # Probe one throwaway step on a separate env so the info keys are known before training starts.
+        probe = make_single(env_id, **kwargs)
+        probe.reset(seed=0)
+        _, _, _, _, probe_info = probe.step(probe.action_space.sample() * 0)
+        probe.close()
+        self._info_keys = tuple(sorted(k for k, v in probe_info.items() if k not in IGNORED_INFO_KEYS
+                                       and np.ndim(v) == 0 and isinstance(v, (int, float, np.number))
+                                       and not isinstance(v, (bool, np.bool_))))
+        act = first.action_space
+        spec = getattr(first, "spec", None)
+        self.spec = EnvSpec(
+            id=env_id, backend="gymnasium", num_envs=num_envs, obs_dim=int(np.prod(first.observation_space.shape)),
+            act_dim=int(np.prod(act.shape)),
+            action_low=tuple(float(x) for x in np.asarray(act.low).reshape(-1)),
+            action_high=tuple(float(x) for x in np.asarray(act.high).reshape(-1)),
+            max_episode_steps=getattr(spec, "max_episode_steps", None), info_keys=self._info_keys)
+        self._action_shape = act.shape
+        self._action_dtype = act.dtype
+
+    @property
+    def envs(self) -> list[Any]:
+        return self._envs
+
+    def reset(self) -> np.ndarray:
+        return self._first_obs
+
+    def initial_state(self) -> Any:
+        import jax.numpy as jnp
+
+        return jnp.zeros((), jnp.int32)
+
+    def host_step(self, action: np.ndarray) -> StepOutput:
+        n = self._num_envs
+        obs = np.empty((n, self.spec.obs_dim), np.float32)
+        reward = np.zeros(n, np.float32)
+        terminated = np.zeros(n, bool)
+        truncated = np.zeros(n, bool)
+        infos = {k: np.zeros(n, np.float32) for k in self._info_keys}
+        action = np.asarray(action)
+        for i, env in enumerate(self._envs):
+            if self._needs_reset[i]:
+                o, _ = env.reset()
+                self._needs_reset[i] = False
+            else:
+                a = action[i].reshape(self._action_shape).astype(self._action_dtype)
+                o, r, term, trunc, info = env.step(a)
+                reward[i], terminated[i], truncated[i] = r, term, trunc
+                for k in self._info_keys:
+                    if k in info:
+                        infos[k][i] = info[k]
+                self._needs_reset[i] = term or trunc
+            obs[i] = np.asarray(o, np.float32).reshape(-1)
+        return StepOutput(obs, reward, terminated, truncated, infos)
+
+    def jax_step(self, state: Any, action: Any) -> tuple[Any, StepOutput]:
+        import jax
+        import jax.numpy as jnp
+        from jax.experimental import io_callback
+
+        n = self._num_envs
+        shapes = StepOutput(jax.ShapeDtypeStruct((n, self.spec.obs_dim), jnp.float32),
+                            jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_),
+                            jax.ShapeDtypeStruct((n,), jnp.bool_),
+                            {k: jax.ShapeDtypeStruct((n,), jnp.float32) for k in self._info_keys})
+        out = io_callback(lambda a: self.host_step(np.asarray(a)), shapes, action.astype(jnp.float32), ordered=True)
+        return state + 1, StepOutput(*out)
+
+    def close(self) -> None:
+        for env in self._envs:
+            env.close()

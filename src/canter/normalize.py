@@ -1,0 +1,47 @@
+"""Running statistics as pure functions over a small pytree, so they live inside the jitted train state.
+
+The update is the parallel (Chan et al.) merge of batch moments, weighted by a mask so that EnvPool's autoreset
+steps contribute nothing.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+
+class RunningStats(NamedTuple):
+    mean: jnp.ndarray
+    var: jnp.ndarray
+    count: jnp.ndarray
+
+
+def init_stats(shape: tuple[int, ...]) -> RunningStats:
+    # count starts at a tiny epsilon, as Gymnasium's RunningMeanStd does, so the first update is well defined.
+    return RunningStats(jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4, jnp.float32))
+
+
+def update_stats(stats: RunningStats, batch: jnp.ndarray, mask: jnp.ndarray) -> RunningStats:
+    """Merge the rows of `batch` (leading axis) whose `mask` is true into `stats`."""
+    weights = mask.astype(jnp.float32).reshape((-1,) + (1,) * (batch.ndim - 1))
+    batch_count = weights.sum()
+    safe_count = jnp.maximum(batch_count, 1.0)
+    batch_mean = (batch * weights).sum(0) / safe_count
+    batch_var = (jnp.square(batch - batch_mean) * weights).sum(0) / safe_count
+    total = stats.count + batch_count
+    delta = batch_mean - stats.mean
+    mean = stats.mean + delta * batch_count / total
+    m2 = stats.var * stats.count + batch_var * batch_count + jnp.square(delta) * stats.count * batch_count / total
+    updated = RunningStats(mean, m2 / total, total)
+    keep = batch_count > 0
+    return RunningStats(*(jnp.where(keep, new, old) for new, old in zip(updated, stats)))
+
+
+def normalize(stats: RunningStats, x: jnp.ndarray, clip: float, eps: float = 1e-8) -> jnp.ndarray:
+    return jnp.clip((x - stats.mean) / jnp.sqrt(stats.var + eps), -clip, clip)
+
+
+def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: float = 1e-8) -> jnp.ndarray:
+    """Divide by the std of the discounted return (no mean shift, which would change the optimal policy)."""
+    return jnp.clip(reward / jnp.sqrt(stats.var + eps), -clip, clip)

@@ -1,0 +1,17 @@
+"""Per-env seeds derived from (run seed, purpose, env index).
+
+EnvPool seeds env i with `seed + i` when given an integer, so runs with seeds 0 and 1 would share all but one env
+stream. Hashing through numpy's SeedSequence gives statistically independent 31-bit seeds instead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Purposes keep streams apart: training envs, envs recreated on resume (mixed with the step), evaluation envs.
+TRAIN, RESUME, EVAL = 0, 1, 2
+
+
+def env_seeds(run_seed: int, num_envs: int, purpose: int = TRAIN, salt: int = 0) -> list[int]:
+    sequence = np.random.SeedSequence([int(run_seed) & 0xFFFFFFFF, purpose, int(salt) & 0xFFFFFFFFFFFF, 0x63616E74])
+    return [int(s) & 0x7FFFFFFF for s in sequence.generate_state(num_envs, dtype=np.uint32)]
