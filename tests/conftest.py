@@ -1,0 +1,35 @@
+import os
+
+import pytest
+
+from canter.runtime import setup_jax
+
+setup_jax()
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp_dir(tmp_path, monkeypatch):
+    # MuJoCo writes MUJOCO_LOG.TXT into the working folder, and runs default to ./runs.
+    monkeypatch.chdir(tmp_path)
+    yield
+
+
+TINY = ["net.hidden=16,16", "run.tensorboard=false"]
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory):
+    """A short Pendulum run shared by the tests that only need some run folder."""
+    from canter.config import build_config
+    from canter.trainer import train
+
+    out = tmp_path_factory.mktemp("shared_runs")
+    config = build_config("Pendulum-v1", preset="fast", total_steps=8192,
+                          sets=TINY + [f"run.out_dir={out}", "run.checkpoint_every=4096", "env.num_envs=4",
+                                       "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2"])
+    cwd = os.getcwd()
+    os.chdir(out)
+    try:
+        return train(config)
+    finally:
+        os.chdir(cwd)

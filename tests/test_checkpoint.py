@@ -1,0 +1,76 @@
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from canter import checkpoint
+from canter.algos.ppo.iteration import init_train_state
+from canter.config import build_config
+from canter.errors import CanterError
+
+
+def _state(seed=0):
+    return init_train_state(build_config("Hopper-v5", seed=seed, sets=["net.hidden=8,8"]), 11, 3)
+
+
+def _equal(a, b):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) and
+                                      np.asarray(x).dtype == np.asarray(y).dtype for x, y in zip(la, lb))
+
+
+def test_round_trip_is_exact_and_leaves_no_temp_files(tmp_path):
+    state = _state()
+    path = checkpoint.checkpoint_path(tmp_path, 1234)
+    checkpoint.save(path, state, {"global_step": 1234, "config": "", "env": {}})
+    arrays, header = checkpoint.read(path)
+    assert header["global_step"] == 1234 and header["format_version"] == checkpoint.FORMAT_VERSION
+    assert _equal(checkpoint.restore(_state(seed=1), arrays, path), state)
+    assert [p.name for p in path.parent.iterdir()] == [path.name]
+
+
+def test_corrupt_truncated_and_foreign_checkpoints_are_one_line_errors(tmp_path):
+    state = _state()
+    path = tmp_path / "ckpt_000000000001.npz"
+    checkpoint.save(path, state, {"global_step": 1})
+    data = path.read_bytes()
+
+    truncated = tmp_path / "t.npz"
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CanterError, match="corrupt or truncated"):
+        checkpoint.read(truncated)
+
+    flipped = bytearray(data)
+    flipped[len(data) // 3] ^= 0xFF
+    corrupt = tmp_path / "c.npz"
+    corrupt.write_bytes(bytes(flipped))
+    with pytest.raises(CanterError, match="corrupt"):
+        checkpoint.read(corrupt)
+
+    arrays, header = checkpoint.read(path)
+    header["format_version"] = 99
+    payload = {f"leaf:{k}": v for k, v in arrays.items()}
+    payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    other = tmp_path / "v.npz"
+    np.savez(other, **payload)
+    with pytest.raises(CanterError, match="format version 99"):
+        checkpoint.read(other)
+
+    with pytest.raises(CanterError, match="does not match this config"):
+        checkpoint.restore(init_train_state(build_config("Hopper-v5", sets=["net.hidden=4"]), 11, 3), arrays, path)
+
+
+def test_prune_keeps_newest(tmp_path):
+    for step in (10, 20, 30, 40):
+        checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})
+    checkpoint.prune(tmp_path, 2)
+    assert [p.name for p in checkpoint.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz",
+                                                                      "ckpt_000000000040.npz"]
+    assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"
+    empty = tmp_path / "empty_run"
+    empty.mkdir()
+    with pytest.raises(CanterError, match="no checkpoint"):
+        checkpoint.latest(empty)
+    with pytest.raises(CanterError, match="run folder not found"):
+        checkpoint.latest(tmp_path / "missing")

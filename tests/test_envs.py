@@ -1,0 +1,107 @@
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from canter.envs import make_vec_env, resolve_backend
+from canter.errors import CanterError
+from canter.seeding import EVAL, RESUME, TRAIN, env_seeds
+
+
+@pytest.mark.parametrize("env_id, backend, obs_dim, act_dim", [
+    ("Hopper-v5", "envpool", 11, 3),
+    ("Hopper-v5", "gymnasium", 11, 3),
+    ("Pendulum-v1", "envpool", 3, 1),
+    ("WalkerWalk-v1", "envpool", 24, 6),
+    ("canter_test_envs:DictObs-v0", "gymnasium", 3, 2),
+])
+def test_protocol_shapes_and_dtypes(env_id, backend, obs_dim, act_dim):
+    env = make_vec_env(env_id, backend if ":" not in env_id else "auto", 3, [1, 2, 3])
+    try:
+        spec = env.spec
+        assert (spec.backend, spec.obs_dim, spec.act_dim) == (backend, obs_dim, act_dim)
+        obs = env.reset()
+        assert obs.shape == (3, obs_dim) and obs.dtype == np.float32
+
+        def run(state):
+            def body(state, _):
+                state, out = env.jax_step(state, jnp.zeros((3, act_dim), jnp.float32))
+                return state, out
+            return jax.lax.scan(body, state, None, length=4)
+
+        _, out = jax.jit(run)(env.initial_state())
+        assert out.obs.shape == (4, 3, obs_dim) and out.obs.dtype == jnp.float32
+        assert out.reward.shape == (4, 3) and out.reward.dtype == jnp.float32
+        assert out.terminated.dtype == jnp.bool_ and out.truncated.dtype == jnp.bool_
+        assert all(v.dtype == jnp.float32 for v in out.info.values())
+        host = env.host_step(np.zeros((3, act_dim), np.float32))
+        assert host.obs.dtype == np.float32 and host.obs.shape == (3, obs_dim)
+    finally:
+        env.close()
+
+
+def test_dict_observations_are_flattened_in_key_order():
+    env = make_vec_env("canter_test_envs:DictObs-v0", "auto", 1, [0])
+    out = env.host_step(np.zeros((1, 2), np.float32))
+    np.testing.assert_allclose(out.obs[0], [0.1, -0.1, -0.1])  # "a" then "b"
+    assert out.info["reward_step"][0] == 1.0
+
+
+def _roll(env, actions):
+    outs = [env.host_step(a) for a in actions]
+    return (np.stack([o.obs for o in outs]), np.stack([o.reward for o in outs]),
+            np.stack([o.terminated for o in outs]), np.stack([o.truncated for o in outs]))
+
+
+@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5"])
+def test_envpool_and_gymnasium_simulate_identically(env_id):
+    """Same MuJoCo (pinned), zero reset noise, same actions: same observations and rewards, resets included."""
+    rng = np.random.default_rng(0)
+    a = make_vec_env(env_id, "envpool", 1, [0], reset_noise_scale=0.0)
+    b = make_vec_env(env_id, "gymnasium", 1, [0], reset_noise_scale=0.0)
+    np.testing.assert_allclose(a.reset(), b.reset(), atol=1e-6)
+    actions = rng.uniform(-1, 1, size=(300, 1, a.spec.act_dim)).astype(np.float32)
+    obs_a, rew_a, term_a, trunc_a = _roll(a, actions)
+    obs_b, rew_b, term_b, trunc_b = _roll(b, actions)
+    np.testing.assert_array_equal(term_a, term_b)
+    np.testing.assert_array_equal(trunc_a, trunc_b)
+    np.testing.assert_allclose(obs_a, obs_b, atol=1e-5, rtol=1e-5)
+    np.testing.assert_allclose(rew_a, rew_b, atol=1e-5)
+    if env_id == "Hopper-v5":
+        assert term_a.any(), "random actions should topple the hopper, exercising the autoreset"
+
+
+@pytest.mark.parametrize("backend", ["envpool", "gymnasium"])
+def test_autoreset_step_semantics(backend):
+    """Pendulum truncates at 200; step 201 returns the reset observation, reward 0 and both flags false."""
+    env = make_vec_env("Pendulum-v1", backend, 1, [5])
+    outs = [env.host_step(np.ones((1, 1), np.float32)) for _ in range(201)]
+    assert not any(o.truncated[0] for o in outs[:199])
+    assert outs[199].truncated[0] and not outs[199].terminated[0]
+    reset = outs[200]
+    assert reset.reward[0] == 0.0 and not reset.truncated[0] and not reset.terminated[0]
+    assert np.abs(reset.obs[0][:2]).max() <= 1.0 and not np.allclose(reset.obs[0], outs[199].obs[0])
+
+
+def test_two_run_seeds_share_no_env_seed():
+    seen = {}
+    for run_seed in range(10):
+        for purpose in (TRAIN, EVAL):
+            for seed in env_seeds(run_seed, 256, purpose):
+                assert seed not in seen, (run_seed, purpose, seen.get(seed))
+                seen[seed] = (run_seed, purpose)
+                assert 0 <= seed < 2 ** 31
+    assert env_seeds(0, 4) == env_seeds(0, 4)
+    assert env_seeds(0, 4, RESUME, 100) != env_seeds(0, 4, RESUME, 200)
+
+
+def test_unknown_ids_and_spaces_are_clear_errors():
+    with pytest.raises(CanterError, match="unknown env id 'Hoper-v5'.*Hopper-v5"):
+        resolve_backend("Hoper-v5", "auto")
+    with pytest.raises(CanterError, match="cannot import module 'no_such_module'"):
+        resolve_backend("no_such_module:Env-v0", "auto")
+    with pytest.raises(CanterError, match="not supported; canter needs a Box or a Dict of Boxes"):
+        make_vec_env("canter_test_envs:DiscreteObs-v0", "auto", 1, [0])
+    with pytest.raises(CanterError, match="custom env .* needs the gymnasium backend"):
+        resolve_backend("canter_test_envs:DictObs-v0", "envpool")
+    assert resolve_backend("Hopper-v5", "auto") == "envpool"

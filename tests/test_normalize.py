@@ -1,0 +1,34 @@
+import numpy as np
+
+from canter.normalize import init_stats, normalize, scale_reward, update_stats
+
+
+def test_running_stats_match_numpy_over_masked_batches():
+    rng = np.random.default_rng(1)
+    stats = init_stats((3,))
+    kept = []
+    for _ in range(20):
+        batch = rng.normal(2.0, 3.0, size=(16, 3)).astype(np.float32)
+        mask = rng.random(16) > 0.3
+        stats = update_stats(stats, batch, mask)
+        kept.append(batch[mask])
+    data = np.concatenate(kept)
+    np.testing.assert_allclose(np.asarray(stats.mean), data.mean(0), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(stats.var), data.var(0), rtol=1e-3)
+    assert np.isclose(float(stats.count), len(data) + 1e-4, rtol=1e-6)
+
+
+def test_fully_masked_batch_leaves_stats_unchanged():
+    stats = update_stats(init_stats((2,)), np.ones((4, 2), np.float32), np.ones(4, bool))
+    same = update_stats(stats, np.full((4, 2), 1e6, np.float32), np.zeros(4, bool))
+    for a, b in zip(stats, same):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_normalize_and_reward_scale_clip():
+    stats = update_stats(init_stats(()), np.array([0.0, 2.0], np.float32), np.ones(2, bool))
+    var = float(stats.var)
+    out = normalize(stats, np.array([1.0, 1e6], np.float32), clip=10.0)
+    np.testing.assert_allclose(np.asarray(out), [(1.0 - float(stats.mean)) / np.sqrt(var + 1e-8), 10.0], rtol=1e-5)
+    scaled = scale_reward(stats, np.array([2.0, -1e9], np.float32), clip=10.0)
+    np.testing.assert_allclose(np.asarray(scaled), [2.0 / np.sqrt(var + 1e-8), -10.0], rtol=1e-5)

@@ -1,0 +1,64 @@
+"""The autoreset step is masked out of the normalizers, episode statistics, step count and loss."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from canter.algos.ppo.iteration import init_train_state, make_iteration
+from canter.config import build_config
+from canter.envs import make_vec_env
+from canter.rollout import collect, init_env_carry
+
+
+def _setup(env_id, backend, num_envs, n_steps):
+    config = build_config(env_id, sets=[f"env.backend={backend}", f"env.num_envs={num_envs}",
+                                        f"ppo.n_steps={n_steps}", f"ppo.minibatch_size={n_steps}",
+                                        "net.hidden=8"])
+    env = make_vec_env(config.env.id, config.env.backend, num_envs, list(range(num_envs)))
+    state = init_train_state(config, env.spec.obs_dim, env.spec.act_dim)
+    carry = init_env_carry(env.initial_state(), env.reset(), env.spec.info_keys)
+    return config, env, state, carry
+
+
+def _collect(config, env, state, carry):
+    low = jnp.asarray(env.spec.action_low, jnp.float32)
+    high = jnp.asarray(env.spec.action_high, jnp.float32)
+    fn = jax.jit(lambda s, c, k: collect(s.params, s.obs_stats, s.return_stats, c, k, env.jax_step, low, high,
+                                         config))
+    return fn(state, carry, jax.random.key(0))
+
+
+def test_masking_on_a_known_episode_structure():
+    """DictObs terminates after 7 steps with reward t: every 8th step is the autoreset step."""
+    config, env, state, carry = _setup("canter_test_envs:DictObs-v0", "gymnasium", 2, 24)
+    obs_stats, return_stats, carry, tr, _ = _collect(config, env, state, carry)
+    valid = np.asarray(tr.valid)
+    expected_valid = np.array([(t % 8) != 7 for t in range(24)])
+    np.testing.assert_array_equal(valid, np.stack([expected_valid] * 2, 1))
+    finished = np.asarray(tr.finished)
+    assert finished.sum() == 6
+    np.testing.assert_array_equal(np.asarray(tr.episode_return)[finished], 28.0)
+    np.testing.assert_array_equal(np.asarray(tr.episode_length)[finished], 7)
+    np.testing.assert_array_equal(np.asarray(tr.episode_info["reward_step"])[finished], 28.0)
+    # Normalizers saw exactly the valid steps (count starts at 1e-4).
+    assert float(obs_stats.count) == pytest.approx(valid.sum() + 1e-4)
+    assert float(return_stats.count) == pytest.approx(valid.sum() + 1e-4)
+    # Acted-on observations of valid steps only: the terminal obs (t=7) never enters the obs statistics.
+    seen_a = [t / 10 for t in range(7)]
+    assert float(obs_stats.mean[0]) == pytest.approx(np.mean(seen_a), abs=1e-5)
+    # Rewards of reset steps are zero and their transitions are excluded from learning.
+    assert np.all(np.asarray(tr.reward)[~valid] == 0.0)
+
+
+def test_envpool_truncation_masking_and_step_count():
+    """Pendulum truncates at 200: with 402 steps the autoreset steps are t=200 and t=401; 400 steps count."""
+    config, env, state, carry = _setup("Pendulum-v1", "envpool", 1, 402)
+    iteration = jax.jit(make_iteration(config, env.spec, env.jax_step))
+    new_state, _, metrics = iteration(state, carry, jnp.float32(1.0))
+    assert int(metrics["steps"]) == 400 and int(new_state.global_step) == 400
+    finished = np.asarray(metrics["finished"])
+    assert finished.sum() == 2
+    np.testing.assert_array_equal(np.asarray(metrics["episode_length"])[finished], 200)
+    assert float(new_state.obs_stats.count) == pytest.approx(400 + 1e-4)
+    assert float(new_state.return_stats.count) == pytest.approx(400 + 1e-4)

@@ -1,0 +1,107 @@
+import os
+import shutil
+import signal
+import threading
+
+import jax
+import numpy as np
+import pytest
+
+from canter.config import build_config
+from canter.errors import CanterError
+from canter.policy import load_state
+from canter.trainer import resume_config, train
+
+from conftest import TINY
+
+SMALL = TINY + ["env.num_envs=4", "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2",
+                "run.checkpoint_every=2048"]
+
+
+def _config(total=4096, env="Pendulum-v1", extra=()):
+    return build_config(env, total_steps=total, sets=SMALL + list(extra))
+
+
+def _leaves_equal(a, b):
+    return all(np.array_equal(np.asarray(x), np.asarray(y))
+               for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+
+
+def test_run_folder_contents(tiny_run):
+    run = tiny_run.run_dir
+    assert run.name.startswith("Pendulum-v1__ppo__fast__s0__")
+    for name in ("config.toml", "versions.json", "metrics.csv", "summary.json"):
+        assert (run / name).is_file()
+    header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
+    for column in ("global_step", "episodic_return", "approx_kl", "clip_frac", "explained_variance", "sps",
+                   "learning_rate", "policy_loss", "value_loss", "entropy"):
+        assert column in header
+    assert tiny_run.global_step >= 8192 and tiny_run.sps > 0 and tiny_run.compile_seconds > 0
+
+
+def test_same_seed_same_result(tmp_path):
+    a = train(_config(extra=[f"run.out_dir={tmp_path / 'a'}"]))
+    b = train(_config(extra=[f"run.out_dir={tmp_path / 'b'}"]))
+    _, _, sa, _ = load_state(a.run_dir)
+    _, _, sb, _ = load_state(b.run_dir)
+    assert _leaves_equal(sa, sb)
+    c = train(_config(extra=[f"run.out_dir={tmp_path / 'c'}", "run.seed=1"]))
+    _, _, sc, _ = load_state(c.run_dir)
+    assert not _leaves_equal(sa.params, sc.params)
+
+
+def test_resume_is_deterministic_and_continues(tmp_path):
+    first = train(_config(total=4096, extra=[f"run.out_dir={tmp_path}"]))
+    _, _, before, header = load_state(first.run_dir)
+    assert int(header["global_step"]) == first.global_step
+    copy = tmp_path / "copy"
+    shutil.copytree(first.run_dir, copy)
+
+    r1 = train(resume_config(first.run_dir, 8192), resume=first.run_dir)
+    r2 = train(resume_config(copy, 8192), resume=copy)
+    _, _, s1, _ = load_state(r1.run_dir)
+    _, _, s2, _ = load_state(r2.run_dir)
+    assert _leaves_equal(s1, s2), "two resumes of one checkpoint must be identical"
+    assert r1.global_step >= 8192 and int(s1.iteration) > int(before.iteration)
+    assert not _leaves_equal(s1.params, before.params)
+    rows = (first.run_dir / "metrics.csv").read_text().splitlines()
+    steps = [int(r.split(",")[0]) for r in rows[1:]]
+    assert steps == sorted(steps) and steps[-1] == r1.global_step and len(rows) == 1 + int(s1.iteration)
+    # The stretched schedule: the first resumed iteration anneals from the old step against the new total.
+    resumed_row = rows[1 + int(before.iteration)].split(",")
+    lr_col = rows[0].split(",").index("learning_rate")
+    assert float(resumed_row[lr_col]) == pytest.approx(3e-4 * (1 - first.global_step / 8192), rel=1e-4)
+    assert "total_steps = 8192" in (first.run_dir / "config.toml").read_text()
+
+    with pytest.raises(CanterError, match="already has"):
+        train(resume_config(first.run_dir, None), resume=first.run_dir)
+
+
+def test_stop_conditions(tmp_path):
+    r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000"]))
+    assert r.stop_reason == "stop_at_return" and r.global_step < 100_000
+    r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.max_minutes=0.0001"]))
+    assert r.stop_reason == "max_minutes" and r.global_step < 100_000
+    assert any((r.run_dir / "checkpoints").iterdir())
+
+
+def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
+    timer = threading.Timer(6.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        r = train(_config(total=10_000_000, extra=[f"run.out_dir={tmp_path}"]))
+    finally:
+        timer.cancel()
+    assert r.stop_reason == "signal" and r.global_step < 10_000_000
+    _, _, _, header = load_state(r.run_dir)
+    assert int(header["global_step"]) == r.global_step
+
+
+def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):
+    config = _config(total=50_000, env="canter_test_envs:NaNAfter-v0",
+                     extra=[f"run.out_dir={tmp_path}", "env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"])
+    with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
+        train(config)
+    run_dir = next(tmp_path.iterdir())
+    _, _, state, header = load_state(run_dir)
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
