@@ -133,7 +133,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         try:
             atomic_write_bytes(Path(args.json), lambda f: f.write(json.dumps(rows, indent=2).encode()))
         except OSError as exc:
-            raise CanterError(f"cannot write {args.json}: {exc.strerror}; pick a writable path") from None
+            raise CanterError(f"cannot write {args.json}: {exc.strerror or exc}; pick a writable path") from None
     return 0
 
 

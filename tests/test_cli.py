@@ -1,0 +1,115 @@
+"""CLI smoke runs of every command, and every bad input as a one-line error with a non-zero exit."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from canter.cli import main
+
+from conftest import TINY
+
+FAST = ["--quiet", "--set", "env.num_envs=4", "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256",
+        "--set", "ppo.epochs=2"] + [x for s in TINY for x in ("--set", s)]
+
+
+def run_cli(argv, capsys):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def only_run(folder: Path) -> Path:
+    runs = [p for p in folder.iterdir() if p.is_dir()]
+    assert len(runs) == 1
+    return runs[0]
+
+
+def test_train_eval_resume_smoke(tmp_path, capsys):
+    code, out, err = run_cli(["train", "Pendulum-v1", "--seed", "3", "--total-steps", "2e3", "--out-dir",
+                              str(tmp_path), "--preset", "cleanrl", "--set", "ppo.clip=0.1",
+                              "--set", "net.hidden=16,8"] + FAST, capsys)
+    assert code == 0, err
+    run = only_run(tmp_path)
+    assert run.name.startswith("Pendulum-v1__ppo__cleanrl__s3__")
+    assert "SPS" in out and "compile" in out
+    text = (run / "config.toml").read_text()
+    assert "clip = 0.1" in text and "hidden = [16, 16]" in text  # TINY's later --set wins over 16,8
+
+    code, out, err = run_cli(["train", "--resume", str(run), "--total-steps", "4096", "--quiet"], capsys)
+    assert code == 0, err
+    assert "steps 4," in out
+
+    code, out, err = run_cli(["eval", str(run), "--episodes", "3", "--json", str(tmp_path / "e.json")], capsys)
+    assert code == 0, err
+    rows = json.loads((tmp_path / "e.json").read_text())
+    assert rows[0]["episodes"] == 3 and len(rows[0]["returns"]) == 3 and rows[0]["deterministic"] is True
+    assert "±" in out
+    code, out, err = run_cli(["eval", str(run), str(run), "--episodes", "2", "--stochastic", "--seed", "1"], capsys)
+    assert code == 0, err
+    assert "all runs" in out
+
+
+def test_custom_gymnasium_env(tmp_path, capsys):
+    code, out, err = run_cli(["train", "canter_test_envs:DictObs-v0", "--total-steps", "1000", "--out-dir",
+                              str(tmp_path)] + FAST, capsys)
+    assert code == 0, err
+    run = only_run(tmp_path)
+    assert "backend = \"auto\"" in (run / "config.toml").read_text()
+    code, out, err = run_cli(["eval", str(run), "--episodes", "2"], capsys)
+    assert code == 0, err
+
+
+def test_gymnasium_backend_flag(tmp_path, capsys):
+    code, out, err = run_cli(["train", "Pendulum-v1", "--backend", "gymnasium", "--total-steps", "600",
+                              "--out-dir", str(tmp_path)] + FAST, capsys)
+    assert code == 0, err
+    assert 'backend = "gymnasium"' in (only_run(tmp_path) / "config.toml").read_text()
+
+
+def _bad_inputs(tmp_path, run):
+    corrupt = tmp_path / "corrupt_run"
+    shutil.copytree(run, corrupt)
+    ckpts = sorted((corrupt / "checkpoints").iterdir())
+    ckpts[-1].write_bytes(ckpts[-1].read_bytes()[:100])
+    bad_toml = tmp_path / "bad.toml"
+    bad_toml.write_text("[ppo\n")
+    unknown_toml = tmp_path / "unknown.toml"
+    unknown_toml.write_text("[ppo]\nnot_a_key = 1\n")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    return [
+        (["train", "Hoper-v5"], "did you mean Hopper-v5"),
+        (["train", "Hopper-v5", "--set", "ppo.lr=-1"], "ppo.lr must be > 0"),
+        (["train", "Hopper-v5", "--set", "ppo.lr=0"], "ppo.lr must be > 0"),
+        (["train", "Hopper-v5", "--set", "ppo.clipp=0.1"], "unknown config key"),
+        (["train", "Hopper-v5", "--set", "ppo.epochs=many"], "expected an integer"),
+        (["train", "Hopper-v5", "--set", "ppo.minibatch_size=1000"], "does not divide"),
+        (["train", "Hopper-v5", "--config", str(bad_toml)], "malformed TOML"),
+        (["train", "Hopper-v5", "--config", str(unknown_toml)], "unknown config key 'ppo.not_a_key'"),
+        (["train", "Hopper-v5", "--total-steps", "abc"], "step count"),
+        (["train", "Hopper-v5", "--preset", "turbo"], "unknown preset"),
+        (["train"], "no environment given"),
+        (["train", "canter_test_envs:DiscreteObs-v0"], "Box or a Dict of Boxes"),
+        (["train", "--resume", str(tmp_path / "missing")], "run folder not found"),
+        (["train", "--resume", str(empty)], "no config.toml"),
+        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps and --quiet"),
+        (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
+        (["eval", str(tmp_path / "missing")], "run folder not found"),
+        (["eval", str(empty)], "no checkpoint"),
+        (["eval", str(corrupt)], "corrupt or truncated"),
+        (["eval", str(run), "--env", "Hopper-v5"], "pick a matching --env"),
+        (["eval", str(run), "--episodes", "0"], "--episodes must be >= 1"),
+        (["eval", str(run), "--episodes", "1", "--json", str(bad_toml / "x.json")], "cannot write"),
+        (["frobnicate"], "invalid choice"),
+    ]
+
+
+def test_bad_inputs_are_one_line_errors(tmp_path, capsys, tiny_run):
+    for argv, message in _bad_inputs(tmp_path, tiny_run.run_dir):
+        code, out, err = run_cli(argv, capsys)
+        assert code != 0, argv
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1, (argv, err)
+        assert "Traceback" not in err and message in lines[0], (argv, lines[0])
