@@ -1,0 +1,15 @@
+from pathlib import Path
+
+from canter.docs import render
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_readme_config_table_is_generated_from_the_dataclasses():
+    text = README.read_text()
+    assert render(text) == text, "README.md is stale: run `make docs`"
+
+
+def test_readme_names_the_two_commands():
+    text = README.read_text()
+    assert "make demo" in text and "make test" in text
