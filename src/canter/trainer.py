@@ -141,7 +141,7 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
 
     purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
     seeds = env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
-    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds)
+    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds, config.env.envpool_shards)
     spec = env.spec
     try:
         if state is None:

@@ -68,11 +68,13 @@ def _unknown(env_id: str, candidates: list[str], where: str) -> CanterError:
     return CanterError(f"unknown env id '{env_id}' for {where}{hint}")
 
 
-def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], **kwargs: Any) -> VecEnv:
+def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0,
+                 **kwargs: Any) -> VecEnv:
+    """`shards` applies to EnvPool only (0: one single-threaded pool per core); kwargs go to the env."""
     chosen = resolve_backend(env_id, backend)
     if chosen == "envpool":
         try:
-            return envpool_backend.EnvPoolVecEnv(env_id, num_envs, seeds, **kwargs)
+            return envpool_backend.EnvPoolVecEnv(env_id, num_envs, seeds, shards=shards, **kwargs)
         except ValueError as exc:
             raise CanterError(f"{env_id}: {exc}; canter trains continuous-action envs") from None
     from canter.envs.gymnasium_backend import GymnasiumVecEnv

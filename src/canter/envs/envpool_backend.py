@@ -47,14 +47,36 @@ def _flatten(obs: Any, keys: tuple[str, ...] | None, xp: Any) -> Any:
     return xp.concatenate(parts, axis=-1)
 
 
+def default_shards(num_envs: int) -> int:
+    """One single-threaded pool per core, when the envs split evenly."""
+    import os
+
+    cores = max(1, os.cpu_count() or 1)
+    for shards in range(min(cores, num_envs), 0, -1):
+        if num_envs % shards == 0:
+            return shards
+    return 1
+
+
 class EnvPoolVecEnv:
-    def __init__(self, env_id: str, num_envs: int, seeds: list[int], **kwargs: Any) -> None:
+    """`shards` independent single-threaded pools of num_envs/shards envs each. Their XLA steps are independent
+    operations in the jitted program, so XLA's CPU runtime runs them concurrently: two cores step physics at once,
+    while no pool ever uses the multi-threaded mode that crashed."""
+
+    def __init__(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> None:
         import envpool
         import gymnasium as gym
 
-        self._pool = envpool.make(env_id, env_type="gymnasium", num_envs=num_envs, batch_size=num_envs,
-                                  seed=list(seeds), num_threads=1, **kwargs)
-        obs_space, act_space = self._pool.observation_space, self._pool.action_space
+        shards = shards or default_shards(num_envs)
+        if num_envs % shards:
+            raise ValueError(f"env.num_envs {num_envs} is not divisible by {shards} envpool shards")
+        per = num_envs // shards
+        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=per, batch_size=per,
+                                    seed=list(seeds[i * per:(i + 1) * per]), num_threads=1, **kwargs)
+                       for i in range(shards)]
+        self._per = per
+        pool = self._pools[0]
+        obs_space, act_space = pool.observation_space, pool.action_space
         if not isinstance(act_space, gym.spaces.Box):
             raise ValueError(f"{env_id} has discrete actions")
         if isinstance(obs_space, gym.spaces.Dict):
@@ -65,46 +87,57 @@ class EnvPoolVecEnv:
             obs_dim = int(np.prod(obs_space.shape))
         self._action_dtype = np.dtype(act_space.dtype)
         self._num_envs = num_envs
-        obs, info = self._pool.reset()
-        self._first_obs = _flatten(obs, self._obs_keys, np)
+        resets = [p.reset() for p in self._pools]
+        self._first_obs = np.concatenate([_flatten(obs, self._obs_keys, np) for obs, _ in resets])
+        info = resets[0][1]
         self._info_keys = tuple(sorted(k for k, v in info.items() if k not in IGNORED_INFO_KEYS
-                                       and isinstance(v, np.ndarray) and v.shape == (num_envs,)
+                                       and isinstance(v, np.ndarray) and v.shape == (per,)
                                        and np.issubdtype(v.dtype, np.floating)))
-        config = self._pool.spec.config
+        config = pool.spec.config
         self.spec = EnvSpec(
             id=env_id, backend="envpool", num_envs=num_envs, obs_dim=obs_dim, act_dim=int(np.prod(act_space.shape)),
             action_low=tuple(float(x) for x in np.asarray(act_space.low).reshape(-1)),
             action_high=tuple(float(x) for x in np.asarray(act_space.high).reshape(-1)),
             max_episode_steps=int(getattr(config, "max_episode_steps", 0)) or None, info_keys=self._info_keys)
-        self._xla = None
+        self._xla: list | None = None
 
     def reset(self) -> np.ndarray:
-        # The pool was reset at construction; a second reset would advance the seeded reset streams.
+        # The pools were reset at construction; a second reset would advance the seeded reset streams.
         return self._first_obs
 
-    def initial_state(self) -> Any:
+    def _xla_fns(self) -> list:
         if self._xla is None:
-            self._xla = self._pool.xla()
-        return self._xla[0]
+            self._xla = [p.xla() for p in self._pools]
+        return self._xla
+
+    def initial_state(self) -> Any:
+        return tuple(x[0] for x in self._xla_fns())
 
     def jax_step(self, state: Any, action: Any) -> tuple[Any, StepOutput]:
         import jax.numpy as jnp
 
-        if self._xla is None:
-            self._xla = self._pool.xla()
-        step = self._xla[3]
-        state, (obs, reward, terminated, truncated, info) = step(state, action.astype(self._action_dtype))
-        infos = {k: info[k].astype(jnp.float32) for k in self._info_keys}
-        return state, StepOutput(_flatten(obs, self._obs_keys, jnp), reward.astype(jnp.float32), terminated,
-                                 truncated, infos)
+        action = action.astype(self._action_dtype)
+        handles, outs = [], []
+        for i, (handle, xla) in enumerate(zip(state, self._xla_fns())):
+            handle, out = xla[3](handle, action[i * self._per:(i + 1) * self._per])
+            handles.append(handle)
+            outs.append(out)
+        return tuple(handles), self._merge(outs, jnp)
 
     def host_step(self, action: np.ndarray) -> StepOutput:
-        obs, reward, terminated, truncated, info = self._pool.step(np.asarray(action, self._action_dtype))
-        infos = {k: np.asarray(info[k], np.float32) for k in self._info_keys}
-        return StepOutput(_flatten(obs, self._obs_keys, np), np.asarray(reward, np.float32),
-                          np.asarray(terminated, bool), np.asarray(truncated, bool), infos)
+        action = np.asarray(action, self._action_dtype)
+        outs = [p.step(action[i * self._per:(i + 1) * self._per]) for i, p in enumerate(self._pools)]
+        return self._merge(outs, np)
+
+    def _merge(self, outs: list, xp: Any) -> StepOutput:
+        cat = xp.concatenate
+        return StepOutput(cat([_flatten(o[0], self._obs_keys, xp) for o in outs]),
+                          cat([o[1].astype(xp.float32) for o in outs]),
+                          cat([o[2].astype(bool) for o in outs]), cat([o[3].astype(bool) for o in outs]),
+                          {k: cat([o[4][k].astype(xp.float32) for o in outs]) for k in self._info_keys})
 
     def close(self) -> None:
-        close = getattr(self._pool, "close", None)
-        if close is not None:
-            close()
+        for pool in self._pools:
+            close = getattr(pool, "close", None)
+            if close is not None:
+                close()
