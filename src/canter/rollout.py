@@ -14,7 +14,7 @@ import jax.numpy as jnp
 
 from canter.config import Config
 from canter.envs.base import StepOutput, is_summed_info
-from canter.networks import Params, gaussian_log_prob, policy_dist, sample_action, value
+from canter.networks import Params, gaussian_log_prob, policy_dist, sample_action
 from canter.normalize import RunningStats, normalize, scale_reward, update_stats
 
 
@@ -34,7 +34,6 @@ class Transition(NamedTuple):
     obs: jnp.ndarray
     action: jnp.ndarray
     log_prob: jnp.ndarray
-    value: jnp.ndarray
     reward: jnp.ndarray        # scaled, for learning
     terminated: jnp.ndarray
     done: jnp.ndarray
@@ -59,7 +58,9 @@ def normalize_obs(config: Config, stats: RunningStats, obs: jnp.ndarray) -> jnp.
 def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats, carry: EnvCarry, key: jax.Array,
             env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]], action_low: jnp.ndarray,
             action_high: jnp.ndarray, config: Config):
-    """Run `ppo.n_steps` steps. Returns (obs_stats, return_stats, carry, transitions [T, N], bootstrap value [N])."""
+    """Run `ppo.n_steps` steps. Returns (obs_stats, return_stats, carry, transitions [T, N], next_obs [N, D]),
+    where next_obs is the normalized observation after the last step, for the bootstrap value. Values are computed
+    afterwards in one batch: the critic is not needed to act, and every op inside the env loop costs time."""
     env_cfg = config.env
 
     def step(state, step_key):
@@ -71,7 +72,6 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
         mean, log_std = policy_dist(params, obs, config.net)
         action = sample_action(step_key, mean, log_std)
         log_prob = gaussian_log_prob(mean, log_std, action)
-        state_value = value(params, obs, config.net)
 
         env_state, out = env_step(carry.env_state, jnp.clip(action, action_low, action_high))
         valid_f = valid.astype(jnp.float32)
@@ -89,7 +89,7 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
         length_f = jnp.maximum(episode_length.astype(jnp.float32), 1.0)
         episode_info = {k: v if is_summed_info(k) else v / length_f for k, v in info_sums.items()}
 
-        transition = Transition(obs, action, log_prob, state_value, learn_reward, out.terminated & valid, done, valid,
+        transition = Transition(obs, action, log_prob, learn_reward, out.terminated & valid, done, valid,
                                 done, episode_return, episode_length, episode_info)
         keep = 1.0 - done.astype(jnp.float32)
         carry = EnvCarry(env_state, out.obs, done, discounted * keep, episode_return * keep,
@@ -98,5 +98,5 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
 
     keys = jax.random.split(key, config.ppo.n_steps)
     (obs_stats, return_stats, carry), transitions = jax.lax.scan(step, (obs_stats, return_stats, carry), keys)
-    bootstrap = value(params, normalize_obs(config, obs_stats, carry.obs), config.net)
-    return obs_stats, return_stats, carry, transitions, bootstrap
+    next_obs = normalize_obs(config, obs_stats, carry.obs)
+    return obs_stats, return_stats, carry, transitions, next_obs

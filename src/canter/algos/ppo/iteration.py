@@ -13,7 +13,7 @@ from canter.algos.ppo.losses import Minibatch
 from canter.config import Config
 from canter.envs.base import EnvSpec
 from canter.gae import compute_gae
-from canter.networks import Params, init_params
+from canter.networks import Params, init_params, value
 from canter.normalize import RunningStats, init_stats
 from canter.rollout import EnvCarry, collect
 
@@ -56,14 +56,14 @@ def make_iteration(config: Config, spec: EnvSpec, env_step):
 
     def iteration(state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray):
         key, rollout_key, update_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
-        obs_stats, return_stats, carry, tr, bootstrap = collect(
+        obs_stats, return_stats, carry, tr, next_obs = collect(
             state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
-        values = jnp.concatenate([tr.value, bootstrap[None]], axis=0)
+        values = value(state.params, jnp.concatenate([tr.obs, next_obs[None]], axis=0), config.net)
         advantages, returns = compute_gae(tr.reward, values, tr.terminated, tr.done, tr.valid,
                                           config.ppo.gamma, config.ppo.gae_lambda)
         mask = tr.valid.astype(jnp.float32)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
-        batch = Minibatch(flat(tr.obs), flat(tr.action), flat(tr.log_prob), flat(tr.value), flat(advantages),
+        batch = Minibatch(flat(tr.obs), flat(tr.action), flat(tr.log_prob), flat(values[:-1]), flat(advantages),
                           flat(returns), flat(mask))
         critic_lr = config.ppo.critic_lr if config.ppo.critic_lr is not None else config.ppo.lr
         fraction = lr_fraction if config.ppo.anneal_lr else jnp.float32(1.0)
