@@ -105,3 +105,23 @@ def test_unknown_ids_and_spaces_are_clear_errors():
     with pytest.raises(CanterError, match="custom env .* needs the gymnasium backend"):
         resolve_backend("canter_test_envs:DictObs-v0", "envpool")
     assert resolve_backend("Hopper-v5", "auto") == "envpool"
+
+
+def test_sharded_pools_step_like_one_pool():
+    """Splitting the envs over concurrent single-threaded pools changes nothing but speed."""
+    seeds = env_seeds(7, 4)
+    one = make_vec_env("Hopper-v5", "envpool", 4, seeds, shards=1)
+    two = make_vec_env("Hopper-v5", "envpool", 4, seeds, shards=2)
+    np.testing.assert_array_equal(one.reset(), two.reset())
+    actions = np.random.default_rng(0).uniform(-1, 1, size=(50, 4, 3)).astype(np.float32)
+
+    def run(env):
+        def body(state, action):
+            return env.jax_step(state, action)
+        return jax.jit(lambda s, a: jax.lax.scan(body, s, a))(env.initial_state(), jnp.asarray(actions))[1]
+
+    a, b = run(one), run(two)
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    with pytest.raises(CanterError, match="not divisible"):
+        make_vec_env("Hopper-v5", "envpool", 3, [1, 2, 3], shards=2)
