@@ -78,8 +78,11 @@ def test_resume_is_deterministic_and_continues(tmp_path):
 
 
 def test_stop_conditions(tmp_path):
-    r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000"]))
+    r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000",
+                                            "run.tensorboard=true"]))
     assert r.stop_reason == "stop_at_return" and r.global_step < 100_000
+    events = list((r.run_dir / "tb").glob("events.out.tfevents.*"))
+    assert events and events[0].stat().st_size > 0
     r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.max_minutes=0.0001"]))
     assert r.stop_reason == "max_minutes" and r.global_step < 100_000
     assert any((r.run_dir / "checkpoints").iterdir())
