@@ -1,7 +1,7 @@
 """Time to score with canter's default preset: train each env for a fixed step budget that fits in 3 minutes,
 with --max-minutes 3 as a guard, then evaluate 10 deterministic episodes. Median over seeds.
 
-    .venv/bin/python benchmarks/time_to_score/run.py [--seeds 0,1,2] [--envs Hopper-v5:3e6,HalfCheetah-v5:4e6]
+    .venv/bin/python benchmarks/time_to_score/run.py [--seeds 0,1,2] [--envs Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6]
 
 Appends a dated markdown section to benchmarks/time_to_score/results.md.
 """
@@ -37,7 +37,7 @@ def cpu_name() -> str:
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--envs", default="Hopper-v5:3e6,HalfCheetah-v5:4e6")
+    parser.add_argument("--envs", default="Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6")
     parser.add_argument("--minutes", type=float, default=3.0)
     parser.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "runs" / ("tts-" + time.strftime("%Y%m%d-%H%M%S"))))
     parser.add_argument("--results", default=str(Path(__file__).with_name("results.md")))

@@ -68,7 +68,7 @@ def _version() -> str:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from canter.config import apply_overrides, build_config
+    from canter.config import build_config
     from canter.trainer import resume_config, train
 
     if args.resume:

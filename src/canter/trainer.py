@@ -8,7 +8,6 @@ import math
 import platform
 import secrets
 import signal
-import sys
 import threading
 import time
 from collections import deque
@@ -109,12 +108,8 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
           run_dir: str | Path | None = None) -> RunResult:
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
-    import jax
-    import jax.numpy as jnp
-
-    from canter.algos.ppo.iteration import init_train_state, make_iteration
+    from canter.algos.ppo.iteration import init_train_state
     from canter.envs import make_vec_env
-    from canter.rollout import init_env_carry
     from canter.runtime import setup_jax
 
     setup_jax()
@@ -125,15 +120,12 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
     if resume is not None:
         from canter.policy import load_state
 
-        folder = Path(resume)
-        _, _, state, header = load_state(folder)
+        out = Path(resume)
+        _, _, state, header = load_state(out)
         start_step = int(header["global_step"])
-        folder_config = config
-        out = folder
     else:
         start_step = 0
         out = Path(run_dir) if run_dir is not None else new_run_dir(config)
-        folder_config = config
 
     if start_step >= config.run.total_steps:
         raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} steps; "
@@ -147,7 +139,7 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
         if state is None:
             state = init_train_state(config, spec.obs_dim, spec.act_dim)
         out.mkdir(parents=True, exist_ok=True)
-        checkpoint.atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(folder_config).encode()))
+        checkpoint.atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
         if resume is None:
             checkpoint.atomic_write_bytes(out / "versions.json",
                                           lambda f: f.write(json.dumps(versions(), indent=2).encode()))
