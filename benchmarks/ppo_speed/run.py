@@ -218,14 +218,9 @@ def _json_line(stdout: str) -> dict | None:
 # ------------------------------------------------------------------------------------------ machine & versions
 
 def machine() -> dict[str, str]:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    from canter.trainer import cpu_name
+
+    cpu = cpu_name()
     cores = os.cpu_count() or 0
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else cores
     memory = ""

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -19,19 +18,11 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from canter.trainer import cpu_name
+
 ROOT = Path(__file__).resolve().parents[2]
 CANTER = str(Path(sys.executable).with_name("canter"))
 TARGETS = {"Hopper-v5": 2500.0, "HalfCheetah-v5": 5000.0}
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 def main() -> int:

@@ -50,6 +50,17 @@ def new_run_dir(config: Config) -> Path:
     return Path(config.run.out_dir) / name
 
 
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo where there is one (benchmark tables need more than 'x86_64')."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def versions() -> dict[str, Any]:
     from importlib import metadata
 
@@ -59,20 +70,12 @@ def versions() -> dict[str, Any]:
         except metadata.PackageNotFoundError:
             return None
 
-    cpu = platform.processor() or ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     import os
 
     return {"canter": version("canter"), "python": platform.python_version(), "jax": version("jax"),
             "jaxlib": version("jaxlib"), "optax": version("optax"), "envpool": version("envpool"),
             "mujoco": version("mujoco"), "gymnasium": version("gymnasium"), "numpy": version("numpy"),
-            "platform": platform.platform(), "cpu": cpu, "cpu_count": os.cpu_count()}
+            "platform": platform.platform(), "cpu": cpu_name(), "cpu_count": os.cpu_count()}
 
 
 class _StopFlag:
