@@ -64,7 +64,7 @@ class EnvPoolVecEnv:
     while no pool ever uses the multi-threaded mode that crashed."""
 
     def __init__(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> None:
-        import envpool  # noqa: F401  (only checks that it imports)
+        import envpool
         import gymnasium as gym
 
         shards = shards or default_shards(num_envs)
