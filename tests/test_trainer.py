@@ -2,6 +2,7 @@ import os
 import shutil
 import signal
 import threading
+import time
 
 import jax
 import numpy as np
@@ -89,12 +90,23 @@ def test_stop_conditions(tmp_path):
 
 
 def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
-    timer = threading.Timer(6.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
-    timer.start()
+    finished = threading.Event()
+
+    def send_when_training():
+        # Wait until iterations are being logged, so the signal lands inside the training loop.
+        while not finished.is_set():
+            rows = list(tmp_path.glob("*/metrics.csv"))
+            if rows and len(rows[0].read_text().splitlines()) >= 3:
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+            time.sleep(0.05)
+
+    sender = threading.Thread(target=send_when_training, daemon=True)
+    sender.start()
     try:
         r = train(_config(total=10_000_000, extra=[f"run.out_dir={tmp_path}"]))
     finally:
-        timer.cancel()
+        finished.set()
     assert r.stop_reason == "signal" and r.global_step < 10_000_000
     _, _, _, header = load_state(r.run_dir)
     assert int(header["global_step"]) == r.global_step
