@@ -20,7 +20,7 @@ test: install
 
 demo: install
 	rm -rf $(DEMO_DIR)
-	$(VENV)/bin/canter train Hopper-v5 --seed 0 --out-dir $(DEMO_DIR)
+	$(VENV)/bin/canter train Hopper-v5 --seed 0 --total-steps 2.5e6 --out-dir $(DEMO_DIR)
 	$(VENV)/bin/canter eval $$(ls -d $(DEMO_DIR)/*/ | head -n 1) --episodes 10
 
 docs: install
