@@ -74,20 +74,27 @@ class Progress:
         self._bar = None
         if quiet:
             return
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, \
-            TimeElapsedColumn, TimeRemainingColumn
+        from rich.progress import BarColumn, Progress as RichProgress, TextColumn, TimeRemainingColumn
 
-        self._bar = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("{task.fields[sps]:>7} SPS"), TextColumn("return {task.fields[ret]:>9}"),
-                                 TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=False)
+        self._total = total
+        self._bar = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(bar_width=24),
+                                 TextColumn("{task.fields[steps]}"), TextColumn("{task.fields[sps]} SPS"),
+                                 TextColumn("ret {task.fields[ret]}"), TextColumn("ETA"), TimeRemainingColumn(),
+                                 transient=False)
         self._bar.start()
-        self._task = self._bar.add_task(description, total=total, completed=start, sps="-", ret="-")
+        self._task = self._bar.add_task(description, total=total, completed=start, steps=self._steps(start),
+                                        sps="-", ret="-")
+
+    def _steps(self, step: int) -> str:
+        def short(n: float) -> str:
+            return f"{n / 1e6:.2f}M" if n >= 1e6 else f"{n / 1e3:.0f}k"
+        return f"{short(step)}/{short(self._total)}"
 
     def update(self, step: int, sps: float, recent_return: float | None) -> None:
         if self._bar is None:
             return
         ret = "-" if recent_return is None else f"{recent_return:.1f}"
-        self._bar.update(self._task, completed=step, sps=f"{sps:,.0f}", ret=ret)
+        self._bar.update(self._task, completed=step, steps=self._steps(step), sps=f"{sps:,.0f}", ret=ret)
 
     def close(self) -> None:
         if self._bar is not None:
