@@ -36,7 +36,7 @@ def test_masking_on_a_known_episode_structure():
     valid = np.asarray(tr.valid)
     expected_valid = np.array([(t % 8) != 7 for t in range(24)])
     np.testing.assert_array_equal(valid, np.stack([expected_valid] * 2, 1))
-    finished = np.asarray(tr.finished)
+    finished = np.asarray(tr.done)
     assert finished.sum() == 6
     np.testing.assert_array_equal(np.asarray(tr.episode_return)[finished], 28.0)
     np.testing.assert_array_equal(np.asarray(tr.episode_length)[finished], 7)

@@ -36,9 +36,8 @@ class Transition(NamedTuple):
     log_prob: jnp.ndarray
     reward: jnp.ndarray        # scaled, for learning
     terminated: jnp.ndarray
-    done: jnp.ndarray
+    done: jnp.ndarray          # an episode ended at this step (terminated or truncated; never on reset steps)
     valid: jnp.ndarray
-    finished: jnp.ndarray      # an episode ended at this step
     episode_return: jnp.ndarray
     episode_length: jnp.ndarray
     episode_info: dict
@@ -90,7 +89,7 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
         episode_info = {k: v if is_summed_info(k) else v / length_f for k, v in info_sums.items()}
 
         transition = Transition(obs, action, log_prob, learn_reward, out.terminated & valid, done, valid,
-                                done, episode_return, episode_length, episode_info)
+                                episode_return, episode_length, episode_info)
         keep = 1.0 - done.astype(jnp.float32)
         carry = EnvCarry(env_state, out.obs, done, discounted * keep, episode_return * keep,
                          episode_length * (1 - done.astype(jnp.int32)), {k: v * keep for k, v in info_sums.items()})

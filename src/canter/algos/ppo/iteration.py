@@ -77,7 +77,7 @@ def make_iteration(config: Config, spec: EnvSpec, env_step):
         metrics.update(
             explained_variance=_explained_variance(batch.values, batch.returns, batch.mask),
             learning_rate=jnp.asarray(actor_lr, jnp.float32), steps=steps, finite=finite,
-            finished=tr.finished, episode_return=tr.episode_return, episode_length=tr.episode_length,
+            finished=tr.done, episode_return=tr.episode_return, episode_length=tr.episode_length,
             episode_info=tr.episode_info)
         new_state = TrainState(params, opt_state, obs_stats, return_stats, jax.random.key_data(key),
                                state.iteration + 1, state.global_step + steps)
