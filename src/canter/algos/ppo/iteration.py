@@ -30,8 +30,7 @@ class TrainState(NamedTuple):
 
 
 def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
-    key = jax.random.key_data(jax.random.key(config.run.seed)).astype(jnp.uint32)
-    key, init_key = jax.random.split(jax.random.wrap_key_data(key))
+    key, init_key = jax.random.split(jax.random.key(config.run.seed))
     params = init_params(init_key, config.net, obs_dim, act_dim)
     return TrainState(params=params, opt_state=make_optimizer(config).init(params), obs_stats=init_stats((obs_dim,)),
                       return_stats=init_stats(()), key=jax.random.key_data(key),
