@@ -7,7 +7,6 @@ place, and raises `CanterError` with a one-line message.
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 import math
 import tomllib
@@ -390,10 +389,6 @@ def from_toml_text(text: str, source: str) -> Config:
     config = apply_overrides(Config(), flatten_toml(data, source), source)
     validate(config)
     return config
-
-
-def to_dict(config: Config) -> dict[str, dict[str, Any]]:
-    return {s: dataclasses.asdict(getattr(config, s)) for s in SECTIONS}
 
 
 def docs_table() -> str:

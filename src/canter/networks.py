@@ -61,11 +61,6 @@ def init_params(key: jax.Array, net: NetConfig, obs_dim: int, act_dim: int) -> P
     return params
 
 
-def actor_critic_split(params: Params) -> tuple[Params, Params]:
-    """The parameters the actor learning rate applies to, and those of the critic."""
-    return {k: v for k, v in params.items() if k != "critic"}, {"critic": params["critic"]}
-
-
 def policy_dist(params: Params, obs: jnp.ndarray, net: NetConfig) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Mean and log std of the Gaussian policy for a batch of normalized observations."""
     out = mlp(params["actor"], obs, net.activation)

@@ -63,10 +63,6 @@ class GymnasiumVecEnv:
         self._action_shape = act.shape
         self._action_dtype = act.dtype
 
-    @property
-    def envs(self) -> list[Any]:
-        return self._envs
-
     def reset(self) -> np.ndarray:
         return self._first_obs
 
