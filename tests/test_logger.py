@@ -5,12 +5,12 @@ from canter.logger import BASE_COLUMNS, MetricsLogger, Progress
 
 
 def test_metrics_csv_columns_and_append(tmp_path):
-    logger = MetricsLogger(tmp_path, ("reward_run",), tensorboard=False)
+    logger = MetricsLogger(tmp_path, ("policy_loss",), ("reward_run",), tensorboard=False)
     row = {c: 1.0 for c in BASE_COLUMNS}
     row.update(global_step=10, episodic_return=math.nan, **{"info/reward_run": 2.5})
     logger.log(row)
     logger.close()
-    again = MetricsLogger(tmp_path, ("reward_run",), tensorboard=False)  # a resumed run appends
+    again = MetricsLogger(tmp_path, ("policy_loss",), ("reward_run",), tensorboard=False)  # a resumed run appends
     again.log(dict(row, global_step=20))
     again.close()
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))

@@ -73,6 +73,38 @@ class PPOConfig:
                                    default=None)
 
 
+# Sections of the other algorithms. Each is owned by its algorithm module's author; keep them in this order.
+
+@dataclass(frozen=True)
+class RPOConfig:
+    """rpo: filled in by the on-policy variants."""
+
+
+@dataclass(frozen=True)
+class SymConfig:
+    """Symmetric action loss for ppo and rpo: filled in by the on-policy variants."""
+
+
+@dataclass(frozen=True)
+class TRPOConfig:
+    """trpo: filled in by the on-policy variants."""
+
+
+@dataclass(frozen=True)
+class TD3Config:
+    """td3: filled in by the off-policy algorithms."""
+
+
+@dataclass(frozen=True)
+class DDPGConfig:
+    """ddpg: filled in by the off-policy algorithms."""
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """sac: filled in by the off-policy algorithms."""
+
+
 @dataclass(frozen=True)
 class RunConfig:
     algo: str = _doc("Algorithm.", default="ppo")
@@ -95,6 +127,12 @@ class Config:
     env: EnvConfig = field(default_factory=EnvConfig)
     net: NetConfig = field(default_factory=NetConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
+    rpo: RPOConfig = field(default_factory=RPOConfig)
+    sym: SymConfig = field(default_factory=SymConfig)
+    trpo: TRPOConfig = field(default_factory=TRPOConfig)
+    td3: TD3Config = field(default_factory=TD3Config)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
+    sac: SACConfig = field(default_factory=SACConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
     @property
@@ -282,21 +320,32 @@ def preset_overrides(name: str, env_id: str) -> dict[str, Any]:
 
 
 def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
-                 sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None) -> Config:
-    """Resolve defaults < preset < config file < --set (< explicit flags), then validate."""
+                 sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None,
+                 algo: str | None = None) -> Config:
+    """Resolve defaults < preset < config file < --set (< explicit flags), then validate. The algorithm is known
+    before the preset is applied, so presets can hold per-algorithm tables."""
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
     if not resolved_id:
         raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
     config = Config()
-    config = apply_overrides(config, {"env.id": resolved_id, "run.preset": preset}, "arguments")
+    first = {"env.id": resolved_id, "run.preset": preset}
+    resolved_algo = algo or set_data.get("run.algo") or file_data.get("run.algo")
+    if resolved_algo:
+        from canter.algos import check_algorithm_name
+
+        check_algorithm_name(str(resolved_algo))
+        first["run.algo"] = resolved_algo
+    config = apply_overrides(config, first, "arguments")
     config = apply_overrides(config, preset_overrides(preset, str(resolved_id)), f"preset {preset}")
     config = apply_overrides(config, file_data, str(config_file))
     config = apply_overrides(config, set_data, "--set")
     flags: dict[str, Any] = {}
     if env_id:
         flags["env.id"] = env_id
+    if algo:
+        flags["run.algo"] = algo
     if seed is not None:
         flags["run.seed"] = seed
     if total_steps is not None:
@@ -328,7 +377,9 @@ def validate(config: Config) -> None:
     need(all(h > 0 for h in net.critic_hidden), f"net.critic_hidden must be positive sizes, got {net.critic_hidden}")
     need(net.activation in ("tanh", "relu", "elu"), f"net.activation must be tanh, relu or elu, "
                                                     f"got '{net.activation}'")
-    need(run.algo == "ppo", f"run.algo '{run.algo}' is not available; this version trains: ppo")
+    from canter.algos import check_algorithm_name
+
+    check_algorithm_name(run.algo)
     need(ppo.n_steps >= 1, f"ppo.n_steps must be >= 1, got {ppo.n_steps}")
     need(ppo.minibatch_size >= 1, f"ppo.minibatch_size must be >= 1, got {ppo.minibatch_size}")
     need(config.batch_size % ppo.minibatch_size == 0,

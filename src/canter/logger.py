@@ -5,8 +5,9 @@ metrics.csv has one row per iteration. Columns:
   started, compile included; `sps`: steps per second over this iteration, compile excluded.
 - `episodes`, `episodic_return`, `episodic_length`: episodes finished in this iteration and their mean raw return
   and length (empty when none finished).
-- `policy_loss`, `value_loss`, `entropy`, `approx_kl`, `clip_frac`, `explained_variance`, `learning_rate`,
-  `epochs_run`: PPO diagnostics averaged over the iteration's minibatches.
+- then the algorithm's diagnostics, in the order of its `metric_names`. For ppo: `policy_loss`, `value_loss`,
+  `entropy`, `approx_kl`, `clip_frac`, `explained_variance`, `learning_rate`, `epochs_run`, averaged over the
+  iteration's minibatches.
 - `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
 """
 
@@ -17,19 +18,18 @@ import math
 from pathlib import Path
 from typing import Any
 
-BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length",
-                "policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance",
-                "learning_rate", "epochs_run")
+BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
 
 
-def columns_for(info_keys: tuple[str, ...]) -> list[str]:
-    return list(BASE_COLUMNS) + [f"info/{k}" for k in info_keys]
+def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...]) -> list[str]:
+    return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys]
 
 
 class MetricsLogger:
-    def __init__(self, run_dir: Path, info_keys: tuple[str, ...], tensorboard: bool) -> None:
+    def __init__(self, run_dir: Path, metric_names: tuple[str, ...], info_keys: tuple[str, ...],
+                 tensorboard: bool) -> None:
         self.path = Path(run_dir) / "metrics.csv"
-        self.columns = columns_for(info_keys)
+        self.columns = columns_for(metric_names, info_keys)
         exists = self.path.is_file() and self.path.stat().st_size > 0
         self._file = open(self.path, "a", newline="")
         self._writer = csv.DictWriter(self._file, fieldnames=self.columns, extrasaction="ignore")

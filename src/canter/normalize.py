@@ -10,6 +10,8 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+EPSILON = 1e-8  # added to variances before the square root
+
 
 class RunningStats(NamedTuple):
     mean: jnp.ndarray
@@ -38,10 +40,10 @@ def update_stats(stats: RunningStats, batch: jnp.ndarray, mask: jnp.ndarray) -> 
     return RunningStats(*(jnp.where(keep, new, old) for new, old in zip(updated, stats)))
 
 
-def normalize(stats: RunningStats, x: jnp.ndarray, clip: float, eps: float = 1e-8) -> jnp.ndarray:
+def normalize(stats: RunningStats, x: jnp.ndarray, clip: float, eps: float = EPSILON) -> jnp.ndarray:
     return jnp.clip((x - stats.mean) / jnp.sqrt(stats.var + eps), -clip, clip)
 
 
-def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: float = 1e-8) -> jnp.ndarray:
+def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: float = EPSILON) -> jnp.ndarray:
     """Divide by the std of the discounted return (no mean shift, which would change the optimal policy)."""
     return jnp.clip(reward / jnp.sqrt(stats.var + eps), -clip, clip)

@@ -29,21 +29,11 @@ class Policy:
 
     def __init__(self, config: Config, facts: PolicyFacts, params: Any, obs_stats: Any, source: Path) -> None:
         import jax
-        import jax.numpy as jnp
 
-        from canter.networks import policy_dist, sample_action
-        from canter.rollout import normalize_obs
+        from canter.algos import get_algorithm
 
         self.config, self.facts, self.params, self.obs_stats, self.source = config, facts, params, obs_stats, source
-        low = jnp.asarray(facts.action_low, jnp.float32)
-        high = jnp.asarray(facts.action_high, jnp.float32)
-
-        def act(params, obs_stats, obs, key, deterministic):
-            mean, log_std = policy_dist(params, normalize_obs(config, obs_stats, obs), config.net)
-            action = mean if deterministic else sample_action(key, mean, log_std)
-            return jnp.clip(action, low, high)
-
-        self._act = jax.jit(act, static_argnums=(4,))
+        self._act = jax.jit(get_algorithm(config.run.algo).make_act(config, facts), static_argnums=(4,))
         self._key = jax.random.key(0)
 
     @property
@@ -80,8 +70,8 @@ def read_run_config(run_dir: Path) -> Config:
 
 
 def load_state(run_dir: Path, checkpoint_file: Path | None = None):
-    """(config, facts, TrainState, header) from the newest checkpoint of a run folder."""
-    from canter.algos.ppo.iteration import init_train_state
+    """(config, facts, train state, header) from the newest checkpoint of a run folder."""
+    from canter.algos import get_algorithm
     from canter.runtime import setup_jax
 
     setup_jax()
@@ -94,7 +84,7 @@ def load_state(run_dir: Path, checkpoint_file: Path | None = None):
                         act_dim=int(env["act_dim"]), action_low=np.asarray(env["action_low"], np.float32),
                         action_high=np.asarray(env["action_high"], np.float32),
                         global_step=int(header["global_step"]))
-    template = init_train_state(config, facts.obs_dim, facts.act_dim)
+    template = get_algorithm(config.run.algo).init_state(config, facts)
     state = checkpoint.restore(template, arrays, path)
     return config, facts, state, header
 
@@ -103,5 +93,8 @@ def load(run_dir: str | Path) -> Policy:
     """Load the newest checkpoint of a run folder as a `Policy`."""
     import jax
 
+    from canter.algos import get_algorithm
+
     config, facts, state, _ = load_state(Path(run_dir))
-    return Policy(config, facts, jax.device_put(state.params), jax.device_put(state.obs_stats), Path(run_dir))
+    params = get_algorithm(config.run.algo).policy_params(state)
+    return Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), Path(run_dir))

@@ -111,7 +111,7 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
           run_dir: str | Path | None = None) -> RunResult:
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
-    from canter.algos.ppo.iteration import init_train_state
+    from canter.algos import get_algorithm
     from canter.envs import make_vec_env
     from canter.runtime import setup_jax
 
@@ -138,9 +138,11 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
     seeds = env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
     env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds, config.env.envpool_shards)
     spec = env.spec
+    algorithm = get_algorithm(config.run.algo)
     try:
+        algorithm.validate(config, spec)
         if state is None:
-            state = init_train_state(config, spec.obs_dim, spec.act_dim)
+            state = algorithm.init_state(config, spec)
         out.mkdir(parents=True, exist_ok=True)
         checkpoint.atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
         if resume is None:
@@ -156,19 +158,20 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
     import jax
     import jax.numpy as jnp
 
-    from canter.algos.ppo.iteration import make_iteration
+    from canter.algos import get_algorithm
     from canter.rollout import init_env_carry
 
+    algorithm = get_algorithm(config.run.algo)
     spec = env.spec
     total = config.run.total_steps
     carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
-    iteration = jax.jit(make_iteration(config, spec, env.jax_step))
+    iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step))
     compile_start = time.perf_counter()
     compiled = iteration.lower(state, carry, jnp.float32(1.0)).compile()
     compile_seconds = time.perf_counter() - compile_start
 
     header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
-    logger = MetricsLogger(out, spec.info_keys, config.run.tensorboard)
+    logger = MetricsLogger(out, algorithm.metric_names, spec.info_keys, config.run.tensorboard)
     progress = Progress(total, start_step, quiet, f"{spec.id} {config.run.algo}")
     recent: deque[float] = deque(maxlen=RECENT_EPISODES)
     episodes = 0
@@ -212,8 +215,7 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
                     "episodic_return": float(returns.mean()) if returns.size else math.nan,
                     "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
                 }
-                for key in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance",
-                            "learning_rate", "epochs_run"):
+                for key in algorithm.metric_names:
                     row[key] = float(metrics[key])
                 for key, values in metrics["episode_info"].items():
                     chosen = np.asarray(values)[finished]

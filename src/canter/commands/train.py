@@ -1,0 +1,66 @@
+"""`canter train`: train a policy into a run folder, or resume one."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from canter.commands import add_common, steps_arg
+from canter.errors import CanterError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from canter.algos import algorithm_names
+
+    t = sub.add_parser("train", help="train a policy; writes a run folder",
+                       description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.")
+    t.add_argument("env", nargs="?", help="env id (Hopper-v5) or module:EnvId for a custom Gymnasium env")
+    t.add_argument("--algo", default=None, help=f"algorithm: {', '.join(algorithm_names())} (default ppo)")
+    t.add_argument("--preset", default=None, help="preset overlay: fast (default) or cleanrl")
+    t.add_argument("--config", default=None, help="TOML file with [section] key = value")
+    t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
+    t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
+    t.add_argument("--backend", choices=("auto", "envpool", "gymnasium"), default=None)
+    t.add_argument("--stop-at-return", type=float, default=None,
+                   help="stop once the mean of the last 20 training episodes reaches this")
+    t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
+    t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
+    t.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a run from its newest checkpoint")
+    add_common(t)
+    t.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canter.config import build_config
+    from canter.trainer import resume_config, train
+
+    if args.resume:
+        changed = [flag for flag, value in (("env", args.env), ("--algo", args.algo), ("--preset", args.preset),
+                                             ("--config", args.config), ("--set", args.set), ("--seed", args.seed),
+                                             ("--backend", args.backend), ("--stop-at-return", args.stop_at_return),
+                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir))
+                   if value]
+        if changed:
+            raise CanterError(f"--resume uses the saved config; only --total-steps and --quiet may be given "
+                              f"(got {', '.join(changed)})")
+        config = resume_config(Path(args.resume), args.total_steps)
+        result = train(config, resume=args.resume, quiet=args.quiet)
+    else:
+        extra = {}
+        if args.backend:
+            extra["env.backend"] = args.backend
+        if args.stop_at_return is not None:
+            extra["run.stop_at_return"] = args.stop_at_return
+        if args.max_minutes is not None:
+            extra["run.max_minutes"] = args.max_minutes
+        if args.out_dir:
+            extra["run.out_dir"] = args.out_dir
+        sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
+        config = build_config(args.env, preset=args.preset or "fast", config_file=args.config, sets=sets,
+                              seed=args.seed, total_steps=args.total_steps, algo=args.algo)
+        result = train(config, quiet=args.quiet)
+    recent = "n/a" if result.recent_return is None else f"{result.recent_return:.1f}"
+    print(f"run: {result.run_dir}")
+    print(f"steps {result.global_step:,} | {result.sps:,.0f} SPS (compile {result.compile_seconds:.1f} s apart) | "
+          f"wall {result.wall_seconds:.1f} s | return (last 20 episodes) {recent} | stopped: {result.stop_reason}")
+    return 0
