@@ -87,3 +87,23 @@ def test_apply_overrides_coerces_types():
                                         "run.total_steps": "1e6"}, "test")
     assert config.ppo.epochs == 4 and config.env.normalize_obs is False and config.ppo.target_kl is None
     assert config.run.total_steps == 1_000_000
+
+
+def test_preset_layers_env_then_algo(tmp_path, monkeypatch):
+    import tomllib
+
+    from canter.config import _preset_layer
+
+    table = tomllib.loads("""
+[env]
+num_envs = 16
+[env_overrides."Hopper*".ppo]
+lr = 1e-4
+[algo_overrides.td3.env]
+num_envs = 1
+[algo_overrides.td3.env_overrides."Hopper*".env]
+num_envs = 2
+""")
+    assert _preset_layer(table, "Hopper-v5", "ppo", "t") == {"env.num_envs": 16, "ppo.lr": 1e-4}
+    assert _preset_layer(table, "Hopper-v5", "td3", "t") == {"env.num_envs": 2, "ppo.lr": 1e-4}
+    assert _preset_layer(table, "Walker2d-v5", "td3", "t") == {"env.num_envs": 1}

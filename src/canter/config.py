@@ -302,21 +302,34 @@ def preset_names() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("canter.presets").iterdir() if p.name.endswith(".toml"))
 
 
-def preset_overrides(name: str, env_id: str) -> dict[str, Any]:
-    """A preset's base keys plus those of its `[env."pattern"]` tables that match env_id (fnmatch)."""
+def _preset_layer(table: dict[str, Any], env_id: str, algo: str, source: str) -> dict[str, Any]:
+    """Flatten one preset table: its plain sections, then its `[env_overrides."<glob>"]` tables matching env_id,
+    then its `[algo_overrides.<algo>]` table (which may hold env_overrides of its own). Later layers win."""
     import fnmatch
 
-    if name not in preset_names():
-        raise CanterError(f"unknown preset '{name}'; choose one of: {', '.join(preset_names())}")
-    text = resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
-    data = tomllib.loads(text)
-    per_env = data.pop("env_overrides", {})
-    flat = flatten_toml(data, f"preset {name}")
+    table = dict(table)
+    per_env = table.pop("env_overrides", {})
+    per_algo = table.pop("algo_overrides", {})
+    flat = flatten_toml(table, source)
     base_id = env_id.split(":")[-1]
     for pattern, tables in per_env.items():
         if fnmatch.fnmatch(base_id, pattern):
-            flat.update(flatten_toml(tables, f"preset {name}"))
+            flat.update(flatten_toml(tables, source))
+    if algo in per_algo:
+        flat.update(_preset_layer(per_algo[algo], env_id, algo, source))
     return flat
+
+
+def preset_text(name: str) -> str:
+    if name not in preset_names():
+        raise CanterError(f"unknown preset '{name}'; choose one of: {', '.join(preset_names())}")
+    return resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
+
+
+def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
+    """A preset's keys for this env and algorithm: base tables < matching `[env_overrides."<glob>"]` tables <
+    `[algo_overrides.<algo>]` (fnmatch on the env id without any `module:` prefix)."""
+    return _preset_layer(tomllib.loads(preset_text(name)), env_id, algo, f"preset {name}")
 
 
 def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
@@ -338,7 +351,7 @@ def build_config(env_id: str | None, preset: str = "fast", config_file: str | No
         check_algorithm_name(str(resolved_algo))
         first["run.algo"] = resolved_algo
     config = apply_overrides(config, first, "arguments")
-    config = apply_overrides(config, preset_overrides(preset, str(resolved_id)), f"preset {preset}")
+    config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
     config = apply_overrides(config, file_data, str(config_file))
     config = apply_overrides(config, set_data, "--set")
     flags: dict[str, Any] = {}
