@@ -20,7 +20,7 @@ import numpy as np
 
 from canter import checkpoint
 from canter.config import Config, to_toml, validate
-from canter.errors import CanterError
+from canter.errors import CanterError, DiscreteActionsError
 from canter.logger import MetricsLogger, Progress
 from canter.seeding import RESUME, TRAIN, env_seeds
 
@@ -136,7 +136,11 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
 
     purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
     seeds = env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
-    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds, config.env.envpool_shards)
+    try:
+        env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds, config.env.envpool_shards)
+    except DiscreteActionsError as exc:
+        raise CanterError(f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
+                          f"({exc.space}); choose an env with Box actions") from None
     spec = env.spec
     algorithm = get_algorithm(config.run.algo)
     try:

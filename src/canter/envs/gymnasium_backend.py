@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
-from canter.errors import CanterError
+from canter.errors import CanterError, DiscreteActionsError
 
 
 def _space_error(env_id: str, space: Any) -> CanterError:
@@ -32,7 +32,7 @@ def make_single(env_id: str, **kwargs: Any) -> Any:
     elif not isinstance(obs_space, gym.spaces.Box):
         raise _space_error(env_id, obs_space)
     if not isinstance(env.action_space, gym.spaces.Box):
-        raise CanterError(f"{env_id}: action space {env.action_space} is not continuous; canter trains Box actions")
+        raise DiscreteActionsError(env_id, env.action_space)
     return env
 
 

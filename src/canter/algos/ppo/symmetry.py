@@ -55,11 +55,10 @@ def parse_groups(text: str, negate: tuple[int, ...] = ()) -> tuple[MirrorPair, .
 
 
 def check_action_range(pairs: tuple[MirrorPair, ...], act_dim: int, algo: str) -> None:
-    for pair in pairs:
-        top = max(pair.left + pair.right)
-        if top >= act_dim:
-            raise CanterError(f"sym.groups: index {top} is out of the action range 0..{act_dim - 1} of this env "
-                              f"({algo}); fix sym.groups or set sym.coef=0")
+    top = max((i for pair in pairs for i in pair.left + pair.right), default=-1)
+    if top >= act_dim:
+        raise CanterError(f"sym.groups: index {top} is out of the action range 0..{act_dim - 1} of this env "
+                          f"({algo}); fix sym.groups or set sym.coef=0")
 
 
 def symmetric_loss(values, pairs: tuple[MirrorPair, ...], mask, use_signs: bool):

@@ -59,10 +59,17 @@ class PolicyBatch(NamedTuple):
     mask: jnp.ndarray
 
 
-def policy_step(policy: Params, batch: PolicyBatch, config: Config) -> tuple[Params, dict]:
-    """One TRPO step: natural gradient of the importance-sampled surrogate by conjugate gradient, scaled to the
-    trust region's edge, then a backtracking line search on the true surrogate and KL."""
-    net, trpo = config.net, config.trpo
+class PolicyObjectives(NamedTuple):
+    theta: jnp.ndarray      # the current policy parameters, flattened
+    unravel: Any            # flat vector -> policy params
+    surrogate: Any          # flat -> E[pi(a|s) / pi_old(a|s) * A], to maximize
+    mean_kl: Any            # flat -> E[KL(pi_old(.|s) || pi(.|s))]; its Hessian at theta is the Fisher matrix
+
+
+def policy_objectives(policy: Params, batch: PolicyBatch, config: Config) -> PolicyObjectives:
+    """The surrogate and the mean KL as functions of the flattened policy parameters, with the old policy (and
+    its log-probabilities) fixed at `policy`."""
+    net = config.net
     theta, unravel = ravel_pytree(policy)
     old_mean, old_log_std = jax.lax.stop_gradient(policy_dist(policy, batch.obs, net))
     old_log_prob = gaussian_log_prob(old_mean, old_log_std, batch.actions)
@@ -76,6 +83,14 @@ def policy_step(policy: Params, batch: PolicyBatch, config: Config) -> tuple[Par
         mean, log_std = policy_dist(unravel(flat), batch.obs, net)
         return masked_mean(gaussian_kl(old_mean, old_log_std, mean, log_std), batch.mask)
 
+    return PolicyObjectives(theta, unravel, surrogate, mean_kl)
+
+
+def policy_step(policy: Params, batch: PolicyBatch, config: Config) -> tuple[Params, dict]:
+    """One TRPO step: natural gradient of the importance-sampled surrogate by conjugate gradient, scaled to the
+    trust region's edge, then a backtracking line search on the true surrogate and KL."""
+    trpo = config.trpo
+    theta, unravel, surrogate, mean_kl = policy_objectives(policy, batch, config)
     gradient = jax.grad(surrogate)(theta)
     fvp = fisher_vector_product(mean_kl, theta, trpo.cg_damping)
     cg = conjugate_gradient(fvp, gradient, trpo.cg_iters)
@@ -90,7 +105,7 @@ def policy_step(policy: Params, batch: PolicyBatch, config: Config) -> tuple[Par
         "step_accepted": search.accepted.astype(jnp.float32), "step_fraction": search.fraction,
         "line_search_steps": search.steps.astype(jnp.float32), "cg_iterations": cg.iterations.astype(jnp.float32),
         "cg_residual": cg.residual_norm,
-        "entropy": masked_mean(gaussian_entropy(old_log_std), batch.mask),
+        "entropy": masked_mean(gaussian_entropy(policy_dist(policy, batch.obs, config.net)[1]), batch.mask),
     }
     return unravel(search.theta), diagnostics
 
