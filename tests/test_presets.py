@@ -65,3 +65,31 @@ def test_rpo_alpha_is_small_where_0_5_collapses(preset):
         assert build_config(env_id, preset=preset, algo="rpo").rpo.alpha == 0.01
     assert build_config("Hopper-v4", preset=preset, algo="rpo").rpo.alpha == 0.5
     assert build_config("Ant-v4", preset=preset, algo="ppo").rpo.alpha == 0.5   # only rpo's table
+
+
+def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
+    """The preset pairs right/left actuators by name, and negates exactly the left joints whose axis makes the same
+    torque produce the un-mirrored motion (checked on the model: a rotation axis mirrors as a pseudovector)."""
+    import os
+
+    import gymnasium
+    import mujoco
+    import numpy as np
+
+    from canter.algos.ppo.symmetry import parse_groups
+
+    xml = os.path.join(os.path.dirname(gymnasium.__file__), "envs/mujoco/assets/humanoidstandup.xml")
+    model = mujoco.MjModel.from_xml_path(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    config = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    reflect = np.diag([1.0, -1.0, 1.0])     # the sagittal plane is y = 0
+    for pair in parse_groups(config.sym.groups, config.sym.negate):
+        # The seed's pairs put the right limb first and the left limb as its mirror.
+        for right, left, sign in zip(pair.first, pair.mirror, pair.signs):
+            right_name, left_name = model.actuator(right).name, model.actuator(left).name
+            assert right_name.startswith("right_") and left_name == "left_" + right_name[len("right_"):]
+            axis_r = data.xaxis[model.actuator(right).trnid[0]]
+            axis_l = data.xaxis[model.actuator(left).trnid[0]]
+            np.testing.assert_allclose(axis_l, sign * -(reflect @ axis_r), atol=1e-6)
+            assert model.actuator(right).gear[0] == model.actuator(left).gear[0]

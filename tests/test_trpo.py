@@ -10,7 +10,7 @@ from canter.algos.trpo.iteration import (PolicyBatch, critic_regression, critic_
                                          policy_step, split_policy)
 from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
 from canter.config import Config, NetConfig, TRPOConfig
-from canter.networks import init_params
+from canter.networks import init_params, value
 
 
 def test_conjugate_gradient_matches_a_direct_solve():
@@ -107,7 +107,10 @@ def test_critic_regression_fits_the_returns():
     returns = obs[:, 0] * 2.0 - obs[:, 1]
     mask = jnp.ones(32).at[5].set(0.0)
     poisoned = returns.at[5].set(1e6)    # a masked row must not pull the fit
-    critic, _, loss = jax.jit(critic_regression, static_argnums=6)(params["critic"], critic_optimizer(config).init(params["critic"]), obs,
-                                        poisoned, mask, jax.random.key(1), config)
+    regression = jax.jit(critic_regression, static_argnums=6)
+    critic, _, loss = regression(params["critic"], critic_optimizer(config).init(params["critic"]), obs, poisoned,
+                                 mask, jax.random.key(1), config)
     initial = float(jnp.mean(jnp.square(returns)))
     assert math.isfinite(float(loss)) and float(loss) < 0.05 * initial
+    fitted = np.asarray(value({"critic": critic}, obs, config.net))
+    assert np.mean(np.square(np.delete(fitted - np.asarray(returns), 5))) < 0.05 * initial

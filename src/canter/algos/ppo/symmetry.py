@@ -18,9 +18,9 @@ from canter.errors import CanterError
 
 
 class MirrorPair(NamedTuple):
-    left: tuple[int, ...]
-    right: tuple[int, ...]
-    signs: tuple[float, ...]   # applied to `right` when means are compared
+    first: tuple[int, ...]     # the indices left of "=" in `a:b=c:d`
+    mirror: tuple[int, ...]    # the indices right of "="
+    signs: tuple[float, ...]   # applied to `mirror` when means are compared
 
 
 def _parse_range(text: str, whole: str) -> tuple[int, ...]:
@@ -40,29 +40,29 @@ def parse_groups(text: str, negate: tuple[int, ...] = ()) -> tuple[MirrorPair, .
     """Parse `sym.groups` (and `sym.negate`) into mirror pairs, or raise a one-line CanterError."""
     pairs: list[MirrorPair] = []
     for item in (p for p in text.split(",") if p.strip()):
-        left_text, sep, right_text = item.partition("=")
+        first_text, sep, mirror_text = item.partition("=")
         if not sep:
-            raise CanterError(f"sym.groups: '{item.strip()}' is not a pair; write left=right, e.g. 3:7=7:11")
-        left, right = _parse_range(left_text, text), _parse_range(right_text, text)
-        if len(left) != len(right):
-            raise CanterError(f"sym.groups: '{item.strip()}' pairs {len(left)} with {len(right)} dimensions; "
+            raise CanterError(f"sym.groups: '{item.strip()}' is not a pair; write a:b=c:d, e.g. 3:7=7:11")
+        first, mirror = _parse_range(first_text, text), _parse_range(mirror_text, text)
+        if len(first) != len(mirror):
+            raise CanterError(f"sym.groups: '{item.strip()}' pairs {len(first)} with {len(mirror)} dimensions; "
                               f"mirrored groups must have equal lengths")
-        pairs.append(MirrorPair(left, right, tuple(-1.0 if i in negate else 1.0 for i in right)))
-    stray = sorted(set(negate) - {i for pair in pairs for i in pair.right})
+        pairs.append(MirrorPair(first, mirror, tuple(-1.0 if i in negate else 1.0 for i in mirror)))
+    stray = sorted(set(negate) - {i for pair in pairs for i in pair.mirror})
     if stray:
         raise CanterError(f"sym.negate: indices {stray} are not on the right-hand side of any sym.groups pair")
     return tuple(pairs)
 
 
 def check_action_range(pairs: tuple[MirrorPair, ...], act_dim: int, algo: str) -> None:
-    top = max((i for pair in pairs for i in pair.left + pair.right), default=-1)
+    top = max((i for pair in pairs for i in pair.first + pair.mirror), default=-1)
     if top >= act_dim:
         raise CanterError(f"sym.groups: index {top} is out of the action range 0..{act_dim - 1} of this env "
                           f"({algo}); fix sym.groups or set sym.coef=0")
 
 
 def symmetric_loss(values, pairs: tuple[MirrorPair, ...], mask, use_signs: bool):
-    """Mean over pairs of the masked MSE between `values[:, left]` and `sign * values[:, right]`.
+    """Mean over pairs of the masked MSE between `values[:, first]` and `sign * values[:, mirror]`.
 
     `values` is [B, act_dim] (policy means, or per-dimension log-probabilities with `use_signs=False`)."""
     import jax.numpy as jnp
@@ -70,9 +70,9 @@ def symmetric_loss(values, pairs: tuple[MirrorPair, ...], mask, use_signs: bool)
     count = jnp.maximum(jnp.sum(mask), 1.0)
     per_pair = []
     for pair in pairs:
-        right = values[:, jnp.array(pair.right)]
+        mirror = values[:, jnp.array(pair.mirror)]
         if use_signs:
-            right = right * jnp.asarray(pair.signs, values.dtype)
-        squared = jnp.square(values[:, jnp.array(pair.left)] - right).mean(axis=-1)
+            mirror = mirror * jnp.asarray(pair.signs, values.dtype)
+        squared = jnp.square(values[:, jnp.array(pair.first)] - mirror).mean(axis=-1)
         per_pair.append(jnp.sum(squared * mask) / count)
     return jnp.mean(jnp.stack(per_pair))
