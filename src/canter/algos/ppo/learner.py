@@ -67,9 +67,10 @@ def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array,
 
         def run(operand):
             params, opt_state = operand
-            permutation_key, loss_key = jax.random.split(epoch_key)
-            permutation = jax.random.permutation(permutation_key, batch_size)
-            steps = (permutation.reshape(num_minibatches, -1), jax.random.split(loss_key, num_minibatches))
+            permutation = jax.random.permutation(epoch_key, batch_size)
+            # A derived key for RPO's shifts, so the minibatch order is the same as before RPO existed.
+            loss_keys = jax.random.split(jax.random.fold_in(epoch_key, 1), num_minibatches)
+            steps = (permutation.reshape(num_minibatches, -1), loss_keys)
             (params, opt_state), diags = jax.lax.scan(minibatch_step, (params, opt_state), steps)
             return params, opt_state, diags
 
