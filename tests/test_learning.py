@@ -35,3 +35,24 @@ def test_variants_balance_the_inverted_pendulum(tmp_path, algo, extra):
     result = train(config)
     score = evaluate(load(result.run_dir), episodes=5, deterministic=True, seed=0)
     assert score.mean >= 900, (algo, score.returns)
+    if config.ppo.objective == "kl_penalty":
+        check_kl_beta_is_adapted_and_checkpointed(result.run_dir, config)
+
+
+def check_kl_beta_is_adapted_and_checkpointed(run_dir, config):
+    import csv
+
+    from canter.algos.ppo.learner import adapt_kl_beta
+    from canter.policy import load_state
+
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    betas = [float(r["kl_beta"]) for r in rows]
+    assert betas[0] == config.ppo.kl_penalty_beta and len(set(betas)) > 1
+    for row, next_beta in zip(rows, betas[1:]):   # each iteration's beta follows the rule from the previous one
+        expected = adapt_kl_beta(np.float32(row["kl_beta"]), np.float32(row["policy_kl"]),
+                                 config.ppo.kl_penalty_target)
+        assert next_beta == pytest.approx(float(expected), rel=1e-4)
+    _, _, state, _ = load_state(run_dir)
+    last = rows[-1]
+    saved = adapt_kl_beta(np.float32(last["kl_beta"]), np.float32(last["policy_kl"]), config.ppo.kl_penalty_target)
+    assert float(state.kl_beta) == pytest.approx(float(saved), rel=1e-4)
