@@ -11,12 +11,13 @@ from canter.errors import CanterError
 
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
+    from canter.config import preset_names
 
     t = sub.add_parser("train", help="train a policy; writes a run folder",
                        description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.")
     t.add_argument("env", nargs="?", help="env id (Hopper-v5) or module:EnvId for a custom Gymnasium env")
     t.add_argument("--algo", default=None, help=f"algorithm: {', '.join(algorithm_names())} (default ppo)")
-    t.add_argument("--preset", default=None, help="preset overlay: fast (default) or cleanrl")
+    t.add_argument("--preset", default=None, help=f"preset overlay: {', '.join(preset_names())} (default fast)")
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
