@@ -83,10 +83,18 @@ def parse_spec(text: str) -> VarySpec:
 
 
 def object_names(model: Any, kind: str) -> list[str]:
+    """Names by index. Unnamed actuators (Gymnasium's Hopper has them) go by the joint they drive; any other unnamed
+    object by `#index`."""
     import mujoco
 
     obj = getattr(mujoco.mjtObj, _OBJ_TYPES[kind])
-    return [mujoco.mj_id2name(model, obj, i) or f"#{i}" for i in range(getattr(model, _COUNTS[kind]))]
+    names = []
+    for i in range(getattr(model, _COUNTS[kind])):
+        name = mujoco.mj_id2name(model, obj, i)
+        if not name and kind == "actuator" and model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
+            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.actuator_trnid[i, 0]))
+        names.append(name or f"#{i}")
+    return names
 
 
 def target_index(model: Any, spec: VarySpec) -> slice | int:
@@ -97,7 +105,7 @@ def target_index(model: Any, spec: VarySpec) -> slice | int:
     names = object_names(model, kind)
     if spec.name not in names:
         raise CanterError(f"--vary: no {kind} named {spec.name!r} in this model; valid {kind} names: "
-                          f"{', '.join(n for n in names if not n.startswith('#'))}")
+                          f"{', '.join(names)}")
     return names.index(spec.name)
 
 
