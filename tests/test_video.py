@@ -81,6 +81,16 @@ def test_dm_control_run_renders_through_dm_control(tmp_path):
     assert_real_video(frames_of("walker.mp4"), 7, 48, 32)
 
 
+def test_every_envpool_dm_control_id_maps_to_a_dm_control_task():
+    suite = pytest.importorskip("dm_control.suite")
+    from envpool.registration import registry
+
+    tasks = {(domain.lower(), task.lower()) for domain, task in suite.ALL_TASKS}
+    ids = [env_id for env_id, entry in registry.specs.items() if entry[0].endswith(".dmc")]
+    assert len(ids) > 40 and "WalkerWalk-v1" in ids
+    assert [env_id for env_id in ids if tuple(map(str.lower, video.dmc_task(env_id))) not in tasks] == []
+
+
 def test_video_every_during_training(tmp_path):
     from canter.config import build_config
     from canter.trainer import train

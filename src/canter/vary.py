@@ -55,9 +55,10 @@ class VarySpec:
 
     @property
     def axis_label(self) -> str:
-        what = PARAMS[self.param].label
-        return f"{self.name} {what} scale" if self.name else f"{what} scale (all)" if PARAMS[self.param].kind \
-            else f"{what} scale"
+        param = PARAMS[self.param]
+        if param.kind is None:
+            return f"{param.label} scale"
+        return f"{self.name} {param.label} scale" if self.name else f"{param.label} scale (every {param.kind})"
 
 
 def parse_spec(text: str) -> VarySpec:

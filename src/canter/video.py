@@ -33,6 +33,7 @@ from canter.errors import CanterError
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
+_PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 _FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
 
 
@@ -41,7 +42,6 @@ def _quiet_fork() -> Iterator[None]:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=_FORK_WARNING, category=RuntimeWarning)
         yield
-_PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 
 
 # ------------------------------------------------------------------------------------------------------ OpenGL
@@ -175,7 +175,11 @@ class _DMControlPlayer:
         except ImportError:
             raise CanterError("rendering a DM Control run needs dm_control: pip install 'dm_control==1.0.38' (the "
                               "last release that works with the pinned mujoco 3.6.0)") from None
-        self._suite, self._domain, self._task = suite, domain, task
+        by_lower = {(d.lower(), t.lower()): (d, t) for d, t in suite.ALL_TASKS}  # EnvPool spells humanoid_CMU
+        if (domain, task.lower()) not in by_lower:
+            raise CanterError(f"dm_control has no task {domain}/{task} to replay this run in")
+        self._suite = suite
+        self._domain, self._task = by_lower[(domain, task.lower())]
         self.width, self.height = width, height
         self.camera: int | str = int(camera) if camera is not None and camera.isdigit() else (camera or 0)
         self.env = None
@@ -284,14 +288,14 @@ def record_video(run_dir: str | Path, out_path: str | Path, episodes: int = 1, w
     player = (_DMControlPlayer(*task, width, height, camera) if task
               else _GymnasiumPlayer(policy.facts.env_id, width, height, camera))
     try:
-        writer = _AtomicVideo(out, fps)
-        try:
-            with _quiet_fork():  # imageio starts ffmpeg at the first frame
+        with _quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
+            writer = _AtomicVideo(out, fps)
+            try:
                 returns = [player.episode(policy, seed + i, max_steps, writer.append) for i in range(episodes)]
                 writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
+            except BaseException:
+                writer.abort()
+                raise
     finally:
         player.close()
     return returns
