@@ -130,6 +130,24 @@ def train_seeds(config: Config, seeds: list[int], *, quiet: bool = True,
     return _train_group(configs, [None] * len(seeds), list(run_dirs or [None] * len(seeds)), quiet)
 
 
+def resume_seeds(run_dirs: list[str | Path], total_steps: int | None = None, *,
+                 quiet: bool = True) -> list[RunResult]:
+    """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
+    (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
+    would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
+    configs = [resume_config(Path(d), total_steps) for d in run_dirs]
+    seeds = [c.run.seed for c in configs]
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct "
+                          f"seeds")
+    reference = replace(configs[0].run, seed=0)
+    for run_dir, config in zip(run_dirs, configs):
+        if replace(config, run=replace(config.run, seed=0)) != replace(configs[0], run=reference):
+            raise CanterError(f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
+                              f"folders with different configs one at a time")
+    return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
+
+
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
     """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap."""
     from canter.algos import get_algorithm
