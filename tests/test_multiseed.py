@@ -1,5 +1,6 @@
 """Several seeds in one vmapped program (canter.seedgroup, trainer.train_seeds): the env split, seed-for-seed
-equality with single-seed runs (seed 1 of [0, 1, 2] against seed 1 alone), the run folders, group resume, signals and the --seeds flag.
+equality with single-seed runs (seed 1 of [0, 1, 2] against seed 1 alone), the run folders, group resume,
+signals and the --seeds flag.
 
 Tolerance. A seed trained in a group runs the same operations as alone, but XLA compiles the vmapped program with
 batched matmuls and reductions, so sums may be reassociated. Measured on exactly these tiny runs (seed 1 in

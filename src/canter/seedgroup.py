@@ -20,7 +20,6 @@ import jax.numpy as jnp
 import numpy as np
 
 
-
 def group_step(env_step: Callable[[Any, Any], tuple[Any, Any]], group_size: int) -> Callable[[Any, Any], Any]:
     """An env step for one seed's [N, A] actions that, under `jax.vmap` over group_size seeds, steps the shared
     env of group_size * N slots once."""
