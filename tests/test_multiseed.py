@@ -224,6 +224,32 @@ def test_sigterm_stops_every_seed_with_a_checkpoint(tmp_path):
         assert (r.run_dir / "summary.json").is_file()
 
 
+def test_non_finite_seeds_stop_with_their_last_good_checkpoint(tmp_path):
+    config = _config(tmp_path, "canter_test_envs:NaNAfter-v0", 50_000,
+                     ["env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"])
+    with pytest.raises(CanterError, match=r"seed 0: non-finite .* after step \d+.*; seed 1: non-finite"):
+        train_seeds(config, [0, 1])
+    folders = sorted(tmp_path.iterdir())
+    assert len(folders) == 2
+    for folder in folders:
+        _, _, state, _ = load_state(folder)
+        assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
+        assert not (folder / "summary.json").exists()
+
+
+def test_group_step_keeps_non_finite_actions_out_of_the_env():
+    seen = []
+
+    def env_step(counter, action):
+        seen.append(action)
+        return counter, StepOutput(action[:, :1], action[:, 0], action[:, 0] > 0, action[:, 0] > 0, {})
+
+    step = group_step(env_step, 2)
+    actions = jnp.array([[[jnp.nan, 1.0]], [[0.5, -2.0]]])
+    _, out = jax.vmap(step)(stack([jnp.int32(0)] * 2), actions)
+    assert out.obs.tolist() == [[[0.0]], [[0.5]]] and out.reward.tolist() == [[0.0], [0.5]]
+
+
 def test_bad_seed_lists_are_refused(tmp_path):
     config = _config(tmp_path)
     with pytest.raises(CanterError, match="no seeds"):
