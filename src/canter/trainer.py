@@ -165,7 +165,10 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
     spec = env.spec
     total = config.run.total_steps
     carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
-    iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step))
+    iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step),
+                        donate_argnums=(0,) if algorithm.donate_state else ())
+    if algorithm.donate_state:
+        state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
     compile_start = time.perf_counter()
     compiled = iteration.lower(state, carry, jnp.float32(1.0)).compile()
     compile_seconds = time.perf_counter() - compile_start
@@ -184,7 +187,8 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
 
     def save(train_state: Any, step: int) -> None:
         header = dict(header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
-        checkpoint.save(checkpoint.checkpoint_path(out, step), train_state, header)
+        checkpoint.save(checkpoint.checkpoint_path(out, step), train_state, header,
+                        compress=config.run.compress_checkpoints)
         checkpoint.prune(out, config.run.keep_checkpoints)
 
     try:
@@ -198,7 +202,7 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
                 run_seconds += elapsed
                 steps = int(metrics["steps"])
                 if not bool(metrics["finite"]):
-                    save(state, global_step)
+                    save(new_state if algorithm.donate_state else state, global_step)
                     raise CanterError(f"non-finite observation, reward or parameter during the iteration after step "
                                       f"{global_step}; stopped, last good state saved in {out / 'checkpoints'}")
                 state = new_state
