@@ -25,7 +25,8 @@ def init_actor(key: jax.Array, obs_dim: int, out_dim: int, hidden: tuple[int, ..
 def init_critics(key: jax.Array, obs_dim: int, act_dim: int, hidden: tuple[int, ...], count: int) -> list:
     """`count` independent Q networks stacked along a leading axis of every leaf."""
     keys = jax.random.split(key, count)
-    return jax.vmap(lambda k: init_mlp(k, [obs_dim + act_dim, *hidden, 1], 1.0, ortho=False))(keys)
+    # Jitted: an eager vmap dispatches (and compiles) every initializer op separately, which takes seconds.
+    return jax.jit(jax.vmap(lambda k: init_mlp(k, [obs_dim + act_dim, *hidden, 1], 1.0, ortho=False)))(keys)
 
 
 def deterministic_action(actor: list, obs: jnp.ndarray, activation: str) -> jnp.ndarray:
