@@ -79,10 +79,10 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         assert (ou[env] == 0).all() == bool(last_done[env])
 
 
-def _config(algo, tmp_path, total, extra=()):
+def _config(algo, out_dir, total, extra=()):
     sets = [f"{algo}.hidden=64,64", f"{algo}.learning_starts=1000", f"{algo}.steps_per_call=500",
-            f"{algo}.buffer_size=20000",
-            "run.tensorboard=false", f"run.out_dir={tmp_path}", "run.checkpoint_every=0"]
+            f"{algo}.buffer_size=20000", "run.compress_checkpoints=true",
+            "run.tensorboard=false", f"run.out_dir={out_dir}", "run.checkpoint_every=0"]
     return build_config("Pendulum-v1", algo=algo, seed=0, total_steps=total, sets=sets + list(extra))
 
 
@@ -90,13 +90,25 @@ def _config(algo, tmp_path, total, extra=()):
 LEARNING = {"td3": (8000, -400.0), "ddpg": (6000, -400.0), "sac": (6000, -400.0)}
 
 
+@pytest.fixture(scope="module")
+def learned(tmp_path_factory):
+    """One short Pendulum run per algorithm, trained on first use and shared by the tests below."""
+    runs = {}
+
+    def get(algo):
+        if algo not in runs:
+            runs[algo] = train(_config(algo, tmp_path_factory.mktemp(algo), LEARNING[algo][0]))
+        return runs[algo]
+
+    return get
+
+
 @pytest.mark.parametrize("algo", sorted(LEARNING))
-def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, tmp_path):
-    total, threshold = LEARNING[algo]
-    result = train(_config(algo, tmp_path, total))
+def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
+    result = learned(algo)
     policy = load(result.run_dir)
     score = evaluate(policy, episodes=10, deterministic=True, seed=0)
-    assert score.mean >= threshold, (algo, score.returns)
+    assert score.mean >= LEARNING[algo][1], (algo, score.returns)
 
     obs = np.random.default_rng(0).normal(size=(16, 3)).astype(np.float32)
     first = policy(obs)
@@ -118,24 +130,23 @@ def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, tmp_path):
         assert not np.allclose(policy(obs, deterministic=False, seed=1), first)
 
 
-def test_resume_restores_the_replay_buffer_and_is_deterministic(tmp_path):
-    config = _config("td3", tmp_path, 2000, ["td3.hidden=16,16", "run.compress_checkpoints=true"])
-    first = train(config)
-    _, _, before, _ = load_state(first.run_dir)
-    assert int(before.buffer.size) == first.global_step and int(before.learner.updates) > 0
-    copy = tmp_path / "copy"
-    shutil.copytree(first.run_dir, copy)
-    r1 = train(resume_config(first.run_dir, 3000), resume=first.run_dir)
-    r2 = train(resume_config(copy, 3000), resume=copy)
-    _, _, s1, _ = load_state(r1.run_dir)
-    _, _, s2, _ = load_state(r2.run_dir)
+def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_path):
+    source = learned("td3").run_dir       # its checkpoint is compressed (run.compress_checkpoints)
+    _, _, before, header = load_state(source)
+    steps = int(header["global_step"])
+    assert int(before.buffer.size) == steps and int(before.learner.updates) > 0
+    copies = [tmp_path / "a", tmp_path / "b"]
+    for copy in copies:
+        shutil.copytree(source, copy)
+    results = [train(resume_config(copy, steps + 1000), resume=copy) for copy in copies]
+    s1, s2 = (load_state(r.run_dir)[2] for r in results)
     same = [np.array_equal(np.asarray(a), np.asarray(b))
             for a, b in zip(jax.tree_util.tree_leaves(s1), jax.tree_util.tree_leaves(s2))]
     assert all(same), "two resumes of one checkpoint must be identical"
-    assert int(s1.buffer.size) == r1.global_step >= 3000
+    assert int(s1.buffer.size) == results[0].global_step >= steps + 1000
+    assert int(s1.learner.updates) > int(before.learner.updates)
     # The transitions stored before the checkpoint are still there after resuming.
-    n = int(before.buffer.size)
-    np.testing.assert_array_equal(np.asarray(s1.buffer.data.obs)[:n], np.asarray(before.buffer.data.obs)[:n])
+    np.testing.assert_array_equal(np.asarray(s1.buffer.data.obs)[:steps], np.asarray(before.buffer.data.obs)[:steps])
 
 
 def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_path):

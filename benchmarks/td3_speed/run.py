@@ -19,6 +19,7 @@ import csv
 import importlib.util
 import json
 import os
+import resource
 import sys
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -55,6 +56,7 @@ class Row:
     compile: float | None = None
     train_return: float | None = None
     load_before: float = 0.0
+    cpu_seconds: float | None = None      # user + sys of the whole training process
     extra: dict = field(default_factory=dict)
 
     def projected_minutes(self) -> float | None:
@@ -157,16 +159,17 @@ def section(rows: list[Row], args: argparse.Namespace, started: datetime) -> str
              "- 1-minute load average before each run: " + ", ".join(f"{r.tool} {r.load_before:.2f}" for r in rows)
              + " (above ~0.5 means other processes shared the 2 cores, and absolute numbers are pessimistic)",
              "", "| tool | steps | process wall (s) | SPS (all) | warm-up SPS | steady SPS (after learning_starts) | "
-             "projected 1M time (min) | compile (s) | train return (last 20 eps) | steady SPS vs SB3 |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "projected 1M time (min) | compile (s) | process CPU time (s) | train return (last 20 eps) | "
+             "steady SPS vs SB3 |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if not r.ok:
-            lines.append(f"| {r.tool} | failed: {r.error} | | | | | | | | |")
+            lines.append(f"| {r.tool} | failed: {r.error} | | | | | | | | | |")
             continue
         ratio = f"{r.steady_sps / sb3.steady_sps:.2f}×" if sb3 and sb3.steady_sps and r.steady_sps else "—"
         lines.append(f"| {r.tool} | {_f(r.steps, ',')} | {_f(r.process_wall)} | {_f(r.sps, ',.0f')} | "
                      f"{_f(r.warmup_sps, ',.0f')} | {_f(r.steady_sps, ',.0f')} | {_f(r.projected_minutes())} | "
-                     f"{_f(r.compile)} | {_f(r.train_return)} | {ratio} |")
+                     f"{_f(r.compile)} | {_f(r.cpu_seconds)} | {_f(r.train_return)} | {ratio} |")
     return "\n".join(lines) + "\n"
 
 
@@ -191,8 +194,11 @@ def main(argv: list[str] | None = None) -> int:
             continue
         print(f"[{tool}]", flush=True)
         load = os.getloadavg()[0]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         row = runner(args, out)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
         row.load_before = load
+        row.cpu_seconds = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
         rows.append(row)
     text = section(rows, args, started)
     print(text)
