@@ -74,3 +74,17 @@ def test_prune_keeps_newest(tmp_path):
         checkpoint.latest(empty)
     with pytest.raises(CanterError, match="run folder not found"):
         checkpoint.latest(tmp_path / "missing")
+
+
+def test_compressed_checkpoint_reads_back_the_same_and_is_smaller(tmp_path):
+    ckpt = checkpoint
+    state = {"buffer": np.zeros((5000, 40), np.float32), "w": np.arange(6, dtype=np.float32)}
+    plain, packed = tmp_path / "plain" / "ckpt_000000000001.npz", tmp_path / "packed" / "ckpt_000000000001.npz"
+    ckpt.save(plain, state, {"global_step": 1})
+    ckpt.save(packed, state, {"global_step": 1}, compress=True)
+    assert packed.stat().st_size < plain.stat().st_size / 10
+    for path in (plain, packed):
+        arrays, header = ckpt.read(path)
+        restored = ckpt.restore(state, arrays, path)
+        np.testing.assert_array_equal(restored["w"], state["w"])
+        np.testing.assert_array_equal(restored["buffer"], state["buffer"])

@@ -58,14 +58,17 @@ def atomic_write_bytes(path: Path, writer) -> None:
         raise
 
 
-def save(path: Path, state: Any, header: dict[str, Any]) -> None:
+def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False) -> None:
+    """Write a checkpoint; `compress` deflates the arrays (slower to write, much smaller for a part-filled replay
+    buffer). Both forms are read the same way."""
     leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(state))[0]
     arrays = {_path_name(p): np.asarray(v) for p, v in leaves}
     header = dict(header, format_version=FORMAT_VERSION, leaves=[_path_name(p) for p, _ in leaves])
     header["sha256"] = _digest(arrays, header)
     payload = {f"leaf:{k}": v for k, v in arrays.items()}
     payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
-    atomic_write_bytes(Path(path), lambda f: np.savez(f, **payload))
+    writer = np.savez_compressed if compress else np.savez
+    atomic_write_bytes(Path(path), lambda f: writer(f, **payload))
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

@@ -117,18 +117,55 @@ class TRPOConfig:
 
 
 @dataclass(frozen=True)
-class TD3Config:
-    """td3: filled in by the off-policy algorithms."""
+class OffPolicyConfig:
+    """Keys shared by td3, ddpg and sac (each section has its own copy, with its own defaults). The networks are
+    set here rather than in `net.*`, whose defaults and presets are PPO's."""
+    buffer_size: int = _doc("Replay buffer capacity in transitions (kept on the JAX device).", default=1_000_000)
+    batch_size: int = _doc("Transitions per gradient step.", default=256)
+    learning_starts: int = _doc("Env steps of uniformly random actions before the first update.", default=25_000)
+    train_freq: int = _doc("Update after every this many vector-env steps.", default=1)
+    gradient_steps: int = _doc("Gradient steps per update.", default=1)
+    policy_delay: int = _doc("Update the actor (and the targets, for td3/ddpg) every this many gradient steps.",
+                             default=1)
+    tau: float = _doc("Polyak coefficient of the target networks: target <- tau * online + (1 - tau) * target.",
+                      default=0.005)
+    gamma: float = _doc("Discount factor.", default=0.99)
+    actor_lr: float = _doc("Adam learning rate of the actor.", default=3e-4)
+    critic_lr: float = _doc("Adam learning rate of the critic(s).", default=3e-4)
+    hidden: tuple[int, ...] = _doc("Hidden layer sizes of the actor and of each critic.", default=(256, 256))
+    activation: str = _doc("Hidden activation: relu, tanh or elu.", default="relu")
+    noise: str = _doc("Exploration noise: gaussian, ou (Ornstein-Uhlenbeck, per env, reset at episode end) or "
+                      "none. Ignored by sac.", default="gaussian")
+    noise_std: float = _doc("Exploration noise std (OU: sigma), as a fraction of the action half-range.",
+                            default=0.1)
+    ou_theta: float = _doc("OU mean-reversion rate theta.", default=0.15)
+    ou_dt: float = _doc("OU time step dt.", default=0.01)
+    steps_per_call: int = _doc("Env steps per jitted call of the training loop (the logging/checkpoint unit).",
+                               default=1000)
 
 
 @dataclass(frozen=True)
-class DDPGConfig:
-    """ddpg: filled in by the off-policy algorithms."""
+class TD3Config(OffPolicyConfig):
+    policy_delay: int = _doc("Update the actor and the targets every this many gradient steps.", default=2)
+    target_noise: float = _doc("Std of the target policy smoothing noise (fraction of the action half-range).",
+                               default=0.2)
+    noise_clip: float = _doc("Clip of the target policy smoothing noise.", default=0.5)
 
 
 @dataclass(frozen=True)
-class SACConfig:
-    """sac: filled in by the off-policy algorithms."""
+class DDPGConfig(OffPolicyConfig):
+    """ddpg: one critic, no target smoothing, actor updated every step by default."""
+
+
+@dataclass(frozen=True)
+class SACConfig(OffPolicyConfig):
+    learning_starts: int = _doc("Env steps of uniformly random actions before the first update.", default=5_000)
+    critic_lr: float = _doc("Adam learning rate of the critics.", default=1e-3)
+    noise: str = _doc("Unused by sac (it explores by sampling its policy); must be none.", default="none")
+    autotune: bool = _doc("Tune the entropy temperature alpha towards target_entropy.", default=True)
+    alpha: float = _doc("Initial (or, without autotune, fixed) entropy temperature.", default=1.0)
+    alpha_lr: float = _doc("Adam learning rate of log alpha.", default=1e-3)
+    target_entropy: float | None = _doc("Target policy entropy; none means -act_dim.", default=None)
 
 
 @dataclass(frozen=True)
@@ -142,6 +179,8 @@ class RunConfig:
     checkpoint_every: int = _doc("Write a checkpoint every this many env steps (0: only at the end).",
                                  default=200_000)
     keep_checkpoints: int = _doc("Keep the newest K checkpoints.", default=3)
+    compress_checkpoints: bool = _doc("Deflate checkpoint arrays (worth it for off-policy replay buffers).",
+                                      default=False)
     stop_at_return: float | None = _doc("Stop once the mean return of the last 20 training episodes reaches this.",
                                         default=None)
     max_minutes: float | None = _doc("Stop cleanly, with a checkpoint, after this many wall minutes.", default=None)
@@ -423,7 +462,10 @@ def validate(config: Config) -> None:
     check_algorithm_name(run.algo)
     need(ppo.n_steps >= 1, f"ppo.n_steps must be >= 1, got {ppo.n_steps}")
     need(ppo.minibatch_size >= 1, f"ppo.minibatch_size must be >= 1, got {ppo.minibatch_size}")
-    need(config.batch_size % ppo.minibatch_size == 0,
+    from canter.algos import get_algorithm
+
+    # The rollout batch only exists for on-policy algorithms (off-policy presets use 1 env).
+    need(not get_algorithm(run.algo).on_policy or config.batch_size % ppo.minibatch_size == 0,
          f"ppo.minibatch_size {ppo.minibatch_size} does not divide the batch {config.batch_size} "
          f"(ppo.n_steps {ppo.n_steps} x env.num_envs {env.num_envs}); pick a divisor")
     need(ppo.epochs >= 1, f"ppo.epochs must be >= 1, got {ppo.epochs}")
@@ -439,6 +481,8 @@ def validate(config: Config) -> None:
     for key in ("ent_coef", "vf_coef"):
         need(getattr(ppo, key) >= 0, f"ppo.{key} must be >= 0, got {getattr(ppo, key)}")
     _validate_onpolicy_variants(config)
+    for name in ("td3", "ddpg", "sac"):
+        _validate_offpolicy(name, getattr(config, name), need)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
@@ -481,6 +525,34 @@ def _validate_onpolicy_variants(config: Config) -> None:
     need(config.run.algo != "trpo" or config.batch_size % trpo.critic_minibatch_size == 0,
          f"trpo.critic_minibatch_size {trpo.critic_minibatch_size} does not divide the batch {config.batch_size} "
          f"(ppo.n_steps x env.num_envs); pick a divisor")
+def _validate_offpolicy(name: str, section: OffPolicyConfig, need: Any) -> None:
+    s = section
+    for key in ("buffer_size", "batch_size", "train_freq", "gradient_steps", "policy_delay", "steps_per_call"):
+        need(getattr(s, key) >= 1, f"{name}.{key} must be >= 1, got {getattr(s, key)}")
+    need(s.buffer_size >= s.batch_size, f"{name}.buffer_size {s.buffer_size} is smaller than {name}.batch_size "
+                                        f"{s.batch_size}; raise the buffer or lower the batch")
+    need(s.learning_starts >= 0, f"{name}.learning_starts must be >= 0, got {s.learning_starts}")
+    need(0 < s.tau <= 1, f"{name}.tau must be in (0, 1], got {s.tau}")
+    need(0 < s.gamma <= 1, f"{name}.gamma must be in (0, 1], got {s.gamma}")
+    for key in ("actor_lr", "critic_lr", "ou_theta", "ou_dt"):
+        value = getattr(s, key)
+        need(math.isfinite(value) and value > 0, f"{name}.{key} must be > 0, got {value}")
+    need(len(s.hidden) >= 1 and all(h > 0 for h in s.hidden),
+         f"{name}.hidden must be positive sizes such as 256,256, got {s.hidden}")
+    need(s.activation in ("tanh", "relu", "elu"), f"{name}.activation must be tanh, relu or elu, got '{s.activation}'")
+    need(s.noise in ("gaussian", "ou", "none"), f"{name}.noise must be gaussian, ou or none, got '{s.noise}'")
+    need(math.isfinite(s.noise_std) and s.noise_std >= 0, f"{name}.noise_std must be >= 0, got {s.noise_std}")
+    if isinstance(s, TD3Config):
+        need(s.target_noise >= 0, f"td3.target_noise must be >= 0, got {s.target_noise}")
+        need(s.noise_clip >= 0, f"td3.noise_clip must be >= 0, got {s.noise_clip}")
+    if isinstance(s, SACConfig):
+        need(s.noise == "none", f"sac.noise must be none (sac explores by sampling its policy), got '{s.noise}'")
+        for key in ("alpha", "alpha_lr"):
+            value = getattr(s, key)
+            need(math.isfinite(value) and value > 0, f"sac.{key} must be > 0, got {value}")
+        if s.target_entropy is not None:
+            need(math.isfinite(s.target_entropy), f"sac.target_entropy must be finite or none, "
+                                                  f"got {s.target_entropy}")
 
 
 # ------------------------------------------------------------------------------------------------- TOML round trip

@@ -234,7 +234,8 @@ class _SeedRun:
 
     def save(self, train_state: Any, step: int) -> None:
         header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
-        checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header)
+        checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header,
+                        compress=self.config.run.compress_checkpoints)
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
     def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> None:
@@ -314,10 +315,11 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
     group = len(configs)
     algorithm = get_algorithm(config.run.algo)
     total = config.run.total_steps
+    donate = (0,) if algorithm.donate_state else ()
     if group == 1:
         state = states[0]
         carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
-        iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step))
+        iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
         pick = lambda tree, i: tree  # noqa: E731
     else:
         from canter import seedgroup
@@ -327,8 +329,12 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
         carry = seedgroup.stack([init_env_carry(handle, obs, spec.info_keys)
                                  for obs in seedgroup.split_first_obs(env.reset(), group)])
         iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step,
-                                                                                                  group))))
+                                                                                                  group))),
+                            donate_argnums=donate)
         pick = seedgroup.unstack
+
+    if algorithm.donate_state:
+        state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
 
     def fractions(runs: list[_SeedRun]) -> jnp.ndarray:
         values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
@@ -356,7 +362,8 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
                         continue
                     seed_metrics = pick(metrics, i)
                     if not bool(seed_metrics["finite"]):
-                        run.fail(pick(state, i))
+                        # A donated state is gone; such an algorithm returns the last good state itself.
+                        run.fail(pick(new_state if algorithm.donate_state else state, i))
                         continue
                     run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
                     steps += int(seed_metrics["steps"])

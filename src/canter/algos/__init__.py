@@ -16,6 +16,7 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
   to the action bounds; `policy_params(state)` picks what it needs out of the train state.
 - `export_actor(config, state, spec)` describes the deterministic actor as plain arrays (`ExportedActor`), for ONNX and
   npz export.
+- `donate_state`: see the field's comment.
 - `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts.
   `spec` is None when only the config is known.
 
@@ -41,6 +42,9 @@ REGISTRY: dict[str, tuple[str, str]] = {
     "ppo": ("canter.algos.ppo", "Proximal Policy Optimization (clipped, or adaptive KL penalty)"),
     "rpo": ("canter.algos.ppo", "Robust Policy Optimization: PPO with a uniformly shifted mean in the update"),
     "trpo": ("canter.algos.trpo", "Trust Region Policy Optimization (conjugate gradient, line search)"),
+    "td3": ("canter.algos.offpolicy", "Twin Delayed DDPG (off-policy, replay buffer)"),
+    "ddpg": ("canter.algos.offpolicy", "Deep Deterministic Policy Gradient (off-policy, replay buffer)"),
+    "sac": ("canter.algos.offpolicy", "Soft Actor-Critic with automatic entropy tuning (off-policy)"),
 }
 
 
@@ -74,6 +78,10 @@ class Algorithm:
     policy_params: Callable[[Any], Any]
     export_actor: Callable[..., ExportedActor]
     validate: Callable[..., None]
+    # Donate the train state to jit so large arrays (a replay buffer) are updated in place, not copied per call.
+    # The input state is then invalid after the call, so an iteration reporting `finite` False must return the
+    # last good state itself: the trainer checkpoints the returned state in that case.
+    donate_state: bool = False
 
 
 def algorithm_names() -> list[str]:

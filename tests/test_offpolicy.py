@@ -1,0 +1,193 @@
+"""td3, ddpg and sac end to end: what the iteration stores, learning, resume, loading and bad input."""
+
+import shutil
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from canter.algos import get_algorithm
+from canter.algos.offpolicy.iteration import init_train_state, make_iteration
+from canter.cli import main
+from canter.config import build_config
+from canter.envs.base import StepOutput
+from canter.errors import CanterError
+from canter.evaluate import evaluate
+from canter.policy import load, load_state
+from canter.rollout import init_env_carry
+from canter.trainer import resume_config, train
+
+# Env 0 terminates when its counter reaches 3; env 1 is truncated (time limit) at 4.
+TERMINATE_AT = (3, 100)
+TRUNCATE_AT = (100, 4)
+
+
+def counter_env_step(state, action):
+    """A pure-JAX env with EnvPool's semantics: obs = (counter, env index), reward = counter; the step after a done
+    is an autoreset step (reward 0, flags false) that returns the reset observation."""
+    t, needs_reset = state
+    t = jnp.where(needs_reset, 0, t + 1)
+    terminated = ~needs_reset & (t >= jnp.array(TERMINATE_AT))
+    truncated = ~needs_reset & (t >= jnp.array(TRUNCATE_AT))
+    obs = jnp.stack([t.astype(jnp.float32), jnp.arange(2, dtype=jnp.float32)], axis=-1)
+    reward = jnp.where(needs_reset, 0.0, t.astype(jnp.float32))
+    return (t, terminated | truncated), StepOutput(obs, reward, terminated, truncated, {})
+
+
+def reference_transitions(vector_steps):
+    """(obs counter, env, reward, next counter, terminated) in insertion order, by plain simulation."""
+    t, needs_reset, stored = [0, 0], [False, False], []
+    for _ in range(vector_steps):
+        for env in range(2):
+            if needs_reset[env]:
+                t[env], needs_reset[env] = 0, False
+                continue
+            new = t[env] + 1
+            term, trunc = new >= TERMINATE_AT[env], new >= TRUNCATE_AT[env]
+            stored.append((t[env], env, new, new, float(term)))
+            t[env], needs_reset[env] = new, term or trunc
+    return stored
+
+
+def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_only():
+    config = build_config("Pendulum-v1", algo="td3", sets=[
+        "env.num_envs=2", "td3.steps_per_call=20", "td3.learning_starts=1000000", "td3.buffer_size=64",
+        "td3.batch_size=4", "td3.hidden=4", "td3.noise=ou"])
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    state = init_train_state(config, 2, 1)
+    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
+    iteration = jax.jit(make_iteration(config, spec, counter_env_step))
+    state, carry, metrics = iteration(state, carry, jnp.float32(1.0))
+
+    expected = reference_transitions(10)
+    size = int(state.buffer.size)
+    assert size == len(expected) == int(metrics["steps"]) == int(state.global_step)
+    data = jax.device_get(state.buffer.data)
+    got = [(int(data.obs[i, 0]), int(data.obs[i, 1]), int(data.reward[i]), int(data.next_obs[i, 0]),
+            float(data.terminated[i])) for i in range(size)]
+    assert got == expected
+    # The truncated step stores its true final observation (4) and does not stop bootstrapping.
+    assert (3, 1, 4, 4, 0.0) in got and (2, 0, 3, 3, 1.0) in got
+    assert np.all(np.abs(data.action[:size]) <= 1.0)
+    assert bool(metrics["finite"]) and int(metrics["gradient_steps"]) == 0
+    # An env whose episode ended on the last step restarts its OU noise at zero; the other's keeps running.
+    last_done = np.asarray(metrics["finished"])[-1]
+    ou = np.asarray(state.ou_state)
+    for env in range(2):
+        assert (ou[env] == 0).all() == bool(last_done[env])
+
+
+def _config(algo, out_dir, total, extra=()):
+    sets = [f"{algo}.hidden=64,64", f"{algo}.learning_starts=1000", f"{algo}.steps_per_call=500",
+            f"{algo}.buffer_size=20000", "run.compress_checkpoints=true",
+            "run.tensorboard=false", f"run.out_dir={out_dir}", "run.checkpoint_every=0"]
+    return build_config("Pendulum-v1", algo=algo, seed=0, total_steps=total, sets=sets + list(extra))
+
+
+# Pendulum-v1 (EnvPool, float32 actions): a random policy scores about -1200; -400 means it swings up and holds.
+LEARNING = {"td3": (8000, -400.0), "ddpg": (6000, -400.0), "sac": (6000, -400.0)}
+
+
+@pytest.fixture(scope="module")
+def learned(tmp_path_factory):
+    """One short Pendulum run per algorithm, trained on first use and shared by the tests below."""
+    runs = {}
+
+    def get(algo):
+        if algo not in runs:
+            runs[algo] = train(_config(algo, tmp_path_factory.mktemp(algo), LEARNING[algo][0]))
+        return runs[algo]
+
+    return get
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNING))
+def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
+    result = learned(algo)
+    policy = load(result.run_dir)
+    score = evaluate(policy, episodes=10, deterministic=True, seed=0)
+    assert score.mean >= LEARNING[algo][1], (algo, score.returns)
+
+    obs = np.random.default_rng(0).normal(size=(16, 3)).astype(np.float32)
+    first = policy(obs)
+    np.testing.assert_array_equal(first, policy(obs))
+    assert first.shape == (16, 1) and np.all(np.abs(first) <= 2.0)
+    # The exported actor (dense layers, tanh, affine map onto the bounds) computes the same actions.
+    config, facts, state, _ = load_state(result.run_dir)
+    exported = get_algorithm(algo).export_actor(config, state, facts)
+    assert exported.squash and exported.output_slice == 1 and exported.activation == "relu"
+    x = obs
+    for i, (w, b) in enumerate(zip(exported.weights, exported.biases)):
+        x = x @ w + b
+        if i < len(exported.weights) - 1:
+            x = np.maximum(x, 0.0)
+    x = np.tanh(x[:, :exported.output_slice])
+    low, high = exported.action_low, exported.action_high
+    np.testing.assert_allclose(first, np.clip(low + (x + 1) / 2 * (high - low), low, high), rtol=1e-4, atol=1e-5)
+    if algo == "sac":
+        assert not np.allclose(policy(obs, deterministic=False, seed=1), first)
+
+
+def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_path):
+    source = learned("td3").run_dir       # its checkpoint is compressed (run.compress_checkpoints)
+    _, _, before, header = load_state(source)
+    steps = int(header["global_step"])
+    assert int(before.buffer.size) == steps and int(before.learner.updates) > 0
+    copies = [tmp_path / "a", tmp_path / "b"]
+    for copy in copies:
+        shutil.copytree(source, copy)
+    results = [train(resume_config(copy, steps + 1000), resume=copy) for copy in copies]
+    s1, s2 = (load_state(r.run_dir)[2] for r in results)
+    same = [np.array_equal(np.asarray(a), np.asarray(b))
+            for a, b in zip(jax.tree_util.tree_leaves(s1), jax.tree_util.tree_leaves(s2))]
+    assert all(same), "two resumes of one checkpoint must be identical"
+    assert int(s1.buffer.size) == results[0].global_step >= steps + 1000
+    assert int(s1.learner.updates) > int(before.learner.updates)
+    # The transitions stored before the checkpoint are still there after resuming.
+    np.testing.assert_array_equal(np.asarray(s1.buffer.data.obs)[:steps], np.asarray(before.buffer.data.obs)[:steps])
+
+
+def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_path):
+    config = build_config("canter_test_envs:NaNAfter-v0", algo="td3", total_steps=50_000, sets=[
+        "td3.hidden=8", "td3.learning_starts=50", "td3.steps_per_call=100", "td3.batch_size=16",
+        "run.tensorboard=false", f"run.out_dir={tmp_path}"])
+    with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
+        train(config)
+    run_dir = next(tmp_path.iterdir())
+    _, _, state, header = load_state(run_dir)
+    assert int(header["global_step"]) == int(state.global_step) < 300
+    leaves = jax.tree_util.tree_leaves(state)
+    assert all(np.isfinite(np.asarray(x)).all() for x in leaves if np.issubdtype(np.asarray(x).dtype, np.floating))
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["td3.buffer_size=100", "td3.batch_size=256"], "td3.buffer_size 100 is smaller than td3.batch_size 256"),
+    (["sac.tau=1.5"], r"sac.tau must be in \(0, 1\]"),
+    (["ddpg.tau=0"], r"ddpg.tau must be in \(0, 1\]"),
+    (["ddpg.noise=pink"], "ddpg.noise must be gaussian, ou or none"),
+    (["sac.noise=gaussian"], "sac.noise must be none"),
+    (["td3.policy_delay=0"], "td3.policy_delay must be >= 1"),
+    (["sac.alpha=0"], "sac.alpha must be > 0"),
+])
+def test_bad_hyperparameters_are_refused_before_any_work(sets, message):
+    with pytest.raises(CanterError, match=message):
+        build_config("Pendulum-v1", algo="td3", sets=sets)
+
+
+def test_cli_refusal_is_one_line(capsys):
+    assert main(["train", "Pendulum-v1", "--algo", "td3", "--set", "td3.buffer_size=10", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "td3.buffer_size 10 is smaller than td3.batch_size 256" in err
+
+
+def test_presets_give_off_policy_runs_one_env_and_raw_observations():
+    for preset in ("fast", "cleanrl"):
+        for algo in ("td3", "ddpg", "sac"):
+            config = build_config("HalfCheetah-v4", preset=preset, algo=algo)
+            assert config.env.num_envs == 1 and not config.env.normalize_obs and not config.env.normalize_reward
+    assert build_config("HalfCheetah-v4", preset="fast").env.num_envs == 16   # ppo keeps its own
+    seed = build_config("BipedalWalker-v3", preset="seed002-ddpg")
+    assert seed.run.algo == "ddpg" and seed.env.num_envs == 4 and seed.ddpg.batch_size == 512
+    assert seed.ddpg.tau == 0.001 and seed.ddpg.train_freq == 16 and seed.ddpg.noise_std == pytest.approx(0.89066, 1e-4)

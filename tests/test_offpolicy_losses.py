@@ -1,0 +1,213 @@
+"""The off-policy targets, losses, noise and single updates against hand-computed values."""
+
+import math
+from dataclasses import replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from canter.algos.offpolicy import learners, losses, noise
+from canter.algos.offpolicy.networks import init_critics, q_values
+from canter.config import Config
+from canter.networks import mlp
+from canter.replay import Transitions
+
+
+def test_td_target_takes_the_min_of_the_critics_and_stops_only_on_termination():
+    reward = jnp.array([1.0, 2.0, 0.5])
+    terminated = jnp.array([0.0, 1.0, 0.0])
+    next_q = jnp.array([[3.0, 5.0, -1.0], [4.0, 1.0, -2.0]])
+    np.testing.assert_allclose(losses.td_target(reward, terminated, next_q, 0.9), [1 + 0.9 * 3, 2.0, 0.5 - 0.9 * 2])
+    # SAC's soft target adds the entropy bonus -alpha * log pi inside the bootstrap.
+    bonus = jnp.array([0.1, 0.2, 0.3])
+    np.testing.assert_allclose(losses.td_target(reward, terminated, next_q, 0.9, bonus),
+                               [1 + 0.9 * 3.1, 2.0, 0.5 + 0.9 * (-2 + 0.3)], rtol=1e-6)
+
+
+def test_target_smoothing_noise_is_clipped_then_the_action_is_clipped():
+    action = jnp.array([0.9, -0.2, 0.0, -0.9])
+    standard_normal = jnp.array([10.0, -10.0, 0.1, -1.0])
+    out = losses.smoothed_target_action(action, standard_normal, noise_std=0.2, noise_clip=0.5)
+    np.testing.assert_allclose(out, [1.0, -0.7, 0.02, -1.0], rtol=1e-6)
+
+
+def test_polyak_and_critic_loss():
+    target = {"w": jnp.array([1.0, 2.0])}
+    online = {"w": jnp.array([3.0, -2.0])}
+    np.testing.assert_allclose(losses.polyak(target, online, 0.25)["w"], [1.5, 1.0])
+    np.testing.assert_allclose(losses.polyak(target, online, 1.0)["w"], [3.0, -2.0])
+    q = jnp.array([[1.0, 2.0], [3.0, 4.0]])
+    assert float(losses.critic_loss(q, jnp.array([1.0, 1.0]))) == pytest.approx((0 + 1) / 2 + (4 + 9) / 2)
+    assert float(losses.deterministic_actor_loss(jnp.array([[1.0, 3.0]]))) == pytest.approx(-2.0)
+
+
+def test_tanh_log_det_matches_the_naive_form_and_stays_finite():
+    u = jnp.array([[-3.0, -0.5, 0.0, 0.7, 2.5]])
+    naive = jnp.sum(jnp.log(1.0 - jnp.tanh(u) ** 2), axis=-1)
+    np.testing.assert_allclose(losses.tanh_log_det_jacobian(u), naive, rtol=1e-5)
+    far = losses.tanh_log_det_jacobian(jnp.array([[30.0, -30.0]]))
+    assert np.isfinite(float(far[0])) and float(far[0]) == pytest.approx(2 * 2 * (math.log(2) - 30), rel=1e-6)
+
+
+def test_squashed_log_prob_is_the_change_of_variables_density():
+    mean, log_std = 0.3, math.log(0.8)
+    u = np.linspace(-2.0, 2.5, 7)
+    action, log_prob = losses.squashed_sample(jnp.full((7, 1), mean), jnp.full((7, 1), log_std),
+                                              jnp.asarray((u - mean) / 0.8)[:, None])
+    # p_a(a) = p_u(u) / |da/du| with the derivative taken numerically.
+    gauss = np.exp(-0.5 * ((u - mean) / 0.8) ** 2) / (0.8 * math.sqrt(2 * math.pi))
+    h = 1e-4
+    dadu = (np.tanh(u + h) - np.tanh(u - h)) / (2 * h)
+    np.testing.assert_allclose(np.asarray(action)[:, 0], np.tanh(u), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(log_prob), np.log(gauss / dadu), rtol=1e-4, atol=1e-5)
+    # And the density integrates to one over (-1, 1).
+    a = np.linspace(-1 + 1e-6, 1 - 1e-6, 200_001)
+    pre = np.arctanh(a)
+    _, lp = losses.squashed_sample(jnp.full((a.size, 1), mean), jnp.full((a.size, 1), log_std),
+                                   jnp.asarray((pre - mean) / 0.8, jnp.float32)[:, None])
+    assert np.trapezoid(np.exp(np.asarray(lp, np.float64)), a) == pytest.approx(1.0, abs=2e-3)
+
+
+def test_temperature_and_sac_actor_losses():
+    log_alpha = jnp.float32(0.5)
+    log_prob = jnp.array([-1.0, -3.0])   # entropy estimate 2, above the target -2
+    assert float(losses.temperature_loss(log_alpha, log_prob, -2.0)) == pytest.approx(-0.5 * -4.0)
+    grad = float(jax.grad(losses.temperature_loss)(log_alpha, log_prob, -2.0))
+    assert grad == pytest.approx(4.0)    # gradient descent lowers alpha when entropy exceeds the target
+    assert float(jax.grad(losses.temperature_loss)(log_alpha, jnp.array([3.0]), -2.0)) < 0
+    q = jnp.array([[1.0, 4.0], [2.0, 3.0]])
+    assert float(losses.sac_actor_loss(q, log_prob, jnp.float32(0.5))) == pytest.approx(
+        ((0.5 * -1 - 1) + (0.5 * -3 - 3)) / 2)
+
+
+def test_ou_process_statistics():
+    theta, sigma, dt = 1.0, 0.5, 0.1
+    chains, steps = 2000, 400
+
+    def step(x, key):
+        x = noise.ou_step(x, key, theta, sigma, dt)
+        return x, x
+
+    _, xs = jax.lax.scan(step, jnp.zeros((chains,), jnp.float32), jax.random.split(jax.random.key(0), steps))
+    settled = np.asarray(xs[100:])            # the process forgets its start within ~10 / (theta dt) steps
+    expected_std = noise.ou_stationary_std(theta, sigma, dt)
+    assert expected_std == pytest.approx(sigma * math.sqrt(dt / (1 - 0.9 ** 2)))
+    assert abs(settled.mean()) < 0.01
+    assert settled.std() == pytest.approx(expected_std, rel=0.02)
+    lag1 = np.mean(settled[1:] * settled[:-1]) / settled.var()
+    assert lag1 == pytest.approx(1 - theta * dt, abs=0.01)
+
+
+def test_exploration_noise_kinds():
+    action = jnp.array([[0.95, 0.0]])
+    ou = jnp.array([[0.2, -0.1]])
+    key = jax.random.key(1)
+    same, ou_same = noise.explore("none", action, ou, key, 0.1, 0.15, 0.01)
+    np.testing.assert_array_equal(same, action)
+    np.testing.assert_array_equal(ou_same, ou)
+    noisy, _ = noise.explore("gaussian", action, ou, key, 0.1, 0.15, 0.01)
+    expected = np.clip(np.asarray(action) + 0.1 * np.asarray(jax.random.normal(key, (1, 2), jnp.float32)), -1, 1)
+    np.testing.assert_allclose(noisy, expected, rtol=1e-6)
+    noisy, ou_next = noise.explore("ou", action, ou, key, 0.1, 0.15, 0.01)
+    np.testing.assert_allclose(ou_next, noise.ou_step(ou, key, 0.15, 0.1, 0.01))
+    np.testing.assert_allclose(noisy, np.clip(np.asarray(action) + np.asarray(ou_next), -1, 1))
+
+
+def test_stacked_critics_equal_separate_networks():
+    critics = init_critics(jax.random.key(0), 3, 2, (8,), 2)
+    obs, act = jnp.ones((4, 3)), jnp.full((4, 2), 0.5)
+    q = jax.jit(q_values, static_argnums=3)(critics, obs, act, "relu")
+    for i in range(2):
+        one = jax.tree_util.tree_map(lambda leaf: leaf[i], critics)
+        np.testing.assert_allclose(q[i], mlp(one, jnp.concatenate([obs, act], -1), "relu")[:, 0], rtol=1e-6)
+    assert not np.allclose(q[0], q[1])       # independent initializations
+
+
+# Jitted once per config: eager dispatch of every op (and of both lax.cond branches) is far slower.
+_deterministic_update = jax.jit(learners.deterministic_update, static_argnums=(3, 4))
+_sac_update = jax.jit(learners.sac_update, static_argnums=3)
+
+
+def _batch(key, n=8, obs_dim=3, act_dim=2):
+    k = jax.random.split(key, 4)
+    return Transitions(jax.random.normal(k[0], (n, obs_dim), jnp.float32),
+                       jax.random.uniform(k[1], (n, act_dim), jnp.float32, -1, 1),
+                       jax.random.normal(k[2], (n,), jnp.float32), jax.random.normal(k[3], (n, obs_dim), jnp.float32),
+                       jnp.zeros((n,), jnp.float32))
+
+
+def _changed(a, b):
+    return any(not np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+
+
+def test_td3_delays_the_actor_and_target_updates():
+    cfg = replace(Config().td3, hidden=(8,), policy_delay=2, tau=0.1)
+    learner = learners.init_learner(jax.random.key(0), "td3", cfg, 3, 2)
+    assert jax.tree_util.tree_leaves(learner.critics)[0].shape[0] == 2
+    batch = _batch(jax.random.key(1))
+    first, diag = _deterministic_update(learner, batch, jax.random.key(2), cfg, True)
+    # Step 0: critic, actor and targets all move; targets by exactly tau toward the new online nets.
+    assert _changed(first.critics, learner.critics) and _changed(first.actor, learner.actor)
+    for target, old, new in ((first.target_actor, learner.target_actor, first.actor),
+                             (first.target_critics, learner.target_critics, first.critics)):
+        for t, o, n in zip(*(jax.tree_util.tree_leaves(x) for x in (target, old, new))):
+            np.testing.assert_allclose(t, 0.9 * np.asarray(o) + 0.1 * np.asarray(n), rtol=1e-5, atol=1e-7)
+    assert np.isfinite(float(diag["actor_loss"])) and int(first.updates) == 1
+    # Step 1: only the critics move.
+    second, diag = _deterministic_update(first, batch, jax.random.key(3), cfg, True)
+    assert _changed(second.critics, first.critics)
+    assert not _changed(second.actor, first.actor) and not _changed(second.actor_opt, first.actor_opt)
+    assert not _changed(second.target_actor, first.target_actor)
+    assert not _changed(second.target_critics, first.target_critics)
+    assert np.isnan(float(diag["actor_loss"]))
+
+
+def test_ddpg_has_one_critic_and_updates_the_actor_every_step():
+    cfg = replace(Config().ddpg, hidden=(8,))
+    learner = learners.init_learner(jax.random.key(0), "ddpg", cfg, 3, 2)
+    assert jax.tree_util.tree_leaves(learner.critics)[0].shape[0] == 1
+    batch = _batch(jax.random.key(1))
+    state = learner
+    for i in range(2):
+        new, _ = _deterministic_update(state, batch, jax.random.key(i), cfg, False)
+        assert _changed(new.actor, state.actor) and _changed(new.target_actor, state.target_actor)
+        state = new
+
+
+def test_ddpg_critic_step_descends_on_the_hand_computed_target():
+    """With tau = 1 the targets equal the online nets, so the critic gradient can be checked directly."""
+    cfg = replace(Config().ddpg, hidden=(4,), critic_lr=1e-3, gamma=0.5)
+    learner = learners.init_learner(jax.random.key(0), "ddpg", cfg, 3, 2)
+    batch = _batch(jax.random.key(1))
+    from canter.algos.offpolicy.networks import deterministic_action
+
+    next_q = q_values(learner.target_critics, batch.next_obs,
+                      deterministic_action(learner.target_actor, batch.next_obs, "relu"), "relu")
+    target = batch.reward + 0.5 * next_q[0]
+    before = float(jnp.mean((q_values(learner.critics, batch.obs, batch.action, "relu")[0] - target) ** 2))
+    new, diag = _deterministic_update(learner, batch, jax.random.key(2), cfg, False)
+    assert float(diag["critic_loss"]) == pytest.approx(before, rel=1e-5)
+    after = float(jnp.mean((q_values(new.critics, batch.obs, batch.action, "relu")[0] - target) ** 2))
+    assert after < before
+
+
+def test_sac_update_moves_alpha_toward_the_target_entropy():
+    cfg = replace(Config().sac, hidden=(8,), alpha=0.5)
+    learner = learners.init_learner(jax.random.key(0), "sac", cfg, 3, 2)
+    assert learner.target_actor is None
+    batch = _batch(jax.random.key(1))
+    # A freshly initialized policy has near-maximal entropy, far above a target of -10: alpha must fall.
+    new, diag = _sac_update(learner, batch, jax.random.key(2), cfg, -10.0)
+    assert float(diag["alpha"]) < 0.5 and float(new.log_alpha) < math.log(0.5)
+    for t, o, n in zip(*(jax.tree_util.tree_leaves(x) for x in (new.target_critics, learner.target_critics,
+                                                                new.critics))):
+        np.testing.assert_allclose(t, (1 - cfg.tau) * np.asarray(o) + cfg.tau * np.asarray(n), rtol=1e-5, atol=1e-7)
+    # An unreachable target entropy (+10) raises it.
+    new, _ = _sac_update(learner, batch, jax.random.key(2), cfg, 10.0)
+    assert float(new.log_alpha) > math.log(0.5)
+    fixed = replace(cfg, autotune=False)
+    new, _ = _sac_update(learners.init_learner(jax.random.key(0), "sac", fixed, 3, 2), batch,
+                                 jax.random.key(2), fixed, -10.0)
+    assert float(new.log_alpha) == pytest.approx(math.log(0.5))
