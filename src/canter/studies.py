@@ -31,6 +31,13 @@ class StorageSettings:
     max_retry: int = 3
 
 
+def normalize_url(url: str) -> str:
+    """`postgresql://` means the psycopg2 driver of the `distributed` extra (SQLAlchemy 2.1 would pick psycopg 3)."""
+    if url.startswith("postgresql://") or url.startswith("postgres://"):
+        return "postgresql+psycopg2://" + url.split("://", 1)[1]
+    return url
+
+
 def describe_url(url: str) -> tuple[str, str]:
     """(driver, host) of a storage URL, without the password."""
     from sqlalchemy.engine import make_url
@@ -54,7 +61,7 @@ def open_storage(settings: StorageSettings) -> Any:
     import sqlalchemy.exc
 
     quiet_optuna()
-    driver, host = describe_url(settings.url)
+    driver, host = describe_url(normalize_url(settings.url))
     if driver.startswith("sqlite"):
         engine_kwargs: dict[str, Any] = {"connect_args": {"timeout": 120}}
     elif driver.startswith("postgresql"):
@@ -63,7 +70,7 @@ def open_storage(settings: StorageSettings) -> Any:
         engine_kwargs = {"pool_pre_ping": True}
     try:
         return optuna.storages.RDBStorage(
-            settings.url, engine_kwargs=engine_kwargs, heartbeat_interval=settings.heartbeat_seconds,
+            normalize_url(settings.url), engine_kwargs=engine_kwargs, heartbeat_interval=settings.heartbeat_seconds,
             grace_period=settings.grace_seconds,
             heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
                 max_retry=settings.max_retry))

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import socket
 import time
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -175,6 +176,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
         return Outcome("fail", reason=f"invalid sample: {exc}")
     trial.set_user_attr(PRESET_ATTR, preset_text(config))
     trial.set_user_attr("trial_dir", str(trial_dir.resolve()))
+    trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
     from canter.config import to_toml
 
@@ -275,7 +277,8 @@ def tune(settings: TuneSettings) -> Any:
     from canter.groups import job_layout
 
     check_settings(settings)
-    settings.study_dir.mkdir(parents=True, exist_ok=True)
+    if settings.storage_url is None:
+        settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
     study = make_study(settings, storage)
     if settings.jobs == 1:
