@@ -126,3 +126,24 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     resumed = [int(r["global_step"]) for r in read_rows(cut / "metrics.csv")][rows_before:]
     assert resumed and resumed[0] > first and resumed[-1] >= 1024  # continued from the first checkpoint
     assert len(read_rows(out / "results.csv")) == 2
+
+
+def test_grid_through_an_optuna_storage(tmp_path, capsys):
+    """With --storage every cell is one enqueued trial of a GridSampler study; a re-run finds them all done."""
+    import optuna
+
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "512", "--grid",
+            "ppo.clip=0.1,0.2", "--eval-episodes", "1", "--storage", url, "--study", "grid", "--heartbeat", "2",
+            "--out", str(tmp_path / "bench")] + TINY
+    assert main(argv) == 0, capsys.readouterr().err
+    study = optuna.load_study(study_name="grid", storage=url)
+    cells = sorted(t.params["cell"] for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE)
+    assert cells == ["InvertedPendulum-v4__ppo__ppo.clip=0.1", "InvertedPendulum-v4__ppo__ppo.clip=0.2"]
+    for t in study.trials:
+        result = t.user_attrs["result"]
+        evaluation = json.loads((tmp_path / "bench" / f"{t.params['cell']}__s0" / "eval.json").read_text())
+        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(result["return_mean"])
+    assert main(argv) == 0
+    assert len(optuna.load_study(study_name="grid", storage=url).trials) == 2  # nothing ran twice
+    assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2

@@ -172,6 +172,19 @@ def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
     assert len(steps) == 2 and steps[-1] >= 1024 and frozen.intermediate_values[steps[-1]] == outcome.value
 
 
+def test_pruned_trial_stops_its_training(tmp_path):
+    import json
+
+    settings = tiny_settings(tmp_path, total_steps=1_000_000, evaluations=200)
+    base, space = check_settings(settings)
+    study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
+    trial = study.ask()
+    outcome = run_trial(trial, settings, base, space)
+    assert outcome.state == "pruned" and outcome.reason.startswith("pruned at step")
+    summary = json.loads((settings.study_dir / "trials" / "trial_00000" / "s0" / "summary.json").read_text())
+    assert summary["stop_reason"] == "signal" and summary["global_step"] < 1_000_000
+
+
 def test_trial_over_its_time_limit_fails_with_the_reason(tmp_path):
     settings = tiny_settings(tmp_path, trial_minutes=0.002, total_steps=10**7)
     base, space = check_settings(settings)
