@@ -10,7 +10,8 @@ from canter.config import Config, build_config
 from canter.errors import CanterError
 
 __version__ = "0.1.0"
-__all__ = ["Config", "CanterError", "build_config", "train", "load", "evaluate", "RunResult", "Policy"]
+__all__ = ["Config", "CanterError", "build_config", "train", "train_seeds", "load", "evaluate", "RunResult",
+           "Policy"]
 
 
 def train(config: Config, *, quiet: bool = True, resume=None, run_dir=None):
@@ -18,6 +19,14 @@ def train(config: Config, *, quiet: bool = True, resume=None, run_dir=None):
     from canter.trainer import train as _train
 
     return _train(config, quiet=quiet, resume=resume, run_dir=run_dir)
+
+
+def train_seeds(config: Config, seeds, quiet: bool = True):
+    """Train one run per seed together in one vmapped program; returns one `RunResult` per seed, in order. Each
+    seed writes the run folder that `train` with that seed would write."""
+    from canter.trainer import train_seeds as _train_seeds
+
+    return _train_seeds(config, seeds, quiet=quiet)
 
 
 def load(run_dir):

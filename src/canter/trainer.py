@@ -111,146 +111,283 @@ def train(config: Config, *, resume: str | Path | None = None, quiet: bool = Tru
           run_dir: str | Path | None = None) -> RunResult:
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
+    return _train_group([config], [resume], [run_dir], quiet)[0]
+
+
+def train_seeds(config: Config, seeds: list[int], *, quiet: bool = True,
+                run_dirs: list[str | Path] | None = None) -> list[RunResult]:
+    """Train one run per seed in a single vmapped program (see canter.seedgroup); `config.run.seed` is replaced by
+    each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and follows
+    the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(f"seeds repeat in {seeds}; each seed of a group must be different")
+    if run_dirs is not None and len(run_dirs) != len(seeds):
+        raise CanterError(f"{len(run_dirs)} run folders given for {len(seeds)} seeds")
+    configs = [replace(config, run=replace(config.run, seed=seed)) for seed in seeds]
+    return _train_group(configs, [None] * len(seeds), list(run_dirs or [None] * len(seeds)), quiet)
+
+
+def resume_seeds(run_dirs: list[str | Path], total_steps: int | None = None, *,
+                 quiet: bool = True) -> list[RunResult]:
+    """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
+    (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
+    would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
+    configs = [resume_config(Path(d), total_steps) for d in run_dirs]
+    seeds = [c.run.seed for c in configs]
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct "
+                          f"seeds")
+    reference = replace(configs[0].run, seed=0)
+    for run_dir, config in zip(run_dirs, configs):
+        if replace(config, run=replace(config.run, seed=0)) != replace(configs[0], run=reference):
+            raise CanterError(f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
+                              f"folders with different configs one at a time")
+    return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
+
+
+def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
+    """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap."""
     from canter.algos import get_algorithm
     from canter.envs import make_vec_env
     from canter.runtime import setup_jax
 
     setup_jax()
-    validate(config)
+    for config in configs:
+        validate(config)
     started = time.perf_counter()
 
-    state = None
-    if resume is not None:
-        from canter.policy import load_state
+    states, outs, start_steps, seeds = [], [], [], []
+    for config, resume, run_dir in zip(configs, resumes, run_dirs):
+        state = None
+        if resume is not None:
+            from canter.policy import load_state
 
-        out = Path(resume)
-        _, _, state, header = load_state(out)
-        start_step = int(header["global_step"])
-    else:
-        start_step = 0
-        out = Path(run_dir) if run_dir is not None else new_run_dir(config)
+            out = Path(resume)
+            _, _, state, header = load_state(out)
+            start_step = int(header["global_step"])
+        else:
+            start_step = 0
+            out = Path(run_dir) if run_dir is not None else new_run_dir(config)
+        if start_step >= config.run.total_steps:
+            raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
+                              f"steps; pass --total-steps larger than {start_step} to extend it")
+        purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
+        # A seed's envs get exactly the seeds its single-seed run would give them, wherever it sits in the group.
+        seeds += env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
+        states.append(state)
+        outs.append(out)
+        start_steps.append(start_step)
 
-    if start_step >= config.run.total_steps:
-        raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} steps; "
-                          f"pass --total-steps larger than {start_step} to extend it")
-
-    purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
-    seeds = env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
-    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs, seeds, config.env.envpool_shards)
-    spec = env.spec
+    config = configs[0]
+    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds,
+                       config.env.envpool_shards)
+    spec = replace(env.spec, num_envs=config.env.num_envs)  # what one seed sees
     algorithm = get_algorithm(config.run.algo)
     try:
         algorithm.validate(config, spec)
-        if state is None:
-            state = algorithm.init_state(config, spec)
-        out.mkdir(parents=True, exist_ok=True)
-        checkpoint.atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
-        if resume is None:
-            checkpoint.atomic_write_bytes(out / "versions.json",
-                                          lambda f: f.write(json.dumps(versions(), indent=2).encode()))
-        return _loop(config, env, state, out, start_step, quiet, started)
+        for i, (config, out) in enumerate(zip(configs, outs)):
+            if states[i] is None:
+                states[i] = algorithm.init_state(config, spec)
+            out.mkdir(parents=True, exist_ok=True)
+            checkpoint.atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
+            if resumes[i] is None:
+                checkpoint.atomic_write_bytes(out / "versions.json",
+                                              lambda f: f.write(json.dumps(versions(), indent=2).encode()))
+        return _loop(configs, env, spec, states, outs, start_steps, quiet, started)
     finally:
         env.close()
 
 
-def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quiet: bool,
-          started: float) -> RunResult:
+class _SeedRun:
+    """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
+
+    def __init__(self, config: Config, spec: Any, out: Path, start_step: int, metric_names: tuple[str, ...]) -> None:
+        self.config = config
+        self.out = out
+        self.metric_names = metric_names
+        self.start_step = start_step
+        self.global_step = start_step
+        self.episodes = 0
+        self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
+        self.run_seconds = 0.0
+        every = config.run.checkpoint_every
+        self.next_checkpoint = (start_step // every + 1) * every if every else None
+        self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
+        self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard)
+        self.closed = False
+        self.stop_reason: str | None = None     # set once the seed is done; the group may still run
+        self.error: str | None = None
+        self.result: RunResult | None = None
+
+    @property
+    def recent_mean(self) -> float | None:
+        return float(np.mean(self.recent)) if self.recent else None
+
+    def save(self, train_state: Any, step: int) -> None:
+        header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
+        checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header)
+        checkpoint.prune(self.out, self.config.run.keep_checkpoints)
+
+    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> None:
+        steps = int(metrics["steps"])
+        self.global_step += steps
+        self.run_seconds += elapsed
+        finished = np.asarray(metrics["finished"], bool)
+        returns = np.asarray(metrics["episode_return"])[finished]
+        lengths = np.asarray(metrics["episode_length"])[finished]
+        self.episodes += int(finished.sum())
+        self.recent.extend(float(r) for r in returns)
+        row: dict[str, Any] = {
+            "global_step": self.global_step, "iteration": iteration,
+            "wall_time": round(time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
+            "episodes": int(finished.sum()),
+            "episodic_return": float(returns.mean()) if returns.size else math.nan,
+            "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
+        }
+        for key in self.metric_names:
+            row[key] = float(metrics[key])
+        for key, values in metrics["episode_info"].items():
+            chosen = np.asarray(values)[finished]
+            row[f"info/{key}"] = float(chosen.mean()) if chosen.size else math.nan
+        self.logger.log(row)
+
+    def checkpoint_due(self) -> bool:
+        return (self.next_checkpoint is not None and self.global_step >= self.next_checkpoint
+                and self.global_step < self.config.run.total_steps)
+
+    def own_stop_reason(self) -> str | None:
+        run = self.config.run
+        if run.stop_at_return is not None and len(self.recent) >= RECENT_EPISODES \
+                and self.recent_mean >= run.stop_at_return:
+            return "stop_at_return"
+        return None
+
+    def finish(self, train_state: Any, reason: str, compile_seconds: float, started: float) -> None:
+        self.stop_reason = reason
+        self.save(train_state, self.global_step)
+        self.close()
+        self.result = RunResult(
+            run_dir=self.out, global_step=self.global_step, recent_return=self.recent_mean, episodes=self.episodes,
+            wall_seconds=time.perf_counter() - started, compile_seconds=compile_seconds,
+            sps=(self.global_step - self.start_step) / self.run_seconds if self.run_seconds > 0 else 0.0,
+            stop_reason=reason)
+        summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
+        checkpoint.atomic_write_bytes(self.out / "summary.json",
+                                      lambda f: f.write(json.dumps(summary, indent=2).encode()))
+
+    def close(self) -> None:
+        if not self.closed:
+            self.logger.close()
+            self.closed = True
+
+    def fail(self, last_good_state: Any) -> None:
+        """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
+        self.stop_reason = "non_finite"
+        self.save(last_good_state, self.global_step)
+        self.close()
+        self.error = (f"non-finite observation, reward or parameter during the iteration after step "
+                      f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}")
+
+
+def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: list[Path], start_steps: list[int],
+          quiet: bool, started: float) -> list[RunResult]:
+    """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
+    non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
+    inside the vmapped program until the last seed is done, but nothing of it is kept."""
     import jax
     import jax.numpy as jnp
 
     from canter.algos import get_algorithm
     from canter.rollout import init_env_carry
 
+    config = configs[0]
+    group = len(configs)
     algorithm = get_algorithm(config.run.algo)
-    spec = env.spec
     total = config.run.total_steps
-    carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
-    iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step))
+    if group == 1:
+        state = states[0]
+        carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
+        iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step))
+        pick = lambda tree, i: tree  # noqa: E731
+    else:
+        from canter import seedgroup
+
+        state = seedgroup.stack(states)
+        handle = env.initial_state()
+        carry = seedgroup.stack([init_env_carry(handle, obs, spec.info_keys)
+                                 for obs in seedgroup.split_first_obs(env.reset(), group)])
+        iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step,
+                                                                                                  group))))
+        pick = seedgroup.unstack
+
+    def fractions(runs: list[_SeedRun]) -> jnp.ndarray:
+        values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
+        return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
+
+    runs = [_SeedRun(c, spec, out, start, algorithm.metric_names) for c, out, start in zip(configs, outs, start_steps)]
     compile_start = time.perf_counter()
-    compiled = iteration.lower(state, carry, jnp.float32(1.0)).compile()
+    compiled = iteration.lower(state, carry, fractions(runs)).compile()
     compile_seconds = time.perf_counter() - compile_start
 
-    header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
-    logger = MetricsLogger(out, algorithm.metric_names, spec.info_keys, config.run.tensorboard)
-    progress = Progress(total, start_step, quiet, f"{spec.id} {config.run.algo}")
-    recent: deque[float] = deque(maxlen=RECENT_EPISODES)
-    episodes = 0
-    global_step = start_step
-    next_checkpoint = (global_step // config.run.checkpoint_every + 1) * config.run.checkpoint_every \
-        if config.run.checkpoint_every else None
-    run_seconds = 0.0
-    stop_reason = "budget"
+    label = f"{spec.id} {config.run.algo}" + (f" x{group} seeds" if group > 1 else "")
+    progress = Progress(total, min(start_steps), quiet, label)
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
-
-    def save(train_state: Any, step: int) -> None:
-        header = dict(header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
-        checkpoint.save(checkpoint.checkpoint_path(out, step), train_state, header)
-        checkpoint.prune(out, config.run.keep_checkpoints)
-
     try:
         with _StopFlag() as stop:
-            while global_step < total:
-                fraction = jnp.float32(max(1.0 - global_step / total, 0.0))
+            while any(run.stop_reason is None for run in runs):
                 t0 = time.perf_counter()
-                new_state, carry, metrics = compiled(state, carry, fraction)
+                new_state, carry, metrics = compiled(state, carry, fractions(runs))
                 metrics = jax.device_get(metrics)
+                iterations = np.asarray(jax.device_get(new_state.iteration))
                 elapsed = time.perf_counter() - t0
-                run_seconds += elapsed
-                steps = int(metrics["steps"])
-                if not bool(metrics["finite"]):
-                    save(state, global_step)
-                    raise CanterError(f"non-finite observation, reward or parameter during the iteration after step "
-                                      f"{global_step}; stopped, last good state saved in {out / 'checkpoints'}")
+                steps = 0
+                for i, run in enumerate(runs):
+                    if run.stop_reason is not None:
+                        continue
+                    seed_metrics = pick(metrics, i)
+                    if not bool(seed_metrics["finite"]):
+                        run.fail(pick(state, i))
+                        continue
+                    run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
+                    steps += int(seed_metrics["steps"])
+                    if run.checkpoint_due():
+                        run.save(pick(new_state, i), run.global_step)
+                        every = run.config.run.checkpoint_every
+                        run.next_checkpoint = (run.global_step // every + 1) * every
                 state = new_state
-                global_step += steps
-                finished = np.asarray(metrics["finished"], bool)
-                returns = np.asarray(metrics["episode_return"])[finished]
-                lengths = np.asarray(metrics["episode_length"])[finished]
-                episodes += int(finished.sum())
-                recent.extend(float(r) for r in returns)
-                row: dict[str, Any] = {
-                    "global_step": global_step, "iteration": int(state.iteration),
-                    "wall_time": round(time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
-                    "episodes": int(finished.sum()),
-                    "episodic_return": float(returns.mean()) if returns.size else math.nan,
-                    "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
-                }
-                for key in algorithm.metric_names:
-                    row[key] = float(metrics[key])
-                for key, values in metrics["episode_info"].items():
-                    chosen = np.asarray(values)[finished]
-                    row[f"info/{key}"] = float(chosen.mean()) if chosen.size else math.nan
-                logger.log(row)
-                recent_mean = float(np.mean(recent)) if recent else None
-                progress.update(global_step, steps / elapsed, recent_mean)
 
-                if next_checkpoint is not None and global_step >= next_checkpoint and global_step < total:
-                    save(state, global_step)
-                    next_checkpoint = (global_step // config.run.checkpoint_every + 1) * config.run.checkpoint_every
-                if (config.run.stop_at_return is not None and len(recent) >= RECENT_EPISODES
-                        and recent_mean >= config.run.stop_at_return):
-                    stop_reason = "stop_at_return"
-                    break
+                group_reason = None
                 if deadline is not None and time.perf_counter() >= deadline:
-                    stop_reason = "max_minutes"
-                    break
-                if stop.signal is not None:
-                    stop_reason = "signal"
-                    break
-            save(state, global_step)
+                    group_reason = "max_minutes"
+                elif stop.signal is not None:
+                    group_reason = "signal"
+                for i, run in enumerate(runs):
+                    if run.stop_reason is not None:
+                        continue
+                    reason = run.own_stop_reason() or group_reason
+                    if reason is None and run.global_step >= total:
+                        reason = "budget"
+                    if reason is not None:
+                        run.finish(pick(state, i), reason, compile_seconds, started)
+                active = [run for run in runs if run.stop_reason is None] or runs
+                recents = [run.recent_mean for run in runs if run.recent_mean is not None]
+                progress.update(min(run.global_step for run in active), steps / elapsed,
+                                float(np.mean(recents)) if recents else None)
     finally:
         progress.close()
-        logger.close()
+        for run in runs:
+            run.close()
 
-    wall = time.perf_counter() - started
-    result = RunResult(run_dir=out, global_step=global_step,
-                       recent_return=float(np.mean(recent)) if recent else None, episodes=episodes,
-                       wall_seconds=wall, compile_seconds=compile_seconds,
-                       sps=(global_step - start_step) / run_seconds if run_seconds > 0 else 0.0,
-                       stop_reason=stop_reason)
-    summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
-    checkpoint.atomic_write_bytes(out / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
-    return result
+    failed = [run for run in runs if run.error is not None]
+    if failed:
+        if group == 1:
+            raise CanterError(failed[0].error)
+        raise CanterError("; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed)
+                          + "; the other seeds finished normally")
+    return [run.result for run in runs]
 
 
 def resume_config(run_dir: Path, total_steps: int | None) -> Config:
