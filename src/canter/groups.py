@@ -6,8 +6,8 @@ and goes on), and a trial that overruns its time limit can be killed without tak
 dies with its parent (PR_SET_PDEATHSIG), so a killed worker leaves no orphan training behind.
 
 Every seed has a fixed run folder. Re-running a spec skips seeds whose run finished, resumes seeds that stopped
-after a checkpoint, and trains the rest; with `eval_episodes` it then writes each run's final deterministic
-evaluation to `eval.json`.
+after a checkpoint, and trains the rest, the seeds of a group in one vmapped program (`canter.trainer.train_seeds`);
+with `eval_episodes` it then writes each run's final deterministic evaluation to `eval.json`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import shutil
 import signal
 import subprocess
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +29,10 @@ SUMMARY_FILE = "summary.json"
 
 
 def train_group(config: Any, seeds: list[int], run_dirs: dict[int, Path], quiet: bool = True) -> list[Any]:
-    """Train `config` once per seed into the given run folders. This is the one place to switch to the
-    multi-seed vmap trainer (`canter.trainer.train_seeds`) once it is available."""
-    from canter.trainer import train
+    """Train `config` once per seed into the given run folders, all seeds in one vmapped program."""
+    from canter.trainer import train_seeds
 
-    return [train(replace(config, run=replace(config.run, seed=seed)), run_dir=run_dirs[seed], quiet=quiet)
-            for seed in seeds]
+    return train_seeds(config, seeds, quiet=quiet, run_dirs=[run_dirs[s] for s in seeds])
 
 
 # ------------------------------------------------------------------------------------------------ run folder status
@@ -175,20 +173,23 @@ def _die_with_parent() -> None:
 def run_group(spec: GroupSpec, quiet: bool = True) -> None:
     """Skip finished seeds, resume stopped ones, train the rest (as one group), then evaluate the final policies."""
     from canter.config import from_toml_text
-    from canter.trainer import resume_config, train
+    from canter.trainer import resume_seeds
 
     config = from_toml_text(spec.config_toml, "group spec")
     total = config.run.total_steps
     fresh: list[int] = []
+    partial: list[Path] = []
     for seed, folder in sorted(spec.run_dirs.items()):
         run_dir = Path(folder)
         status = run_status(run_dir, total)
         if status == "partial":
-            train(resume_config(run_dir, total), resume=run_dir, quiet=quiet)
+            partial.append(run_dir)
         elif status == "new":
             if run_dir.exists():  # started but died before its first checkpoint: nothing to keep
                 shutil.rmtree(run_dir)
             fresh.append(seed)
+    if partial:  # each resumes from its own newest checkpoint, together in one program
+        resume_seeds(partial, total, quiet=quiet)
     if fresh:
         train_group(config, fresh, {s: Path(spec.run_dirs[s]) for s in fresh}, quiet=quiet)
     if spec.eval_episodes:
