@@ -52,7 +52,20 @@ def tiny_args(tmp_path: Path) -> list[str]:
 
 # ------------------------------------------------------------------------------------------------- search spaces
 
-@pytest.mark.parametrize("algo", space_names())
+def test_every_algorithm_has_a_shipped_space():
+    from canter.algos import algorithm_names
+
+    assert set(algorithm_names()) <= set(space_names())
+    assert {"ppo", "rpo", "trpo", "td3", "ddpg", "sac"} <= set(space_names())
+
+
+def _registered_spaces():
+    from canter.algos import algorithm_names
+
+    return [name for name in space_names() if name in algorithm_names()]
+
+
+@pytest.mark.parametrize("algo", _registered_spaces())
 def test_every_shipped_space_validates_and_samples_valid_configs(algo):
     space = load_space(None, algo)
     assert space.keys
@@ -64,7 +77,7 @@ def test_every_shipped_space_validates_and_samples_valid_configs(algo):
         for key, value in trial.params.items():
             section, _, name = key.partition(".")
             got = getattr(getattr(config, section), name)
-            if name == "minibatch_size":
+            if "minibatch_size" in name:
                 assert got == min(value, config.batch_size)
             elif isinstance(got, tuple):
                 assert "-".join(map(str, got)) == value
@@ -85,6 +98,17 @@ def test_ppo_space_follows_seed_002_table_1():
     assert params["ppo.max_grad_norm"].choices == (0.3, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 2.0, 5.0)
     assert (params["ppo.vf_coef"].low, params["ppo.vf_coef"].high, params["ppo.vf_coef"].log) == (0.0, 1.0, False)
     assert (params["ppo.target_kl"].low, params["ppo.target_kl"].high) == (0.001, 0.3)
+
+
+def test_tied_keys_take_the_sampled_value():
+    space = parse_space({"ppo": {"lr": {"low": 1e-5, "high": 1e-3, "log": True}, "critic_lr": {"same_as": "ppo.lr"}}},
+                        "test")
+    values = space.suggest(optuna.trial.FixedTrial({"ppo.lr": 3e-4}))
+    assert values == {"ppo.lr": 3e-4, "ppo.critic_lr": 3e-4}
+    with pytest.raises(CanterError, match="must name a sampled key"):
+        parse_space({"ppo": {"critic_lr": {"same_as": "ppo.lr"}}}, "test")
+    with pytest.raises(CanterError, match="ppo.epochs"):  # the tied values must fit the key's type
+        parse_space({"ppo": {"lr": {"low": 1e-5, "high": 1e-3}, "epochs": {"same_as": "ppo.lr"}}}, "test")
 
 
 def test_space_types_and_tuple_choices():

@@ -8,6 +8,9 @@
     [ppo.n_steps]                 # a set of choices
     choices = [8, 16, 32, 64]
 
+    [ddpg.critic_lr]              # tied: the value sampled for another key of the space
+    same_as = "ddpg.actor_lr"
+
 An integer key with a range samples integers (`step` optional), a float key floats; `choices` work for any key,
 including tuples written as strings ("64-64"). A file is checked in full before any trial: every key must be a
 config key, every value must have the key's type and pass the key's own validation, and a range must not be empty.
@@ -27,6 +30,8 @@ from canter.config import Config, _field_types, all_keys, apply_overrides, coerc
 from canter.errors import CanterError
 
 _RANGE_KEYS = {"low", "high", "log", "step"}
+# Minibatch sizes that must divide the on-policy batch (ppo.n_steps x env.num_envs).
+_MINIBATCH_KEYS = (("ppo", "minibatch_size"), ("trpo", "critic_minibatch_size"))
 
 
 @dataclass(frozen=True)
@@ -38,6 +43,7 @@ class Param:
     log: bool = False
     step: float | int | None = None
     integer: bool = False
+    same_as: str | None = None                # takes the value sampled for another key
 
 
 @dataclass(frozen=True)
@@ -53,12 +59,17 @@ class SearchSpace:
         """One `{section.key: value}` draw from an Optuna trial (or FixedTrial)."""
         values: dict[str, Any] = {}
         for p in self.params:
+            if p.same_as is not None:
+                continue
             if p.choices is not None:
                 values[p.key] = trial.suggest_categorical(p.key, list(p.choices))
             elif p.integer:
                 values[p.key] = trial.suggest_int(p.key, int(p.low), int(p.high), step=int(p.step or 1), log=p.log)
             else:
                 values[p.key] = trial.suggest_float(p.key, float(p.low), float(p.high), step=p.step, log=p.log)
+        for p in self.params:
+            if p.same_as is not None:
+                values[p.key] = values[p.same_as]
         return values
 
 
@@ -113,16 +124,34 @@ def parse_space(data: dict[str, Any], source: str) -> SearchSpace:
             params.append(_param(key, spec, source))
     if not params:
         raise CanterError(f"{source}: the search space is empty; add [section.key] tables")
+    _check_ties(params, source)
     return SearchSpace(tuple(params), source)
+
+
+def _check_ties(params: list[Param], source: str) -> None:
+    by_key = {p.key: p for p in params}
+    for p in params:
+        if p.same_as is None:
+            continue
+        other = by_key.get(p.same_as)
+        if other is None or other.same_as is not None:
+            raise CanterError(f"{source}: [{p.key}] same_as = {p.same_as!r} must name a sampled key of this space")
+        section, _, name = p.key.partition(".")
+        for value in (other.choices or (other.low, other.high)):
+            _check_alone(p.key, coerce(p.key, _field_types(section)[name], value), source)
 
 
 def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     section, _, name = key.partition(".")
     field_type = _field_types(section)[name]
-    extra = set(spec) - _RANGE_KEYS - {"choices"}
+    extra = set(spec) - _RANGE_KEYS - {"choices", "same_as"}
     if extra:
         raise CanterError(f"{source}: [{key}] has unknown entries {sorted(extra)}; use choices, or low, high, "
-                          f"log, step")
+                          f"log, step, or same_as")
+    if "same_as" in spec:
+        if set(spec) != {"same_as"} or not isinstance(spec["same_as"], str):
+            raise CanterError(f"{source}: [{key}] same_as = \"section.key\" stands alone")
+        return Param(key, same_as=spec["same_as"])
     if "choices" in spec:
         if set(spec) != {"choices"}:
             raise CanterError(f"{source}: [{key}] has both choices and a range; keep one")
@@ -158,10 +187,12 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
 
 
 def apply_sample(base: Config, values: dict[str, Any]) -> Config:
-    """The trial's config: base plus the sampled values. A PPO minibatch larger than the batch is cut to the batch
-    (RL Zoo does the same), so horizon and minibatch can be sampled independently."""
+    """The trial's config: base plus the sampled values. An on-policy minibatch larger than the batch is cut to the
+    batch (RL Zoo does the same), so horizon and minibatch can be sampled independently."""
     config = apply_overrides(base, values, "the search space")
-    if config.ppo.minibatch_size > config.batch_size:
-        config = replace(config, ppo=replace(config.ppo, minibatch_size=config.batch_size))
+    for section, name in _MINIBATCH_KEYS:
+        table = getattr(config, section)
+        if getattr(table, name, 0) > config.batch_size:
+            config = replace(config, **{section: replace(table, **{name: config.batch_size})})
     validate(config)
     return config
