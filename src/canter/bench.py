@@ -177,7 +177,8 @@ def cell_finished(cell: Cell, settings: BenchSettings, bench_dir: Path) -> bool:
 # ---------------------------------------------------------------------------------------------------- results
 
 def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:
-    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds), wall time and SPS."""
+    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds); the cell's wall time (its
+    seeds train together, so the slowest seed's) and SPS (env steps per second of all its seeds together)."""
     evals, walls, sps = [], [], []
     for seed in settings.seeds:
         run_dir = cell.run_dir(bench_dir, seed)
@@ -191,8 +192,8 @@ def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[st
     return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
             "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
             "return_std": float(np.std(evals)) if evals else math.nan, "seed_returns": evals,
-            "wall_minutes": float(np.mean(walls)) / 60 if walls else math.nan,
-            "sps": float(np.mean(sps)) if sps else math.nan}
+            "wall_minutes": float(np.max(walls)) / 60 if walls else math.nan,
+            "sps": float(np.sum(sps)) if sps else math.nan}
 
 
 def published_scores() -> dict[str, Any]:
@@ -215,7 +216,8 @@ def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: i
     """(markdown, csv) of the results."""
     data = published_scores()
     short = [k.split(".", 1)[1] for k in keys]
-    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "seeds", "wall min", "SPS", "published"]
+    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "seeds", "cell wall min", "cell SPS",
+                                   "published"]
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---|"]
     buffer = io.StringIO()
     writer = csv.writer(buffer)
