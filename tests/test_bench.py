@@ -10,7 +10,6 @@ import pytest
 
 from canter.bench import BenchSettings, make_cells, published_for, varying_keys
 from canter.cli import main
-from canter.errors import CanterError
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
         "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2",

@@ -335,10 +335,16 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     return failures
 
 
-def _cell_trial(trial: Any, cells: dict[str, Cell], settings: BenchSettings, bench_dir: Path):
+def _cell_trial(study: Any, trial: Any, cells: dict[str, Cell], settings: BenchSettings, bench_dir: Path):
+    from optuna.trial import TrialState
+
     from canter.studies import Outcome
 
     name = trial.suggest_categorical("cell", list(cells))
+    for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
+        if other.params.get("cell") == name and other.number != trial.number and (
+                other.state == TrialState.COMPLETE or other.number < trial.number):
+            return Outcome("fail", reason=f"duplicate: trial {other.number} has this cell")
     cell = cells[name]
     folder = bench_dir / ".cells" / cell.name
     proc = start_group(cell_spec(cell, settings, bench_dir), folder)
@@ -378,8 +384,9 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, ca
     try:
         storage, study = _open_grid_study(cells, settings, bench_dir)
         by_name = {c.name: c for c in cells}
-        run_worker(study, storage, len(cells), lambda trial: _cell_trial(trial, by_name, settings, bench_dir),
-                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds)
+        run_worker(study, storage, len(cells),
+                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
@@ -387,8 +394,10 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, ca
         sys.exit(130)
 
 
-def run_distributed(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> list[dict[str, Any]]:
-    """Share the cells with other workers through an Optuna study; returns the results of every finished cell."""
+def run_distributed(cells: list[Cell], settings: BenchSettings,
+                    bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """Share the cells with other workers through an Optuna study; returns the results of every finished cell (by
+    any worker) and the failure reasons of the cells that failed."""
     import multiprocessing
 
     from optuna.trial import TrialState
@@ -404,8 +413,9 @@ def run_distributed(cells: list[Cell], settings: BenchSettings, bench_dir: Path)
         if name not in held:
             study.enqueue_trial({"cell": name})
     if settings.jobs == 1:
-        run_worker(study, storage, len(by_name), lambda trial: _cell_trial(trial, by_name, settings, bench_dir),
-                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds)
+        run_worker(study, storage, len(by_name),
+                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
     else:
         context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
         processes = [context.Process(target=_grid_worker, args=(cells, settings, bench_dir, caps))
@@ -416,11 +426,15 @@ def run_distributed(cells: list[Cell], settings: BenchSettings, bench_dir: Path)
             p.join()
         if any(p.exitcode for p in processes):
             raise CanterError("a bench worker failed; its error is printed above")
-    done = {}
-    for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
-        if t.params.get("cell") in by_name and "result" in t.user_attrs:
-            done[t.params["cell"]] = t.user_attrs["result"]
-    return [done[c.name] for c in cells if c.name in done]
+    done, failed = {}, {}
+    for t in study.get_trials(deepcopy=False):
+        name = t.params.get("cell")
+        if t.state == TrialState.COMPLETE and name in by_name and "result" in t.user_attrs:
+            done[name] = t.user_attrs["result"]
+        elif t.state == TrialState.FAIL and name in by_name:
+            failed[name] = t.user_attrs.get("fail_reason", "worker died")
+    failures = {name: reason for name, reason in failed.items() if name not in done}
+    return [done[c.name] for c in cells if c.name in done], failures
 
 
 def bench(settings: BenchSettings) -> str:
@@ -433,8 +447,7 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)
     if settings.storage_url:
-        results = run_distributed(cells, settings, bench_dir)
-        failures: dict[str, str] = {}
+        results, failures = run_distributed(cells, settings, bench_dir)
     else:
         failures = run_local(cells, settings, bench_dir)
         results = [cell_result(c, settings, bench_dir) for c in cells if c.name not in failures]

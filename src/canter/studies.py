@@ -145,9 +145,10 @@ def _surplus(study: Any, number: int, target: int) -> bool:
 
 
 def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any], Outcome], *, heartbeat_seconds: float,
-               poll_seconds: float = 1.0, deadline: float | None = None,
-               on_finish: Callable[[Any, Outcome], None] | None = None) -> None:
-    """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes)."""
+               poll_seconds: float = 1.0, deadline: float | None = None, ask_new: bool = True) -> None:
+    """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes).
+    With `ask_new=False` only queued (WAITING) trials are run, and the worker returns once none is queued or
+    running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial."""
     import optuna
     from optuna.trial import TrialState
 
@@ -161,9 +162,12 @@ def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any],
         if n["FAIL"] >= max(10, 2 * target) and finished == 0:
             raise CanterError(f"study '{study.study_name}': {n['FAIL']} trials failed and none finished; see the "
                               f"'{FAIL_REASON}' of the failed trials (canter tune prints them)")
-        if n["WAITING"] == 0 and finished + n["RUNNING"] >= target:
-            time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
-            continue
+        if n["WAITING"] == 0:
+            if not ask_new and n["RUNNING"] == 0:
+                return
+            if not ask_new or finished + n["RUNNING"] >= target:
+                time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
+                continue
         trial = study.ask()
         if _surplus(study, trial.number, target):
             trial.set_user_attr(FAIL_REASON, SURPLUS)
@@ -172,6 +176,8 @@ def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any],
         try:
             with _Heartbeat(storage, trial, heartbeat_seconds):
                 outcome = run_trial(trial)
+        except Exception as exc:  # the trial fails with the reason; the study goes on
+            outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
         except BaseException:
             trial.set_user_attr(FAIL_REASON, "interrupted")
             study.tell(trial, state=TrialState.FAIL)
@@ -182,5 +188,3 @@ def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any],
             study.tell(trial, outcome.value)
         else:
             study.tell(trial, state=states[outcome.state])
-        if on_finish is not None:
-            on_finish(trial, outcome)
