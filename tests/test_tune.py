@@ -149,12 +149,15 @@ def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):
     assert err.splitlines()[-1].startswith("canter: error:") and "empty range" in err and "Traceback" not in err
     assert not (tmp_path / "t").exists()
 
-    code = main(["tune", "Pendulum-v1", "--storage", "postgresql://canter@127.0.0.1:9/nodb",
+    code = main(["tune", "Pendulum-v1", "--storage", "postgresql://canter:secret@127.0.0.1:9/nodb",
                  "--out-dir", str(tmp_path / "t")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1
-    assert "postgresql+psycopg2 storage at 127.0.0.1:9" in err
+    assert "postgresql+psycopg2 storage at 127.0.0.1:9" in err and "secret" not in err
     assert not (tmp_path / "t").exists()
+    code = main(["tune", "Pendulum-v1", "--storage", f"sqlite:///{tmp_path}/missing/dir/study.db"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and f"sqlite storage at {tmp_path}/missing/dir/study.db" in err
 
     code = main(["tune", "Pendulum-v1", "--algo", "ppoo"])
     assert code == 2 and "unknown algorithm 'ppoo'" in capsys.readouterr().err

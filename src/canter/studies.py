@@ -75,8 +75,10 @@ def open_storage(settings: StorageSettings) -> Any:
             heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
                 max_retry=settings.max_retry))
     except (ImportError, ModuleNotFoundError) as exc:
-        raise CanterError(f"the database driver for {driver} storage is not installed ({exc}); install it with "
-                          f"pip install 'canter[distributed]'") from None
+        hint = "pip install 'canter[distributed]'" if driver.startswith("postgresql") else \
+            f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
+        raise CanterError(f"cannot connect to the {driver} storage at {host}: its database driver is not "
+                          f"installed; {hint}") from None
     except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
         reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
         raise CanterError(f"cannot connect to the {driver} storage at {host}: "
