@@ -18,7 +18,7 @@ from canter.config import SECTIONS, build_config
 from canter.errors import CanterError
 from canter.studies import normalize_url
 from canter.search_space import apply_sample, load_space, parse_space, space_names
-from canter.tune import RUN_BOOKKEEPING, TuneSettings, check_settings, run_trial
+from canter.tune import RUN_BOOKKEEPING, TuneSettings, check_settings, evaluation_index, run_trial
 
 from pg_server import postgres_url  # noqa: F401  (session fixture)
 
@@ -195,8 +195,18 @@ def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
     config = load(trial_dir / "s3").config
     assert config.ppo.lr == trial.params["ppo.lr"] and config.ppo.n_steps == trial.params["ppo.n_steps"]
     frozen = study.tell(trial, outcome.value)
-    steps = sorted(frozen.intermediate_values)
-    assert len(steps) == 2 and steps[-1] >= 1024 and frozen.intermediate_values[steps[-1]] == outcome.value
+    assert sorted(frozen.intermediate_values) == [512, 1024]  # nominal steps: every 1/2 of the budget
+    assert frozen.intermediate_values[1024] == outcome.value
+
+
+def test_checkpoints_of_the_seeds_of_a_group_are_matched_by_evaluation_index():
+    settings = TuneSettings(env_id="Hopper-v5", total_steps=1000, evaluations=4)  # every 250 steps
+    assert settings.eval_interval == 250
+    # Seeds count their own steps, so one seed checkpoints at 251 and another at 263 for the same evaluation; an
+    # iteration that crosses two points counts for the later one; the final checkpoint is the last evaluation.
+    assert [evaluation_index(s, settings) for s in (251, 263, 499, 500, 760, 999, 1000, 1077)] == [1, 1, 1, 2, 3,
+                                                                                                   3, 4, 4]
+    assert evaluation_index(100, settings) == 1
 
 
 def test_pruned_trial_stops_its_training(tmp_path):

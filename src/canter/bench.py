@@ -377,9 +377,10 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, ca
 
     from canter.studies import run_worker
 
-    os.environ.update(caps)
-    from canter.groups import apply_cpu_pinning
+    from canter.groups import apply_cpu_pinning, die_with_parent
 
+    die_with_parent()
+    os.environ.update(caps)
     apply_cpu_pinning()
     try:
         storage, study = _open_grid_study(cells, settings, bench_dir)

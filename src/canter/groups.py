@@ -156,7 +156,8 @@ def stop_group(proc: subprocess.Popen, grace_seconds: float = 20.0) -> None:
             proc.wait()
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
+    """Ask Linux to send this process SIGTERM when its parent dies (a no-op elsewhere)."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -216,7 +217,7 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    _die_with_parent()
+    die_with_parent()
     apply_cpu_pinning()
     try:
         run_group(GroupSpec.from_json(Path(argv[0]).read_text()))

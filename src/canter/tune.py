@@ -141,12 +141,25 @@ def preset_text(config: Config) -> str:
 
 # ------------------------------------------------------------------------------------------------------- a trial
 
-def _checkpoint_steps(run_dir: Path) -> set[int]:
+def _checkpoint_steps(run_dir: Path) -> list[int]:
     folder = run_dir / "checkpoints"
     try:
-        return {int(m.group(1)) for p in folder.iterdir() if (m := _CKPT.match(p.name))}
+        return sorted(int(m.group(1)) for p in folder.iterdir() if (m := _CKPT.match(p.name)))
     except OSError:
-        return set()
+        return []
+
+
+def evaluation_index(step: int, settings: TuneSettings) -> int:
+    """Which of the trial's evaluations a checkpoint at `step` is: 1 .. evaluations, the last for the final one.
+    Seeds count their own env steps (EnvPool's autoreset steps are not steps), so the seeds of a group reach an
+    evaluation point at slightly different steps; their checkpoints are matched by this index."""
+    if step >= settings.total_steps:
+        return settings.evaluations
+    return max(1, min(step // settings.eval_interval, settings.evaluations - 1))
+
+
+def _checkpoints_by_index(run_dir: Path, settings: TuneSettings) -> dict[int, int]:
+    return {evaluation_index(step, settings): step for step in _checkpoint_steps(run_dir)}
 
 
 def evaluate_checkpoint(run_dir: Path, step: int, episodes: int) -> float:
@@ -182,28 +195,33 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 
     proc = start_group(GroupSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
-    reported: dict[int, float] = {}
+    reported: dict[int, float] = {}   # evaluation index -> mean return over seeds
+    skipped: set[int] = set()   # evaluation indices whose checkpoint disappeared
     try:
         while True:
             code = proc.poll()
-            ready = set.intersection(*(_checkpoint_steps(d) for d in run_dirs.values())) - set(reported)
-            for step in sorted(ready):
+            found = [_checkpoints_by_index(d, settings) for d in run_dirs.values()]
+            ready = set.intersection(*(set(f) for f in found)) - set(reported) - skipped
+            for index in sorted(ready):
                 try:
-                    value = float(np.mean([evaluate_checkpoint(d, step, settings.eval_episodes)
-                                           for d in run_dirs.values()]))
+                    value = float(np.mean([evaluate_checkpoint(d, f[index], settings.eval_episodes)
+                                           for d, f in zip(run_dirs.values(), found)]))
                 except CanterError:
-                    continue  # pruned by the trainer meanwhile; the next checkpoint will do
-                reported[step] = value
+                    skipped.add(index)  # removed by the trainer meanwhile; the next checkpoint will do
+                    continue
+                reported[index] = value
+                step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 trial.report(value, step)
-                if step < config.run.total_steps and trial.should_prune():
+                if index < settings.evaluations and trial.should_prune():
                     stop_group(proc)
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
             if code is not None:
                 break
             if deadline is not None and time.monotonic() > deadline:
                 stop_group(proc, grace_seconds=5)
+                done = max(reported, default=0) * settings.eval_interval
                 return Outcome("fail", reason=f"exceeded --trial-minutes {settings.trial_minutes:g} "
-                                              f"(stopped at step {max(reported, default=0)})")
+                                              f"(stopped after about {done} steps)")
             time.sleep(settings.poll_seconds)
     finally:
         stop_group(proc)
@@ -217,8 +235,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
         return Outcome("fail", reason=reason)
     if not reported:
         return Outcome("fail", reason="training finished without a checkpoint to evaluate")
-    final = max(reported)
-    return Outcome("complete", value=reported[final])
+    return Outcome("complete", value=reported[max(reported)])
 
 
 # ------------------------------------------------------------------------------------------------------ the study
@@ -261,6 +278,9 @@ def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
 def _spawned_worker(settings: TuneSettings, caps: dict[str, str]) -> None:
     import sys
 
+    from canter.groups import die_with_parent
+
+    die_with_parent()  # a killed `canter tune` takes its workers along; their trials are retried by heartbeat
     try:
         worker(settings, caps)
     except CanterError as exc:
