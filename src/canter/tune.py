@@ -240,19 +240,21 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 
 # ------------------------------------------------------------------------------------------------------ the study
 
-def make_study(settings: TuneSettings, storage: Any) -> Any:
+def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
+    """The study with this worker's sampler and pruner (they are not stored; every worker makes its own). With
+    --sampler-seed, job J samples with seed + J, so parallel jobs do not propose the same random trials."""
     import optuna
 
     quiet_optuna()
-    sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=settings.sampler_seed,
-                                         constant_liar=True)
+    seed = None if settings.sampler_seed is None else settings.sampler_seed + job
+    sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
     pruner = optuna.pruners.MedianPruner(n_startup_trials=max(1, settings.startup_trials // 2),
                                          n_warmup_steps=settings.total_steps // 3)
     return optuna.create_study(storage=storage, study_name=settings.name, direction="maximize", sampler=sampler,
                                pruner=pruner, load_if_exists=True)
 
 
-def worker(settings: TuneSettings, thread_caps: dict[str, str] | None = None) -> None:
+def worker(settings: TuneSettings, thread_caps: dict[str, str] | None = None, job: int = 0) -> None:
     """One worker: run trials until the study has its number of finished trials."""
     if thread_caps:
         os.environ.update(thread_caps)
@@ -261,7 +263,7 @@ def worker(settings: TuneSettings, thread_caps: dict[str, str] | None = None) ->
         apply_cpu_pinning()
     config, space = check_settings(settings)
     storage = open_storage(settings.storage)
-    study = make_study(settings, storage)
+    study = make_study(settings, storage, job)
     deadline = _study_deadline(study, settings)
     run_worker(study, storage, settings.trials, lambda trial: run_trial(trial, settings, config, space),
                heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, deadline=deadline)
@@ -275,14 +277,14 @@ def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
     return min(starts, default=time.time()) + settings.study_hours * 3600
 
 
-def _spawned_worker(settings: TuneSettings, caps: dict[str, str]) -> None:
+def _spawned_worker(settings: TuneSettings, caps: dict[str, str], job: int) -> None:
     import sys
 
     from canter.groups import die_with_parent
 
     die_with_parent()  # a killed `canter tune` takes its workers along; their trials are retried by heartbeat
     try:
-        worker(settings, caps)
+        worker(settings, caps, job)
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
@@ -305,7 +307,7 @@ def tune(settings: TuneSettings) -> Any:
         worker(settings)
     else:
         context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
-        processes = [context.Process(target=_spawned_worker, args=(settings, caps), name=f"canter-tune-{i}")
+        processes = [context.Process(target=_spawned_worker, args=(settings, caps, i), name=f"canter-tune-{i}")
                      for i, caps in enumerate(job_layout(settings.jobs))]
         for p in processes:
             p.start()

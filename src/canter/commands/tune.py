@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Optuna RDB URL, e.g. postgresql://user:pw@host/db (default: SQLite in the study folder)")
     t.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS",
                    help="trial heartbeat interval; a trial silent for 3x this is failed and retried")
-    t.add_argument("--sampler-seed", type=int, default=None, help="seed of the TPE sampler")
+    t.add_argument("--sampler-seed", type=int, default=None,
+                   help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)")
     t.set_defaults(func=run)
 
 
