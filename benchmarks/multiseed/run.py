@@ -164,7 +164,7 @@ def section(rows: list[Row], args: argparse.Namespace, out: Path) -> str:
              f"{','.join(map(str, args.seeds))}", "",
              f"- machine: {_machine()}",
              f"- canter commit: {_commit()}",
-             f"- 1-minute load average before each row: "
+             "- 1-minute load average before each row: "
              + ", ".join(f"{r.name} {r.load:.2f}" for r in rows)
              + " (well above 0 means something else was using the cores and the numbers are not clean)",
              f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}", "",
@@ -188,8 +188,8 @@ def section(rows: list[Row], args: argparse.Namespace, out: Path) -> str:
                      f"(target ≤ {TARGET:.0f}×: {verdict} it) and {by['group'].cpu / one.cpu:.2f}× its CPU time.")
     for name in ("sequential", "concurrent"):
         if "group" in by and name in by:
-            lines.append(f"- against {n} separate processes run {'one after another' if name == 'sequential' else 'at once'}"
-                         f": the group took {by['group'].wall / by[name].wall:.2f}× their wall time and "
+            how = "one after another" if name == "sequential" else "at once"
+            lines.append(f"- against {n} separate processes run {how}: the group took {by['group'].wall / by[name].wall:.2f}× their wall time and "
                          f"{by['group'].cpu / by[name].cpu:.2f}× their CPU time.")
     lines.append("")
     return "\n".join(lines) + "\n"

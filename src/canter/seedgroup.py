@@ -20,7 +20,6 @@ import jax.numpy as jnp
 import numpy as np
 
 
-
 def group_step(env_step: Callable[[Any, Any], tuple[Any, Any]], group_size: int) -> Callable[[Any, Any], Any]:
     """An env step for one seed's [N, A] actions that, under `jax.vmap` over group_size seeds, steps the shared
     env of group_size * N slots once."""
@@ -43,7 +42,11 @@ def group_step(env_step: Callable[[Any, Any], tuple[Any, Any]], group_size: int)
         state = jax.tree.map(lambda x, b: x[0] if b else x, state, state_batched)
         if not action_batched:
             action = jnp.broadcast_to(action, (group_size,) + action.shape)
-        new_state, out = env_step(state, action.reshape((-1,) + action.shape[2:]))
+        flat = action.reshape((-1,) + action.shape[2:])
+        # A seed that diverged stays in the group program until the last seed is done; keep its NaN actions out
+        # of the shared env (finite actions pass unchanged).
+        flat = jnp.where(jnp.isfinite(flat), flat, jnp.zeros_like(flat))
+        new_state, out = env_step(state, flat)
         new_state = jax.tree.map(lambda x: jnp.broadcast_to(x, (group_size,) + x.shape), new_state)
         out = jax.tree.map(split, out)
         return (new_state, out), jax.tree.map(lambda _: True, (new_state, out))
