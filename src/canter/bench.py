@@ -141,8 +141,8 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
                 config = build_config(env_id, preset=settings.preset, config_file=settings.config_file, sets=sets,
                                       seed=settings.seeds[0], total_steps=settings.total_steps, algo=algo)
             except CanterError as exc:
-                label = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
-                raise CanterError(f"cell ({label}): {exc}") from None
+                where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
+                raise CanterError(f"cell ({where}): {exc}") from None
             cells.append(Cell(algo, env_id, pairs, config))
     return cells
 
