@@ -74,7 +74,7 @@ def open_storage(settings: StorageSettings) -> Any:
             grace_period=settings.grace_seconds,
             heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
                 max_retry=settings.max_retry))
-    except (ImportError, ModuleNotFoundError) as exc:
+    except (ImportError, ModuleNotFoundError):
         hint = "pip install 'canter[distributed]'" if driver.startswith("postgresql") else \
             f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
         raise CanterError(f"cannot connect to the {driver} storage at {host}: its database driver is not "
