@@ -268,6 +268,19 @@ def _worker(args: list[str], log: Path) -> subprocess.Popen:
                             stderr=subprocess.STDOUT, env=env)
 
 
+def _wait_gone(pid: int, seconds: float) -> None:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return
+        if state == "Z":  # exited, waiting to be reaped by its new parent
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"process {pid} outlived its killed worker")
+
+
 @pytest.mark.filterwarnings("ignore::optuna.exceptions.ExperimentalWarning")
 def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  # noqa: F811
     trials = 2
@@ -291,7 +304,11 @@ def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  
             victim_trial = running[0].number if running else None
             time.sleep(0.2)
         time.sleep(1.0)  # inside the trial: its training child is up
+        children = Path(f"/proc/{victim.pid}/task/{victim.pid}/children").read_text().split()
         victim.send_signal(signal.SIGKILL)
+        assert children  # the trial's training process, which must not outlive its worker
+        for pid in map(int, children):
+            _wait_gone(pid, 30)
         assert survivor.wait(timeout=180) == 0, (tmp_path / "b.log").read_text()
     finally:
         for p in (victim, survivor):
