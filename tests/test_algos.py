@@ -20,3 +20,27 @@ def test_unknown_algorithm_lists_the_valid_ones(capsys):
     assert main(["train", "Hopper-v5", "--algo", "nope", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown algorithm 'nope'" in err
+
+
+def test_continuous_only_algorithms_name_themselves_for_discrete_actions(tmp_path):
+    from canter.trainer import train
+
+    for algo in ("rpo", "trpo"):
+        config = build_config("CartPole-v1", algo=algo, sets=[f"run.out_dir={tmp_path}", "env.num_envs=4"])
+        with pytest.raises(CanterError, match=f"{algo} is continuous-only, but CartPole-v1 has discrete actions"):
+            train(config)
+    assert not any(tmp_path.iterdir())
+
+
+def test_env_dependent_checks_happen_before_any_work(tmp_path):
+    from canter.trainer import train
+
+    config = build_config("Hopper-v4", algo="rpo", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4",
+                                                         "sym.coef=0.02", "sym.groups=3:7=7:11,11:14=14:17"])
+    with pytest.raises(CanterError, match=r"sym.groups: index 16 is out of the action range 0..2 .*\(rpo\)"):
+        train(config)
+    config = build_config("Hopper-v4", algo="trpo", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4",
+                                                          "sym.coef=0.02", "sym.groups=0=1"])
+    with pytest.raises(CanterError, match="available to ppo and rpo, not trpo"):
+        train(config)
+    assert not any(tmp_path.iterdir())

@@ -107,3 +107,31 @@ num_envs = 2
     assert _preset_layer(table, "Hopper-v5", "ppo", "t") == {"env.num_envs": 16, "ppo.lr": 1e-4}
     assert _preset_layer(table, "Hopper-v5", "td3", "t") == {"env.num_envs": 2, "ppo.lr": 1e-4}
     assert _preset_layer(table, "Walker2d-v5", "td3", "t") == {"env.num_envs": 1}
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["trpo.max_kl=0"], "trpo.max_kl must be > 0"),
+    (["trpo.max_kl=-0.1"], "trpo.max_kl must be > 0"),
+    (["trpo.cg_iters=0"], "trpo.cg_iters must be >= 1"),
+    (["trpo.cg_damping=-1"], "trpo.cg_damping must be >= 0"),
+    (["trpo.line_search_shrink=1"], "trpo.line_search_shrink must be in (0, 1)"),
+    (["run.algo=trpo", "trpo.critic_minibatch_size=100"], "trpo.critic_minibatch_size 100 does not divide"),
+    (["rpo.alpha=-0.1"], "rpo.alpha must be >= 0"),
+    (["ppo.objective=kl"], "ppo.objective must be clip or kl_penalty"),
+    (["ppo.kl_penalty_target=0"], "ppo.kl_penalty_target must be > 0"),
+    (["sym.coef=-1"], "sym.coef must be >= 0"),
+    (["sym.coef=0.1"], "sym.coef > 0 needs sym.groups"),
+    (["sym.groups=3:7=7:10"], "pairs 4 with 3 dimensions"),
+    (["sym.groups=0:2=2:4", "sym.negate=1"], "sym.negate: indices [1]"),
+    (["sym.compare=std"], "sym.compare must be mean or log_prob"),
+])
+def test_bad_onpolicy_variant_settings_are_refused(sets, message):
+    with pytest.raises(CanterError) as info:
+        build_config("Hopper-v5", sets=sets)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_onpolicy_variant_keys_round_trip():
+    config = build_config("Hopper-v5", algo="rpo", sets=["sym.coef=0.02", "sym.groups=0:1=1:2", "sym.negate=1",
+                                                         "ppo.objective=kl_penalty", "rpo.alpha=0.01"])
+    assert config.sym.negate == (1,) and from_toml_text(to_toml(config), "test") == config

@@ -84,3 +84,104 @@ def test_advantage_normalization_uses_valid_entries_only():
     adv = jnp.array([1.0, 2.0, 3.0, 100.0])
     out = normalize_advantages(adv, jnp.array([1.0, 1.0, 1.0, 0.0]))
     np.testing.assert_allclose(np.asarray(out[:3]), [-1.0, 0.0, 1.0], atol=1e-6)
+
+
+# ----------------------------------------------------------------------------------- variants: rpo, kl_penalty, sym
+
+from canter.algos.ppo.losses import LossVariant, gaussian_kl, rpo_shift  # noqa: E402
+from canter.algos.ppo.symmetry import parse_groups  # noqa: E402
+
+
+def vector_params(means, log_stds, value=0.0):
+    """Zero weights: constant per-dimension means and log stds, obs_dim 2."""
+    params = init_params(jax.random.key(0), NET, 2, len(means))
+    params = jax.tree_util.tree_map(jnp.zeros_like, params)
+    params["actor"][-1]["b"] = jnp.asarray(means, jnp.float32)
+    params["critic"][-1]["b"] = jnp.array([value], jnp.float32)
+    params["log_std"] = jnp.asarray(log_stds, jnp.float32)
+    return params
+
+
+def one_sample(actions, old_log_prob, advantage=1.0):
+    n = 1
+    return Minibatch(obs=jnp.zeros((n, 2), jnp.float32), actions=jnp.asarray([actions], jnp.float32),
+                     log_probs=jnp.array([old_log_prob], jnp.float32), values=jnp.zeros(n),
+                     advantages=jnp.array([advantage]), returns=jnp.zeros(n), mask=jnp.ones(n))
+
+
+PLAIN = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=False, ent_coef=0.0, vf_coef=0.0)
+
+
+def test_rpo_shift_is_uniform_within_alpha():
+    z = np.asarray(rpo_shift(jax.random.key(1), jnp.zeros((20000, 3)), 0.5))
+    assert np.abs(z).max() <= 0.5 and np.abs(z).max() > 0.49
+    assert abs(z.mean()) < 0.01 and z.var() == pytest.approx(0.25 / 3, rel=0.03)
+    # Independent per dimension.
+    assert abs(np.corrcoef(z[:, 0], z[:, 1])[0, 1]) < 0.03
+
+
+def test_rpo_loss_evaluates_the_stored_action_under_the_shifted_mean():
+    params = vector_params([0.2, -0.1], [0.0, -0.5])
+    action = [0.7, 0.3]
+    old_lp = log_normal(0.7, 0.2, 0.0) + log_normal(0.3, -0.1, -0.5)
+    batch = one_sample(action, old_lp, advantage=2.0)
+    key = jax.random.key(5)
+    loss, d = ppo_loss(params, batch, NET, PLAIN, LossVariant(rpo_alpha=0.5), key)
+    z = np.asarray(jax.random.uniform(key, (1, 2), jnp.float32, -0.5, 0.5))[0]   # the draw rpo_shift makes
+    new_lp = log_normal(0.7, 0.2 + z[0], 0.0) + log_normal(0.3, -0.1 + z[1], -0.5)
+    ratio = math.exp(new_lp - old_lp)
+    assert float(d["policy_loss"]) == pytest.approx(max(-2.0 * ratio, -2.0 * min(max(ratio, 0.8), 1.2)), rel=1e-5)
+    assert float(d["approx_kl"]) == pytest.approx((ratio - 1) - math.log(ratio), rel=1e-4)
+    # alpha = 0 is exactly PPO.
+    ppo_value, _ = ppo_loss(params, batch, NET, PLAIN)
+    rpo_zero, _ = ppo_loss(params, batch, NET, PLAIN, LossVariant(rpo_alpha=0.0), key)
+    assert float(rpo_zero) == float(ppo_value) == pytest.approx(-2.0, rel=1e-6)
+
+
+def test_gaussian_kl_closed_form():
+    def kl_1d(mp, lp, mq, lq):
+        return lq - lp + (math.exp(2 * lp) + (mp - mq) ** 2) / (2 * math.exp(2 * lq)) - 0.5
+
+    got = float(gaussian_kl(jnp.array([0.5, -1.0]), jnp.array([-0.3, 0.2]), jnp.array([0.0, 0.4]),
+                            jnp.array([0.0, -0.1])))
+    assert got == pytest.approx(kl_1d(0.5, -0.3, 0.0, 0.0) + kl_1d(-1.0, 0.2, 0.4, -0.1), rel=1e-6)
+    assert float(gaussian_kl(jnp.ones(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3))) == 0.0
+
+
+def test_kl_penalty_objective_by_hand():
+    # New policy N(0, 1); old policy N(0.5, e^-0.3); stored action 1.0 with its old log-prob; beta 3.
+    params = vector_params([0.0], [0.0])
+    old_lp = log_normal(1.0, 0.5, -0.3)
+    batch = one_sample([1.0], old_lp, advantage=1.5)._replace(old_mean=jnp.array([[0.5]]),
+                                                               old_log_std=jnp.array([[-0.3]]))
+    ppo = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=False, ent_coef=0.0, vf_coef=0.0, objective="kl_penalty")
+    loss, d = ppo_loss(params, batch, NET, ppo, LossVariant(kl_penalty=True), None, 3.0)
+    ratio = math.exp(log_normal(1.0, 0.0, 0.0) - old_lp)
+    kl = 0.0 + 0.3 + (math.exp(-0.6) + 0.25) / 2 - 0.5
+    assert float(d["policy_loss"]) == pytest.approx(-1.5 * ratio + 3.0 * kl, rel=1e-5)   # no clipping
+    assert float(loss) == pytest.approx(-1.5 * ratio + 3.0 * kl, rel=1e-5)
+
+
+@pytest.mark.parametrize("compare", ["mean", "log_prob"])
+def test_symmetric_term_is_added_and_logged(compare):
+    pairs = parse_groups("0=1,2=3", negate=(3,))
+    variant = LossVariant(sym_coef=0.1, sym_pairs=pairs, sym_compare=compare)
+    # Mirrored policy (mean 0.3 on both legs of pair 1; +-0.2 on pair 2, whose right joint is negated) and mirrored
+    # action: the term is zero.
+    mirrored = vector_params([0.3, 0.3, 0.2, -0.2], [-0.5, -0.5, 0.1, 0.1])
+    action = [0.6, 0.6, 0.0, 0.0]
+    batch = one_sample(action, 0.0)
+    base, _ = ppo_loss(mirrored, batch, NET, PLAIN)
+    loss, d = ppo_loss(mirrored, batch, NET, PLAIN, variant)
+    assert float(d["sym_loss"]) == pytest.approx(0.0, abs=1e-7) and float(loss) == pytest.approx(float(base))
+    # Break the symmetry of pair 1 only; the term is the hand value and enters the loss with its coefficient.
+    lopsided = vector_params([0.3, -0.1, 0.2, -0.2], [-0.5, -0.5, 0.1, 0.1])
+    base, _ = ppo_loss(lopsided, batch, NET, PLAIN)
+    loss, d = ppo_loss(lopsided, batch, NET, PLAIN, variant)
+    if compare == "mean":
+        expected = ((0.3 - (-0.1)) ** 2 + 0.0) / 2
+    else:
+        per_dim = [log_normal(0.6, 0.3, -0.5), log_normal(0.6, -0.1, -0.5)]
+        expected = ((per_dim[0] - per_dim[1]) ** 2 + 0.0) / 2
+    assert float(d["sym_loss"]) == pytest.approx(expected, rel=1e-5)
+    assert float(loss) == pytest.approx(float(base) + 0.1 * expected, rel=1e-5)

@@ -120,3 +120,29 @@ def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(t
     run_dir = next(tmp_path.iterdir())
     _, _, state, header = load_state(run_dir)
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
+
+
+def test_trpo_resume_is_deterministic_and_continues(tmp_path):
+    extra = [f"run.out_dir={tmp_path}", "trpo.critic_minibatch_size=256", "trpo.critic_epochs=2"]
+    first = train(build_config("Pendulum-v1", algo="trpo", total_steps=2048, sets=SMALL + extra))
+    _, _, before, _ = load_state(first.run_dir)
+    assert before.critic_opt_state is not None and int(before.iteration) >= 2
+    copy = tmp_path / "copy"
+    shutil.copytree(first.run_dir, copy)
+    r1 = train(resume_config(first.run_dir, 4096), resume=first.run_dir)
+    r2 = train(resume_config(copy, 4096), resume=copy)
+    _, _, s1, _ = load_state(r1.run_dir)
+    _, _, s2, _ = load_state(r2.run_dir)
+    assert _leaves_equal(s1, s2), "two resumes of one checkpoint must be identical"
+    assert int(s1.iteration) > int(before.iteration) and not _leaves_equal(s1.params, before.params)
+    header = (r1.run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert {"surrogate_gain", "policy_kl", "step_accepted", "cg_iterations", "value_loss"} <= set(header)
+
+
+
+def test_clipped_ppo_checkpoints_hold_no_kl_beta(tiny_run):
+    # The clipped objective keeps no beta, so its checkpoints hold the same arrays as before the option existed.
+    _, _, state, _ = load_state(tiny_run.run_dir)
+    assert state.kl_beta is None
+    header = (tiny_run.run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert {"policy_kl", "kl_beta", "sym_loss"} <= set(header)

@@ -71,23 +71,49 @@ class PPOConfig:
     max_grad_norm: float = _doc("Global gradient-norm clip (actor and critic together).", default=0.5)
     target_kl: float | None = _doc("Stop the epochs of an iteration once approx KL exceeds this; `none` is off.",
                                    default=None)
+    objective: str = _doc("Policy objective: `clip` (clipped surrogate) or `kl_penalty` (surrogate - beta * KL, "
+                          "with beta adapted after each iteration, PPO paper sec. 4).", default="clip")
+    kl_penalty_target: float = _doc("kl_penalty only: KL target d; beta halves when the iteration's mean KL < d/1.5 "
+                                    "and doubles when it is > 1.5 d.", default=0.01)
+    kl_penalty_beta: float = _doc("kl_penalty only: initial beta (the current beta is part of the train state).",
+                                  default=1.0)
 
 
 # Sections of the other algorithms. Each is owned by its algorithm module's author; keep them in this order.
 
 @dataclass(frozen=True)
 class RPOConfig:
-    """rpo: filled in by the on-policy variants."""
+    """rpo: PPO whose update re-evaluates stored actions under a randomly shifted mean (Rahman & Xue 2023)."""
+    alpha: float = _doc("Half-width of the per-dimension shift z ~ U(-alpha, alpha) added to the policy mean when "
+                        "the update re-evaluates stored actions (rollouts sample from the unshifted policy).",
+                        default=0.5)
 
 
 @dataclass(frozen=True)
 class SymConfig:
-    """Symmetric action loss for ppo and rpo: filled in by the on-policy variants."""
+    """Symmetric action loss for ppo and rpo (seed 000)."""
+    coef: float = _doc("Weight of the symmetric action loss; 0 turns it off.", default=0.0)
+    groups: str = _doc("Mirrored action groups as `a:b=c:d` pairs of half-open index ranges of equal length, comma "
+                       "separated (a single index `i` means `i:i+1`), e.g. `3:7=7:11,11:14=14:17`.", default="")
+    negate: tuple[int, ...] = _doc("Indices on the right-hand side of a pair whose sign is flipped before comparing "
+                                   "means (joints whose axis is mirrored, so mirrored motion is -a).", default=())
+    compare: str = _doc("What is compared across a pair: `mean` (the policy means) or `log_prob` (per-dimension "
+                        "log-probabilities of the stored actions, as seed 000 does).", default="mean")
 
 
 @dataclass(frozen=True)
 class TRPOConfig:
-    """trpo: filled in by the on-policy variants."""
+    """trpo: natural gradient by conjugate gradient, backtracking line search, Adam critic. Rollout and GAE use
+    ppo.n_steps, ppo.gamma, ppo.gae_lambda and ppo.norm_adv."""
+    max_kl: float = _doc("Trust region: a step is accepted only if the mean KL(old || new) is at most this.",
+                         default=0.01)
+    cg_iters: int = _doc("Maximum conjugate-gradient iterations for the natural gradient.", default=10)
+    cg_damping: float = _doc("Damping added to the Fisher-vector product (F + damping I).", default=0.1)
+    line_search_iters: int = _doc("Backtracking line-search steps before the update is rejected.", default=10)
+    line_search_shrink: float = _doc("Step-size factor per backtracking step.", default=0.8)
+    critic_lr: float = _doc("Adam learning rate of the critic's regression on the GAE returns.", default=1e-3)
+    critic_epochs: int = _doc("Passes over the batch for the critic per iteration.", default=10)
+    critic_minibatch_size: int = _doc("Samples per critic minibatch; must divide the batch.", default=128)
 
 
 @dataclass(frozen=True)
@@ -120,6 +146,8 @@ class RunConfig:
                                         default=None)
     max_minutes: float | None = _doc("Stop cleanly, with a checkpoint, after this many wall minutes.", default=None)
     tensorboard: bool = _doc("Write TensorBoard event files.", default=True)
+    video_every: int = _doc("Render one episode to videos/step_<step>.mp4 in the run folder every this many env "
+                            "steps, in a separate process (0: never).", default=0)
 
 
 @dataclass(frozen=True)
@@ -410,11 +438,49 @@ def validate(config: Config) -> None:
     need(0 <= ppo.gae_lambda <= 1, f"ppo.gae_lambda must be in [0, 1], got {ppo.gae_lambda}")
     for key in ("ent_coef", "vf_coef"):
         need(getattr(ppo, key) >= 0, f"ppo.{key} must be >= 0, got {getattr(ppo, key)}")
+    _validate_onpolicy_variants(config)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
+    need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
     if run.max_minutes is not None:
         need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")
+
+
+def _validate_onpolicy_variants(config: Config) -> None:
+    """ppo.objective, rpo, sym and trpo: checks that need only the config (the action range is checked by the
+    algorithm against the env spec)."""
+    ppo, rpo, sym, trpo = config.ppo, config.rpo, config.sym, config.trpo
+
+    def need(ok: bool, message: str) -> None:
+        if not ok:
+            raise CanterError(message)
+
+    need(ppo.objective in ("clip", "kl_penalty"), f"ppo.objective must be clip or kl_penalty, got '{ppo.objective}'")
+    for key in ("kl_penalty_target", "kl_penalty_beta"):
+        value = getattr(ppo, key)
+        need(math.isfinite(value) and value > 0, f"ppo.{key} must be > 0, got {value}")
+    need(math.isfinite(rpo.alpha) and rpo.alpha >= 0, f"rpo.alpha must be >= 0, got {rpo.alpha}")
+    need(math.isfinite(sym.coef) and sym.coef >= 0, f"sym.coef must be >= 0 (0 is off), got {sym.coef}")
+    need(sym.compare in ("mean", "log_prob"), f"sym.compare must be mean or log_prob, got '{sym.compare}'")
+    from canter.algos.ppo.symmetry import parse_groups
+
+    pairs = parse_groups(sym.groups, sym.negate)
+    need(sym.coef == 0 or bool(pairs), "sym.coef > 0 needs sym.groups, e.g. sym.groups=3:7=7:11")
+    need(math.isfinite(trpo.max_kl) and trpo.max_kl > 0, f"trpo.max_kl must be > 0, got {trpo.max_kl}")
+    need(trpo.cg_iters >= 1, f"trpo.cg_iters must be >= 1, got {trpo.cg_iters}")
+    need(math.isfinite(trpo.cg_damping) and trpo.cg_damping >= 0,
+         f"trpo.cg_damping must be >= 0, got {trpo.cg_damping}")
+    need(trpo.line_search_iters >= 1, f"trpo.line_search_iters must be >= 1, got {trpo.line_search_iters}")
+    need(0 < trpo.line_search_shrink < 1, f"trpo.line_search_shrink must be in (0, 1), got "
+                                          f"{trpo.line_search_shrink}")
+    need(math.isfinite(trpo.critic_lr) and trpo.critic_lr > 0, f"trpo.critic_lr must be > 0, got {trpo.critic_lr}")
+    need(trpo.critic_epochs >= 1, f"trpo.critic_epochs must be >= 1, got {trpo.critic_epochs}")
+    need(trpo.critic_minibatch_size >= 1, f"trpo.critic_minibatch_size must be >= 1, got "
+                                          f"{trpo.critic_minibatch_size}")
+    need(config.run.algo != "trpo" or config.batch_size % trpo.critic_minibatch_size == 0,
+         f"trpo.critic_minibatch_size {trpo.critic_minibatch_size} does not divide the batch {config.batch_size} "
+         f"(ppo.n_steps x env.num_envs); pick a divisor")
 
 
 # ------------------------------------------------------------------------------------------------- TOML round trip

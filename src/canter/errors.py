@@ -7,3 +7,11 @@ traceback and exits non-zero; everything else is a bug and keeps its traceback.
 
 class CanterError(Exception):
     """A problem with the user's input or environment, reported as one line."""
+
+
+class DiscreteActionsError(CanterError):
+    """The env's actions are not a Box. The trainer re-raises it naming the algorithm, which is continuous-only."""
+
+    def __init__(self, env_id: str, space: object) -> None:
+        super().__init__(f"{env_id}: action space {space} is not continuous; canter trains Box actions")
+        self.env_id, self.space = env_id, space

@@ -20,9 +20,10 @@ import numpy as np
 
 from canter import checkpoint
 from canter.config import Config, to_toml, validate
-from canter.errors import CanterError
+from canter.errors import CanterError, DiscreteActionsError
 from canter.logger import MetricsLogger, Progress
 from canter.seeding import RESUME, TRAIN, env_seeds
+from canter.video import TrainingVideos
 
 RECENT_EPISODES = 20
 
@@ -182,8 +183,12 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
         start_steps.append(start_step)
 
     config = configs[0]
-    env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds,
-                       config.env.envpool_shards)
+    try:
+        env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds,
+                           config.env.envpool_shards)
+    except DiscreteActionsError as exc:
+        raise CanterError(f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
+                          f"({exc.space}); choose an env with Box actions") from None
     spec = replace(env.spec, num_envs=config.env.num_envs)  # what one seed sees
     algorithm = get_algorithm(config.run.algo)
     try:
@@ -217,6 +222,7 @@ class _SeedRun:
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
         self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard)
+        self.videos = TrainingVideos(out, config.run.video_every, start_step)
         self.closed = False
         self.stop_reason: str | None = None     # set once the seed is done; the group may still run
         self.error: str | None = None
@@ -281,6 +287,7 @@ class _SeedRun:
     def close(self) -> None:
         if not self.closed:
             self.logger.close()
+            self.videos.close()
             self.closed = True
 
     def fail(self, last_good_state: Any) -> None:
@@ -357,6 +364,8 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
                         run.save(pick(new_state, i), run.global_step)
                         every = run.config.run.checkpoint_every
                         run.next_checkpoint = (run.global_step // every + 1) * every
+                    run.videos.maybe_record(run.global_step, lambda path, i=i, run=run: checkpoint.save(
+                        path, pick(new_state, i), dict(run.header_base, global_step=run.global_step)))
                 state = new_state
 
                 group_reason = None

@@ -39,6 +39,8 @@ from canter.errors import CanterError
 # name -> (module that defines ALGORITHMS, one-line summary)
 REGISTRY: dict[str, tuple[str, str]] = {
     "ppo": ("canter.algos.ppo", "Proximal Policy Optimization (clipped, or adaptive KL penalty)"),
+    "rpo": ("canter.algos.ppo", "Robust Policy Optimization: PPO with a uniformly shifted mean in the update"),
+    "trpo": ("canter.algos.trpo", "Trust Region Policy Optimization (conjugate gradient, line search)"),
 }
 
 

@@ -23,12 +23,13 @@ def seeds_arg(text: str) -> list[int]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
+    from canter.config import preset_names
 
     t = sub.add_parser("train", help="train a policy; writes a run folder",
                        description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.")
     t.add_argument("env", nargs="?", help="env id (Hopper-v5) or module:EnvId for a custom Gymnasium env")
     t.add_argument("--algo", default=None, help=f"algorithm: {', '.join(algorithm_names())} (default ppo)")
-    t.add_argument("--preset", default=None, help="preset overlay: fast (default) or cleanrl")
+    t.add_argument("--preset", default=None, help=f"preset overlay: {', '.join(preset_names())} (default fast)")
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
@@ -37,6 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="stop once the mean of the last 20 training episodes reaches this")
     t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
     t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
+    t.add_argument("--video-every", type=steps_arg, default=None, metavar="N",
+                   help="render an episode to RUN/videos/step_<step>.mp4 every N env steps (run.video_every)")
     t.add_argument("--seeds", type=seeds_arg, default=None, metavar="S1,S2,...",
                    help="train one run per seed together in one vmapped program (instead of --seed)")
     t.add_argument("--resume", nargs="+", default=None, metavar="RUN_DIR",
@@ -57,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
                                              ("--config", args.config), ("--set", args.set), ("--seed", args.seed),
                                              ("--seeds", args.seeds), ("--backend", args.backend),
                                              ("--stop-at-return", args.stop_at_return),
-                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir))
+                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir),
+                                             ("--video-every", args.video_every))
                    if value]
         if changed:
             raise CanterError(f"--resume uses the saved config; only --total-steps and --quiet may be given "
@@ -77,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
             extra["run.max_minutes"] = args.max_minutes
         if args.out_dir:
             extra["run.out_dir"] = args.out_dir
+        if args.video_every is not None:
+            extra["run.video_every"] = args.video_every
         sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
         config = build_config(args.env, preset=args.preset or "fast", config_file=args.config, sets=sets,
                               seed=args.seed, total_steps=args.total_steps, algo=args.algo)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
-from canter.errors import CanterError
+from canter.errors import CanterError, DiscreteActionsError
 
 
 def _space_error(env_id: str, space: Any) -> CanterError:
@@ -32,13 +32,16 @@ def make_single(env_id: str, **kwargs: Any) -> Any:
     elif not isinstance(obs_space, gym.spaces.Box):
         raise _space_error(env_id, obs_space)
     if not isinstance(env.action_space, gym.spaces.Box):
-        raise CanterError(f"{env_id}: action space {env.action_space} is not continuous; canter trains Box actions")
+        raise DiscreteActionsError(env_id, env.action_space)
     return env
 
 
 class GymnasiumVecEnv:
-    def __init__(self, env_id: str, num_envs: int, seeds: list[int], **kwargs: Any) -> None:
+    def __init__(self, env_id: str, num_envs: int, seeds: list[int], on_make: Any = None, **kwargs: Any) -> None:
+        """`on_make(env)`, if given, is called on each env before its first reset (e.g. to edit a MuJoCo model)."""
         self._envs = [make_single(env_id, **kwargs) for _ in range(num_envs)]
+        for env in self._envs if on_make is not None else ():
+            on_make(env)
         first = self._envs[0]
         self._num_envs = num_envs
         self._needs_reset = np.zeros(num_envs, bool)

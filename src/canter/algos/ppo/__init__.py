@@ -10,7 +10,7 @@ from canter.algos import Algorithm, ExportedActor
 from canter.config import Config
 
 PPO_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance",
-               "learning_rate", "epochs_run")
+               "learning_rate", "epochs_run", "policy_kl", "kl_beta", "sym_loss")
 
 
 def _init_state(config: Config, spec: Any):
@@ -23,6 +23,12 @@ def _make_iteration(config: Config, spec: Any, env_step: Any):
     from canter.algos.ppo.iteration import make_iteration
 
     return make_iteration(config, spec, env_step)
+
+
+def _make_rpo_iteration(config: Config, spec: Any, env_step: Any):
+    from canter.algos.ppo.iteration import make_iteration
+
+    return make_iteration(config, spec, env_step, rpo=True)
 
 
 def make_gaussian_act(config: Config, spec: Any):
@@ -64,11 +70,19 @@ def export_gaussian_actor(config: Config, state: Any, spec: Any) -> ExportedActo
 
 
 def validate_continuous(config: Config, spec: Any) -> None:
-    """Nothing beyond config.validate yet; env checks (Box actions) happen when the env is built."""
+    """Checks against the env: symmetric-loss groups inside the action range. (Box actions are checked when the
+    env is built; the trainer names the algorithm in that error.)"""
+    from canter.algos.ppo.symmetry import check_action_range, parse_groups
+
+    if spec is not None and config.sym.coef > 0:
+        check_action_range(parse_groups(config.sym.groups, config.sym.negate), spec.act_dim, config.run.algo)
 
 
 ALGORITHMS = {
     "ppo": Algorithm(name="ppo", on_policy=True, init_state=_init_state, make_iteration=_make_iteration,
+                     metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
+                     export_actor=export_gaussian_actor, validate=validate_continuous),
+    "rpo": Algorithm(name="rpo", on_policy=True, init_state=_init_state, make_iteration=_make_rpo_iteration,
                      metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
                      export_actor=export_gaussian_actor, validate=validate_continuous),
 }

@@ -8,8 +8,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from canter.algos.ppo.learner import make_optimizer, ppo_update
-from canter.algos.ppo.losses import Minibatch
+from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
+from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config import Config
 from canter.envs.base import EnvSpec
 from canter.gae import compute_gae
@@ -27,6 +27,7 @@ class TrainState(NamedTuple):
     key: jax.Array
     iteration: jnp.ndarray
     global_step: jnp.ndarray
+    kl_beta: Any = None   # the adaptive KL penalty weight; None (no leaf) unless ppo.objective = kl_penalty
 
 
 def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
@@ -34,10 +35,12 @@ def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
     params = init_params(init_key, config.net, obs_dim, act_dim)
     return TrainState(params=params, opt_state=make_optimizer(config).init(params), obs_stats=init_stats((obs_dim,)),
                       return_stats=init_stats(()), key=jax.random.key_data(key),
-                      iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64))
+                      iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64),
+                      kl_beta=(jnp.asarray(config.ppo.kl_penalty_beta, jnp.float32)
+                               if config.ppo.objective == "kl_penalty" else None))
 
 
-def _explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
+def explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
     count = jnp.maximum(mask.sum(), 1.0)
 
     def var(x):
@@ -48,8 +51,10 @@ def _explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.n
     return jnp.where(target_var > 0, 1.0 - var(target - predicted) / target_var, jnp.nan)
 
 
-def make_iteration(config: Config, spec: EnvSpec, env_step):
-    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit."""
+def make_iteration(config: Config, spec: EnvSpec, env_step, rpo: bool = False):
+    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit. `rpo` turns the
+    loss into RPO's (the rollout is the same: actions are sampled from the unshifted policy)."""
+    variant = loss_variant(config, rpo)
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
 
@@ -67,19 +72,24 @@ def make_iteration(config: Config, spec: EnvSpec, env_step):
         critic_lr = config.ppo.critic_lr if config.ppo.critic_lr is not None else config.ppo.lr
         fraction = lr_fraction if config.ppo.anneal_lr else jnp.float32(1.0)
         actor_lr, critic_lr = config.ppo.lr * fraction, critic_lr * fraction
+        kl_beta = state.kl_beta if variant.kl_penalty else jnp.float32(0.0)
         params, opt_state, diagnostics = ppo_update(state.params, state.opt_state, batch, update_key,
-                                                    actor_lr, critic_lr, config)
+                                                    actor_lr, critic_lr, config, variant, kl_beta)
+        new_beta = (adapt_kl_beta(kl_beta, diagnostics["policy_kl"], config.ppo.kl_penalty_target)
+                    if variant.kl_penalty else None)
         steps = tr.valid.sum().astype(jnp.int64)
         finite = (jnp.all(jnp.isfinite(tr.obs)) & jnp.all(jnp.isfinite(tr.reward))
                   & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)])))
         metrics = dict(diagnostics)
+        metrics.setdefault("sym_loss", jnp.float32(0.0))
         metrics.update(
-            explained_variance=_explained_variance(batch.values, batch.returns, batch.mask),
+            kl_beta=kl_beta if variant.kl_penalty else jnp.float32(jnp.nan),
+            explained_variance=explained_variance(batch.values, batch.returns, batch.mask),
             learning_rate=jnp.asarray(actor_lr, jnp.float32), steps=steps, finite=finite,
             finished=tr.done, episode_return=tr.episode_return, episode_length=tr.episode_length,
             episode_info=tr.episode_info)
         new_state = TrainState(params, opt_state, obs_stats, return_stats, jax.random.key_data(key),
-                               state.iteration + 1, state.global_step + steps)
+                               state.iteration + 1, state.global_step + steps, new_beta)
         return new_state, carry, metrics
 
     return iteration

@@ -12,9 +12,11 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from canter.algos.ppo.losses import Minibatch, ppo_loss
+from canter.algos.ppo.losses import LossVariant, Minibatch, gaussian_kl, masked_mean, ppo_loss
 from canter.config import Config
-from canter.networks import Params
+from canter.networks import Params, policy_dist
+
+KL_BETA_MIN, KL_BETA_MAX = 1e-5, 1e5
 
 
 def make_optimizer(config: Config) -> optax.GradientTransformation:
@@ -34,19 +36,28 @@ class UpdateResult(NamedTuple):
 
 
 def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array, actor_lr: Any, critic_lr: Any,
-               config: Config) -> UpdateResult:
-    """Run `epochs` passes of `num_minibatches` gradient steps; stop early on target KL if configured."""
+               config: Config, variant: LossVariant = LossVariant(), kl_beta: Any = 0.0) -> UpdateResult:
+    """Run `epochs` passes of `num_minibatches` gradient steps; stop early on target KL if configured.
+
+    `variant` selects the loss (ppo, rpo, kl_penalty, symmetric term); `kl_beta` is the current penalty weight.
+    The diagnostics include `policy_kl`, the exact mean KL(old || new) over the batch after the update."""
     optimizer = make_optimizer(config)
     batch_size = batch.mask.shape[0]
     num_minibatches = batch_size // config.ppo.minibatch_size
     target_kl = config.ppo.target_kl
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
-    zero_diag = {k: jnp.float32(0.0) for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")}
+    diag_names = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")
+    diag_names += ("sym_loss",) if variant.symmetric else ()
+    zero_diag = {k: jnp.float32(0.0) for k in diag_names}
+    old_mean, old_log_std = policy_dist(params, batch.obs, config.net)
+    if variant.kl_penalty:
+        batch = batch._replace(old_mean=old_mean, old_log_std=old_log_std)
 
-    def minibatch_step(carry, indices):
+    def minibatch_step(carry, step):
         params, opt_state = carry
+        indices, loss_key = step
         minibatch = jax.tree_util.tree_map(lambda x: x[indices], batch)
-        (_, diag), grads = grad_fn(params, minibatch, config.net, config.ppo)
+        (_, diag), grads = grad_fn(params, minibatch, config.net, config.ppo, variant, loss_key, kl_beta)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         params = optax.apply_updates(params, _apply_lrs(updates, actor_lr, critic_lr))
         return (params, opt_state), diag
@@ -57,8 +68,10 @@ def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array,
         def run(operand):
             params, opt_state = operand
             permutation = jax.random.permutation(epoch_key, batch_size)
-            (params, opt_state), diags = jax.lax.scan(
-                minibatch_step, (params, opt_state), permutation.reshape(num_minibatches, -1))
+            # A derived key for RPO's shifts, so the minibatch order is the same as before RPO existed.
+            loss_keys = jax.random.split(jax.random.fold_in(epoch_key, 1), num_minibatches)
+            steps = (permutation.reshape(num_minibatches, -1), loss_keys)
+            (params, opt_state), diags = jax.lax.scan(minibatch_step, (params, opt_state), steps)
             return params, opt_state, diags
 
         def skip(operand):
@@ -77,4 +90,13 @@ def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array,
     (params, opt_state, _, sums, count), _ = jax.lax.scan(epoch, init, keys)
     diagnostics = {k: v / jnp.maximum(count, 1.0) for k, v in sums.items()}
     diagnostics["epochs_run"] = count
+    new_mean, new_log_std = policy_dist(params, batch.obs, config.net)
+    diagnostics["policy_kl"] = masked_mean(gaussian_kl(old_mean, old_log_std, new_mean, new_log_std), batch.mask)
     return UpdateResult(params, opt_state, diagnostics)
+
+
+def adapt_kl_beta(beta: Any, kl: Any, target: float) -> Any:
+    """The PPO paper's rule (sec. 4): halve beta when KL < target / 1.5, double it when KL > 1.5 target. Beta is
+    kept in [1e-5, 1e5] so a long run of tiny (or huge) KLs cannot strand it at 0 (or inf)."""
+    beta = jnp.where(kl < target / 1.5, beta / 2.0, jnp.where(kl > target * 1.5, beta * 2.0, beta))
+    return jnp.clip(beta, KL_BETA_MIN, KL_BETA_MAX)

@@ -1,0 +1,95 @@
+"""Every shipped preset builds a valid config for its env, checked against the real env's spec."""
+
+import re
+from importlib import resources
+
+import pytest
+
+from canter.algos import algorithm_names, get_algorithm
+from canter.config import build_config, preset_names, preset_overrides, preset_text
+from canter.envs import make_vec_env
+
+# Presets without an `# env:` header line are general; they are checked on the seeds' tasks.
+GENERAL_ENVS = ("HalfCheetah-v4", "Hopper-v4", "Walker2d-v4", "Humanoid-v4", "HumanoidStandup-v4", "Ant-v4",
+                "BipedalWalker-v3")
+
+
+def preset_envs(name: str) -> tuple[str, ...]:
+    found = re.findall(r"^# env: (.+)$", preset_text(name), flags=re.MULTILINE)
+    return tuple(e.strip() for line in found for e in line.split(",")) or GENERAL_ENVS
+
+
+_specs: dict[str, object] = {}
+
+
+def spec_of(env_id: str):
+    if env_id not in _specs:
+        env = make_vec_env(env_id, "auto", 1, [0])
+        _specs[env_id] = env.spec
+        env.close()
+    return _specs[env_id]
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_preset_builds_a_valid_config_for_its_envs(name):
+    assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), \
+        "a preset starts with a comment header that gives its source"
+    for env_id in preset_envs(name):
+        pinned = preset_overrides(name, env_id).get("run.algo")
+        algos = [pinned] if pinned else algorithm_names()
+        for algo in algos:
+            config = build_config(env_id, preset=name, algo=algo)
+            get_algorithm(algo).validate(config, spec_of(env_id))
+
+
+def test_seed_presets_hold_the_seeds_numbers():
+    standup = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    assert standup.run.algo == "rpo" and standup.run.total_steps == 5_000_000
+    assert (standup.ppo.n_steps, standup.ppo.minibatch_size, standup.ppo.lr, standup.ppo.ent_coef) == \
+        (2048, 64, 2e-5, 1e-4)
+    assert standup.rpo.alpha == 0.5 and standup.sym.coef == 0.02 and standup.sym.groups == "3:7=7:11,11:14=14:17"
+    cheetah = build_config("HalfCheetah-v4", preset="seed000-halfcheetah")
+    assert cheetah.ppo.ent_coef == 0.5 and cheetah.run.seed == 8 and cheetah.ppo.minibatch_size == 32
+    assert "contradicts" in preset_text("seed000-halfcheetah")
+    hopper = build_config("Hopper-v4", preset="seed002-hopper-trpo")
+    assert hopper.run.algo == "trpo" and hopper.net.activation == "relu" and hopper.net.hidden == (64, 64)
+    assert (hopper.trpo.critic_lr, hopper.trpo.cg_iters, hopper.trpo.cg_damping) == (2e-4, 10, 0.1)
+    walker = build_config("BipedalWalker-v3", preset="seed002-bipedalwalker-ppo")
+    assert (walker.ppo.n_steps, walker.ppo.minibatch_size, walker.ppo.epochs, walker.env.num_envs) == (512, 32, 5, 4)
+    assert (walker.ppo.gamma, walker.ppo.gae_lambda, walker.run.stop_at_return) == (0.99, 0.99, 300.0)
+
+
+@pytest.mark.parametrize("preset", ["fast", "cleanrl"])
+def test_rpo_alpha_is_small_where_0_5_collapses(preset):
+    for env_id in ("Ant-v4", "InvertedDoublePendulum-v4", "Reacher-v4", "Pusher-v4"):
+        assert build_config(env_id, preset=preset, algo="rpo").rpo.alpha == 0.01
+    assert build_config("Hopper-v4", preset=preset, algo="rpo").rpo.alpha == 0.5
+    assert build_config("Ant-v4", preset=preset, algo="ppo").rpo.alpha == 0.5   # only rpo's table
+
+
+def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
+    """The preset pairs right/left actuators by name, and negates exactly the left joints whose axis makes the same
+    torque produce the un-mirrored motion (checked on the model: a rotation axis mirrors as a pseudovector)."""
+    import os
+
+    import gymnasium
+    import mujoco
+    import numpy as np
+
+    from canter.algos.ppo.symmetry import parse_groups
+
+    xml = os.path.join(os.path.dirname(gymnasium.__file__), "envs/mujoco/assets/humanoidstandup.xml")
+    model = mujoco.MjModel.from_xml_path(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    config = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    reflect = np.diag([1.0, -1.0, 1.0])     # the sagittal plane is y = 0
+    for pair in parse_groups(config.sym.groups, config.sym.negate):
+        # The seed's pairs put the right limb first and the left limb as its mirror.
+        for right, left, sign in zip(pair.first, pair.mirror, pair.signs):
+            right_name, left_name = model.actuator(right).name, model.actuator(left).name
+            assert right_name.startswith("right_") and left_name == "left_" + right_name[len("right_"):]
+            axis_r = data.xaxis[model.actuator(right).trnid[0]]
+            axis_l = data.xaxis[model.actuator(left).trnid[0]]
+            np.testing.assert_allclose(axis_l, sign * -(reflect @ axis_r), atol=1e-6)
+            assert model.actuator(right).gear[0] == model.actuator(left).gear[0]
