@@ -43,10 +43,12 @@ def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
     assert cells[3].config.env.id == "Walker2d-v5"
     assert varying_keys(cells) == ["ppo.ent_coef"]
     assert cells[0].run_dir(Path("b"), 1) == Path("b") / (names[0] + "__s1")
-    # run.algo as a grid axis is the algorithm axis.
+    # run.algo as a grid axis is the algorithm axis (seed 000's ablation: PPO vs RPO, entropy coef).
     algo_cells = make_cells(BenchSettings(algos=(), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
-                                          grid=(("run.algo", ("ppo",)),)))
-    assert [c.algo for c in algo_cells] == ["ppo"]
+                                          grid=(("run.algo", ("ppo", "rpo")), ("ppo.ent_coef", ("0", "0.01")))))
+    assert [(c.algo, c.config.run.algo, c.config.ppo.ent_coef) for c in algo_cells] == [
+        ("ppo", "ppo", 0.0), ("ppo", "ppo", 0.01), ("rpo", "rpo", 0.0), ("rpo", "rpo", 0.01)]
+    assert algo_cells[3].name == "Hopper-v5__rpo__ppo.ent_coef=0.01"
 
 
 @pytest.mark.parametrize("argv, message", [
