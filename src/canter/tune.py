@@ -40,7 +40,7 @@ SUMMARY_FILE = "summary.md"
 PRESET_ATTR = "preset"
 # Keys that describe one run rather than the hyperparameters; the best preset leaves them out.
 RUN_BOOKKEEPING = ("run.preset", "run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints",
-                   "run.max_minutes", "run.tensorboard")
+                   "run.max_minutes", "run.tensorboard", "run.video_every")
 _CKPT = re.compile(r"^ckpt_(\d{12})\.npz$")
 
 
