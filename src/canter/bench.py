@@ -1,0 +1,461 @@
+"""`canter bench`: a grid of algorithms x envs x hyperparameter values x seeds, each run an ordinary run folder.
+
+A cell is one (algo, env, grid values) combination; its seeds train together in one child process
+(`canter.groups`), and up to `--jobs` cells run at once. Run folders have deterministic names built from the env,
+the algorithm, every grid value and the seed, so re-running the same command finds them: finished runs are
+skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished run's final policy is
+evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv` and a plot per env.
+
+With `--storage`, the cells are the trials of an Optuna study (a GridSampler over the cell names, each cell
+enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+import os
+import time
+import tomllib
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.config import Config, _field_types, all_keys, build_config, coerce, to_toml
+from canter.errors import CanterError
+from canter.groups import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
+                           start_group, stop_group)
+
+# Grid keys that have their own flag or belong to the bench itself.
+_AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
+_FORBIDDEN = {"run.seed": "--seeds", "run.total_steps": "--total-steps", "run.out_dir": "--out"}
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    algos: tuple[str, ...]
+    envs: tuple[str, ...]
+    seeds: tuple[int, ...]
+    total_steps: int
+    grid: tuple[tuple[str, tuple[str, ...]], ...] = ()   # (key, raw values) in the order given
+    jobs: int = 1
+    out_dir: str = "bench"
+    preset: str = "fast"
+    config_file: str | None = None
+    sets: tuple[str, ...] = ()
+    eval_episodes: int = 10
+    storage_url: str | None = None
+    study_name: str | None = None
+    heartbeat_seconds: int = 60
+    poll_seconds: float = 0.5
+
+
+@dataclass(frozen=True)
+class Cell:
+    algo: str
+    env_id: str
+    values: tuple[tuple[str, str], ...]   # every grid axis: (key, canonical value)
+    config: Config
+
+    @property
+    def name(self) -> str:
+        parts = [self.env_id.split(":")[-1], self.algo] + [f"{key}={value}" for key, value in self.values]
+        return "__".join(_safe(p) for p in parts)
+
+    def run_dir(self, bench_dir: Path, seed: int) -> Path:
+        return bench_dir / f"{self.name}__s{seed}"
+
+
+def _safe(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_.=," else "-" for c in text)
+
+
+def canonical(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "-".join(map(str, value))
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "none"
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    items = tuple(v.strip() for v in values.split(",") if v.strip())
+    if not sep or not key or not items:
+        raise CanterError(f"--grid expects KEY=V1,V2,... such as ppo.ent_coef=0.01,1e-4,0; got {text!r}")
+    return key, items
+
+
+def make_cells(settings: BenchSettings) -> list[Cell]:
+    """Every cell, each with its validated config; refuses an unknown algo, env, key or value before any work."""
+    from canter.algos import check_algorithm_name
+    from canter.envs import resolve_backend
+
+    algos, envs = list(settings.algos), list(settings.envs)
+    axes: list[tuple[str, list[str]]] = []
+    seen: set[str] = set()
+    known = set(all_keys())
+    for key, raw in settings.grid:
+        if key in seen:
+            raise CanterError(f"--grid {key} is given twice; list all its values in one --grid")
+        seen.add(key)
+        if key in _FORBIDDEN:
+            raise CanterError(f"--grid {key} is not a grid axis; use {_FORBIDDEN[key]}")
+        if key == "run.algo":
+            algos = list(raw)
+            continue
+        if key == "env.id":
+            envs = list(raw)
+            continue
+        if key not in known:
+            import difflib
+
+            close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
+            raise CanterError(f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?"
+                                                                      if close else ""))
+        section, _, name = key.partition(".")
+        values = [canonical(coerce(key, _field_types(section)[name], v)) for v in raw]
+        if len(set(values)) != len(values):
+            raise CanterError(f"--grid {key} repeats a value")
+        axes.append((key, values))
+    if not algos or not envs or not settings.seeds:
+        raise CanterError("the bench needs at least one algorithm, one env and one seed")
+    for algo in algos:
+        check_algorithm_name(algo)
+    for env_id in envs:
+        resolve_backend(env_id, "auto")
+    cells = []
+    for algo, env_id in itertools.product(algos, envs):
+        for combo in itertools.product(*(values for _, values in axes)):
+            pairs = tuple(zip((key for key, _ in axes), combo))
+            sets = list(settings.sets) + [f"{key}={value}" for key, value in pairs]
+            try:
+                config = build_config(env_id, preset=settings.preset, config_file=settings.config_file, sets=sets,
+                                      seed=settings.seeds[0], total_steps=settings.total_steps, algo=algo)
+            except CanterError as exc:
+                where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
+                raise CanterError(f"cell ({where}): {exc}") from None
+            cells.append(Cell(algo, env_id, pairs, config))
+    return cells
+
+
+def varying_keys(cells: list[Cell]) -> list[str]:
+    """The grid keys whose value differs between cells: they label the rows and curves."""
+    keys = [key for key, _ in cells[0].values] if cells else []
+    return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]
+
+
+def label(cell: Cell, keys: list[str]) -> str:
+    chosen = dict(cell.values)
+    return " ".join([cell.algo] + [f"{k.split('.', 1)[1]}={chosen[k]}" for k in keys])
+
+
+def cell_spec(cell: Cell, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
+    config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
+    return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in settings.seeds},
+                     settings.eval_episodes)
+
+
+def cell_finished(cell: Cell, settings: BenchSettings, bench_dir: Path) -> bool:
+    for seed in settings.seeds:
+        run_dir = cell.run_dir(bench_dir, seed)
+        evaluation = read_json(run_dir / EVAL_FILE)
+        if run_status(run_dir, settings.total_steps) != "done" or not evaluation or \
+                evaluation.get("episodes") != settings.eval_episodes:
+            return False
+    return True
+
+
+# ---------------------------------------------------------------------------------------------------- results
+
+def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:
+    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds); the cell's wall time (its
+    seeds train together, so the slowest seed's) and SPS (env steps per second of all its seeds together)."""
+    evals, walls, sps = [], [], []
+    for seed in settings.seeds:
+        run_dir = cell.run_dir(bench_dir, seed)
+        evaluation = read_json(run_dir / EVAL_FILE) or {}
+        summary = read_json(run_dir / SUMMARY_FILE) or {}
+        if "mean" in evaluation:
+            evals.append(float(evaluation["mean"]))
+        if "wall_seconds" in summary:
+            walls.append(float(summary["wall_seconds"]))
+            sps.append(float(summary["sps"]))
+    return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
+            "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
+            "return_std": float(np.std(evals)) if evals else math.nan, "seed_returns": evals,
+            "wall_minutes": float(np.max(walls)) / 60 if walls else math.nan,
+            "sps": float(np.sum(sps)) if sps else math.nan}
+
+
+def published_scores() -> dict[str, Any]:
+    """The shipped table of published scores (canter/data/published.toml)."""
+    return tomllib.loads(resources.files("canter.data").joinpath("published.toml").read_text())
+
+
+def published_for(algo: str, env_id: str, total_steps: int, data: dict[str, Any] | None = None) -> str:
+    """'CR 2383±272, TS 2609±701' for this algo and env at the bench's budget (else at 1M steps, marked)."""
+    data = data or published_scores()
+    base = env_id.split(":")[-1].rsplit("-v", 1)[0]
+    rows = [s for s in data["score"] if s["algo"] == algo and s["env"] == base]
+    at_budget = [s for s in rows if s["steps"] == total_steps]
+    chosen, mark = (at_budget, "") if at_budget else ([s for s in rows if s["steps"] == 1_000_000], " @1M")
+    parts = [f"{s['source']} {s['mean']:.0f}" + (f"±{s['std']:.0f}" if "std" in s else "") for s in chosen]
+    return ", ".join(parts) + mark if parts else ""
+
+
+def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: int) -> tuple[str, str]:
+    """(markdown, csv) of the results."""
+    data = published_scores()
+    short = [k.split(".", 1)[1] for k in keys]
+    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "seeds", "cell wall min", "cell SPS",
+                                   "published"]
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---|"]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(["env", "algo"] + keys + ["return_mean", "return_std", "seeds", "wall_minutes", "sps",
+                                               "published"])
+    for r in results:
+        reference = published_for(r["algo"], r["env"], total_steps, data)
+        grid_values = [r["values"].get(k, "") for k in keys]
+        md.append("| " + " | ".join([r["env"], r["algo"]] + grid_values + [
+            f"{r['return_mean']:.1f} ± {r['return_std']:.1f}", str(r["seeds"]), f"{r['wall_minutes']:.1f}",
+            f"{r['sps']:,.0f}", reference]) + " |")
+        writer.writerow([r["env"], r["algo"]] + grid_values + [f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}",
+                                                               r["seeds"], f"{r['wall_minutes']:.3f}",
+                                                               f"{r['sps']:.1f}", reference])
+    sources = data["sources"]
+    md += ["", "Published: " + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})"
+                                         for k, v in sources.items()) + "."]
+    return "\n".join(md) + "\n", buffer.getvalue()
+
+
+def learning_curve(run_dirs: list[Path], points: int = 100) -> tuple[np.ndarray, np.ndarray] | None:
+    """Mean over runs of metrics.csv episodic_return, interpolated onto a common step grid."""
+    curves = []
+    for run_dir in run_dirs:
+        try:
+            with open(run_dir / "metrics.csv", newline="") as f:
+                rows = [(float(r["global_step"]), float(r["episodic_return"])) for r in csv.DictReader(f)
+                        if r.get("episodic_return")]
+        except (OSError, KeyError, ValueError):
+            continue
+        if len(rows) >= 2:
+            curves.append(np.asarray(rows))
+    if not curves:
+        return None
+    end = min(c[-1, 0] for c in curves)
+    start = max(c[0, 0] for c in curves)
+    steps = np.linspace(start, end, points) if end > start else np.asarray([end])
+    return steps, np.mean([np.interp(steps, c[:, 0], c[:, 1]) for c in curves], axis=0)
+
+
+def plot_env(env_id: str, curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path) -> None:
+    """One figure per env, one curve per algorithm (and grid values), training return over steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for name, (steps, returns) in curves.items():
+        ax.plot(steps, returns, label=name)
+    ax.set_title(env_id)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("training episodic return (mean over seeds)")
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings,
+                  bench_dir: Path) -> str:
+    from canter.commands import write_output
+
+    keys = varying_keys(cells)
+    markdown, table_csv = results_table(results, keys, settings.total_steps)
+    write_output(bench_dir / "results.md", markdown.encode())
+    write_output(bench_dir / "results.csv", table_csv.encode())
+    for env_id in dict.fromkeys(c.env_id for c in cells):
+        curves = {}
+        for cell in (c for c in cells if c.env_id == env_id):
+            curve = learning_curve([cell.run_dir(bench_dir, s) for s in settings.seeds])
+            if curve is not None:
+                curves[label(cell, keys)] = curve
+        if curves:
+            plot_env(env_id, curves, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
+    return markdown
+
+
+# ------------------------------------------------------------------------------------------------------- running
+
+def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
+    """Run the unfinished cells, up to `jobs` child processes at once; returns {cell name: failure reason}."""
+    pending = [c for c in cells if not cell_finished(c, settings, bench_dir)]
+    for cell in cells:
+        if cell not in pending:
+            print(f"skip {cell.name} (finished)")
+    slots = job_layout(settings.jobs) if settings.jobs > 1 else [{}]
+    running: dict[int, tuple[Cell, Any, float]] = {}
+    failures: dict[str, str] = {}
+    try:
+        while pending or running:
+            for slot, caps in enumerate(slots):
+                if slot not in running and pending:
+                    cell = pending.pop(0)
+                    folder = bench_dir / ".cells" / cell.name
+                    proc = start_group(cell_spec(cell, settings, bench_dir), folder, caps)
+                    running[slot] = (cell, proc, time.monotonic())
+                    print(f"start {cell.name} (seeds {','.join(map(str, settings.seeds))})", flush=True)
+            for slot, (cell, proc, started) in list(running.items()):
+                code = proc.poll()
+                if code is None:
+                    continue
+                del running[slot]
+                if code == 0:
+                    print(f"done  {cell.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
+                else:
+                    failures[cell.name] = failure_reason(bench_dir / ".cells" / cell.name, code)
+                    print(f"FAIL  {cell.name}: {failures[cell.name]}", flush=True)
+            time.sleep(settings.poll_seconds)
+    finally:
+        for _, proc, _ in running.values():
+            stop_group(proc)
+    return failures
+
+
+def _cell_trial(study: Any, trial: Any, cells: dict[str, Cell], settings: BenchSettings, bench_dir: Path):
+    from optuna.trial import TrialState
+
+    from canter.studies import Outcome
+
+    name = trial.suggest_categorical("cell", list(cells))
+    for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
+        if other.params.get("cell") == name and other.number != trial.number and (
+                other.state == TrialState.COMPLETE or other.number < trial.number):
+            return Outcome("fail", reason=f"duplicate: trial {other.number} has this cell")
+    cell = cells[name]
+    folder = bench_dir / ".cells" / cell.name
+    proc = start_group(cell_spec(cell, settings, bench_dir), folder)
+    try:
+        code = proc.wait()
+    finally:
+        stop_group(proc)
+    if code != 0:
+        return Outcome("fail", reason=failure_reason(folder, code))
+    result = cell_result(cell, settings, bench_dir)
+    trial.set_user_attr("result", result)
+    return Outcome("complete", value=result["return_mean"])
+
+
+def _open_grid_study(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
+    import optuna
+
+    from canter.studies import StorageSettings, open_storage
+
+    storage = open_storage(StorageSettings(settings.storage_url, settings.heartbeat_seconds,
+                                           3 * settings.heartbeat_seconds))
+    sampler = optuna.samplers.GridSampler({"cell": [c.name for c in cells]})
+    study = optuna.create_study(storage=storage, study_name=settings.study_name or bench_dir.name,
+                                direction="maximize", sampler=sampler, load_if_exists=True)
+    return storage, study
+
+
+def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, caps: dict[str, str]) -> None:
+    import sys
+
+    from canter.studies import run_worker
+
+    from canter.groups import apply_cpu_pinning, die_with_parent
+
+    die_with_parent()
+    os.environ.update(caps)
+    apply_cpu_pinning()
+    try:
+        storage, study = _open_grid_study(cells, settings, bench_dir)
+        by_name = {c.name: c for c in cells}
+        run_worker(study, storage, len(cells),
+                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+def run_distributed(cells: list[Cell], settings: BenchSettings,
+                    bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """Share the cells with other workers through an Optuna study; returns the results of every finished cell (by
+    any worker) and the failure reasons of the cells that failed."""
+    import multiprocessing
+
+    from optuna.trial import TrialState
+
+    from canter.studies import run_worker
+
+    storage, study = _open_grid_study(cells, settings, bench_dir)
+    by_name = {c.name: c for c in cells}
+    # Enqueue the cells that no trial holds yet (a first run, or a cell whose trial failed).
+    held = {t.params.get("cell") for t in study.get_trials(deepcopy=False, states=(
+        TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))}
+    for name in by_name:
+        if name not in held:
+            study.enqueue_trial({"cell": name})
+    if settings.jobs == 1:
+        run_worker(study, storage, len(by_name),
+                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+    else:
+        context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
+        processes = [context.Process(target=_grid_worker, args=(cells, settings, bench_dir, caps))
+                     for caps in job_layout(settings.jobs)]
+        for p in processes:
+            p.start()
+        for p in processes:
+            p.join()
+        if any(p.exitcode for p in processes):
+            raise CanterError("a bench worker failed; its error is printed above")
+    done, failed = {}, {}
+    for t in study.get_trials(deepcopy=False):
+        name = t.params.get("cell")
+        if t.state == TrialState.COMPLETE and name in by_name and "result" in t.user_attrs:
+            done[name] = t.user_attrs["result"]
+        elif t.state == TrialState.FAIL and name in by_name:
+            failed[name] = t.user_attrs.get("fail_reason", "worker died")
+    failures = {name: reason for name, reason in failed.items() if name not in done}
+    return [done[c.name] for c in cells if c.name in done], failures
+
+
+def bench(settings: BenchSettings) -> str:
+    """Check the grid, run it (locally or through the storage), and write the results; returns the markdown."""
+    if settings.jobs < 1:
+        raise CanterError(f"--jobs must be >= 1, got {settings.jobs}")
+    if settings.eval_episodes < 1:
+        raise CanterError(f"--eval-episodes must be >= 1, got {settings.eval_episodes}")
+    cells = make_cells(settings)
+    bench_dir = Path(settings.out_dir)
+    bench_dir.mkdir(parents=True, exist_ok=True)
+    if settings.storage_url:
+        results, failures = run_distributed(cells, settings, bench_dir)
+    else:
+        failures = run_local(cells, settings, bench_dir)
+        results = [cell_result(c, settings, bench_dir) for c in cells if c.name not in failures]
+    finished = [c for c in cells if any(r["cell"] == c.name for r in results)]
+    markdown = write_results(finished, results, settings, bench_dir) if results else ""
+    print(markdown, end="")
+    if failures:
+        raise CanterError(f"{len(failures)} of {len(cells)} cells failed ({next(iter(failures.values()))}); "
+                          f"re-run the same command to retry them")
+    return markdown

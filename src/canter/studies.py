@@ -1,0 +1,192 @@
+"""Optuna storage and the trial loop shared by `canter tune` and `canter bench --storage`.
+
+The storage is Optuna's RDB storage: a SQLite file by default, or a PostgreSQL server that workers on many machines
+share. Heartbeats mark the trial of a worker that died as FAILED once its heartbeat is older than the grace period,
+and `RetryHeartbeatStaleTrialCallback` enqueues a copy of it, so no trial is lost and none is counted twice.
+
+`run_worker` asks for trials until the study holds `target` finished (COMPLETE or PRUNED) trials, counted across
+all workers: a worker only asks for a new trial while the finished and running trials are fewer than the target
+(or a retry is waiting), and a trial that two workers asked for at the same moment beyond the target is closed as
+FAILED with the reason `surplus`, so the number of finished trials ends exactly at the target.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from canter.errors import CanterError
+
+SURPLUS = "surplus: the study already had its number of trials when this one started"
+FAIL_REASON = "fail_reason"
+
+
+@dataclass(frozen=True)
+class StorageSettings:
+    url: str
+    heartbeat_seconds: int = 60
+    grace_seconds: int = 180
+    max_retry: int = 3
+
+
+def normalize_url(url: str) -> str:
+    """`postgresql://` means the psycopg2 driver of the `distributed` extra (SQLAlchemy 2.1 would pick psycopg 3)."""
+    if url.startswith("postgresql://") or url.startswith("postgres://"):
+        return "postgresql+psycopg2://" + url.split("://", 1)[1]
+    return url
+
+
+def describe_url(url: str) -> tuple[str, str]:
+    """(driver, host) of a storage URL, without the password."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        parsed = make_url(url)
+    except ArgumentError:
+        raise CanterError(f"--storage {url!r} is not a database URL; use sqlite:///path/study.db or "
+                          f"postgresql://user:password@host:5432/dbname") from None
+    driver = parsed.drivername
+    if driver.startswith("sqlite"):
+        return driver, parsed.database or "(memory)"
+    host = f"{parsed.host or 'localhost'}:{parsed.port}" if parsed.port else (parsed.host or "localhost")
+    return driver, host
+
+
+def open_storage(settings: StorageSettings) -> Any:
+    """An RDBStorage with heartbeats and failed-trial retry, or a one-line error naming the host and driver."""
+    import optuna
+    import sqlalchemy.exc
+
+    quiet_optuna()
+    driver, host = describe_url(normalize_url(settings.url))
+    if driver.startswith("sqlite"):
+        engine_kwargs: dict[str, Any] = {"connect_args": {"timeout": 120}}
+    elif driver.startswith("postgresql"):
+        engine_kwargs = {"connect_args": {"connect_timeout": 10}, "pool_pre_ping": True}
+    else:
+        engine_kwargs = {"pool_pre_ping": True}
+    try:
+        return optuna.storages.RDBStorage(
+            normalize_url(settings.url), engine_kwargs=engine_kwargs, heartbeat_interval=settings.heartbeat_seconds,
+            grace_period=settings.grace_seconds,
+            heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
+                max_retry=settings.max_retry))
+    except (ImportError, ModuleNotFoundError):
+        hint = "pip install 'canter[distributed]'" if driver.startswith("postgresql") else \
+            f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
+        raise CanterError(f"cannot connect to the {driver} storage at {host}: its database driver is not "
+                          f"installed; {hint}") from None
+    except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
+        reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+        raise CanterError(f"cannot connect to the {driver} storage at {host}: "
+                          f"{reason[0] if reason else type(exc).__name__}") from None
+
+
+def quiet_optuna() -> None:
+    import warnings
+
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    # canter records heartbeats itself (studies.run_worker), which is what this warning asks for.
+    warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
+
+
+# ------------------------------------------------------------------------------------------------------- the loop
+
+@dataclass(frozen=True)
+class Outcome:
+    state: str                   # "complete", "pruned" or "fail"
+    value: float | None = None
+    reason: str | None = None
+
+
+class _Heartbeat:
+    """Records the trial's heartbeat every interval while the trial runs (what `study.optimize` does internally)."""
+
+    def __init__(self, storage: Any, trial: Any, interval: float) -> None:
+        self._storage, self._stop = storage, threading.Event()
+        self._trial_id = trial._trial_id  # Optuna's trial handle has no public id accessor
+        self._thread = threading.Thread(target=self._beat, args=(interval,), daemon=True)
+
+    def _beat(self, interval: float) -> None:
+        while not self._stop.is_set():
+            try:
+                self._storage.record_heartbeat(self._trial_id)
+            except Exception:  # a lost connection: the next beat retries, the grace period covers the gap
+                pass
+            self._stop.wait(interval)
+
+    def __enter__(self) -> "_Heartbeat":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def counts(study: Any) -> dict[str, int]:
+    from optuna.trial import TrialState
+
+    result = {s.name: 0 for s in TrialState}
+    for trial in study.get_trials(deepcopy=False):
+        result[trial.state.name] += 1
+    return result
+
+
+def _surplus(study: Any, number: int, target: int) -> bool:
+    from optuna.trial import TrialState
+
+    alive = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.RUNNING, TrialState.WAITING)
+    return sum(1 for t in study.get_trials(deepcopy=False, states=alive) if t.number < number) >= target
+
+
+def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any], Outcome], *, heartbeat_seconds: float,
+               poll_seconds: float = 1.0, deadline: float | None = None, ask_new: bool = True) -> None:
+    """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes).
+    With `ask_new=False` only queued (WAITING) trials are run, and the worker returns once none is queued or
+    running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial."""
+    import optuna
+    from optuna.trial import TrialState
+
+    states = {"complete": TrialState.COMPLETE, "pruned": TrialState.PRUNED, "fail": TrialState.FAIL}
+    while True:
+        optuna.storages.fail_stale_trials(study)
+        n = counts(study)
+        finished = n["COMPLETE"] + n["PRUNED"]
+        if finished >= target or (deadline is not None and time.time() >= deadline):
+            return
+        if n["FAIL"] >= max(10, 2 * target) and finished == 0:
+            raise CanterError(f"study '{study.study_name}': {n['FAIL']} trials failed and none finished; see the "
+                              f"'{FAIL_REASON}' of the failed trials (canter tune prints them)")
+        if n["WAITING"] == 0:
+            if not ask_new and n["RUNNING"] == 0:
+                return
+            if not ask_new or finished + n["RUNNING"] >= target:
+                time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
+                continue
+        trial = study.ask()
+        if _surplus(study, trial.number, target):
+            trial.set_user_attr(FAIL_REASON, SURPLUS)
+            study.tell(trial, state=TrialState.FAIL)
+            continue
+        try:
+            with _Heartbeat(storage, trial, heartbeat_seconds):
+                outcome = run_trial(trial)
+        except Exception as exc:  # the trial fails with the reason; the study goes on
+            outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
+        except BaseException:
+            trial.set_user_attr(FAIL_REASON, "interrupted")
+            study.tell(trial, state=TrialState.FAIL)
+            raise
+        if outcome.reason:
+            trial.set_user_attr(FAIL_REASON if outcome.state == "fail" else "note", outcome.reason)
+        if outcome.state == "complete":
+            study.tell(trial, outcome.value)
+        else:
+            study.tell(trial, state=states[outcome.state])

@@ -1,0 +1,150 @@
+"""canter bench: grid cells and their names, bad input, published scores, a 2x1x2 tiny grid with its table, and
+resume after an interruption."""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canter.bench import BenchSettings, make_cells, published_for, varying_keys
+from canter.cli import main
+
+TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
+        "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2",
+        "--set", "run.checkpoint_every=512"]
+
+
+def test_published_scores_are_shipped_with_their_sources():
+    assert published_for("ppo", "Hopper-v5", 1_000_000) == "CR 2383±272, TS 2609±701, Zoo 2410±10"
+    assert published_for("ppo", "Hopper-v5", 3_000_000) == "TS 3128"
+    assert published_for("td3", "HalfCheetah-v5", 50_000) == "CR 9583, TS 10201 @1M"
+    assert published_for("ppo", "Pendulum-v1", 1_000_000) == ""
+    # The package holds its own copy: nothing outside it is read.
+    from importlib import resources
+
+    text = resources.files("canter.data").joinpath("published.toml").read_text()
+    assert "vwxyzjn/cleanrl" in text and "thu-ml/tianshou" in text and "rl-baselines3-zoo" in text
+    assert "/work/shared" not in Path(__file__).parent.parent.joinpath("src/canter/bench.py").read_text()
+
+
+def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
+    settings = BenchSettings(algos=("ppo",), envs=("Hopper-v5", "Walker2d-v5"), seeds=(0, 1), total_steps=1000,
+                             grid=(("ppo.ent_coef", ("0.01", "1e-4", "0")), ("net.hidden", ("64-64",)),
+                                   ("ppo.clip", ("0.2",))))
+    cells = make_cells(settings)
+    assert len(cells) == 2 * 3
+    names = [c.name for c in cells]
+    assert names[0] == "Hopper-v5__ppo__ppo.ent_coef=0.01__net.hidden=64-64__ppo.clip=0.2"
+    assert names[1] == "Hopper-v5__ppo__ppo.ent_coef=0.0001__net.hidden=64-64__ppo.clip=0.2"
+    assert names == [c.name for c in make_cells(settings)] and len(set(names)) == len(names)
+    assert cells[1].config.ppo.ent_coef == 1e-4 and cells[1].config.net.hidden == (64, 64)
+    assert cells[3].config.env.id == "Walker2d-v5"
+    assert varying_keys(cells) == ["ppo.ent_coef"]
+    assert cells[0].run_dir(Path("b"), 1) == Path("b") / (names[0] + "__s1")
+    # run.algo as a grid axis is the algorithm axis (seed 000's ablation: PPO vs RPO, entropy coef).
+    algo_cells = make_cells(BenchSettings(algos=(), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
+                                          grid=(("run.algo", ("ppo", "rpo")), ("ppo.ent_coef", ("0", "0.01")))))
+    assert [(c.algo, c.config.run.algo, c.config.ppo.ent_coef) for c in algo_cells] == [
+        ("ppo", "ppo", 0.0), ("ppo", "ppo", 0.01), ("rpo", "rpo", 0.0), ("rpo", "rpo", 0.01)]
+    assert algo_cells[3].name == "Hopper-v5__rpo__ppo.ent_coef=0.01"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--algos", "ppo,nope"], "unknown algorithm 'nope'"),
+    (["--envs", "Hopper-v5,Hoper-v5"], "unknown env id 'Hoper-v5'"),
+    (["--grid", "ppo.entcoef=0,1"], "unknown config key 'ppo.entcoef'"),
+    (["--grid", "ppo.epochs=1,x"], "ppo.epochs: expected an integer"),
+    (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
+    (["--grid", "run.seed=1,2"], "use --seeds"),
+    (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
+])
+def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
+    base = ["bench", "--seeds", "0", "--total-steps", "1000", "--out", str(tmp_path / "b")]
+    if "--envs" not in argv:
+        base += ["--envs", "Hopper-v5"]
+    code = main(base + argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "b").exists()
+
+
+def test_jobs_over_cores_warns(tmp_path, capsys):
+    code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])
+    err = capsys.readouterr().err
+    assert code == 2 and "warning: --jobs 999 is more than" in err
+
+
+def read_rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
+    from canter.evaluate import evaluate
+    from canter.policy import load
+
+    out = tmp_path / "bench"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0,1", "--total-steps", "1024",
+            "--grid", "ppo.ent_coef=0,0.01", "--eval-episodes", "2", "--jobs", "2", "--out", str(out)] + TINY
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = read_rows(out / "results.csv")
+    assert [r["ppo.ent_coef"] for r in rows] == ["0.0", "0.01"]
+    for row in rows:
+        runs = [out / f"InvertedPendulum-v4__ppo__ppo.ent_coef={row['ppo.ent_coef']}__s{s}" for s in (0, 1)]
+        means = [json.loads((r / "eval.json").read_text())["mean"] for r in runs]
+        assert float(row["return_mean"]) == pytest.approx(np.mean(means), abs=1e-3)
+        assert float(row["return_std"]) == pytest.approx(np.std(means), abs=1e-3)
+        assert row["seeds"] == "2" and float(row["sps"]) > 0
+        assert row["published"] == "CR 963±22, TS 1000±0 @1M"
+    # eval.json is the deterministic evaluation of the final policy.
+    run = out / "InvertedPendulum-v4__ppo__ppo.ent_coef=0.01__s1"
+    again = evaluate(load(run), episodes=2, deterministic=True, seed=0)
+    assert json.loads((run / "eval.json").read_text())["returns"] == pytest.approx(list(again.returns))
+    assert (out / "plot_InvertedPendulum-v4.png").stat().st_size > 0
+    assert "| InvertedPendulum-v4 | ppo | 0.01 |" in (out / "results.md").read_text()
+
+    # Interrupt one run after its first checkpoint: no final checkpoint, summary or evaluation.
+    cut = out / "InvertedPendulum-v4__ppo__ppo.ent_coef=0.0__s1"
+    checkpoints = sorted((cut / "checkpoints").glob("ckpt_*.npz"))
+    first, final = [int(p.stem[5:]) for p in checkpoints]  # steps count real env steps, not autoreset steps
+    assert 512 <= first < 1024 <= final
+    for path in (checkpoints[-1], cut / "summary.json", cut / "eval.json"):
+        path.unlink()
+    untouched = {p: p.stat().st_mtime_ns for p in out.glob("*__s*/summary.json")}
+    rows_before = len(read_rows(cut / "metrics.csv"))
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "skip InvertedPendulum-v4__ppo__ppo.ent_coef=0.01" in captured.out
+    assert "start InvertedPendulum-v4__ppo__ppo.ent_coef=0.0 " in captured.out
+    assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())  # finished runs were not retrained
+    summary = json.loads((cut / "summary.json").read_text())
+    assert summary["global_step"] >= 1024
+    resumed = [int(r["global_step"]) for r in read_rows(cut / "metrics.csv")][rows_before:]
+    assert resumed and resumed[0] > first and resumed[-1] >= 1024  # continued from the first checkpoint
+    assert len(read_rows(out / "results.csv")) == 2
+
+
+def test_grid_through_an_optuna_storage(tmp_path, capsys):
+    """With --storage every cell is one enqueued trial of a GridSampler study; a re-run finds them all done."""
+    import optuna
+
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "512", "--grid",
+            "ppo.clip=0.1,0.2", "--eval-episodes", "1", "--storage", url, "--study", "grid", "--heartbeat", "2",
+            "--out", str(tmp_path / "bench")] + TINY
+    assert main(argv) == 0, capsys.readouterr().err
+    study = optuna.load_study(study_name="grid", storage=url)
+    cells = sorted(t.params["cell"] for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE)
+    assert cells == ["InvertedPendulum-v4__ppo__ppo.clip=0.1", "InvertedPendulum-v4__ppo__ppo.clip=0.2"]
+    for t in study.trials:
+        result = t.user_attrs["result"]
+        evaluation = json.loads((tmp_path / "bench" / f"{t.params['cell']}__s0" / "eval.json").read_text())
+        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(result["return_mean"])
+    assert main(argv) == 0
+    assert len(optuna.load_study(study_name="grid", storage=url).trials) == 2  # nothing ran twice
+    assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2

@@ -1,0 +1,333 @@
+"""canter tune: search spaces, the objective on a tiny budget, the best preset, SQLite parallel jobs, and the
+distributed mode against a real PostgreSQL server with a worker killed mid-trial."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+
+from canter.cli import main
+from canter.config import SECTIONS, build_config
+from canter.errors import CanterError
+from canter.studies import normalize_url
+from canter.search_space import apply_sample, load_space, parse_space, space_names
+from canter.tune import RUN_BOOKKEEPING, TuneSettings, check_settings, evaluation_index, run_trial
+
+from pg_server import postgres_url  # noqa: F401  (session fixture)
+
+# A tiny space and budget: a trial is one short Pendulum run, so the tests measure the machinery, not learning.
+TINY_SPACE = """
+[ppo.lr]
+low = 1e-4
+high = 1e-2
+log = true
+
+[ppo.n_steps]
+choices = [64, 128]
+
+[ppo.ent_coef]
+low = 0.0
+high = 0.01
+"""
+TINY_SETS = ("net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4", "ppo.minibatch_size=256",
+             "ppo.epochs=2")
+
+
+def tiny_args(tmp_path: Path) -> list[str]:
+    space = tmp_path / "space.toml"
+    space.write_text(TINY_SPACE)
+    args = ["--total-steps", "1024", "--evaluations", "2", "--eval-episodes", "1", "--startup-trials", "10",
+            "--space", str(space), "--out-dir", str(tmp_path / "tune")]
+    for s in TINY_SETS:
+        args += ["--set", s]
+    return args
+
+
+# ------------------------------------------------------------------------------------------------- search spaces
+
+def test_every_algorithm_has_a_shipped_space():
+    from canter.algos import algorithm_names
+
+    assert set(algorithm_names()) <= set(space_names())
+    assert {"ppo", "rpo", "trpo", "td3", "ddpg", "sac"} <= set(space_names())
+
+
+def _registered_spaces():
+    from canter.algos import algorithm_names
+
+    return [name for name in space_names() if name in algorithm_names()]
+
+
+@pytest.mark.parametrize("algo", _registered_spaces())
+def test_every_shipped_space_validates_and_samples_valid_configs(algo):
+    space = load_space(None, algo)
+    assert space.keys
+    base = build_config("Hopper-v5", algo=algo)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(30):
+        trial = study.ask()
+        config = apply_sample(base, space.suggest(trial))
+        for key, value in trial.params.items():
+            section, _, name = key.partition(".")
+            got = getattr(getattr(config, section), name)
+            if "minibatch_size" in name:
+                assert got == min(value, config.batch_size)
+            elif isinstance(got, tuple):
+                assert "-".join(map(str, got)) == value
+            else:
+                assert got == value
+
+
+def test_ppo_space_follows_seed_002_table_1():
+    params = {p.key: p for p in load_space(None, "ppo").params}
+    assert params["ppo.n_steps"].choices == (8, 16, 32, 64, 128, 256, 512, 1024, 2048)
+    assert (params["ppo.lr"].low, params["ppo.lr"].high, params["ppo.lr"].log) == (1e-5, 1.0, True)
+    assert params["ppo.epochs"].choices == (1, 5, 10, 20)
+    assert params["ppo.minibatch_size"].choices == (8, 16, 32, 64, 128, 256, 512)
+    assert params["ppo.gamma"].choices == (0.9, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+    assert params["ppo.gae_lambda"].choices == (0.8, 0.9, 0.92, 0.95, 0.98, 0.99, 1.0)
+    assert (params["ppo.ent_coef"].low, params["ppo.ent_coef"].high, params["ppo.ent_coef"].log) == (1e-8, 0.1, True)
+    assert params["ppo.clip"].choices == (0.1, 0.2, 0.3, 0.4)
+    assert params["ppo.max_grad_norm"].choices == (0.3, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 2.0, 5.0)
+    assert (params["ppo.vf_coef"].low, params["ppo.vf_coef"].high, params["ppo.vf_coef"].log) == (0.0, 1.0, False)
+    assert (params["ppo.target_kl"].low, params["ppo.target_kl"].high) == (0.001, 0.3)
+
+
+def test_tied_keys_take_the_sampled_value():
+    space = parse_space({"ppo": {"lr": {"low": 1e-5, "high": 1e-3, "log": True}, "critic_lr": {"same_as": "ppo.lr"}}},
+                        "test")
+    values = space.suggest(optuna.trial.FixedTrial({"ppo.lr": 3e-4}))
+    assert values == {"ppo.lr": 3e-4, "ppo.critic_lr": 3e-4}
+    with pytest.raises(CanterError, match="must name a sampled key"):
+        parse_space({"ppo": {"critic_lr": {"same_as": "ppo.lr"}}}, "test")
+    with pytest.raises(CanterError, match="ppo.epochs"):  # the tied values must fit the key's type
+        parse_space({"ppo": {"lr": {"low": 1e-5, "high": 1e-3}, "epochs": {"same_as": "ppo.lr"}}}, "test")
+
+
+def test_space_types_and_tuple_choices():
+    space = parse_space({"net": {"hidden": {"choices": ["64-64", "128-64"]}},
+                         "ppo": {"epochs": {"low": 1, "high": 20}, "lr": {"low": 1e-5, "high": 1e-3, "log": True}}},
+                        "test")
+    by_key = {p.key: p for p in space.params}
+    assert by_key["net.hidden"].choices == ("64-64", "128-64")
+    assert by_key["ppo.epochs"].integer and not by_key["ppo.lr"].integer
+    values = space.suggest(optuna.trial.FixedTrial({"net.hidden": "128-64", "ppo.epochs": 7, "ppo.lr": 2e-4}))
+    config = apply_sample(build_config("Hopper-v5"), values)
+    assert config.net.hidden == (128, 64) and config.ppo.epochs == 7 and config.ppo.lr == 2e-4
+
+
+@pytest.mark.parametrize("data, message", [
+    ({"ppo": {"learning_rate": {"low": 1e-5, "high": 1.0}}}, "unknown hyperparameter 'ppo.learning_rate'"),
+    ({"ppo": {"lr": {"low": 1e-3, "high": 1e-3}}}, "empty range"),
+    ({"ppo": {"lr": {"low": 1e-2, "high": 1e-3}}}, "empty range"),
+    ({"ppo": {"epochs": {"choices": []}}}, "empty list of choices"),
+    ({"ppo": {"ent_coef": {"low": 0.0, "high": 0.1, "log": True}}}, "low must be > 0"),
+    ({"ppo": {"gamma": {"choices": [0.99, 1.5]}}}, "ppo.gamma = 1.5 is invalid"),
+    ({"ppo": {"epochs": {"choices": [1.5]}}}, "expected an integer"),
+    ({"ppo": {"lr": {"low": 1e-5}}}, "needs choices"),
+    ({}, "empty"),
+])
+def test_bad_search_space_is_refused(data, message):
+    with pytest.raises(CanterError, match=message.replace("(", r"\(").replace(".", r"\.")):
+        parse_space(data, "space.toml")
+
+
+def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[ppo.lr]\nlow = 1.0\nhigh = 0.5\n")
+    code = main(["tune", "Pendulum-v1", "--space", str(bad), "--jobs", "64", "--out-dir", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "warning: --jobs 64 is more than" in err
+    assert err.splitlines()[-1].startswith("canter: error:") and "empty range" in err and "Traceback" not in err
+    assert not (tmp_path / "t").exists()
+
+    code = main(["tune", "Pendulum-v1", "--storage", "postgresql://canter:secret@127.0.0.1:9/nodb",
+                 "--out-dir", str(tmp_path / "t")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "postgresql+psycopg2 storage at 127.0.0.1:9" in err and "secret" not in err
+    assert not (tmp_path / "t").exists()
+    code = main(["tune", "Pendulum-v1", "--storage", f"sqlite:///{tmp_path}/missing/dir/study.db"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and f"sqlite storage at {tmp_path}/missing/dir/study.db" in err
+
+    code = main(["tune", "Pendulum-v1", "--algo", "ppoo"])
+    assert code == 2 and "unknown algorithm 'ppoo'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------- the objective
+
+def tiny_settings(tmp_path: Path, **kwargs) -> TuneSettings:
+    space = tmp_path / "space.toml"
+    space.write_text(TINY_SPACE)
+    defaults = dict(env_id="Pendulum-v1", total_steps=1024, evaluations=2, eval_episodes=1, sets=TINY_SETS,
+                    space_file=str(space), out_dir=str(tmp_path / "tune"), poll_seconds=0.2)
+    return TuneSettings(**{**defaults, **kwargs})
+
+
+def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
+    from canter.evaluate import evaluate
+    from canter.policy import load
+
+    settings = tiny_settings(tmp_path, seeds=(3, 4))
+    base, space = check_settings(settings)
+    study = optuna.create_study(direction="maximize")
+    trial = study.ask()
+    outcome = run_trial(trial, settings, base, space)
+    assert outcome.state == "complete", outcome.reason
+    trial_dir = settings.study_dir / "trials" / "trial_00000"
+    # Recompute independently: load each seed's final policy and evaluate it deterministically.
+    returns = []
+    for seed in (3, 4):
+        run = trial_dir / f"s{seed}"
+        assert load(run).config.run.seed == seed
+        returns.append(evaluate(load(run), episodes=1, deterministic=True, seed=0).mean)
+    assert outcome.value == pytest.approx(np.mean(returns), rel=1e-6)
+    # The sampled values were trained, and every checkpoint was reported (the last one is the objective).
+    config = load(trial_dir / "s3").config
+    assert config.ppo.lr == trial.params["ppo.lr"] and config.ppo.n_steps == trial.params["ppo.n_steps"]
+    frozen = study.tell(trial, outcome.value)
+    assert sorted(frozen.intermediate_values) == [512, 1024]  # nominal steps: every 1/2 of the budget
+    assert frozen.intermediate_values[1024] == outcome.value
+
+
+def test_checkpoints_of_the_seeds_of_a_group_are_matched_by_evaluation_index():
+    settings = TuneSettings(env_id="Hopper-v5", total_steps=1000, evaluations=4)  # every 250 steps
+    assert settings.eval_interval == 250
+    # Seeds count their own steps, so one seed checkpoints at 251 and another at 263 for the same evaluation; an
+    # iteration that crosses two points counts for the later one; the final checkpoint is the last evaluation.
+    assert [evaluation_index(s, settings) for s in (251, 263, 499, 500, 760, 999, 1000, 1077)] == [1, 1, 1, 2, 3,
+                                                                                                   3, 4, 4]
+    assert evaluation_index(100, settings) == 1
+
+
+def test_pruned_trial_stops_its_training(tmp_path):
+    import json
+
+    settings = tiny_settings(tmp_path, total_steps=1_000_000, evaluations=200)
+    base, space = check_settings(settings)
+    study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
+    trial = study.ask()
+    outcome = run_trial(trial, settings, base, space)
+    assert outcome.state == "pruned" and outcome.reason.startswith("pruned at step")
+    summary = json.loads((settings.study_dir / "trials" / "trial_00000" / "s0" / "summary.json").read_text())
+    assert summary["stop_reason"] == "signal" and summary["global_step"] < 1_000_000
+
+
+def test_trial_over_its_time_limit_fails_with_the_reason(tmp_path):
+    settings = tiny_settings(tmp_path, trial_minutes=0.002, total_steps=10**7)
+    base, space = check_settings(settings)
+    outcome = run_trial(optuna.trial.FixedTrial({"ppo.lr": 1e-3, "ppo.n_steps": 64, "ppo.ent_coef": 0.0}),
+                        settings, base, space)
+    assert outcome.state == "fail" and "exceeded --trial-minutes 0.002" in outcome.reason
+
+
+# ------------------------------------------------------------------------------- SQLite jobs and the best preset
+
+def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys):
+    code = main(["tune", "Pendulum-v1", "--trials", "3", "--jobs", "2", "--heartbeat", "2"] + tiny_args(tmp_path))
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    study_dir = tmp_path / "tune" / "Pendulum-v1__ppo"
+    study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=f"sqlite:///{study_dir / 'study.db'}")
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(complete) == 3
+    assert len({t.user_attrs["worker"] for t in complete}) == 2  # two spawned processes shared the study
+    assert "| trial | return |" in out and "3 complete" in out
+
+    # The best preset trains as it is: it resolves to the best trial's trained config, bookkeeping aside.
+    best = max(complete, key=lambda t: t.value)
+    preset = study_dir / "best.toml"
+    assert f"best trial {best.number}" in preset.read_text()
+    loaded = build_config(None, config_file=str(preset))
+    trained = build_config(None, config_file=str(Path(best.user_attrs["trial_dir"]) / "s0" / "config.toml"))
+    for section in SECTIONS:
+        for f in fields(getattr(loaded, section)):
+            if f"{section}.{f.name}" not in RUN_BOOKKEEPING:
+                assert getattr(getattr(loaded, section), f.name) == getattr(getattr(trained, section), f.name), \
+                    f"{section}.{f.name}"
+    assert loaded.ppo.lr == best.params["ppo.lr"] and loaded.ppo.n_steps == best.params["ppo.n_steps"]
+    # `canter train --config best.toml` resolves it with build_config as above, whatever the preset beneath.
+    under_cleanrl = build_config(None, preset="cleanrl", config_file=str(preset))
+    assert replace(under_cleanrl, run=replace(under_cleanrl.run, preset="fast")) == loaded
+
+
+# ------------------------------------------------------------------------ PostgreSQL: a worker killed mid-trial
+
+def _worker(args: list[str], log: Path) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    return subprocess.Popen([sys.executable, "-m", "canter.cli", "tune"] + args, stdout=open(log, "wb"),
+                            stderr=subprocess.STDOUT, env=env)
+
+
+def _wait_gone(pid: int, seconds: float) -> None:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return
+        if state == "Z":  # exited, waiting to be reaped by its new parent
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"process {pid} outlived its killed worker")
+
+
+@pytest.mark.filterwarnings("ignore::optuna.exceptions.ExperimentalWarning")
+def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  # noqa: F811
+    trials = 2
+    storage = normalize_url(postgres_url)  # what optuna.load_study needs for the psycopg2 driver
+    args = ["Pendulum-v1", "--trials", str(trials), "--storage", postgres_url, "--study", "killed-worker",
+            "--heartbeat", "1"] + tiny_args(tmp_path)
+    victim = _worker(args + ["--out-dir", str(tmp_path / "a")], tmp_path / "a.log")
+    survivor = _worker(args + ["--out-dir", str(tmp_path / "b")], tmp_path / "b.log")
+    try:
+        deadline = time.monotonic() + 120
+        victim_trial = None
+        while victim_trial is None:
+            assert time.monotonic() < deadline and victim.poll() is None, (tmp_path / "a.log").read_text()
+            try:
+                study = optuna.load_study(study_name="killed-worker", storage=storage)
+            except KeyError:
+                time.sleep(0.2)
+                continue
+            running = [t for t in study.get_trials(states=(optuna.trial.TrialState.RUNNING,))
+                       if t.user_attrs.get("worker", "").endswith(f":{victim.pid}")]
+            victim_trial = running[0].number if running else None
+            time.sleep(0.2)
+        time.sleep(1.0)  # inside the trial: its training child is up
+        children = Path(f"/proc/{victim.pid}/task/{victim.pid}/children").read_text().split()
+        victim.send_signal(signal.SIGKILL)
+        assert children  # the trial's training process, which must not outlive its worker
+        for pid in map(int, children):
+            _wait_gone(pid, 30)
+        assert survivor.wait(timeout=180) == 0, (tmp_path / "b.log").read_text()
+    finally:
+        for p in (victim, survivor):
+            if p.poll() is None:
+                p.kill()
+    study = optuna.load_study(study_name="killed-worker", storage=storage)
+    by_state = {s: [t for t in study.trials if t.state == s] for s in optuna.trial.TrialState}
+    listing = [(t.number, t.state.name, t.user_attrs.get("fail_reason") or t.user_attrs.get("note"))
+               for t in study.trials]
+    assert len(by_state[optuna.trial.TrialState.COMPLETE]) == trials, listing
+    assert not by_state[optuna.trial.TrialState.RUNNING] and not by_state[optuna.trial.TrialState.WAITING]
+    # The killed trial failed by heartbeat and a copy with the same parameters completed.
+    killed = study.trials[victim_trial]
+    assert killed.state == optuna.trial.TrialState.FAIL
+    retries = [t for t in study.trials
+               if optuna.storages.RetryHeartbeatStaleTrialCallback.retried_trial_number(t) == victim_trial]
+    assert len(retries) == 1 and retries[0].state == optuna.trial.TrialState.COMPLETE
+    assert retries[0].params == killed.params
+    # Every other failed trial says why.
+    for t in by_state[optuna.trial.TrialState.FAIL]:
+        assert t.number == victim_trial or t.user_attrs.get("fail_reason"), t
+    assert f"{trials} complete" in (tmp_path / "b.log").read_text()
