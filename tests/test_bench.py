@@ -82,7 +82,7 @@ def read_rows(path: Path) -> list[dict]:
 
 
 def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
-    from canter.evaluate import evaluate
+    from canter.evaluation import evaluate
     from canter.policy import load
 
     out = tmp_path / "bench"

@@ -10,7 +10,7 @@ import pytest
 
 from canter.checkpoint import latest
 from canter.cli import main
-from canter.evaluate import evaluate, group_by_config
+from canter.evaluation import evaluate, group_by_config
 from canter.policy import load
 from canter.seeding import EVAL, env_seeds
 
@@ -95,3 +95,10 @@ def test_cli_eval_on_another_env_with_matching_shapes(tiny_hopper_run, capsys):
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "±" in out
+
+
+def test_canter_evaluate_stays_the_function_after_the_module_is_imported():
+    import canter
+    import canter.evaluation  # noqa: F401
+
+    assert callable(canter.evaluate) and canter.evaluate.__module__ == "canter"

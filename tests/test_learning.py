@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from canter.config import build_config
-from canter.evaluate import evaluate
+from canter.evaluation import evaluate
 from canter.policy import load
 from canter.trainer import train
 

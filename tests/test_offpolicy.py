@@ -14,7 +14,7 @@ from canter.cli import main
 from canter.config import build_config
 from canter.envs.base import StepOutput
 from canter.errors import CanterError
-from canter.evaluate import evaluate
+from canter.evaluation import evaluate
 from canter.policy import load, load_state
 from canter.rollout import init_env_carry
 from canter.trainer import resume_config, train

@@ -174,7 +174,7 @@ def tiny_settings(tmp_path: Path, **kwargs) -> TuneSettings:
 
 
 def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
-    from canter.evaluate import evaluate
+    from canter.evaluation import evaluate
     from canter.policy import load
 
     settings = tiny_settings(tmp_path, seeds=(3, 4))

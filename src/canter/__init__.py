@@ -38,7 +38,7 @@ def load(run_dir):
 
 def evaluate(policy, episodes: int = 10, deterministic: bool = True, seed: int = 0, env_id=None, backend=None):
     """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time)."""
-    from canter.evaluate import evaluate as _evaluate
+    from canter.evaluation import evaluate as _evaluate
 
     return _evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id,
                      backend=backend)

@@ -201,7 +201,7 @@ def run_group(spec: GroupSpec, quiet: bool = True) -> None:
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json."""
     from canter import checkpoint
-    from canter.evaluate import evaluate
+    from canter.evaluation import evaluate
     from canter.policy import load
 
     path = run_dir / EVAL_FILE

@@ -168,7 +168,7 @@ def evaluate_checkpoint(run_dir: Path, step: int, episodes: int) -> float:
 
     from canter import checkpoint
     from canter.algos import get_algorithm
-    from canter.evaluate import evaluate
+    from canter.evaluation import evaluate
     from canter.policy import Policy, load_state
 
     config, facts, state, _ = load_state(run_dir, checkpoint.checkpoint_path(run_dir, step))

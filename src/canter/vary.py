@@ -166,7 +166,7 @@ def _make_gymnasium(env_id: str) -> Any:
 def sweep(policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int,
           env_id: str | None = None) -> list[dict[str, Any]]:
     """Evaluate `policy` at every scale on fresh Gymnasium envs; one summary dict per scale."""
-    from canter.evaluate import evaluate
+    from canter.evaluation import evaluate
 
     env_id = env_id or policy.facts.env_id
     original = check_spec(env_id, spec)

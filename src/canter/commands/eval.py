@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
-    from canter.evaluate import evaluate, group_by_config
+    from canter.evaluation import evaluate, group_by_config
 
     rows = []
     for policy in policies:
