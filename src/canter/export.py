@@ -93,7 +93,7 @@ def numpy_forward(p, obs):
     x = x[..., : int(p["output_slice"])]
     low, high = p["action_low"], p["action_high"]
     if p["squash"]:
-        x = low + (np.tanh(x) + 1) * (0.5 * (high - low))
+        x = (high + low) / 2 + (high - low) / 2 * np.tanh(x)
     return np.clip(x, low, high)
 
 
@@ -142,9 +142,8 @@ def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None):
     high = np.asarray(actor.action_high, np.float32)
     if actor.squash:
         x = node("Tanh", [x], "squashed")
-        x = node("Add", [x, const("one", 1.0)], "squashed_plus_one")
-        x = node("Mul", [x, const("half_range", 0.5 * (high - low))], "squashed_scaled")
-        x = node("Add", [x, const("action_low_offset", low)], "squashed_action")
+        x = node("Mul", [x, const("action_half_range", (high - low) / 2)], "squashed_scaled")
+        x = node("Add", [x, const("action_center", (high + low) / 2)], "squashed_action")
     # Clip takes scalar bounds only; per-dimension bounds need Max then Min.
     x = node("Max", [x, const("action_low", low)], "action_above_low")
     node("Min", [x, const("action_high", high)], "action")

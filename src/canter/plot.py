@@ -56,8 +56,12 @@ PANEL_LABELS: dict[str, tuple[str, str]] = {
     "epochs_run": ("Epochs run", "epochs per iteration"),
     "actor_loss": ("Actor loss", "loss (−Q units)"),
     "critic_loss": ("Critic loss", "loss (squared return units)"),
-    "q_value": ("Q value", "return units"),
+    "q_mean": ("Mean Q value", "return units"),
     "alpha": ("Entropy temperature α", "dimensionless"),
+    "policy_kl": ("Policy KL (old ‖ new)", "nats"),
+    "kl_beta": ("KL penalty coefficient β", "dimensionless"),
+    "sym_loss": ("Symmetry loss", "loss (squared action units)"),
+    "surrogate_gain": ("Surrogate gain", "advantage units"),
 }
 X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
 CONFIDENCE = 0.95
