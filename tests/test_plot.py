@@ -70,7 +70,11 @@ def test_interpolation_onto_a_common_grid():
     x1 = np.array([0.0, 1000.0, 2000.0, 3000.0])
     x2 = np.array([100.0, 1150.0, 2050.0, 2500.0, 3300.0])
     grid = common_grid([x1, x2])
-    np.testing.assert_allclose(grid, np.linspace(0.0, 3300.0, 5))   # union of the ranges; longest run's rows
+    # Union of the ranges; the finest median spacing (run 2: 850) gives ceil(3300 / 850) + 1 = 5 points.
+    np.testing.assert_allclose(grid, np.linspace(0.0, 3300.0, 5))
+    # Runs that barely overlap keep their own resolution rather than share a grid of 3 points.
+    np.testing.assert_allclose(common_grid([np.arange(3.0), np.arange(10.0, 13.0)]), np.arange(13.0))
+    assert len(common_grid([np.array([0.0, 1e-9, 2e-9, 1e9])])) == 4000   # capped
     np.testing.assert_allclose(interpolate(x1, 2 * x1 + 1, grid), [1.0, 1651.0, 3301.0, 4951.0, np.nan])
     y2 = np.array([1.0, np.nan, 3.0, 5.0, 7.0])   # a NaN row is skipped, not propagated
     np.testing.assert_allclose(interpolate(x2, y2, np.array([0.0, 100.0, 2050.0, 2275.0])),
@@ -95,8 +99,8 @@ def test_group_band_averages_runs_with_different_step_grids():
     # Where only one run reaches, the mean is that run's value and the band collapses onto it.
     c = fake_run([0, 1500, 4500], [5.0, 20.0, 50.0], seed=2)
     longer = group_band(Group("g", (a, c)), "episodic_return")
-    np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 4))
-    np.testing.assert_allclose(longer.mean, [2.5, 17.5, 32.5, 50.0])
+    np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 6))   # run a's spacing of 1000 sets the grid
+    np.testing.assert_allclose(longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, 41.0, 50.0])
     assert longer.low[-1] == longer.high[-1] == 50.0
     wall = group_band(Group("g", (a, b)), "episodic_return", x_axis="wall")
     np.testing.assert_allclose(wall.mean, wall.x + 2.5)

@@ -7,7 +7,7 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
   ("values reported every 2048 steps and smoothed with a window of 50").
 - `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
   seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
-  onto one evenly spaced grid over the union of their x ranges before averaging. A run counts only inside its own
+  onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before averaging. A run counts only inside its own
   range (no extrapolation), so where only some runs reach, the mean and band are over those runs.
 - `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
   replacement from a seeded generator.
@@ -192,13 +192,23 @@ def moving_average(y: np.ndarray, window: int) -> np.ndarray:
         return np.where(window_counts > 0, window_sums / np.maximum(window_counts, 1), np.nan)
 
 
+MAX_GRID_POINTS = 4000
+
+
 def common_grid(xs: Sequence[np.ndarray], points: int | None = None) -> np.ndarray:
-    """Evenly spaced x values from the earliest start to the latest end of the runs; as many points as the
-    longest run has rows, unless `points` is given."""
-    lo = min(np.nanmin(x) for x in xs)
-    hi = max(np.nanmax(x) for x in xs)
-    n = points or max(len(x) for x in xs)
-    return np.linspace(lo, hi, max(n, 2)) if hi > lo else np.array([lo])
+    """Evenly spaced x values from the earliest start to the latest end of the runs. Unless `points` is given, the
+    spacing is the finest of the runs' median row spacings (so runs whose ranges barely overlap, as wall times can,
+    keep their resolution), with at least as many points as the longest run has rows and at most MAX_GRID_POINTS."""
+    xs = [np.asarray(x, float)[~np.isnan(x)] for x in xs]
+    lo = min(x.min() for x in xs)
+    hi = max(x.max() for x in xs)
+    if hi <= lo:
+        return np.array([lo])
+    if points is None:
+        spacings = [np.median(np.diff(np.sort(x))) for x in xs if len(x) > 1]
+        finest = min([d for d in spacings if d > 0], default=hi - lo)
+        points = min(max(math.ceil((hi - lo) / finest) + 1, max(len(x) for x in xs)), MAX_GRID_POINTS)
+    return np.linspace(lo, hi, max(points, 2))
 
 
 def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray) -> np.ndarray:
