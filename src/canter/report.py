@@ -57,8 +57,10 @@ def run_facts(run_dir: str | Path) -> RunFacts:
     run_dir = Path(run_dir)
     checkpoint.latest(run_dir)   # refuses folders without a checkpoint before any work is done
     config = read_run_config(run_dir)
-    summary_path = run_dir / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        summary = {}   # still training, or stopped before the end: the table shows dashes
     robustness = tuple(sorted((run_dir / "robustness").rglob("*.png"), key=_natural_key)) \
         if (run_dir / "robustness").is_dir() else ()
     videos_dir = run_dir / "videos"
