@@ -35,6 +35,33 @@ def tiny_run(tmp_path_factory):
         os.chdir(cwd)
 
 
+def _choose_gl() -> None:
+    # MuJoCo reads MUJOCO_GL when it is first imported, so pick EGL or OSMesa before any test imports it.
+    from canter.errors import CanterError
+    from canter.video import configure_gl
+
+    try:
+        configure_gl()
+    except CanterError:
+        pass  # the video tests then fail with the message naming the package to install
+
+
+_choose_gl()
+
+
+@pytest.fixture(scope="session")
+def tiny_hopper_run(tmp_path_factory):
+    """A few hundred steps of Hopper-v5 on EnvPool: a MuJoCo run for the eval, vary and video tests."""
+    from canter.config import build_config
+    from canter.trainer import train
+
+    out = tmp_path_factory.mktemp("hopper_runs")
+    config = build_config("Hopper-v5", preset="fast", total_steps=256, seed=1,
+                          sets=TINY + [f"run.out_dir={out}", "env.backend=envpool", "env.num_envs=2",
+                                       "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
+    return train(config).run_dir
+
+
 @pytest.fixture(scope="session")
 def tiny_run_seed1(tiny_run, tmp_path_factory):
     """tiny_run's config with run.seed=1: two runs that differ only in their seed (plot grouping, reports)."""

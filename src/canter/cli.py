@@ -10,7 +10,7 @@ from typing import Sequence
 from canter.errors import CanterError
 
 # Subcommand modules under canter.commands, in help order.
-COMMANDS = ("train", "eval", "plot", "export", "report")
+COMMANDS = ("train", "eval", "video", "plot", "export", "report")
 
 
 class _Parser(argparse.ArgumentParser):

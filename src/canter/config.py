@@ -120,6 +120,8 @@ class RunConfig:
                                         default=None)
     max_minutes: float | None = _doc("Stop cleanly, with a checkpoint, after this many wall minutes.", default=None)
     tensorboard: bool = _doc("Write TensorBoard event files.", default=True)
+    video_every: int = _doc("Render one episode to videos/step_<step>.mp4 in the run folder every this many env "
+                            "steps, in a separate process (0: never).", default=0)
 
 
 @dataclass(frozen=True)
@@ -413,6 +415,7 @@ def validate(config: Config) -> None:
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
+    need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
     if run.max_minutes is not None:
         need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")
 

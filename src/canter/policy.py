@@ -89,12 +89,12 @@ def load_state(run_dir: Path, checkpoint_file: Path | None = None):
     return config, facts, state, header
 
 
-def load(run_dir: str | Path) -> Policy:
-    """Load the newest checkpoint of a run folder as a `Policy`."""
+def load(run_dir: str | Path, checkpoint_file: str | Path | None = None) -> Policy:
+    """Load the newest checkpoint of a run folder (or the given checkpoint file) as a `Policy`."""
     import jax
 
     from canter.algos import get_algorithm
 
-    config, facts, state, _ = load_state(Path(run_dir))
+    config, facts, state, _ = load_state(Path(run_dir), None if checkpoint_file is None else Path(checkpoint_file))
     params = get_algorithm(config.run.algo).policy_params(state)
     return Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), Path(run_dir))

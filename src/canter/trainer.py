@@ -23,6 +23,7 @@ from canter.config import Config, to_toml, validate
 from canter.errors import CanterError
 from canter.logger import MetricsLogger, Progress
 from canter.seeding import RESUME, TRAIN, env_seeds
+from canter.video import TrainingVideos
 
 RECENT_EPISODES = 20
 
@@ -181,6 +182,7 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
     run_seconds = 0.0
     stop_reason = "budget"
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
+    videos = TrainingVideos(out, config.run.video_every, start_step)
 
     def save(train_state: Any, step: int) -> None:
         header = dict(header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
@@ -227,6 +229,8 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
                 if next_checkpoint is not None and global_step >= next_checkpoint and global_step < total:
                     save(state, global_step)
                     next_checkpoint = (global_step // config.run.checkpoint_every + 1) * config.run.checkpoint_every
+                videos.maybe_record(global_step, lambda path: checkpoint.save(
+                    path, state, dict(header_base, global_step=global_step)))
                 if (config.run.stop_at_return is not None and len(recent) >= RECENT_EPISODES
                         and recent_mean >= config.run.stop_at_return):
                     stop_reason = "stop_at_return"
@@ -241,6 +245,7 @@ def _loop(config: Config, env: Any, state: Any, out: Path, start_step: int, quie
     finally:
         progress.close()
         logger.close()
+        videos.close()
 
     wall = time.perf_counter() - started
     result = RunResult(run_dir=out, global_step=global_step,

@@ -32,3 +32,18 @@ def write_output(path: str | Path, data: bytes) -> None:
         atomic_write_bytes(Path(path), lambda f: f.write(data))
     except OSError as exc:
         raise CanterError(f"cannot write {path}: {exc.strerror or exc}; pick a writable path") from None
+
+
+def check_writable(path: str | Path) -> None:
+    """Fail early, before any long computation, when an output path cannot be written (nothing is left behind)."""
+    import os
+    import tempfile
+
+    folder = Path(path).parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".canter-probe-", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise CanterError(f"cannot write {path}: {exc.strerror or exc}; pick a writable path") from None

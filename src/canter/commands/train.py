@@ -25,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="stop once the mean of the last 20 training episodes reaches this")
     t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
     t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
+    t.add_argument("--video-every", type=steps_arg, default=None, metavar="N",
+                   help="render an episode to RUN/videos/step_<step>.mp4 every N env steps (run.video_every)")
     t.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a run from its newest checkpoint")
     add_common(t)
     t.set_defaults(func=run)
@@ -38,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
         changed = [flag for flag, value in (("env", args.env), ("--algo", args.algo), ("--preset", args.preset),
                                              ("--config", args.config), ("--set", args.set), ("--seed", args.seed),
                                              ("--backend", args.backend), ("--stop-at-return", args.stop_at_return),
-                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir))
+                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir),
+                                             ("--video-every", args.video_every))
                    if value]
         if changed:
             raise CanterError(f"--resume uses the saved config; only --total-steps and --quiet may be given "
@@ -55,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
             extra["run.max_minutes"] = args.max_minutes
         if args.out_dir:
             extra["run.out_dir"] = args.out_dir
+        if args.video_every is not None:
+            extra["run.video_every"] = args.video_every
         sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
         config = build_config(args.env, preset=args.preset or "fast", config_file=args.config, sets=sets,
                               seed=args.seed, total_steps=args.total_steps, algo=args.algo)

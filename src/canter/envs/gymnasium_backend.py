@@ -37,8 +37,11 @@ def make_single(env_id: str, **kwargs: Any) -> Any:
 
 
 class GymnasiumVecEnv:
-    def __init__(self, env_id: str, num_envs: int, seeds: list[int], **kwargs: Any) -> None:
+    def __init__(self, env_id: str, num_envs: int, seeds: list[int], on_make: Any = None, **kwargs: Any) -> None:
+        """`on_make(env)`, if given, is called on each env before its first reset (e.g. to edit a MuJoCo model)."""
         self._envs = [make_single(env_id, **kwargs) for _ in range(num_envs)]
+        for env in self._envs if on_make is not None else ():
+            on_make(env)
         first = self._envs[0]
         self._num_envs = num_envs
         self._needs_reset = np.zeros(num_envs, bool)
