@@ -138,3 +138,20 @@ def test_report_bad_input(tiny_run, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run_without_checkpoint"]
+
+
+def test_report_records_a_video_with_canter_video(tiny_run, tmp_path, capsys):
+    import base64
+
+    import imageio.v3 as iio
+
+    out = tmp_path / "r.html"
+    assert main(["report", str(tiny_run.run_dir), "--episodes", "0", "--video", "--out", str(out)]) == 0
+    videos = [a["src"] for t, a in parse(out.read_text()).tags if t == "video"]
+    assert len(videos) == 1 and videos[0].startswith("data:video/mp4;base64,")
+    (tmp_path / "embedded.mp4").write_bytes(base64.b64decode(videos[0].split(",", 1)[1]))
+    frames = iio.imread(tmp_path / "embedded.mp4")
+    assert frames.shape[0] == 201 and frames.shape[1:3] == (360, 480)   # reset frame + 200 Pendulum steps
+    assert frames.std() > 5   # not blank
+    assert "recorded for this report" in out.read_text()
+    assert not (tiny_run.run_dir / "videos").exists()   # nothing written into the run folder

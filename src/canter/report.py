@@ -10,6 +10,7 @@ import base64
 import html
 import json
 import re
+import tempfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -176,20 +177,27 @@ def eval_section(facts: Sequence[RunFacts], rows: Sequence[EvalRow]) -> str:
                   table_rows)
 
 
-def media_section(facts: Sequence[RunFacts], extra_videos: dict[Path, Path] | None = None) -> tuple[str, str]:
-    """(robustness HTML, video HTML); empty strings when no run has any."""
+def media_section(facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, list[float]]] | None = None
+                  ) -> tuple[str, str]:
+    """(robustness HTML, video HTML); empty strings when no run has any. `recorded` maps a run folder to a video
+    made for this report and its episode returns; it is shown instead of the run's own videos."""
     robustness, videos = [], []
     for i, f in enumerate(facts):
         for plot in f.robustness_plots:
             robustness.append(f"<figure><img alt='robustness plot of run {i + 1}' "
                               f"src='{data_uri(plot, 'image/png')}'><figcaption>run {i + 1}: "
                               f"{_e(plot.relative_to(f.run_dir))}</figcaption></figure>")
-        chosen = (extra_videos or {}).get(f.run_dir) or (f.videos[-1] if f.videos else None)
-        if chosen is None:
+        if f.run_dir in (recorded or {}):
+            chosen, returns = recorded[f.run_dir]
+            shown = ", ".join(f"{r:.1f}" for r in returns)
+            caption = f"run {i + 1}: recorded for this report, deterministic, episode return {_e(shown)}"
+        elif f.videos:
+            chosen = f.videos[-1]
+            caption = f"run {i + 1}: {_e(chosen.name)}"
+            if len(f.videos) > 1:
+                caption += f" (newest of {len(f.videos)} in videos/)"
+        else:
             continue
-        caption = f"run {i + 1}: {_e(chosen.name)}"
-        if len(f.videos) > 1:
-            caption += f" (newest of {len(f.videos)} in videos/)"
         suffix = chosen.suffix.lower()
         if suffix in VIDEO_TYPES:
             tag = (f"<video controls muted loop playsinline preload='auto' "
@@ -214,12 +222,12 @@ pre { background: #f7f7f7; padding: 0.6rem; font-size: 0.8rem; overflow-x: auto;
 
 
 def render_html(facts: Sequence[RunFacts], eval_rows: Sequence[EvalRow] | None, episodes: int, curves_png: bytes,
-                smooth: int, extra_videos: dict[Path, Path] | None = None) -> str:
+                smooth: int, recorded: dict[Path, tuple[Path, list[float]]] | None = None) -> str:
     from canter import __version__
 
     envs = sorted({f.config.env.id for f in facts})
     title = f"canter report: {', '.join(envs)} ({len(facts)} run{'s' if len(facts) > 1 else ''})"
-    robustness, videos = media_section(facts, extra_videos)
+    robustness, videos = media_section(facts, recorded)
     if eval_rows is None:
         evaluation = "<p class='note'>Not evaluated (--episodes 0).</p>"
     else:
@@ -247,7 +255,9 @@ def render_html(facts: Sequence[RunFacts], eval_rows: Sequence[EvalRow] | None, 
 
 
 def build_report(run_dirs: Sequence[str | Path], episodes: int = 10, seed: int = 0, smooth: int = 1,
-                 extra_videos: dict[Path, Path] | None = None) -> str:
+                 video: bool = False) -> str:
+    """The report page. With `video`, one deterministic episode of each run is rendered for it (canter.video)
+    rather than embedding the newest file of the run's videos/ folder."""
     from canter.plot import render
 
     if episodes < 0:
@@ -255,4 +265,13 @@ def build_report(run_dirs: Sequence[str | Path], episodes: int = 10, seed: int =
     facts = [run_facts(r) for r in run_dirs]
     curves = render([f.run_dir for f in facts], fmt="png", smooth=smooth, seed=seed)
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed) if episodes else None
-    return render_html(facts, rows, episodes, curves, smooth, extra_videos)
+    if not video:
+        return render_html(facts, rows, episodes, curves, smooth)
+    from canter.video import record_video
+
+    with tempfile.TemporaryDirectory(prefix="canter-report-") as folder:
+        recorded = {}
+        for i, f in enumerate(facts):
+            path = Path(folder) / f"run{i + 1}.mp4"
+            recorded[f.run_dir] = (path, record_video(f.run_dir, path, episodes=1, seed=seed))
+        return render_html(facts, rows, episodes, curves, smooth, recorded)

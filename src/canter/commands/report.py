@@ -17,13 +17,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per run; 0 skips evaluation")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
     p.add_argument("--smooth", type=int, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
+    p.add_argument("--video", action="store_true",
+                   help="render one deterministic episode of each run for the page (instead of RUN/videos/)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from canter.report import build_report
 
-    page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth)
+    page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth,
+                        video=args.video)
     write_output(args.out, page.encode("utf-8"))
     print(f"wrote {args.out}")
     return 0
