@@ -155,3 +155,21 @@ def test_report_records_a_video_with_canter_video(tiny_run, tmp_path, capsys):
     assert frames.std() > 5   # not blank
     assert "recorded for this report" in out.read_text()
     assert not (tiny_run.run_dir / "videos").exists()   # nothing written into the run folder
+
+
+def test_report_shows_a_robustness_sweep_with_its_numbers(tiny_hopper_run, tmp_path, capsys):
+    import json
+
+    run = tmp_path / "hopper"
+    shutil.copytree(tiny_hopper_run, run)
+    assert main(["eval", str(run), "--vary", "body_mass:torso=0.5,1.5", "--episodes", "1"]) == 0
+    sweep = json.loads(next((run / "robustness").glob("*.json")).read_text())
+    out = tmp_path / "r.html"
+    assert main(["report", str(run), "--episodes", "0", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text.count("<img ") == 2   # curves + the sweep's plot
+    cells = parse(text).cells
+    points = sweep["runs"][0]["points"]
+    for scale, point in zip(("0.5", "1.5"), points):
+        row = cells[cells.index(scale):][:2]
+        assert row[1] == f"{point['return_mean']:.1f} ± {point['return_std']:.1f}"

@@ -186,7 +186,8 @@ def media_section(facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, li
         for plot in f.robustness_plots:
             robustness.append(f"<figure><img alt='robustness plot of run {i + 1}' "
                               f"src='{data_uri(plot, 'image/png')}'><figcaption>run {i + 1}: "
-                              f"{_e(plot.relative_to(f.run_dir))}</figcaption></figure>")
+                              f"{_e(plot.relative_to(f.run_dir))}</figcaption></figure>"
+                              + robustness_table(plot.with_suffix(".json")))
         if f.run_dir in (recorded or {}):
             chosen, returns = recorded[f.run_dir]
             shown = ", ".join(f"{r:.1f}" for r in returns)
@@ -206,6 +207,22 @@ def media_section(facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, li
             tag = f"<img alt='video of run {i + 1}' src='{data_uri(chosen, IMAGE_TYPES[suffix])}'>"
         videos.append(f"<figure>{tag}<figcaption>{caption}</figcaption></figure>")
     return "\n".join(robustness), "\n".join(videos)
+
+
+def robustness_table(path: Path) -> str:
+    """The numbers behind a robustness plot, from the JSON `canter eval --vary` writes beside it: return
+    mean ± std at each scale, one column per run. Empty when there is no such file or it has another layout."""
+    try:
+        data = json.loads(path.read_text())
+        runs = data["runs"]
+        scales = [p["scale"] for p in runs[0]["points"]]
+        rows = [[f"{scale:g}"] + [f"{r['points'][j]['return_mean']:.1f} ± {r['points'][j]['return_std']:.1f}"
+                                  for r in runs] for j, scale in enumerate(scales)]
+        header = ["scale"] + [f"return: {r['label']}" for r in runs]
+        note = f"{data['env']}, {data['vary']}, {data['episodes']} episodes per value"
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
+        return ""
+    return f"<p class='note'>{_e(note)}</p>" + _table(header, rows)
 
 
 STYLE = """
