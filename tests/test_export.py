@@ -129,3 +129,29 @@ def test_export_bad_input(tiny_run, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run_without_checkpoint"]
+
+
+def test_export_of_a_run_state_with_large_actions_matches_the_policy(tiny_run):
+    """The trained tiny actor's outputs are near zero; with larger weights the policy's action clip is reached,
+    and the export must clip the same way."""
+    import jax
+
+    from canter.algos import get_algorithm
+    from canter.policy import Policy, load_state
+
+    config, facts, state, _ = load_state(tiny_run.run_dir)
+    rng = np.random.default_rng(3)
+    actor = [{"w": (rng.normal(size=np.shape(layer["w"])) * 2).astype(np.float32),
+              "b": rng.normal(size=np.shape(layer["b"])).astype(np.float32)} for layer in state.params["actor"]]
+    state = state._replace(params=dict(state.params, actor=actor))
+    algorithm = get_algorithm(config.run.algo)
+    policy = Policy(config, facts, jax.device_put(algorithm.policy_params(state)), jax.device_put(state.obs_stats),
+                    tiny_run.run_dir)
+    obs = (rng.normal(size=(300, facts.obs_dim)) * 3).astype(np.float32)
+    expected = policy(obs)
+    assert (expected == facts.action_low).any() and (expected == facts.action_high).any()
+    assert ((expected > facts.action_low) & (expected < facts.action_high)).any()
+    exported = algorithm.export_actor(config, state, facts)
+    assert np.abs(run_onnx(onnx_bytes(exported), obs) - expected).max() <= 1e-5
+    _, forward = doc_forward()
+    assert np.abs(forward(npz_arrays(exported), obs) - expected).max() <= 1e-5
