@@ -11,8 +11,8 @@ import pytest
 from canter.cli import main
 from canter.config import apply_overrides, build_config, to_toml
 from canter.errors import CanterError
-from canter.plot import (Group, RunCurves, bootstrap_band, common_grid, group_band, group_labels, group_runs,
-                         interpolate, load_run, moving_average, read_metrics)
+from canter.plot import (Group, RunCurves, bootstrap_band, choose_metrics, common_grid, group_band, group_labels,
+                         group_runs, interpolate, load_run, moving_average, read_metrics)
 
 
 def test_moving_average_matches_a_loop_with_nans():
@@ -125,6 +125,18 @@ def test_grouping_and_labels():
     assert group_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
 
 
+def test_choose_metrics_defaults_and_globs():
+    run = fake_run([0, 1], [0, 1])
+    columns = dict(run.columns, sps=np.array([5.0, 6.0]), critic_loss=np.array([1.0, np.nan]),
+                   empty=np.array([np.nan, np.nan]), **{"info/reward_ctrl": np.array([1.0, 2.0]),
+                                                        "info/x_velocity": np.array([0.0, 1.0])})
+    run = RunCurves(run.run_dir, run.config, columns)
+    assert choose_metrics([run], None) == ["episodic_return", "sps", "critic_loss"]
+    assert choose_metrics([run], ["info/*", "sps"]) == ["info/reward_ctrl", "info/x_velocity", "sps"]
+    with pytest.raises(CanterError, match="no column empty, nope"):
+        choose_metrics([run], ["empty", "nope"])
+
+
 def test_read_metrics_skips_text_columns_and_keeps_empty_cells_as_nan(tmp_path):
     (tmp_path / "metrics.csv").write_text("global_step,episodic_return,note\n10,,a\n20,1.5,b\n")
     columns = read_metrics(tmp_path / "metrics.csv")
@@ -157,7 +169,7 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
     assert code == 0, err
     svg = (tmp_path / "c.svg").read_text()
     ET.fromstring(svg)   # well-formed
-    for text in ("Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)", "ppo.clip=0.3 (1 run)",
+    for text in ("Pendulum-v1", "Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)", "ppo.clip=0.3 (1 run)",
                  "95% bootstrap CI"):
         assert text in svg, text
     assert "Clip fraction" not in svg

@@ -278,15 +278,24 @@ def available_metrics(runs: Sequence[RunCurves]) -> list[str]:
 
 
 def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -> list[str]:
-    """The requested columns (checked), or by default every available column except the env's info/* terms."""
+    """The requested columns, each a name or a glob such as `info/*` (checked), or by default every available
+    column except the env's info/* terms."""
+    import fnmatch
+
     available = available_metrics(runs)
     if not requested:
         return [c for c in available if not c.startswith("info/")]
-    missing = [c for c in requested if c not in available]
+    chosen: list[str] = []
+    missing = []
+    for pattern in requested:
+        matches = [c for c in available if fnmatch.fnmatchcase(c, pattern)]
+        if not matches:
+            missing.append(pattern)
+        chosen += [c for c in matches if c not in chosen]
     if missing:
         raise CanterError(f"no column {', '.join(missing)} with values in these runs; choose from: "
                           f"{', '.join(available)}")
-    return list(requested)
+    return chosen
 
 
 def panel_labels(column: str) -> tuple[str, str]:
@@ -346,6 +355,8 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
     smoothing = f"moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
     band_note = f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds" if any(
         len(g.runs) > 1 for g in groups) else ""
+    envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
+    fig.suptitle(", ".join(envs), fontsize=13, fontweight="bold")
     fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3), fontsize=10,
                title=f"lines: mean over runs, {smoothing}{band_note}", title_fontsize=9, frameon=False)
     return fig

@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--smooth", type=int, default=1, metavar="W",
                    help="trailing moving average over W logged rows of each run (default 1: none)")
     p.add_argument("--metrics", default=None, metavar="COL,COL",
-                   help="metrics.csv columns to draw, one panel each (default: all but info/*)")
+                   help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' "
+                        "(default: all but info/*)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap resampling")
     p.set_defaults(func=run)
 
