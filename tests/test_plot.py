@@ -169,8 +169,8 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
     assert code == 0, err
     svg = (tmp_path / "c.svg").read_text()
     ET.fromstring(svg)   # well-formed
-    for text in ("Pendulum-v1", "Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)", "ppo.clip=0.3 (1 run)",
-                 "95% bootstrap CI"):
+    for text in ("Pendulum-v1", "Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)",
+                 "ppo.clip=0.3 (1 run)", "95% bootstrap CI"):
         assert text in svg, text
     assert "Clip fraction" not in svg
     assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["c.png", "c.svg"]

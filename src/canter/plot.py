@@ -7,8 +7,9 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
   ("values reported every 2048 steps and smoothed with a window of 50").
 - `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
   seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
-  onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before averaging. A run counts only inside its own
-  range (no extrapolation), so where only some runs reach, the mean and band are over those runs.
+  onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before
+  averaging. A run counts only inside its own range (no extrapolation), so where only some runs reach, the mean
+  and band are over those runs.
 - `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
   replacement from a seeded generator.
 
@@ -321,6 +322,7 @@ def figure_format(path: str | Path) -> str:
 def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps", smooth: int = 1,
          seed: int = 0, columns: int = 3):
     """A matplotlib Figure with one panel per metric and one line (mean) plus band (95% CI) per group."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import EngFormatter
 
@@ -328,7 +330,8 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
         raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
     columns = max(1, min(columns, len(metrics)))
     rows = math.ceil(len(metrics) / columns)
-    fig = Figure(figsize=(5.0 * columns, 3.4 * rows + 0.8), layout="constrained")
+    fig = Figure(figsize=(5.0 * columns, 3.4 * rows + 1.0), layout="constrained")
+    FigureCanvasAgg(fig)   # headless: no pyplot, no display, no global backend switch
     axes = fig.subplots(rows, columns, squeeze=False).ravel()
     colors = [f"C{i % 10}" for i in range(len(groups))]
     for ax, metric in zip(axes, metrics):

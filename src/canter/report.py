@@ -171,8 +171,8 @@ def eval_section(facts: Sequence[RunFacts], rows: Sequence[EvalRow]) -> str:
             means = np.array([rows[i].return_mean for i in members])
             lengths = np.array([rows[i].length_mean for i in members])
             table_rows.append([f"{label}: mean of {len(members)} runs", "", "",
-                               f"{means.mean():.1f} ± {means.std():.1f}", f"{lengths.mean():.1f} ± {lengths.std():.1f}",
-                               ""])
+                               f"{means.mean():.1f} ± {means.std():.1f}",
+                               f"{lengths.mean():.1f} ± {lengths.std():.1f}", ""])
     return _table(["run", "steps", "episodes", "return (mean ± std)", "episode length (steps)", "eval time (s)"],
                   table_rows)
 
