@@ -359,9 +359,9 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
     band_note = f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds" if any(
         len(g.runs) > 1 for g in groups) else ""
     envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
-    fig.suptitle(", ".join(envs), fontsize=13, fontweight="bold")
     fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3), fontsize=10,
-               title=f"lines: mean over runs, {smoothing}{band_note}", title_fontsize=9, frameon=False)
+               title=f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}", title_fontsize=10,
+               frameon=False)
     return fig
 
 
