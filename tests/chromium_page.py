@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import select
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -111,7 +112,7 @@ def inspect_page(path: str | Path, timeout: float = 90.0) -> PageReport:
     to_chrome_read, to_chrome_write = os.pipe()
     from_chrome_read, from_chrome_write = os.pipe()
     profile = tempfile.mkdtemp(prefix="canter-chromium-")
-    command = " ".join([CHROMIUM, *FLAGS, f"--user-data-dir={profile}"])
+    command = " ".join(shlex.quote(part) for part in [CHROMIUM, *FLAGS, f"--user-data-dir={profile}"])
     # bash, not sh: dash redirects only single-digit descriptors.
     process = subprocess.Popen(["/bin/bash", "-c", f"exec {command} 3<&{to_chrome_read} 4>&{from_chrome_write}"],
                                pass_fds=(to_chrome_read, from_chrome_write), stdin=subprocess.DEVNULL,
