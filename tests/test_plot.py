@@ -3,6 +3,7 @@
 import math
 import shutil
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -123,6 +124,9 @@ def test_grouping_and_labels():
     assert group_labels([fast, cleanrl, cleanrl_clip]) == ["preset=fast", "preset=cleanrl, ppo.clip=0.2",
                                                            "preset=cleanrl, ppo.clip=0.1"]
     assert group_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
+    # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
+    td3 = replace(fast, run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
+    assert group_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
 
 
 def test_choose_metrics_defaults_and_globs():
