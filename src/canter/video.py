@@ -129,6 +129,19 @@ class _GymnasiumPlayer:
             self.env = make_single(env_id, **kwargs)
         except ValueError as exc:
             raise CanterError(f"{env_id}: {exc}") from None
+        if camera is not None:
+            self._check_camera(env_id, camera)
+
+    def _check_camera(self, env_id: str, camera: str) -> None:
+        """Gymnasium silently falls back to the free camera for an unknown name; say so instead."""
+        import mujoco
+
+        model = self.env.unwrapped.model
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) or str(i) for i in range(model.ncam)]
+        if (camera.isdigit() and int(camera) >= model.ncam) or (not camera.isdigit() and camera not in names):
+            self.env.close()
+            raise CanterError(f"{env_id} has no camera {camera!r}; cameras: {', '.join(names) or 'none'} (omit "
+                              f"--camera for the default view)")
 
     def _frame(self) -> np.ndarray:
         try:

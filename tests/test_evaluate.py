@@ -1,0 +1,97 @@
+"""Evaluation: the mean matches a plain Gymnasium loop, normalizer statistics stay frozen, seed groups."""
+
+import hashlib
+import json
+from dataclasses import replace
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from canter.checkpoint import latest
+from canter.cli import main
+from canter.evaluate import evaluate, group_by_config
+from canter.policy import load
+from canter.seeding import EVAL, env_seeds
+
+
+def hand_loop(policy, env_id, seeds, deterministic=True):
+    returns, lengths = [], []
+    for seed in seeds:
+        env = gym.make(env_id)
+        obs, _ = env.reset(seed=int(seed))
+        total, steps, done = 0.0, 0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(policy(obs, deterministic=deterministic))
+            total += reward
+            steps += 1
+            done = terminated or truncated
+        returns.append(total)
+        lengths.append(steps)
+        env.close()
+    return np.array(returns), np.array(lengths)
+
+
+def test_eval_mean_matches_a_hand_written_gymnasium_loop(tiny_run):
+    policy = load(tiny_run.run_dir)
+    result = evaluate(policy, episodes=3, seed=4, backend="gymnasium")  # the run trained on EnvPool
+    returns, lengths = hand_loop(policy, "Pendulum-v1", env_seeds(4, 3, EVAL))
+    np.testing.assert_allclose(np.sort(result.returns), np.sort(returns), rtol=1e-5)
+    assert result.mean == pytest.approx(returns.mean(), rel=1e-5)
+    assert result.lengths.tolist() == lengths.tolist() == [200] * 3
+
+
+def test_envpool_run_on_the_gymnasium_backend_matches_the_hand_loop(tiny_hopper_run):
+    policy = load(tiny_hopper_run)
+    result = evaluate(policy, episodes=2, seed=0, backend="gymnasium")
+    returns, lengths = hand_loop(policy, "Hopper-v5", env_seeds(0, 2, EVAL))
+    np.testing.assert_allclose(np.sort(result.returns), np.sort(returns), rtol=1e-5)
+    assert sorted(result.lengths.tolist()) == sorted(lengths.tolist())
+
+
+def test_evaluation_never_changes_the_normalizer_statistics(tiny_hopper_run):
+    policy = load(tiny_hopper_run)
+    before = [np.array(x, copy=True) for x in policy.obs_stats]
+    assert not np.allclose(before[0], 0.0)  # trained statistics, so "unchanged" means something
+    digest = hashlib.sha256(latest(tiny_hopper_run).read_bytes()).hexdigest()
+    evaluate(policy, episodes=2)
+    evaluate(policy, episodes=2, deterministic=False, backend="gymnasium")
+    for old, new in zip(before, policy.obs_stats):
+        np.testing.assert_array_equal(old, np.asarray(new))
+    assert hashlib.sha256(latest(tiny_hopper_run).read_bytes()).hexdigest() == digest
+
+
+def test_stochastic_evaluation_depends_on_the_seed(tiny_run):
+    policy = load(tiny_run.run_dir)
+    a = evaluate(policy, episodes=2, deterministic=False, seed=1)
+    b = evaluate(policy, episodes=2, deterministic=False, seed=1)
+    c = evaluate(policy, episodes=2, deterministic=True, seed=1)
+    np.testing.assert_allclose(a.returns, b.returns)
+    assert not np.allclose(a.returns, c.returns)
+
+
+def test_runs_that_differ_only_in_seed_form_a_group(tiny_run):
+    config = load(tiny_run.run_dir).config
+    seeds = [replace(config, run=replace(config.run, seed=s, out_dir=f"o{s}")) for s in (1, 2)]
+    other = replace(config, ppo=replace(config.ppo, lr=1e-3))
+    assert group_by_config(seeds + [other, config]) == [[0, 1, 3], [2]]
+
+
+def test_cli_group_row_and_json(tiny_run, tmp_path, capsys):
+    run = str(tiny_run.run_dir)
+    code = main(["eval", run, run, "--episodes", "2", "--json", str(tmp_path / "e.json")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert len(report["runs"]) == 2 and len(report["groups"]) == 1
+    group = report["groups"][0]
+    means = [r["return_mean"] for r in report["runs"]]
+    assert group["return_mean"] == pytest.approx(np.mean(means)) and group["return_std"] == pytest.approx(np.std(means))
+    assert "group:" in out and sum(line.count("±") == 2 for line in out.splitlines()) == 3
+
+
+def test_cli_eval_on_another_env_with_matching_shapes(tiny_hopper_run, capsys):
+    code = main(["eval", str(tiny_hopper_run), "--episodes", "1", "--env", "Hopper-v4"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "±" in out

@@ -1,0 +1,148 @@
+"""Videos: decoded frame counts, sizes and content; GL selection; DM Control; the training hook; bad input."""
+
+import re
+import sys
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+
+from canter.cli import main
+from canter.errors import CanterError
+from canter import video
+
+from conftest import TINY
+
+
+def frames_of(path) -> np.ndarray:
+    if str(path).endswith(".gif"):
+        return np.stack([f[..., :3] for f in imageio.mimread(path)])
+    with imageio.get_reader(path, format="FFMPEG") as reader, video._quiet_fork():
+        return np.stack([frame for frame in reader])  # list(reader) would trust its len(), which is inf
+
+
+def assert_real_video(frames: np.ndarray, count: int, width: int, height: int) -> None:
+    assert frames.shape == (count, height, width, 3)
+    assert frames.std() > 5  # not blank
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5  # not a constant image
+
+
+def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
+    code = main(["video", str(tiny_hopper_run), "--out", "hopper.mp4", "--episodes", "2", "--max-steps", "8",
+                 "--width", "64", "--height", "48", "--fps", "10"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert out.count("return") == 2
+    # Each episode: the reset frame plus one per step.
+    assert_real_video(frames_of("hopper.mp4"), 2 * 9, 64, 48)
+
+
+def test_gif_of_a_non_mujoco_env_is_resized(tiny_run):
+    returns = video.record_video(tiny_run.run_dir, "pendulum.gif", episodes=1, width=40, height=30, fps=20,
+                                 max_steps=12)
+    assert len(returns) == 1 and np.isfinite(returns[0])
+    assert_real_video(frames_of("pendulum.gif"), 13, 40, 30)
+
+
+def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
+    """An EnvPool run replayed in Gymnasium scores what a plain loop with the same policy scores."""
+    import gymnasium as gym
+
+    from canter.policy import load
+
+    policy = load(tiny_hopper_run)
+    returns = video.record_video(tiny_hopper_run, "h.mp4", episodes=2, width=32, height=32, seed=5, max_steps=25)
+    expected = []
+    for seed in (5, 6):
+        env = gym.make("Hopper-v5")
+        obs, _ = env.reset(seed=seed)
+        total, steps, done = 0.0, 0, False
+        while not done and steps < 25:
+            obs, reward, terminated, truncated, _ = env.step(policy(obs))
+            total += reward
+            steps += 1
+            done = terminated or truncated
+        expected.append(total)
+    np.testing.assert_allclose(returns, expected, rtol=1e-6)
+
+
+def test_dm_control_run_renders_through_dm_control(tmp_path):
+    pytest.importorskip("dm_control")
+    from canter.config import build_config
+    from canter.trainer import train
+
+    config = build_config("WalkerWalk-v1", total_steps=128, sets=TINY + [
+        f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
+    run = train(config).run_dir
+    assert video.dmc_task("WalkerWalk-v1") == ("walker", "walk")
+    assert video.dmc_task("Hopper-v5") is None
+    returns = video.record_video(run, "walker.mp4", width=48, height=32, max_steps=6)
+    assert len(returns) == 1
+    assert_real_video(frames_of("walker.mp4"), 7, 48, 32)
+
+
+def test_video_every_during_training(tmp_path):
+    from canter.config import build_config
+    from canter.trainer import train
+
+    config = build_config("Pendulum-v1", total_steps=512, sets=TINY + [
+        f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=128", "ppo.minibatch_size=128", "ppo.epochs=1",
+        "run.video_every=256"])
+    run = train(config).run_dir
+    videos = sorted(p.name for p in (run / "videos").iterdir() if not p.name.startswith("render"))
+    assert len(videos) == 2 and all(re.fullmatch(r"step_\d{12}\.mp4", name) for name in videos), videos
+    steps = [int(name[5:17]) for name in videos]  # the step of the first iteration past each multiple of 256
+    assert 256 <= steps[0] < 512 <= steps[1]
+    frames = frames_of(run / "videos" / videos[-1])
+    assert frames.shape[1:] == (video.DEFAULT_HEIGHT, video.DEFAULT_WIDTH, 3) and len(frames) == 201
+
+
+def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
+    """The render subprocess dies (here: a checkpoint it cannot read); training finishes and warns."""
+    hook = video.TrainingVideos(tmp_path, every=10, start_step=0)
+    hook.maybe_record(10, lambda path: path.write_bytes(b"not a checkpoint"))
+    hook.close()
+    assert "video at step 10 failed" in capsys.readouterr().err
+    assert not list((tmp_path / "videos").glob("*.npz")) and not list((tmp_path / "videos").glob("*.mp4"))
+
+
+def test_gl_selection(monkeypatch):
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.delitem(sys.modules, "mujoco", raising=False)
+    monkeypatch.setattr(video, "_probe", lambda backend: backend == "osmesa")
+    assert video.configure_gl() == "osmesa"
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setattr(video, "_probe", lambda backend: False)
+    with pytest.raises(CanterError, match="apt-get install -y libegl1 libosmesa6"):
+        video.configure_gl()
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    with pytest.raises(CanterError, match="apt-get install -y libegl1$"):
+        video.configure_gl()
+
+
+def test_the_gl_backend_chosen_here_really_renders():
+    import os
+
+    assert os.environ.get("MUJOCO_GL") in ("egl", "osmesa")
+    assert video._probe(os.environ["MUJOCO_GL"])
+
+
+def test_bad_inputs(tiny_hopper_run, tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    out = tmp_path / "out"
+    run = str(tiny_hopper_run)
+    small = ["--width", "32", "--height", "32", "--max-steps", "3"]
+    for argv, message in [
+        (["video", str(empty), "--out", str(out / "a.mp4")], "no checkpoint"),
+        (["video", run, "--out", str(out / "a.avi")], "use .mp4 or .gif"),
+        (["video", run, "--out", str(out / "a.mp4"), "--width", "33"], "even width and height"),
+        (["video", run, "--out", str(blocked / "a.mp4")] + small, "cannot write"),
+        (["video", run, "--out", str(out / "a.mp4"), "--camera", "no_such_camera"] + small, "cameras: track"),
+    ]:
+        code = main(argv)
+        _, err = capsys.readouterr()
+        assert code != 0 and message in err and err.count("\n") == 1, (argv, err)
+    assert not out.exists() or not list(out.iterdir())  # no partial video left behind
