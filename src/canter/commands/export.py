@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.commands import write_output
+from canter.commands import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,6 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from canter.export import export_bytes, format_for
 
     fmt = format_for(args.out, args.format)
+    check_writable(args.out)
     write_output(args.out, export_bytes(args.run, fmt))
     print(f"wrote {args.out} ({fmt})")
     return 0

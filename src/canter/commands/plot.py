@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.commands import write_output
+from canter.commands import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from canter.plot import figure_format, render
 
     fmt = figure_format(args.out)
+    check_writable(args.out)
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
     data = render(args.runs, fmt=fmt, metrics=metrics, x_axis=args.x, smooth=args.smooth, seed=args.seed)
     write_output(args.out, data)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.commands import write_output
+from canter.commands import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.report import build_report
 
+    check_writable(args.out)   # before the evaluation, which can take minutes
     page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth,
                         video=args.video)
     write_output(args.out, page.encode("utf-8"))
