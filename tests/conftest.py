@@ -60,3 +60,20 @@ def tiny_hopper_run(tmp_path_factory):
                           sets=TINY + [f"run.out_dir={out}", "env.backend=envpool", "env.num_envs=2",
                                        "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
     return train(config).run_dir
+
+
+@pytest.fixture(scope="session")
+def tiny_run_seed1(tiny_run, tmp_path_factory):
+    """tiny_run's config with run.seed=1: two runs that differ only in their seed (plot grouping, reports)."""
+    from canter.config import apply_overrides
+    from canter.policy import read_run_config
+    from canter.trainer import train
+
+    out = tmp_path_factory.mktemp("shared_runs_seed1")
+    config = apply_overrides(read_run_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")
+    cwd = os.getcwd()
+    os.chdir(out)
+    try:
+        return train(config)
+    finally:
+        os.chdir(cwd)

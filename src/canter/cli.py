@@ -10,7 +10,7 @@ from typing import Sequence
 from canter.errors import CanterError
 
 # Subcommand modules under canter.commands, in help order.
-COMMANDS = ("train", "eval", "video", "tune", "bench")
+COMMANDS = ("train", "eval", "video", "plot", "export", "report", "tune", "bench")
 
 
 class _Parser(argparse.ArgumentParser):

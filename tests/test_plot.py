@@ -1,0 +1,199 @@
+"""canter plot: smoothing, interpolation, bootstrap band and grouping against plain references; CLI smoke runs."""
+
+import math
+import shutil
+import xml.etree.ElementTree as ET
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canter.cli import main
+from canter.config import apply_overrides, build_config, to_toml
+from canter.errors import CanterError
+from canter.plot import (Group, RunCurves, bootstrap_band, choose_metrics, common_grid, group_band, group_labels,
+                         group_runs, interpolate, load_run, moving_average, read_metrics)
+
+
+def test_moving_average_matches_a_loop_with_nans():
+    y = np.array([1.0, np.nan, 3.0, 4.0, np.nan, np.nan, np.nan, 8.0, 9.0, 10.0])
+    for window in (1, 2, 3, 5, 20):
+        expected = []
+        for i in range(len(y)):
+            chunk = [v for v in y[max(0, i - window + 1): i + 1] if not math.isnan(v)]
+            expected.append(sum(chunk) / len(chunk) if chunk else math.nan)
+        np.testing.assert_allclose(moving_average(y, window), expected, rtol=1e-12, equal_nan=True)
+    np.testing.assert_array_equal(moving_average(y, 1), y)
+    with pytest.raises(CanterError, match="--smooth"):
+        moving_average(y, 0)
+
+
+def test_bootstrap_band_matches_a_numpy_loop():
+    rng = np.random.default_rng(5)
+    samples = rng.normal(size=(4, 7))
+    samples[1, 2] = np.nan  # one run without a value at one point
+    mean, low, high = bootstrap_band(samples, confidence=0.9, resamples=300, seed=11)
+
+    ref_rng = np.random.default_rng(11)
+    resampled_means = []
+    for _ in range(300):
+        rows = samples[ref_rng.integers(0, 4, size=4)]
+        kept = [[v for v in rows[:, j] if not np.isnan(v)] for j in range(7)]
+        resampled_means.append([np.mean(k) if k else np.nan for k in kept])
+    resampled_means = np.array(resampled_means)
+    np.testing.assert_allclose(mean, [np.mean([v for v in samples[:, j] if not np.isnan(v)]) for j in range(7)])
+    # A resample of only the NaN run has no mean at that point and is left out of the quantiles.
+    columns = [c[~np.isnan(c)] for c in resampled_means.T]
+    np.testing.assert_allclose(low, [np.quantile(c, 0.05) for c in columns])
+    np.testing.assert_allclose(high, [np.quantile(c, 0.95) for c in columns])
+    assert (low <= mean).all() and (mean <= high).all()
+    # Same seed, same band: the figure does not change between invocations.
+    np.testing.assert_array_equal(bootstrap_band(samples, 0.9, 300, 11)[1], low)
+
+
+def test_bootstrap_band_width_is_about_the_normal_interval():
+    samples = np.random.default_rng(0).normal(size=(40, 200))
+    mean, low, high = bootstrap_band(samples, seed=1)
+    expected = 2 * 1.96 * samples.std(axis=0, ddof=1) / math.sqrt(40)
+    assert 0.85 < np.median((high - low) / expected) < 1.1
+
+
+def test_single_run_band_collapses_to_the_run():
+    row = np.array([[1.0, 2.0, 3.0]])
+    mean, low, high = bootstrap_band(row)
+    np.testing.assert_array_equal(mean, row[0])
+    np.testing.assert_array_equal(low, row[0])
+    np.testing.assert_array_equal(high, row[0])
+
+
+def test_interpolation_onto_a_common_grid():
+    x1 = np.array([0.0, 1000.0, 2000.0, 3000.0])
+    x2 = np.array([100.0, 1150.0, 2050.0, 2500.0, 3300.0])
+    grid = common_grid([x1, x2])
+    # Union of the ranges; the finest median spacing (run 2: 850) gives ceil(3300 / 850) + 1 = 5 points.
+    np.testing.assert_allclose(grid, np.linspace(0.0, 3300.0, 5))
+    # Runs that barely overlap keep their own resolution rather than share a grid of 3 points.
+    np.testing.assert_allclose(common_grid([np.arange(3.0), np.arange(10.0, 13.0)]), np.arange(13.0))
+    assert len(common_grid([np.array([0.0, 1e-9, 2e-9, 1e9])])) == 4000   # capped
+    np.testing.assert_allclose(interpolate(x1, 2 * x1 + 1, grid), [1.0, 1651.0, 3301.0, 4951.0, np.nan])
+    y2 = np.array([1.0, np.nan, 3.0, 5.0, 7.0])   # a NaN row is skipped, not propagated
+    np.testing.assert_allclose(interpolate(x2, y2, np.array([0.0, 100.0, 2050.0, 2275.0])),
+                               [np.nan, 1.0, 3.0, 4.0])
+    assert np.isnan(interpolate(x2, np.full(5, np.nan), grid)).all()
+
+
+def fake_run(steps, values, seed=0, **sets) -> RunCurves:
+    config = build_config("Pendulum-v1", seed=seed, sets=[f"{k}={v}" for k, v in sets.items()])
+    steps = np.asarray(steps, float)
+    return RunCurves(Path(f"run{seed}"), config, {"global_step": steps, "wall_time": steps / 100.0,
+                                                  "episodic_return": np.asarray(values, float)})
+
+
+def test_group_band_averages_runs_with_different_step_grids():
+    a = fake_run([0, 1000, 2000, 3000], [0.0, 10.0, 20.0, 30.0], seed=0)        # y = x / 100
+    b = fake_run([0, 1500, 3000], [5.0, 20.0, 35.0], seed=1)                    # y = x / 100 + 5
+    band = group_band(Group("g", (a, b)), "episodic_return")
+    np.testing.assert_allclose(band.x, np.linspace(0, 3000, 4))
+    np.testing.assert_allclose(band.mean, band.x / 100 + 2.5)
+    assert band.runs == 2 and (band.low <= band.mean).all() and (band.high >= band.mean).all()
+    # Where only one run reaches, the mean is that run's value and the band collapses onto it.
+    c = fake_run([0, 1500, 4500], [5.0, 20.0, 50.0], seed=2)
+    longer = group_band(Group("g", (a, c)), "episodic_return")
+    np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 6))   # run a's spacing of 1000 sets the grid
+    np.testing.assert_allclose(longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, 41.0, 50.0])
+    assert longer.low[-1] == longer.high[-1] == 50.0
+    wall = group_band(Group("g", (a, b)), "episodic_return", x_axis="wall")
+    np.testing.assert_allclose(wall.mean, wall.x + 2.5)
+    smoothed = group_band(Group("g", (a,)), "episodic_return", smooth=2)
+    np.testing.assert_allclose(smoothed.mean, [0.0, 5.0, 15.0, 25.0])
+    assert group_band(Group("g", (a,)), "approx_kl") is None
+
+
+def test_grouping_and_labels():
+    runs = [fake_run([0, 1], [0, 1], seed=0), fake_run([0, 1], [0, 1], seed=1, **{"run.out_dir": "elsewhere"}),
+            fake_run([0, 1], [0, 1], seed=0, **{"ppo.clip": 0.3})]
+    groups = group_runs(runs)
+    assert [len(g.runs) for g in groups] == [2, 1]
+    assert [g.label for g in groups] == ["ppo.clip=0.2", "ppo.clip=0.3"]
+
+    fast = build_config("Hopper-v5", preset="fast")
+    cleanrl = build_config("Hopper-v5", preset="cleanrl")
+    cleanrl_clip = apply_overrides(cleanrl, {"ppo.clip": 0.1}, "test")
+    # A preset changes many keys; the label names the preset, plus the key that tells equal presets apart.
+    assert group_labels([fast, cleanrl, cleanrl_clip]) == ["preset=fast", "preset=cleanrl, ppo.clip=0.2",
+                                                           "preset=cleanrl, ppo.clip=0.1"]
+    assert group_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
+    # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
+    td3 = replace(fast, run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
+    assert group_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
+
+
+def test_choose_metrics_defaults_and_globs():
+    run = fake_run([0, 1], [0, 1])
+    columns = dict(run.columns, sps=np.array([5.0, 6.0]), critic_loss=np.array([1.0, np.nan]),
+                   empty=np.array([np.nan, np.nan]), **{"info/reward_ctrl": np.array([1.0, 2.0]),
+                                                        "info/x_velocity": np.array([0.0, 1.0])})
+    run = RunCurves(run.run_dir, run.config, columns)
+    assert choose_metrics([run], None) == ["episodic_return", "sps", "critic_loss"]
+    assert choose_metrics([run], ["info/*", "sps"]) == ["info/reward_ctrl", "info/x_velocity", "sps"]
+    with pytest.raises(CanterError, match="no column empty, nope"):
+        choose_metrics([run], ["empty", "nope"])
+
+
+def test_read_metrics_skips_text_columns_and_keeps_empty_cells_as_nan(tmp_path):
+    (tmp_path / "metrics.csv").write_text("global_step,episodic_return,note\n10,,a\n20,1.5,b\n")
+    columns = read_metrics(tmp_path / "metrics.csv")
+    assert set(columns) == {"global_step", "episodic_return"}
+    assert np.isnan(columns["episodic_return"][0]) and columns["episodic_return"][1] == 1.5
+
+
+def run_cli(argv, capsys):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
+    import matplotlib.image
+
+    other = tmp_path / "clip03"
+    shutil.copytree(tiny_run.run_dir, other)
+    config = apply_overrides(load_run(other).config, {"ppo.clip": 0.3}, "test")
+    (other / "config.toml").write_text(to_toml(config))
+
+    runs = [str(tiny_run.run_dir), str(tiny_run_seed1.run_dir), str(other)]
+    code, out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "c.png"), "--smooth", "3"], capsys)
+    assert code == 0, err
+    image = matplotlib.image.imread(tmp_path / "c.png")
+    assert image.shape[0] > 600 and image.shape[1] > 1000 and image[..., :3].std() > 0.05
+
+    code, out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "c.svg"), "--x", "wall",
+                              "--metrics", "episodic_return,approx_kl"], capsys)
+    assert code == 0, err
+    svg = (tmp_path / "c.svg").read_text()
+    ET.fromstring(svg)   # well-formed
+    for text in ("Pendulum-v1", "Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)",
+                 "ppo.clip=0.3 (1 run)", "95% bootstrap CI"):
+        assert text in svg, text
+    assert "Clip fraction" not in svg
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["c.png", "c.svg"]
+
+
+def test_plot_cli_bad_input(tiny_run, tmp_path, capsys):
+    no_metrics = tmp_path / "empty_run"
+    no_metrics.mkdir()
+    code, out, err = run_cli(["plot", str(no_metrics), "--out", str(tmp_path / "c.png")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "no metrics.csv" in err
+
+    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--metrics", "nope"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "choose from: episodic_return" in err
+
+    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(tmp_path / "c.jpeg2")], capsys)
+    assert code == 2 and ".png" in err
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(blocker / "c.png")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "cannot write" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "empty_run"]
