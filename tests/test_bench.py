@@ -98,6 +98,7 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
         means = [json.loads((r / "eval.json").read_text())["mean"] for r in runs]
         assert float(row["return_mean"]) == pytest.approx(np.mean(means), abs=1e-3)
         assert float(row["return_std"]) == pytest.approx(np.std(means), abs=1e-3)
+        assert float(row["return_median"]) == pytest.approx(np.median(means), abs=1e-3)
         assert row["seeds"] == "2" and float(row["sps"]) > 0
         assert row["published"] == "CR 963±22, TS 1000±0 @1M"
     # eval.json is the deterministic evaluation of the final policy.

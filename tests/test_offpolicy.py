@@ -130,6 +130,19 @@ def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
         assert not np.allclose(policy(obs, deterministic=False, seed=1), first)
 
 
+@pytest.mark.parametrize("algo", ["td3", "sac"])
+def test_onnx_export_of_an_off_policy_run_matches_canter_load(algo, learned, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    run_dir = learned(algo).run_dir
+    out = tmp_path / f"{algo}.onnx"
+    assert main(["export", str(run_dir), "--out", str(out)]) == 0
+    # Far outside the training distribution too, so that the tanh squash and the bounds are exercised.
+    obs = (np.random.default_rng(1).normal(size=(64, 3)) * np.repeat([[1.0], [50.0]], 32, axis=0)).astype(np.float32)
+    session = ort.InferenceSession(out.read_bytes(), providers=["CPUExecutionProvider"])
+    got = session.run(["action"], {"obs": obs})[0]
+    np.testing.assert_allclose(got, load(run_dir)(obs), rtol=0, atol=1e-5)
+
+
 def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_path):
     source = learned("td3").run_dir       # its checkpoint is compressed (run.compress_checkpoints)
     _, _, before, header = load_state(source)

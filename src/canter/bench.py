@@ -191,7 +191,8 @@ def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[st
             sps.append(float(summary["sps"]))
     return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
             "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
-            "return_std": float(np.std(evals)) if evals else math.nan, "seed_returns": evals,
+            "return_std": float(np.std(evals)) if evals else math.nan,
+            "return_median": float(np.median(evals)) if evals else math.nan, "seed_returns": evals,
             "wall_minutes": float(np.max(walls)) / 60 if walls else math.nan,
             "sps": float(np.sum(sps)) if sps else math.nan}
 
@@ -216,67 +217,36 @@ def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: i
     """(markdown, csv) of the results."""
     data = published_scores()
     short = [k.split(".", 1)[1] for k in keys]
-    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "seeds", "cell wall min", "cell SPS",
-                                   "published"]
-    md = ["| " + " | ".join(header) + " |", "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---|"]
+    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "median", "seeds", "cell wall min",
+                                        "cell SPS", "published"]
+    md = ["| " + " | ".join(header) + " |",
+          "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---:|---|"]
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    writer.writerow(["env", "algo"] + keys + ["return_mean", "return_std", "seeds", "wall_minutes", "sps",
-                                               "published"])
+    writer.writerow(["env", "algo"] + keys + ["return_mean", "return_std", "return_median", "seeds", "wall_minutes",
+                                               "sps", "published"])
     for r in results:
         reference = published_for(r["algo"], r["env"], total_steps, data)
         grid_values = [r["values"].get(k, "") for k in keys]
         md.append("| " + " | ".join([r["env"], r["algo"]] + grid_values + [
-            f"{r['return_mean']:.1f} ± {r['return_std']:.1f}", str(r["seeds"]), f"{r['wall_minutes']:.1f}",
-            f"{r['sps']:,.0f}", reference]) + " |")
-        writer.writerow([r["env"], r["algo"]] + grid_values + [f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}",
-                                                               r["seeds"], f"{r['wall_minutes']:.3f}",
-                                                               f"{r['sps']:.1f}", reference])
+            f"{r['return_mean']:.1f} ± {r['return_std']:.1f}", f"{r['return_median']:.1f}", str(r["seeds"]),
+            f"{r['wall_minutes']:.1f}", f"{r['sps']:,.0f}", reference]) + " |")
+        writer.writerow([r["env"], r["algo"]] + grid_values + [
+            f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}", f"{r['return_median']:.3f}", r["seeds"],
+            f"{r['wall_minutes']:.3f}", f"{r['sps']:.1f}", reference])
     sources = data["sources"]
     md += ["", "Published: " + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})"
                                          for k, v in sources.items()) + "."]
     return "\n".join(md) + "\n", buffer.getvalue()
 
 
-def learning_curve(run_dirs: list[Path], points: int = 100) -> tuple[np.ndarray, np.ndarray] | None:
-    """Mean over runs of metrics.csv episodic_return, interpolated onto a common step grid."""
-    curves = []
-    for run_dir in run_dirs:
-        try:
-            with open(run_dir / "metrics.csv", newline="") as f:
-                rows = [(float(r["global_step"]), float(r["episodic_return"])) for r in csv.DictReader(f)
-                        if r.get("episodic_return")]
-        except (OSError, KeyError, ValueError):
-            continue
-        if len(rows) >= 2:
-            curves.append(np.asarray(rows))
-    if not curves:
-        return None
-    end = min(c[-1, 0] for c in curves)
-    start = max(c[0, 0] for c in curves)
-    steps = np.linspace(start, end, points) if end > start else np.asarray([end])
-    return steps, np.mean([np.interp(steps, c[:, 0], c[:, 1]) for c in curves], axis=0)
+def plot_env(run_dirs: list[Path], path: Path) -> None:
+    """One figure per env through `canter plot`: one curve (mean over seeds, with a band) per algorithm and grid
+    values, training return against env steps."""
+    from canter.commands import write_output
+    from canter.plot import render
 
-
-def plot_env(env_id: str, curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path) -> None:
-    """One figure per env, one curve per algorithm (and grid values), training return over steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for name, (steps, returns) in curves.items():
-        ax.plot(steps, returns, label=name)
-    ax.set_title(env_id)
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("training episodic return (mean over seeds)")
-    ax.legend(fontsize="small")
-    fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)
+    write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
 
 
 def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings,
@@ -288,13 +258,11 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
     write_output(bench_dir / "results.md", markdown.encode())
     write_output(bench_dir / "results.csv", table_csv.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
-        curves = {}
-        for cell in (c for c in cells if c.env_id == env_id):
-            curve = learning_curve([cell.run_dir(bench_dir, s) for s in settings.seeds])
-            if curve is not None:
-                curves[label(cell, keys)] = curve
-        if curves:
-            plot_env(env_id, curves, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
+        run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id
+                    for seed in settings.seeds]
+        run_dirs = [d for d in run_dirs if (d / "metrics.csv").is_file() and (d / "config.toml").is_file()]
+        if run_dirs:
+            plot_env(run_dirs, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
     return markdown
 
 
