@@ -330,7 +330,9 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
         raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
     columns = max(1, min(columns, len(metrics)))
     rows = math.ceil(len(metrics) / columns)
-    fig = Figure(figsize=(5.0 * columns, 3.4 * rows + 1.0), layout="constrained")
+    # One panel alone is widened so that the legend and its caption fit without being cut at the edges.
+    width = max(5.0 * columns, 7.5)
+    fig = Figure(figsize=(width, 3.4 * rows + 1.0), layout="constrained")
     FigureCanvasAgg(fig)   # headless: no pyplot, no display, no global backend switch
     axes = fig.subplots(rows, columns, squeeze=False).ravel()
     colors = [f"C{i % 10}" for i in range(len(groups))]
@@ -359,9 +361,12 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
     band_note = f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds" if any(
         len(g.runs) > 1 for g in groups) else ""
     envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
-    fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3), fontsize=10,
-               title=f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}", title_fontsize=10,
-               frameon=False)
+    import textwrap
+
+    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}",
+                            width=int(width * 13))
+    fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3 if width > 8 else 2),
+               fontsize=10, title=caption, title_fontsize=10, frameon=False)
     return fig
 
 
