@@ -129,6 +129,7 @@ def test_cli_vary_bad_inputs(tiny_hopper_run, tmp_path, capsys):
         (["--vary", "body_mass:torso=0.5", "--out", str(blocked / "x.png")], "cannot write"),
         (["--vary", "body_mass:torso=0.5", "--out", str(tmp_path / "x.svg")], "PNG"),
         (["--out", str(tmp_path / "x.png")], "without --vary"),
+        (["--vary", "body_mass:torso=0.5", "--vary", "gravity=0.9"], "one parameter per command"),
     ]:
         code = main(["eval", str(tiny_hopper_run), "--episodes", "1"] + argv)
         out, err = capsys.readouterr()

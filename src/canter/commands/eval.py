@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--backend", choices=("auto", "envpool", "gymnasium"), default=None,
                    help="env backend (default: the run's own for its env, else auto)")
     e.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON")
-    e.add_argument("--vary", default=None, metavar="PARAM[:NAME]=S1,S2,...",
+    e.add_argument("--vary", default=None, action="append", metavar="PARAM[:NAME]=S1,S2,...",
                    help="robustness sweep on the Gymnasium env: scale body_mass:BODY, geom_friction:GEOM, "
                         "actuator_gear:ACTUATOR (omit :NAME for all) or gravity, e.g. body_mass:torso=0.5,1,1.5")
     e.add_argument("--out", default=None, metavar="PATH.png",
@@ -45,6 +45,11 @@ def run(args: argparse.Namespace) -> int:
     if args.vary is not None:
         from canter.vary import parse_spec
 
+        if len(args.vary) > 1:
+            # One sweep per command: a second --vary used to replace the first without a word.
+            raise CanterError(f"--vary is given {len(args.vary)} times; sweep one parameter per command "
+                              f"(run canter eval once per --vary)")
+        args.vary = args.vary[0]
         spec = parse_spec(args.vary)
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
