@@ -61,7 +61,7 @@ PANEL_LABELS: dict[str, tuple[str, str]] = {
     "alpha": ("Entropy temperature α", "dimensionless"),
     "policy_kl": ("Policy KL (old ‖ new)", "nats"),
     "kl_beta": ("KL penalty coefficient β", "dimensionless"),
-    "sym_loss": ("Symmetry loss", "mean squared difference (mirrored means or log-probs)"),
+    "sym_loss": ("Symmetry loss", "mean squared difference"),
     "surrogate_gain": ("Surrogate gain", "advantage units"),
 }
 X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
