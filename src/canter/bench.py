@@ -148,14 +148,9 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
 
 
 def varying_keys(cells: list[Cell]) -> list[str]:
-    """The grid keys whose value differs between cells: they label the rows and curves."""
+    """The grid keys whose value differs between cells: they label the table rows."""
     keys = [key for key, _ in cells[0].values] if cells else []
     return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]
-
-
-def label(cell: Cell, keys: list[str]) -> str:
-    chosen = dict(cell.values)
-    return " ".join([cell.algo] + [f"{k.split('.', 1)[1]}={chosen[k]}" for k in keys])
 
 
 def cell_spec(cell: Cell, settings: BenchSettings, bench_dir: Path) -> GroupSpec:

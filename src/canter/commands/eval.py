@@ -49,8 +49,7 @@ def run(args: argparse.Namespace) -> int:
             # One sweep per command: a second --vary used to replace the first without a word.
             raise CanterError(f"--vary is given {len(args.vary)} times; sweep one parameter per command "
                               f"(run canter eval once per --vary)")
-        args.vary = args.vary[0]
-        spec = parse_spec(args.vary)
+        spec = parse_spec(args.vary[0])
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
     policies = [load(run_dir) for run_dir in args.runs]
