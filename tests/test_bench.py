@@ -129,6 +129,15 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     assert resumed and resumed[0] > first and resumed[-1] >= 1024  # continued from the first checkpoint
     assert len(read_rows(out / "results.csv")) == 2
 
+    # The same folder with other settings: its runs would pass for results of those settings, so it is refused.
+    untouched = {p: p.stat().st_mtime_ns for p in out.glob("*__s*/summary.json")}
+    code = main(argv + ["--set", "ppo.lr=1e-4"])
+    captured = capsys.readouterr()
+    assert code != 0 and "Traceback" not in captured.err
+    assert "was trained with ppo.lr=0.0003, but this bench gives ppo.lr=0.0001" in captured.err
+    assert "use a new --out" in captured.err and len(captured.err.strip().splitlines()) == 1
+    assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())
+
 
 def test_grid_through_an_optuna_storage(tmp_path, capsys):
     """With --storage every cell is one enqueued trial of a GridSampler study; a re-run finds them all done."""

@@ -93,3 +93,16 @@ def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
             axis_l = data.xaxis[model.actuator(left).trnid[0]]
             np.testing.assert_allclose(axis_l, sign * -(reflect @ axis_r), atol=1e-6)
             assert model.actuator(right).gear[0] == model.actuator(left).gear[0]
+
+
+def test_fast_preset_uses_small_minibatches_for_ppo_on_hopper_and_walker2d_only():
+    def picked(env_id, algo):
+        config = build_config(env_id, algo=algo)
+        return config.ppo.minibatch_size, config.net.log_std_init
+
+    assert picked("Hopper-v5", "ppo") == (64, -1.0)
+    assert picked("Hopper-v4", "ppo") == (64, -1.0)
+    assert picked("Walker2d-v5", "ppo") == (64, 0.0)
+    assert picked("HalfCheetah-v5", "ppo") == (512, -1.0)
+    assert picked("Hopper-v5", "rpo") == (512, -1.0)
+    assert picked("Walker2d-v5", "rpo") == (512, -1.0)

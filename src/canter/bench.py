@@ -19,14 +19,14 @@ import math
 import os
 import time
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canter.config import Config, _field_types, all_keys, build_config, coerce, to_toml
+from canter.config import SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text, to_toml
 from canter.errors import CanterError
 from canter.groups import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
                            start_group, stop_group)
@@ -167,6 +167,37 @@ def cell_finished(cell: Cell, settings: BenchSettings, bench_dir: Path) -> bool:
                 evaluation.get("episodes") != settings.eval_episodes:
             return False
     return True
+
+
+# Keys a run folder may differ in from its cell and still belong to it: the seed is per run, the folder is where
+# the bench lives, and a larger --total-steps extends finished runs.
+_REUSABLE_DIFFERENCES = ("run.seed", "run.out_dir", "run.total_steps")
+
+
+def _flat_config(config: Config) -> dict[str, Any]:
+    return {f"{section}.{f.name}": getattr(getattr(config, section), f.name)
+            for section in SECTIONS for f in fields(getattr(config, section))}
+
+
+def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
+    """Refuse a bench folder whose run folders were trained with other settings than this command gives their
+    cells (a changed --set, --config or preset): reusing them would put old results under the new settings."""
+    for cell in cells:
+        expected = _flat_config(cell.config)
+        for seed in settings.seeds:
+            saved = cell.run_dir(bench_dir, seed) / "config.toml"
+            if not saved.is_file():
+                continue
+            try:
+                found = _flat_config(from_toml_text(saved.read_text(), str(saved)))
+            except (CanterError, OSError):
+                continue   # unreadable: the run is not usable anyway, and training it anew rewrites the file
+            differing = [k for k in expected if k not in _REUSABLE_DIFFERENCES and found.get(k) != expected[k]]
+            if differing:
+                key = differing[0]
+                more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
+                raise CanterError(f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
+                                  f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it")
 
 
 # ---------------------------------------------------------------------------------------------------- results
@@ -410,6 +441,7 @@ def bench(settings: BenchSettings) -> str:
     cells = make_cells(settings)
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)
+    check_existing_runs(cells, settings, bench_dir)
     if settings.storage_url:
         results, failures = run_distributed(cells, settings, bench_dir)
     else:
