@@ -158,3 +158,17 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     assert main(argv) == 0
     assert len(optuna.load_study(study_name="grid", storage=url).trials) == 2  # nothing ran twice
     assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
+
+
+def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys):
+    out = tmp_path / "bench"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "4096", "--eval-episodes", "1",
+            "--out", str(out), "--set", "run.max_minutes=0.0001"] + TINY
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code != 0 and "Traceback" not in captured.err
+    assert "STOP  InvertedPendulum-v4__ppo: stopped before its budget" in captured.out
+    assert "done  InvertedPendulum-v4__ppo" not in captured.out
+    assert "re-run the same command" in captured.err
+    summary = json.loads((out / "InvertedPendulum-v4__ppo__s0" / "summary.json").read_text())
+    assert summary["stop_reason"] == "max_minutes" and summary["global_step"] < 4096

@@ -317,7 +317,12 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                 if code is None:
                     continue
                 del running[slot]
-                if code == 0:
+                if code == 0 and not cell_finished(cell, settings, bench_dir):
+                    # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
+                    failures[cell.name] = ("stopped before its budget (a signal or run.max_minutes); it is "
+                                           "checkpointed and a re-run resumes it")
+                    print(f"STOP  {cell.name}: {failures[cell.name]}", flush=True)
+                elif code == 0:
                     print(f"done  {cell.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
                 else:
                     failures[cell.name] = failure_reason(bench_dir / ".cells" / cell.name, code)
