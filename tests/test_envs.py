@@ -108,20 +108,37 @@ def test_unknown_ids_and_spaces_are_clear_errors():
 
 
 def test_sharded_pools_step_like_one_pool():
-    """Splitting the envs over concurrent single-threaded pools changes nothing but speed."""
-    seeds = env_seeds(7, 4)
-    one = make_vec_env("Hopper-v5", "envpool", 4, seeds, shards=1)
-    two = make_vec_env("Hopper-v5", "envpool", 4, seeds, shards=2)
-    np.testing.assert_array_equal(one.reset(), two.reset())
-    actions = np.random.default_rng(0).uniform(-1, 1, size=(50, 4, 3)).astype(np.float32)
+    """Splitting the envs over concurrent single-threaded pools, evenly or not (5 envs: 3 + 2, 2 + 2 + 1), changes
+    nothing but speed."""
+    seeds = env_seeds(7, 5)
+    envs = [make_vec_env("Hopper-v5", "envpool", 5, seeds, shards=k) for k in (1, 2, 3)]
+    assert [len(e._pools) for e in envs] == [1, 2, 3]
+    for other in envs[1:]:
+        np.testing.assert_array_equal(envs[0].reset(), other.reset())
+    actions = np.random.default_rng(0).uniform(-1, 1, size=(50, 5, 3)).astype(np.float32)
 
     def run(env):
         def body(state, action):
             return env.jax_step(state, action)
         return jax.jit(lambda s, a: jax.lax.scan(body, s, a))(env.initial_state(), jnp.asarray(actions))[1]
 
-    a, b = run(one), run(two)
-    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    with pytest.raises(CanterError, match="not divisible"):
-        make_vec_env("Hopper-v5", "envpool", 3, [1, 2, 3], shards=2)
+    reference = jax.tree_util.tree_leaves(run(envs[0]))
+    for other in envs[1:]:
+        for x, y in zip(reference, jax.tree_util.tree_leaves(run(other))):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # A differing action in one env must show up in that env's output only: the split really routes actions.
+    assert not np.array_equal(np.asarray(reference[0])[:, 0], np.asarray(reference[0])[:, 4])
+    with pytest.raises(CanterError, match="cannot split 3 envs"):
+        make_vec_env("Hopper-v5", "envpool", 3, [1, 2, 3], shards=4)
+
+
+def test_shard_sizes_split_as_evenly_as_possible():
+    from canter.envs.envpool_backend import shard_sizes
+
+    assert shard_sizes(5, 2) == [3, 2]
+    assert shard_sizes(16, 2) == [8, 8]
+    assert shard_sizes(7, 3) == [3, 2, 2]
+    assert shard_sizes(1, 1) == [1]
+    for bad in (0, 6):
+        with pytest.raises(ValueError, match="cannot split 5 envs"):
+            shard_sizes(5, bad)

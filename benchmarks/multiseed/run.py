@@ -2,10 +2,11 @@
 
 Run with canter's interpreter from the repository root, on an otherwise idle machine:
 
-    .venv/bin/python benchmarks/multiseed/run.py [--env Hopper-v5] [--total-steps 200000] [--seeds 0,1,2,3,4]
+    .venv/bin/python benchmarks/multiseed/run.py [--env Hopper-v5] [--preset fast] [--set KEY=VALUE ...]
+                                                 [--total-steps 200000] [--seeds 0,1,2,3,4]
                                                  [--only one,group,sequential,concurrent] [--no-write]
 
-Rows, all with the same config (the default `fast` preset) and the same step budget per seed, each a whole
+Rows, all with the same config (`--preset`, default `fast`, and `--set`) and the same step budget per seed, each a whole
 `canter train` process timed from outside:
   one         canter train ENV --seed S0                    (the first seed alone)
   group       canter train ENV --seeds S0,S1,...            (every seed in one vmapped program)
@@ -74,6 +75,9 @@ def _only(text: str) -> list[str]:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description="canter: several seeds in one process vs one seed vs separate processes")
     p.add_argument("--env", default="Hopper-v5")
+    p.add_argument("--preset", default="fast", help="canter preset for every row (default fast)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="passed to every canter train command; repeatable")
     p.add_argument("--total-steps", type=_steps, default=200_000, help="env steps per seed (default 2e5)")
     p.add_argument("--seeds", type=_seeds, default=[0, 1, 2, 3, 4])
     p.add_argument("--only", type=_only, default=list(ROWS))
@@ -116,8 +120,10 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
     seeds = [args.seeds[0]] if name == "one" else list(args.seeds)
     folder = out / name
     folder.mkdir(parents=True, exist_ok=True)
-    base = _canter() + ["train", args.env, "--total-steps", str(args.total_steps), "--quiet", "--out-dir",
-                        str(folder)]
+    base = _canter() + ["train", args.env, "--preset", args.preset, "--total-steps", str(args.total_steps),
+                        "--quiet", "--out-dir", str(folder)]
+    for item in args.sets:
+        base += ["--set", item]
     if name == "group":
         commands = [base + ["--seeds", ",".join(map(str, seeds))]]
     else:
@@ -160,7 +166,8 @@ def _commit() -> str:
 def section(rows: list[Row], args: argparse.Namespace, out: Path) -> str:
     now = datetime.now(timezone.utc)
     n = len(args.seeds)
-    lines = [f"## {now:%Y-%m-%d %H:%M} UTC — {args.env}, {args.total_steps:,} steps per seed, seeds "
+    settings = f"preset {args.preset}" + "".join(f", --set {item}" for item in args.sets)
+    lines = [f"## {now:%Y-%m-%d %H:%M} UTC — {args.env}, {settings}, {args.total_steps:,} steps per seed, seeds "
              f"{','.join(map(str, args.seeds))}", "",
              f"- machine: {_machine()}",
              f"- canter commit: {_commit()}",

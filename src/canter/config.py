@@ -31,7 +31,7 @@ class EnvConfig:
                         default="auto")
     num_envs: int = _doc("Parallel environments stepped per rollout step.", default=1)
     envpool_shards: int = _doc("EnvPool only: split the envs over this many single-threaded pools that step "
-                               "concurrently; 0 means one per CPU core (when num_envs divides evenly).", default=0)
+                               "concurrently, as evenly as the count allows; 0 means one per CPU core.", default=0)
     normalize_obs: bool = _doc("Running observation normalization (stats saved with the policy).", default=True)
     clip_obs: float = _doc("Clip normalized observations to +-clip_obs.", default=10.0)
     normalize_reward: bool = _doc("Divide rewards by the running std of the discounted return.", default=True)
@@ -448,8 +448,8 @@ def validate(config: Config) -> None:
     need(env.backend in ("auto", "envpool", "gymnasium"), f"env.backend must be auto, envpool or gymnasium, "
                                                           f"got '{env.backend}'")
     need(env.num_envs >= 1, f"env.num_envs must be >= 1, got {env.num_envs}")
-    need(env.envpool_shards >= 0 and (env.envpool_shards == 0 or env.num_envs % env.envpool_shards == 0),
-         f"env.envpool_shards must be 0 (auto) or divide env.num_envs {env.num_envs}, got {env.envpool_shards}")
+    need(0 <= env.envpool_shards <= env.num_envs,
+         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}")
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
     need(len(net.hidden) >= 1 and all(h > 0 for h in net.hidden),

@@ -73,6 +73,8 @@ def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], sha
     """`shards` applies to EnvPool only (0: one single-threaded pool per core); kwargs go to the env."""
     chosen = resolve_backend(env_id, backend)
     if chosen == "envpool":
+        if not 0 <= shards <= num_envs:
+            raise CanterError(f"env.envpool_shards {shards} cannot split {num_envs} envs; use 0 (auto) to {num_envs}")
         try:
             return envpool_backend.EnvPoolVecEnv(env_id, num_envs, seeds, shards=shards, **kwargs)
         except ValueError as exc:

@@ -48,18 +48,23 @@ def _flatten(obs: Any, keys: tuple[str, ...] | None, xp: Any) -> Any:
 
 
 def default_shards(num_envs: int) -> int:
-    """One single-threaded pool per core, when the envs split evenly."""
+    """One single-threaded pool per core (fewer when there are fewer envs than cores)."""
     import os
 
-    cores = max(1, os.cpu_count() or 1)
-    for shards in range(min(cores, num_envs), 0, -1):
-        if num_envs % shards == 0:
-            return shards
-    return 1
+    return max(1, min(os.cpu_count() or 1, num_envs))
+
+
+def shard_sizes(num_envs: int, shards: int) -> list[int]:
+    """Envs per pool, as even as possible: 5 envs on 2 shards are 3 + 2. An uneven split still steps both pools at
+    once, where insisting on an even one would leave 5 envs (5 seeds of one env each) on a single core."""
+    if not 1 <= shards <= num_envs:
+        raise ValueError(f"{shards} envpool shards cannot split {num_envs} envs; use 1 to {num_envs}")
+    base, extra = divmod(num_envs, shards)
+    return [base + 1 if i < extra else base for i in range(shards)]
 
 
 class EnvPoolVecEnv:
-    """`shards` independent single-threaded pools of num_envs/shards envs each. Their XLA steps are independent
+    """`shards` independent single-threaded pools splitting the envs as evenly as possible. Their XLA steps are independent
     operations in the jitted program, so XLA's CPU runtime runs them concurrently: two cores step physics at once,
     while no pool ever uses the multi-threaded mode that crashed."""
 
@@ -67,14 +72,12 @@ class EnvPoolVecEnv:
         import envpool
         import gymnasium as gym
 
-        shards = shards or default_shards(num_envs)
-        if num_envs % shards:
-            raise ValueError(f"env.num_envs {num_envs} is not divisible by {shards} envpool shards")
-        per = num_envs // shards
-        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=per, batch_size=per,
-                                    seed=list(seeds[i * per:(i + 1) * per]), num_threads=1, **kwargs)
-                       for i in range(shards)]
-        self._per = per
+        sizes = shard_sizes(num_envs, shards or default_shards(num_envs))
+        starts = np.cumsum([0] + sizes).tolist()
+        self._slices = [slice(start, start + size) for start, size in zip(starts, sizes)]
+        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
+                                    seed=list(seeds[part]), num_threads=1, **kwargs)
+                       for size, part in zip(sizes, self._slices)]
         pool = self._pools[0]
         obs_space, act_space = pool.observation_space, pool.action_space
         if not isinstance(act_space, gym.spaces.Box):
@@ -91,7 +94,7 @@ class EnvPoolVecEnv:
         self._first_obs = np.concatenate([_flatten(obs, self._obs_keys, np) for obs, _ in resets])
         info = resets[0][1]
         self._info_keys = tuple(sorted(k for k, v in info.items() if k not in IGNORED_INFO_KEYS
-                                       and isinstance(v, np.ndarray) and v.shape == (per,)
+                                       and isinstance(v, np.ndarray) and v.shape == (sizes[0],)
                                        and np.issubdtype(v.dtype, np.floating)))
         config = pool.spec.config
         self.spec = EnvSpec(
@@ -118,15 +121,15 @@ class EnvPoolVecEnv:
 
         action = action.astype(self._action_dtype)
         handles, outs = [], []
-        for i, (handle, xla) in enumerate(zip(state, self._xla_fns())):
-            handle, out = xla[3](handle, action[i * self._per:(i + 1) * self._per])
+        for handle, xla, part in zip(state, self._xla_fns(), self._slices):
+            handle, out = xla[3](handle, action[part])
             handles.append(handle)
             outs.append(out)
         return tuple(handles), self._merge(outs, jnp)
 
     def host_step(self, action: np.ndarray) -> StepOutput:
         action = np.asarray(action, self._action_dtype)
-        outs = [p.step(action[i * self._per:(i + 1) * self._per]) for i, p in enumerate(self._pools)]
+        outs = [p.step(action[part]) for p, part in zip(self._pools, self._slices)]
         return self._merge(outs, np)
 
     def _merge(self, outs: list, xp: Any) -> StepOutput:
