@@ -64,9 +64,9 @@ def shard_sizes(num_envs: int, shards: int) -> list[int]:
 
 
 class EnvPoolVecEnv:
-    """`shards` independent single-threaded pools splitting the envs as evenly as possible. Their XLA steps are independent
-    operations in the jitted program, so XLA's CPU runtime runs them concurrently: two cores step physics at once,
-    while no pool ever uses the multi-threaded mode that crashed."""
+    """`shards` independent single-threaded pools splitting the envs as evenly as possible. Their XLA steps are
+    independent operations in the jitted program, so XLA's CPU runtime runs them concurrently: two cores step physics
+    at once, while no pool ever uses the multi-threaded mode that crashed."""
 
     def __init__(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> None:
         import envpool
