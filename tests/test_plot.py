@@ -81,6 +81,24 @@ def test_interpolation_onto_a_common_grid():
     np.testing.assert_allclose(interpolate(x2, y2, np.array([0.0, 100.0, 2050.0, 2275.0])),
                                [np.nan, 1.0, 3.0, 4.0])
     assert np.isnan(interpolate(x2, np.full(5, np.nan), grid)).all()
+    # Held for up to `hold` past the ends, NaN beyond.
+    np.testing.assert_allclose(interpolate(x1, 2 * x1 + 1, np.array([-50.0, -150.0, 3050.0, 3150.0]), hold=100.0),
+                               [1.0, np.nan, 6001.0, np.nan])
+
+
+def test_seeds_ending_an_iteration_apart_draw_no_spike_at_the_end():
+    # Two seeds of one budget log every 1000 steps but stop 900 steps apart; the last grid points must still
+    # average both seeds, not show the later seed alone.
+    early = fake_run(np.arange(1000.0, 100_001.0, 1000.0), np.full(100, 1000.0), seed=0)
+    late = fake_run(np.arange(1000.0, 100_001.0, 1000.0) + 900.0, np.full(100, 5000.0), seed=1)
+    band = group_band(Group("g", (early, late)), "episodic_return")
+    assert band.x[-1] == 100_900.0
+    np.testing.assert_allclose(band.mean, 3000.0)
+    # A run that stops far short of the other still drops out instead of being extended.
+    short = fake_run(np.arange(1000.0, 50_001.0, 1000.0), np.full(50, 1000.0), seed=2)
+    band = group_band(Group("g", (short, late)), "episodic_return")
+    assert band.mean[-1] == 5000.0
+    np.testing.assert_allclose(band.mean[band.x <= 50_000.0], 3000.0)
 
 
 def fake_run(steps, values, seed=0, **sets) -> RunCurves:
@@ -101,7 +119,10 @@ def test_group_band_averages_runs_with_different_step_grids():
     c = fake_run([0, 1500, 4500], [5.0, 20.0, 50.0], seed=2)
     longer = group_band(Group("g", (a, c)), "episodic_return")
     np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 6))   # run a's spacing of 1000 sets the grid
-    np.testing.assert_allclose(longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, 41.0, 50.0])
+    # Run a holds its last value (30) for one logging interval (1000) past its end at 3000: x = 3600 averages
+    # both runs, x = 4500 is c's alone.
+    np.testing.assert_allclose(longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, (30 + 41) / 2,
+                                             50.0])
     assert longer.low[-1] == longer.high[-1] == 50.0
     wall = group_band(Group("g", (a, b)), "episodic_return", x_axis="wall")
     np.testing.assert_allclose(wall.mean, wall.x + 2.5)

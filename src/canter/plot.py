@@ -8,8 +8,10 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
 - `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
   seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
   onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before
-  averaging. A run counts only inside its own range (no extrapolation), so where only some runs reach, the mean
-  and band are over those runs.
+  averaging. A run counts inside its own range, and up to one of its own logging intervals beyond either end,
+  where it holds its first or last value: seeds of one budget stop up to an iteration apart, and without that
+  the last grid points would average only the seed that logged last, drawing a spike. Further out a run does
+  not count (no extrapolation), so where only some runs reach, the mean and band are over those runs.
 - `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
   replacement from a seeded generator.
 
@@ -212,15 +214,22 @@ def common_grid(xs: Sequence[np.ndarray], points: int | None = None) -> np.ndarr
     return np.linspace(lo, hi, max(points, 2))
 
 
-def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """Linear interpolation of y(x) onto grid, skipping NaN rows. NaN outside the x range the run covers (no
-    extrapolation), and everywhere if the run has no values."""
+def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray, hold: float = 0.0) -> np.ndarray:
+    """Linear interpolation of y(x) onto grid, skipping NaN rows. Within `hold` beyond either end of the x range
+    the run covers, the end value is held; further out NaN (no extrapolation). NaN everywhere if the run has no
+    values."""
     keep = ~(np.isnan(x) | np.isnan(y))
     if not keep.any():
         return np.full(len(grid), np.nan)
     x, y = x[keep], y[keep]
-    inside = (grid >= x.min()) & (grid <= x.max())
+    inside = (grid >= x.min() - hold) & (grid <= x.max() + hold)
     return np.where(inside, np.interp(grid, x, y), np.nan)
+
+
+def logging_interval(x: np.ndarray) -> float:
+    """The median spacing of a run's logged x values (0 with fewer than two)."""
+    x = np.sort(np.asarray(x, float)[~np.isnan(x)])
+    return float(np.median(np.diff(x))) if len(x) > 1 else 0.0
 
 
 def bootstrap_band(samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES,
@@ -258,7 +267,7 @@ def group_band(group: Group, column: str, x_axis: str = "steps", smooth: int = 1
         x, y = xs[0][keep], ys[0][keep]
         return Band(x, y, y.copy(), y.copy(), 1)
     grid = common_grid(xs)
-    samples = np.stack([interpolate(x, y, grid) for x, y in zip(xs, ys)])
+    samples = np.stack([interpolate(x, y, grid, logging_interval(x)) for x, y in zip(xs, ys)])
     mean, low, high = bootstrap_band(samples, seed=seed)
     return Band(grid, mean, low, high, len(runs))
 
