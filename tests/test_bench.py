@@ -70,10 +70,19 @@ def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, messag
     assert not (tmp_path / "b").exists()
 
 
-def test_jobs_over_cores_warns(tmp_path, capsys):
+def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monkeypatch):
+    import canter.groups
+
+    monkeypatch.setattr(canter.groups.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    canter.groups.warn_if_more_jobs_than_cores(3)
+    assert capsys.readouterr().err == ("canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow "
+                                       "each other down\n")
+    canter.groups.warn_if_more_jobs_than_cores(2)
+    assert capsys.readouterr().err == ""
+    # A refused command prints its one-line error and nothing else, whatever --jobs says.
     code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])
-    err = capsys.readouterr().err
-    assert code == 2 and "warning: --jobs 999 is more than" in err
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "unknown algorithm 'nope'" in err, err
 
 
 def read_rows(path: Path) -> list[dict]:

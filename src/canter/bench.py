@@ -29,7 +29,7 @@ import numpy as np
 from canter.config import SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text, to_toml
 from canter.errors import CanterError
 from canter.groups import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
-                           start_group, stop_group)
+                           start_group, stop_group, warn_if_more_jobs_than_cores)
 
 # Grid keys that have their own flag or belong to the bench itself.
 _AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
@@ -447,6 +447,7 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)
     check_existing_runs(cells, settings, bench_dir)
+    warn_if_more_jobs_than_cores(settings.jobs)
     if settings.storage_url:
         results, failures = run_distributed(cells, settings, bench_dir)
     else:

@@ -99,6 +99,14 @@ def cores_warning(jobs: int) -> str | None:
     return None
 
 
+def warn_if_more_jobs_than_cores(jobs: int) -> None:
+    """Print `cores_warning` to stderr; called once the command has passed its checks, so that a refused command
+    prints only its error."""
+    warning = cores_warning(jobs)
+    if warning:
+        print(warning, file=sys.stderr)
+
+
 # --------------------------------------------------------------------------------------------------- child process
 
 @dataclass(frozen=True)

@@ -296,13 +296,14 @@ def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
     import multiprocessing
 
-    from canter.groups import job_layout
+    from canter.groups import job_layout, warn_if_more_jobs_than_cores
 
     check_settings(settings)
     if settings.storage_url is None:
         settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
     study = make_study(settings, storage)
+    warn_if_more_jobs_than_cores(settings.jobs)
     if settings.jobs == 1:
         worker(settings)
     else:

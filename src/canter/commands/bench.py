@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from canter.commands import steps_arg
 from canter.commands.tune import seeds_arg
@@ -43,7 +42,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.bench import BenchSettings, bench, parse_grid_arg
     from canter.errors import CanterError
-    from canter.groups import cores_warning
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
     grid_keys = {key for key, _ in grid}
@@ -57,8 +55,5 @@ def run(args: argparse.Namespace) -> int:
                              preset=args.preset, config_file=args.config, sets=tuple(args.set),
                              eval_episodes=args.eval_episodes, storage_url=args.storage, study_name=args.study,
                              heartbeat_seconds=args.heartbeat)
-    warning = cores_warning(args.jobs)
-    if warning:
-        print(warning, file=sys.stderr)
     bench(settings)
     return 0

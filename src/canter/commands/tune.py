@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from canter.commands import steps_arg
 from canter.errors import CanterError
@@ -68,7 +67,6 @@ def run(args: argparse.Namespace) -> int:
         raise CanterError(f"--heartbeat must be >= 1 second, got {args.heartbeat}")
     if args.seeds_per_trial < 1:
         raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
-    from canter.groups import cores_warning
     from canter.tune import TuneSettings, tune
 
     settings = TuneSettings(
@@ -78,8 +76,5 @@ def run(args: argparse.Namespace) -> int:
         study_hours=args.study_hours, preset=args.preset, config_file=args.config, sets=tuple(args.set),
         space_file=args.space, out_dir=args.out_dir, study_name=args.study, storage_url=args.storage,
         heartbeat_seconds=args.heartbeat, grace_seconds=3 * args.heartbeat, sampler_seed=args.sampler_seed)
-    warning = cores_warning(args.jobs)
-    if warning:
-        print(warning, file=sys.stderr)
     tune(settings)
     return 0
