@@ -91,20 +91,13 @@ def job_layout(jobs: int) -> list[dict[str, str]]:
     return [thread_env(per, cores[i * per:(i + 1) * per]) for i in range(jobs)]
 
 
-def cores_warning(jobs: int) -> str | None:
+def warn_if_more_jobs_than_cores(jobs: int) -> None:
+    """Warn on stderr when `jobs` exceeds the usable cores; called once the command has passed its checks, so that a
+    refused command prints only its error."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if jobs > cores:
-        return (f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each "
-                f"other down")
-    return None
-
-
-def warn_if_more_jobs_than_cores(jobs: int) -> None:
-    """Print `cores_warning` to stderr; called once the command has passed its checks, so that a refused command
-    prints only its error."""
-    warning = cores_warning(jobs)
-    if warning:
-        print(warning, file=sys.stderr)
+        print(f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each other down",
+              file=sys.stderr)
 
 
 # --------------------------------------------------------------------------------------------------- child process

@@ -195,6 +195,12 @@ def moving_average(y: np.ndarray, window: int) -> np.ndarray:
         return np.where(window_counts > 0, window_sums / np.maximum(window_counts, 1), np.nan)
 
 
+def logging_interval(x: np.ndarray) -> float:
+    """The median spacing of a run's logged x values (0 with fewer than two)."""
+    x = np.sort(np.asarray(x, float)[~np.isnan(x)])
+    return float(np.median(np.diff(x))) if len(x) > 1 else 0.0
+
+
 MAX_GRID_POINTS = 4000
 
 
@@ -208,7 +214,7 @@ def common_grid(xs: Sequence[np.ndarray], points: int | None = None) -> np.ndarr
     if hi <= lo:
         return np.array([lo])
     if points is None:
-        spacings = [np.median(np.diff(np.sort(x))) for x in xs if len(x) > 1]
+        spacings = [logging_interval(x) for x in xs]
         finest = min([d for d in spacings if d > 0], default=hi - lo)
         points = min(max(math.ceil((hi - lo) / finest) + 1, max(len(x) for x in xs)), MAX_GRID_POINTS)
     return np.linspace(lo, hi, max(points, 2))
@@ -224,12 +230,6 @@ def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray, hold: float = 0.
     x, y = x[keep], y[keep]
     inside = (grid >= x.min() - hold) & (grid <= x.max() + hold)
     return np.where(inside, np.interp(grid, x, y), np.nan)
-
-
-def logging_interval(x: np.ndarray) -> float:
-    """The median spacing of a run's logged x values (0 with fewer than two)."""
-    x = np.sort(np.asarray(x, float)[~np.isnan(x)])
-    return float(np.median(np.diff(x))) if len(x) > 1 else 0.0
 
 
 def bootstrap_band(samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES,
