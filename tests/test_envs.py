@@ -40,6 +40,14 @@ def test_protocol_shapes_and_dtypes(env_id, backend, obs_dim, act_dim):
         env.close()
 
 
+@pytest.mark.filterwarnings("error::UserWarning")
+def test_envpool_spaces_build_without_gymnasium_cast_warnings():
+    """EnvPool declares Pendulum's and BipedalWalker's float32 Boxes with float64 bounds; the user should not see
+    Gymnasium's warning about it on every `canter train`."""
+    for env_id in ("Pendulum-v1", "BipedalWalker-v3"):
+        make_vec_env(env_id, "envpool", 1, [0]).close()
+
+
 def test_dict_observations_are_flattened_in_key_order():
     env = make_vec_env("canter_test_envs:DictObs-v0", "auto", 1, [0])
     out = env.host_step(np.zeros((1, 2), np.float32))

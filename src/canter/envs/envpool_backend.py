@@ -7,6 +7,7 @@ exception), and a crash no handler can catch must not be reachable from the CLI.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -75,11 +76,15 @@ class EnvPoolVecEnv:
         sizes = shard_sizes(num_envs, shards or default_shards(num_envs))
         starts = np.cumsum([0] + sizes).tolist()
         self._slices = [slice(start, start + size) for start, size in zip(starts, sizes)]
-        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
-                                    seed=list(seeds[part]), num_threads=1, **kwargs)
-                       for size, part in zip(sizes, self._slices)]
-        pool = self._pools[0]
-        obs_space, act_space = pool.observation_space, pool.action_space
+        with warnings.catch_warnings():
+            # EnvPool builds float32 Boxes from float64 bounds (Pendulum, Box2D); Gymnasium's warning about that
+            # cast is about EnvPool's spec code and gives the user nothing to act on.
+            warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
+            self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
+                                        seed=list(seeds[part]), num_threads=1, **kwargs)
+                           for size, part in zip(sizes, self._slices)]
+            pool = self._pools[0]
+            obs_space, act_space = pool.observation_space, pool.action_space
         if not isinstance(act_space, gym.spaces.Box):
             raise ValueError(f"{env_id} has discrete actions")
         if isinstance(obs_space, gym.spaces.Dict):
