@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.bench import BenchSettings, make_cells, published_for, varying_keys
+from canter.bench import BenchSettings, make_cells, make_jobs, published_for, varying_keys
 from canter.cli import main
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
@@ -49,6 +49,16 @@ def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
     assert [(c.algo, c.config.run.algo, c.config.ppo.ent_coef) for c in algo_cells] == [
         ("ppo", "ppo", 0.0), ("ppo", "ppo", 0.01), ("rpo", "rpo", 0.0), ("rpo", "rpo", 0.01)]
     assert algo_cells[3].name == "Hopper-v5__rpo__ppo.ent_coef=0.01"
+
+
+def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
+    cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0, 1),
+                                     total_steps=1000))
+    jobs = make_jobs(cells, (0, 1))
+    assert [(j.name, j.seeds) for j in jobs] == [
+        ("Hopper-v5__ppo", (0, 1)), ("Hopper-v5__td3__s0", (0,)), ("Hopper-v5__td3__s1", (1,)),
+        ("Hopper-v5__sac__s0", (0,)), ("Hopper-v5__sac__s1", (1,))]
+    assert jobs[1].cell is jobs[2].cell is cells[1]
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -161,9 +171,10 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     cells = sorted(t.params["cell"] for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE)
     assert cells == ["InvertedPendulum-v4__ppo__ppo.clip=0.1", "InvertedPendulum-v4__ppo__ppo.clip=0.2"]
     for t in study.trials:
-        result = t.user_attrs["result"]
+        [record] = t.user_attrs["records"]
         evaluation = json.loads((tmp_path / "bench" / f"{t.params['cell']}__s0" / "eval.json").read_text())
-        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(result["return_mean"])
+        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(record["eval_mean"])
+        assert record["seed"] == 0 and record["sps"] > 0
     assert main(argv) == 0
     assert len(optuna.load_study(study_name="grid", storage=url).trials) == 2  # nothing ran twice
     assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
@@ -181,3 +192,33 @@ def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys)
     assert "re-run the same command" in captured.err
     summary = json.loads((out / "InvertedPendulum-v4__ppo__s0" / "summary.json").read_text())
     assert summary["stop_reason"] == "max_minutes" and summary["global_step"] < 4096
+
+
+TINY_TD3 = ["--set", "td3.hidden=16,16", "--set", "run.tensorboard=false", "--set", "td3.learning_starts=100",
+            "--set", "td3.buffer_size=1000", "--set", "td3.batch_size=32", "--set", "td3.steps_per_call=100",
+            "--set", "run.checkpoint_every=200"]
+
+
+def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_them(tmp_path, capsys):
+    """Each td3 seed is its own trial; the cell's row combines both seeds' records, locally as from the storage."""
+    import optuna
+
+    out = tmp_path / "bench"
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+    argv = ["bench", "--algos", "td3", "--envs", "Pendulum-v1", "--seeds", "0,1", "--total-steps", "400",
+            "--eval-episodes", "1", "--out", str(out)] + TINY_TD3
+    assert main(argv + ["--storage", url, "--study", "td3", "--heartbeat", "2"]) == 0, capsys.readouterr().err
+    study = optuna.load_study(study_name="td3", storage=url)
+    done = sorted((t.params["cell"], [r["seed"] for r in t.user_attrs["records"]]) for t in study.trials
+                  if t.state == optuna.trial.TrialState.COMPLETE)
+    assert done == [("Pendulum-v1__td3__s0", [0]), ("Pendulum-v1__td3__s1", [1])]
+    [stored] = read_rows(out / "results.csv")
+    means = [json.loads((out / f"Pendulum-v1__td3__s{s}" / "eval.json").read_text())["mean"] for s in (0, 1)]
+    assert stored["seeds"] == "2" and float(stored["return_mean"]) == pytest.approx(np.mean(means), abs=1e-3)
+    capsys.readouterr()
+
+    assert main(argv) == 0   # locally: both seeds' jobs are found finished, and the row is the same
+    printed = capsys.readouterr().out
+    assert "skip Pendulum-v1__td3__s0 (finished)" in printed and "skip Pendulum-v1__td3__s1 (finished)" in printed
+    [local] = read_rows(out / "results.csv")
+    assert local["return_mean"] == stored["return_mean"] and local["seeds"] == "2"

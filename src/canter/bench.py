@@ -1,12 +1,13 @@
 """`canter bench`: a grid of algorithms x envs x hyperparameter values x seeds, each run an ordinary run folder.
 
-A cell is one (algo, env, grid values) combination; its seeds train together in one child process
-(`canter.groups`), and up to `--jobs` cells run at once. Run folders have deterministic names built from the env,
+A cell is one (algo, env, grid values) combination. A job is what one child process trains (`canter.groups`): all
+of a cell's seeds together as one vmapped group, or, for the off-policy algorithms
+(`canter.algos.SEEDS_TRAIN_APART`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic names built from the env,
 the algorithm, every grid value and the seed, so re-running the same command finds them: finished runs are
 skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished run's final policy is
 evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv` and a plot per env.
 
-With `--storage`, the cells are the trials of an Optuna study (a GridSampler over the cell names, each cell
+With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
 enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
 """
 
@@ -69,6 +70,30 @@ class Cell:
 
     def run_dir(self, bench_dir: Path, seed: int) -> Path:
         return bench_dir / f"{self.name}__s{seed}"
+
+
+@dataclass(frozen=True)
+class Job:
+    """The seeds of one cell that one child process trains together."""
+    cell: Cell
+    seeds: tuple[int, ...]
+    apart: bool   # one seed of a cell whose seeds train apart: the seed is part of the name
+
+    @property
+    def name(self) -> str:
+        return f"{self.cell.name}__s{self.seeds[0]}" if self.apart else self.cell.name
+
+
+def make_jobs(cells: list[Cell], seeds: tuple[int, ...]) -> list[Job]:
+    from canter.algos import seeds_train_apart
+
+    jobs = []
+    for cell in cells:
+        if seeds_train_apart(cell.algo):
+            jobs += [Job(cell, (seed,), True) for seed in seeds]
+        else:
+            jobs.append(Job(cell, tuple(seeds), False))
+    return jobs
 
 
 def _safe(text: str) -> str:
@@ -153,14 +178,19 @@ def varying_keys(cells: list[Cell]) -> list[str]:
     return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]
 
 
-def cell_spec(cell: Cell, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
+def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
+    cell = job.cell
     config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
-    return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in settings.seeds},
+    return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
                      settings.eval_episodes)
 
 
 def cell_finished(cell: Cell, settings: BenchSettings, bench_dir: Path) -> bool:
-    for seed in settings.seeds:
+    return seeds_finished(cell, settings.seeds, settings, bench_dir)
+
+
+def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
+    for seed in seeds:
         run_dir = cell.run_dir(bench_dir, seed)
         evaluation = read_json(run_dir / EVAL_FILE)
         if run_status(run_dir, settings.total_steps) != "done" or not evaluation or \
@@ -202,19 +232,26 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
 
 # ---------------------------------------------------------------------------------------------------- results
 
+def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
+    """What the table needs of one finished run: its final eval mean, wall seconds and SPS (None where missing)."""
+    evaluation = read_json(run_dir / EVAL_FILE) or {}
+    summary = read_json(run_dir / SUMMARY_FILE) or {}
+    return {"seed": seed, "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
+            "wall_seconds": float(summary["wall_seconds"]) if "wall_seconds" in summary else None,
+            "sps": float(summary["sps"]) if "wall_seconds" in summary else None}
+
+
 def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:
-    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds); the cell's wall time (its
-    seeds train together, so the slowest seed's) and SPS (env steps per second of all its seeds together)."""
-    evals, walls, sps = [], [], []
-    for seed in settings.seeds:
-        run_dir = cell.run_dir(bench_dir, seed)
-        evaluation = read_json(run_dir / EVAL_FILE) or {}
-        summary = read_json(run_dir / SUMMARY_FILE) or {}
-        if "mean" in evaluation:
-            evals.append(float(evaluation["mean"]))
-        if "wall_seconds" in summary:
-            walls.append(float(summary["wall_seconds"]))
-            sps.append(float(summary["sps"]))
+    return combine_records(cell, [seed_record(cell.run_dir(bench_dir, s), s) for s in settings.seeds])
+
+
+def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds); the cell's wall time (the
+    slowest seed's: its seeds train together, or as jobs side by side) and SPS (env steps per second of all its
+    seeds together)."""
+    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
+    walls = [r["wall_seconds"] for r in records if r["wall_seconds"] is not None]
+    sps = [r["sps"] for r in records if r["sps"] is not None]
     return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
             "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
             "return_std": float(np.std(evals)) if evals else math.nan,
@@ -295,38 +332,41 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
 # ------------------------------------------------------------------------------------------------------- running
 
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
-    """Run the unfinished cells, up to `jobs` child processes at once; returns {cell name: failure reason}."""
-    pending = [c for c in cells if not cell_finished(c, settings, bench_dir)]
-    for cell in cells:
-        if cell not in pending:
-            print(f"skip {cell.name} (finished)")
+    """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
+    pending = []
+    for job in make_jobs(cells, settings.seeds):
+        if seeds_finished(job.cell, job.seeds, settings, bench_dir):
+            print(f"skip {job.name} (finished)")
+        else:
+            pending.append(job)
     slots = job_layout(settings.jobs) if settings.jobs > 1 else [{}]
-    running: dict[int, tuple[Cell, Any, float]] = {}
+    running: dict[int, tuple[Job, Any, float]] = {}
     failures: dict[str, str] = {}
     try:
         while pending or running:
             for slot, caps in enumerate(slots):
                 if slot not in running and pending:
-                    cell = pending.pop(0)
-                    folder = bench_dir / ".cells" / cell.name
-                    proc = start_group(cell_spec(cell, settings, bench_dir), folder, caps)
-                    running[slot] = (cell, proc, time.monotonic())
-                    print(f"start {cell.name} (seeds {','.join(map(str, settings.seeds))})", flush=True)
-            for slot, (cell, proc, started) in list(running.items()):
+                    job = pending.pop(0)
+                    proc = start_group(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
+                    running[slot] = (job, proc, time.monotonic())
+                    print(f"start {job.name} (seeds {','.join(map(str, job.seeds))})", flush=True)
+            for slot, (job, proc, started) in list(running.items()):
                 code = proc.poll()
                 if code is None:
                     continue
                 del running[slot]
-                if code == 0 and not cell_finished(cell, settings, bench_dir):
+                if code == 0 and not seeds_finished(job.cell, job.seeds, settings, bench_dir):
                     # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
-                    failures[cell.name] = ("stopped before its budget (a signal or run.max_minutes); it is "
-                                           "checkpointed and a re-run resumes it")
-                    print(f"STOP  {cell.name}: {failures[cell.name]}", flush=True)
+                    reason = ("stopped before its budget (a signal or run.max_minutes); it is checkpointed and a "
+                              "re-run resumes it")
+                    failures.setdefault(job.cell.name, reason)
+                    print(f"STOP  {job.name}: {reason}", flush=True)
                 elif code == 0:
-                    print(f"done  {cell.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
+                    print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
                 else:
-                    failures[cell.name] = failure_reason(bench_dir / ".cells" / cell.name, code)
-                    print(f"FAIL  {cell.name}: {failures[cell.name]}", flush=True)
+                    reason = failure_reason(bench_dir / ".cells" / job.name, code)
+                    failures.setdefault(job.cell.name, reason)
+                    print(f"FAIL  {job.name}: {reason}", flush=True)
             time.sleep(settings.poll_seconds)
     finally:
         for _, proc, _ in running.values():
@@ -334,38 +374,40 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     return failures
 
 
-def _cell_trial(study: Any, trial: Any, cells: dict[str, Cell], settings: BenchSettings, bench_dir: Path):
+def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSettings, bench_dir: Path):
     from optuna.trial import TrialState
 
     from canter.studies import Outcome
 
-    name = trial.suggest_categorical("cell", list(cells))
+    name = trial.suggest_categorical("cell", list(jobs))
     for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
         if other.params.get("cell") == name and other.number != trial.number and (
                 other.state == TrialState.COMPLETE or other.number < trial.number):
-            return Outcome("fail", reason=f"duplicate: trial {other.number} has this cell")
-    cell = cells[name]
-    folder = bench_dir / ".cells" / cell.name
-    proc = start_group(cell_spec(cell, settings, bench_dir), folder)
+            return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
+    job = jobs[name]
+    folder = bench_dir / ".cells" / job.name
+    proc = start_group(job_spec(job, settings, bench_dir), folder)
     try:
         code = proc.wait()
     finally:
         stop_group(proc)
     if code != 0:
         return Outcome("fail", reason=failure_reason(folder, code))
-    result = cell_result(cell, settings, bench_dir)
-    trial.set_user_attr("result", result)
-    return Outcome("complete", value=result["return_mean"])
+    # The records travel with the trial, so any machine can build the table from the storage alone.
+    records = [seed_record(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
+    trial.set_user_attr("records", records)
+    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
+    return Outcome("complete", value=float(np.mean(evals)) if evals else math.nan)
 
 
-def _open_grid_study(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
+def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
     import optuna
 
     from canter.studies import StorageSettings, open_storage
 
     storage = open_storage(StorageSettings(settings.storage_url, settings.heartbeat_seconds,
                                            3 * settings.heartbeat_seconds))
-    sampler = optuna.samplers.GridSampler({"cell": [c.name for c in cells]})
+    sampler = optuna.samplers.GridSampler({"cell": [j.name for j in jobs]})
     study = optuna.create_study(storage=storage, study_name=settings.study_name or bench_dir.name,
                                 direction="maximize", sampler=sampler, load_if_exists=True)
     return storage, study
@@ -382,10 +424,11 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, ca
     os.environ.update(caps)
     apply_cpu_pinning()
     try:
-        storage, study = _open_grid_study(cells, settings, bench_dir)
-        by_name = {c.name: c for c in cells}
-        run_worker(study, storage, len(cells),
-                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+        jobs = make_jobs(cells, settings.seeds)
+        storage, study = _open_grid_study(jobs, settings, bench_dir)
+        by_name = {j.name: j for j in jobs}
+        run_worker(study, storage, len(jobs),
+                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
                    heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
@@ -396,17 +439,18 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, ca
 
 def run_distributed(cells: list[Cell], settings: BenchSettings,
                     bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
-    """Share the cells with other workers through an Optuna study; returns the results of every finished cell (by
-    any worker) and the failure reasons of the cells that failed."""
+    """Share the jobs with other workers through an Optuna study; returns the results of every cell whose jobs all
+    finished (by any worker) and the failure reasons of the cells with a failed job."""
     import multiprocessing
 
     from optuna.trial import TrialState
 
     from canter.studies import run_worker
 
-    storage, study = _open_grid_study(cells, settings, bench_dir)
-    by_name = {c.name: c for c in cells}
-    # Enqueue the cells that no trial holds yet (a first run, or a cell whose trial failed).
+    jobs = make_jobs(cells, settings.seeds)
+    storage, study = _open_grid_study(jobs, settings, bench_dir)
+    by_name = {j.name: j for j in jobs}
+    # Enqueue the jobs that no trial holds yet (a first run, or a job whose trial failed).
     held = {t.params.get("cell") for t in study.get_trials(deepcopy=False, states=(
         TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))}
     for name in by_name:
@@ -414,7 +458,7 @@ def run_distributed(cells: list[Cell], settings: BenchSettings,
             study.enqueue_trial({"cell": name})
     if settings.jobs == 1:
         run_worker(study, storage, len(by_name),
-                   lambda trial: _cell_trial(study, trial, by_name, settings, bench_dir),
+                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
                    heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
     else:
         context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
@@ -429,12 +473,20 @@ def run_distributed(cells: list[Cell], settings: BenchSettings,
     done, failed = {}, {}
     for t in study.get_trials(deepcopy=False):
         name = t.params.get("cell")
-        if t.state == TrialState.COMPLETE and name in by_name and "result" in t.user_attrs:
-            done[name] = t.user_attrs["result"]
+        if t.state == TrialState.COMPLETE and name in by_name and "records" in t.user_attrs:
+            done[name] = t.user_attrs["records"]
         elif t.state == TrialState.FAIL and name in by_name:
             failed[name] = t.user_attrs.get("fail_reason", "worker died")
-    failures = {name: reason for name, reason in failed.items() if name not in done}
-    return [done[c.name] for c in cells if c.name in done], failures
+    failures: dict[str, str] = {}
+    for name, reason in failed.items():
+        if name not in done:
+            failures.setdefault(by_name[name].cell.name, reason)
+    results = []
+    for cell in cells:
+        names = [j.name for j in jobs if j.cell is cell]
+        if all(n in done for n in names):
+            results.append(combine_records(cell, [r for n in names for r in done[n]]))
+    return results, failures
 
 
 def bench(settings: BenchSettings) -> str:

@@ -47,6 +47,16 @@ REGISTRY: dict[str, tuple[str, str]] = {
     "sac": ("canter.algos.offpolicy", "Soft Actor-Critic with automatic entropy tuning (off-policy)"),
 }
 
+# Algorithms whose seeds `canter bench` trains as separate jobs instead of one vmapped group. Under the vmap the
+# off-policy step's `lax.cond`s (warm-up, td3's delayed actor step) see a per-seed predicate and become selects that
+# compute both branches, and stacking seeds' 256-wide products gains nothing on a CPU core: two td3 seeds in one
+# group trained at 0.67x the steps per second of one seed alone on the same core (docs/multiseed.md).
+SEEDS_TRAIN_APART = frozenset({"td3", "ddpg", "sac"})
+
+
+def seeds_train_apart(name: str) -> bool:
+    return name in SEEDS_TRAIN_APART
+
 
 @dataclass(frozen=True)
 class ExportedActor:

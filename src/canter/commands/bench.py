@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per run (1e6 works)")
     b.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a hyperparameter axis, repeatable: ppo.ent_coef=0.01,1e-4,0 or net.hidden=64-64,128-64")
-    b.add_argument("--jobs", type=int, default=1, help="cells trained at once (one process each)")
+    b.add_argument("--jobs", type=int, default=1,
+                   help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed)")
     b.add_argument("--out", default="bench", help="bench folder (default bench/)")
     b.add_argument("--preset", default="fast", help="preset under the grid values (default fast)")
     b.add_argument("--config", default=None, help="TOML file under the grid values")
