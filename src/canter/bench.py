@@ -2,10 +2,11 @@
 
 A cell is one (algo, env, grid values) combination. A job is what one child process trains (`canter.groups`): all
 of a cell's seeds together as one vmapped group, or, for the off-policy algorithms
-(`canter.algos.SEEDS_TRAIN_APART`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic names built from the env,
-the algorithm, every grid value and the seed, so re-running the same command finds them: finished runs are
-skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished run's final policy is
-evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv` and a plot per env.
+(`canter.algos.SEEDS_TRAIN_APART`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic
+names built from the env, the algorithm, every grid value and the seed, so re-running the same command finds them:
+finished runs are skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished
+run's final policy is evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv`
+and a plot per env.
 
 With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
 enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
@@ -183,10 +184,6 @@ def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
     config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
     return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
                      settings.eval_episodes)
-
-
-def cell_finished(cell: Cell, settings: BenchSettings, bench_dir: Path) -> bool:
-    return seeds_finished(cell, settings.seeds, settings, bench_dir)
 
 
 def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
