@@ -40,12 +40,23 @@ def test_protocol_shapes_and_dtypes(env_id, backend, obs_dim, act_dim):
         env.close()
 
 
-@pytest.mark.filterwarnings("error::UserWarning")
 def test_envpool_spaces_build_without_gymnasium_cast_warnings():
-    """EnvPool declares Pendulum's and BipedalWalker's float32 Boxes with float64 bounds; the user should not see
-    Gymnasium's warning about it on every `canter train`."""
-    for env_id in ("Pendulum-v1", "BipedalWalker-v3"):
-        make_vec_env(env_id, "envpool", 1, [0]).close()
+    """EnvPool declares Pendulum's and BipedalWalker's float32 Boxes with float64 bounds and rebuilds them on every
+    reset and host step; the user should not see Gymnasium's warning about it. A fresh process, as a user gets."""
+    import subprocess
+    import sys
+
+    script = ("import numpy as np\n"
+              "from canter.envs import make_vec_env\n"
+              "for env_id in ('Pendulum-v1', 'BipedalWalker-v3'):\n"
+              "    for num_envs in (1, 2):\n"
+              "        env = make_vec_env(env_id, 'envpool', num_envs, list(range(num_envs)))\n"
+              "        env.host_step(np.zeros((num_envs, env.spec.act_dim), np.float32))\n"
+              "        env.close()\n"
+              "print('stepped')\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "stepped" in done.stdout, done.stderr
+    assert "precision lowered" not in done.stderr and "Warning" not in done.stderr, done.stderr
 
 
 def test_dict_observations_are_flattened_in_key_order():

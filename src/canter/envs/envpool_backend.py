@@ -14,6 +14,11 @@ import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
 
+# EnvPool rebuilds its Gymnasium spaces on every reset and host step, declaring float32 Boxes with float64 bounds
+# (Pendulum, Box2D); Gymnasium warns about that cast each time. The warning is about EnvPool's own spec code and
+# gives the user nothing to act on, so it is silenced for the process (this exact message only).
+warnings.filterwarnings("ignore", message=r".*precision lowered by casting to float32")
+
 # EnvPool families with continuous actions that canter trains on.
 _CONTINUOUS_MODULES = ("envpool.mujoco.gym", "envpool.mujoco.dmc")
 _CONTINUOUS_IDS = ("BipedalWalker-v3", "BipedalWalkerHardcore-v3", "LunarLanderContinuous-v2",
@@ -76,15 +81,11 @@ class EnvPoolVecEnv:
         sizes = shard_sizes(num_envs, shards or default_shards(num_envs))
         starts = np.cumsum([0] + sizes).tolist()
         self._slices = [slice(start, start + size) for start, size in zip(starts, sizes)]
-        with warnings.catch_warnings():
-            # EnvPool builds float32 Boxes from float64 bounds (Pendulum, Box2D); Gymnasium's warning about that
-            # cast is about EnvPool's spec code and gives the user nothing to act on.
-            warnings.filterwarnings("ignore", message=".*precision lowered by casting to float32")
-            self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
-                                        seed=list(seeds[part]), num_threads=1, **kwargs)
-                           for size, part in zip(sizes, self._slices)]
-            pool = self._pools[0]
-            obs_space, act_space = pool.observation_space, pool.action_space
+        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
+                                    seed=list(seeds[part]), num_threads=1, **kwargs)
+                       for size, part in zip(sizes, self._slices)]
+        pool = self._pools[0]
+        obs_space, act_space = pool.observation_space, pool.action_space
         if not isinstance(act_space, gym.spaces.Box):
             raise ValueError(f"{env_id} has discrete actions")
         if isinstance(obs_space, gym.spaces.Dict):
