@@ -207,27 +207,33 @@ def test_presets_give_off_policy_runs_one_env_and_raw_observations():
 
 
 @pytest.mark.parametrize("algo", ["td3", "sac"])
-def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path):
+def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys):
     """`canter train --algo td3 --seeds 0,1` runs the same iteration under jax.vmap. Measured on this tiny run: the
     counts and returns are identical and the losses differ by at most 4e-6 (sac's critic loss, about 3-80); the
     bounds are about 25x that, and far below the difference between two seeds."""
     import csv
 
-    from canter.trainer import train_seeds
+    from canter.policy import read_run_config
 
     sets = [f"{algo}.hidden=16,16", "run.tensorboard=false", f"{algo}.learning_starts=100",
             f"{algo}.buffer_size=1000", f"{algo}.batch_size=32", f"{algo}.steps_per_call=100",
-            "run.checkpoint_every=200", f"run.out_dir={tmp_path}"]
-    config = build_config("Pendulum-v1", total_steps=400, seed=1, sets=sets, algo=algo)
+            "run.checkpoint_every=200"]
+    config = build_config("Pendulum-v1", total_steps=400, seed=1, sets=sets + [f"run.out_dir={tmp_path / 'alone'}"],
+                          algo=algo)
     alone = train(config, quiet=True)
-    grouped = train_seeds(config, [0, 1], quiet=True)
+    argv = ["train", "Pendulum-v1", "--algo", algo, "--seeds", "0,1", "--total-steps", "400", "--quiet",
+            "--out-dir", str(tmp_path / "group")]
+    assert main(argv + [arg for s in sets for arg in ("--set", s)]) == 0
+    # The CLI points at the faster way to train several off-policy seeds.
+    assert f"canter: note: {algo} seeds train faster one per process" in capsys.readouterr().err
+    by_seed = {read_run_config(d).run.seed: d for d in (tmp_path / "group").iterdir()}
 
     def columns(run_dir):
         with open(run_dir / "metrics.csv") as f:
             rows = list(csv.DictReader(f))
         return {k: np.array([float(r[k]) if r[k] else np.nan for r in rows]) for k in rows[0]}
 
-    a, g, other = columns(alone.run_dir), columns(grouped[1].run_dir), columns(grouped[0].run_dir)
+    a, g, other = columns(alone.run_dir), columns(by_seed[1]), columns(by_seed[0])
     assert len(a["global_step"]) == len(g["global_step"]) >= 4
     for name in ("global_step", "episodes", "episodic_length", "gradient_steps", "buffer_size"):
         np.testing.assert_array_equal(g[name], a[name], err_msg=name)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from canter.commands import add_common, steps_arg
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from canter.algos import seeds_train_apart
     from canter.config import build_config
     from canter.trainer import resume_config, resume_seeds, train, train_seeds
 
@@ -87,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
         config = build_config(args.env, preset=args.preset or "fast", config_file=args.config, sets=sets,
                               seed=args.seed, total_steps=args.total_steps, algo=args.algo)
         if args.seeds is not None:
+            if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
+                print(f"canter: note: {config.run.algo} seeds train faster one per process than in a group "
+                      f"(docs/multiseed.md); `canter bench --algos {config.run.algo} --seeds ... --jobs 2` does that",
+                      file=sys.stderr)
             results = train_seeds(config, args.seeds, quiet=args.quiet)
         else:
             results = [train(config, quiet=args.quiet)]
