@@ -144,8 +144,9 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())  # finished runs were not retrained
     summary = json.loads((cut / "summary.json").read_text())
     assert summary["global_step"] >= 1024
-    resumed = [int(r["global_step"]) for r in read_rows(cut / "metrics.csv")][rows_before:]
-    assert resumed and resumed[0] > first and resumed[-1] >= 1024  # continued from the first checkpoint
+    # Continued from the first checkpoint: the rows after it were lost work, so they were dropped and redone.
+    steps = [int(r["global_step"]) for r in read_rows(cut / "metrics.csv")]
+    assert first in steps and steps == sorted(set(steps)) and steps[-1] >= 1024 and len(steps) == rows_before
     assert len(read_rows(out / "results.csv")) == 2
 
     # The same folder with other settings: its runs would pass for results of those settings, so it is refused.
@@ -222,3 +223,16 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
     assert "skip Pendulum-v1__td3__s0 (finished)" in printed and "skip Pendulum-v1__td3__s1 (finished)" in printed
     [local] = read_rows(out / "results.csv")
     assert local["return_mean"] == stored["return_mean"] and local["seeds"] == "2"
+
+
+def test_a_resumed_runs_record_counts_every_session(tmp_path):
+    from canter.bench import seed_record
+
+    # The summary of the last session, as runs resumed before totals were carried over wrote it.
+    (tmp_path / "summary.json").write_text(json.dumps({"global_step": 300, "wall_seconds": 5.0, "sps": 40.0}))
+    (tmp_path / "eval.json").write_text(json.dumps({"mean": 7.0}))
+    (tmp_path / "metrics.csv").write_text("global_step,iteration,wall_time,sps,episodes\n"
+                                          "100,1,10.0,10.0,1\n200,2,20.0,10.0,1\n300,3,5.0,40.0,1\n")
+    record = seed_record(tmp_path, 0)
+    assert record == {"seed": 0, "eval_mean": 7.0, "wall_seconds": pytest.approx(25.0),
+                      "sps": pytest.approx(300 / (10 + 10 + 2.5))}

@@ -78,6 +78,33 @@ def test_resume_is_deterministic_and_continues(tmp_path):
         train(resume_config(first.run_dir, None), resume=first.run_dir)
 
 
+def test_resume_after_a_hard_kill_redoes_the_lost_rows_and_keeps_whole_run_totals(tmp_path):
+    import csv
+
+    first = train(_config(total=4096, extra=[f"run.out_dir={tmp_path}", "run.tensorboard=true"]))
+    run = first.run_dir
+    # A kill without SIGTERM: every row was logged, but the newest checkpoint left is the periodic one.
+    saved = sorted((run / "checkpoints").iterdir())
+    assert len(saved) == 2
+    saved[-1].unlink()
+    (run / "summary.json").unlink()
+    _, _, _, header = load_state(run)
+    assert 2048 <= int(header["global_step"]) < first.global_step and header["totals"]["wall_seconds"] > 0
+
+    again = train(resume_config(run, 4096), resume=run)
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    steps = [int(r["global_step"]) for r in rows]
+    walls = [float(r["wall_time"]) for r in rows]
+    assert steps == sorted(set(steps)) and steps[-1] == again.global_step >= 4096
+    assert [int(r["iteration"]) for r in rows] == list(range(1, len(rows) + 1))
+    assert walls == sorted(walls), "wall_time continues across the resume"
+    assert again.episodes == sum(int(r["episodes"]) for r in rows)
+    train_seconds = sum((b - a) / float(r["sps"]) for a, b, r in zip([0] + steps, steps, rows))
+    assert again.sps == pytest.approx(again.global_step / train_seconds, rel=0.01)
+    assert again.wall_seconds >= walls[-1] > header["totals"]["wall_seconds"]
+    assert list((run / "tb").glob("events.out.tfevents.*"))
+
+
 def test_stop_conditions(tmp_path):
     r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000",
                                             "run.tensorboard=true"]))

@@ -230,12 +230,22 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
 # ---------------------------------------------------------------------------------------------------- results
 
 def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
-    """What the table needs of one finished run: its final eval mean, wall seconds and SPS (None where missing)."""
+    """What the table needs of one finished run: its final eval mean, wall seconds and SPS (None where missing).
+
+    Wall time and SPS cover every session of a resumed run. They are rebuilt from metrics.csv, because the
+    summaries of runs trained before resumes carried totals over hold only the last session."""
+    from canter.logger import totals_until
+
     evaluation = read_json(run_dir / EVAL_FILE) or {}
     summary = read_json(run_dir / SUMMARY_FILE) or {}
+    wall = float(summary["wall_seconds"]) if "wall_seconds" in summary else None
+    sps = float(summary["sps"]) if "sps" in summary else None
+    if "global_step" in summary and (run_dir / "metrics.csv").is_file():
+        totals = totals_until(run_dir / "metrics.csv", int(summary["global_step"]))
+        if totals["train_seconds"] > 0:
+            wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
     return {"seed": seed, "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
-            "wall_seconds": float(summary["wall_seconds"]) if "wall_seconds" in summary else None,
-            "sps": float(summary["sps"]) if "wall_seconds" in summary else None}
+            "wall_seconds": wall, "sps": sps}
 
 
 def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:

@@ -34,6 +34,7 @@ import numpy as np
 
 from canter.config import Config, SECTIONS, from_toml_text
 from canter.errors import CanterError
+from canter.logger import run_history
 
 # Keys that do not change what is learned: runs differing only in these are repeats of one experiment.
 IGNORED_KEYS = ("run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints", "run.tensorboard",
@@ -101,14 +102,16 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
     with open(path, newline="") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        rows = [row for row in reader if row]
+        reader = csv.DictReader(f)
+        header = list(reader.fieldnames or [])
+        rows = [row for row in reader if any(row.values())]
     if not header or not rows:
         raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
+    if "global_step" in header and "iteration" in header:
+        rows = [row for row, _ in run_history(rows)]  # older resumed runs still hold the rows of lost work
     columns: dict[str, np.ndarray] = {}
-    for i, name in enumerate(header):
-        cells = [row[i] if i < len(row) else "" for row in rows]
+    for name in header:
+        cells = [row.get(name) or "" for row in rows]
         try:
             columns[name] = np.array([float(c) if c.strip() else math.nan for c in cells])
         except ValueError:

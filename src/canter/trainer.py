@@ -21,7 +21,7 @@ import numpy as np
 from canter import checkpoint
 from canter.config import Config, to_toml, validate
 from canter.errors import CanterError, DiscreteActionsError
-from canter.logger import MetricsLogger, Progress
+from canter.logger import MetricsLogger, Progress, totals_until
 from canter.seeding import RESUME, TRAIN, env_seeds
 from canter.video import TrainingVideos
 
@@ -34,9 +34,9 @@ class RunResult:
     global_step: int
     recent_return: float | None      # mean raw return of the last 20 training episodes
     episodes: int
-    wall_seconds: float
-    compile_seconds: float
-    sps: float                        # env steps per second, compile excluded
+    wall_seconds: float               # the whole run, compile and earlier sessions of a resumed run included
+    compile_seconds: float            # this session's compile
+    sps: float                        # env steps per second over the whole run, compile excluded
     stop_reason: str                  # budget | stop_at_return | max_minutes | signal
 
 
@@ -160,7 +160,7 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
         validate(config)
     started = time.perf_counter()
 
-    states, outs, start_steps, seeds = [], [], [], []
+    states, outs, start_steps, seeds, earlier = [], [], [], [], []
     for config, resume, run_dir in zip(configs, resumes, run_dirs):
         state = None
         if resume is not None:
@@ -169,9 +169,11 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
             out = Path(resume)
             _, _, state, header = load_state(out)
             start_step = int(header["global_step"])
+            earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
         else:
             start_step = 0
             out = Path(run_dir) if run_dir is not None else new_run_dir(config)
+            earlier.append(None)
         if start_step >= config.run.total_steps:
             raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
                               f"steps; pass --total-steps larger than {start_step} to extend it")
@@ -201,7 +203,7 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
             if resumes[i] is None:
                 checkpoint.atomic_write_bytes(out / "versions.json",
                                               lambda f: f.write(json.dumps(versions(), indent=2).encode()))
-        return _loop(configs, env, spec, states, outs, start_steps, quiet, started)
+        return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
     finally:
         env.close()
 
@@ -209,19 +211,24 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
 class _SeedRun:
     """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
 
-    def __init__(self, config: Config, spec: Any, out: Path, start_step: int, metric_names: tuple[str, ...]) -> None:
+    def __init__(self, config: Config, spec: Any, out: Path, start_step: int, metric_names: tuple[str, ...],
+                 earlier: dict[str, float] | None) -> None:
+        """`earlier`: wall seconds, training seconds and episodes of the sessions before a resume."""
         self.config = config
         self.out = out
         self.metric_names = metric_names
         self.start_step = start_step
         self.global_step = start_step
-        self.episodes = 0
+        earlier = earlier or {}
+        self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
+        self.episodes = int(earlier.get("episodes", 0))
         self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
-        self.run_seconds = 0.0
+        self.run_seconds = float(earlier.get("train_seconds", 0.0))
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
-        self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard)
+        self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard,
+                                    resume_step=start_step if start_step > 0 else None)
         self.videos = TrainingVideos(out, config.run.video_every, start_step)
         self.closed = False
         self.stop_reason: str | None = None     # set once the seed is done; the group may still run
@@ -232,8 +239,13 @@ class _SeedRun:
     def recent_mean(self) -> float | None:
         return float(np.mean(self.recent)) if self.recent else None
 
-    def save(self, train_state: Any, step: int) -> None:
-        header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"))
+    def totals(self, started: float) -> dict[str, float]:
+        return {"wall_seconds": self.earlier_wall + time.perf_counter() - started, "train_seconds": self.run_seconds,
+                "episodes": self.episodes}
+
+    def save(self, train_state: Any, step: int, started: float) -> None:
+        header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"),
+                      totals=self.totals(started))
         checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header,
                         compress=self.config.run.compress_checkpoints)
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
@@ -249,7 +261,7 @@ class _SeedRun:
         self.recent.extend(float(r) for r in returns)
         row: dict[str, Any] = {
             "global_step": self.global_step, "iteration": iteration,
-            "wall_time": round(time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
+            "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
             "episodes": int(finished.sum()),
             "episodic_return": float(returns.mean()) if returns.size else math.nan,
             "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
@@ -274,12 +286,12 @@ class _SeedRun:
 
     def finish(self, train_state: Any, reason: str, compile_seconds: float, started: float) -> None:
         self.stop_reason = reason
-        self.save(train_state, self.global_step)
+        self.save(train_state, self.global_step, started)
         self.close()
         self.result = RunResult(
             run_dir=self.out, global_step=self.global_step, recent_return=self.recent_mean, episodes=self.episodes,
-            wall_seconds=time.perf_counter() - started, compile_seconds=compile_seconds,
-            sps=(self.global_step - self.start_step) / self.run_seconds if self.run_seconds > 0 else 0.0,
+            wall_seconds=self.earlier_wall + time.perf_counter() - started, compile_seconds=compile_seconds,
+            sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
             stop_reason=reason)
         summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
         checkpoint.atomic_write_bytes(self.out / "summary.json",
@@ -291,17 +303,17 @@ class _SeedRun:
             self.videos.close()
             self.closed = True
 
-    def fail(self, last_good_state: Any) -> None:
+    def fail(self, last_good_state: Any, started: float) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
         self.stop_reason = "non_finite"
-        self.save(last_good_state, self.global_step)
+        self.save(last_good_state, self.global_step, started)
         self.close()
         self.error = (f"non-finite observation, reward or parameter during the iteration after step "
                       f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}")
 
 
 def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: list[Path], start_steps: list[int],
-          quiet: bool, started: float) -> list[RunResult]:
+          earlier: list[dict[str, float] | None], quiet: bool, started: float) -> list[RunResult]:
     """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
     non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
     inside the vmapped program until the last seed is done, but nothing of it is kept."""
@@ -340,7 +352,8 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
         values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
         return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
 
-    runs = [_SeedRun(c, spec, out, start, algorithm.metric_names) for c, out, start in zip(configs, outs, start_steps)]
+    runs = [_SeedRun(c, spec, out, start, algorithm.metric_names, before)
+            for c, out, start, before in zip(configs, outs, start_steps, earlier)]
     compile_start = time.perf_counter()
     compiled = iteration.lower(state, carry, fractions(runs)).compile()
     compile_seconds = time.perf_counter() - compile_start
@@ -363,12 +376,12 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
                     seed_metrics = pick(metrics, i)
                     if not bool(seed_metrics["finite"]):
                         # A donated state is gone; such an algorithm returns the last good state itself.
-                        run.fail(pick(new_state if algorithm.donate_state else state, i))
+                        run.fail(pick(new_state if algorithm.donate_state else state, i), started)
                         continue
                     run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
                     steps += int(seed_metrics["steps"])
                     if run.checkpoint_due():
-                        run.save(pick(new_state, i), run.global_step)
+                        run.save(pick(new_state, i), run.global_step, started)
                         every = run.config.run.checkpoint_every
                         run.next_checkpoint = (run.global_step // every + 1) * every
                     run.videos.maybe_record(run.global_step, lambda path, i=i, run=run: checkpoint.save(
