@@ -1,0 +1,111 @@
+"""Rebuild the off-policy score tables of README.md and benchmarks/results/README.md from the archived runs.
+
+Each finished 1M-step run of `canter bench --algos td3,ddpg,sac ... --out runs/offpolicy-1m` is archived as
+benchmarks/results/offpolicy-1m/<env>__<algo>__s<seed>/ (config.toml, eval.json, metrics.csv, summary.json,
+versions.json). This script turns those folders into the two tables, between their marker comments:
+
+    python benchmarks/offpolicy_tables.py           # rewrite both tables
+    python benchmarks/offpolicy_tables.py --check   # exit 1 if either table differs from the archive
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from canter.bench import published_for, seed_record
+
+ROOT = Path(__file__).resolve().parent.parent
+ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"
+ALGOS = ("td3", "ddpg", "sac")
+ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+BUDGET = 1_000_000
+RESULTS_MARKER = "<!-- offpolicy-table -->\n"
+README_MARKER = "<!-- offpolicy-readme-table -->\n"
+
+
+def finished_runs(archive: Path) -> dict[tuple[str, str], list[dict]]:
+    """(algo, env) -> one record per finished seed, sorted by seed."""
+    found: dict[tuple[str, str], list[dict]] = {}
+    for folder in sorted(archive.iterdir()):
+        match = re.fullmatch(r"(.+)__(td3|ddpg|sac)__s(\d+)", folder.name)
+        if not match or not (folder / "eval.json").is_file() or not (folder / "summary.json").is_file():
+            continue
+        summary = json.loads((folder / "summary.json").read_text())
+        if summary.get("global_step", 0) < BUDGET:
+            continue
+        seed = int(match[3])
+        record = seed_record(folder, seed)
+        record.update(evaluation=json.loads((folder / "eval.json").read_text()), summary=summary)
+        found.setdefault((match[2], match[1]), []).append(record)
+    return {key: sorted(rows, key=lambda r: r["seed"]) for key, rows in found.items()}
+
+
+def results_table(found: dict) -> str:
+    lines = ["| env | algo | seed | eval return (10 episodes, deterministic) | train return (last 20 eps) | wall min "
+             "| SPS | published (1M) |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for algo in ALGOS:
+        for env in ENVS:
+            rows = found.get((algo, env), [])
+            published = published_for(algo, env, BUDGET)
+            for r in rows:
+                e, s = r["evaluation"], r["summary"]
+                lines.append(f"| {env} | {algo} | {r['seed']} | **{e['mean']:,.0f} ± {e['std']:,.0f}** | "
+                             f"{s['recent_return']:,.0f} | {r['wall_seconds'] / 60:.1f} | {r['sps']:.0f} | "
+                             f"{published} |")
+            if len(rows) > 1:
+                means = [r["eval_mean"] for r in rows]
+                lines.append(f"| {env} | {algo} | mean of {len(rows)} | **{np.mean(means):,.0f} ± {np.std(means):,.0f}**"
+                             f" (median {np.median(means):,.0f}) | | | | {published} |")
+    return "\n".join(lines)
+
+
+def readme_table(found: dict) -> str:
+    lines = ["| env | algo | seeds | return per seed | mean | published (1M) |", "|---|---|---:|---|---:|---|"]
+    for algo in ALGOS:
+        for env in ENVS:
+            rows = found.get((algo, env), [])
+            if not rows:
+                continue
+            per_seed = ", ".join(f"{r['eval_mean']:,.0f} (s{r['seed']})" for r in rows)
+            mean = np.mean([r["eval_mean"] for r in rows])
+            lines.append(f"| {env} | {algo} | {len(rows)} | {per_seed} | **{mean:,.0f}** | "
+                         f"{published_for(algo, env, BUDGET)} |")
+    return "\n".join(lines)
+
+
+def replace_after(text: str, marker: str, table: str) -> str:
+    """Put `table` between `marker` and the next blank line."""
+    start = text.index(marker) + len(marker)
+    end = text.index("\n\n", start)
+    return text[:start] + table + text[end:]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only check that the tables match the archive")
+    args = parser.parse_args()
+    found = finished_runs(ARCHIVE)
+    stale = []
+    for path, marker, table in ((ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
+                                (ROOT / "README.md", README_MARKER, readme_table(found))):
+        text = path.read_text()
+        new = replace_after(text, marker, table)
+        if new != text:
+            stale.append(path.relative_to(ROOT))
+            if not args.check:
+                path.write_text(new)
+    if args.check and stale:
+        print(f"stale off-policy tables in {', '.join(map(str, stale))}; run python benchmarks/offpolicy_tables.py",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
