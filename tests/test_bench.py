@@ -236,3 +236,20 @@ def test_a_resumed_runs_record_counts_every_session(tmp_path):
     record = seed_record(tmp_path, 0)
     assert record == {"seed": 0, "eval_mean": 7.0, "wall_seconds": pytest.approx(25.0),
                       "sps": pytest.approx(300 / (10 + 10 + 2.5))}
+
+
+def test_a_set_reaches_the_cells_whose_algorithm_reads_it():
+    from canter.errors import CanterError
+
+    cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
+                                     sets=("td3.tau=0.01", "sac.tau=0.02", "net.hidden=32,32")))
+    by_algo = {c.algo: c.config for c in cells}
+    assert by_algo["td3"].td3.tau == 0.01 and by_algo["sac"].sac.tau == 0.02
+    assert by_algo["ppo"].net.hidden == (32, 32) and by_algo["td3"].td3.hidden == (256, 256)
+    with pytest.raises(CanterError, match=r"^--set net.hidden has no effect on td3, .*set td3.hidden instead$"):
+        make_cells(BenchSettings(algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
+                                 sets=("net.hidden=32,32",)))
+    # A grid over a key one algorithm ignores would give that algorithm identical cells.
+    with pytest.raises(CanterError, match=r"^--grid td3.tau: td3.tau has no effect on sac, .*of its own$"):
+        make_cells(BenchSettings(algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
+                                 grid=(("td3.tau", ("0.01", "0.02")),)))

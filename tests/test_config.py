@@ -110,13 +110,13 @@ num_envs = 2
 
 
 @pytest.mark.parametrize("sets, message", [
-    (["trpo.max_kl=0"], "trpo.max_kl must be > 0"),
-    (["trpo.max_kl=-0.1"], "trpo.max_kl must be > 0"),
-    (["trpo.cg_iters=0"], "trpo.cg_iters must be >= 1"),
-    (["trpo.cg_damping=-1"], "trpo.cg_damping must be >= 0"),
-    (["trpo.line_search_shrink=1"], "trpo.line_search_shrink must be in (0, 1)"),
+    (["run.algo=trpo", "trpo.max_kl=0"], "trpo.max_kl must be > 0"),
+    (["run.algo=trpo", "trpo.max_kl=-0.1"], "trpo.max_kl must be > 0"),
+    (["run.algo=trpo", "trpo.cg_iters=0"], "trpo.cg_iters must be >= 1"),
+    (["run.algo=trpo", "trpo.cg_damping=-1"], "trpo.cg_damping must be >= 0"),
+    (["run.algo=trpo", "trpo.line_search_shrink=1"], "trpo.line_search_shrink must be in (0, 1)"),
     (["run.algo=trpo", "trpo.critic_minibatch_size=100"], "trpo.critic_minibatch_size 100 does not divide"),
-    (["rpo.alpha=-0.1"], "rpo.alpha must be >= 0"),
+    (["run.algo=rpo", "rpo.alpha=-0.1"], "rpo.alpha must be >= 0"),
     (["ppo.objective=kl"], "ppo.objective must be clip or kl_penalty"),
     (["ppo.kl_penalty_target=0"], "ppo.kl_penalty_target must be > 0"),
     (["sym.coef=-1"], "sym.coef must be >= 0"),
@@ -135,3 +135,23 @@ def test_onpolicy_variant_keys_round_trip():
     config = build_config("Hopper-v5", algo="rpo", sets=["sym.coef=0.02", "sym.groups=0:1=1:2", "sym.negate=1",
                                                          "ppo.objective=kl_penalty", "rpo.alpha=0.01"])
     assert config.sym.negate == (1,) and from_toml_text(to_toml(config), "test") == config
+
+
+@pytest.mark.parametrize("algo, key, fix", [
+    ("sac", "td3.noise=ou", "set sac.noise instead"),
+    ("td3", "net.hidden=64,64", "set td3.hidden instead"),
+    ("trpo", "ppo.lr=1e-3", "drop it (ppo.lr is read by ppo, rpo)"),
+    ("ppo", "trpo.max_kl=0.02", "drop it (trpo.max_kl is read by trpo)"),
+    ("ppo", "rpo.alpha=0.1", "drop it (rpo.alpha is read by rpo)"),
+])
+def test_a_set_key_the_algorithm_ignores_is_refused(algo, key, fix):
+    with pytest.raises(CanterError) as info:
+        build_config("Hopper-v5", sets=[key], algo=algo)
+    message = str(info.value)
+    assert message.startswith(f"{key.split('=')[0]} has no effect on {algo}, which reads ") and message.endswith(fix)
+
+
+def test_keys_an_algorithm_reads_are_accepted():
+    assert build_config("Hopper-v5", sets=["ppo.gamma=0.98", "net.hidden=32,32"], algo="trpo").ppo.gamma == 0.98
+    assert build_config("Hopper-v5", sets=["td3.tau=0.01", "env.normalize_obs=true"], algo="td3").td3.tau == 0.01
+    assert build_config("Hopper-v5", sets=["sym.coef=0"], algo="rpo").sym.coef == 0

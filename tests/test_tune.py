@@ -332,3 +332,13 @@ def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  
     for t in by_state[optuna.trial.TrialState.FAIL]:
         assert t.number == victim_trial or t.user_attrs.get("fail_reason"), t
     assert f"{trials} complete" in (tmp_path / "b.log").read_text()
+
+
+def test_a_space_over_keys_the_algorithm_ignores_is_refused(tmp_path):
+    space = tmp_path / "space.toml"
+    space.write_text('[ppo.lr]\nlow = 1e-5\nhigh = 1e-3\nlog = true\n')
+    settings = TuneSettings(env_id="Hopper-v5", total_steps=1000, algo="td3", space_file=str(space))
+    with pytest.raises(CanterError, match=r"^search space .*space.toml: ppo.lr has no effect on td3, .*drop it"):
+        check_settings(settings)
+    for algo in _registered_spaces():  # the shipped spaces only vary what their algorithm reads
+        check_settings(TuneSettings(env_id="Hopper-v5", total_steps=1000, algo=algo))

@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from canter.config import SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text, to_toml
+from canter.config import (SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text,
+                           reads_key, to_toml, unread_key_error)
 from canter.errors import CanterError
 from canter.groups import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
                            start_group, stop_group, warn_if_more_jobs_than_cores)
@@ -156,13 +157,23 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
         raise CanterError("the bench needs at least one algorithm, one env and one seed")
     for algo in algos:
         check_algorithm_name(algo)
+    for key, _ in axes:
+        for algo in algos:
+            if not reads_key(algo, key):
+                raise CanterError(f"--grid {key}: {unread_key_error(algo, key)}, or bench {algo} in a bench of its own")
+    # A --set applies to the cells whose algorithm reads it, so one bench can carry td3.* and sac.* settings.
+    set_keys = {item.partition("=")[0].strip(): item for item in settings.sets}
+    for key in set_keys:
+        if key in known and algos and not any(reads_key(algo, key) for algo in algos):
+            raise CanterError(f"--set {unread_key_error(algos[0], key)}")
     for env_id in envs:
         resolve_backend(env_id, "auto")
     cells = []
     for algo, env_id in itertools.product(algos, envs):
         for combo in itertools.product(*(values for _, values in axes)):
             pairs = tuple(zip((key for key, _ in axes), combo))
-            sets = list(settings.sets) + [f"{key}={value}" for key, value in pairs]
+            sets = [item for key, item in set_keys.items() if key not in known or reads_key(algo, key)]
+            sets += [f"{key}={value}" for key, value in pairs]
             try:
                 config = build_config(env_id, preset=settings.preset, config_file=settings.config_file, sets=sets,
                                       seed=settings.seeds[0], total_steps=settings.total_steps, algo=algo)

@@ -401,9 +401,10 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
 
 def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
                  sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None,
-                 algo: str | None = None) -> Config:
+                 algo: str | None = None, check_unread: bool = True) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags), then validate. The algorithm is known
-    before the preset is applied, so presets can hold per-algorithm tables."""
+    before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does not
+    read is refused (unless `check_unread` is off), since it would change nothing."""
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
@@ -421,6 +422,10 @@ def build_config(env_id: str | None, preset: str = "fast", config_file: str | No
     config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
     config = apply_overrides(config, file_data, str(config_file))
     config = apply_overrides(config, set_data, "--set")
+    if check_unread:
+        for key in set_data:
+            if not reads_key(config.run.algo, key):
+                raise CanterError(unread_key_error(config.run.algo, key))
     flags: dict[str, Any] = {}
     if env_id:
         flags["env.id"] = env_id
@@ -433,6 +438,29 @@ def build_config(env_id: str | None, preset: str = "fast", config_file: str | No
     config = apply_overrides(config, flags, "arguments")
     validate(config)
     return config
+
+
+def reads_key(algo: str, key: str) -> bool:
+    from canter.algos import READS
+
+    section = key.partition(".")[0]
+    return section in ("env", "run") or section in READS[algo] or key in READS[algo]
+
+
+def unread_key_error(algo: str, key: str) -> str:
+    """The one-line refusal of a key that `algo` would silently ignore, pointing to the key it does read."""
+    from canter.algos import READS, REGISTRY
+
+    section, _, name = key.partition(".")
+    sections = [s for s in READS[algo] if "." not in s]
+    single = [k for k in READS[algo] if "." in k]
+    reads = ", ".join([f"{s}.*" for s in sections] + single + ["env.*", "run.*"])
+    twins = [f"{s}.{name}" for s in sections if s != section and name in _field_types(s)]
+    if twins:
+        fix = f"set {twins[0]} instead"
+    else:
+        fix = f"drop it ({key} is read by {', '.join(a for a in REGISTRY if reads_key(a, key)) or 'no algorithm'})"
+    return f"{key} has no effect on {algo}, which reads {reads}; {fix}"
 
 
 # ------------------------------------------------------------------------------------------------------- validation

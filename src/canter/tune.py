@@ -109,7 +109,13 @@ def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
     from canter.envs import resolve_backend
 
     resolve_backend(config.env.id, config.env.backend)
-    return config, load_space(settings.space_file, config.run.algo)
+    space = load_space(settings.space_file, config.run.algo)
+    from canter.config import reads_key, unread_key_error
+
+    for key in space.keys:
+        if not reads_key(config.run.algo, key):
+            raise CanterError(f"search space {space.source}: {unread_key_error(config.run.algo, key)}")
+    return config, space
 
 
 def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:

@@ -58,6 +58,19 @@ def seeds_train_apart(name: str) -> bool:
     return name in SEEDS_TRAIN_APART
 
 
+# What each algorithm reads of the config, beyond env.* and run.*, which all read: whole sections, or single keys.
+# The off-policy algorithms take their networks from their own section, not from net.* (PPO's defaults). A --set
+# of anything else is refused, since it would change nothing (canter.config.reads_key).
+READS: dict[str, tuple[str, ...]] = {
+    "ppo": ("net", "ppo", "sym"),
+    "rpo": ("net", "ppo", "rpo", "sym"),
+    "trpo": ("net", "trpo", "ppo.n_steps", "ppo.gamma", "ppo.gae_lambda", "ppo.norm_adv"),
+    "td3": ("td3",),
+    "ddpg": ("ddpg",),
+    "sac": ("sac",),
+}
+
+
 @dataclass(frozen=True)
 class ExportedActor:
     """A deterministic actor as plain arrays: `x = clip((obs - mean) / sqrt(var + eps), -clip_obs, clip_obs)` when
