@@ -31,6 +31,10 @@ def test_progress_bar_shows_steps_sps_and_return_and_quiet_is_silent(capsys):
     bar.close()
     out = capsys.readouterr().out
     assert "Hopper-v5 ppo" in out and "500k/2.00M" in out and "12,345 SPS" in out and "ret 321.0" in out
+    small = Progress(total=1000, start=0, quiet=False, description="Pendulum-v1 ppo")
+    small.update(2048, 5000.0, None)  # one iteration can overshoot a tiny budget
+    small.close()
+    assert "2,048/1,000" in capsys.readouterr().out
 
 
 def test_a_resume_drops_rows_after_its_checkpoint(tmp_path):

@@ -166,7 +166,9 @@ class Progress:
 
     def _steps(self, step: int) -> str:
         def short(n: float) -> str:
-            return f"{n / 1e6:.2f}M" if n >= 1e6 else f"{n / 1e3:.0f}k"
+            if n >= 1e6:
+                return f"{n / 1e6:.2f}M"
+            return f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n:,.0f}"
         return f"{short(step)}/{short(self._total)}"
 
     def update(self, step: int, sps: float, recent_return: float | None) -> None:
