@@ -253,3 +253,24 @@ def test_a_set_reaches_the_cells_whose_algorithm_reads_it():
     with pytest.raises(CanterError, match=r"^--grid td3.tau: td3.tau has no effect on sac, .*of its own$"):
         make_cells(BenchSettings(algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
                                  grid=(("td3.tau", ("0.01", "0.02")),)))
+
+
+def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
+    from canter.bench import combine_records, results_table
+
+    records = [{"seed": 0, "eval_mean": 10.0, "wall_seconds": 600.0, "sps": 100.0},
+               {"seed": 1, "eval_mean": 20.0, "wall_seconds": 1200.0, "sps": 300.0}]
+    settings = BenchSettings(algos=("ppo", "td3"), envs=("Hopper-v5",), seeds=(0, 1), total_steps=1000)
+    ppo, td3 = sorted(make_cells(settings), key=lambda c: c.algo)
+    # A vmapped group: one process, so the slowest seed's wall time and the seeds' rates together.
+    group = combine_records(ppo, records)
+    assert group["wall_minutes"] == 20.0 and group["sps"] == 400.0
+    # Separate jobs, maybe at different times: the mean per seed.
+    apart = combine_records(td3, records)
+    assert apart["wall_minutes"] == 15.0 and apart["sps"] == 200.0
+    assert apart["return_mean"] == group["return_mean"] == 15.0 and apart["return_std"] == 5.0
+
+    markdown, _ = results_table([group, apart], [], 1000)
+    assert "Cell wall min and cell SPS of td3: the mean per seed" in markdown
+    markdown, _ = results_table([group], [], 1000)
+    assert "mean per seed" not in markdown

@@ -264,18 +264,22 @@ def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[st
 
 
 def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds); the cell's wall time (the
-    slowest seed's: its seeds train together, or as jobs side by side) and SPS (env steps per second of all its
-    seeds together)."""
+    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds), wall time and SPS. A group
+    of seeds trained together has one wall time (its slowest seed's) and their steps per second add up. Seeds
+    trained as separate jobs (td3, ddpg, sac) may have run at different times, so a sum of their rates would
+    describe no real run: for them it is the mean per seed, of wall time and of SPS."""
+    from canter.algos import seeds_train_apart
+
     evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
     walls = [r["wall_seconds"] for r in records if r["wall_seconds"] is not None]
     sps = [r["sps"] for r in records if r["sps"] is not None]
+    apart = seeds_train_apart(cell.algo)
     return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
             "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
             "return_std": float(np.std(evals)) if evals else math.nan,
             "return_median": float(np.median(evals)) if evals else math.nan, "seed_returns": evals,
-            "wall_minutes": float(np.max(walls)) / 60 if walls else math.nan,
-            "sps": float(np.sum(sps)) if sps else math.nan}
+            "wall_minutes": float(np.mean(walls) if apart else np.max(walls)) / 60 if walls else math.nan,
+            "sps": float(np.mean(sps) if apart else np.sum(sps)) if sps else math.nan}
 
 
 def published_scores() -> dict[str, Any]:
@@ -296,6 +300,8 @@ def published_for(algo: str, env_id: str, total_steps: int, data: dict[str, Any]
 
 def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: int) -> tuple[str, str]:
     """(markdown, csv) of the results."""
+    from canter.algos import seeds_train_apart
+
     data = published_scores()
     short = [k.split(".", 1)[1] for k in keys]
     header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "median", "seeds", "cell wall min",
@@ -316,6 +322,11 @@ def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: i
             f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}", f"{r['return_median']:.3f}", r["seeds"],
             f"{r['wall_minutes']:.3f}", f"{r['sps']:.1f}", reference])
     sources = data["sources"]
+    apart = sorted({r["algo"] for r in results if seeds_train_apart(r["algo"])})
+    if apart:
+        md += ["", f"Cell wall min and cell SPS of {', '.join(apart)}: the mean per seed, since each of their seeds "
+                   "trains as a job of its own (for the other algorithms, a cell's seeds train together: its wall "
+                   "time, and the steps per second of all its seeds)."]
     md += ["", "Published: " + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})"
                                          for k, v in sources.items()) + "."]
     return "\n".join(md) + "\n", buffer.getvalue()
