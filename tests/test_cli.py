@@ -101,6 +101,8 @@ def _bad_inputs(tmp_path, run):
         (["eval", str(run), "--episodes", "0"], "--episodes must be >= 1"),
         (["eval", str(run), "--episodes", "1", "--json", str(bad_toml / "x.json")], "cannot write"),
         (["frobnicate"], "invalid choice"),
+        (["train", "Hopper-v5", "--bogus"], "canter: error: unrecognized arguments: --bogus"),
+        (["train", "Hopper-v5", "--total-steps"], "canter: error: train: argument --total-steps"),
     ]
 
 

@@ -15,7 +15,9 @@ COMMANDS = ("train", "eval", "video", "plot", "export", "report", "tune", "bench
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # argparse would print usage over several lines
-        raise CanterError(f"{self.prog}: {message} (see --help)")
+        # main() already prefixes "canter: error:", so only a subcommand's name ("train") is worth adding.
+        command = self.prog.removeprefix("canter").strip()
+        raise CanterError(f"{command}: {message} (see --help)" if command else f"{message} (see --help)")
 
 
 def build_parser() -> argparse.ArgumentParser:
