@@ -2,10 +2,12 @@
 
 Each finished 1M-step run of `canter bench --algos td3,ddpg,sac ... --out runs/offpolicy-1m` is archived as
 benchmarks/results/offpolicy-1m/<env>__<algo>__s<seed>/ (config.toml, eval.json, metrics.csv, summary.json,
-versions.json). This script turns those folders into the two tables, between their marker comments:
+versions.json). This script turns those folders into the two tables, between their marker comments, and
+rewrites the archive's own bench files (results.md, results.csv and one curve per env, as `canter bench` writes
+them), so that the bench's training runs need not be repeated to refresh them:
 
-    python benchmarks/offpolicy_tables.py           # rewrite both tables
-    python benchmarks/offpolicy_tables.py --check   # exit 1 if either table differs from the archive
+    python benchmarks/offpolicy_tables.py           # rewrite the tables, results.md/.csv and the curves
+    python benchmarks/offpolicy_tables.py --check   # exit 1 if a table or results.md/.csv differs from the archive
 """
 
 from __future__ import annotations
@@ -18,7 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from canter.bench import published_for, seed_record
+from types import SimpleNamespace
+
+from canter.bench import combine_records, plot_env, published_for, results_table as bench_table, seed_record
 
 ROOT = Path(__file__).resolve().parent.parent
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"
@@ -41,7 +45,7 @@ def finished_runs(archive: Path) -> dict[tuple[str, str], list[dict]]:
             continue
         seed = int(match[3])
         record = seed_record(folder, seed)
-        record.update(evaluation=json.loads((folder / "eval.json").read_text()), summary=summary)
+        record.update(evaluation=json.loads((folder / "eval.json").read_text()), summary=summary, folder=folder)
         found.setdefault((match[2], match[1]), []).append(record)
     return {key: sorted(rows, key=lambda r: r["seed"]) for key, rows in found.items()}
 
@@ -79,11 +83,27 @@ def readme_table(found: dict) -> str:
     return "\n".join(lines)
 
 
+def bench_files(found: dict) -> dict[str, str]:
+    """results.md and results.csv as `canter bench` writes them for these cells (no grid, seeds apart)."""
+    results = []
+    for algo in ALGOS:
+        for env in ENVS:
+            if (algo, env) in found:
+                cell = SimpleNamespace(name=f"{env}__{algo}", env_id=env, algo=algo, values=())
+                results.append(combine_records(cell, found[(algo, env)]))
+    markdown, table_csv = bench_table(results, [], BUDGET)
+    return {"results.md": markdown, "results.csv": table_csv}
+
+
 def replace_after(text: str, marker: str, table: str) -> str:
     """Put `table` between `marker` and the next blank line."""
     start = text.index(marker) + len(marker)
     end = text.index("\n\n", start)
     return text[:start] + table + text[end:]
+
+
+def replace_after_marker(marker: str, table: str):
+    return lambda text: replace_after(text, marker, table)
 
 
 def main() -> int:
@@ -92,14 +112,22 @@ def main() -> int:
     args = parser.parse_args()
     found = finished_runs(ARCHIVE)
     stale = []
-    for path, marker, table in ((ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
-                                (ROOT / "README.md", README_MARKER, readme_table(found))):
-        text = path.read_text()
-        new = replace_after(text, marker, table)
+    rewrites = [(ROOT / "benchmarks" / "results" / "README.md", replace_after_marker(RESULTS_MARKER, results_table(found))),
+                (ROOT / "README.md", replace_after_marker(README_MARKER, readme_table(found)))]
+    rewrites += [(ARCHIVE / name, lambda _text, content=content: content)
+                 for name, content in bench_files(found).items()]
+    for path, rewrite in rewrites:
+        text = path.read_bytes().decode() if path.is_file() else ""   # bytes: results.csv has \r\n line ends
+        new = rewrite(text)
         if new != text:
             stale.append(path.relative_to(ROOT))
             if not args.check:
-                path.write_text(new)
+                path.write_bytes(new.encode())
+    if not args.check:
+        for env in ENVS:
+            folders = [r["folder"] for algo in ALGOS for r in found.get((algo, env), [])]
+            if folders:
+                plot_env(folders, ARCHIVE / f"plot_{env}.png")
     if args.check and stale:
         print(f"stale off-policy tables in {', '.join(map(str, stale))}; run python benchmarks/offpolicy_tables.py",
               file=sys.stderr)
