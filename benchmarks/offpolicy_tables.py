@@ -17,10 +17,9 @@ import json
 import re
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
-
-from types import SimpleNamespace
 
 from canter.bench import combine_records, plot_env, published_for, results_table as bench_table, seed_record
 
@@ -102,24 +101,20 @@ def replace_after(text: str, marker: str, table: str) -> str:
     return text[:start] + table + text[end:]
 
 
-def replace_after_marker(marker: str, table: str):
-    return lambda text: replace_after(text, marker, table)
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only check that the tables match the archive")
     args = parser.parse_args()
     found = finished_runs(ARCHIVE)
     stale = []
-    rewrites = [(ROOT / "benchmarks" / "results" / "README.md", replace_after_marker(RESULTS_MARKER, results_table(found))),
-                (ROOT / "README.md", replace_after_marker(README_MARKER, readme_table(found)))]
-    rewrites += [(ARCHIVE / name, lambda _text, content=content: content)
-                 for name, content in bench_files(found).items()]
-    for path, rewrite in rewrites:
-        text = path.read_bytes().decode() if path.is_file() else ""   # bytes: results.csv has \r\n line ends
-        new = rewrite(text)
-        if new != text:
+    # Bytes, not text: results.csv has \r\n line ends, which text mode would translate.
+    read = lambda path: path.read_bytes().decode() if path.is_file() else ""  # noqa: E731
+    wanted = {path: replace_after(read(path), marker, table) for path, marker, table in (
+        (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
+        (ROOT / "README.md", README_MARKER, readme_table(found)))}
+    wanted.update({ARCHIVE / name: content for name, content in bench_files(found).items()})
+    for path, new in wanted.items():
+        if new != read(path):
             stale.append(path.relative_to(ROOT))
             if not args.check:
                 path.write_bytes(new.encode())
