@@ -1,6 +1,7 @@
 """Every shipped preset builds a valid config for its env, checked against the real env's spec."""
 
 import re
+import tomllib
 from importlib import resources
 
 import pytest
@@ -35,8 +36,9 @@ def test_preset_builds_a_valid_config_for_its_envs(name):
     assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), \
         "a preset starts with a comment header that gives its source"
     for env_id in preset_envs(name):
-        pinned = preset_overrides(name, env_id).get("run.algo")
-        algos = [pinned] if pinned else algorithm_names()
+        declared = tomllib.loads(preset_text(name)).get("algos")
+        pinned = None if declared else preset_overrides(name, env_id).get("run.algo")
+        algos = [pinned] if pinned else declared or algorithm_names()
         for algo in algos:
             config = build_config(env_id, preset=name, algo=algo)
             get_algorithm(algo).validate(config, spec_of(env_id))
@@ -106,3 +108,29 @@ def test_fast_preset_uses_small_minibatches_for_ppo_on_hopper_and_walker2d_only(
     assert picked("HalfCheetah-v5", "ppo") == (512, -1.0)
     assert picked("Hopper-v5", "rpo") == (512, -1.0)
     assert picked("Walker2d-v5", "rpo") == (512, -1.0)
+
+
+def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
+    """The settings the sac-tianshou Walker2d runs were made with (`--set` flags on top of `fast`) are exactly what
+    `--preset tianshou` gives on every key sac reads, so those results can be regenerated either way."""
+    import dataclasses
+
+    from canter.errors import CanterError
+
+    flags = ["sac.actor_lr=1e-3", "sac.autotune=false", "sac.alpha=0.2", "sac.learning_starts=10000"]
+    as_run = dataclasses.asdict(build_config("Walker2d-v5", algo="sac", sets=flags))
+    preset = dataclasses.asdict(build_config("Walker2d-v5", preset="tianshou", algo="sac"))
+    assert as_run["env"] == preset["env"]
+    # alpha_lr is Tianshou's 3e-4 in the preset but is never read with a fixed alpha (autotune off).
+    assert preset["sac"].pop("alpha_lr") == 3e-4 and not preset["sac"]["autotune"]
+    as_run["sac"].pop("alpha_lr")
+    assert as_run["sac"] == preset["sac"]
+    assert {k: v for k, v in as_run["run"].items() if k != "preset"} == \
+        {k: v for k, v in preset["run"].items() if k != "preset"}
+    ddpg = build_config("Hopper-v5", preset="tianshou", algo="ddpg").ddpg
+    assert (ddpg.actor_lr, ddpg.critic_lr, ddpg.policy_delay, ddpg.learning_starts) == (1e-3, 1e-3, 1, 25_000)
+    td3 = build_config("Hopper-v5", preset="tianshou", algo="td3").td3
+    assert td3 == build_config("Hopper-v5", preset="cleanrl", algo="td3").td3
+    with pytest.raises(CanterError, match=r"preset tianshou holds settings for sac, td3, ddpg only, not ppo; "
+                                          r"pass --algo sac"):
+        build_config("Walker2d-v5", preset="tianshou")

@@ -395,8 +395,15 @@ def preset_text(name: str) -> str:
 
 def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
     """A preset's keys for this env and algorithm: base tables < matching `[env_overrides."<glob>"]` tables <
-    `[algo_overrides.<algo>]` (fnmatch on the env id without any `module:` prefix)."""
-    return _preset_layer(tomllib.loads(preset_text(name)), env_id, algo, f"preset {name}")
+    `[algo_overrides.<algo>]` (fnmatch on the env id without any `module:` prefix). A preset whose top-level
+    `algos` list names the algorithms it holds settings for refuses the others, which would otherwise get the bare
+    defaults under its name."""
+    table = tomllib.loads(preset_text(name))
+    supported = table.pop("algos", None)
+    if supported is not None and algo not in supported:
+        raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; pass "
+                          f"--algo {supported[0]} (or one of the others), or choose another preset")
+    return _preset_layer(table, env_id, algo, f"preset {name}")
 
 
 def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
