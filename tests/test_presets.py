@@ -132,5 +132,5 @@ def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
     td3 = build_config("Hopper-v5", preset="tianshou", algo="td3").td3
     assert td3 == build_config("Hopper-v5", preset="cleanrl", algo="td3").td3
     with pytest.raises(CanterError, match=r"preset tianshou holds settings for sac, td3, ddpg only, not ppo; "
-                                          r"pass --algo sac"):
+                                          r"train one of those algorithms with it \(e.g. --algo sac\)"):
         build_config("Walker2d-v5", preset="tianshou")

@@ -401,8 +401,8 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
     table = tomllib.loads(preset_text(name))
     supported = table.pop("algos", None)
     if supported is not None and algo not in supported:
-        raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; pass "
-                          f"--algo {supported[0]} (or one of the others), or choose another preset")
+        raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
+                          f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset")
     return _preset_layer(table, env_id, algo, f"preset {name}")
 
 
