@@ -1,13 +1,12 @@
 """Every shipped preset builds a valid config for its env, checked against the real env's spec."""
 
 import re
-import tomllib
 from importlib import resources
 
 import pytest
 
 from canter.algos import algorithm_names, get_algorithm
-from canter.config import build_config, preset_names, preset_overrides, preset_text
+from canter.config import build_config, preset_algorithms, preset_names, preset_overrides, preset_text
 from canter.envs import make_vec_env
 
 # Presets without an `# env:` header line are general; they are checked on the seeds' tasks.
@@ -36,7 +35,7 @@ def test_preset_builds_a_valid_config_for_its_envs(name):
     assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), \
         "a preset starts with a comment header that gives its source"
     for env_id in preset_envs(name):
-        declared = tomllib.loads(preset_text(name)).get("algos")
+        declared = preset_algorithms(name)
         pinned = None if declared else preset_overrides(name, env_id).get("run.algo")
         algos = [pinned] if pinned else declared or algorithm_names()
         for algo in algos:

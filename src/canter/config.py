@@ -393,16 +393,22 @@ def preset_text(name: str) -> str:
     return resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
 
 
+def preset_algorithms(name: str) -> list[str] | None:
+    """The algorithms a preset declares it holds settings for (its top-level `algos`), or None for all."""
+    return tomllib.loads(preset_text(name)).get("algos")
+
+
 def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
     """A preset's keys for this env and algorithm: base tables < matching `[env_overrides."<glob>"]` tables <
     `[algo_overrides.<algo>]` (fnmatch on the env id without any `module:` prefix). A preset whose top-level
     `algos` list names the algorithms it holds settings for refuses the others, which would otherwise get the bare
     defaults under its name."""
-    table = tomllib.loads(preset_text(name))
-    supported = table.pop("algos", None)
-    if supported is not None and algo not in supported:
+    supported = preset_algorithms(name)
+    if supported and algo not in supported:
         raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
                           f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset")
+    table = tomllib.loads(preset_text(name))
+    table.pop("algos", None)
     return _preset_layer(table, env_id, algo, f"preset {name}")
 
 
