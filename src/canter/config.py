@@ -393,9 +393,16 @@ def preset_text(name: str) -> str:
     return resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
 
 
+def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None]:
+    """A preset's tables, and apart from them the algorithms it declares it holds settings for (its top-level
+    `algos`, None for all)."""
+    table = tomllib.loads(preset_text(name))
+    return table, table.pop("algos", None)
+
+
 def preset_algorithms(name: str) -> list[str] | None:
     """The algorithms a preset declares it holds settings for (its top-level `algos`), or None for all."""
-    return tomllib.loads(preset_text(name)).get("algos")
+    return _read_preset(name)[1]
 
 
 def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
@@ -403,12 +410,10 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
     `[algo_overrides.<algo>]` (fnmatch on the env id without any `module:` prefix). A preset whose top-level
     `algos` list names the algorithms it holds settings for refuses the others, which would otherwise get the bare
     defaults under its name."""
-    supported = preset_algorithms(name)
+    table, supported = _read_preset(name)
     if supported and algo not in supported:
         raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
                           f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset")
-    table = tomllib.loads(preset_text(name))
-    table.pop("algos", None)
     return _preset_layer(table, env_id, algo, f"preset {name}")
 
 
