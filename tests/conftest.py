@@ -17,22 +17,29 @@ def _in_tmp_dir(tmp_path, monkeypatch):
 TINY = ["net.hidden=16,16", "run.tensorboard=false"]
 
 
+def _train_inside(folder, config):
+    """Train with `folder` as the working folder, where MuJoCo writes its log, for session-scoped runs that
+    outlive the per-test working folder."""
+    from canter.trainer import train
+
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        return train(config)
+    finally:
+        os.chdir(cwd)
+
+
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """A short Pendulum run shared by the tests that only need some run folder."""
     from canter.config import build_config
-    from canter.trainer import train
 
     out = tmp_path_factory.mktemp("shared_runs")
     config = build_config("Pendulum-v1", preset="fast", total_steps=8192,
                           sets=TINY + [f"run.out_dir={out}", "run.checkpoint_every=4096", "env.num_envs=4",
                                        "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2"])
-    cwd = os.getcwd()
-    os.chdir(out)
-    try:
-        return train(config)
-    finally:
-        os.chdir(cwd)
+    return _train_inside(out, config)
 
 
 def _choose_gl() -> None:
@@ -67,13 +74,7 @@ def tiny_run_seed1(tiny_run, tmp_path_factory):
     """tiny_run's config with run.seed=1: two runs that differ only in their seed (plot grouping, reports)."""
     from canter.config import apply_overrides
     from canter.policy import read_run_config
-    from canter.trainer import train
 
     out = tmp_path_factory.mktemp("shared_runs_seed1")
     config = apply_overrides(read_run_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")
-    cwd = os.getcwd()
-    os.chdir(out)
-    try:
-        return train(config)
-    finally:
-        os.chdir(cwd)
+    return _train_inside(out, config)

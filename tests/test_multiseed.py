@@ -15,9 +15,6 @@ for what happens on long runs.
 import csv
 import os
 import shutil
-import signal
-import threading
-import time
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +31,7 @@ from canter.seedgroup import group_step, split_first_obs, stack, unstack
 from canter.trainer import resume_config, resume_seeds, train, train_seeds
 
 from conftest import TINY
+from signals import sigterm_once_logging
 
 ATOL = 1e-5       # losses and parameters
 RTOL = 1e-5       # episodic returns
@@ -201,22 +199,8 @@ def test_gymnasium_backend_group_matches_alone(tmp_path):
 
 
 def test_sigterm_stops_every_seed_with_a_checkpoint(tmp_path):
-    finished = threading.Event()
-
-    def send_when_training():
-        while not finished.is_set():
-            rows = list(tmp_path.glob("*/metrics.csv"))
-            if len(rows) == 3 and all(len(r.read_text().splitlines()) >= 3 for r in rows):
-                os.kill(os.getpid(), signal.SIGTERM)
-                return
-            time.sleep(0.05)
-
-    sender = threading.Thread(target=send_when_training, daemon=True)
-    sender.start()
-    try:
+    with sigterm_once_logging(tmp_path, runs=3):
         results = train_seeds(_config(tmp_path, "InvertedPendulum-v5", 10_000_000), [0, 1, 2])
-    finally:
-        finished.set()
     assert [r.stop_reason for r in results] == ["signal"] * 3
     for r in results:
         _, _, _, header = load_state(r.run_dir)

@@ -1,8 +1,4 @@
-import os
 import shutil
-import signal
-import threading
-import time
 
 import jax
 import numpy as np
@@ -14,6 +10,7 @@ from canter.policy import load_state
 from canter.trainer import resume_config, train
 
 from conftest import TINY
+from signals import sigterm_once_logging
 
 SMALL = TINY + ["env.num_envs=4", "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2",
                 "run.checkpoint_every=2048"]
@@ -117,23 +114,8 @@ def test_stop_conditions(tmp_path):
 
 
 def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
-    finished = threading.Event()
-
-    def send_when_training():
-        # Wait until iterations are being logged, so the signal lands inside the training loop.
-        while not finished.is_set():
-            rows = list(tmp_path.glob("*/metrics.csv"))
-            if rows and len(rows[0].read_text().splitlines()) >= 3:
-                os.kill(os.getpid(), signal.SIGTERM)
-                return
-            time.sleep(0.05)
-
-    sender = threading.Thread(target=send_when_training, daemon=True)
-    sender.start()
-    try:
+    with sigterm_once_logging(tmp_path, runs=1):
         r = train(_config(total=10_000_000, extra=[f"run.out_dir={tmp_path}"]))
-    finally:
-        finished.set()
     assert r.stop_reason == "signal" and r.global_step < 10_000_000
     _, _, _, header = load_state(r.run_dir)
     assert int(header["global_step"]) == r.global_step

@@ -1,0 +1,36 @@
+"""Send this process SIGTERM from a watcher thread once training is under way, to test graceful stops."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+
+def logged_rows(run_dir: Path) -> int:
+    metrics = run_dir / "metrics.csv"
+    return len(metrics.read_text().splitlines()) if metrics.is_file() else 0
+
+
+@contextlib.contextmanager
+def sigterm_once_logging(out_dir: Path, runs: int):
+    """SIGTERM once `runs` run folders under `out_dir` each have two logged iterations, so the signal lands inside
+    the training loop rather than during setup or compilation."""
+    finished = threading.Event()
+
+    def watch():
+        while not finished.is_set():
+            folders = [p for p in out_dir.iterdir() if p.is_dir()]
+            if len(folders) == runs and all(logged_rows(p) >= 3 for p in folders):
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+            time.sleep(0.05)
+
+    threading.Thread(target=watch, daemon=True).start()
+    try:
+        yield
+    finally:
+        finished.set()
