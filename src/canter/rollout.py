@@ -14,7 +14,8 @@ import jax.numpy as jnp
 
 from canter.config import Config
 from canter.envs.base import StepOutput, is_summed_info
-from canter.networks import Params, gaussian_log_prob, policy_dist, sample_action
+from canter.gae import compute_gae
+from canter.networks import Params, gaussian_log_prob, policy_dist, sample_action, value
 from canter.normalize import RunningStats, normalize, scale_reward, update_stats
 
 
@@ -99,3 +100,12 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
     (obs_stats, return_stats, carry), transitions = jax.lax.scan(step, (obs_stats, return_stats, carry), keys)
     next_obs = normalize_obs(config, obs_stats, carry.obs)
     return obs_stats, return_stats, carry, transitions, next_obs
+
+
+def estimate_advantages(params: Params, transitions: Any, next_obs: jnp.ndarray, config: Config):
+    """The critic's values of a collected rollout, next_obs included ([T + 1, N]), and its GAE advantages and
+    returns ([T, N])."""
+    values = value(params, jnp.concatenate([transitions.obs, next_obs[None]], axis=0), config.net)
+    advantages, returns = compute_gae(transitions.reward, values, transitions.terminated, transitions.done,
+                                      transitions.valid, config.ppo.gamma, config.ppo.gae_lambda)
+    return values, advantages, returns

@@ -12,10 +12,9 @@ from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
 from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config import Config
 from canter.envs.base import EnvSpec
-from canter.gae import compute_gae
-from canter.networks import Params, init_params, value
+from canter.networks import Params, init_params
 from canter.normalize import RunningStats, init_stats
-from canter.rollout import EnvCarry, collect
+from canter.rollout import EnvCarry, collect, estimate_advantages
 
 
 class TrainState(NamedTuple):
@@ -62,9 +61,7 @@ def make_iteration(config: Config, spec: EnvSpec, env_step, rpo: bool = False):
         key, rollout_key, update_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
         obs_stats, return_stats, carry, tr, next_obs = collect(
             state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
-        values = value(state.params, jnp.concatenate([tr.obs, next_obs[None]], axis=0), config.net)
-        advantages, returns = compute_gae(tr.reward, values, tr.terminated, tr.done, tr.valid,
-                                          config.ppo.gamma, config.ppo.gae_lambda)
+        values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         mask = tr.valid.astype(jnp.float32)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         batch = Minibatch(flat(tr.obs), flat(tr.action), flat(tr.log_prob), flat(values[:-1]), flat(advantages),

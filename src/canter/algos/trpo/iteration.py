@@ -19,10 +19,9 @@ from canter.algos.ppo.losses import gaussian_kl, masked_mean, normalize_advantag
 from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
 from canter.config import Config
 from canter.envs.base import EnvSpec
-from canter.gae import compute_gae
 from canter.networks import Params, gaussian_entropy, gaussian_log_prob, init_params, policy_dist, value
 from canter.normalize import RunningStats, init_stats
-from canter.rollout import EnvCarry, collect
+from canter.rollout import EnvCarry, collect, estimate_advantages
 
 class TrainState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly."""
@@ -151,9 +150,7 @@ def make_iteration(config: Config, spec: EnvSpec, env_step):
         key, rollout_key, critic_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
         obs_stats, return_stats, carry, tr, next_obs = collect(
             state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
-        values = value(state.params, jnp.concatenate([tr.obs, next_obs[None]], axis=0), config.net)
-        advantages, returns = compute_gae(tr.reward, values, tr.terminated, tr.done, tr.valid,
-                                          config.ppo.gamma, config.ppo.gae_lambda)
+        values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         mask = flat(tr.valid.astype(jnp.float32))
         advantages = flat(advantages)
