@@ -8,7 +8,10 @@ import pytest
 from canter.algos.ppo.iteration import init_train_state, make_iteration
 from canter.config import build_config
 from canter.envs import make_vec_env
-from canter.rollout import collect, init_env_carry
+from canter.networks import value
+from canter.rollout import collect, estimate_advantages, init_env_carry
+
+from test_gae import reference_gae
 
 
 def _setup(env_id, backend, num_envs, n_steps):
@@ -49,6 +52,20 @@ def test_masking_on_a_known_episode_structure():
     assert float(obs_stats.mean[0]) == pytest.approx(np.mean(seen_a), abs=1e-5)
     # Rewards of reset steps are zero and their transitions are excluded from learning.
     assert np.all(np.asarray(tr.reward)[~valid] == 0.0)
+
+
+def test_estimate_advantages_bootstraps_from_the_last_observation_and_matches_a_python_loop():
+    config, env, state, carry = _setup("canter_test_envs:DictObs-v0", "gymnasium", 2, 24)
+    _, _, _, tr, next_obs = _collect(config, env, state, carry)
+    values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
+    assert values.shape == (25, 2) and advantages.shape == returns.shape == (24, 2)
+    np.testing.assert_allclose(values[-1], value(state.params, next_obs, config.net), rtol=1e-6)
+    np.testing.assert_allclose(values[:-1], value(state.params, tr.obs, config.net), rtol=1e-6)
+    expected_adv, expected_ret = reference_gae(np.asarray(tr.reward), np.asarray(values), np.asarray(tr.terminated),
+                                               np.asarray(tr.done), np.asarray(tr.valid), config.ppo.gamma,
+                                               config.ppo.gae_lambda)
+    np.testing.assert_allclose(advantages, expected_adv, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(returns * tr.valid, expected_ret, rtol=1e-4, atol=1e-5)
 
 
 def test_envpool_truncation_masking_and_step_count():

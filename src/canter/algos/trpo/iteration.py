@@ -23,6 +23,7 @@ from canter.networks import Params, gaussian_entropy, gaussian_log_prob, init_pa
 from canter.normalize import RunningStats, init_stats
 from canter.rollout import EnvCarry, collect, estimate_advantages
 
+
 class TrainState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly."""
     params: Params            # {"actor", "log_std" (unless state-dependent), "critic"}
