@@ -25,6 +25,17 @@ def _leaves_equal(a, b):
                for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
 
 
+def _resume_twice(run_dir, total, copy):
+    """Resume `run_dir` and a copy of it to `total` steps; both must land on the same state bit for bit."""
+    shutil.copytree(run_dir, copy)
+    r1 = train(resume_config(run_dir, total), resume=run_dir)
+    r2 = train(resume_config(copy, total), resume=copy)
+    _, _, s1, _ = load_state(r1.run_dir)
+    _, _, s2, _ = load_state(r2.run_dir)
+    assert _leaves_equal(s1, s2), "two resumes of one checkpoint must be identical"
+    return r1, s1
+
+
 def test_run_folder_contents(tiny_run):
     run = tiny_run.run_dir
     assert run.name.startswith("Pendulum-v1__ppo__fast__s0__")
@@ -52,14 +63,7 @@ def test_resume_is_deterministic_and_continues(tmp_path):
     first = train(_config(total=4096, extra=[f"run.out_dir={tmp_path}"]))
     _, _, before, header = load_state(first.run_dir)
     assert int(header["global_step"]) == first.global_step
-    copy = tmp_path / "copy"
-    shutil.copytree(first.run_dir, copy)
-
-    r1 = train(resume_config(first.run_dir, 8192), resume=first.run_dir)
-    r2 = train(resume_config(copy, 8192), resume=copy)
-    _, _, s1, _ = load_state(r1.run_dir)
-    _, _, s2, _ = load_state(r2.run_dir)
-    assert _leaves_equal(s1, s2), "two resumes of one checkpoint must be identical"
+    r1, s1 = _resume_twice(first.run_dir, 8192, tmp_path / "copy")
     assert r1.global_step >= 8192 and int(s1.iteration) > int(before.iteration)
     assert not _leaves_equal(s1.params, before.params)
     rows = (first.run_dir / "metrics.csv").read_text().splitlines()
@@ -137,13 +141,7 @@ def test_trpo_resume_is_deterministic_and_continues(tmp_path):
     first = train(build_config("Pendulum-v1", algo="trpo", total_steps=2048, sets=small + extra))
     _, _, before, _ = load_state(first.run_dir)
     assert before.critic_opt_state is not None and int(before.iteration) >= 2
-    copy = tmp_path / "copy"
-    shutil.copytree(first.run_dir, copy)
-    r1 = train(resume_config(first.run_dir, 4096), resume=first.run_dir)
-    r2 = train(resume_config(copy, 4096), resume=copy)
-    _, _, s1, _ = load_state(r1.run_dir)
-    _, _, s2, _ = load_state(r2.run_dir)
-    assert _leaves_equal(s1, s2), "two resumes of one checkpoint must be identical"
+    r1, s1 = _resume_twice(first.run_dir, 4096, tmp_path / "copy")
     assert int(s1.iteration) > int(before.iteration) and not _leaves_equal(s1.params, before.params)
     header = (r1.run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
     assert {"surrogate_gain", "policy_kl", "step_accepted", "cg_iterations", "value_loss"} <= set(header)
