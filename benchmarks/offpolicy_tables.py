@@ -27,7 +27,7 @@ from canter.bench import combine_records, plot_env, published_for, results_table
 ROOT = Path(__file__).resolve().parent.parent
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"
 # preset name -> archive of runs made with it ("" is the default preset, whose runs are in ARCHIVE).
-VARIANTS = {"": ARCHIVE, "tianshou": ROOT / "benchmarks" / "results" / "sac-tianshou-walker2d"}
+VARIANTS = {"": ARCHIVE, "tianshou": ROOT / "benchmarks" / "results" / "sac-tianshou"}
 ALGOS = ("td3", "ddpg", "sac")
 ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 BUDGET = 1_000_000
