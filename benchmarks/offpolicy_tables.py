@@ -22,7 +22,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from canter.bench import combine_records, plot_env, published_for, results_table as bench_table, seed_record
+from canter.orchestrate.bench import combine_records, plot_env, published_for, results_table as bench_table, seed_record
 
 ROOT = Path(__file__).resolve().parent.parent
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"

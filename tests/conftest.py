@@ -2,7 +2,7 @@ import os
 
 import pytest
 
-from canter.runtime import setup_jax
+from canter.core.runtime import setup_jax
 
 setup_jax()
 
@@ -20,7 +20,7 @@ TINY = ["net.hidden=16,16", "run.tensorboard=false"]
 def _train_inside(folder, config):
     """Train with `folder` as the working folder, where MuJoCo writes its log, for session-scoped runs that
     outlive the per-test working folder."""
-    from canter.trainer import train
+    from canter.training.loop import train
 
     cwd = os.getcwd()
     os.chdir(folder)
@@ -33,7 +33,7 @@ def _train_inside(folder, config):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """A short Pendulum run shared by the tests that only need some run folder."""
-    from canter.config import build_config
+    from canter.config.schema import build_config
 
     out = tmp_path_factory.mktemp("shared_runs")
     config = build_config("Pendulum-v1", preset="fast", total_steps=8192,
@@ -45,7 +45,7 @@ def tiny_run(tmp_path_factory):
 def _choose_gl() -> None:
     # MuJoCo reads MUJOCO_GL when it is first imported, so pick EGL or OSMesa before any test imports it.
     from canter.errors import CanterError
-    from canter.video import configure_gl
+    from canter.use.video import configure_gl
 
     try:
         configure_gl()
@@ -59,8 +59,8 @@ _choose_gl()
 @pytest.fixture(scope="session")
 def tiny_hopper_run(tmp_path_factory):
     """A few hundred steps of Hopper-v5 on EnvPool: a MuJoCo run for the eval, vary and video tests."""
-    from canter.config import build_config
-    from canter.trainer import train
+    from canter.config.schema import build_config
+    from canter.training.loop import train
 
     out = tmp_path_factory.mktemp("hopper_runs")
     config = build_config("Hopper-v5", preset="fast", total_steps=256, seed=1,
@@ -72,8 +72,8 @@ def tiny_hopper_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_run_seed1(tiny_run, tmp_path_factory):
     """tiny_run's config with run.seed=1: two runs that differ only in their seed (plot grouping, reports)."""
-    from canter.config import apply_overrides
-    from canter.policy import read_run_config
+    from canter.config.schema import apply_overrides
+    from canter.use.policy import read_run_config
 
     out = tmp_path_factory.mktemp("shared_runs_seed1")
     config = apply_overrides(read_run_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")

@@ -3,8 +3,8 @@ from dataclasses import replace
 import pytest
 
 from canter.algos import algorithm_names, check_algorithm_name, get_algorithm
-from canter.cli import main
-from canter.config import build_config
+from canter.cli.main import main
+from canter.config.schema import build_config
 from canter.errors import CanterError
 
 
@@ -25,7 +25,7 @@ def test_unknown_algorithm_lists_the_valid_ones(capsys):
 
 
 def test_continuous_only_algorithms_name_themselves_for_discrete_actions(tmp_path):
-    from canter.trainer import train
+    from canter.training.loop import train
 
     for algo in ("rpo", "trpo"):
         config = build_config("CartPole-v1", algo=algo, sets=[f"run.out_dir={tmp_path}", "env.num_envs=4"])
@@ -35,7 +35,7 @@ def test_continuous_only_algorithms_name_themselves_for_discrete_actions(tmp_pat
 
 
 def test_env_dependent_checks_happen_before_any_work(tmp_path):
-    from canter.trainer import train
+    from canter.training.loop import train
 
     config = build_config("Hopper-v4", algo="rpo", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4",
                                                          "sym.coef=0.02", "sym.groups=3:7=7:11,11:14=14:17"])

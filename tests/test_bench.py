@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.bench import BenchSettings, make_cells, make_jobs, published_for, varying_keys
-from canter.cli import main
+from canter.orchestrate.bench import BenchSettings, make_cells, make_jobs, published_for, varying_keys
+from canter.cli.main import main
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
         "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2",
@@ -26,7 +26,7 @@ def test_published_scores_are_shipped_with_their_sources():
 
     text = resources.files("canter.data").joinpath("published.toml").read_text()
     assert "vwxyzjn/cleanrl" in text and "thu-ml/tianshou" in text and "rl-baselines3-zoo" in text
-    assert "/work/shared" not in Path(__file__).parent.parent.joinpath("src/canter/bench.py").read_text()
+    assert "/work/shared" not in Path(__file__).parent.parent.joinpath("src/canter/orchestrate/bench.py").read_text()
 
 
 def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
@@ -81,13 +81,13 @@ def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, messag
 
 
 def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monkeypatch):
-    import canter.groups
+    import canter.orchestrate.jobs
 
-    monkeypatch.setattr(canter.groups.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    canter.groups.warn_if_more_jobs_than_cores(3)
+    monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3)
     assert capsys.readouterr().err == ("canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow "
                                        "each other down\n")
-    canter.groups.warn_if_more_jobs_than_cores(2)
+    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(2)
     assert capsys.readouterr().err == ""
     # A refused command prints its one-line error and nothing else, whatever --jobs says.
     code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])
@@ -101,8 +101,8 @@ def read_rows(path: Path) -> list[dict]:
 
 
 def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
-    from canter.evaluation import evaluate
-    from canter.policy import load
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import load
 
     out = tmp_path / "bench"
     argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0,1", "--total-steps", "1024",
@@ -226,7 +226,7 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
 
 
 def test_a_resumed_runs_record_counts_every_session(tmp_path):
-    from canter.bench import seed_record
+    from canter.orchestrate.bench import seed_record
 
     # The summary of the last session, as runs resumed before totals were carried over wrote it.
     (tmp_path / "summary.json").write_text(json.dumps({"global_step": 300, "wall_seconds": 5.0, "sps": 40.0}))
@@ -256,7 +256,7 @@ def test_a_set_reaches_the_cells_whose_algorithm_reads_it():
 
 
 def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
-    from canter.bench import combine_records, results_table
+    from canter.orchestrate.bench import combine_records, results_table
 
     records = [{"seed": 0, "eval_mean": 10.0, "wall_seconds": 600.0, "sps": 100.0},
                {"seed": 1, "eval_mean": 20.0, "wall_seconds": 1200.0, "sps": 300.0}]

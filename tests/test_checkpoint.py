@@ -4,9 +4,9 @@ import jax
 import numpy as np
 import pytest
 
-from canter import checkpoint
+from canter.training import checkpoint
 from canter.algos.ppo.iteration import init_train_state
-from canter.config import build_config
+from canter.config.schema import build_config
 from canter.errors import CanterError
 
 

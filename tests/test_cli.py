@@ -4,7 +4,7 @@ import json
 import shutil
 from pathlib import Path
 
-from canter.cli import main
+from canter.cli.main import main
 
 from conftest import TINY
 

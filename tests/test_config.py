@@ -2,7 +2,7 @@ import dataclasses
 
 import pytest
 
-from canter.config import (Config, all_keys, apply_overrides, build_config, docs_table, from_toml_text,
+from canter.config.schema import (Config, all_keys, apply_overrides, build_config, docs_table, from_toml_text,
                            preset_names, to_toml)
 from canter.errors import CanterError
 
@@ -92,7 +92,7 @@ def test_apply_overrides_coerces_types():
 def test_preset_layers_env_then_algo(tmp_path, monkeypatch):
     import tomllib
 
-    from canter.config import _preset_layer
+    from canter.config.schema import _preset_layer
 
     table = tomllib.loads("""
 [env]

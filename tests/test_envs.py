@@ -5,7 +5,7 @@ import pytest
 
 from canter.envs import make_vec_env, resolve_backend
 from canter.errors import CanterError
-from canter.seeding import EVAL, RESUME, TRAIN, env_seeds
+from canter.core.seeding import EVAL, RESUME, TRAIN, env_seeds
 
 
 @pytest.mark.parametrize("env_id, backend, obs_dim, act_dim", [

@@ -8,11 +8,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from canter.checkpoint import latest
-from canter.cli import main
-from canter.evaluation import evaluate, group_by_config
-from canter.policy import load
-from canter.seeding import EVAL, env_seeds
+from canter.training.checkpoint import latest
+from canter.cli.main import main
+from canter.use.evaluate import evaluate, group_by_config
+from canter.use.policy import load
+from canter.core.seeding import EVAL, env_seeds
 
 
 def hand_loop(policy, env_id, seeds, deterministic=True):
@@ -99,6 +99,6 @@ def test_cli_eval_on_another_env_with_matching_shapes(tiny_hopper_run, capsys):
 
 def test_canter_evaluate_stays_the_function_after_the_module_is_imported():
     import canter
-    import canter.evaluation  # noqa: F401
+    import canter.use.evaluate  # noqa: F401
 
     assert callable(canter.evaluate) and canter.evaluate.__module__ == "canter"

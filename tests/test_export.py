@@ -9,8 +9,8 @@ import onnxruntime as ort
 import pytest
 
 from canter.algos import ExportedActor
-from canter.cli import main
-from canter.export import numpy_forward, npz_arrays, onnx_bytes
+from canter.cli.main import main
+from canter.use.export import numpy_forward, npz_arrays, onnx_bytes
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "see-plots-export-report.md"
 
@@ -137,7 +137,7 @@ def test_export_of_a_run_state_with_large_actions_matches_the_policy(tiny_run):
     import jax
 
     from canter.algos import get_algorithm
-    from canter.policy import Policy, load_state
+    from canter.use.policy import Policy, load_state
 
     config, facts, state, _ = load_state(tiny_run.run_dir)
     rng = np.random.default_rng(3)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from canter.gae import compute_gae
+from canter.core.gae import compute_gae
 
 
 def reference_gae(rewards, values, terminated, done, valid, gamma, lam):

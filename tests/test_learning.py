@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from canter.config import build_config, reads_key
-from canter.evaluation import evaluate
-from canter.policy import load
-from canter.trainer import train
+from canter.config.schema import build_config, reads_key
+from canter.use.evaluate import evaluate
+from canter.use.policy import load
+from canter.training.loop import train
 
 PENDULUM = ["env.num_envs=8", "ppo.n_steps=64", "ppo.minibatch_size=128", "net.hidden=32,32",
             "run.tensorboard=false"]
@@ -44,7 +44,7 @@ def check_kl_beta_is_adapted_and_checkpointed(run_dir, config):
     import csv
 
     from canter.algos.ppo.learner import adapt_kl_beta
-    from canter.policy import load_state
+    from canter.use.policy import load_state
 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
     betas = [float(r["kl_beta"]) for r in rows]

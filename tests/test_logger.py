@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from canter.logger import BASE_COLUMNS, MetricsLogger, Progress, totals_until
+from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, totals_until
 
 
 def test_metrics_csv_columns_and_append(tmp_path):

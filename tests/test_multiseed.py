@@ -1,4 +1,4 @@
-"""Several seeds in one vmapped program (canter.seedgroup, trainer.train_seeds): the env split, seed-for-seed
+"""Several seeds in one vmapped program (canter.training.seedgroup, trainer.train_seeds): the env split, seed-for-seed
 equality with single-seed runs (seed 1 of [0, 1, 2] against seed 1 alone), the run folders, group resume,
 signals and the --seeds flag.
 
@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 import canter
-from canter.cli import main
-from canter.config import build_config
+from canter.cli.main import main
+from canter.config.schema import build_config
 from canter.envs.base import StepOutput
 from canter.errors import CanterError
-from canter.policy import load_state, read_run_config
-from canter.seedgroup import group_step, split_first_obs, stack, unstack
-from canter.trainer import resume_config, resume_seeds, train, train_seeds
+from canter.use.policy import load_state, read_run_config
+from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
+from canter.training.loop import resume_config, resume_seeds, train, train_seeds
 
 from conftest import TINY
 from signals import sigterm_once_logging

@@ -1,6 +1,6 @@
 import numpy as np
 
-from canter.normalize import init_stats, normalize, scale_reward, update_stats
+from canter.core.normalize import init_stats, normalize, scale_reward, update_stats
 
 
 def test_running_stats_match_numpy_over_masked_batches():

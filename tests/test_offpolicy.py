@@ -10,14 +10,14 @@ import pytest
 
 from canter.algos import get_algorithm
 from canter.algos.offpolicy.iteration import init_train_state, make_iteration
-from canter.cli import main
-from canter.config import build_config
+from canter.cli.main import main
+from canter.config.schema import build_config
 from canter.envs.base import StepOutput
 from canter.errors import CanterError
-from canter.evaluation import evaluate
-from canter.policy import load, load_state
-from canter.rollout import init_env_carry
-from canter.trainer import resume_config, train
+from canter.use.evaluate import evaluate
+from canter.use.policy import load, load_state
+from canter.algos.onpolicy_rollout import init_env_carry
+from canter.training.loop import resume_config, train
 
 # Env 0 terminates when its counter reaches 3; env 1 is truncated (time limit) at 4.
 TERMINATE_AT = (3, 100)
@@ -213,7 +213,7 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     bounds are about 25x that, and far below the difference between two seeds."""
     import csv
 
-    from canter.policy import read_run_config
+    from canter.use.policy import read_run_config
 
     sets = [f"{algo}.hidden=16,16", "run.tensorboard=false", f"{algo}.learning_starts=100",
             f"{algo}.buffer_size=1000", f"{algo}.batch_size=32", f"{algo}.steps_per_call=100",

@@ -10,9 +10,9 @@ import pytest
 
 from canter.algos.offpolicy import learners, losses, noise
 from canter.algos.offpolicy.networks import init_critics, q_values
-from canter.config import Config
-from canter.networks import mlp
-from canter.replay import Transitions
+from canter.config.schema import Config
+from canter.core.networks import mlp
+from canter.core.replay import Transitions
 
 
 def test_td_target_takes_the_min_of_the_critics_and_stops_only_on_termination():

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.cli import main
-from canter.config import apply_overrides, build_config, to_toml
+from canter.cli.main import main
+from canter.config.schema import apply_overrides, build_config, to_toml
 from canter.errors import CanterError
-from canter.plot import (Group, RunCurves, bootstrap_band, choose_metrics, common_grid, group_band, group_labels,
+from canter.use.plot import (Group, RunCurves, bootstrap_band, choose_metrics, common_grid, group_band, group_labels,
                          group_runs, interpolate, load_run, moving_average, read_metrics)
 
 

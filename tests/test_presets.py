@@ -6,7 +6,7 @@ from importlib import resources
 import pytest
 
 from canter.algos import algorithm_names, get_algorithm
-from canter.config import build_config, preset_algorithms, preset_names, preset_overrides, preset_text
+from canter.config.schema import build_config, preset_algorithms, preset_names, preset_overrides, preset_text
 from canter.envs import make_vec_env
 
 # Presets without an `# env:` header line are general; they are checked on the seeds' tasks.

@@ -2,7 +2,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from canter.replay import Transitions, init_buffer, insert, sample
+from canter.core.replay import Transitions, init_buffer, insert, sample
 
 
 def _rows(values, obs_dim=2, act_dim=1):

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.cli import main
+from canter.cli.main import main
 
 from chromium_page import CHROMIUM, inspect_page
 
@@ -79,8 +79,8 @@ def test_the_browser_check_catches_console_errors(tmp_path):
 
 @needs_chromium
 def test_report_in_a_headless_browser(run_with_media, tiny_run_seed1, tmp_path, capsys):
-    from canter.evaluation import evaluate
-    from canter.policy import load
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import load
 
     out = tmp_path / "report.html"
     code = main(["report", str(run_with_media), str(tiny_run_seed1.run_dir), "--episodes", "2", "--out", str(out)])

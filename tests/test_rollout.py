@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from canter.algos.ppo.iteration import init_train_state, make_iteration
-from canter.config import build_config
+from canter.config.schema import build_config
 from canter.envs import make_vec_env
-from canter.networks import value
-from canter.rollout import collect, estimate_advantages, init_env_carry
+from canter.core.networks import value
+from canter.algos.onpolicy_rollout import collect, estimate_advantages, init_env_carry
 
 from test_gae import reference_gae
 

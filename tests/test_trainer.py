@@ -4,10 +4,10 @@ import jax
 import numpy as np
 import pytest
 
-from canter.config import build_config, reads_key
+from canter.config.schema import build_config, reads_key
 from canter.errors import CanterError
-from canter.policy import load_state
-from canter.trainer import resume_config, train
+from canter.use.policy import load_state
+from canter.training.loop import resume_config, train
 
 from conftest import TINY
 from signals import sigterm_once_logging

@@ -9,8 +9,8 @@ from jax.flatten_util import ravel_pytree
 from canter.algos.trpo.iteration import (PolicyBatch, critic_regression, critic_optimizer, policy_objectives,
                                          policy_step, split_policy)
 from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
-from canter.config import Config, NetConfig, TRPOConfig
-from canter.networks import init_params, value
+from canter.config.schema import Config, NetConfig, TRPOConfig
+from canter.core.networks import init_params, value
 
 
 def test_conjugate_gradient_matches_a_direct_solve():

@@ -13,12 +13,12 @@ import numpy as np
 import optuna
 import pytest
 
-from canter.cli import main
-from canter.config import SECTIONS, build_config
+from canter.cli.main import main
+from canter.config.schema import SECTIONS, build_config
 from canter.errors import CanterError
-from canter.studies import normalize_url
-from canter.search_space import apply_sample, load_space, parse_space, space_names
-from canter.tune import RUN_BOOKKEEPING, TuneSettings, check_settings, evaluation_index, run_trial
+from canter.orchestrate.study import normalize_url
+from canter.orchestrate.search_space import apply_sample, load_space, parse_space, space_names
+from canter.orchestrate.tune import RUN_BOOKKEEPING, TuneSettings, check_settings, evaluation_index, run_trial
 
 from pg_server import postgres_url  # noqa: F401  (session fixture)
 
@@ -175,8 +175,8 @@ def tiny_settings(tmp_path: Path, **kwargs) -> TuneSettings:
 
 
 def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
-    from canter.evaluation import evaluate
-    from canter.policy import load
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import load
 
     settings = tiny_settings(tmp_path, seeds=(3, 4))
     base, space = check_settings(settings)
@@ -265,7 +265,7 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys):
 
 def _worker(args: list[str], log: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    return subprocess.Popen([sys.executable, "-m", "canter.cli", "tune"] + args, stdout=open(log, "wb"),
+    return subprocess.Popen([sys.executable, "-m", "canter.cli.main", "tune"] + args, stdout=open(log, "wb"),
                             stderr=subprocess.STDOUT, env=env)
 
 

@@ -7,9 +7,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from canter.cli import main
+from canter.cli.main import main
 from canter.errors import CanterError
-from canter.vary import VarySpec, apply_scale, object_names, original_value, parse_spec, sweep
+from canter.use.vary import VarySpec, apply_scale, object_names, original_value, parse_spec, sweep
 
 
 def hopper():
@@ -91,7 +91,7 @@ def test_unknown_name_lists_the_valid_names():
 
 def test_each_scale_starts_from_the_original_model(tiny_hopper_run):
     """A repeated scale gives the same result: the second 2.0 is not applied to an already doubled mass."""
-    from canter.policy import load
+    from canter.use.policy import load
 
     policy = load(tiny_hopper_run)
     points = sweep(policy, parse_spec("body_mass:torso=2,2,1"), episodes=2, deterministic=True, seed=0)

@@ -7,9 +7,9 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from canter.cli import main
+from canter.cli.main import main
 from canter.errors import CanterError
-from canter import video
+from canter.use import video
 
 from conftest import TINY
 
@@ -48,7 +48,7 @@ def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
     """An EnvPool run replayed in Gymnasium scores what a plain loop with the same policy scores."""
     import gymnasium as gym
 
-    from canter.policy import load
+    from canter.use.policy import load
 
     policy = load(tiny_hopper_run)
     returns = video.record_video(tiny_hopper_run, "h.mp4", episodes=2, width=32, height=32, seed=5, max_steps=25)
@@ -68,8 +68,8 @@ def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
 
 def test_dm_control_run_renders_through_dm_control(tmp_path):
     pytest.importorskip("dm_control")
-    from canter.config import build_config
-    from canter.trainer import train
+    from canter.config.schema import build_config
+    from canter.training.loop import train
 
     config = build_config("WalkerWalk-v1", total_steps=128, sets=TINY + [
         f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
@@ -92,8 +92,8 @@ def test_every_envpool_dm_control_id_maps_to_a_dm_control_task():
 
 
 def test_video_every_during_training(tmp_path):
-    from canter.config import build_config
-    from canter.trainer import train
+    from canter.config.schema import build_config
+    from canter.training.loop import train
 
     config = build_config("Pendulum-v1", total_steps=512, sets=TINY + [
         f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=128", "ppo.minibatch_size=128", "ppo.epochs=1",

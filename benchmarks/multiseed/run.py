@@ -88,7 +88,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def _canter() -> list[str]:
-    return [sys.executable, "-m", "canter.cli"]
+    return [sys.executable, "-m", "canter.cli.main"]
 
 
 def _children_cpu() -> float:
@@ -140,7 +140,7 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
 
 
 def _machine() -> str:
-    from canter.trainer import cpu_name, versions
+    from canter.training.loop import cpu_name, versions
 
     v = versions()
     try:

@@ -127,7 +127,7 @@ def canter_cmd(args: argparse.Namespace) -> list[str]:
     if beside.exists():
         return [str(beside)]
     found = shutil.which("canter")
-    return [found] if found else [sys.executable, "-m", "canter.cli"]
+    return [found] if found else [sys.executable, "-m", "canter.cli.main"]
 
 
 def run_canter(preset: str, seed: int, args: argparse.Namespace, out: Path) -> Row:
@@ -218,7 +218,7 @@ def _json_line(stdout: str) -> dict | None:
 # ------------------------------------------------------------------------------------------ machine & versions
 
 def machine() -> dict[str, str]:
-    from canter.trainer import cpu_name
+    from canter.training.loop import cpu_name
 
     cpu = cpu_name()
     cores = os.cpu_count() or 0

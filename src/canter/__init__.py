@@ -6,7 +6,7 @@
     actions = policy(observations)
 """
 
-from canter.config import Config, build_config
+from canter.config.schema import Config, build_config
 from canter.errors import CanterError
 
 __version__ = "0.1.0"
@@ -16,7 +16,7 @@ __all__ = ["Config", "CanterError", "build_config", "train", "train_seeds", "loa
 
 def train(config: Config, *, quiet: bool = True, resume=None, run_dir=None):
     """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return)."""
-    from canter.trainer import train as _train
+    from canter.training.loop import train as _train
 
     return _train(config, quiet=quiet, resume=resume, run_dir=run_dir)
 
@@ -24,21 +24,21 @@ def train(config: Config, *, quiet: bool = True, resume=None, run_dir=None):
 def train_seeds(config: Config, seeds, quiet: bool = True):
     """Train one run per seed together in one vmapped program; returns one `RunResult` per seed, in order. Each
     seed writes the run folder that `train` with that seed would write."""
-    from canter.trainer import train_seeds as _train_seeds
+    from canter.training.loop import train_seeds as _train_seeds
 
     return _train_seeds(config, seeds, quiet=quiet)
 
 
 def load(run_dir):
     """Load the newest checkpoint of a run folder as a callable `Policy`."""
-    from canter.policy import load as _load
+    from canter.use.policy import load as _load
 
     return _load(run_dir)
 
 
 def evaluate(policy, episodes: int = 10, deterministic: bool = True, seed: int = 0, env_id=None, backend=None):
     """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time)."""
-    from canter.evaluation import evaluate as _evaluate
+    from canter.use.evaluate import evaluate as _evaluate
 
     return _evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id,
                      backend=backend)
@@ -46,11 +46,11 @@ def evaluate(policy, episodes: int = 10, deterministic: bool = True, seed: int =
 
 def __getattr__(name):
     if name == "RunResult":
-        from canter.trainer import RunResult
+        from canter.training.loop import RunResult
 
         return RunResult
     if name == "Policy":
-        from canter.policy import Policy
+        from canter.use.policy import Policy
 
         return Policy
     raise AttributeError(name)

@@ -9,7 +9,7 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
   a pure function the trainer jits. One call is the unit between which the host logs, checkpoints and checks for
   signals. `metrics` holds `steps` (env steps taken, autoreset steps excluded), `finite` (bool), `finished`,
   `episode_return`, `episode_length` (arrays [T, N]) and `episode_info` (dict of [T, N]), plus one scalar per name
-  in `metric_names`. Several seeds train together by `jax.vmap` over this function (canter.seedgroup), so it
+  in `metric_names`. Several seeds train together by `jax.vmap` over this function (canter.training.seedgroup), so it
   must stay pure JAX and must not read `config.run.seed` (the seed belongs in `init_state`).
 - `metric_names`: the algorithm's diagnostics, written as metrics.csv columns in this order.
 - `make_act(config, spec)` returns `act(policy_params, obs_stats, raw_obs, key, deterministic) -> action`, clipped
@@ -60,7 +60,7 @@ def seeds_train_apart(name: str) -> bool:
 
 # What each algorithm reads of the config, beyond env.* and run.*, which all read: whole sections, or single keys.
 # The off-policy algorithms take their networks from their own section, not from net.* (PPO's defaults). A --set
-# of anything else is refused, since it would change nothing (canter.config.reads_key).
+# of anything else is refused, since it would change nothing (canter.config.schema.reads_key).
 READS: dict[str, tuple[str, ...]] = {
     "ppo": ("net", "ppo", "sym"),
     "rpo": ("net", "ppo", "rpo", "sym"),

@@ -1,4 +1,4 @@
-"""Off-policy algorithms: td3, ddpg and sac, sharing one replay buffer (canter.replay) and one jitted iteration.
+"""Off-policy algorithms: td3, ddpg and sac, sharing one replay buffer (canter.core.replay) and one jitted iteration.
 
 Modules: networks.py (actors, stacked critics), losses.py (pure targets and losses), noise.py (exploration),
 learners.py (one gradient step per algorithm), iteration.py (the env loop with storage and updates).
@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from canter.algos import Algorithm, ExportedActor
-from canter.config import Config
+from canter.config.schema import Config
 
 # Diagnostics of the updates, averaged over the gradient steps of one call (actor terms over the actor steps).
 UPDATE_METRICS = ("critic_loss", "actor_loss", "q_mean")
@@ -42,7 +42,7 @@ def _make_act(config: Config, spec: Any):
     import jax.numpy as jnp
 
     from canter.algos.offpolicy.networks import deterministic_action, squashed_gaussian
-    from canter.rollout import normalize_obs
+    from canter.algos.onpolicy_rollout import normalize_obs
 
     cfg = getattr(config, config.run.algo)
     low = jnp.asarray(spec.action_low, jnp.float32)
@@ -73,7 +73,7 @@ def _policy_params(state: Any) -> Any:
 def _export_actor(config: Config, state: Any, spec: Any) -> ExportedActor:
     import jax
 
-    from canter.normalize import EPSILON
+    from canter.core.normalize import EPSILON
 
     actor = jax.device_get(state.learner.actor)
     stats = jax.device_get(state.obs_stats)

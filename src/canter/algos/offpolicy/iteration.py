@@ -20,11 +20,11 @@ import jax.numpy as jnp
 
 from canter.algos.offpolicy import SAC_METRICS, UPDATE_METRICS, learners, noise
 from canter.algos.offpolicy.networks import deterministic_action, squashed_gaussian
-from canter.config import Config, OffPolicyConfig
+from canter.config.schema import Config, OffPolicyConfig
 from canter.envs.base import StepOutput, is_summed_info
-from canter.normalize import RunningStats, init_stats, normalize, scale_reward, update_stats
-from canter.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
-from canter.rollout import EnvCarry
+from canter.core.normalize import RunningStats, init_stats, normalize, scale_reward, update_stats
+from canter.core.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
+from canter.algos.onpolicy_rollout import EnvCarry
 
 
 class OffPolicyState(NamedTuple):

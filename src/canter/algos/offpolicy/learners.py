@@ -15,8 +15,8 @@ import optax
 from canter.algos.offpolicy import losses
 from canter.algos.offpolicy.networks import (deterministic_action, first_critic, init_actor, init_critics,
                                              q_values, squashed_gaussian)
-from canter.config import OffPolicyConfig, SACConfig, TD3Config
-from canter.replay import Transitions
+from canter.config.schema import OffPolicyConfig, SACConfig, TD3Config
+from canter.core.replay import Transitions
 
 
 class Learner(NamedTuple):

@@ -7,7 +7,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from canter.networks import gaussian_log_prob
+from canter.core.networks import gaussian_log_prob
 
 LOG_2 = math.log(2.0)
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from canter.networks import init_mlp, mlp
+from canter.core.networks import init_mlp, mlp
 
 # SAC's log std is squashed into this range with tanh (smooth, unlike a clip, so its gradient never vanishes).
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0

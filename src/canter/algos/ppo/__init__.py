@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from canter.algos import Algorithm, ExportedActor
-from canter.config import Config
+from canter.config.schema import Config
 
 PPO_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance",
                "learning_rate", "epochs_run", "policy_kl", "kl_beta", "sym_loss")
@@ -35,8 +35,8 @@ def make_gaussian_act(config: Config, spec: Any):
     """`act(params, obs_stats, raw_obs, key, deterministic)` for the diagonal Gaussian actor of ppo and its kin."""
     import jax.numpy as jnp
 
-    from canter.networks import policy_dist, sample_action
-    from canter.rollout import normalize_obs
+    from canter.core.networks import policy_dist, sample_action
+    from canter.algos.onpolicy_rollout import normalize_obs
 
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
@@ -58,7 +58,7 @@ def export_gaussian_actor(config: Config, state: Any, spec: Any) -> ExportedActo
 
     actor = jax.device_get(state.params["actor"])
     stats = jax.device_get(state.obs_stats)
-    from canter.normalize import EPSILON
+    from canter.core.normalize import EPSILON
 
     return ExportedActor(
         weights=[np.asarray(layer["w"], np.float32) for layer in actor],

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import optax
 
 from canter.algos.ppo.losses import LossVariant, Minibatch, gaussian_kl, masked_mean, ppo_loss
-from canter.config import Config
-from canter.networks import Params, policy_dist
+from canter.config.schema import Config
+from canter.core.networks import Params, policy_dist
 
 KL_BETA_MIN, KL_BETA_MAX = 1e-5, 1e5
 

@@ -9,7 +9,7 @@ from typing import Any
 
 from canter.algos import Algorithm
 from canter.algos.ppo import export_gaussian_actor, gaussian_policy_params, make_gaussian_act
-from canter.config import Config
+from canter.config.schema import Config
 from canter.errors import CanterError
 
 TRPO_METRICS = ("surrogate_gain", "policy_kl", "step_accepted", "step_fraction", "line_search_steps",

@@ -1,7 +1,7 @@
 """The jitted unit of TRPO training: rollout, GAE, one natural-gradient policy step with a backtracking line
 search, then Adam regression of the critic on the GAE returns.
 
-The rollout, reward scaling and GAE are PPO's (`canter.rollout.collect`, `canter.gae`), so they read
+The rollout, reward scaling and GAE are PPO's (`canter.algos.onpolicy_rollout.collect`, `canter.core.gae`), so they read
 ppo.n_steps, ppo.gamma, ppo.gae_lambda and ppo.norm_adv.
 """
 
@@ -17,11 +17,11 @@ from jax.flatten_util import ravel_pytree
 from canter.algos.ppo.iteration import explained_variance
 from canter.algos.ppo.losses import gaussian_kl, masked_mean, normalize_advantages
 from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
-from canter.config import Config
+from canter.config.schema import Config
 from canter.envs.base import EnvSpec
-from canter.networks import Params, gaussian_entropy, gaussian_log_prob, init_params, policy_dist, value
-from canter.normalize import RunningStats, init_stats
-from canter.rollout import EnvCarry, collect, estimate_advantages
+from canter.core.networks import Params, gaussian_entropy, gaussian_log_prob, init_params, policy_dist, value
+from canter.core.normalize import RunningStats, init_stats
+from canter.algos.onpolicy_rollout import EnvCarry, collect, estimate_advantages
 
 
 class TrainState(NamedTuple):

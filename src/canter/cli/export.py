@@ -1,0 +1,28 @@
+"""`canter export`: write a run's deterministic policy as ONNX or as plain numpy arrays."""
+
+from __future__ import annotations
+
+import argparse
+
+from canter.files import check_writable, write_output
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="export the deterministic policy (ONNX or npz)",
+                       description="Export the newest checkpoint's deterministic policy, with observation "
+                                   "normalization and action clipping baked in.")
+    p.add_argument("run", help="run folder")
+    p.add_argument("--format", choices=("onnx", "npz"), default=None,
+                   help="file format (default: from the --out extension)")
+    p.add_argument("--out", required=True, help="output file, e.g. policy.onnx or policy.npz")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canter.use.export import export_bytes, format_for
+
+    fmt = format_for(args.out, args.format)
+    check_writable(args.out)
+    write_output(args.out, export_bytes(args.run, fmt))
+    print(f"wrote {args.out} ({fmt})")
+    return 0

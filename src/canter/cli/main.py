@@ -1,0 +1,60 @@
+"""The `canter` command. Every user error is one line on stderr with a non-zero exit and no traceback."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from canter.errors import CanterError
+
+# Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
+# and sets `func(args) -> exit code`.
+COMMANDS = ("train", "eval", "video", "plot", "export", "report", "tune", "bench")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # argparse would print usage over several lines
+        # main() already prefixes "canter: error:", so only a subcommand's name ("train") is worth adding.
+        command = self.prog.removeprefix("canter").strip()
+        raise CanterError(f"{command}: {message} (see --help)" if command else f"{message} (see --help)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="canter", description="Fast, correct continuous-control RL for MuJoCo robots.")
+    parser.add_argument("--version", action="version", version=_version())
+    sub = parser.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"canter.cli.{name}").register(sub)
+    return parser
+
+
+def _version() -> str:
+    from canter import __version__
+
+    return f"canter {__version__}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 2
+        return args.func(args)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("canter: interrupted", file=sys.stderr)
+        return 130
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

@@ -1,0 +1,36 @@
+"""`canter plot`: learning curves and training diagnostics of run folders, seeds grouped with a 95% CI band."""
+
+from __future__ import annotations
+
+import argparse
+
+from canter.files import check_writable, write_output
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plot", help="learning curves and diagnostics of run folders (PNG/SVG)",
+                       description="Plot learning curves and diagnostics. Runs whose configs differ only in the "
+                                   "seed are drawn as one mean line with a 95%% bootstrap band; groups are "
+                                   "labelled by the config keys in which they differ.")
+    p.add_argument("runs", nargs="+", help="run folders")
+    p.add_argument("--out", default="curves.png", help="output image; .png, .svg or .pdf (default curves.png)")
+    p.add_argument("--x", choices=("steps", "wall"), default="steps", help="x axis: env steps or wall time")
+    p.add_argument("--smooth", type=int, default=1, metavar="W",
+                   help="trailing moving average over W logged rows of each run (default 1: none)")
+    p.add_argument("--metrics", default=None, metavar="COL,COL",
+                   help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' "
+                        "(default: all but info/*)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap resampling")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canter.use.plot import figure_format, render
+
+    fmt = figure_format(args.out)
+    check_writable(args.out)
+    metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
+    data = render(args.runs, fmt=fmt, metrics=metrics, x_axis=args.x, smooth=args.smooth, seed=args.seed)
+    write_output(args.out, data)
+    print(f"wrote {args.out}")
+    return 0

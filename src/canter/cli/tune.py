@@ -1,0 +1,80 @@
+"""`canter tune`: Optuna hyperparameter search (TPE + median pruner) on one machine or many."""
+
+from __future__ import annotations
+
+import argparse
+
+from canter.cli.args import steps_arg
+from canter.errors import CanterError
+
+
+def seeds_arg(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,1,2, got {text!r}") from None
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"expected distinct seeds such as 0,1,2, got {text!r}")
+    return seeds
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    t = sub.add_parser("tune", help="tune hyperparameters with Optuna",
+                       description="Optuna search (TPE sampler, median pruner on intermediate deterministic "
+                                   "evaluations). The study lives in OUT_DIR/STUDY (SQLite) unless --storage is "
+                                   "given; with a shared --storage and --study, run the same command on any number "
+                                   "of machines. Writes best.toml (for canter train --config) and summary.md.")
+    t.add_argument("env", nargs="?", help="env id, e.g. Hopper-v5")
+    t.add_argument("--algo", default="ppo", help="algorithm to tune (default ppo)")
+    t.add_argument("--trials", type=int, default=50, help="finished (complete + pruned) trials of the whole study")
+    t.add_argument("--jobs", type=int, default=1, help="parallel worker processes on this machine")
+    t.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per trial (budget)")
+    t.add_argument("--seeds-per-trial", type=int, default=1, help="average the objective over K seeds")
+    t.add_argument("--seed", type=int, default=0, help="first seed of every trial (seeds SEED..SEED+K-1)")
+    t.add_argument("--startup-trials", type=int, default=10, help="random trials before TPE models the space")
+    t.add_argument("--evaluations", type=int, default=20, help="intermediate evaluations per trial (for pruning)")
+    t.add_argument("--eval-episodes", type=int, default=5, help="deterministic episodes per evaluation")
+    t.add_argument("--trial-minutes", type=float, default=None, help="wall-clock limit of one trial")
+    t.add_argument("--study-hours", type=float, default=None, help="stop starting trials after this many hours")
+    t.add_argument("--space", default=None, metavar="FILE", help="search space TOML (default: the shipped one)")
+    t.add_argument("--print-space", action="store_true", help="print the shipped search space of --algo and exit")
+    t.add_argument("--preset", default="fast", help="preset under the sampled values (default fast)")
+    t.add_argument("--config", default=None, help="TOML file under the sampled values")
+    t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
+    t.add_argument("--out-dir", default="tune", help="folder of study folders (default tune/)")
+    t.add_argument("--study", default=None, metavar="NAME", help="study name (default ENV__ALGO)")
+    t.add_argument("--storage", default=None, metavar="URL",
+                   help="Optuna RDB URL, e.g. postgresql://user:pw@host/db (default: SQLite in the study folder)")
+    t.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS",
+                   help="trial heartbeat interval; a trial silent for 3x this is failed and retried")
+    t.add_argument("--sampler-seed", type=int, default=None,
+                   help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)")
+    t.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canter.algos import check_algorithm_name
+
+    check_algorithm_name(args.algo)
+    if args.print_space:
+        from canter.orchestrate.search_space import default_space_text
+
+        print(default_space_text(args.algo), end="")
+        return 0
+    if not args.env:
+        raise CanterError("no environment given; pass an env id, e.g. `canter tune Hopper-v5`")
+    if args.heartbeat < 1:
+        raise CanterError(f"--heartbeat must be >= 1 second, got {args.heartbeat}")
+    if args.seeds_per_trial < 1:
+        raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
+    from canter.orchestrate.tune import TuneSettings, tune
+
+    settings = TuneSettings(
+        env_id=args.env, algo=args.algo, trials=args.trials, jobs=args.jobs, total_steps=args.total_steps,
+        seeds=tuple(range(args.seed, args.seed + args.seeds_per_trial)), startup_trials=args.startup_trials,
+        evaluations=args.evaluations, eval_episodes=args.eval_episodes, trial_minutes=args.trial_minutes,
+        study_hours=args.study_hours, preset=args.preset, config_file=args.config, sets=tuple(args.set),
+        space_file=args.space, out_dir=args.out_dir, study_name=args.study, storage_url=args.storage,
+        heartbeat_seconds=args.heartbeat, grace_seconds=3 * args.heartbeat, sampler_seed=args.sampler_seed)
+    tune(settings)
+    return 0

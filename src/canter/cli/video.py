@@ -1,0 +1,41 @@
+"""`canter video`: render deterministic episodes of a run's newest checkpoint to an MP4 or GIF, headless."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from canter.cli.args import add_common
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from canter.use.video import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH
+
+    v = sub.add_parser("video", help="render a run's policy to an MP4 or GIF",
+                       description="Render episodes of the newest checkpoint with MuJoCo's offscreen renderer (EGL or "
+                                   "OSMesa; MUJOCO_GL picks one), Box2D's for BipedalWalker, dm_control's for DM "
+                                   "Control runs. EnvPool runs replay in the equivalent Gymnasium env.")
+    v.add_argument("run", help="run folder")
+    v.add_argument("--out", required=True, help="output file: .mp4 (H.264) or .gif")
+    v.add_argument("--episodes", type=int, default=1)
+    v.add_argument("--width", type=int, default=DEFAULT_WIDTH)
+    v.add_argument("--height", type=int, default=DEFAULT_HEIGHT)
+    v.add_argument("--fps", type=int, default=DEFAULT_FPS)
+    v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
+    v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
+    v.add_argument("--checkpoint", default=None, help="a checkpoint file instead of the newest one")
+    add_common(v)
+    v.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from canter.use.video import record_video
+
+    started = time.perf_counter()
+    returns = record_video(args.run, args.out, episodes=args.episodes, width=args.width, height=args.height,
+                           fps=args.fps, camera=args.camera, seed=args.seed if args.seed is not None else 0,
+                           checkpoint_file=args.checkpoint, max_steps=args.max_steps)
+    for i, value in enumerate(returns):
+        print(f"episode {i + 1}: return {value:.1f}")
+    print(f"wrote {args.out} ({len(returns)} episodes) in {time.perf_counter() - started:.1f} s")
+    return 0

@@ -1,0 +1,1 @@
+"""Many runs at once: child-process jobs, the Optuna study storage, search spaces, `tune` and `bench`."""

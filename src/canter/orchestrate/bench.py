@@ -1,0 +1,543 @@
+"""`canter bench`: a grid of algorithms x envs x hyperparameter values x seeds, each run an ordinary run folder.
+
+A cell is one (algo, env, grid values) combination. A job is what one child process trains (`canter.orchestrate.jobs`): all
+of a cell's seeds together as one vmapped group, or, for the off-policy algorithms
+(`canter.algos.SEEDS_TRAIN_APART`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic
+names built from the env, the algorithm, every grid value and the seed, so re-running the same command finds them:
+finished runs are skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished
+run's final policy is evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv`
+and a plot per env.
+
+With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
+enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+import os
+import time
+import tomllib
+from dataclasses import dataclass, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.config.schema import (SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text,
+                           reads_key, to_toml, unread_key_error)
+from canter.errors import CanterError
+from canter.orchestrate.jobs import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
+                           start_group, stop_group, warn_if_more_jobs_than_cores)
+
+# Grid keys that have their own flag or belong to the bench itself.
+_AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
+_FORBIDDEN = {"run.seed": "--seeds", "run.total_steps": "--total-steps", "run.out_dir": "--out"}
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    algos: tuple[str, ...]
+    envs: tuple[str, ...]
+    seeds: tuple[int, ...]
+    total_steps: int
+    grid: tuple[tuple[str, tuple[str, ...]], ...] = ()   # (key, raw values) in the order given
+    jobs: int = 1
+    out_dir: str = "bench"
+    preset: str = "fast"
+    config_file: str | None = None
+    sets: tuple[str, ...] = ()
+    eval_episodes: int = 10
+    storage_url: str | None = None
+    study_name: str | None = None
+    heartbeat_seconds: int = 60
+    poll_seconds: float = 0.5
+
+
+@dataclass(frozen=True)
+class Cell:
+    algo: str
+    env_id: str
+    values: tuple[tuple[str, str], ...]   # every grid axis: (key, canonical value)
+    config: Config
+
+    @property
+    def name(self) -> str:
+        parts = [self.env_id.split(":")[-1], self.algo] + [f"{key}={value}" for key, value in self.values]
+        return "__".join(_safe(p) for p in parts)
+
+    def run_dir(self, bench_dir: Path, seed: int) -> Path:
+        return bench_dir / f"{self.name}__s{seed}"
+
+
+@dataclass(frozen=True)
+class Job:
+    """The seeds of one cell that one child process trains together."""
+    cell: Cell
+    seeds: tuple[int, ...]
+    apart: bool   # one seed of a cell whose seeds train apart: the seed is part of the name
+
+    @property
+    def name(self) -> str:
+        return f"{self.cell.name}__s{self.seeds[0]}" if self.apart else self.cell.name
+
+
+def make_jobs(cells: list[Cell], seeds: tuple[int, ...]) -> list[Job]:
+    from canter.algos import seeds_train_apart
+
+    jobs = []
+    for cell in cells:
+        if seeds_train_apart(cell.algo):
+            jobs += [Job(cell, (seed,), True) for seed in seeds]
+        else:
+            jobs.append(Job(cell, tuple(seeds), False))
+    return jobs
+
+
+def _safe(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_.=," else "-" for c in text)
+
+
+def canonical(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "-".join(map(str, value))
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "none"
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    items = tuple(v.strip() for v in values.split(",") if v.strip())
+    if not sep or not key or not items:
+        raise CanterError(f"--grid expects KEY=V1,V2,... such as ppo.ent_coef=0.01,1e-4,0; got {text!r}")
+    return key, items
+
+
+def make_cells(settings: BenchSettings) -> list[Cell]:
+    """Every cell, each with its validated config; refuses an unknown algo, env, key or value before any work."""
+    from canter.algos import check_algorithm_name
+    from canter.envs import resolve_backend
+
+    algos, envs = list(settings.algos), list(settings.envs)
+    axes: list[tuple[str, list[str]]] = []
+    seen: set[str] = set()
+    known = set(all_keys())
+    for key, raw in settings.grid:
+        if key in seen:
+            raise CanterError(f"--grid {key} is given twice; list all its values in one --grid")
+        seen.add(key)
+        if key in _FORBIDDEN:
+            raise CanterError(f"--grid {key} is not a grid axis; use {_FORBIDDEN[key]}")
+        if key == "run.algo":
+            algos = list(raw)
+            continue
+        if key == "env.id":
+            envs = list(raw)
+            continue
+        if key not in known:
+            import difflib
+
+            close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
+            raise CanterError(f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?"
+                                                                      if close else ""))
+        section, _, name = key.partition(".")
+        values = [canonical(coerce(key, _field_types(section)[name], v)) for v in raw]
+        if len(set(values)) != len(values):
+            raise CanterError(f"--grid {key} repeats a value")
+        axes.append((key, values))
+    if not algos or not envs or not settings.seeds:
+        raise CanterError("the bench needs at least one algorithm, one env and one seed")
+    for algo in algos:
+        check_algorithm_name(algo)
+    for key, _ in axes:
+        for algo in algos:
+            if not reads_key(algo, key):
+                raise CanterError(f"--grid {key}: {unread_key_error(algo, key)}, or bench {algo} in a bench of its own")
+    # A --set applies to the cells whose algorithm reads it, so one bench can carry td3.* and sac.* settings.
+    set_keys = {item.partition("=")[0].strip(): item for item in settings.sets}
+    for key in set_keys:
+        if key in known and algos and not any(reads_key(algo, key) for algo in algos):
+            raise CanterError(f"--set {unread_key_error(algos[0], key)}")
+    for env_id in envs:
+        resolve_backend(env_id, "auto")
+    cells = []
+    for algo, env_id in itertools.product(algos, envs):
+        for combo in itertools.product(*(values for _, values in axes)):
+            pairs = tuple(zip((key for key, _ in axes), combo))
+            sets = [item for key, item in set_keys.items() if key not in known or reads_key(algo, key)]
+            sets += [f"{key}={value}" for key, value in pairs]
+            try:
+                config = build_config(env_id, preset=settings.preset, config_file=settings.config_file, sets=sets,
+                                      seed=settings.seeds[0], total_steps=settings.total_steps, algo=algo)
+            except CanterError as exc:
+                where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
+                raise CanterError(f"cell ({where}): {exc}") from None
+            cells.append(Cell(algo, env_id, pairs, config))
+    return cells
+
+
+def varying_keys(cells: list[Cell]) -> list[str]:
+    """The grid keys whose value differs between cells: they label the table rows."""
+    keys = [key for key, _ in cells[0].values] if cells else []
+    return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]
+
+
+def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
+    cell = job.cell
+    config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
+    return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
+                     settings.eval_episodes)
+
+
+def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
+    for seed in seeds:
+        run_dir = cell.run_dir(bench_dir, seed)
+        evaluation = read_json(run_dir / EVAL_FILE)
+        if run_status(run_dir, settings.total_steps) != "done" or not evaluation or \
+                evaluation.get("episodes") != settings.eval_episodes:
+            return False
+    return True
+
+
+# Keys a run folder may differ in from its cell and still belong to it: the seed is per run, the folder is where
+# the bench lives, and a larger --total-steps extends finished runs.
+_REUSABLE_DIFFERENCES = ("run.seed", "run.out_dir", "run.total_steps")
+
+
+def _flat_config(config: Config) -> dict[str, Any]:
+    return {f"{section}.{f.name}": getattr(getattr(config, section), f.name)
+            for section in SECTIONS for f in fields(getattr(config, section))}
+
+
+def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
+    """Refuse a bench folder whose run folders were trained with other settings than this command gives their
+    cells (a changed --set, --config or preset): reusing them would put old results under the new settings."""
+    for cell in cells:
+        expected = _flat_config(cell.config)
+        for seed in settings.seeds:
+            saved = cell.run_dir(bench_dir, seed) / "config.toml"
+            if not saved.is_file():
+                continue
+            try:
+                found = _flat_config(from_toml_text(saved.read_text(), str(saved)))
+            except (CanterError, OSError):
+                continue   # unreadable: the run is not usable anyway, and training it anew rewrites the file
+            differing = [k for k in expected if k not in _REUSABLE_DIFFERENCES and found.get(k) != expected[k]]
+            if differing:
+                key = differing[0]
+                more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
+                raise CanterError(f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
+                                  f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it")
+
+
+# ---------------------------------------------------------------------------------------------------- results
+
+def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
+    """What the table needs of one finished run: its final eval mean, wall seconds and SPS (None where missing).
+
+    Wall time and SPS cover every session of a resumed run. They are rebuilt from metrics.csv, because the
+    summaries of runs trained before resumes carried totals over hold only the last session."""
+    from canter.training.logger import totals_until
+
+    evaluation = read_json(run_dir / EVAL_FILE) or {}
+    summary = read_json(run_dir / SUMMARY_FILE) or {}
+    wall = float(summary["wall_seconds"]) if "wall_seconds" in summary else None
+    sps = float(summary["sps"]) if "sps" in summary else None
+    if "global_step" in summary and (run_dir / "metrics.csv").is_file():
+        totals = totals_until(run_dir / "metrics.csv", int(summary["global_step"]))
+        if totals["train_seconds"] > 0:
+            wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
+    return {"seed": seed, "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
+            "wall_seconds": wall, "sps": sps}
+
+
+def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:
+    return combine_records(cell, [seed_record(cell.run_dir(bench_dir, s), s) for s in settings.seeds])
+
+
+def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Final deterministic eval (mean over seeds of each seed's mean, std over seeds), wall time and SPS. A group
+    of seeds trained together has one wall time (its slowest seed's) and their steps per second add up. Seeds
+    trained as separate jobs (td3, ddpg, sac) may have run at different times, so a sum of their rates would
+    describe no real run: for them it is the mean per seed, of wall time and of SPS."""
+    from canter.algos import seeds_train_apart
+
+    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
+    walls = [r["wall_seconds"] for r in records if r["wall_seconds"] is not None]
+    sps = [r["sps"] for r in records if r["sps"] is not None]
+    apart = seeds_train_apart(cell.algo)
+    return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
+            "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
+            "return_std": float(np.std(evals)) if evals else math.nan,
+            "return_median": float(np.median(evals)) if evals else math.nan, "seed_returns": evals,
+            "wall_minutes": float(np.mean(walls) if apart else np.max(walls)) / 60 if walls else math.nan,
+            "sps": float(np.mean(sps) if apart else np.sum(sps)) if sps else math.nan}
+
+
+def published_scores() -> dict[str, Any]:
+    """The shipped table of published scores (canter/data/published.toml)."""
+    return tomllib.loads(resources.files("canter.data").joinpath("published.toml").read_text())
+
+
+def published_for(algo: str, env_id: str, total_steps: int, data: dict[str, Any] | None = None) -> str:
+    """'CR 2383±272, TS 2609±701' for this algo and env at the bench's budget (else at 1M steps, marked)."""
+    data = data or published_scores()
+    base = env_id.split(":")[-1].rsplit("-v", 1)[0]
+    rows = [s for s in data["score"] if s["algo"] == algo and s["env"] == base]
+    at_budget = [s for s in rows if s["steps"] == total_steps]
+    chosen, mark = (at_budget, "") if at_budget else ([s for s in rows if s["steps"] == 1_000_000], " @1M")
+    parts = [f"{s['source']} {s['mean']:.0f}" + (f"±{s['std']:.0f}" if "std" in s else "") for s in chosen]
+    return ", ".join(parts) + mark if parts else ""
+
+
+def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: int) -> tuple[str, str]:
+    """(markdown, csv) of the results."""
+    from canter.algos import seeds_train_apart
+
+    data = published_scores()
+    short = [k.split(".", 1)[1] for k in keys]
+    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "median", "seeds", "cell wall min",
+                                        "cell SPS", "published"]
+    md = ["| " + " | ".join(header) + " |",
+          "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---:|---|"]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(["env", "algo"] + keys + ["return_mean", "return_std", "return_median", "seeds", "wall_minutes",
+                                               "sps", "published"])
+    for r in results:
+        reference = published_for(r["algo"], r["env"], total_steps, data)
+        grid_values = [r["values"].get(k, "") for k in keys]
+        md.append("| " + " | ".join([r["env"], r["algo"]] + grid_values + [
+            f"{r['return_mean']:.1f} ± {r['return_std']:.1f}", f"{r['return_median']:.1f}", str(r["seeds"]),
+            f"{r['wall_minutes']:.1f}", f"{r['sps']:,.0f}", reference]) + " |")
+        writer.writerow([r["env"], r["algo"]] + grid_values + [
+            f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}", f"{r['return_median']:.3f}", r["seeds"],
+            f"{r['wall_minutes']:.3f}", f"{r['sps']:.1f}", reference])
+    sources = data["sources"]
+    apart = sorted({r["algo"] for r in results if seeds_train_apart(r["algo"])})
+    if apart:
+        md += ["", f"Cell wall min and cell SPS of {', '.join(apart)}: the mean per seed, since each of their seeds "
+                   "trains as a job of its own (for the other algorithms, a cell's seeds train together: its wall "
+                   "time, and the steps per second of all its seeds)."]
+    md += ["", "Published: " + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})"
+                                         for k, v in sources.items()) + "."]
+    return "\n".join(md) + "\n", buffer.getvalue()
+
+
+def plot_env(run_dirs: list[Path], path: Path) -> None:
+    """One figure per env through `canter plot`: one curve (mean over seeds, with a band) per algorithm and grid
+    values, training return against env steps."""
+    from canter.files import write_output
+    from canter.use.plot import render
+
+    write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
+
+
+def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings,
+                  bench_dir: Path) -> str:
+    from canter.files import write_output
+
+    keys = varying_keys(cells)
+    markdown, table_csv = results_table(results, keys, settings.total_steps)
+    write_output(bench_dir / "results.md", markdown.encode())
+    write_output(bench_dir / "results.csv", table_csv.encode())
+    for env_id in dict.fromkeys(c.env_id for c in cells):
+        run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id
+                    for seed in settings.seeds]
+        run_dirs = [d for d in run_dirs if (d / "metrics.csv").is_file() and (d / "config.toml").is_file()]
+        if run_dirs:
+            plot_env(run_dirs, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
+    return markdown
+
+
+# ------------------------------------------------------------------------------------------------------- running
+
+def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
+    """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
+    pending = []
+    for job in make_jobs(cells, settings.seeds):
+        if seeds_finished(job.cell, job.seeds, settings, bench_dir):
+            print(f"skip {job.name} (finished)")
+        else:
+            pending.append(job)
+    slots = job_layout(settings.jobs) if settings.jobs > 1 else [{}]
+    running: dict[int, tuple[Job, Any, float]] = {}
+    failures: dict[str, str] = {}
+    try:
+        while pending or running:
+            for slot, caps in enumerate(slots):
+                if slot not in running and pending:
+                    job = pending.pop(0)
+                    proc = start_group(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
+                    running[slot] = (job, proc, time.monotonic())
+                    print(f"start {job.name} (seeds {','.join(map(str, job.seeds))})", flush=True)
+            for slot, (job, proc, started) in list(running.items()):
+                code = proc.poll()
+                if code is None:
+                    continue
+                del running[slot]
+                if code == 0 and not seeds_finished(job.cell, job.seeds, settings, bench_dir):
+                    # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
+                    reason = ("stopped before its budget (a signal or run.max_minutes); it is checkpointed and a "
+                              "re-run resumes it")
+                    failures.setdefault(job.cell.name, reason)
+                    print(f"STOP  {job.name}: {reason}", flush=True)
+                elif code == 0:
+                    print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
+                else:
+                    reason = failure_reason(bench_dir / ".cells" / job.name, code)
+                    failures.setdefault(job.cell.name, reason)
+                    print(f"FAIL  {job.name}: {reason}", flush=True)
+            time.sleep(settings.poll_seconds)
+    finally:
+        for _, proc, _ in running.values():
+            stop_group(proc)
+    return failures
+
+
+def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSettings, bench_dir: Path):
+    from optuna.trial import TrialState
+
+    from canter.orchestrate.study import Outcome
+
+    name = trial.suggest_categorical("cell", list(jobs))
+    for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
+        if other.params.get("cell") == name and other.number != trial.number and (
+                other.state == TrialState.COMPLETE or other.number < trial.number):
+            return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
+    job = jobs[name]
+    folder = bench_dir / ".cells" / job.name
+    proc = start_group(job_spec(job, settings, bench_dir), folder)
+    try:
+        code = proc.wait()
+    finally:
+        stop_group(proc)
+    if code != 0:
+        return Outcome("fail", reason=failure_reason(folder, code))
+    # The records travel with the trial, so any machine can build the table from the storage alone.
+    records = [seed_record(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
+    trial.set_user_attr("records", records)
+    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
+    return Outcome("complete", value=float(np.mean(evals)) if evals else math.nan)
+
+
+def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
+    import optuna
+
+    from canter.orchestrate.study import StorageSettings, open_storage
+
+    storage = open_storage(StorageSettings(settings.storage_url, settings.heartbeat_seconds,
+                                           3 * settings.heartbeat_seconds))
+    sampler = optuna.samplers.GridSampler({"cell": [j.name for j in jobs]})
+    study = optuna.create_study(storage=storage, study_name=settings.study_name or bench_dir.name,
+                                direction="maximize", sampler=sampler, load_if_exists=True)
+    return storage, study
+
+
+def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, caps: dict[str, str]) -> None:
+    import sys
+
+    from canter.orchestrate.study import run_worker
+
+    from canter.orchestrate.jobs import apply_cpu_pinning, die_with_parent
+
+    die_with_parent()
+    os.environ.update(caps)
+    apply_cpu_pinning()
+    try:
+        jobs = make_jobs(cells, settings.seeds)
+        storage, study = _open_grid_study(jobs, settings, bench_dir)
+        by_name = {j.name: j for j in jobs}
+        run_worker(study, storage, len(jobs),
+                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+def run_distributed(cells: list[Cell], settings: BenchSettings,
+                    bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
+    """Share the jobs with other workers through an Optuna study; returns the results of every cell whose jobs all
+    finished (by any worker) and the failure reasons of the cells with a failed job."""
+    import multiprocessing
+
+    from optuna.trial import TrialState
+
+    from canter.orchestrate.study import run_worker
+
+    jobs = make_jobs(cells, settings.seeds)
+    storage, study = _open_grid_study(jobs, settings, bench_dir)
+    by_name = {j.name: j for j in jobs}
+    # Enqueue the jobs that no trial holds yet (a first run, or a job whose trial failed).
+    held = {t.params.get("cell") for t in study.get_trials(deepcopy=False, states=(
+        TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))}
+    for name in by_name:
+        if name not in held:
+            study.enqueue_trial({"cell": name})
+    if settings.jobs == 1:
+        run_worker(study, storage, len(by_name),
+                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+    else:
+        context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
+        processes = [context.Process(target=_grid_worker, args=(cells, settings, bench_dir, caps))
+                     for caps in job_layout(settings.jobs)]
+        for p in processes:
+            p.start()
+        for p in processes:
+            p.join()
+        if any(p.exitcode for p in processes):
+            raise CanterError("a bench worker failed; its error is printed above")
+    done, failed = {}, {}
+    for t in study.get_trials(deepcopy=False):
+        name = t.params.get("cell")
+        if t.state == TrialState.COMPLETE and name in by_name and "records" in t.user_attrs:
+            done[name] = t.user_attrs["records"]
+        elif t.state == TrialState.FAIL and name in by_name:
+            failed[name] = t.user_attrs.get("fail_reason", "worker died")
+    failures: dict[str, str] = {}
+    for name, reason in failed.items():
+        if name not in done:
+            failures.setdefault(by_name[name].cell.name, reason)
+    results = []
+    for cell in cells:
+        names = [j.name for j in jobs if j.cell is cell]
+        if all(n in done for n in names):
+            results.append(combine_records(cell, [r for n in names for r in done[n]]))
+    return results, failures
+
+
+def bench(settings: BenchSettings) -> str:
+    """Check the grid, run it (locally or through the storage), and write the results; returns the markdown."""
+    if settings.jobs < 1:
+        raise CanterError(f"--jobs must be >= 1, got {settings.jobs}")
+    if settings.eval_episodes < 1:
+        raise CanterError(f"--eval-episodes must be >= 1, got {settings.eval_episodes}")
+    cells = make_cells(settings)
+    bench_dir = Path(settings.out_dir)
+    bench_dir.mkdir(parents=True, exist_ok=True)
+    check_existing_runs(cells, settings, bench_dir)
+    warn_if_more_jobs_than_cores(settings.jobs)
+    if settings.storage_url:
+        results, failures = run_distributed(cells, settings, bench_dir)
+    else:
+        failures = run_local(cells, settings, bench_dir)
+        results = [cell_result(c, settings, bench_dir) for c in cells if c.name not in failures]
+    finished = [c for c in cells if any(r["cell"] == c.name for r in results)]
+    markdown = write_results(finished, results, settings, bench_dir) if results else ""
+    print(markdown, end="")
+    if failures:
+        raise CanterError(f"{len(failures)} of {len(cells)} cells failed ({next(iter(failures.values()))}); "
+                          f"re-run the same command to retry them")
+    return markdown

@@ -1,0 +1,233 @@
+"""Training a group of seeds of one config in a child process, for `canter tune` and `canter bench`.
+
+A group runs in its own process (`python -m canter.orchestrate.jobs SPEC.json`), started with `subprocess`, never forked:
+JAX and EnvPool are not fork-safe, a MuJoCo error kills the process that hit it (the caller records the failure
+and goes on), and a trial that overruns its time limit can be killed without taking its worker down. The child
+dies with its parent (PR_SET_PDEATHSIG), so a killed worker leaves no orphan training behind.
+
+Every seed has a fixed run folder. Re-running a spec skips seeds whose run finished, resumes seeds that stopped
+after a checkpoint, and trains the rest, the seeds of a group in one vmapped program (`canter.training.loop.train_seeds`);
+with `eval_episodes` it then writes each run's final deterministic evaluation to `eval.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from canter.files import atomic_write_bytes
+from canter.errors import CanterError
+
+EVAL_FILE = "eval.json"
+SUMMARY_FILE = "summary.json"
+
+
+def train_group(config: Any, seeds: list[int], run_dirs: dict[int, Path], quiet: bool = True) -> list[Any]:
+    """Train `config` once per seed into the given run folders, all seeds in one vmapped program."""
+    from canter.training.loop import train_seeds
+
+    return train_seeds(config, seeds, quiet=quiet, run_dirs=[run_dirs[s] for s in seeds])
+
+
+# ------------------------------------------------------------------------------------------------ run folder status
+
+def run_status(run_dir: Path, total_steps: int) -> str:
+    """`done` (trained to total_steps), `partial` (stopped after a checkpoint) or `new` (nothing usable)."""
+    from canter.training import checkpoint
+
+    summary = run_dir / SUMMARY_FILE
+    if summary.is_file():
+        try:
+            if int(json.loads(summary.read_text())["global_step"]) >= total_steps:
+                return "done"
+        except (ValueError, KeyError, json.JSONDecodeError):
+            pass
+    return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
+
+
+def read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+# ------------------------------------------------------------------------------------------------------ CPU limits
+
+def thread_env(threads: int, cpus: list[int] | None = None) -> dict[str, str]:
+    """Environment variables that cap a JAX process at `threads` threads; they must be set before JAX is imported.
+    `CANTER_CPUS` pins the process to those cores (read by `apply_cpu_pinning`)."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    extra = f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} " \
+            f"intra_op_parallelism_threads={threads}"
+    env = {"XLA_FLAGS": f"{flags} {extra}".strip(), "OMP_NUM_THREADS": str(threads),
+           "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    if cpus:
+        env["CANTER_CPUS"] = ",".join(map(str, cpus))
+    return env
+
+
+def apply_cpu_pinning() -> None:
+    cpus = os.environ.get("CANTER_CPUS")
+    if cpus and hasattr(os, "sched_setaffinity"):
+        try:
+            os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
+        except OSError:
+            pass
+
+
+def job_layout(jobs: int) -> list[dict[str, str]]:
+    """Per-job thread caps: the cores split evenly over the jobs, each job pinned to its share."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else list(range(os.cpu_count() or 1))
+    if jobs > len(cores):
+        return [thread_env(1) for _ in range(jobs)]
+    per = len(cores) // jobs
+    return [thread_env(per, cores[i * per:(i + 1) * per]) for i in range(jobs)]
+
+
+def warn_if_more_jobs_than_cores(jobs: int) -> None:
+    """Warn on stderr when `jobs` exceeds the usable cores; called once the command has passed its checks, so that a
+    refused command prints only its error."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if jobs > cores:
+        print(f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each other down",
+              file=sys.stderr)
+
+
+# --------------------------------------------------------------------------------------------------- child process
+
+@dataclass(frozen=True)
+class GroupSpec:
+    config_toml: str
+    run_dirs: dict[int, str]          # seed -> run folder
+    eval_episodes: int = 0            # 0: no final evaluation
+
+    def to_json(self) -> str:
+        return json.dumps({"config_toml": self.config_toml, "run_dirs": {str(k): v for k, v in self.run_dirs.items()},
+                           "eval_episodes": self.eval_episodes})
+
+    @staticmethod
+    def from_json(text: str) -> "GroupSpec":
+        data = json.loads(text)
+        return GroupSpec(data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()},
+                         int(data["eval_episodes"]))
+
+
+def start_group(spec: GroupSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """Start the child that trains a group; its output goes to folder/train.log."""
+    folder.mkdir(parents=True, exist_ok=True)
+    spec_path = folder / "group.json"
+    spec_path.write_text(spec.to_json())
+    log = open(folder / "train.log", "ab")
+    try:
+        return subprocess.Popen([sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)], stdout=log,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                env={**os.environ, **(env or {})})
+    finally:
+        log.close()
+
+
+def failure_reason(folder: Path, returncode: int) -> str:
+    """The child's one-line error (`canter: error: ...`), else the last line of its log, with the exit status."""
+    lines = []
+    try:
+        lines = [line for line in (folder / "train.log").read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        pass
+    errors = [line for line in lines if line.startswith("canter: error:")]
+    last = errors[-1] if errors else (lines[-1] if lines else "no output")
+    how = f"killed by signal {-returncode}" if returncode < 0 else f"exit {returncode}"
+    return f"training process failed ({how}): {last.strip()[:300]}"
+
+
+def stop_group(proc: subprocess.Popen, grace_seconds: float = 20.0) -> None:
+    """SIGTERM (the trainer saves a checkpoint and returns), then SIGKILL after the grace period."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(grace_seconds)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def die_with_parent() -> None:
+    """Ask Linux to send this process SIGTERM when its parent dies (a no-op elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def run_group(spec: GroupSpec, quiet: bool = True) -> None:
+    """Skip finished seeds, resume stopped ones, train the rest (as one group), then evaluate the final policies."""
+    from canter.config.schema import from_toml_text
+    from canter.training.loop import resume_seeds
+
+    config = from_toml_text(spec.config_toml, "group spec")
+    total = config.run.total_steps
+    fresh: list[int] = []
+    partial: list[Path] = []
+    for seed, folder in sorted(spec.run_dirs.items()):
+        run_dir = Path(folder)
+        status = run_status(run_dir, total)
+        if status == "partial":
+            partial.append(run_dir)
+        elif status == "new":
+            if run_dir.exists():  # started but died before its first checkpoint: nothing to keep
+                shutil.rmtree(run_dir)
+            fresh.append(seed)
+    if partial:  # each resumes from its own newest checkpoint, together in one program
+        resume_seeds(partial, total, quiet=quiet)
+    if fresh:
+        train_group(config, fresh, {s: Path(spec.run_dirs[s]) for s in fresh}, quiet=quiet)
+    if spec.eval_episodes:
+        for folder in spec.run_dirs.values():
+            write_final_eval(Path(folder), spec.eval_episodes)
+
+
+def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
+    """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json."""
+    from canter.training import checkpoint
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import load
+
+    path = run_dir / EVAL_FILE
+    cached = read_json(path)
+    step = checkpoint.latest(run_dir).name
+    if cached and cached.get("checkpoint") == step and cached.get("episodes") == episodes:
+        return cached
+    result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=0)
+    data = {"checkpoint": step, "episodes": episodes, "mean": result.mean, "std": result.std,
+            "returns": [float(r) for r in result.returns]}
+    atomic_write_bytes(path, lambda f: f.write(json.dumps(data, indent=2).encode()))
+    return data
+
+
+def main(argv: list[str]) -> int:
+    die_with_parent()
+    apply_cpu_pinning()
+    try:
+        run_group(GroupSpec.from_json(Path(argv[0]).read_text()))
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,198 @@
+"""Hyperparameter search spaces: editable TOML files whose keys are config keys.
+
+    [ppo.lr]                      # a range: uniform, or log-uniform with log = true
+    low = 1e-5
+    high = 1.0
+    log = true
+
+    [ppo.n_steps]                 # a set of choices
+    choices = [8, 16, 32, 64]
+
+    [ddpg.critic_lr]              # tied: the value sampled for another key of the space
+    same_as = "ddpg.actor_lr"
+
+An integer key with a range samples integers (`step` optional), a float key floats; `choices` work for any key,
+including tuples written as strings ("64-64"). A file is checked in full before any trial: every key must be a
+config key, every value must have the key's type and pass the key's own validation, and a range must not be empty.
+canter ships one space per algorithm (`canter/search_spaces/<algo>.toml`); `--space FILE` takes an edited copy.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from canter.config.schema import Config, _field_types, all_keys, apply_overrides, coerce, load_toml, validate
+from canter.errors import CanterError
+
+_RANGE_KEYS = {"low", "high", "log", "step"}
+# Minibatch sizes that must divide the on-policy batch (ppo.n_steps x env.num_envs).
+_MINIBATCH_KEYS = (("ppo", "minibatch_size"), ("trpo", "critic_minibatch_size"))
+
+
+@dataclass(frozen=True)
+class Param:
+    key: str                                  # section.key
+    choices: tuple[Any, ...] | None = None    # values as Optuna stores them (tuples as "64-64" strings)
+    low: float | int | None = None
+    high: float | int | None = None
+    log: bool = False
+    step: float | int | None = None
+    integer: bool = False
+    same_as: str | None = None                # takes the value sampled for another key
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    params: tuple[Param, ...]
+    source: str
+
+    @property
+    def keys(self) -> list[str]:
+        return [p.key for p in self.params]
+
+    def suggest(self, trial: Any) -> dict[str, Any]:
+        """One `{section.key: value}` draw from an Optuna trial (or FixedTrial)."""
+        values: dict[str, Any] = {}
+        for p in self.params:
+            if p.same_as is not None:
+                continue
+            if p.choices is not None:
+                values[p.key] = trial.suggest_categorical(p.key, list(p.choices))
+            elif p.integer:
+                values[p.key] = trial.suggest_int(p.key, int(p.low), int(p.high), step=int(p.step or 1), log=p.log)
+            else:
+                values[p.key] = trial.suggest_float(p.key, float(p.low), float(p.high), step=p.step, log=p.log)
+        for p in self.params:
+            if p.same_as is not None:
+                values[p.key] = values[p.same_as]
+        return values
+
+
+def space_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("canter.search_spaces").iterdir() if p.name.endswith(".toml"))
+
+
+def default_space_text(algo: str) -> str:
+    if algo not in space_names():
+        raise CanterError(f"no search space shipped for algorithm '{algo}'; write one and pass it with --space FILE "
+                          f"(shipped: {', '.join(space_names())})")
+    return resources.files("canter.search_spaces").joinpath(f"{algo}.toml").read_text()
+
+
+def load_space(path: str | Path | None, algo: str) -> SearchSpace:
+    import tomllib
+
+    if path is None:
+        return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space")
+    return parse_space(load_toml(path), str(path))
+
+
+def _optuna_value(value: Any) -> Any:
+    """Optuna categoricals hold None, bool, int, float and str: tuples become '64-64'."""
+    return "-".join(map(str, value)) if isinstance(value, tuple) else value
+
+
+def _check_alone(key: str, value: Any, source: str) -> None:
+    """The value must pass the key's own validation on the default config (errors about other keys, such as a
+    minibatch that does not divide the default batch, are interactions and not the value's fault)."""
+    try:
+        validate(apply_overrides(Config(env=replace(Config().env, id="Hopper-v5")), {key: value}, source))
+    except CanterError as exc:
+        if str(exc).startswith(key):
+            raise CanterError(f"{source}: {key} = {value!r} is invalid: {exc}") from None
+
+
+def parse_space(data: dict[str, Any], source: str) -> SearchSpace:
+    known = set(all_keys())
+    params: list[Param] = []
+    for section, table in data.items():
+        if not isinstance(table, dict):
+            raise CanterError(f"{source}: '{section}' must be a table of [section.key] entries")
+        for name, spec in table.items():
+            key = f"{section}.{name}"
+            if key not in known:
+                close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
+                hint = f"; did you mean {', '.join(close)}?" if close else "; keys are config keys like ppo.lr"
+                raise CanterError(f"{source}: unknown hyperparameter '{key}'{hint}")
+            if not isinstance(spec, dict):
+                raise CanterError(f"{source}: [{key}] must be a table with choices = [...] or low/high")
+            params.append(_param(key, spec, source))
+    if not params:
+        raise CanterError(f"{source}: the search space is empty; add [section.key] tables")
+    _check_ties(params, source)
+    return SearchSpace(tuple(params), source)
+
+
+def _check_ties(params: list[Param], source: str) -> None:
+    by_key = {p.key: p for p in params}
+    for p in params:
+        if p.same_as is None:
+            continue
+        other = by_key.get(p.same_as)
+        if other is None or other.same_as is not None:
+            raise CanterError(f"{source}: [{p.key}] same_as = {p.same_as!r} must name a sampled key of this space")
+        section, _, name = p.key.partition(".")
+        for value in (other.choices or (other.low, other.high)):
+            _check_alone(p.key, coerce(p.key, _field_types(section)[name], value), source)
+
+
+def _param(key: str, spec: dict[str, Any], source: str) -> Param:
+    section, _, name = key.partition(".")
+    field_type = _field_types(section)[name]
+    extra = set(spec) - _RANGE_KEYS - {"choices", "same_as"}
+    if extra:
+        raise CanterError(f"{source}: [{key}] has unknown entries {sorted(extra)}; use choices, or low, high, "
+                          f"log, step, or same_as")
+    if "same_as" in spec:
+        if set(spec) != {"same_as"} or not isinstance(spec["same_as"], str):
+            raise CanterError(f"{source}: [{key}] same_as = \"section.key\" stands alone")
+        return Param(key, same_as=spec["same_as"])
+    if "choices" in spec:
+        if set(spec) != {"choices"}:
+            raise CanterError(f"{source}: [{key}] has both choices and a range; keep one")
+        choices = spec["choices"]
+        if not isinstance(choices, list) or not choices:
+            raise CanterError(f"{source}: [{key}] has an empty list of choices")
+        values = []
+        for raw in choices:
+            value = coerce(key, field_type, raw)
+            _check_alone(key, value, source)
+            values.append(_optuna_value(value))
+        if len(set(map(repr, values))) != len(values):
+            raise CanterError(f"{source}: [{key}] repeats a choice")
+        return Param(key, choices=tuple(values))
+    if "low" not in spec or "high" not in spec:
+        raise CanterError(f"{source}: [{key}] needs choices = [...] or both low and high")
+    low, high = coerce(key, field_type, spec["low"]), coerce(key, field_type, spec["high"])
+    if not isinstance(low, (int, float)) or isinstance(low, bool) or low is None or high is None:
+        raise CanterError(f"{source}: [{key}] is not numeric; give it choices = [...]")
+    if not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+        raise CanterError(f"{source}: [{key}] has an empty range: low {low} must be below high {high}")
+    log = spec.get("log", False)
+    if not isinstance(log, bool):
+        raise CanterError(f"{source}: [{key}] log must be true or false")
+    if log and low <= 0:
+        raise CanterError(f"{source}: [{key}] is log-uniform, so low must be > 0, got {low}")
+    step = spec.get("step")
+    if step is not None and (not isinstance(step, (int, float)) or step <= 0 or (log and step != 1)):
+        raise CanterError(f"{source}: [{key}] step must be a positive number (and cannot combine with log)")
+    for value in (low, high):
+        _check_alone(key, value, source)
+    return Param(key, low=low, high=high, log=log, step=step, integer=isinstance(low, int))
+
+
+def apply_sample(base: Config, values: dict[str, Any]) -> Config:
+    """The trial's config: base plus the sampled values. An on-policy minibatch larger than the batch is cut to the
+    batch (RL Zoo does the same), so horizon and minibatch can be sampled independently."""
+    config = apply_overrides(base, values, "the search space")
+    for section, name in _MINIBATCH_KEYS:
+        table = getattr(config, section)
+        if getattr(table, name, 0) > config.batch_size:
+            config = replace(config, **{section: replace(table, **{name: config.batch_size})})
+    validate(config)
+    return config

@@ -1,0 +1,397 @@
+"""`canter tune`: Optuna search over a shipped, editable search space, on one machine or many.
+
+A trial samples a config from the search space, trains it (one child process per trial, all seeds of the trial in
+it, see `canter.orchestrate.jobs`) with a checkpoint every 1/`evaluations` of the budget, and the worker evaluates every
+checkpoint deterministically while training goes on. The mean over the trial's seeds is reported to Optuna's
+median pruner; a pruned trial's training is stopped. The objective is the deterministic evaluation return of the
+final policies, averaged over `--seeds-per-trial` seeds (the same seeds for every trial, so trials differ only in
+their hyperparameters).
+
+Evaluating checkpoints rather than training in chunks keeps the learning-rate schedule of a trial identical to
+that of a single `canter train` of the same config, so the best trial's preset reproduces what was measured.
+
+Parallel `--jobs` are spawned worker processes, each pinned to its share of the cores with XLA's thread pools
+capped; the workers share the study through its storage (SQLite in the study folder by default, or `--storage
+postgresql://...`, where any number of machines run the same command).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import socket
+import time
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.config.schema import SECTIONS, Config, build_config
+from canter.errors import CanterError
+from canter.orchestrate.jobs import GroupSpec, failure_reason, start_group, stop_group
+from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
+from canter.orchestrate.study import FAIL_REASON, Outcome, StorageSettings, counts, open_storage, quiet_optuna, run_worker
+
+DB_FILE = "study.db"
+BEST_FILE = "best.toml"
+SUMMARY_FILE = "summary.md"
+PRESET_ATTR = "preset"
+# Keys that describe one run rather than the hyperparameters; the best preset leaves them out.
+RUN_BOOKKEEPING = ("run.preset", "run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints",
+                   "run.max_minutes", "run.tensorboard", "run.video_every")
+_CKPT = re.compile(r"^ckpt_(\d{12})\.npz$")
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    env_id: str
+    algo: str = "ppo"
+    trials: int = 50
+    jobs: int = 1
+    total_steps: int = 1_000_000
+    seeds: tuple[int, ...] = (0,)           # every trial trains these seeds
+    startup_trials: int = 10                # random trials before TPE; also the pruner's startup
+    evaluations: int = 20                   # checkpoints evaluated per trial
+    eval_episodes: int = 5
+    trial_minutes: float | None = None
+    study_hours: float | None = None
+    preset: str = "fast"
+    config_file: str | None = None
+    sets: tuple[str, ...] = ()
+    space_file: str | None = None
+    out_dir: str = "tune"
+    study_name: str | None = None
+    storage_url: str | None = None
+    heartbeat_seconds: int = 60
+    grace_seconds: int = 180
+    sampler_seed: int | None = None
+    poll_seconds: float = 0.5
+
+    @property
+    def name(self) -> str:
+        return self.study_name or f"{self.env_id.split(':')[-1]}__{self.algo}"
+
+    @property
+    def study_dir(self) -> Path:
+        return Path(self.out_dir) / self.name
+
+    @property
+    def storage(self) -> StorageSettings:
+        url = self.storage_url or f"sqlite:///{(self.study_dir / DB_FILE).resolve()}"
+        return StorageSettings(url, self.heartbeat_seconds, self.grace_seconds)
+
+    @property
+    def eval_interval(self) -> int:
+        return max(1, math.ceil(self.total_steps / self.evaluations))
+
+
+def base_config(settings: TuneSettings) -> Config:
+    return build_config(settings.env_id, preset=settings.preset, config_file=settings.config_file,
+                        sets=list(settings.sets), seed=settings.seeds[0], total_steps=settings.total_steps,
+                        algo=settings.algo)
+
+
+def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
+    """Everything that can be refused before a trial starts."""
+    for name, value, low in (("--trials", settings.trials, 1), ("--jobs", settings.jobs, 1),
+                             ("--evaluations", settings.evaluations, 1), ("--eval-episodes", settings.eval_episodes, 1),
+                             ("--seeds-per-trial", len(settings.seeds), 1)):
+        if value < low:
+            raise CanterError(f"{name} must be >= {low}, got {value}")
+    if settings.startup_trials < 0:
+        raise CanterError(f"--startup-trials must be >= 0, got {settings.startup_trials}")
+    for name, value in (("--trial-minutes", settings.trial_minutes), ("--study-hours", settings.study_hours)):
+        if value is not None and not value > 0:
+            raise CanterError(f"{name} must be > 0, got {value}")
+    config = base_config(settings)
+    from canter.envs import resolve_backend
+
+    resolve_backend(config.env.id, config.env.backend)
+    space = load_space(settings.space_file, config.run.algo)
+    from canter.config.schema import reads_key, unread_key_error
+
+    for key in space.keys:
+        if not reads_key(config.run.algo, key):
+            raise CanterError(f"search space {space.source}: {unread_key_error(config.run.algo, key)}")
+    return config, space
+
+
+def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:
+    config = apply_sample(base, values)
+    return replace(config, run=replace(config.run, out_dir=str(trial_dir), checkpoint_every=settings.eval_interval,
+                                       keep_checkpoints=settings.evaluations + 2, tensorboard=False, max_minutes=None))
+
+
+# ------------------------------------------------------------------------------------------------------ the preset
+
+def _preset_value(value: Any) -> str:
+    from canter.config.schema import _toml_value
+
+    return '"none"' if value is None else _toml_value(value)
+
+
+def preset_text(config: Config) -> str:
+    """The config as a TOML file that `canter train --config FILE` takes as it is: every key except run
+    bookkeeping, `none` written as the string "none"."""
+    lines: list[str] = []
+    for section in SECTIONS:
+        table = getattr(config, section)
+        body = [f"{f.name} = {_preset_value(getattr(table, f.name))}" for f in fields(table)
+                if f"{section}.{f.name}" not in RUN_BOOKKEEPING]
+        if body:
+            lines += [f"[{section}]"] + body + [""]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------------- a trial
+
+def _checkpoint_steps(run_dir: Path) -> list[int]:
+    folder = run_dir / "checkpoints"
+    try:
+        return sorted(int(m.group(1)) for p in folder.iterdir() if (m := _CKPT.match(p.name)))
+    except OSError:
+        return []
+
+
+def evaluation_index(step: int, settings: TuneSettings) -> int:
+    """Which of the trial's evaluations a checkpoint at `step` is: 1 .. evaluations, the last for the final one.
+    Seeds count their own env steps (EnvPool's autoreset steps are not steps), so the seeds of a group reach an
+    evaluation point at slightly different steps; their checkpoints are matched by this index."""
+    if step >= settings.total_steps:
+        return settings.evaluations
+    return max(1, min(step // settings.eval_interval, settings.evaluations - 1))
+
+
+def _checkpoints_by_index(run_dir: Path, settings: TuneSettings) -> dict[int, int]:
+    return {evaluation_index(step, settings): step for step in _checkpoint_steps(run_dir)}
+
+
+def evaluate_checkpoint(run_dir: Path, step: int, episodes: int) -> float:
+    """Deterministic mean return of the checkpoint at `step` (eval env seeds from seed 0, same for every trial)."""
+    import jax
+
+    from canter.training import checkpoint
+    from canter.algos import get_algorithm
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import Policy, load_state
+
+    config, facts, state, _ = load_state(run_dir, checkpoint.checkpoint_path(run_dir, step))
+    params = get_algorithm(config.run.algo).policy_params(state)
+    policy = Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), run_dir)
+    return evaluate(policy, episodes=episodes, deterministic=True, seed=0).mean
+
+
+def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpace) -> Outcome:
+    """Train and evaluate one trial. Works with an Optuna trial or an `optuna.trial.FixedTrial`."""
+    from canter.training import checkpoint
+
+    values = space.suggest(trial)
+    trial_dir = settings.study_dir / "trials" / f"trial_{trial.number:05d}"
+    try:
+        config = trial_config(base, values, trial_dir, settings)
+    except CanterError as exc:
+        return Outcome("fail", reason=f"invalid sample: {exc}")
+    trial.set_user_attr(PRESET_ATTR, preset_text(config))
+    trial.set_user_attr("trial_dir", str(trial_dir.resolve()))
+    trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
+    run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
+    from canter.config.schema import to_toml
+
+    proc = start_group(GroupSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
+    deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
+    reported: dict[int, float] = {}   # evaluation index -> mean return over seeds
+    skipped: set[int] = set()   # evaluation indices whose checkpoint disappeared
+    try:
+        while True:
+            code = proc.poll()
+            found = [_checkpoints_by_index(d, settings) for d in run_dirs.values()]
+            ready = set.intersection(*(set(f) for f in found)) - set(reported) - skipped
+            for index in sorted(ready):
+                try:
+                    value = float(np.mean([evaluate_checkpoint(d, f[index], settings.eval_episodes)
+                                           for d, f in zip(run_dirs.values(), found)]))
+                except CanterError:
+                    skipped.add(index)  # removed by the trainer meanwhile; the next checkpoint will do
+                    continue
+                reported[index] = value
+                step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
+                trial.report(value, step)
+                if index < settings.evaluations and trial.should_prune():
+                    stop_group(proc)
+                    return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
+            if code is not None:
+                break
+            if deadline is not None and time.monotonic() > deadline:
+                stop_group(proc, grace_seconds=5)
+                done = max(reported, default=0) * settings.eval_interval
+                return Outcome("fail", reason=f"exceeded --trial-minutes {settings.trial_minutes:g} "
+                                              f"(stopped after about {done} steps)")
+            time.sleep(settings.poll_seconds)
+    finally:
+        stop_group(proc)
+        for d in run_dirs.values():
+            if d.is_dir():
+                checkpoint.prune(d, 1)
+    if code != 0:
+        reason = failure_reason(trial_dir, code)
+        if "non-finite" in reason:  # divergence is a result of the hyperparameters: the worst outcome, not an error
+            return Outcome("pruned", reason=f"diverged: {reason}")
+        return Outcome("fail", reason=reason)
+    if not reported:
+        return Outcome("fail", reason="training finished without a checkpoint to evaluate")
+    return Outcome("complete", value=reported[max(reported)])
+
+
+# ------------------------------------------------------------------------------------------------------ the study
+
+def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
+    """The study with this worker's sampler and pruner (they are not stored; every worker makes its own). With
+    --sampler-seed, job J samples with seed + J, so parallel jobs do not propose the same random trials."""
+    import optuna
+
+    quiet_optuna()
+    seed = None if settings.sampler_seed is None else settings.sampler_seed + job
+    sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
+    pruner = optuna.pruners.MedianPruner(n_startup_trials=max(1, settings.startup_trials // 2),
+                                         n_warmup_steps=settings.total_steps // 3)
+    return optuna.create_study(storage=storage, study_name=settings.name, direction="maximize", sampler=sampler,
+                               pruner=pruner, load_if_exists=True)
+
+
+def worker(settings: TuneSettings, thread_caps: dict[str, str] | None = None, job: int = 0) -> None:
+    """One worker: run trials until the study has its number of finished trials."""
+    if thread_caps:
+        os.environ.update(thread_caps)
+        from canter.orchestrate.jobs import apply_cpu_pinning
+
+        apply_cpu_pinning()
+    config, space = check_settings(settings)
+    storage = open_storage(settings.storage)
+    study = make_study(settings, storage, job)
+    deadline = _study_deadline(study, settings)
+    run_worker(study, storage, settings.trials, lambda trial: run_trial(trial, settings, config, space),
+               heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, deadline=deadline)
+
+
+def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
+    """--study-hours counts from the study's first trial, so workers that join later share the same end."""
+    if settings.study_hours is None:
+        return None
+    starts = [t.datetime_start.timestamp() for t in study.get_trials(deepcopy=False) if t.datetime_start]
+    return min(starts, default=time.time()) + settings.study_hours * 3600
+
+
+def _spawned_worker(settings: TuneSettings, caps: dict[str, str], job: int) -> None:
+    import sys
+
+    from canter.orchestrate.jobs import die_with_parent
+
+    die_with_parent()  # a killed `canter tune` takes its workers along; their trials are retried by heartbeat
+    try:
+        worker(settings, caps, job)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+def tune(settings: TuneSettings) -> Any:
+    """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
+    import multiprocessing
+
+    from canter.orchestrate.jobs import job_layout, warn_if_more_jobs_than_cores
+
+    check_settings(settings)
+    if settings.storage_url is None:
+        settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
+    storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
+    study = make_study(settings, storage)
+    warn_if_more_jobs_than_cores(settings.jobs)
+    if settings.jobs == 1:
+        worker(settings)
+    else:
+        context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
+        processes = [context.Process(target=_spawned_worker, args=(settings, caps, i), name=f"canter-tune-{i}")
+                     for i, caps in enumerate(job_layout(settings.jobs))]
+        for p in processes:
+            p.start()
+        try:
+            for p in processes:
+                p.join()
+        except KeyboardInterrupt:
+            for p in processes:
+                p.join(30)
+            raise
+        failed = [p.exitcode for p in processes if p.exitcode]
+        if failed:
+            raise CanterError(f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); "
+                              f"their error is printed above")
+    write_results(study, settings)
+    return study
+
+
+# ---------------------------------------------------------------------------------------------------- the report
+
+def _short(key: str) -> str:
+    return key.split(".", 1)[1] if "." in key else key
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def summary_table(study: Any, top: int = 10) -> str:
+    """Counts by state, the best trials as a markdown table, and the reasons of failed trials."""
+    from optuna.trial import TrialState
+
+    n = counts(study)
+    lines = [f"study '{study.study_name}': " + ", ".join(f"{v} {k.lower()}" for k, v in n.items() if v)]
+    done = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)) if t.value is not None]
+    done.sort(key=lambda t: -t.value)
+    if done:
+        keys = list(done[0].params)
+        lines += ["", "| trial | return | minutes | " + " | ".join(_short(k) for k in keys) + " |",
+                  "|---:|---:|---:|" + "---:|" * len(keys)]
+        for t in done[:top]:
+            minutes = (t.datetime_complete - t.datetime_start).total_seconds() / 60 if t.datetime_start else math.nan
+            lines.append(f"| {t.number} | {t.value:.1f} | {minutes:.1f} | " +
+                         " | ".join(_fmt(t.params.get(k)) for k in keys) + " |")
+    reasons: dict[str, int] = {}
+    for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL, TrialState.PRUNED)):
+        reason = t.user_attrs.get(FAIL_REASON) or t.user_attrs.get("note")
+        if t.state == TrialState.FAIL and not reason:
+            reason = "worker died (heartbeat lost); a copy of the trial was retried"
+        if reason and (t.state == TrialState.FAIL or reason.startswith("diverged")):
+            reasons[reason] = reasons.get(reason, 0) + 1
+    if reasons:
+        lines += ["", "failed or diverged trials:"] + [f"- {count} x {reason}" for reason, count in reasons.items()]
+    return "\n".join(lines)
+
+
+def write_results(study: Any, settings: TuneSettings) -> Path | None:
+    """Print the summary, and write it and the best trial's preset into the study folder."""
+    from canter.files import write_output
+    from optuna.trial import TrialState
+
+    table = summary_table(study)
+    print(table)
+    write_output(settings.study_dir / SUMMARY_FILE, (table + "\n").encode())
+    complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if not complete:
+        print("no trial completed, so there is no best preset yet")
+        return None
+    best = max(complete, key=lambda t: t.value)
+    header = (f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
+              f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
+              f"{', '.join(map(str, settings.seeds))}\n"
+              f"train with: canter train --config {BEST_FILE} --seed 0")
+    body = best.user_attrs[PRESET_ATTR]
+    path = settings.study_dir / BEST_FILE
+    write_output(path, ("\n".join(f"# {line}" for line in header.splitlines()) + "\n" + body).encode())
+    print(f"best trial {best.number}: return {best.value:.1f}; preset written to {path}")
+    return path

@@ -1,0 +1,2 @@
+"""The host side of training: the loop between jitted calls, vmapped seed groups, run folders, checkpoints and
+metrics logging."""

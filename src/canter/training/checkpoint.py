@@ -1,0 +1,124 @@
+"""Atomic, versioned, hashed checkpoints.
+
+A checkpoint is one `.npz` file: the train state's leaves as arrays (named by their pytree path), plus a JSON
+header with the format version, the resolved config, env facts needed to rebuild the policy without the env, the
+step count and a SHA-256 over everything else. It is written to a temp file in the same folder, fsynced and
+renamed, so a reader sees either the old file or the new one, never half of one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from canter.errors import CanterError
+from canter.files import atomic_write_bytes
+
+FORMAT_VERSION = 1
+_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
+
+
+def _path_name(path: tuple) -> str:
+    return "/".join(str(getattr(p, "key", getattr(p, "idx", getattr(p, "name", p)))) for p in path)
+
+
+def _digest(arrays: dict[str, np.ndarray], header: dict[str, Any]) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps(header, sort_keys=True).encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(name.encode())
+        h.update(str(a.dtype).encode())
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False) -> None:
+    """Write a checkpoint; `compress` deflates the arrays (slower to write, much smaller for a part-filled replay
+    buffer). Both forms are read the same way."""
+    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(state))[0]
+    arrays = {_path_name(p): np.asarray(v) for p, v in leaves}
+    header = dict(header, format_version=FORMAT_VERSION, leaves=[_path_name(p) for p, _ in leaves])
+    header["sha256"] = _digest(arrays, header)
+    payload = {f"leaf:{k}": v for k, v in arrays.items()}
+    payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    writer = np.savez_compressed if compress else np.savez
+    atomic_write_bytes(Path(path), lambda f: writer(f, **payload))
+
+
+def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise CanterError(f"checkpoint not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(bytes(data["header"]).decode())
+            arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
+    except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
+        raise CanterError(f"checkpoint {path} is corrupt or truncated; resume from an earlier checkpoint in "
+                          f"{path.parent}") from None
+    version = header.get("format_version")
+    if version != FORMAT_VERSION:
+        raise CanterError(f"checkpoint {path} has format version {version}, this canter reads version "
+                          f"{FORMAT_VERSION}; use the canter release that wrote it")
+    expected = header.pop("sha256", None)
+    if expected != _digest(arrays, header):
+        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); resume from an earlier checkpoint")
+    header["sha256"] = expected
+    return arrays, header
+
+
+def restore(template: Any, arrays: dict[str, np.ndarray], source: Path) -> Any:
+    """Fill a template pytree (same structure) with the saved arrays, checking names, shapes and dtypes."""
+    leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
+    restored = []
+    for p, leaf in leaves:
+        name = _path_name(p)
+        if name not in arrays:
+            raise CanterError(f"checkpoint {source} does not match this config (missing '{name}')")
+        value = arrays[name]
+        if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
+            raise CanterError(f"checkpoint {source} does not match this config ('{name}' has shape {value.shape}, "
+                              f"expected {np.shape(leaf)})")
+        restored.append(value)
+    return jax.tree_util.tree_unflatten(treedef, restored)
+
+
+def checkpoint_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def checkpoint_path(run_dir: Path, step: int) -> Path:
+    return checkpoint_dir(run_dir) / f"ckpt_{step:012d}.npz"
+
+
+def list_checkpoints(run_dir: Path) -> list[Path]:
+    folder = checkpoint_dir(run_dir)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if _NAME.match(p.name))
+
+
+def latest(run_dir: Path) -> Path:
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CanterError(f"run folder not found: {run_dir}")
+    found = list_checkpoints(run_dir)
+    if not found:
+        raise CanterError(f"no checkpoint in {run_dir}; train first, or pass the run folder that holds "
+                          f"checkpoints/ckpt_*.npz")
+    return found[-1]
+
+
+def prune(run_dir: Path, keep: int) -> None:
+    for old in list_checkpoints(run_dir)[:-keep]:
+        old.unlink(missing_ok=True)

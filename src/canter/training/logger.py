@@ -1,0 +1,182 @@
+"""Metric outputs: metrics.csv (stable columns that plot and bench read), TensorBoard events, and a progress bar.
+
+metrics.csv has one row per iteration. Columns:
+- `global_step`: env steps so far (autoreset steps excluded); `iteration`; `wall_time`: seconds the run has taken
+  so far, compile included, summed over its resumed sessions; `sps`: steps per second over this iteration,
+  compile excluded.
+- `episodes`, `episodic_return`, `episodic_length`: episodes finished in this iteration and their mean raw return
+  and length (empty when none finished).
+- then the algorithm's diagnostics, in the order of its `metric_names`. For ppo: `policy_loss`, `value_loss`,
+  `entropy`, `approx_kl`, `clip_frac`, `explained_variance`, `learning_rate`, `epochs_run`, averaged over the
+  iteration's minibatches.
+- `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
+
+
+def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...]) -> list[str]:
+    return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys]
+
+
+def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    if not path.is_file():
+        return [], []
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
+
+
+def _number(text: str | None) -> float:
+    try:
+        return float(text) if text else math.nan
+    except ValueError:
+        return math.nan
+
+
+def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[str, float]]]:
+    """The rows of the training a run kept, each with its run totals so far (wall seconds, training seconds,
+    episodes), `wall_time` rewritten to count from the run's start.
+
+    Rows logged after a run's last checkpoint are lost work when the process dies without saving. Runs written
+    before resumes dropped such rows still hold them, followed by the resumed session's rows, whose `iteration`
+    restarts below theirs. Those runs also restarted `wall_time` at 0 on every resume."""
+    kept: list[tuple[dict[str, str], dict[str, float]]] = []
+    wall_offset = previous_wall = 0.0
+    for row in rows:
+        iteration, raw_wall = _number(row.get("iteration")), _number(row.get("wall_time"))
+        if kept and iteration <= _number(kept[-1][0].get("iteration")):
+            while kept and _number(kept[-1][0].get("iteration")) >= iteration:
+                kept.pop()
+            wall_offset = kept[-1][1]["wall_seconds"] if kept else 0.0
+        elif kept and raw_wall < previous_wall:  # a resume after a clean stop, which loses no rows
+            wall_offset = kept[-1][1]["wall_seconds"]
+        previous_wall = raw_wall if raw_wall == raw_wall else previous_wall
+        before = kept[-1][1] if kept else {"global_step": 0.0, "wall_seconds": 0.0, "train_seconds": 0.0,
+                                           "episodes": 0}
+        step, wall, sps = _number(row["global_step"]), _number(row.get("wall_time")), _number(row.get("sps"))
+        wall = wall_offset + wall if wall == wall else before["wall_seconds"]
+        totals = {"global_step": step, "wall_seconds": wall,
+                  "train_seconds": before["train_seconds"] + ((step - before["global_step"]) / sps if sps > 0 else 0.0),
+                  "episodes": before["episodes"] + (int(_number(row["episodes"])) if row.get("episodes") else 0)}
+        kept.append((dict(row, wall_time=f"{wall:.3f}"), totals))
+    return kept
+
+
+def totals_until(path: Path, step: int) -> dict[str, float]:
+    """Wall seconds, training seconds and episodes of a run up to its checkpoint at `step`. A resume reads these
+    from the checkpoint; this rebuilds them from metrics.csv for checkpoints written before they were stored."""
+    _, rows = _rows(Path(path))
+    history = [totals for _, totals in run_history(rows) if totals["global_step"] <= step]
+    last = history[-1] if history else {"wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
+    return {"wall_seconds": last["wall_seconds"], "train_seconds": last["train_seconds"],
+            "episodes": int(last["episodes"])}
+
+
+class MetricsLogger:
+    """Appends to metrics.csv and TensorBoard. A resumed run passes `resume_step`: rows and events logged after
+    that checkpoint belong to training that was lost with the process, so they are dropped and redone."""
+
+    def __init__(self, run_dir: Path, metric_names: tuple[str, ...], info_keys: tuple[str, ...],
+                 tensorboard: bool, resume_step: int | None = None) -> None:
+        self.path = Path(run_dir) / "metrics.csv"
+        self.columns = columns_for(metric_names, info_keys)
+        if resume_step is not None:
+            self._drop_rows_after(resume_step)
+        exists = self.path.is_file() and self.path.stat().st_size > 0
+        self._file = open(self.path, "a", newline="")
+        self._writer = csv.DictWriter(self._file, fieldnames=self.columns, extrasaction="ignore")
+        if not exists:
+            self._writer.writeheader()
+        self._tb = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter
+
+            purge = None if resume_step is None else resume_step + 1
+            self._tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=purge)
+
+    def _drop_rows_after(self, step: int) -> None:
+        header, rows = _rows(self.path)
+        kept = [row for row, totals in run_history(rows) if totals["global_step"] <= step]
+        if not header or kept == rows:
+            return
+
+        import io
+
+        from canter.files import atomic_write_bytes
+
+        def write(f: Any) -> None:
+            text = io.StringIO(newline="")
+            writer = csv.DictWriter(text, fieldnames=header, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(kept)
+            f.write(text.getvalue().encode())
+        atomic_write_bytes(self.path, write)
+
+    def log(self, row: dict[str, Any]) -> None:
+        clean = {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+        self._writer.writerow(clean)
+        self._file.flush()
+        if self._tb is not None:
+            step = int(row["global_step"])
+            for key, value in row.items():
+                if key in ("global_step", "iteration") or value is None:
+                    continue
+                if isinstance(value, float) and math.isnan(value):
+                    continue
+                tag = key if "/" in key else (f"charts/{key}" if key in ("episodic_return", "episodic_length",
+                                                                           "sps", "learning_rate", "episodes")
+                                              else f"losses/{key}")
+                self._tb.add_scalar(tag, value, step)
+
+    def scalar(self, tag: str, value: float, step: int) -> None:
+        if self._tb is not None:
+            self._tb.add_scalar(tag, value, step)
+
+    def close(self) -> None:
+        self._file.close()
+        if self._tb is not None:
+            self._tb.close()
+
+
+class Progress:
+    """A rich progress bar with steps, SPS, ETA and the recent mean return; a no-op when quiet."""
+
+    def __init__(self, total: int, start: int, quiet: bool, description: str) -> None:
+        self._bar = None
+        if quiet:
+            return
+        from rich.progress import BarColumn, Progress as RichProgress, TextColumn, TimeRemainingColumn
+
+        self._total = total
+        self._bar = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(bar_width=24),
+                                 TextColumn("{task.fields[steps]}"), TextColumn("{task.fields[sps]} SPS"),
+                                 TextColumn("ret {task.fields[ret]}"), TextColumn("ETA"), TimeRemainingColumn(),
+                                 transient=False)
+        self._bar.start()
+        self._task = self._bar.add_task(description, total=total, completed=start, steps=self._steps(start),
+                                        sps="-", ret="-")
+
+    def _steps(self, step: int) -> str:
+        def short(n: float) -> str:
+            if n >= 1e6:
+                return f"{n / 1e6:.2f}M"
+            return f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n:,.0f}"
+        return f"{short(step)}/{short(self._total)}"
+
+    def update(self, step: int, sps: float, recent_return: float | None) -> None:
+        if self._bar is None:
+            return
+        ret = "-" if recent_return is None else f"{recent_return:.1f}"
+        self._bar.update(self._task, completed=step, steps=self._steps(step), sps=f"{sps:,.0f}", ret=ret)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()

@@ -1,0 +1,432 @@
+"""The host loop: build env and state, call the jitted iteration, and between calls log, checkpoint, show progress
+and handle stop conditions and signals."""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import secrets
+import signal
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, replace
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.training import checkpoint
+from canter.config.schema import Config, to_toml, validate
+from canter.files import atomic_write_bytes
+from canter.errors import CanterError, DiscreteActionsError
+from canter.training.logger import MetricsLogger, Progress, totals_until
+from canter.core.seeding import RESUME, TRAIN, env_seeds
+from canter.use.video import TrainingVideos
+
+RECENT_EPISODES = 20
+
+
+@dataclass(frozen=True)
+class RunResult:
+    run_dir: Path
+    global_step: int
+    recent_return: float | None      # mean raw return of the last 20 training episodes
+    episodes: int
+    wall_seconds: float               # the whole run, compile and earlier sessions of a resumed run included
+    compile_seconds: float            # this session's compile
+    sps: float                        # env steps per second over the whole run, compile excluded
+    stop_reason: str                  # budget | stop_at_return | max_minutes | signal
+
+
+def _safe(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in text)
+
+
+def new_run_dir(config: Config) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    name = (f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
+            f"{stamp}-{secrets.token_hex(2)}")
+    return Path(config.run.out_dir) / name
+
+
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo where there is one (benchmark tables need more than 'x86_64')."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def versions() -> dict[str, Any]:
+    from importlib import metadata
+
+    def version(name: str) -> str | None:
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+
+    import os
+
+    return {"canter": version("canter"), "python": platform.python_version(), "jax": version("jax"),
+            "jaxlib": version("jaxlib"), "optax": version("optax"), "envpool": version("envpool"),
+            "mujoco": version("mujoco"), "gymnasium": version("gymnasium"), "numpy": version("numpy"),
+            "platform": platform.platform(), "cpu": cpu_name(), "cpu_count": os.cpu_count()}
+
+
+class _StopFlag:
+    """SIGINT/SIGTERM set a flag; the loop writes a checkpoint and returns at the next iteration boundary."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopFlag":
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.signal is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt  # a second Ctrl-C means now
+        self.signal = signum
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def _env_header(spec: Any) -> dict[str, Any]:
+    return {"id": spec.id, "backend": spec.backend, "obs_dim": spec.obs_dim, "act_dim": spec.act_dim,
+            "action_low": list(spec.action_low), "action_high": list(spec.action_high),
+            "max_episode_steps": spec.max_episode_steps, "info_keys": list(spec.info_keys)}
+
+
+def train(config: Config, *, resume: str | Path | None = None, quiet: bool = True,
+          run_dir: str | Path | None = None) -> RunResult:
+    """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
+    differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
+    return _train_group([config], [resume], [run_dir], quiet)[0]
+
+
+def train_seeds(config: Config, seeds: list[int], *, quiet: bool = True,
+                run_dirs: list[str | Path] | None = None) -> list[RunResult]:
+    """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is replaced by
+    each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and follows
+    the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(f"seeds repeat in {seeds}; each seed of a group must be different")
+    if run_dirs is not None and len(run_dirs) != len(seeds):
+        raise CanterError(f"{len(run_dirs)} run folders given for {len(seeds)} seeds")
+    configs = [replace(config, run=replace(config.run, seed=seed)) for seed in seeds]
+    return _train_group(configs, [None] * len(seeds), list(run_dirs or [None] * len(seeds)), quiet)
+
+
+def resume_seeds(run_dirs: list[str | Path], total_steps: int | None = None, *,
+                 quiet: bool = True) -> list[RunResult]:
+    """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
+    (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
+    would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
+    configs = [resume_config(Path(d), total_steps) for d in run_dirs]
+    seeds = [c.run.seed for c in configs]
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct "
+                          f"seeds")
+    reference = replace(configs[0].run, seed=0)
+    for run_dir, config in zip(run_dirs, configs):
+        if replace(config, run=replace(config.run, seed=0)) != replace(configs[0], run=reference):
+            raise CanterError(f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
+                              f"folders with different configs one at a time")
+    return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
+
+
+def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
+    """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap."""
+    from canter.algos import get_algorithm
+    from canter.envs import make_vec_env
+    from canter.core.runtime import setup_jax
+
+    setup_jax()
+    for config in configs:
+        validate(config)
+    started = time.perf_counter()
+
+    states, outs, start_steps, seeds, earlier = [], [], [], [], []
+    for config, resume, run_dir in zip(configs, resumes, run_dirs):
+        state = None
+        if resume is not None:
+            from canter.use.policy import load_state
+
+            out = Path(resume)
+            _, _, state, header = load_state(out)
+            start_step = int(header["global_step"])
+            earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
+        else:
+            start_step = 0
+            out = Path(run_dir) if run_dir is not None else new_run_dir(config)
+            earlier.append(None)
+        if start_step >= config.run.total_steps:
+            raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
+                              f"steps; pass --total-steps larger than {start_step} to extend it")
+        purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
+        # A seed's envs get exactly the seeds its single-seed run would give them, wherever it sits in the group.
+        seeds += env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
+        states.append(state)
+        outs.append(out)
+        start_steps.append(start_step)
+
+    config = configs[0]
+    try:
+        env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds,
+                           config.env.envpool_shards)
+    except DiscreteActionsError as exc:
+        raise CanterError(f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
+                          f"({exc.space}); choose an env with Box actions") from None
+    spec = replace(env.spec, num_envs=config.env.num_envs)  # what one seed sees
+    algorithm = get_algorithm(config.run.algo)
+    try:
+        algorithm.validate(config, spec)
+        for i, (config, out) in enumerate(zip(configs, outs)):
+            if states[i] is None:
+                states[i] = algorithm.init_state(config, spec)
+            out.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
+            if resumes[i] is None:
+                atomic_write_bytes(out / "versions.json",
+                                              lambda f: f.write(json.dumps(versions(), indent=2).encode()))
+        return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
+    finally:
+        env.close()
+
+
+class _SeedRun:
+    """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
+
+    def __init__(self, config: Config, spec: Any, out: Path, start_step: int, metric_names: tuple[str, ...],
+                 earlier: dict[str, float] | None) -> None:
+        """`earlier`: wall seconds, training seconds and episodes of the sessions before a resume."""
+        self.config = config
+        self.out = out
+        self.metric_names = metric_names
+        self.start_step = start_step
+        self.global_step = start_step
+        earlier = earlier or {}
+        self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
+        self.episodes = int(earlier.get("episodes", 0))
+        self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
+        self.run_seconds = float(earlier.get("train_seconds", 0.0))
+        every = config.run.checkpoint_every
+        self.next_checkpoint = (start_step // every + 1) * every if every else None
+        self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
+        self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard,
+                                    resume_step=start_step if start_step > 0 else None)
+        self.videos = TrainingVideos(out, config.run.video_every, start_step)
+        self.closed = False
+        self.stop_reason: str | None = None     # set once the seed is done; the group may still run
+        self.error: str | None = None
+        self.result: RunResult | None = None
+
+    @property
+    def recent_mean(self) -> float | None:
+        return float(np.mean(self.recent)) if self.recent else None
+
+    def totals(self, started: float) -> dict[str, float]:
+        return {"wall_seconds": self.earlier_wall + time.perf_counter() - started, "train_seconds": self.run_seconds,
+                "episodes": self.episodes}
+
+    def save(self, train_state: Any, step: int, started: float) -> None:
+        header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"),
+                      totals=self.totals(started))
+        checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header,
+                        compress=self.config.run.compress_checkpoints)
+        checkpoint.prune(self.out, self.config.run.keep_checkpoints)
+
+    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> None:
+        steps = int(metrics["steps"])
+        self.global_step += steps
+        self.run_seconds += elapsed
+        finished = np.asarray(metrics["finished"], bool)
+        returns = np.asarray(metrics["episode_return"])[finished]
+        lengths = np.asarray(metrics["episode_length"])[finished]
+        self.episodes += int(finished.sum())
+        self.recent.extend(float(r) for r in returns)
+        row: dict[str, Any] = {
+            "global_step": self.global_step, "iteration": iteration,
+            "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
+            "episodes": int(finished.sum()),
+            "episodic_return": float(returns.mean()) if returns.size else math.nan,
+            "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
+        }
+        for key in self.metric_names:
+            row[key] = float(metrics[key])
+        for key, values in metrics["episode_info"].items():
+            chosen = np.asarray(values)[finished]
+            row[f"info/{key}"] = float(chosen.mean()) if chosen.size else math.nan
+        self.logger.log(row)
+
+    def checkpoint_due(self) -> bool:
+        return (self.next_checkpoint is not None and self.global_step >= self.next_checkpoint
+                and self.global_step < self.config.run.total_steps)
+
+    def own_stop_reason(self) -> str | None:
+        run = self.config.run
+        if run.stop_at_return is not None and len(self.recent) >= RECENT_EPISODES \
+                and self.recent_mean >= run.stop_at_return:
+            return "stop_at_return"
+        return None
+
+    def finish(self, train_state: Any, reason: str, compile_seconds: float, started: float) -> None:
+        self.stop_reason = reason
+        self.save(train_state, self.global_step, started)
+        self.close()
+        self.result = RunResult(
+            run_dir=self.out, global_step=self.global_step, recent_return=self.recent_mean, episodes=self.episodes,
+            wall_seconds=self.earlier_wall + time.perf_counter() - started, compile_seconds=compile_seconds,
+            sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
+            stop_reason=reason)
+        summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
+        atomic_write_bytes(self.out / "summary.json",
+                                      lambda f: f.write(json.dumps(summary, indent=2).encode()))
+
+    def close(self) -> None:
+        if not self.closed:
+            self.logger.close()
+            self.videos.close()
+            self.closed = True
+
+    def fail(self, last_good_state: Any, started: float) -> None:
+        """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
+        self.stop_reason = "non_finite"
+        self.save(last_good_state, self.global_step, started)
+        self.close()
+        self.error = (f"non-finite observation, reward or parameter during the iteration after step "
+                      f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}")
+
+
+def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: list[Path], start_steps: list[int],
+          earlier: list[dict[str, float] | None], quiet: bool, started: float) -> list[RunResult]:
+    """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
+    non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
+    inside the vmapped program until the last seed is done, but nothing of it is kept."""
+    import jax
+    import jax.numpy as jnp
+
+    from canter.algos import get_algorithm
+    from canter.algos.onpolicy_rollout import init_env_carry
+
+    config = configs[0]
+    group = len(configs)
+    algorithm = get_algorithm(config.run.algo)
+    total = config.run.total_steps
+    donate = (0,) if algorithm.donate_state else ()
+    if group == 1:
+        state = states[0]
+        carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
+        iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
+        pick = lambda tree, i: tree  # noqa: E731
+    else:
+        from canter.training import seedgroup
+
+        state = seedgroup.stack(states)
+        handle = env.initial_state()
+        carry = seedgroup.stack([init_env_carry(handle, obs, spec.info_keys)
+                                 for obs in seedgroup.split_first_obs(env.reset(), group)])
+        iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step,
+                                                                                                  group))),
+                            donate_argnums=donate)
+        pick = seedgroup.unstack
+
+    if algorithm.donate_state:
+        state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
+
+    def fractions(runs: list[_SeedRun]) -> jnp.ndarray:
+        values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
+        return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
+
+    runs = [_SeedRun(c, spec, out, start, algorithm.metric_names, before)
+            for c, out, start, before in zip(configs, outs, start_steps, earlier)]
+    compile_start = time.perf_counter()
+    compiled = iteration.lower(state, carry, fractions(runs)).compile()
+    compile_seconds = time.perf_counter() - compile_start
+
+    label = f"{spec.id} {config.run.algo}" + (f" x{group} seeds" if group > 1 else "")
+    progress = Progress(total, min(start_steps), quiet, label)
+    deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
+    try:
+        with _StopFlag() as stop:
+            while any(run.stop_reason is None for run in runs):
+                t0 = time.perf_counter()
+                new_state, carry, metrics = compiled(state, carry, fractions(runs))
+                metrics = jax.device_get(metrics)
+                iterations = np.asarray(jax.device_get(new_state.iteration))
+                elapsed = time.perf_counter() - t0
+                steps = 0
+                for i, run in enumerate(runs):
+                    if run.stop_reason is not None:
+                        continue
+                    seed_metrics = pick(metrics, i)
+                    if not bool(seed_metrics["finite"]):
+                        # A donated state is gone; such an algorithm returns the last good state itself.
+                        run.fail(pick(new_state if algorithm.donate_state else state, i), started)
+                        continue
+                    run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
+                    steps += int(seed_metrics["steps"])
+                    if run.checkpoint_due():
+                        run.save(pick(new_state, i), run.global_step, started)
+                        every = run.config.run.checkpoint_every
+                        run.next_checkpoint = (run.global_step // every + 1) * every
+                    run.videos.maybe_record(run.global_step, lambda path, i=i, run=run: checkpoint.save(
+                        path, pick(new_state, i), dict(run.header_base, global_step=run.global_step)))
+                state = new_state
+
+                group_reason = None
+                if deadline is not None and time.perf_counter() >= deadline:
+                    group_reason = "max_minutes"
+                elif stop.signal is not None:
+                    group_reason = "signal"
+                for i, run in enumerate(runs):
+                    if run.stop_reason is not None:
+                        continue
+                    reason = run.own_stop_reason() or group_reason
+                    if reason is None and run.global_step >= total:
+                        reason = "budget"
+                    if reason is not None:
+                        run.finish(pick(state, i), reason, compile_seconds, started)
+                active = [run for run in runs if run.stop_reason is None] or runs
+                recents = [run.recent_mean for run in runs if run.recent_mean is not None]
+                progress.update(min(run.global_step for run in active), steps / elapsed,
+                                float(np.mean(recents)) if recents else None)
+    finally:
+        progress.close()
+        for run in runs:
+            run.close()
+
+    failed = [run for run in runs if run.error is not None]
+    if failed:
+        if group == 1:
+            raise CanterError(failed[0].error)
+        raise CanterError("; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed)
+                          + "; the other seeds finished normally")
+    return [run.result for run in runs]
+
+
+def resume_config(run_dir: Path, total_steps: int | None) -> Config:
+    """The saved config of a run, with only the step budget changed."""
+    from canter.use.policy import read_run_config
+
+    if not Path(run_dir).is_dir():
+        raise CanterError(f"run folder not found: {run_dir}")
+    config = read_run_config(Path(run_dir))
+    if total_steps is not None:
+        config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
+    return config

@@ -1,0 +1,393 @@
+"""Learning curves of run folders: read metrics.csv, group seeds, smooth, align, bootstrap, draw.
+
+The numerics are pure functions over numpy arrays, each tested against a plain reference:
+
+- `moving_average(y, window)`: trailing window over a run's own logged rows (row i averages rows i-W+1..i that
+  are not NaN; the first rows average what exists so far), applied per run before anything else, as in seed 002
+  ("values reported every 2048 steps and smoothed with a window of 50").
+- `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
+  seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
+  onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before
+  averaging. A run counts inside its own range, and up to one of its own logging intervals beyond either end,
+  where it holds its first or last value: seeds of one budget stop up to an iteration apart, and without that
+  the last grid points would average only the seed that logged last, drawing a spike. Further out a run does
+  not count (no extrapolation), so where only some runs reach, the mean and band are over those runs.
+- `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
+  replacement from a seeded generator.
+
+Runs whose resolved configs differ only in keys that do not change learning (`IGNORED_KEYS`: the seed, where
+outputs go, ...) form one group. Groups are labelled by the keys in which they differ (`group_labels`).
+Drawing uses matplotlib's object API with the Agg canvas, so no global backend is touched.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import warnings
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from canter.config.schema import Config, SECTIONS, from_toml_text
+from canter.errors import CanterError
+from canter.training.logger import run_history
+
+# Keys that do not change what is learned: runs differing only in these are repeats of one experiment.
+IGNORED_KEYS = ("run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints", "run.tensorboard",
+                "run.max_minutes", "run.stop_at_return", "env.envpool_shards")
+# Keys that name an experiment; a label uses only these when they tell the groups apart.
+HEADLINE_KEYS = ("env.id", "run.algo", "run.preset")
+SHORT_NAMES = {"env.id": "env", "run.algo": "algo", "run.preset": "preset"}
+
+# metrics.csv columns that are bookkeeping rather than curves.
+NOT_CURVES = ("global_step", "iteration", "wall_time", "episodes")
+# (title, y-axis label with units) of the columns canter and its algorithms log; others get their column name.
+PANEL_LABELS: dict[str, tuple[str, str]] = {
+    "episodic_return": ("Episode return", "return per episode (sum of rewards)"),
+    "episodic_length": ("Episode length", "steps per episode"),
+    "sps": ("Training speed", "env steps / s"),
+    "policy_loss": ("Policy loss", "loss (dimensionless)"),
+    "value_loss": ("Value loss", "loss (squared return units)"),
+    "entropy": ("Policy entropy", "nats"),
+    "approx_kl": ("Approx. KL (old ‖ new)", "nats"),
+    "clip_frac": ("Clip fraction", "fraction of samples clipped"),
+    "explained_variance": ("Explained variance", "1 − Var[R − V] / Var[R]"),
+    "learning_rate": ("Learning rate", "Adam step size"),
+    "epochs_run": ("Epochs run", "epochs per iteration"),
+    "actor_loss": ("Actor loss", "loss (−Q units)"),
+    "critic_loss": ("Critic loss", "loss (squared return units)"),
+    "q_mean": ("Mean Q value", "return units"),
+    "alpha": ("Entropy temperature α", "dimensionless"),
+    "policy_kl": ("Policy KL (old ‖ new)", "nats"),
+    "kl_beta": ("KL penalty coefficient β", "dimensionless"),
+    "sym_loss": ("Symmetry loss", "mean squared difference"),
+    "surrogate_gain": ("Surrogate gain", "advantage units"),
+}
+X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
+CONFIDENCE = 0.95
+BOOTSTRAP_SAMPLES = 2000
+
+
+@dataclass(frozen=True)
+class RunCurves:
+    run_dir: Path
+    config: Config
+    columns: dict[str, np.ndarray]   # numeric metrics.csv columns, NaN where a row has no value
+
+
+@dataclass(frozen=True)
+class Group:
+    label: str
+    runs: tuple[RunCurves, ...]
+
+
+@dataclass(frozen=True)
+class Band:
+    x: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    runs: int
+
+
+# ------------------------------------------------------------------------------------------------------ reading
+
+def read_metrics(path: Path) -> dict[str, np.ndarray]:
+    """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
+    path = Path(path)
+    if not path.is_file():
+        raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        header = list(reader.fieldnames or [])
+        rows = [row for row in reader if any(row.values())]
+    if not header or not rows:
+        raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
+    if "global_step" in header and "iteration" in header:
+        rows = [row for row, _ in run_history(rows)]  # older resumed runs still hold the rows of lost work
+    columns: dict[str, np.ndarray] = {}
+    for name in header:
+        cells = [row.get(name) or "" for row in rows]
+        try:
+            columns[name] = np.array([float(c) if c.strip() else math.nan for c in cells])
+        except ValueError:
+            continue
+    if "global_step" not in columns:
+        raise CanterError(f"{path} has no global_step column; is it a canter metrics file?")
+    return columns
+
+
+def load_run(run_dir: str | Path) -> RunCurves:
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CanterError(f"run folder not found: {run_dir}")
+    columns = read_metrics(run_dir / "metrics.csv")
+    config_path = run_dir / "config.toml"
+    if not config_path.is_file():
+        raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
+    return RunCurves(run_dir, from_toml_text(config_path.read_text(), str(config_path)), columns)
+
+
+# ------------------------------------------------------------------------------------------------------ grouping
+
+def flat_config(config: Config) -> dict[str, Any]:
+    return {f"{s}.{f.name}": getattr(getattr(config, s), f.name) for s in SECTIONS for f in fields(getattr(config, s))}
+
+
+def experiment_key(config: Config) -> tuple:
+    return tuple((k, v) for k, v in flat_config(config).items() if k not in IGNORED_KEYS)
+
+
+def differing_keys(configs: Sequence[Config]) -> list[str]:
+    """Keys (outside IGNORED_KEYS) whose values are not the same in every config, in config order."""
+    flats = [flat_config(c) for c in configs]
+    return [k for k in flats[0] if k not in IGNORED_KEYS and any(f[k] != flats[0][k] for f in flats[1:])]
+
+
+def _show(key: str, value: Any) -> str:
+    name = SHORT_NAMES.get(key, key)
+    shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
+    return f"{name}={shown}"
+
+
+def group_labels(configs: Sequence[Config]) -> list[str]:
+    """One label per config, from the keys in which they differ: the headline keys (env, algo, preset) when they
+    tell the configs apart, plus any other differing key needed to tell apart configs whose headline is equal.
+    A single config is labelled by its env, algo and preset."""
+    flats = [flat_config(c) for c in configs]
+    if len(configs) == 1:
+        return [" ".join(_show(k, flats[0][k]) for k in HEADLINE_KEYS)]
+    diff = differing_keys(configs)
+    headline = [k for k in HEADLINE_KEYS if k in diff]
+    labels = []
+    for flat in flats:
+        same_headline = [f for f in flats if all(f[k] == flat[k] for k in headline)]
+        extra = [k for k in diff if k not in headline and any(f[k] != flat[k] for f in same_headline)]
+        labels.append(", ".join(_show(k, flat[k]) for k in headline + extra) or "same config")
+    return labels
+
+
+def group_runs(runs: Sequence[RunCurves]) -> list[Group]:
+    """Runs whose configs differ only in IGNORED_KEYS (seeds, output places) form one group, in first-seen order."""
+    keyed: dict[tuple, list[RunCurves]] = {}
+    for run in runs:
+        keyed.setdefault(experiment_key(run.config), []).append(run)
+    members = list(keyed.values())
+    labels = group_labels([m[0].config for m in members])
+    return [Group(label, tuple(m)) for label, m in zip(labels, members)]
+
+
+# ------------------------------------------------------------------------------------------------------ numerics
+
+def moving_average(y: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average over the last `window` rows, ignoring NaNs (NaN only if all rows in it are NaN).
+    `window=1` returns the input."""
+    if window < 1:
+        raise CanterError(f"--smooth must be >= 1 rows, got {window}")
+    y = np.asarray(y, float)
+    valid = ~np.isnan(y)
+    sums = np.cumsum(np.where(valid, y, 0.0))
+    counts = np.cumsum(valid)
+    window_sums = sums - np.concatenate([np.zeros(window), sums[:-window]])[: len(y)]
+    window_counts = counts - np.concatenate([np.zeros(window), counts[:-window]])[: len(y)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(window_counts > 0, window_sums / np.maximum(window_counts, 1), np.nan)
+
+
+def logging_interval(x: np.ndarray) -> float:
+    """The median spacing of a run's logged x values (0 with fewer than two)."""
+    x = np.sort(np.asarray(x, float)[~np.isnan(x)])
+    return float(np.median(np.diff(x))) if len(x) > 1 else 0.0
+
+
+MAX_GRID_POINTS = 4000
+
+
+def common_grid(xs: Sequence[np.ndarray], points: int | None = None) -> np.ndarray:
+    """Evenly spaced x values from the earliest start to the latest end of the runs. Unless `points` is given, the
+    spacing is the finest of the runs' median row spacings (so runs whose ranges barely overlap, as wall times can,
+    keep their resolution), with at least as many points as the longest run has rows and at most MAX_GRID_POINTS."""
+    xs = [np.asarray(x, float)[~np.isnan(x)] for x in xs]
+    lo = min(x.min() for x in xs)
+    hi = max(x.max() for x in xs)
+    if hi <= lo:
+        return np.array([lo])
+    if points is None:
+        spacings = [logging_interval(x) for x in xs]
+        finest = min([d for d in spacings if d > 0], default=hi - lo)
+        points = min(max(math.ceil((hi - lo) / finest) + 1, max(len(x) for x in xs)), MAX_GRID_POINTS)
+    return np.linspace(lo, hi, max(points, 2))
+
+
+def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray, hold: float = 0.0) -> np.ndarray:
+    """Linear interpolation of y(x) onto grid, skipping NaN rows. Within `hold` beyond either end of the x range
+    the run covers, the end value is held; further out NaN (no extrapolation). NaN everywhere if the run has no
+    values."""
+    keep = ~(np.isnan(x) | np.isnan(y))
+    if not keep.any():
+        return np.full(len(grid), np.nan)
+    x, y = x[keep], y[keep]
+    inside = (grid >= x.min() - hold) & (grid <= x.max() + hold)
+    return np.where(inside, np.interp(grid, x, y), np.nan)
+
+
+def bootstrap_band(samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES,
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over runs (rows of `samples` [runs, points]) and a percentile bootstrap band: draw `resamples` sets
+    of runs with replacement (index matrix [resamples, runs] from `np.random.default_rng(seed)`), average each
+    set, and take the (1 ± confidence)/2 quantiles of those averages at each point. NaNs are ignored."""
+    samples = np.asarray(samples, float)
+    n = samples.shape[0]
+    with warnings.catch_warnings():
+        # Points where every run is NaN are expected (no episode finished yet there).
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(samples, axis=0)
+        if n == 1:
+            return mean, mean.copy(), mean.copy()
+        index = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+        means = np.nanmean(samples[index], axis=1)   # [resamples, points]
+        tail = (1.0 - confidence) / 2.0
+        low, high = np.nanquantile(means, [tail, 1.0 - tail], axis=0)
+    return mean, low, high
+
+
+def group_band(group: Group, column: str, x_axis: str = "steps", smooth: int = 1, seed: int = 0) -> Band | None:
+    """The curve of one column for one group: per-run smoothing, interpolation onto a common grid, then the mean
+    and bootstrap band over runs. None when no run of the group logged the column."""
+    x_column = X_AXES[x_axis][0]
+    runs = [r for r in group.runs if column in r.columns and x_column in r.columns
+            and not np.isnan(r.columns[column]).all()]
+    if not runs:
+        return None
+    xs = [r.columns[x_column] for r in runs]
+    ys = [moving_average(r.columns[column], smooth) for r in runs]
+    if len(runs) == 1:
+        keep = ~(np.isnan(xs[0]) | np.isnan(ys[0]))
+        x, y = xs[0][keep], ys[0][keep]
+        return Band(x, y, y.copy(), y.copy(), 1)
+    grid = common_grid(xs)
+    samples = np.stack([interpolate(x, y, grid, logging_interval(x)) for x, y in zip(xs, ys)])
+    mean, low, high = bootstrap_band(samples, seed=seed)
+    return Band(grid, mean, low, high, len(runs))
+
+
+# ------------------------------------------------------------------------------------------------------ panels
+
+def available_metrics(runs: Sequence[RunCurves]) -> list[str]:
+    """Columns that can be drawn, in panel order: return, length and speed first, then the algorithms'
+    diagnostics in logged order; `info/*` columns last."""
+    seen: list[str] = []
+    for run in runs:
+        for name, values in run.columns.items():
+            if name not in NOT_CURVES and name not in seen and not np.isnan(values).all():
+                seen.append(name)
+    first = [c for c in ("episodic_return", "episodic_length", "sps") if c in seen]
+    rest = [c for c in seen if c not in first and not c.startswith("info/")]
+    return first + rest + [c for c in seen if c.startswith("info/")]
+
+
+def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -> list[str]:
+    """The requested columns, each a name or a glob such as `info/*` (checked), or by default every available
+    column except the env's info/* terms."""
+    import fnmatch
+
+    available = available_metrics(runs)
+    if not requested:
+        return [c for c in available if not c.startswith("info/")]
+    chosen: list[str] = []
+    missing = []
+    for pattern in requested:
+        matches = [c for c in available if fnmatch.fnmatchcase(c, pattern)]
+        if not matches:
+            missing.append(pattern)
+        chosen += [c for c in matches if c not in chosen]
+    if missing:
+        raise CanterError(f"no column {', '.join(missing)} with values in these runs; choose from: "
+                          f"{', '.join(available)}")
+    return chosen
+
+
+def panel_labels(column: str) -> tuple[str, str]:
+    if column in PANEL_LABELS:
+        return PANEL_LABELS[column]
+    if column.startswith("info/"):
+        return f"Env term: {column[5:]}", "per-episode value"
+    return column.replace("_", " ").capitalize(), column
+
+
+# ------------------------------------------------------------------------------------------------------ drawing
+
+FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
+
+
+def figure_format(path: str | Path) -> str:
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise CanterError(f"cannot tell the image format of {path}; end the name in {', '.join(FORMATS)}")
+    return FORMATS[suffix]
+
+
+def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps", smooth: int = 1,
+         seed: int = 0, columns: int = 3):
+    """A matplotlib Figure with one panel per metric and one line (mean) plus band (95% CI) per group."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import EngFormatter
+
+    if x_axis not in X_AXES:
+        raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
+    columns = max(1, min(columns, len(metrics)))
+    rows = math.ceil(len(metrics) / columns)
+    # One panel alone is widened so that the legend and its caption fit without being cut at the edges.
+    width = max(5.0 * columns, 7.5)
+    fig = Figure(figsize=(width, 3.4 * rows + 1.0), layout="constrained")
+    FigureCanvasAgg(fig)   # headless: no pyplot, no display, no global backend switch
+    axes = fig.subplots(rows, columns, squeeze=False).ravel()
+    colors = [f"C{i % 10}" for i in range(len(groups))]
+    for ax, metric in zip(axes, metrics):
+        title, unit = panel_labels(metric)
+        for group, color in zip(groups, colors):
+            band = group_band(group, metric, x_axis, smooth, seed)
+            if band is None:
+                continue
+            ax.plot(band.x, band.mean, color=color, linewidth=1.6)
+            if band.runs > 1:
+                ax.fill_between(band.x, band.low, band.high, color=color, alpha=0.22, linewidth=0)
+        ax.set_title(title, fontsize=11)
+        ax.set_ylabel(unit, fontsize=9)
+        ax.set_xlabel(X_AXES[x_axis][1], fontsize=9)
+        ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+        ax.grid(True, alpha=0.3)
+        ax.tick_params(labelsize=8)
+    for ax in axes[len(metrics):]:
+        ax.set_visible(False)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=c, linewidth=2.5) for c in colors]
+    names = [f"{g.label} ({len(g.runs)} run{'s' if len(g.runs) > 1 else ''})" for g in groups]
+    smoothing = f"moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
+    band_note = f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds" if any(
+        len(g.runs) > 1 for g in groups) else ""
+    envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
+    import textwrap
+
+    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}",
+                            width=int(width * 13))
+    fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3 if width > 8 else 2),
+               fontsize=10, title=caption, title_fontsize=10, frameon=False)
+    return fig
+
+
+def render(run_dirs: Sequence[str | Path], fmt: str = "png", metrics: Sequence[str] | None = None,
+           x_axis: str = "steps", smooth: int = 1, seed: int = 0) -> bytes:
+    """Read runs, group them, draw the chosen panels; the image file's bytes."""
+    runs = [load_run(r) for r in run_dirs]
+    groups = group_runs(runs)
+    fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=fmt, dpi=110)
+    return buffer.getvalue()

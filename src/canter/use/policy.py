@@ -1,0 +1,100 @@
+"""A trained policy as a plain callable: `policy(obs_batch) -> actions` in the env's bounds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.training import checkpoint
+from canter.config.schema import Config, from_toml_text
+from canter.errors import CanterError
+
+
+@dataclass(frozen=True)
+class PolicyFacts:
+    env_id: str
+    backend: str
+    obs_dim: int
+    act_dim: int
+    action_low: np.ndarray
+    action_high: np.ndarray
+    global_step: int
+
+
+class Policy:
+    """Applies the saved observation normalization (frozen), the actor, and action clipping."""
+
+    def __init__(self, config: Config, facts: PolicyFacts, params: Any, obs_stats: Any, source: Path) -> None:
+        import jax
+
+        from canter.algos import get_algorithm
+
+        self.config, self.facts, self.params, self.obs_stats, self.source = config, facts, params, obs_stats, source
+        self._act = jax.jit(get_algorithm(config.run.algo).make_act(config, facts), static_argnums=(4,))
+        self._key = jax.random.key(0)
+
+    @property
+    def obs_dim(self) -> int:
+        return self.facts.obs_dim
+
+    @property
+    def act_dim(self) -> int:
+        return self.facts.act_dim
+
+    def __call__(self, obs_batch: np.ndarray, deterministic: bool = True, seed: int | None = None) -> np.ndarray:
+        import jax
+
+        obs = np.asarray(obs_batch, np.float32)
+        single = obs.ndim == 1
+        if single:
+            obs = obs[None]
+        if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
+            raise CanterError(f"policy expects observations of shape (batch, {self.obs_dim}), got {np.shape(obs_batch)}")
+        key = self._key
+        if not deterministic:
+            if seed is not None:
+                self._key = jax.random.key(seed)
+            self._key, key = jax.random.split(self._key)
+        action = np.asarray(self._act(self.params, self.obs_stats, obs, key, deterministic))
+        return action[0] if single else action
+
+
+def read_run_config(run_dir: Path) -> Config:
+    path = Path(run_dir) / "config.toml"
+    if not path.is_file():
+        raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
+    return from_toml_text(path.read_text(), str(path))
+
+
+def load_state(run_dir: Path, checkpoint_file: Path | None = None):
+    """(config, facts, train state, header) from the newest checkpoint of a run folder."""
+    from canter.algos import get_algorithm
+    from canter.core.runtime import setup_jax
+
+    setup_jax()
+    run_dir = Path(run_dir)
+    path = checkpoint_file or checkpoint.latest(run_dir)
+    arrays, header = checkpoint.read(path)
+    config = from_toml_text(header["config"], str(path))
+    env = header["env"]
+    facts = PolicyFacts(env_id=env["id"], backend=env["backend"], obs_dim=int(env["obs_dim"]),
+                        act_dim=int(env["act_dim"]), action_low=np.asarray(env["action_low"], np.float32),
+                        action_high=np.asarray(env["action_high"], np.float32),
+                        global_step=int(header["global_step"]))
+    template = get_algorithm(config.run.algo).init_state(config, facts)
+    state = checkpoint.restore(template, arrays, path)
+    return config, facts, state, header
+
+
+def load(run_dir: str | Path, checkpoint_file: str | Path | None = None) -> Policy:
+    """Load the newest checkpoint of a run folder (or the given checkpoint file) as a `Policy`."""
+    import jax
+
+    from canter.algos import get_algorithm
+
+    config, facts, state, _ = load_state(Path(run_dir), None if checkpoint_file is None else Path(checkpoint_file))
+    params = get_algorithm(config.run.algo).policy_params(state)
+    return Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), Path(run_dir))

@@ -1,0 +1,396 @@
+"""Videos of a trained policy, rendered headless (no GPU, no display).
+
+MuJoCo picks its OpenGL platform from MUJOCO_GL when `mujoco` is first imported, so `configure_gl()` must run before
+anything imports mujoco, gymnasium's MuJoCo envs or dm_control. It probes EGL, then OSMesa, each in a throwaway
+subprocess (a failing GL library can abort the process instead of raising). When mujoco was already imported with
+another platform, `record_video` renders in a subprocess instead.
+
+Which simulator replays the policy:
+- Gymnasium ids (MuJoCo, Box2D's BipedalWalker, custom `module:EnvId`): the Gymnasium env with render_mode
+  "rgb_array". EnvPool's gym-style MuJoCo ids have the same observation layout as Gymnasium's, so EnvPool runs are
+  replayed there with the run's saved (frozen) normalizer statistics.
+- EnvPool's DM Control ids (WalkerWalk-v1): dm_control's suite and its own MuJoCo renderer, with the observation
+  dict flattened in EnvPool's order (sorted keys).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from canter.errors import CanterError
+
+GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
+DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
+_PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
+_FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
+
+
+@contextlib.contextmanager
+def _quiet_fork() -> Iterator[None]:
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_FORK_WARNING, category=RuntimeWarning)
+        yield
+
+
+# ------------------------------------------------------------------------------------------------------ OpenGL
+
+def _probe(backend: str) -> bool:
+    env = dict(os.environ, MUJOCO_GL=backend)
+    env.pop("PYOPENGL_PLATFORM", None)
+    try:
+        with _quiet_fork():
+            done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, timeout=120)
+        return done.returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def unavailable_message(tried: list[str]) -> str:
+    packages = " ".join(GL_PACKAGES[b] for b in tried if b in GL_PACKAGES) or " ".join(GL_PACKAGES.values())
+    return (f"headless rendering is unavailable: MuJoCo could not open an OpenGL context with MUJOCO_GL="
+            f"{' or '.join(tried)}; install the system package(s): apt-get install -y {packages}")
+
+
+def configure_gl() -> str:
+    """Choose MUJOCO_GL for this process (a user's choice is kept if it works) and return it."""
+    chosen = os.environ.get("MUJOCO_GL")
+    if chosen:
+        if chosen in GL_PACKAGES and "mujoco" not in sys.modules and not _probe(chosen):
+            raise CanterError(unavailable_message([chosen]))
+        return chosen
+    if "mujoco" in sys.modules:
+        raise CanterError("mujoco was imported before MUJOCO_GL was set; set MUJOCO_GL=egl (or osmesa) in the "
+                          "environment")
+    for backend in GL_PACKAGES:
+        if _probe(backend):
+            os.environ["MUJOCO_GL"] = backend
+            if backend == "osmesa":
+                os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+            return backend
+    raise CanterError(unavailable_message(list(GL_PACKAGES)))
+
+
+def _headless_in_this_process() -> bool:
+    """True when MuJoCo in this process renders (or will render) through EGL or OSMesa."""
+    if "mujoco" not in sys.modules:
+        return True
+    return sys.modules["mujoco"].GLContext.__module__ in ("mujoco.egl", "mujoco.osmesa")
+
+
+# -------------------------------------------------------------------------------------------------- simulators
+
+def dmc_task(env_id: str) -> tuple[str, str] | None:
+    """(domain, task) of an EnvPool DM Control id such as WalkerWalk-v1, or None for other ids."""
+    try:
+        from envpool.registration import registry
+    except ImportError:
+        return None
+    entry = registry.specs.get(env_id)
+    if entry is None or not entry[0].endswith(".dmc"):
+        return None
+    domain = re.sub(r"^Dmc|EnvSpec$", "", entry[1])
+    domain = re.sub(r"(?<=[a-z])(?=[A-Z])", "_", domain).lower()
+    return domain, entry[2]["task_name"]
+
+
+class _GymnasiumPlayer:
+    def __init__(self, env_id: str, width: int, height: int, camera: str | None) -> None:
+        import gymnasium as gym
+
+        from canter.envs import resolve_backend
+        from canter.envs.gymnasium_backend import make_single
+
+        try:
+            resolve_backend(env_id, "gymnasium")
+        except CanterError:
+            raise CanterError(f"cannot replay {env_id}: Gymnasium has no such env to render") from None
+        entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
+        self.size = (width, height)
+        kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
+        if "mujoco" in entry:
+            kwargs.update(width=width, height=height)
+            if camera is not None:
+                kwargs.update(camera_id=int(camera)) if camera.isdigit() else kwargs.update(camera_name=camera)
+        elif camera is not None:
+            raise CanterError(f"--camera applies to MuJoCo envs; {env_id} has a fixed view")
+        try:
+            self.env = make_single(env_id, **kwargs)
+        except ValueError as exc:
+            raise CanterError(f"{env_id}: {exc}") from None
+        if camera is not None:
+            self._check_camera(env_id, camera)
+
+    def _check_camera(self, env_id: str, camera: str) -> None:
+        """Gymnasium silently falls back to the free camera for an unknown name; say so instead."""
+        import mujoco
+
+        model = self.env.unwrapped.model
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) or str(i) for i in range(model.ncam)]
+        if (camera.isdigit() and int(camera) >= model.ncam) or (not camera.isdigit() and camera not in names):
+            self.env.close()
+            raise CanterError(f"{env_id} has no camera {camera!r}; cameras: {', '.join(names) or 'none'} (omit "
+                              f"--camera for the default view)")
+
+    def _frame(self) -> np.ndarray:
+        try:
+            frame = self.env.render()
+        except ValueError as exc:  # Gymnasium's MuJoCo renderer reports a bad camera name here
+            raise CanterError(f"cannot render: {exc}") from None
+        return _resize(np.asarray(frame), self.size)
+
+    def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
+        obs, _ = self.env.reset(seed=seed)
+        on_frame(self._frame())
+        total, steps, done = 0.0, 0, False
+        while not done and (max_steps <= 0 or steps < max_steps):
+            action = policy(np.asarray(obs, np.float32).reshape(-1), deterministic=True)
+            obs, reward, terminated, truncated, _ = self.env.step(
+                action.reshape(self.env.action_space.shape).astype(self.env.action_space.dtype))
+            total += float(reward)
+            steps += 1
+            done = terminated or truncated
+            on_frame(self._frame())
+        return total
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class _DMControlPlayer:
+    def __init__(self, domain: str, task: str, width: int, height: int, camera: str | None) -> None:
+        try:
+            from dm_control import suite
+        except ImportError:
+            raise CanterError("rendering a DM Control run needs dm_control: pip install 'dm_control==1.0.38' (the "
+                              "last release that works with the pinned mujoco 3.6.0)") from None
+        by_lower = {(d.lower(), t.lower()): (d, t) for d, t in suite.ALL_TASKS}  # EnvPool spells humanoid_CMU
+        if (domain, task.lower()) not in by_lower:
+            raise CanterError(f"dm_control has no task {domain}/{task} to replay this run in")
+        self._suite = suite
+        self._domain, self._task = by_lower[(domain, task.lower())]
+        self.width, self.height = width, height
+        self.camera: int | str = int(camera) if camera is not None and camera.isdigit() else (camera or 0)
+        self.env = None
+
+    def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
+        self.env = self._suite.load(self._domain, self._task, task_kwargs={"random": seed})
+        step = self.env.reset()
+        on_frame(self._frame())
+        total, steps = 0.0, 0
+        while not step.last() and (max_steps <= 0 or steps < max_steps):
+            obs = np.concatenate([np.asarray(step.observation[k], np.float32).reshape(-1)
+                                  for k in sorted(step.observation)])
+            step = self.env.step(policy(obs, deterministic=True).astype(np.float64))
+            total += float(step.reward or 0.0)
+            steps += 1
+            on_frame(self._frame())
+        return total
+
+    def _frame(self) -> np.ndarray:
+        try:
+            return self.env.physics.render(self.height, self.width, camera_id=self.camera)
+        except ValueError as exc:
+            raise CanterError(f"cannot render: {exc}") from None
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+
+
+def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    if (frame.shape[1], frame.shape[0]) == size:
+        return frame
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(frame).resize(size, Image.Resampling.BILINEAR))
+
+
+# ------------------------------------------------------------------------------------------------------ writing
+
+class _AtomicVideo:
+    """Frames go to a temp file beside the output, renamed into place only once the video is complete."""
+
+    def __init__(self, out: Path, fps: int) -> None:
+        import imageio.v2 as imageio
+
+        suffix = out.suffix.lower()
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{suffix}", dir=out.parent)
+            os.close(fd)
+        except OSError as exc:
+            raise CanterError(f"cannot write {out}: {exc.strerror or exc}; pick a writable path") from None
+        self.out, self.tmp, self.frames = out, Path(name), 0
+        if suffix == ".gif":
+            self.writer = imageio.get_writer(self.tmp, mode="I", duration=1000.0 / fps, loop=0)
+        else:
+            self.writer = imageio.get_writer(self.tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
+                                             pixelformat="yuv420p", macro_block_size=1, quality=7,
+                                             ffmpeg_log_level="error")
+
+    def append(self, frame: np.ndarray) -> None:
+        self.writer.append_data(np.ascontiguousarray(frame[..., :3], dtype=np.uint8))
+        self.frames += 1
+
+    def commit(self) -> None:
+        self.writer.close()
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temp file, not the video
+        os.replace(self.tmp, self.out)
+
+    def abort(self) -> None:
+        try:
+            self.writer.close()
+        except Exception:  # the temp file goes either way
+            pass
+        self.tmp.unlink(missing_ok=True)
+
+
+def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int) -> None:
+    if out.suffix.lower() not in (".mp4", ".gif"):
+        raise CanterError(f"--out {out}: the video format comes from the name; use .mp4 or .gif")
+    if episodes < 1:
+        raise CanterError(f"--episodes must be >= 1, got {episodes}")
+    if width < 16 or height < 16 or fps < 1:
+        raise CanterError(f"need --width and --height >= 16 and --fps >= 1, got {width}x{height} at {fps} fps")
+    if out.suffix.lower() == ".mp4" and (width % 2 or height % 2):
+        raise CanterError(f"MP4 (H.264, yuv420p) needs an even width and height, got {width}x{height}")
+
+
+def record_video(run_dir: str | Path, out_path: str | Path, episodes: int = 1, width: int = DEFAULT_WIDTH,
+                 height: int = DEFAULT_HEIGHT, fps: int = DEFAULT_FPS, camera: str | None = None, seed: int = 0,
+                 checkpoint_file: str | Path | None = None, max_steps: int = 0) -> list[float]:
+    """Render `episodes` deterministic episodes of a run's newest checkpoint (or `checkpoint_file`) to an MP4 or
+    GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`."""
+    out = Path(out_path)
+    check_video_args(out, episodes, width, height, fps)
+    if not _headless_in_this_process():
+        return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, checkpoint_file,
+                                     max_steps)
+    from canter.use.policy import load
+
+    configure_gl()
+    policy = load(run_dir, checkpoint_file)
+    task = dmc_task(policy.facts.env_id)
+    player = (_DMControlPlayer(*task, width, height, camera) if task
+              else _GymnasiumPlayer(policy.facts.env_id, width, height, camera))
+    try:
+        with _quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
+            writer = _AtomicVideo(out, fps)
+            try:
+                returns = [player.episode(policy, seed + i, max_steps, writer.append) for i in range(episodes)]
+                writer.commit()
+            except BaseException:
+                writer.abort()
+                raise
+    finally:
+        player.close()
+    return returns
+
+
+def _record_in_subprocess(run_dir: Any, out: Path, episodes: int, width: int, height: int, fps: int,
+                          camera: str | None, seed: int, checkpoint_file: Any, max_steps: int) -> list[float]:
+    request = dict(run_dir=str(run_dir), out_path=str(out), episodes=episodes, width=width, height=height, fps=fps,
+                   camera=camera, seed=seed, max_steps=max_steps,
+                   checkpoint_file=None if checkpoint_file is None else str(checkpoint_file))
+    with _quiet_fork():
+        done = subprocess.run([sys.executable, "-m", "canter.use.video", json.dumps(request)], env=_child_env(),
+                              capture_output=True, text=True)
+    lines = done.stdout.strip().splitlines()
+    if done.returncode != 0 or not lines:
+        error = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise CanterError(f"rendering failed in a subprocess: {error.removeprefix('canter: error: ')}")
+    return json.loads(lines[-1])
+
+
+def _child_env() -> dict[str, str]:
+    """This process's environment, with canter's own source folder first on PYTHONPATH."""
+    source = str(Path(__file__).resolve().parents[1])
+    path = os.environ.get("PYTHONPATH")
+    return dict(os.environ, PYTHONPATH=source + (os.pathsep + path if path else ""))
+
+
+# ------------------------------------------------------------------------------------------- during training
+
+class TrainingVideos:
+    """`run.video_every`: at every multiple of `every` env steps, snapshot the train state and render one episode
+    to RUN/videos/step_<step>.mp4 in a separate, lower-priority process. A renderer crash (MuJoCo aborts the
+    process on some errors) costs only that video and a warning; training never waits except for the previous
+    video (one at a time) and, at the end, for the last one."""
+
+    WAIT_SECONDS = 900
+
+    def __init__(self, run_dir: Path, every: int, start_step: int) -> None:
+        """every == 0 switches videos off."""
+        self.folder = Path(run_dir) / "videos"
+        self.every = every
+        self.next_step = (start_step // every + 1) * every if every else None
+        self._job: tuple[subprocess.Popen, Path, int] | None = None
+
+    def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
+        if self.next_step is None or step < self.next_step:
+            return
+        self.next_step = (step // self.every + 1) * self.every
+        self._finish()
+        self.folder.mkdir(parents=True, exist_ok=True)
+        snapshot = self.folder / f".snapshot_{step:012d}.npz"
+        save_snapshot(snapshot)
+        request = dict(run_dir=str(self.folder.parent), out_path=str(self.folder / f"step_{step:012d}.mp4"),
+                       checkpoint_file=str(snapshot), episodes=1, nice=10)
+        with open(self.folder / "render.log", "a") as log, _quiet_fork():
+            process = subprocess.Popen([sys.executable, "-m", "canter.use.video", json.dumps(request)],
+                                       stdout=log, stderr=log, stdin=subprocess.DEVNULL, env=_child_env(),
+                                       start_new_session=True)
+        self._job = (process, snapshot, step)
+
+    def _finish(self) -> None:
+        if self._job is None:
+            return
+        process, snapshot, step = self._job
+        self._job = None
+        try:
+            code = process.wait(timeout=self.WAIT_SECONDS)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            code = process.wait()
+        snapshot.unlink(missing_ok=True)
+        if code != 0:
+            print(f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
+                  file=sys.stderr)
+
+    def close(self) -> None:
+        self._finish()
+
+
+def _main(argv: list[str]) -> int:
+    """Internal entry point for the subprocesses above: one JSON request; prints the returns as JSON."""
+    request = json.loads(argv[0])
+    nice = request.pop("nice", 0)
+    if nice:
+        os.nice(nice)
+    started = time.perf_counter()
+    try:
+        returns = record_video(**request)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{request['out_path']}: returns {returns} in {time.perf_counter() - started:.1f} s", file=sys.stderr)
+    print(json.dumps(returns))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))
