@@ -1,11 +1,12 @@
 # make demo: fresh machine -> venv, install, train Hopper-v5 with the default preset, evaluate, print the score.
 # make test: fresh machine -> venv, install, run the whole suite.
+# make test-fast: the same without the slow tests (pytest -m "not slow"): the unit tests, in under 2 minutes.
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 DEMO_DIR ?= runs/demo
 
-.PHONY: install test demo bench clean docs
+.PHONY: install test test-fast demo bench clean docs
 
 install: $(VENV)/.installed
 
@@ -17,6 +18,9 @@ $(VENV)/.installed: pyproject.toml
 
 test: install
 	$(PY) -m pytest -q --durations=15
+
+test-fast: install
+	$(PY) -m pytest -q -m "not slow"
 
 demo: install
 	rm -rf $(DEMO_DIR)

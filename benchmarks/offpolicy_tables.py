@@ -22,7 +22,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from canter.orchestrate.bench import combine_records, plot_env, published_for, results_table as bench_table, seed_record
+from canter.orchestrate.bench import (
+    combine_records,
+    plot_env,
+    published_for,
+    seed_record,
+)
+from canter.orchestrate.bench import results_table as bench_table
 
 ROOT = Path(__file__).resolve().parent.parent
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"

@@ -33,7 +33,7 @@ def _train_inside(folder, config):
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """A short Pendulum run shared by the tests that only need some run folder."""
-    from canter.config.schema import build_config
+    from canter.config.build import build_config
 
     out = tmp_path_factory.mktemp("shared_runs")
     config = build_config("Pendulum-v1", preset="fast", total_steps=8192,
@@ -59,7 +59,7 @@ _choose_gl()
 @pytest.fixture(scope="session")
 def tiny_hopper_run(tmp_path_factory):
     """A few hundred steps of Hopper-v5 on EnvPool: a MuJoCo run for the eval, vary and video tests."""
-    from canter.config.schema import build_config
+    from canter.config.build import build_config
     from canter.training.loop import train
 
     out = tmp_path_factory.mktemp("hopper_runs")
@@ -72,9 +72,9 @@ def tiny_hopper_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_run_seed1(tiny_run, tmp_path_factory):
     """tiny_run's config with run.seed=1: two runs that differ only in their seed (plot grouping, reports)."""
-    from canter.config.schema import apply_overrides
-    from canter.use.policy import read_run_config
+    from canter.config.overrides import apply_overrides
+    from canter.training.run_folder import read_config
 
     out = tmp_path_factory.mktemp("shared_runs_seed1")
-    config = apply_overrides(read_run_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")
+    config = apply_overrides(read_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")
     return _train_inside(out, config)

@@ -1,10 +1,9 @@
-from dataclasses import replace
 
 import pytest
 
 from canter.algos import algorithm_names, check_algorithm_name, get_algorithm
 from canter.cli.main import main
-from canter.config.schema import build_config
+from canter.config.build import build_config
 from canter.errors import CanterError
 
 
@@ -46,7 +45,7 @@ def test_env_dependent_checks_happen_before_any_work(tmp_path):
     # A config file or preset is not checked key by key (a saved config.toml holds every section), so trpo's own
     # check still refuses the symmetric loss.
     config = build_config("Hopper-v4", algo="trpo", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4"])
-    config = replace(config, sym=replace(config.sym, coef=0.02, groups="0=1"))
+    config = config.with_values("sym", coef=0.02, groups="0=1")
     with pytest.raises(CanterError, match="available to ppo and rpo, not trpo"):
         train(config)
     assert not any(tmp_path.iterdir())

@@ -8,8 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.orchestrate.bench import BenchSettings, make_cells, make_jobs, published_for, varying_keys
 from canter.cli.main import main
+from canter.orchestrate.bench import (
+    BenchSettings,
+    make_cells,
+    make_jobs,
+    published_for,
+    varying_keys,
+)
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
         "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2",
@@ -69,6 +75,8 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
     (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
     (["--grid", "run.seed=1,2"], "use --seeds"),
     (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
+    (["--seeds", "0,x"], "expected whole numbers separated by commas"),
+    (["--seeds", "1,2,1"], "each seed may appear once"),
 ])
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
     base = ["bench", "--seeds", "0", "--total-steps", "1000", "--out", str(tmp_path / "b")]
@@ -100,6 +108,7 @@ def read_rows(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
@@ -159,6 +168,7 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())
 
 
+@pytest.mark.slow
 def test_grid_through_an_optuna_storage(tmp_path, capsys):
     """With --storage every cell is one enqueued trial of a GridSampler study; a re-run finds them all done."""
     import optuna
@@ -181,6 +191,7 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
 
 
+@pytest.mark.slow
 def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys):
     out = tmp_path / "bench"
     argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "4096", "--eval-episodes", "1",
@@ -200,6 +211,7 @@ TINY_TD3 = ["--set", "td3.hidden=16,16", "--set", "run.tensorboard=false", "--se
             "--set", "run.checkpoint_every=200"]
 
 
+@pytest.mark.slow
 def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_them(tmp_path, capsys):
     """Each td3 seed is its own trial; the cell's row combines both seeds' records, locally as from the storage."""
     import optuna

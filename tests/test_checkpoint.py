@@ -4,10 +4,10 @@ import jax
 import numpy as np
 import pytest
 
-from canter.training import checkpoint
 from canter.algos.ppo.iteration import init_train_state
-from canter.config.schema import build_config
+from canter.config.build import build_config
 from canter.errors import CanterError
+from canter.training import checkpoint
 
 
 def _state(seed=0):

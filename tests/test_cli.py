@@ -4,9 +4,10 @@ import json
 import shutil
 from pathlib import Path
 
-from canter.cli.main import main
-
+import pytest
 from conftest import TINY
+
+from canter.cli.main import main
 
 FAST = ["--quiet", "--set", "env.num_envs=4", "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256",
         "--set", "ppo.epochs=2"] + [x for s in TINY for x in ("--set", s)]
@@ -24,6 +25,7 @@ def only_run(folder: Path) -> Path:
     return runs[0]
 
 
+@pytest.mark.slow
 def test_train_eval_resume_smoke(tmp_path, capsys):
     code, out, err = run_cli(["train", "Pendulum-v1", "--seed", "3", "--total-steps", "2e3", "--out-dir",
                               str(tmp_path), "--preset", "cleanrl", "--set", "ppo.clip=0.1",
@@ -49,6 +51,7 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
     assert "group:" in out
 
 
+@pytest.mark.slow
 def test_custom_gymnasium_env(tmp_path, capsys):
     code, out, err = run_cli(["train", "canter_test_envs:DictObs-v0", "--total-steps", "1000", "--out-dir",
                               str(tmp_path)] + FAST, capsys)
@@ -59,6 +62,7 @@ def test_custom_gymnasium_env(tmp_path, capsys):
     assert code == 0, err
 
 
+@pytest.mark.slow
 def test_gymnasium_backend_flag(tmp_path, capsys):
     code, out, err = run_cli(["train", "Pendulum-v1", "--backend", "gymnasium", "--total-steps", "600",
                               "--out-dir", str(tmp_path)] + FAST, capsys)
@@ -106,6 +110,7 @@ def _bad_inputs(tmp_path, run):
     ]
 
 
+@pytest.mark.slow
 def test_bad_inputs_are_one_line_errors(tmp_path, capsys, tiny_run):
     for argv, message in _bad_inputs(tmp_path, tiny_run.run_dir):
         code, out, err = run_cli(argv, capsys)
@@ -113,3 +118,13 @@ def test_bad_inputs_are_one_line_errors(tmp_path, capsys, tiny_run):
         lines = [line for line in err.splitlines() if line.strip()]
         assert len(lines) == 1, (argv, err)
         assert "Traceback" not in err and message in lines[0], (argv, lines[0])
+
+
+def test_quiet_is_offered_where_there_is_a_progress_bar_only(capsys):
+    """train draws a progress bar; eval and video print only their results, so they refuse --quiet."""
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    assert "--quiet" in capsys.readouterr().out
+    for argv in (["eval", "run"], ["video", "run", "--out", "a.mp4"]):
+        code, out, err = run_cli(argv + ["--quiet"], capsys)
+        assert code == 2 and err.count("\n") == 1 and "unrecognized arguments: --quiet" in err, err

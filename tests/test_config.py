@@ -2,8 +2,12 @@ import dataclasses
 
 import pytest
 
-from canter.config.schema import (Config, all_keys, apply_overrides, build_config, docs_table, from_toml_text,
-                           preset_names, to_toml)
+from canter.config.build import build_config
+from canter.config.overrides import all_keys, apply_overrides
+from canter.config.presets import preset_names
+from canter.config.reference import docs_table
+from canter.config.schema import Config
+from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
 
 
@@ -89,24 +93,27 @@ def test_apply_overrides_coerces_types():
     assert config.run.total_steps == 1_000_000
 
 
-def test_preset_layers_env_then_algo(tmp_path, monkeypatch):
+def test_preset_layers_env_then_algo():
     import tomllib
 
-    from canter.config.schema import _preset_layer
+    from canter.config.presets import preset_layer, preset_overrides
 
     table = tomllib.loads("""
 [env]
 num_envs = 16
 [env_overrides."Hopper*".ppo]
 lr = 1e-4
-[algo_overrides.td3.env]
-num_envs = 1
-[algo_overrides.td3.env_overrides."Hopper*".env]
+[env_overrides."Hopper*".env]
 num_envs = 2
 """)
-    assert _preset_layer(table, "Hopper-v5", "ppo", "t") == {"env.num_envs": 16, "ppo.lr": 1e-4}
-    assert _preset_layer(table, "Hopper-v5", "td3", "t") == {"env.num_envs": 2, "ppo.lr": 1e-4}
-    assert _preset_layer(table, "Walker2d-v5", "td3", "t") == {"env.num_envs": 1}
+    assert preset_layer(table, "Hopper-v5", "t") == {"env.num_envs": 2, "ppo.lr": 1e-4}
+    assert preset_layer(table, "Walker2d-v5", "t") == {"env.num_envs": 16}
+    # An algorithm's own table for a preset (its folder's presets.toml) lies over the preset file.
+    assert preset_overrides("fast", "Hopper-v5", "ppo")["ppo.minibatch_size"] == 64
+    assert preset_overrides("fast", "Hopper-v5", "rpo")["ppo.minibatch_size"] == 512
+    assert preset_overrides("fast", "Ant-v5", "rpo")["rpo.alpha"] == 0.01
+    assert preset_overrides("fast", "Hopper-v5", "td3")["env.num_envs"] == 1
+    assert preset_overrides("fast", "Hopper-v5", "ppo")["env.num_envs"] == 16
 
 
 @pytest.mark.parametrize("sets, message", [
@@ -155,3 +162,62 @@ def test_keys_an_algorithm_reads_are_accepted():
     assert build_config("Hopper-v5", sets=["ppo.gamma=0.98", "net.hidden=32,32"], algo="trpo").ppo.gamma == 0.98
     assert build_config("Hopper-v5", sets=["td3.tau=0.01", "env.normalize_obs=true"], algo="td3").td3.tau == 0.01
     assert build_config("Hopper-v5", sets=["sym.coef=0"], algo="rpo").sym.coef == 0
+
+
+def test_any_ppo_n_steps_works_for_trpo_or_names_the_trpo_key():
+    # The batch 100 x 16 = 1600: ppo's minibatch (512) is not read by trpo, so it does not matter; trpo's own
+    # critic minibatch (128) does not divide it, and the error names that key and a divisor that works.
+    with pytest.raises(CanterError, match=r"^trpo.critic_minibatch_size 128 does not divide the batch 1600 .*"
+                                          r"--set trpo.critic_minibatch_size=100$"):
+        build_config("Hopper-v5", algo="trpo", sets=["ppo.n_steps=100"])
+    config = build_config("Hopper-v5", algo="trpo", sets=["ppo.n_steps=100", "trpo.critic_minibatch_size=100"])
+    assert config.ppo.n_steps == 100
+    with pytest.raises(CanterError, match=r"^ppo.minibatch_size has no effect on trpo"):
+        build_config("Hopper-v5", algo="trpo", sets=["ppo.n_steps=100", "ppo.minibatch_size=160"])
+    for n_steps in (1, 7, 64, 100, 333, 2048):
+        try:
+            build_config("Hopper-v5", algo="trpo", sets=[f"ppo.n_steps={n_steps}"])
+        except CanterError as exc:
+            assert str(exc).startswith("trpo.critic_minibatch_size"), exc
+
+
+def test_config_toml_holds_env_run_and_what_the_algorithm_reads():
+    sac = to_toml(build_config("Hopper-v5", algo="sac"))
+    assert "[sac]" in sac and "[env]" in sac and "[run]" in sac
+    assert not any(f"[{s}]" in sac for s in ("ppo", "net", "td3", "ddpg", "trpo", "rpo", "sym"))
+    trpo = to_toml(build_config("Hopper-v5", algo="trpo"))
+    ppo_table = trpo.split("[ppo]\n")[1].split("\n\n")[0].splitlines()
+    assert [line.split(" = ")[0] for line in ppo_table] == ["n_steps", "gamma", "gae_lambda", "norm_adv"]
+    from canter.config.experiment import flat_config
+
+    assert flat_config(from_toml_text(sac, "sac")) == flat_config(build_config("Hopper-v5", algo="sac"))
+
+
+def test_experiment_key_ignores_seed_budget_and_output_keys_only():
+    from canter.config.experiment import (
+        differing_keys,
+        experiment_key,
+        group_by_experiment,
+    )
+
+    base = build_config("Hopper-v5")
+    same = [base.with_values("run", **{key: value}) for key, value in (
+        ("seed", 7), ("total_steps", 5), ("max_minutes", 3.0), ("stop_at_return", 10.0), ("out_dir", "x"),
+        ("preset", "cleanrl"), ("video_every", 1000), ("tensorboard", False), ("checkpoint_every", 1),
+        ("keep_checkpoints", 9), ("compress_checkpoints", True))]
+    same.append(base.with_values("env", envpool_shards=2))
+    assert all(experiment_key(c) == experiment_key(base) for c in same)
+    different = [base.with_values("ppo", lr=1e-3), base.with_values("env", num_envs=8),
+                 base.with_values("env", backend="gymnasium"), base.with_values("run", algo="rpo")]
+    assert all(experiment_key(c) != experiment_key(base) for c in different)
+    assert group_by_experiment([base, same[0], different[0], same[5]]) == [[0, 1, 3], [2]]
+    assert differing_keys([base, different[0]]) == ["ppo.lr"]
+    # Keys the algorithm does not read never count: a changed sac default cannot split ppo runs.
+    assert experiment_key(base.with_values("sac", tau=0.5)) == experiment_key(base)
+
+
+def test_old_report_preset_names_still_work_with_a_notice(capsys):
+    old = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    assert old == build_config("HumanoidStandup-v4", preset="report000-humanoidstandup")
+    assert "preset seed000-humanoidstandup is now called report000-humanoidstandup" in capsys.readouterr().err
+    assert old.run.preset == "report000-humanoidstandup"

@@ -1,5 +1,7 @@
 from pathlib import Path
 
+import pytest
+
 from canter.docs import render
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -15,6 +17,7 @@ def test_readme_names_the_two_commands():
     assert "make demo" in text and "make test" in text
 
 
+@pytest.mark.slow
 def test_offpolicy_tables_match_the_committed_runs():
     import subprocess
     import sys

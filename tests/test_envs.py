@@ -3,9 +3,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from canter.core.seeding import EVAL, RESUME, TRAIN, env_seeds
 from canter.envs import make_vec_env, resolve_backend
 from canter.errors import CanterError
-from canter.core.seeding import EVAL, RESUME, TRAIN, env_seeds
 
 
 @pytest.mark.parametrize("env_id, backend, obs_dim, act_dim", [
@@ -152,7 +152,7 @@ def test_sharded_pools_step_like_one_pool():
 
 
 def test_shard_sizes_split_as_evenly_as_possible():
-    from canter.envs.envpool_backend import shard_sizes
+    from canter.envs.envpool.shards import shard_sizes
 
     assert shard_sizes(5, 2) == [3, 2]
     assert shard_sizes(16, 2) == [8, 8]

@@ -8,11 +8,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from canter.training.checkpoint import latest
 from canter.cli.main import main
-from canter.use.evaluate import evaluate, group_by_config
-from canter.use.policy import load
+from canter.config.experiment import group_by_experiment
 from canter.core.seeding import EVAL, env_seeds
+from canter.training.checkpoint import latest
+from canter.use.evaluate import evaluate
+from canter.use.policy import load
 
 
 def hand_loop(policy, env_id, seeds, deterministic=True):
@@ -32,6 +33,7 @@ def hand_loop(policy, env_id, seeds, deterministic=True):
     return np.array(returns), np.array(lengths)
 
 
+@pytest.mark.slow
 def test_eval_mean_matches_a_hand_written_gymnasium_loop(tiny_run):
     policy = load(tiny_run.run_dir)
     result = evaluate(policy, episodes=3, seed=4, backend="gymnasium")  # the run trained on EnvPool
@@ -41,6 +43,7 @@ def test_eval_mean_matches_a_hand_written_gymnasium_loop(tiny_run):
     assert result.lengths.tolist() == lengths.tolist() == [200] * 3
 
 
+@pytest.mark.slow
 def test_envpool_run_on_the_gymnasium_backend_matches_the_hand_loop(tiny_hopper_run):
     policy = load(tiny_hopper_run)
     result = evaluate(policy, episodes=2, seed=0, backend="gymnasium")
@@ -49,6 +52,7 @@ def test_envpool_run_on_the_gymnasium_backend_matches_the_hand_loop(tiny_hopper_
     assert sorted(result.lengths.tolist()) == sorted(lengths.tolist())
 
 
+@pytest.mark.slow
 def test_evaluation_never_changes_the_normalizer_statistics(tiny_hopper_run):
     policy = load(tiny_hopper_run)
     before = [np.array(x, copy=True) for x in policy.obs_stats]
@@ -61,6 +65,7 @@ def test_evaluation_never_changes_the_normalizer_statistics(tiny_hopper_run):
     assert hashlib.sha256(latest(tiny_hopper_run).read_bytes()).hexdigest() == digest
 
 
+@pytest.mark.slow
 def test_stochastic_evaluation_depends_on_the_seed(tiny_run):
     policy = load(tiny_run.run_dir)
     a = evaluate(policy, episodes=2, deterministic=False, seed=1)
@@ -70,13 +75,15 @@ def test_stochastic_evaluation_depends_on_the_seed(tiny_run):
     assert not np.allclose(a.returns, c.returns)
 
 
+@pytest.mark.slow
 def test_runs_that_differ_only_in_seed_form_a_group(tiny_run):
     config = load(tiny_run.run_dir).config
     seeds = [replace(config, run=replace(config.run, seed=s, out_dir=f"o{s}")) for s in (1, 2)]
-    other = replace(config, ppo=replace(config.ppo, lr=1e-3))
-    assert group_by_config(seeds + [other, config]) == [[0, 1, 3], [2]]
+    other = config.with_values("ppo", lr=1e-3)
+    assert group_by_experiment(seeds + [other, config]) == [[0, 1, 3], [2]]
 
 
+@pytest.mark.slow
 def test_cli_group_row_and_json(tiny_run, tmp_path, capsys):
     run = str(tiny_run.run_dir)
     code = main(["eval", run, run, "--episodes", "2", "--json", str(tmp_path / "e.json")])
@@ -90,6 +97,7 @@ def test_cli_group_row_and_json(tiny_run, tmp_path, capsys):
     assert "group:" in out and sum(line.count("±") == 2 for line in out.splitlines()) == 3
 
 
+@pytest.mark.slow
 def test_cli_eval_on_another_env_with_matching_shapes(tiny_hopper_run, capsys):
     code = main(["eval", str(tiny_hopper_run), "--episodes", "1", "--env", "Hopper-v4"])
     out, err = capsys.readouterr()

@@ -10,7 +10,7 @@ import pytest
 
 from canter.algos import ExportedActor
 from canter.cli.main import main
-from canter.use.export import numpy_forward, npz_arrays, onnx_bytes
+from canter.use.export import npz_arrays, numpy_forward, onnx_bytes
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "see-plots-export-report.md"
 
@@ -83,6 +83,7 @@ def test_docs_quote_the_forward_pass_verbatim():
     assert block == inspect.getsource(numpy_forward)
 
 
+@pytest.mark.slow
 def test_exported_run_matches_canter_load(tiny_run, tmp_path, capsys):
     import canter
 
@@ -113,6 +114,7 @@ def test_exported_run_matches_canter_load(tiny_run, tmp_path, capsys):
     assert {p.key: p.value for p in model.metadata_props}["env_id"] == "Pendulum-v1"
 
 
+@pytest.mark.slow
 def test_export_bad_input(tiny_run, tmp_path, capsys):
     empty = tmp_path / "run_without_checkpoint"
     empty.mkdir()
@@ -131,13 +133,15 @@ def test_export_bad_input(tiny_run, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run_without_checkpoint"]
 
 
+@pytest.mark.slow
 def test_export_of_a_run_state_with_large_actions_matches_the_policy(tiny_run):
     """The trained tiny actor's outputs are near zero; with larger weights the policy's action clip is reached,
     and the export must clip the same way."""
     import jax
 
     from canter.algos import get_algorithm
-    from canter.use.policy import Policy, load_state
+    from canter.training.restore import load_state
+    from canter.use.policy import Policy
 
     config, facts, state, _ = load_state(tiny_run.run_dir)
     rng = np.random.default_rng(3)

@@ -3,10 +3,13 @@
 import numpy as np
 import pytest
 
-from canter.config.schema import build_config, reads_key
+from canter.config.algorithms import reads_key
+from canter.config.build import build_config
+from canter.training.loop import train
 from canter.use.evaluate import evaluate
 from canter.use.policy import load
-from canter.training.loop import train
+
+pytestmark = pytest.mark.slow
 
 PENDULUM = ["env.num_envs=8", "ppo.n_steps=64", "ppo.minibatch_size=128", "net.hidden=32,32",
             "run.tensorboard=false"]
@@ -44,7 +47,7 @@ def check_kl_beta_is_adapted_and_checkpointed(run_dir, config):
     import csv
 
     from canter.algos.ppo.learner import adapt_kl_beta
-    from canter.use.policy import load_state
+    from canter.training.restore import load_state
 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
     betas = [float(r["kl_beta"]) for r in rows]

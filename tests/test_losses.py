@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from canter.algos.ppo.losses import Minibatch, normalize_advantages, ppo_loss
-from canter.config.schema import NetConfig, PPOConfig
+from canter.algos.ppo.sections import PPOConfig
+from canter.core.netconfig import NetConfig
 from canter.core.networks import init_params
 
 NET = NetConfig(hidden=(4,))

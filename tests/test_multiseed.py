@@ -20,18 +20,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import TINY
+from signals import sigterm_once_logging
 
 import canter
 from canter.cli.main import main
-from canter.config.schema import build_config
+from canter.config.build import build_config
 from canter.envs.base import StepOutput
 from canter.errors import CanterError
-from canter.use.policy import load_state, read_run_config
-from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
 from canter.training.loop import resume_config, resume_seeds, train, train_seeds
-
-from conftest import TINY
-from signals import sigterm_once_logging
+from canter.training.restore import load_state
+from canter.training.run_folder import read_config
+from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
 
 ATOL = 1e-5       # losses and parameters
 RTOL = 1e-5       # episodic returns
@@ -142,6 +142,7 @@ def hopper_group(tmp_path_factory):
     return grouped, alone
 
 
+@pytest.mark.slow
 def test_a_seed_in_a_group_follows_its_single_seed_curve(hopper_group):
     grouped, alone = hopper_group
     assert grouped[1].global_step == alone.global_step and grouped[1].episodes == alone.episodes
@@ -151,6 +152,7 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(hopper_group):
     assert _max_param_difference(_params(alone.run_dir), _params(grouped[0].run_dir)) > 1e3 * ATOL
 
 
+@pytest.mark.slow
 def test_every_seed_of_a_group_writes_a_valid_run_folder(hopper_group):
     grouped, _ = hopper_group
     assert [r.run_dir.name.split("__")[3] for r in grouped] == ["s0", "s1", "s2"]
@@ -158,7 +160,7 @@ def test_every_seed_of_a_group_writes_a_valid_run_folder(hopper_group):
         run = result.run_dir
         for name in ("config.toml", "versions.json", "metrics.csv", "summary.json"):
             assert (run / name).is_file(), name
-        assert read_run_config(run).run.seed == seed
+        assert read_config(run).run.seed == seed
         assert result.stop_reason == "budget" and result.global_step >= 2048
         config, _, state, header = load_state(run)
         assert config.run.seed == seed and int(header["global_step"]) == result.global_step
@@ -169,6 +171,7 @@ def test_every_seed_of_a_group_writes_a_valid_run_folder(hopper_group):
         assert action.shape == (2, policy.act_dim) and np.isfinite(action).all()
 
 
+@pytest.mark.slow
 def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path):
     grouped, _ = hopper_group
     folders = [tmp_path / f"s{i}" for i in range(2)]
@@ -191,6 +194,7 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path)
         resume_seeds([folders[0], alone_copy], 4096)
 
 
+@pytest.mark.slow
 def test_gymnasium_backend_group_matches_alone(tmp_path):
     extra = ["env.backend=gymnasium"]
     grouped = train_seeds(_config(tmp_path / "g", "InvertedPendulum-v5", 1024, extra), [2, 1])
@@ -198,6 +202,7 @@ def test_gymnasium_backend_group_matches_alone(tmp_path):
     _assert_same_curve(alone.run_dir, grouped[1].run_dir)
 
 
+@pytest.mark.slow
 def test_sigterm_stops_every_seed_with_a_checkpoint(tmp_path):
     with sigterm_once_logging(tmp_path, runs=3):
         results = train_seeds(_config(tmp_path, "InvertedPendulum-v5", 10_000_000), [0, 1, 2])
@@ -208,6 +213,7 @@ def test_sigterm_stops_every_seed_with_a_checkpoint(tmp_path):
         assert (r.run_dir / "summary.json").is_file()
 
 
+@pytest.mark.slow
 def test_non_finite_seeds_stop_with_their_last_good_checkpoint(tmp_path):
     config = _config(tmp_path, "canter_test_envs:NaNAfter-v0", 50_000,
                      ["env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"])
@@ -257,6 +263,7 @@ def test_bad_seeds_flag_is_a_one_line_error(argv, message, capsys):
     assert err.count("\n") == 1 and err.startswith("canter: error:") and message in err
 
 
+@pytest.mark.slow
 def test_cli_seeds_trains_a_group(tmp_path, capsys):
     code = main(["train", "Pendulum-v1", "--seeds", "4,5", "--total-steps", "512", "--quiet", "--out-dir",
                  str(tmp_path), "--set", "env.num_envs=4", "--set", "ppo.n_steps=64", "--set",
@@ -265,4 +272,4 @@ def test_cli_seeds_trains_a_group(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.count("run: ") == 2
     folders = sorted(tmp_path.iterdir())
-    assert [read_run_config(f).run.seed for f in folders] == [4, 5]
+    assert [read_config(f).run.seed for f in folders] == [4, 5]

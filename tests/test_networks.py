@@ -3,8 +3,14 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import norm
 
-from canter.config.schema import NetConfig
-from canter.core.networks import gaussian_entropy, gaussian_log_prob, init_params, policy_dist, value
+from canter.core.netconfig import NetConfig
+from canter.core.networks import (
+    gaussian_entropy,
+    gaussian_log_prob,
+    init_params,
+    policy_dist,
+    value,
+)
 
 
 def test_log_prob_and_entropy_match_scipy():

@@ -1,6 +1,7 @@
 """td3, ddpg and sac end to end: what the iteration stores, learning, resume, loading and bad input."""
 
 import shutil
+from pathlib import Path
 from types import SimpleNamespace
 
 import jax
@@ -9,15 +10,19 @@ import numpy as np
 import pytest
 
 from canter.algos import get_algorithm
+from canter.algos.offpolicy.ddpg import DDPGLearner
 from canter.algos.offpolicy.iteration import init_train_state, make_iteration
+from canter.algos.offpolicy.sac import SACLearner
+from canter.algos.offpolicy.td3 import TD3
 from canter.cli.main import main
-from canter.config.schema import build_config
+from canter.config.build import build_config
 from canter.envs.base import StepOutput
+from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
-from canter.use.evaluate import evaluate
-from canter.use.policy import load, load_state
-from canter.algos.onpolicy_rollout import init_env_carry
 from canter.training.loop import resume_config, train
+from canter.training.restore import load_state
+from canter.use.evaluate import evaluate
+from canter.use.policy import load
 
 # Env 0 terminates when its counter reaches 3; env 1 is truncated (time limit) at 4.
 TERMINATE_AT = (3, 100)
@@ -56,9 +61,10 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         "env.num_envs=2", "td3.steps_per_call=20", "td3.learning_starts=1000000", "td3.buffer_size=64",
         "td3.batch_size=4", "td3.hidden=4", "td3.noise=ou"])
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
-    state = init_train_state(config, 2, 1)
+    learner = TD3(config.td3)
+    state = init_train_state(config, learner, 2, 1)
     carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
-    iteration = jax.jit(make_iteration(config, spec, counter_env_step))
+    iteration = jax.jit(make_iteration(config, learner, spec, counter_env_step))
     state, carry, metrics = iteration(state, carry, jnp.float32(1.0))
 
     expected = reference_transitions(10)
@@ -77,6 +83,25 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
     ou = np.asarray(state.ou_state)
     for env in range(2):
         assert (ou[env] == 0).all() == bool(last_done[env])
+
+
+FIXTURE_RUNS = Path(__file__).parent / "fixtures" / "runs-v1"
+
+
+@pytest.mark.parametrize("algo", ["td3", "ddpg", "sac"])
+def test_v1_checkpoints_load_into_each_algorithms_own_learner_state(algo):
+    """The learner states keep the leaf names that checkpoints store (a field that one algorithm does not use is
+    absent rather than None, and None held no leaves), so run folders of format 1 still load and act."""
+    _, facts, state, header = load_state(FIXTURE_RUNS / algo)
+    assert type(state.learner) is (SACLearner if algo == "sac" else DDPGLearner)
+    assert len(jax.tree_util.tree_leaves(state)) == len(header["leaves"])
+    assert int(state.global_step) == int(header["global_step"])
+    policy = load(FIXTURE_RUNS / algo)
+    obs = np.random.default_rng(0).normal(size=(8, facts.obs_dim)).astype(np.float32)
+    action = policy(obs)
+    assert action.shape == (8, facts.act_dim)
+    assert np.all(action >= facts.action_low) and np.all(action <= facts.action_high)
+    np.testing.assert_array_equal(action, policy(obs))
 
 
 def _config(algo, out_dir, total, extra=()):
@@ -103,6 +128,7 @@ def learned(tmp_path_factory):
     return get
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", sorted(LEARNING))
 def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
     result = learned(algo)
@@ -130,6 +156,7 @@ def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
         assert not np.allclose(policy(obs, deterministic=False, seed=1), first)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_onnx_export_of_an_off_policy_run_matches_canter_load(algo, learned, tmp_path):
     ort = pytest.importorskip("onnxruntime")
@@ -143,6 +170,7 @@ def test_onnx_export_of_an_off_policy_run_matches_canter_load(algo, learned, tmp
     np.testing.assert_allclose(got, load(run_dir)(obs), rtol=0, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_path):
     source = learned("td3").run_dir       # its checkpoint is compressed (run.compress_checkpoints)
     _, _, before, header = load_state(source)
@@ -162,6 +190,7 @@ def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_pat
     np.testing.assert_array_equal(np.asarray(s1.buffer.data.obs)[:steps], np.asarray(before.buffer.data.obs)[:steps])
 
 
+@pytest.mark.slow
 def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_path):
     config = build_config("canter_test_envs:NaNAfter-v0", algo="td3", total_steps=50_000, sets=[
         "td3.hidden=8", "td3.learning_starts=50", "td3.steps_per_call=100", "td3.batch_size=16",
@@ -201,11 +230,12 @@ def test_presets_give_off_policy_runs_one_env_and_raw_observations():
             config = build_config("HalfCheetah-v4", preset=preset, algo=algo)
             assert config.env.num_envs == 1 and not config.env.normalize_obs and not config.env.normalize_reward
     assert build_config("HalfCheetah-v4", preset="fast").env.num_envs == 16   # ppo keeps its own
-    seed = build_config("BipedalWalker-v3", preset="seed002-ddpg")
+    seed = build_config("BipedalWalker-v3", preset="report002-ddpg")
     assert seed.run.algo == "ddpg" and seed.env.num_envs == 4 and seed.ddpg.batch_size == 512
     assert seed.ddpg.tau == 0.001 and seed.ddpg.train_freq == 16 and seed.ddpg.noise_std == pytest.approx(0.89066, 1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["td3", "sac"])
 def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys):
     """`canter train --algo td3 --seeds 0,1` runs the same iteration under jax.vmap. Measured on this tiny run: the
@@ -213,7 +243,7 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     bounds are about 25x that, and far below the difference between two seeds."""
     import csv
 
-    from canter.use.policy import read_run_config
+    from canter.training.run_folder import read_config
 
     sets = [f"{algo}.hidden=16,16", "run.tensorboard=false", f"{algo}.learning_starts=100",
             f"{algo}.buffer_size=1000", f"{algo}.batch_size=32", f"{algo}.steps_per_call=100",
@@ -226,7 +256,7 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     assert main(argv + [arg for s in sets for arg in ("--set", s)]) == 0
     # The CLI points at the faster way to train several off-policy seeds.
     assert f"canter: note: {algo} seeds train faster one per process" in capsys.readouterr().err
-    by_seed = {read_run_config(d).run.seed: d for d in (tmp_path / "group").iterdir()}
+    by_seed = {read_config(d).run.seed: d for d in (tmp_path / "group").iterdir()}
 
     def columns(run_dir):
         with open(run_dir / "metrics.csv") as f:

@@ -8,8 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from canter.algos.offpolicy import learners, losses, noise
+from canter.algos.offpolicy import losses, noise
+from canter.algos.offpolicy.ddpg import DDPG
 from canter.algos.offpolicy.networks import init_critics, q_values
+from canter.algos.offpolicy.sac import SAC, SACLearner
+from canter.algos.offpolicy.td3 import TD3
 from canter.config.schema import Config
 from canter.core.networks import mlp
 from canter.core.replay import Transitions
@@ -125,9 +128,9 @@ def test_stacked_critics_equal_separate_networks():
     assert not np.allclose(q[0], q[1])       # independent initializations
 
 
-# Jitted once per config: eager dispatch of every op (and of both lax.cond branches) is far slower.
-_deterministic_update = jax.jit(learners.deterministic_update, static_argnums=(3, 4))
-_sac_update = jax.jit(learners.sac_update, static_argnums=3)
+# Jitted once per learner (a frozen dataclass of its config): eager dispatch of every op (and of both lax.cond
+# branches) is far slower.
+_update = jax.jit(lambda learner, state, batch, key: learner.update(state, batch, key), static_argnums=0)
 
 
 def _batch(key, n=8, obs_dim=3, act_dim=2):
@@ -142,12 +145,54 @@ def _changed(a, b):
     return any(not np.array_equal(x, y) for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
 
 
+DETERMINISTIC_FIELDS = ("actor", "critics", "target_actor", "target_critics", "actor_opt", "critic_opt", "updates")
+SAC_FIELDS = ("actor", "critics", "target_critics", "actor_opt", "critic_opt", "log_alpha", "alpha_opt", "updates")
+
+
+@pytest.mark.parametrize("make, fields, critics, actor_out", [
+    (lambda: DDPG(replace(Config().ddpg, hidden=(8,))), DETERMINISTIC_FIELDS, 1, 2),
+    (lambda: TD3(replace(Config().td3, hidden=(8,))), DETERMINISTIC_FIELDS, 2, 2),
+    (lambda: SAC(replace(Config().sac, hidden=(8,)), -2.0), SAC_FIELDS, 2, 4),
+])
+def test_learner_states_hold_exactly_what_their_algorithm_uses(make, fields, critics, actor_out):
+    state = make().init(jax.random.key(0), 3, 2)
+    assert state._fields == fields
+    assert all(leaf is not None for leaf in jax.tree_util.tree_leaves(state, is_leaf=lambda x: x is None))
+    assert jax.tree_util.tree_leaves(state.critics)[0].shape[0] == critics
+    assert state.actor[-1]["w"].shape == (8, actor_out)
+
+
+def test_acting_is_deterministic_on_request_and_explores_otherwise():
+    obs = jax.random.normal(jax.random.key(1), (5, 3), jnp.float32)
+    key = jax.random.key(2)
+    sac = SAC(replace(Config().sac, hidden=(8,)), -2.0)
+    actor = sac.init(jax.random.key(0), 3, 2).actor
+    from canter.algos.offpolicy.networks import deterministic_action, squashed_gaussian
+
+    mean, _ = squashed_gaussian(actor, obs, "relu")
+    np.testing.assert_array_equal(sac.act(actor, obs, key, True), jnp.tanh(mean))
+    sampled = sac.act(actor, obs, key, False)
+    assert not np.allclose(sampled, jnp.tanh(mean)) and np.all(np.abs(sampled) <= 1.0)
+    # sac explores by sampling its policy; its OU state passes through untouched.
+    ou = jnp.ones((5, 2))
+    explored, ou_next = sac.explore(sac.init(jax.random.key(0), 3, 2), obs, ou, key)
+    np.testing.assert_array_equal(explored, sampled)
+    assert ou_next is ou
+    td3 = TD3(replace(Config().td3, hidden=(8,), noise="none"))
+    state = td3.init(jax.random.key(0), 3, 2)
+    np.testing.assert_array_equal(td3.act(state.actor, obs, key, True), deterministic_action(state.actor, obs, "relu"))
+    explored, _ = td3.explore(state, obs, ou, key)
+    np.testing.assert_array_equal(explored, deterministic_action(state.actor, obs, "relu"))    # noise = none
+    noisy = td3.act(state.actor, obs, key, False)
+    assert not np.allclose(noisy, explored) and np.all(np.abs(noisy) <= 1.0)
+
+
 def test_td3_delays_the_actor_and_target_updates():
     cfg = replace(Config().td3, hidden=(8,), policy_delay=2, tau=0.1)
-    learner = learners.init_learner(jax.random.key(0), "td3", cfg, 3, 2)
+    learner = TD3(cfg).init(jax.random.key(0), 3, 2)
     assert jax.tree_util.tree_leaves(learner.critics)[0].shape[0] == 2
     batch = _batch(jax.random.key(1))
-    first, diag = _deterministic_update(learner, batch, jax.random.key(2), cfg, True)
+    first, diag = _update(TD3(cfg), learner, batch, jax.random.key(2))
     # Step 0: critic, actor and targets all move; targets by exactly tau toward the new online nets.
     assert _changed(first.critics, learner.critics) and _changed(first.actor, learner.actor)
     for target, old, new in ((first.target_actor, learner.target_actor, first.actor),
@@ -156,7 +201,7 @@ def test_td3_delays_the_actor_and_target_updates():
             np.testing.assert_allclose(t, 0.9 * np.asarray(o) + 0.1 * np.asarray(n), rtol=1e-5, atol=1e-7)
     assert np.isfinite(float(diag["actor_loss"])) and int(first.updates) == 1
     # Step 1: only the critics move.
-    second, diag = _deterministic_update(first, batch, jax.random.key(3), cfg, True)
+    second, diag = _update(TD3(cfg), first, batch, jax.random.key(3))
     assert _changed(second.critics, first.critics)
     assert not _changed(second.actor, first.actor) and not _changed(second.actor_opt, first.actor_opt)
     assert not _changed(second.target_actor, first.target_actor)
@@ -166,12 +211,12 @@ def test_td3_delays_the_actor_and_target_updates():
 
 def test_ddpg_has_one_critic_and_updates_the_actor_every_step():
     cfg = replace(Config().ddpg, hidden=(8,))
-    learner = learners.init_learner(jax.random.key(0), "ddpg", cfg, 3, 2)
+    learner = DDPG(cfg).init(jax.random.key(0), 3, 2)
     assert jax.tree_util.tree_leaves(learner.critics)[0].shape[0] == 1
     batch = _batch(jax.random.key(1))
     state = learner
     for i in range(2):
-        new, _ = _deterministic_update(state, batch, jax.random.key(i), cfg, False)
+        new, _ = _update(DDPG(cfg), state, batch, jax.random.key(i))
         assert _changed(new.actor, state.actor) and _changed(new.target_actor, state.target_actor)
         state = new
 
@@ -179,7 +224,7 @@ def test_ddpg_has_one_critic_and_updates_the_actor_every_step():
 def test_ddpg_critic_step_descends_on_the_hand_computed_target():
     """With tau = 1 the targets equal the online nets, so the critic gradient can be checked directly."""
     cfg = replace(Config().ddpg, hidden=(4,), critic_lr=1e-3, gamma=0.5)
-    learner = learners.init_learner(jax.random.key(0), "ddpg", cfg, 3, 2)
+    learner = DDPG(cfg).init(jax.random.key(0), 3, 2)
     batch = _batch(jax.random.key(1))
     from canter.algos.offpolicy.networks import deterministic_action
 
@@ -187,7 +232,7 @@ def test_ddpg_critic_step_descends_on_the_hand_computed_target():
                       deterministic_action(learner.target_actor, batch.next_obs, "relu"), "relu")
     target = batch.reward + 0.5 * next_q[0]
     before = float(jnp.mean((q_values(learner.critics, batch.obs, batch.action, "relu")[0] - target) ** 2))
-    new, diag = _deterministic_update(learner, batch, jax.random.key(2), cfg, False)
+    new, diag = _update(DDPG(cfg), learner, batch, jax.random.key(2))
     assert float(diag["critic_loss"]) == pytest.approx(before, rel=1e-5)
     after = float(jnp.mean((q_values(new.critics, batch.obs, batch.action, "relu")[0] - target) ** 2))
     assert after < before
@@ -195,19 +240,18 @@ def test_ddpg_critic_step_descends_on_the_hand_computed_target():
 
 def test_sac_update_moves_alpha_toward_the_target_entropy():
     cfg = replace(Config().sac, hidden=(8,), alpha=0.5)
-    learner = learners.init_learner(jax.random.key(0), "sac", cfg, 3, 2)
-    assert learner.target_actor is None
+    learner = SAC(cfg, -10.0).init(jax.random.key(0), 3, 2)
+    assert isinstance(learner, SACLearner) and "target_actor" not in learner._fields
     batch = _batch(jax.random.key(1))
     # A freshly initialized policy has near-maximal entropy, far above a target of -10: alpha must fall.
-    new, diag = _sac_update(learner, batch, jax.random.key(2), cfg, -10.0)
+    new, diag = _update(SAC(cfg, -10.0), learner, batch, jax.random.key(2))
     assert float(diag["alpha"]) < 0.5 and float(new.log_alpha) < math.log(0.5)
     for t, o, n in zip(*(jax.tree_util.tree_leaves(x) for x in (new.target_critics, learner.target_critics,
                                                                 new.critics))):
         np.testing.assert_allclose(t, (1 - cfg.tau) * np.asarray(o) + cfg.tau * np.asarray(n), rtol=1e-5, atol=1e-7)
     # An unreachable target entropy (+10) raises it.
-    new, _ = _sac_update(learner, batch, jax.random.key(2), cfg, 10.0)
+    new, _ = _update(SAC(cfg, 10.0), learner, batch, jax.random.key(2))
     assert float(new.log_alpha) > math.log(0.5)
     fixed = replace(cfg, autotune=False)
-    new, _ = _sac_update(learners.init_learner(jax.random.key(0), "sac", fixed, 3, 2), batch,
-                                 jax.random.key(2), fixed, -10.0)
+    new, _ = _update(SAC(fixed, -10.0), SAC(fixed, -10.0).init(jax.random.key(0), 3, 2), batch, jax.random.key(2))
     assert float(new.log_alpha) == pytest.approx(math.log(0.5))

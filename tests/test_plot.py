@@ -10,10 +10,24 @@ import numpy as np
 import pytest
 
 from canter.cli.main import main
-from canter.config.schema import apply_overrides, build_config, to_toml
+from canter.config.build import build_config
+from canter.config.overrides import apply_overrides
+from canter.config.serialize import to_toml
 from canter.errors import CanterError
-from canter.use.plot import (Group, RunCurves, bootstrap_band, choose_metrics, common_grid, group_band, group_labels,
-                         group_runs, interpolate, load_run, moving_average, read_metrics)
+from canter.use.plot import (
+    Group,
+    RunCurves,
+    bootstrap_band,
+    choose_metrics,
+    common_grid,
+    group_band,
+    group_labels,
+    group_runs,
+    interpolate,
+    load_run,
+    moving_average,
+    read_metrics,
+)
 
 
 def test_moving_average_matches_a_loop_with_nans():
@@ -146,7 +160,7 @@ def test_grouping_and_labels():
                                                            "preset=cleanrl, ppo.clip=0.1"]
     assert group_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
     # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
-    td3 = replace(fast, run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
+    td3 = fast.replace(run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
     assert group_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
 
 
@@ -175,6 +189,7 @@ def run_cli(argv, capsys):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
     import matplotlib.image
 
@@ -201,6 +216,7 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["c.png", "c.svg"]
 
 
+@pytest.mark.slow
 def test_plot_cli_bad_input(tiny_run, tmp_path, capsys):
     no_metrics = tmp_path / "empty_run"
     no_metrics.mkdir()

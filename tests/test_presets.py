@@ -6,7 +6,13 @@ from importlib import resources
 import pytest
 
 from canter.algos import algorithm_names, get_algorithm
-from canter.config.schema import build_config, preset_algorithms, preset_names, preset_overrides, preset_text
+from canter.config.build import build_config
+from canter.config.presets import (
+    preset_algorithms,
+    preset_names,
+    preset_overrides,
+    shipped_preset_text,
+)
 from canter.envs import make_vec_env
 
 # Presets without an `# env:` header line are general; they are checked on the seeds' tasks.
@@ -15,7 +21,7 @@ GENERAL_ENVS = ("HalfCheetah-v4", "Hopper-v4", "Walker2d-v4", "Humanoid-v4", "Hu
 
 
 def preset_envs(name: str) -> tuple[str, ...]:
-    found = re.findall(r"^# env: (.+)$", preset_text(name), flags=re.MULTILINE)
+    found = re.findall(r"^# env: (.+)$", shipped_preset_text(name), flags=re.MULTILINE)
     return tuple(e.strip() for line in found for e in line.split(",")) or GENERAL_ENVS
 
 
@@ -44,18 +50,18 @@ def test_preset_builds_a_valid_config_for_its_envs(name):
 
 
 def test_seed_presets_hold_the_seeds_numbers():
-    standup = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    standup = build_config("HumanoidStandup-v4", preset="report000-humanoidstandup")
     assert standup.run.algo == "rpo" and standup.run.total_steps == 5_000_000
     assert (standup.ppo.n_steps, standup.ppo.minibatch_size, standup.ppo.lr, standup.ppo.ent_coef) == \
         (2048, 64, 2e-5, 1e-4)
     assert standup.rpo.alpha == 0.5 and standup.sym.coef == 0.02 and standup.sym.groups == "3:7=7:11,11:14=14:17"
-    cheetah = build_config("HalfCheetah-v4", preset="seed000-halfcheetah")
+    cheetah = build_config("HalfCheetah-v4", preset="report000-halfcheetah")
     assert cheetah.ppo.ent_coef == 0.5 and cheetah.run.seed == 8 and cheetah.ppo.minibatch_size == 32
-    assert "contradicts" in preset_text("seed000-halfcheetah")
-    hopper = build_config("Hopper-v4", preset="seed002-hopper-trpo")
+    assert "contradicts" in shipped_preset_text("report000-halfcheetah")
+    hopper = build_config("Hopper-v4", preset="report002-hopper-trpo")
     assert hopper.run.algo == "trpo" and hopper.net.activation == "relu" and hopper.net.hidden == (64, 64)
     assert (hopper.trpo.critic_lr, hopper.trpo.cg_iters, hopper.trpo.cg_damping) == (2e-4, 10, 0.1)
-    walker = build_config("BipedalWalker-v3", preset="seed002-bipedalwalker-ppo")
+    walker = build_config("BipedalWalker-v3", preset="report002-bipedalwalker-ppo")
     assert (walker.ppo.n_steps, walker.ppo.minibatch_size, walker.ppo.epochs, walker.env.num_envs) == (512, 32, 5, 4)
     assert (walker.ppo.gamma, walker.ppo.gae_lambda, walker.run.stop_at_return) == (0.99, 0.99, 300.0)
 
@@ -83,7 +89,7 @@ def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
     model = mujoco.MjModel.from_xml_path(xml)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    config = build_config("HumanoidStandup-v4", preset="seed000-humanoidstandup")
+    config = build_config("HumanoidStandup-v4", preset="report000-humanoidstandup")
     reflect = np.diag([1.0, -1.0, 1.0])     # the sagittal plane is y = 0
     for pair in parse_groups(config.sym.groups, config.sym.negate):
         # The seed's pairs put the right limb first and the left limb as its mirror.
@@ -117,8 +123,10 @@ def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
     from canter.errors import CanterError
 
     flags = ["sac.actor_lr=1e-3", "sac.autotune=false", "sac.alpha=0.2", "sac.learning_starts=10000"]
-    as_run = dataclasses.asdict(build_config("Walker2d-v5", algo="sac", sets=flags))
-    preset = dataclasses.asdict(build_config("Walker2d-v5", preset="tianshou", algo="sac"))
+    run_config = build_config("Walker2d-v5", algo="sac", sets=flags)
+    preset_config = build_config("Walker2d-v5", preset="tianshou", algo="sac")
+    as_run = {s: dataclasses.asdict(run_config.section(s)) for s in ("env", "sac", "run")}
+    preset = {s: dataclasses.asdict(preset_config.section(s)) for s in ("env", "sac", "run")}
     assert as_run["env"] == preset["env"]
     # alpha_lr is Tianshou's 3e-4 in the preset but is never read with a fixed alpha (autotune off).
     assert preset["sac"].pop("alpha_lr") == 3e-4 and not preset["sac"]["autotune"]

@@ -8,14 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from chromium_page import CHROMIUM, inspect_page
 
 from canter.cli.main import main
 
-from chromium_page import CHROMIUM, inspect_page
-
 needs_chromium = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="chromium is not installed")
 # Starting Chromium forks; JAX warns about forks in general, but the child only execs bash and Chromium.
-pytestmark = pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")]
 
 
 class _Tags(HTMLParser):

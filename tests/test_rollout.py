@@ -4,14 +4,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-from canter.algos.ppo.iteration import init_train_state, make_iteration
-from canter.config.schema import build_config
-from canter.envs import make_vec_env
-from canter.core.networks import value
-from canter.algos.onpolicy_rollout import collect, estimate_advantages, init_env_carry
-
 from test_gae import reference_gae
+
+from canter.algos.onpolicy_rollout import collect, estimate_advantages
+from canter.algos.ppo.iteration import init_train_state, make_iteration
+from canter.config.build import build_config
+from canter.core.networks import value
+from canter.envs import make_vec_env
+from canter.envs.episodes import init_env_carry
 
 
 def _setup(env_id, backend, num_envs, n_steps):

@@ -2,7 +2,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from canter.algos.ppo.symmetry import MirrorPair, check_action_range, parse_groups, symmetric_loss
+from canter.algos.ppo.symmetry import (
+    MirrorPair,
+    check_action_range,
+    parse_groups,
+    symmetric_loss,
+)
 from canter.errors import CanterError
 
 

@@ -3,14 +3,16 @@ import shutil
 import jax
 import numpy as np
 import pytest
-
-from canter.config.schema import build_config, reads_key
-from canter.errors import CanterError
-from canter.use.policy import load_state
-from canter.training.loop import resume_config, train
-
 from conftest import TINY
 from signals import sigterm_once_logging
+
+from canter.config.algorithms import reads_key
+from canter.config.build import build_config
+from canter.errors import CanterError
+from canter.training.loop import resume_config, train
+from canter.training.restore import load_state
+
+pytestmark = pytest.mark.slow
 
 SMALL = TINY + ["env.num_envs=4", "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2",
                 "run.checkpoint_every=2048"]

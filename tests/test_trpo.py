@@ -6,10 +6,22 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from canter.algos.trpo.iteration import (PolicyBatch, critic_regression, critic_optimizer, policy_objectives,
-                                         policy_step, split_policy)
-from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
-from canter.config.schema import Config, NetConfig, TRPOConfig
+from canter.algos.trpo.iteration import (
+    PolicyBatch,
+    critic_optimizer,
+    critic_regression,
+    policy_objectives,
+    policy_step,
+    split_policy,
+)
+from canter.algos.trpo.natural import (
+    backtracking_line_search,
+    conjugate_gradient,
+    fisher_vector_product,
+)
+from canter.algos.trpo.sections import TRPOConfig
+from canter.config.schema import Config
+from canter.core.netconfig import NetConfig
 from canter.core.networks import init_params, value
 
 
@@ -31,7 +43,7 @@ def test_conjugate_gradient_matches_a_direct_solve():
 
 def _tiny_problem(state_dependent_std=False, seed=0):
     net = NetConfig(hidden=(3,), state_dependent_std=state_dependent_std, log_std_init=-0.3)
-    config = Config(net=net, trpo=TRPOConfig(max_kl=0.01, cg_iters=20, cg_damping=0.0))
+    config = Config().replace(net=net, trpo=TRPOConfig(max_kl=0.01, cg_iters=20, cg_damping=0.0))
     key = jax.random.key(seed)
     params = init_params(key, net, 2, 2)
     # Larger output weights than the 0.01 init, so the means depend visibly on the observation.
@@ -85,7 +97,7 @@ def test_line_search_on_a_hand_made_case():
 @pytest.mark.parametrize("max_kl", [0.01, 1e-4])
 def test_policy_step_improves_the_surrogate_within_the_trust_region(max_kl):
     config, policy, batch = _tiny_problem()
-    config = Config(net=config.net, trpo=TRPOConfig(max_kl=max_kl, cg_iters=10, cg_damping=0.1))
+    config = Config().replace(net=config.net, trpo=TRPOConfig(max_kl=max_kl, cg_iters=10, cg_damping=0.1))
     new_policy, d = jax.jit(policy_step, static_argnums=2)(policy, batch, config)
     objectives = policy_objectives(policy, batch, config)
     flat_new = ravel_pytree(new_policy)[0]
@@ -99,7 +111,7 @@ def test_policy_step_improves_the_surrogate_within_the_trust_region(max_kl):
 
 
 def test_critic_regression_fits_the_returns():
-    config = Config(net=NetConfig(hidden=(8,)), trpo=TRPOConfig(critic_lr=1e-2, critic_epochs=50,
+    config = Config().replace(net=NetConfig(hidden=(8,)), trpo=TRPOConfig(critic_lr=1e-2, critic_epochs=50,
                                                                 critic_minibatch_size=8))
     params = init_params(jax.random.key(0), config.net, 2, 1)
     rng = np.random.default_rng(0)

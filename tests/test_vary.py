@@ -9,7 +9,14 @@ import pytest
 
 from canter.cli.main import main
 from canter.errors import CanterError
-from canter.use.vary import VarySpec, apply_scale, object_names, original_value, parse_spec, sweep
+from canter.use.vary import (
+    VarySpec,
+    apply_scale,
+    object_names,
+    original_value,
+    parse_spec,
+    sweep,
+)
 
 
 def hopper():
@@ -89,6 +96,7 @@ def test_unknown_name_lists_the_valid_names():
     env.close()
 
 
+@pytest.mark.slow
 def test_each_scale_starts_from_the_original_model(tiny_hopper_run):
     """A repeated scale gives the same result: the second 2.0 is not applied to an already doubled mass."""
     from canter.use.policy import load
@@ -100,6 +108,7 @@ def test_each_scale_starts_from_the_original_model(tiny_hopper_run):
     assert points[0]["returns"] != points[2]["returns"]
 
 
+@pytest.mark.slow
 def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
     run = tiny_hopper_run
     code = main(["eval", str(run), "--episodes", "2", "--vary", "body_mass:torso=0.5,1.5"])
@@ -121,6 +130,7 @@ def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
     assert (tmp_path / "g.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_cli_vary_bad_inputs(tiny_hopper_run, tmp_path, capsys):
     blocked = tmp_path / "file"
     blocked.write_text("")

@@ -6,18 +6,19 @@ import sys
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from conftest import TINY
 
 from canter.cli.main import main
+from canter.envs.registry import dm_control_task
 from canter.errors import CanterError
+from canter.training.videos import TrainingVideos, quiet_fork
 from canter.use import video
-
-from conftest import TINY
 
 
 def frames_of(path) -> np.ndarray:
     if str(path).endswith(".gif"):
         return np.stack([f[..., :3] for f in imageio.mimread(path)])
-    with imageio.get_reader(path, format="FFMPEG") as reader, video._quiet_fork():
+    with imageio.get_reader(path, format="FFMPEG") as reader, quiet_fork():
         return np.stack([frame for frame in reader])  # list(reader) would trust its len(), which is inf
 
 
@@ -27,6 +28,7 @@ def assert_real_video(frames: np.ndarray, count: int, width: int, height: int) -
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5  # not a constant image
 
 
+@pytest.mark.slow
 def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
     code = main(["video", str(tiny_hopper_run), "--out", "hopper.mp4", "--episodes", "2", "--max-steps", "8",
                  "--width", "64", "--height", "48", "--fps", "10"])
@@ -37,6 +39,7 @@ def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
     assert_real_video(frames_of("hopper.mp4"), 2 * 9, 64, 48)
 
 
+@pytest.mark.slow
 def test_gif_of_a_non_mujoco_env_is_resized(tiny_run):
     returns = video.record_video(tiny_run.run_dir, "pendulum.gif", episodes=1, width=40, height=30, fps=20,
                                  max_steps=12)
@@ -44,6 +47,7 @@ def test_gif_of_a_non_mujoco_env_is_resized(tiny_run):
     assert_real_video(frames_of("pendulum.gif"), 13, 40, 30)
 
 
+@pytest.mark.slow
 def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
     """An EnvPool run replayed in Gymnasium scores what a plain loop with the same policy scores."""
     import gymnasium as gym
@@ -66,16 +70,17 @@ def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
     np.testing.assert_allclose(returns, expected, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_dm_control_run_renders_through_dm_control(tmp_path):
     pytest.importorskip("dm_control")
-    from canter.config.schema import build_config
+    from canter.config.build import build_config
     from canter.training.loop import train
 
     config = build_config("WalkerWalk-v1", total_steps=128, sets=TINY + [
         f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
     run = train(config).run_dir
-    assert video.dmc_task("WalkerWalk-v1") == ("walker", "walk")
-    assert video.dmc_task("Hopper-v5") is None
+    assert dm_control_task("WalkerWalk-v1") == ("walker", "walk")
+    assert dm_control_task("Hopper-v5") is None
     returns = video.record_video(run, "walker.mp4", width=48, height=32, max_steps=6)
     assert len(returns) == 1
     assert_real_video(frames_of("walker.mp4"), 7, 48, 32)
@@ -88,11 +93,12 @@ def test_every_envpool_dm_control_id_maps_to_a_dm_control_task():
     tasks = {(domain.lower(), task.lower()) for domain, task in suite.ALL_TASKS}
     ids = [env_id for env_id, entry in registry.specs.items() if entry[0].endswith(".dmc")]
     assert len(ids) > 40 and "WalkerWalk-v1" in ids
-    assert [env_id for env_id in ids if tuple(map(str.lower, video.dmc_task(env_id))) not in tasks] == []
+    assert [env_id for env_id in ids if tuple(map(str.lower, dm_control_task(env_id))) not in tasks] == []
 
 
+@pytest.mark.slow
 def test_video_every_during_training(tmp_path):
-    from canter.config.schema import build_config
+    from canter.config.build import build_config
     from canter.training.loop import train
 
     config = build_config("Pendulum-v1", total_steps=512, sets=TINY + [
@@ -107,9 +113,10 @@ def test_video_every_during_training(tmp_path):
     assert frames.shape[1:] == (video.DEFAULT_HEIGHT, video.DEFAULT_WIDTH, 3) and len(frames) == 201
 
 
+@pytest.mark.slow
 def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
     """The render subprocess dies (here: a checkpoint it cannot read); training finishes and warns."""
-    hook = video.TrainingVideos(tmp_path, every=10, start_step=0)
+    hook = TrainingVideos(tmp_path, every=10, start_step=0)
     hook.maybe_record(10, lambda path: path.write_bytes(b"not a checkpoint"))
     hook.close()
     assert "video at step 10 failed" in capsys.readouterr().err
@@ -130,6 +137,7 @@ def test_gl_selection(monkeypatch):
         video.configure_gl()
 
 
+@pytest.mark.slow
 def test_the_gl_backend_chosen_here_really_renders():
     import os
 
@@ -137,6 +145,7 @@ def test_the_gl_backend_chosen_here_really_renders():
     assert video._probe(os.environ["MUJOCO_GL"])
 
 
+@pytest.mark.slow
 def test_bad_inputs(tiny_hopper_run, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -140,7 +140,7 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
 
 
 def _machine() -> str:
-    from canter.training.loop import cpu_name, versions
+    from canter.training.run_folder import cpu_name, versions
 
     v = versions()
     try:

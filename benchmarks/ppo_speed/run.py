@@ -218,7 +218,7 @@ def _json_line(stdout: str) -> dict | None:
 # ------------------------------------------------------------------------------------------ machine & versions
 
 def machine() -> dict[str, str]:
-    from canter.training.loop import cpu_name
+    from canter.training.run_folder import cpu_name
 
     cpu = cpu_name()
     cores = os.cpu_count() or 0

@@ -18,7 +18,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from canter.training.loop import cpu_name
+from canter.training.run_folder import cpu_name
 
 ROOT = Path(__file__).resolve().parents[2]
 CANTER = str(Path(sys.executable).with_name("canter"))

@@ -6,7 +6,9 @@
     actions = policy(observations)
 """
 
-from canter.config.schema import Config, build_config
+import canter.algos  # noqa: F401  (registers every algorithm's config sections and spec)
+from canter.config.build import build_config
+from canter.config.schema import Config
 from canter.errors import CanterError
 
 __version__ = "0.1.0"

@@ -13,22 +13,17 @@ import jax
 import jax.numpy as jnp
 
 from canter.config.schema import Config
-from canter.envs.base import StepOutput, is_summed_info
 from canter.core.gae import compute_gae
-from canter.core.networks import Params, gaussian_log_prob, policy_dist, sample_action, value
+from canter.core.networks import (
+    Params,
+    gaussian_log_prob,
+    policy_dist,
+    sample_action,
+    value,
+)
 from canter.core.normalize import RunningStats, normalize, scale_reward, update_stats
-
-
-class EnvCarry(NamedTuple):
-    """What the env loop carries between steps and iterations. It is not checkpointed: a resumed run restarts
-    its episodes."""
-    env_state: Any
-    obs: jnp.ndarray                 # [N, D] raw float32 observation to act on next
-    prev_done: jnp.ndarray           # [N] the previous step ended an episode, so the next step is an autoreset
-    discounted_return: jnp.ndarray   # [N] for reward scaling
-    episode_return: jnp.ndarray      # [N] raw
-    episode_length: jnp.ndarray      # [N] int32
-    info_sums: dict                  # key -> [N]
+from canter.envs.base import StepOutput
+from canter.envs.episodes import EnvCarry, track_episodes
 
 
 class Transition(NamedTuple):
@@ -42,13 +37,6 @@ class Transition(NamedTuple):
     episode_return: jnp.ndarray
     episode_length: jnp.ndarray
     episode_info: dict
-
-
-def init_env_carry(env_state: Any, first_obs: jnp.ndarray, info_keys: tuple[str, ...]) -> EnvCarry:
-    n = first_obs.shape[0]
-    zeros = jnp.zeros((n,), jnp.float32)
-    return EnvCarry(env_state, jnp.asarray(first_obs, jnp.float32), jnp.zeros((n,), bool), zeros, zeros,
-                    jnp.zeros((n,), jnp.int32), {k: zeros for k in info_keys})
 
 
 def normalize_obs(config: Config, stats: RunningStats, obs: jnp.ndarray) -> jnp.ndarray:
@@ -74,26 +62,14 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
         log_prob = gaussian_log_prob(mean, log_std, action)
 
         env_state, out = env_step(carry.env_state, jnp.clip(action, action_low, action_high))
-        valid_f = valid.astype(jnp.float32)
-        done = (out.terminated | out.truncated) & valid
-        reward = out.reward
-        discounted = carry.discounted_return * config.ppo.gamma * valid_f + reward * valid_f
+        carry, episodes = track_episodes(carry, env_state, out, config.ppo.gamma)
         if env_cfg.normalize_reward:
-            return_stats = update_stats(return_stats, discounted, valid)
-            learn_reward = scale_reward(return_stats, reward, env_cfg.clip_reward)
+            return_stats = update_stats(return_stats, episodes.discounted_return, valid)
+            learn_reward = scale_reward(return_stats, out.reward, env_cfg.clip_reward)
         else:
-            learn_reward = reward
-        episode_return = carry.episode_return + reward * valid_f
-        episode_length = carry.episode_length + valid.astype(jnp.int32)
-        info_sums = {k: carry.info_sums[k] + out.info[k] * valid_f for k in carry.info_sums}
-        length_f = jnp.maximum(episode_length.astype(jnp.float32), 1.0)
-        episode_info = {k: v if is_summed_info(k) else v / length_f for k, v in info_sums.items()}
-
-        transition = Transition(obs, action, log_prob, learn_reward, out.terminated & valid, done, valid,
-                                episode_return, episode_length, episode_info)
-        keep = 1.0 - done.astype(jnp.float32)
-        carry = EnvCarry(env_state, out.obs, done, discounted * keep, episode_return * keep,
-                         episode_length * (1 - done.astype(jnp.int32)), {k: v * keep for k, v in info_sums.items()})
+            learn_reward = out.reward
+        transition = Transition(obs, action, log_prob, learn_reward, out.terminated & valid, episodes.done, valid,
+                                episodes.episode_return, episodes.episode_length, episodes.episode_info)
         return (obs_stats, return_stats, carry), transition
 
     keys = jax.random.split(key, config.ppo.n_steps)

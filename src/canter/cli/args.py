@@ -15,6 +15,13 @@ def steps_arg(text: str) -> int:
     return int(value)
 
 
-def add_common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=None, help="run seed")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+def seeds_arg(text: str) -> tuple[int, ...]:
+    """`0,1,2` -> (0, 1, 2): distinct whole numbers separated by commas."""
+    try:
+        seeds = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas such as 0,1,2, got {text!r}") \
+            from None
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"each seed may appear once, got {text!r}")
+    return seeds

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import steps_arg
-from canter.cli.tune import seeds_arg
+from canter.cli.args import seeds_arg, steps_arg
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -41,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canter.orchestrate.bench import BenchSettings, bench, parse_grid_arg
     from canter.errors import CanterError
+    from canter.orchestrate.bench import BenchSettings, bench, parse_grid_arg
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
     grid_keys = {key for key, _ in grid}

@@ -8,12 +8,13 @@ import json
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_common
-from canter.files import check_writable, write_output
 from canter.errors import CanterError
+from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from canter.envs.registry import backend_choices
+
     e = sub.add_parser("eval", help="evaluate run folders (and robustness sweeps with --vary)",
                        description="Evaluate the newest checkpoint of runs. Runs that differ only in run.seed are "
                                    "also summarised as a group.")
@@ -21,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value)")
     e.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     e.add_argument("--env", default=None, help="evaluate on another env with the same observation/action sizes")
-    e.add_argument("--backend", choices=("auto", "envpool", "gymnasium"), default=None,
+    e.add_argument("--backend", choices=backend_choices(), default=None,
                    help="env backend (default: the run's own for its env, else auto)")
     e.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON")
     e.add_argument("--vary", default=None, action="append", metavar="PARAM[:NAME]=S1,S2,...",
@@ -29,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "actuator_gear:ACTUATOR (omit :NAME for all) or gravity, e.g. body_mass:torso=0.5,1,1.5")
     e.add_argument("--out", default=None, metavar="PATH.png",
                    help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png in each run")
-    add_common(e)
+    e.add_argument("--seed", type=int, default=None, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)
 
 
@@ -61,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
-    from canter.use.evaluate import evaluate, group_by_config
+    from canter.config.experiment import group_by_experiment
+    from canter.use.evaluate import evaluate
 
     rows = []
     for policy in policies:
@@ -70,7 +72,7 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
         rows.append(dict(run=str(policy.source), env=args.env or policy.facts.env_id, algo=policy.config.run.algo,
                          seed=policy.config.run.seed, deterministic=not args.stochastic,
                          global_step=policy.facts.global_step, **result.summary()))
-    groups = [_group_row(rows, members) for members in group_by_config([p.config for p in policies])
+    groups = [_group_row(rows, members) for members in group_by_experiment([p.config for p in policies])
               if len(members) > 1]
     _print_table(rows, groups)
     if args.json:

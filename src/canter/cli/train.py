@@ -6,25 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from canter.cli.args import add_common, steps_arg
+from canter.cli.args import seeds_arg, steps_arg
 from canter.errors import CanterError
-
-
-def seeds_arg(text: str) -> list[int]:
-    """`0,1,2` -> [0, 1, 2]: distinct whole numbers separated by commas."""
-    try:
-        seeds = [int(part) for part in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas such as 0,1,2, got {text!r}") \
-            from None
-    if len(set(seeds)) != len(seeds):
-        raise argparse.ArgumentTypeError(f"each seed may appear once, got {text!r}")
-    return seeds
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
-    from canter.config.schema import preset_names
+    from canter.config.presets import preset_names
+    from canter.envs.registry import backend_choices
 
     t = sub.add_parser("train", help="train a policy; writes a run folder",
                        description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.")
@@ -34,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
-    t.add_argument("--backend", choices=("auto", "envpool", "gymnasium"), default=None)
+    t.add_argument("--backend", choices=backend_choices(), default=None)
     t.add_argument("--stop-at-return", type=float, default=None,
                    help="stop once the mean of the last 20 training episodes reaches this")
     t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
@@ -46,13 +35,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--resume", nargs="+", default=None, metavar="RUN_DIR",
                    help="continue a run from its newest checkpoint; several run folders that differ only in "
                         "run.seed resume together as one group")
-    add_common(t)
+    t.add_argument("--seed", type=int, default=None, help="run seed")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from canter.algos import seeds_train_apart
-    from canter.config.schema import build_config
+    from canter.config.build import build_config
     from canter.training.loop import resume_config, resume_seeds, train, train_seeds
 
     if args.seed is not None and args.seeds is not None:

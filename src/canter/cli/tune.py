@@ -8,16 +8,6 @@ from canter.cli.args import steps_arg
 from canter.errors import CanterError
 
 
-def seeds_arg(text: str) -> tuple[int, ...]:
-    try:
-        seeds = tuple(int(s) for s in text.split(",") if s.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 0,1,2, got {text!r}") from None
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise argparse.ArgumentTypeError(f"expected distinct seeds such as 0,1,2, got {text!r}")
-    return seeds
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("tune", help="tune hyperparameters with Optuna",
                        description="Optuna search (TPE sampler, median pruner on intermediate deterministic "

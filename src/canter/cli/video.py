@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import time
 
-from canter.cli.args import add_common
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.use.video import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH
@@ -24,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
     v.add_argument("--checkpoint", default=None, help="a checkpoint file instead of the newest one")
-    add_common(v)
+    v.add_argument("--seed", type=int, default=None, help="env seed of the first episode (default 0)")
     v.set_defaults(func=run)
 
 

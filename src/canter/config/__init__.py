@@ -1,5 +1,16 @@
-"""The configuration: a typed, frozen tree of sections, built from defaults < preset < config file < `--set`."""
+"""The configuration: a typed, frozen tree of sections, resolved from defaults < preset < config file < `--set`.
 
-from canter.config.schema import Config, build_config
+Modules: `fields` (how a key is declared, and its role), `schema` (the env and run sections, the `Config` tree and
+the section registry), `algorithms` (what each algorithm declares), `values` (typed coercion), `overrides`
+(`section.key` overrides from `--set` and TOML), `presets`, `build` (the layering), `validate`, `serialize`
+(config.toml), `experiment` (which runs are seeds of one experiment) and `reference` (the README's key table).
+This package never imports an algorithm: algorithms register their sections and specs with it.
+"""
 
-__all__ = ["Config", "build_config"]
+from canter.config.build import build_config
+from canter.config.experiment import experiment_key
+from canter.config.schema import Config
+from canter.config.serialize import from_toml_text, to_toml
+from canter.config.validate import validate
+
+__all__ = ["Config", "build_config", "experiment_key", "from_toml_text", "to_toml", "validate"]

@@ -8,7 +8,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from canter.config.schema import NetConfig
+from canter.core.netconfig import NetConfig
 
 Params = dict[str, Any]
 

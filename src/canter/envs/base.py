@@ -1,13 +1,13 @@
-"""The env protocol the learner sees. It is expressed in JAX types only: the learner never imports an env library.
+"""The env protocol the learner sees, and the protocol an env backend implements to provide it.
 
-A backend provides:
+The learner's side is expressed in JAX types only: the learner never imports an env library. A vectorized env provides:
 - `spec`: shapes, action bounds and the info keys it reports;
 - `reset()`: a host call that starts every env and returns the first float32 observations;
 - `jax_step(state, action)`: a jittable step, usable inside `lax.scan`, with EnvPool's episode semantics;
 - `host_step(action)`: the same step from plain numpy, for evaluation loops;
 - `close()`.
 
-Episode semantics (both backends): the step that ends an episode returns the true final observation and its flags.
+Episode semantics (every backend): the step that ends an episode returns the true final observation and its flags.
 The next step of that env is an autoreset step: it ignores its action and returns the reset observation, reward 0
 and both flags false.
 """
@@ -63,3 +63,44 @@ IGNORED_INFO_KEYS = frozenset({"env_id", "players", "elapsed_step", "TimeLimit.t
 def is_summed_info(key: str) -> bool:
     """Reward terms add up over an episode; other scalars (velocities, positions) are averaged per step."""
     return "reward" in key or "cost" in key
+
+
+class Backend(Protocol):
+    """One env backend: a package under `canter.envs` whose `BACKEND` implements this, listed once in
+    `canter.envs.registry`. Importing the package must not import its env library (the config reference imports every
+    backend to read its label); only calling its methods may.
+
+    The optional capabilities default to absent; a backend that has one sets its flag and overrides its method."""
+
+    name: str   # the value of env.backend and --backend
+    label: str  # how messages and docs name it
+    # Accepts `module:EnvId`: ids that a user's module registers when imported (`load_custom`).
+    custom_ids: bool = False
+    # Builds one Gymnasium-API env object at a time (`make_single`, and `on_make(env)` in `make`): robustness sweeps
+    # edit its MuJoCo model through env.unwrapped.model, and videos render it.
+    single_envs: bool = False
+
+    def available(self) -> bool:
+        """Whether its env library imports on this machine."""
+        ...
+
+    def supported_ids(self) -> list[str]:
+        """The continuous-control ids it can make; empty when it is not available."""
+        ...
+
+    def make(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
+        """`num_envs` envs seeded with `seeds`. `shards` splits them over concurrent pools where the backend has pools
+        (0: its default); kwargs go to the env. Raises a one-line CanterError for envs canter cannot train on."""
+        ...
+
+    def load_custom(self, env_id: str) -> None:
+        """Import the module of a `module:EnvId` id and check that it registered EnvId (custom_ids backends)."""
+        raise TypeError(f"the {self.name} backend takes no module:EnvId ids (check custom_ids first)")
+
+    def make_single(self, env_id: str, **kwargs: Any) -> Any:
+        """One Gymnasium-API env with a flat Box observation and Box actions (single_envs backends)."""
+        raise TypeError(f"the {self.name} backend builds no single envs (check single_envs first)")
+
+    def dm_control_task(self, env_id: str) -> tuple[str, str] | None:
+        """(domain, task) of dm_control's suite that env_id runs, or None when it is not a DM Control env."""
+        return None

@@ -18,21 +18,35 @@ import csv
 import io
 import itertools
 import math
-import os
 import time
 import tomllib
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canter.config.schema import (SECTIONS, Config, _field_types, all_keys, build_config, coerce, from_toml_text,
-                           reads_key, to_toml, unread_key_error)
+from canter.config.algorithms import reads_key, unread_key_error
+from canter.config.build import build_config
+from canter.config.overrides import all_keys
+from canter.config.schema import Config
+from canter.config.serialize import to_toml
+from canter.config.values import coerce, field_types
 from canter.errors import CanterError
-from canter.orchestrate.jobs import (EVAL_FILE, SUMMARY_FILE, GroupSpec, failure_reason, job_layout, read_json, run_status,
-                           start_group, stop_group, warn_if_more_jobs_than_cores)
+from canter.orchestrate.jobs import (
+    EVAL_FILE,
+    SUMMARY_FILE,
+    JobSpec,
+    failure_reason,
+    job_layout,
+    read_json,
+    run_status,
+    run_workers,
+    start_job,
+    stop_job,
+    warn_if_more_jobs_than_cores,
+)
 
 # Grid keys that have their own flag or belong to the bench itself.
 _AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
@@ -149,7 +163,7 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             raise CanterError(f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?"
                                                                       if close else ""))
         section, _, name = key.partition(".")
-        values = [canonical(coerce(key, _field_types(section)[name], v)) for v in raw]
+        values = [canonical(coerce(key, field_types(section)[name], v)) for v in raw]
         if len(set(values)) != len(values):
             raise CanterError(f"--grid {key} repeats a value")
         axes.append((key, values))
@@ -190,11 +204,11 @@ def varying_keys(cells: list[Cell]) -> list[str]:
     return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]
 
 
-def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> GroupSpec:
+def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
     cell = job.cell
     config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
-    return GroupSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
-                     settings.eval_episodes)
+    return JobSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
+                   settings.eval_episodes)
 
 
 def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
@@ -207,30 +221,25 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
     return True
 
 
-# Keys a run folder may differ in from its cell and still belong to it: the seed is per run, the folder is where
-# the bench lives, and a larger --total-steps extends finished runs.
-_REUSABLE_DIFFERENCES = ("run.seed", "run.out_dir", "run.total_steps")
-
-
-def _flat_config(config: Config) -> dict[str, Any]:
-    return {f"{section}.{f.name}": getattr(getattr(config, section), f.name)
-            for section in SECTIONS for f in fields(getattr(config, section))}
-
-
 def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
     """Refuse a bench folder whose run folders were trained with other settings than this command gives their
-    cells (a changed --set, --config or preset): reusing them would put old results under the new settings."""
+    cells (a changed --set, --config or preset): reusing them would put old results under the new settings. A run
+    folder belongs to its cell when it is a seed of the same experiment (`canter.config.experiment`), so a larger
+    --total-steps extends finished runs."""
+    from canter.config.experiment import experiment_key
+    from canter.training.run_folder import read_config
+
     for cell in cells:
-        expected = _flat_config(cell.config)
+        expected = dict(experiment_key(cell.config))
         for seed in settings.seeds:
             saved = cell.run_dir(bench_dir, seed) / "config.toml"
             if not saved.is_file():
                 continue
             try:
-                found = _flat_config(from_toml_text(saved.read_text(), str(saved)))
+                found = dict(experiment_key(read_config(saved.parent)))
             except (CanterError, OSError):
                 continue   # unreadable: the run is not usable anyway, and training it anew rewrites the file
-            differing = [k for k in expected if k not in _REUSABLE_DIFFERENCES and found.get(k) != expected[k]]
+            differing = [k for k in expected if found.get(k) != expected[k]]
             if differing:
                 key = differing[0]
                 more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
@@ -376,7 +385,7 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
             for slot, caps in enumerate(slots):
                 if slot not in running and pending:
                     job = pending.pop(0)
-                    proc = start_group(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
+                    proc = start_job(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
                     running[slot] = (job, proc, time.monotonic())
                     print(f"start {job.name} (seeds {','.join(map(str, job.seeds))})", flush=True)
             for slot, (job, proc, started) in list(running.items()):
@@ -399,7 +408,7 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
             time.sleep(settings.poll_seconds)
     finally:
         for _, proc, _ in running.values():
-            stop_group(proc)
+            stop_job(proc)
     return failures
 
 
@@ -415,11 +424,11 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
     job = jobs[name]
     folder = bench_dir / ".cells" / job.name
-    proc = start_group(job_spec(job, settings, bench_dir), folder)
+    proc = start_job(job_spec(job, settings, bench_dir), folder)
     try:
         code = proc.wait()
     finally:
-        stop_group(proc)
+        stop_job(proc)
     if code != 0:
         return Outcome("fail", reason=failure_reason(folder, code))
     # The records travel with the trial, so any machine can build the table from the storage alone.
@@ -442,36 +451,20 @@ def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) 
     return storage, study
 
 
-def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path, caps: dict[str, str]) -> None:
-    import sys
-
+def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
     from canter.orchestrate.study import run_worker
 
-    from canter.orchestrate.jobs import apply_cpu_pinning, die_with_parent
-
-    die_with_parent()
-    os.environ.update(caps)
-    apply_cpu_pinning()
-    try:
-        jobs = make_jobs(cells, settings.seeds)
-        storage, study = _open_grid_study(jobs, settings, bench_dir)
-        by_name = {j.name: j for j in jobs}
-        run_worker(study, storage, len(jobs),
-                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
-                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
-    except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
-        sys.exit(2)
-    except KeyboardInterrupt:
-        sys.exit(130)
+    jobs = make_jobs(cells, settings.seeds)
+    storage, study = _open_grid_study(jobs, settings, bench_dir)
+    by_name = {j.name: j for j in jobs}
+    run_worker(study, storage, len(jobs), lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+               heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
 
 
 def run_distributed(cells: list[Cell], settings: BenchSettings,
                     bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """Share the jobs with other workers through an Optuna study; returns the results of every cell whose jobs all
     finished (by any worker) and the failure reasons of the cells with a failed job."""
-    import multiprocessing
-
     from optuna.trial import TrialState
 
     from canter.orchestrate.study import run_worker
@@ -489,16 +482,8 @@ def run_distributed(cells: list[Cell], settings: BenchSettings,
         run_worker(study, storage, len(by_name),
                    lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
                    heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
-    else:
-        context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
-        processes = [context.Process(target=_grid_worker, args=(cells, settings, bench_dir, caps))
-                     for caps in job_layout(settings.jobs)]
-        for p in processes:
-            p.start()
-        for p in processes:
-            p.join()
-        if any(p.exitcode for p in processes):
-            raise CanterError("a bench worker failed; its error is printed above")
+    elif run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
+        raise CanterError("a bench worker failed; its error is printed above")
     done, failed = {}, {}
     for t in study.get_trials(deepcopy=False):
         name = t.params.get("cell")

@@ -1,12 +1,13 @@
-"""Training a group of seeds of one config in a child process, for `canter tune` and `canter bench`.
+"""Jobs: child processes that train seeds of one config, for `canter tune` and `canter bench`; and the spawned worker
+processes that run their Optuna trials.
 
-A group runs in its own process (`python -m canter.orchestrate.jobs SPEC.json`), started with `subprocess`, never forked:
-JAX and EnvPool are not fork-safe, a MuJoCo error kills the process that hit it (the caller records the failure
-and goes on), and a trial that overruns its time limit can be killed without taking its worker down. The child
-dies with its parent (PR_SET_PDEATHSIG), so a killed worker leaves no orphan training behind.
+A job runs in its own process (`python -m canter.orchestrate.jobs SPEC.json`), started with `subprocess`, never
+forked: JAX and EnvPool are not fork-safe, a MuJoCo error kills the process that hit it (the caller records the
+failure and goes on), and a trial that overruns its time limit can be killed without taking its worker down. The
+child dies with its parent (PR_SET_PDEATHSIG), so a killed worker leaves no orphan training behind.
 
 Every seed has a fixed run folder. Re-running a spec skips seeds whose run finished, resumes seeds that stopped
-after a checkpoint, and trains the rest, the seeds of a group in one vmapped program (`canter.training.loop.train_seeds`);
+after a checkpoint, and trains the rest, all of them in one vmapped seed group (`canter.training.loop.train_seeds`);
 with `eval_episodes` it then writes each run's final deterministic evaluation to `eval.json`.
 """
 
@@ -20,20 +21,13 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
-from canter.files import atomic_write_bytes
 from canter.errors import CanterError
+from canter.files import atomic_write_bytes
 
 EVAL_FILE = "eval.json"
 SUMMARY_FILE = "summary.json"
-
-
-def train_group(config: Any, seeds: list[int], run_dirs: dict[int, Path], quiet: bool = True) -> list[Any]:
-    """Train `config` once per seed into the given run folders, all seeds in one vmapped program."""
-    from canter.training.loop import train_seeds
-
-    return train_seeds(config, seeds, quiet=quiet, run_dirs=[run_dirs[s] for s in seeds])
 
 
 # ------------------------------------------------------------------------------------------------ run folder status
@@ -104,7 +98,7 @@ def warn_if_more_jobs_than_cores(jobs: int) -> None:
 # --------------------------------------------------------------------------------------------------- child process
 
 @dataclass(frozen=True)
-class GroupSpec:
+class JobSpec:
     config_toml: str
     run_dirs: dict[int, str]          # seed -> run folder
     eval_episodes: int = 0            # 0: no final evaluation
@@ -114,16 +108,16 @@ class GroupSpec:
                            "eval_episodes": self.eval_episodes})
 
     @staticmethod
-    def from_json(text: str) -> "GroupSpec":
+    def from_json(text: str) -> "JobSpec":
         data = json.loads(text)
-        return GroupSpec(data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()},
-                         int(data["eval_episodes"]))
+        return JobSpec(data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()},
+                       int(data["eval_episodes"]))
 
 
-def start_group(spec: GroupSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
-    """Start the child that trains a group; its output goes to folder/train.log."""
+def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """Start the child process of a job; its output goes to folder/train.log."""
     folder.mkdir(parents=True, exist_ok=True)
-    spec_path = folder / "group.json"
+    spec_path = folder / "job.json"
     spec_path.write_text(spec.to_json())
     log = open(folder / "train.log", "ab")
     try:
@@ -147,7 +141,7 @@ def failure_reason(folder: Path, returncode: int) -> str:
     return f"training process failed ({how}): {last.strip()[:300]}"
 
 
-def stop_group(proc: subprocess.Popen, grace_seconds: float = 20.0) -> None:
+def stop_job(proc: subprocess.Popen, grace_seconds: float = 20.0) -> None:
     """SIGTERM (the trainer saves a checkpoint and returns), then SIGKILL after the grace period."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
@@ -173,12 +167,13 @@ def die_with_parent() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
-def run_group(spec: GroupSpec, quiet: bool = True) -> None:
-    """Skip finished seeds, resume stopped ones, train the rest (as one group), then evaluate the final policies."""
-    from canter.config.schema import from_toml_text
-    from canter.training.loop import resume_seeds
+def run_job(spec: JobSpec, quiet: bool = True) -> None:
+    """Skip finished seeds, resume stopped ones, train the rest (as one seed group), then evaluate the final
+    policies."""
+    from canter.config.serialize import from_toml_text
+    from canter.training.loop import resume_seeds, train_seeds
 
-    config = from_toml_text(spec.config_toml, "group spec")
+    config = from_toml_text(spec.config_toml, "job spec")
     total = config.run.total_steps
     fresh: list[int] = []
     partial: list[Path] = []
@@ -194,7 +189,7 @@ def run_group(spec: GroupSpec, quiet: bool = True) -> None:
     if partial:  # each resumes from its own newest checkpoint, together in one program
         resume_seeds(partial, total, quiet=quiet)
     if fresh:
-        train_group(config, fresh, {s: Path(spec.run_dirs[s]) for s in fresh}, quiet=quiet)
+        train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
     if spec.eval_episodes:
         for folder in spec.run_dirs.values():
             write_final_eval(Path(folder), spec.eval_episodes)
@@ -218,11 +213,47 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     return data
 
 
+# ------------------------------------------------------------------------------------------------ worker processes
+
+def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], name: str) -> list[int]:
+    """Call `work(*args)` once per entry of `worker_args`, each in a process of its own pinned to its share of the
+    cores (`job_layout`), and wait for them all; returns the non-zero exit statuses. The processes are spawned,
+    never forked (JAX and EnvPool are not fork-safe); `work` must be a module-level function so that it pickles."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    processes = [context.Process(target=_worker_main, args=(work, args, caps), name=f"{name}-{i}")
+                 for i, (args, caps) in enumerate(zip(worker_args, job_layout(len(worker_args))))]
+    for p in processes:
+        p.start()
+    try:
+        for p in processes:
+            p.join()
+    except KeyboardInterrupt:
+        for p in processes:
+            p.join(30)
+        raise
+    return [p.exitcode for p in processes if p.exitcode]
+
+
+def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: dict[str, str]) -> None:
+    die_with_parent()  # a killed parent takes its workers along; their trials are retried by heartbeat
+    os.environ.update(thread_caps)
+    apply_cpu_pinning()
+    try:
+        work(*args)
+    except CanterError as exc:
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
 def main(argv: list[str]) -> int:
     die_with_parent()
     apply_cpu_pinning()
     try:
-        run_group(GroupSpec.from_json(Path(argv[0]).read_text()))
+        run_job(JobSpec.from_json(Path(argv[0]).read_text()))
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         return 2

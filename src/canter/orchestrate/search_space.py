@@ -14,24 +14,26 @@
 An integer key with a range samples integers (`step` optional), a float key floats; `choices` work for any key,
 including tuples written as strings ("64-64"). A file is checked in full before any trial: every key must be a
 config key, every value must have the key's type and pass the key's own validation, and a range must not be empty.
-canter ships one space per algorithm (`canter/search_spaces/<algo>.toml`); `--space FILE` takes an edited copy.
+canter ships one space per algorithm, in its folder (`AlgorithmSpec.search_space`); `--space FILE` takes an edited copy.
 """
 
 from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from canter.config.schema import Config, _field_types, all_keys, apply_overrides, coerce, load_toml, validate
+from canter.config.algorithms import algorithm_spec
+from canter.config.overrides import all_keys, apply_overrides, load_toml
+from canter.config.schema import Config
+from canter.config.validate import validate
+from canter.config.values import coerce, field_types
 from canter.errors import CanterError
 
 _RANGE_KEYS = {"low", "high", "log", "step"}
-# Minibatch sizes that must divide the on-policy batch (ppo.n_steps x env.num_envs).
-_MINIBATCH_KEYS = (("ppo", "minibatch_size"), ("trpo", "critic_minibatch_size"))
 
 
 @dataclass(frozen=True)
@@ -73,15 +75,10 @@ class SearchSpace:
         return values
 
 
-def space_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("canter.search_spaces").iterdir() if p.name.endswith(".toml"))
-
-
 def default_space_text(algo: str) -> str:
-    if algo not in space_names():
-        raise CanterError(f"no search space shipped for algorithm '{algo}'; write one and pass it with --space FILE "
-                          f"(shipped: {', '.join(space_names())})")
-    return resources.files("canter.search_spaces").joinpath(f"{algo}.toml").read_text()
+    """The search space an algorithm ships in its folder (`AlgorithmSpec.search_space`)."""
+    package, name = algorithm_spec(algo).search_space
+    return resources.files(package).joinpath(name).read_text()
 
 
 def load_space(path: str | Path | None, algo: str) -> SearchSpace:
@@ -101,7 +98,7 @@ def _check_alone(key: str, value: Any, source: str) -> None:
     """The value must pass the key's own validation on the default config (errors about other keys, such as a
     minibatch that does not divide the default batch, are interactions and not the value's fault)."""
     try:
-        validate(apply_overrides(Config(env=replace(Config().env, id="Hopper-v5")), {key: value}, source))
+        validate(apply_overrides(Config().with_values("env", id="Hopper-v5"), {key: value}, source))
     except CanterError as exc:
         if str(exc).startswith(key):
             raise CanterError(f"{source}: {key} = {value!r} is invalid: {exc}") from None
@@ -138,12 +135,12 @@ def _check_ties(params: list[Param], source: str) -> None:
             raise CanterError(f"{source}: [{p.key}] same_as = {p.same_as!r} must name a sampled key of this space")
         section, _, name = p.key.partition(".")
         for value in (other.choices or (other.low, other.high)):
-            _check_alone(p.key, coerce(p.key, _field_types(section)[name], value), source)
+            _check_alone(p.key, coerce(p.key, field_types(section)[name], value), source)
 
 
 def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     section, _, name = key.partition(".")
-    field_type = _field_types(section)[name]
+    field_type = field_types(section)[name]
     extra = set(spec) - _RANGE_KEYS - {"choices", "same_as"}
     if extra:
         raise CanterError(f"{source}: [{key}] has unknown entries {sorted(extra)}; use choices, or low, high, "
@@ -190,9 +187,12 @@ def apply_sample(base: Config, values: dict[str, Any]) -> Config:
     """The trial's config: base plus the sampled values. An on-policy minibatch larger than the batch is cut to the
     batch (RL Zoo does the same), so horizon and minibatch can be sampled independently."""
     config = apply_overrides(base, values, "the search space")
-    for section, name in _MINIBATCH_KEYS:
-        table = getattr(config, section)
-        if getattr(table, name, 0) > config.batch_size:
-            config = replace(config, **{section: replace(table, **{name: config.batch_size})})
+    spec = algorithm_spec(config.run.algo)
+    if spec.rollout_batch is not None:
+        batch = spec.rollout_batch(config)
+        for key in spec.batch_divisors:
+            section, _, name = key.partition(".")
+            if getattr(config.section(section), name) > batch:
+                config = config.with_values(section, **{name: batch})
     validate(config)
     return config

@@ -22,17 +22,26 @@ import os
 import re
 import socket
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canter.config.schema import SECTIONS, Config, build_config
+from canter.config.build import build_config
+from canter.config.schema import Config
 from canter.errors import CanterError
-from canter.orchestrate.jobs import GroupSpec, failure_reason, start_group, stop_group
+from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_job
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
-from canter.orchestrate.study import FAIL_REASON, Outcome, StorageSettings, counts, open_storage, quiet_optuna, run_worker
+from canter.orchestrate.study import (
+    FAIL_REASON,
+    Outcome,
+    StorageSettings,
+    counts,
+    open_storage,
+    quiet_optuna,
+    run_worker,
+)
 
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
@@ -110,7 +119,7 @@ def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
 
     resolve_backend(config.env.id, config.env.backend)
     space = load_space(settings.space_file, config.run.algo)
-    from canter.config.schema import reads_key, unread_key_error
+    from canter.config.algorithms import reads_key, unread_key_error
 
     for key in space.keys:
         if not reads_key(config.run.algo, key):
@@ -124,22 +133,24 @@ def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings
                                        keep_checkpoints=settings.evaluations + 2, tensorboard=False, max_minutes=None))
 
 
-# ------------------------------------------------------------------------------------------------------ the preset
+# ------------------------------------------------------------------------------------------------- the config file
 
-def _preset_value(value: Any) -> str:
-    from canter.config.schema import _toml_value
+def _config_file_value(value: Any) -> str:
+    from canter.config.values import toml_value
 
-    return '"none"' if value is None else _toml_value(value)
+    return '"none"' if value is None else toml_value(value)
 
 
-def preset_text(config: Config) -> str:
-    """The config as a TOML file that `canter train --config FILE` takes as it is: every key except run
-    bookkeeping, `none` written as the string "none"."""
+def config_file_toml(config: Config) -> str:
+    """The config as a TOML file that `canter train --config FILE` takes as it is: every key the algorithm reads
+    except run bookkeeping, `none` written as the string "none"."""
+    from canter.config.serialize import written_keys
+
     lines: list[str] = []
-    for section in SECTIONS:
-        table = getattr(config, section)
-        body = [f"{f.name} = {_preset_value(getattr(table, f.name))}" for f in fields(table)
-                if f"{section}.{f.name}" not in RUN_BOOKKEEPING]
+    for section, names in written_keys(config):
+        table = config.section(section)
+        body = [f"{name} = {_config_file_value(getattr(table, name))}" for name in names
+                if f"{section}.{name}" not in RUN_BOOKKEEPING]
         if body:
             lines += [f"[{section}]"] + body + [""]
     return "\n".join(lines)
@@ -172,10 +183,11 @@ def evaluate_checkpoint(run_dir: Path, step: int, episodes: int) -> float:
     """Deterministic mean return of the checkpoint at `step` (eval env seeds from seed 0, same for every trial)."""
     import jax
 
-    from canter.training import checkpoint
     from canter.algos import get_algorithm
+    from canter.training import checkpoint
+    from canter.training.restore import load_state
     from canter.use.evaluate import evaluate
-    from canter.use.policy import Policy, load_state
+    from canter.use.policy import Policy
 
     config, facts, state, _ = load_state(run_dir, checkpoint.checkpoint_path(run_dir, step))
     params = get_algorithm(config.run.algo).policy_params(state)
@@ -193,13 +205,13 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
         config = trial_config(base, values, trial_dir, settings)
     except CanterError as exc:
         return Outcome("fail", reason=f"invalid sample: {exc}")
-    trial.set_user_attr(PRESET_ATTR, preset_text(config))
+    trial.set_user_attr(PRESET_ATTR, config_file_toml(config))
     trial.set_user_attr("trial_dir", str(trial_dir.resolve()))
     trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
-    from canter.config.schema import to_toml
+    from canter.config.serialize import to_toml
 
-    proc = start_group(GroupSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
+    proc = start_job(JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
     reported: dict[int, float] = {}   # evaluation index -> mean return over seeds
     skipped: set[int] = set()   # evaluation indices whose checkpoint disappeared
@@ -219,18 +231,18 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 trial.report(value, step)
                 if index < settings.evaluations and trial.should_prune():
-                    stop_group(proc)
+                    stop_job(proc)
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
             if code is not None:
                 break
             if deadline is not None and time.monotonic() > deadline:
-                stop_group(proc, grace_seconds=5)
+                stop_job(proc, grace_seconds=5)
                 done = max(reported, default=0) * settings.eval_interval
                 return Outcome("fail", reason=f"exceeded --trial-minutes {settings.trial_minutes:g} "
                                               f"(stopped after about {done} steps)")
             time.sleep(settings.poll_seconds)
     finally:
-        stop_group(proc)
+        stop_job(proc)
         for d in run_dirs.values():
             if d.is_dir():
                 checkpoint.prune(d, 1)
@@ -260,13 +272,8 @@ def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
                                pruner=pruner, load_if_exists=True)
 
 
-def worker(settings: TuneSettings, thread_caps: dict[str, str] | None = None, job: int = 0) -> None:
+def worker(settings: TuneSettings, job: int = 0) -> None:
     """One worker: run trials until the study has its number of finished trials."""
-    if thread_caps:
-        os.environ.update(thread_caps)
-        from canter.orchestrate.jobs import apply_cpu_pinning
-
-        apply_cpu_pinning()
     config, space = check_settings(settings)
     storage = open_storage(settings.storage)
     study = make_study(settings, storage, job)
@@ -283,26 +290,9 @@ def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
     return min(starts, default=time.time()) + settings.study_hours * 3600
 
 
-def _spawned_worker(settings: TuneSettings, caps: dict[str, str], job: int) -> None:
-    import sys
-
-    from canter.orchestrate.jobs import die_with_parent
-
-    die_with_parent()  # a killed `canter tune` takes its workers along; their trials are retried by heartbeat
-    try:
-        worker(settings, caps, job)
-    except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
-        sys.exit(2)
-    except KeyboardInterrupt:
-        sys.exit(130)
-
-
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
-    import multiprocessing
-
-    from canter.orchestrate.jobs import job_layout, warn_if_more_jobs_than_cores
+    from canter.orchestrate.jobs import run_workers, warn_if_more_jobs_than_cores
 
     check_settings(settings)
     if settings.storage_url is None:
@@ -313,19 +303,7 @@ def tune(settings: TuneSettings) -> Any:
     if settings.jobs == 1:
         worker(settings)
     else:
-        context = multiprocessing.get_context("spawn")  # JAX and EnvPool are not fork-safe
-        processes = [context.Process(target=_spawned_worker, args=(settings, caps, i), name=f"canter-tune-{i}")
-                     for i, caps in enumerate(job_layout(settings.jobs))]
-        for p in processes:
-            p.start()
-        try:
-            for p in processes:
-                p.join()
-        except KeyboardInterrupt:
-            for p in processes:
-                p.join(30)
-            raise
-        failed = [p.exitcode for p in processes if p.exitcode]
+        failed = run_workers(worker, [(settings, i) for i in range(settings.jobs)], "canter-tune")
         if failed:
             raise CanterError(f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); "
                               f"their error is printed above")
@@ -375,8 +353,9 @@ def summary_table(study: Any, top: int = 10) -> str:
 
 def write_results(study: Any, settings: TuneSettings) -> Path | None:
     """Print the summary, and write it and the best trial's preset into the study folder."""
-    from canter.files import write_output
     from optuna.trial import TrialState
+
+    from canter.files import write_output
 
     table = summary_table(study)
     print(table)

@@ -136,10 +136,6 @@ class MetricsLogger:
                                               else f"losses/{key}")
                 self._tb.add_scalar(tag, value, step)
 
-    def scalar(self, tag: str, value: float, step: int) -> None:
-        if self._tb is not None:
-            self._tb.add_scalar(tag, value, step)
-
     def close(self) -> None:
         self._file.close()
         if self._tb is not None:
@@ -153,7 +149,8 @@ class Progress:
         self._bar = None
         if quiet:
             return
-        from rich.progress import BarColumn, Progress as RichProgress, TextColumn, TimeRemainingColumn
+        from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
+        from rich.progress import Progress as RichProgress
 
         self._total = total
         self._bar = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(bar_width=24),

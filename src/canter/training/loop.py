@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import platform
-import secrets
 import signal
 import threading
 import time
@@ -18,13 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from canter.training import checkpoint
-from canter.config.schema import Config, to_toml, validate
-from canter.files import atomic_write_bytes
-from canter.errors import CanterError, DiscreteActionsError
-from canter.training.logger import MetricsLogger, Progress, totals_until
+from canter.config.schema import Config
+from canter.config.serialize import to_toml
+from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
-from canter.use.video import TrainingVideos
+from canter.errors import CanterError, DiscreteActionsError
+from canter.files import atomic_write_bytes
+from canter.training import checkpoint, run_folder
+from canter.training.logger import MetricsLogger, Progress, totals_until
+from canter.training.videos import TrainingVideos
 
 RECENT_EPISODES = 20
 
@@ -39,45 +39,6 @@ class RunResult:
     compile_seconds: float            # this session's compile
     sps: float                        # env steps per second over the whole run, compile excluded
     stop_reason: str                  # budget | stop_at_return | max_minutes | signal
-
-
-def _safe(text: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "-" for c in text)
-
-
-def new_run_dir(config: Config) -> Path:
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    name = (f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
-            f"{stamp}-{secrets.token_hex(2)}")
-    return Path(config.run.out_dir) / name
-
-
-def cpu_name() -> str:
-    """The CPU model from /proc/cpuinfo where there is one (benchmark tables need more than 'x86_64')."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def versions() -> dict[str, Any]:
-    from importlib import metadata
-
-    def version(name: str) -> str | None:
-        try:
-            return metadata.version(name)
-        except metadata.PackageNotFoundError:
-            return None
-
-    import os
-
-    return {"canter": version("canter"), "python": platform.python_version(), "jax": version("jax"),
-            "jaxlib": version("jaxlib"), "optax": version("optax"), "envpool": version("envpool"),
-            "mujoco": version("mujoco"), "gymnasium": version("gymnasium"), "numpy": version("numpy"),
-            "platform": platform.platform(), "cpu": cpu_name(), "cpu_count": os.cpu_count()}
 
 
 class _StopFlag:
@@ -153,8 +114,8 @@ def resume_seeds(run_dirs: list[str | Path], total_steps: int | None = None, *,
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
     """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap."""
     from canter.algos import get_algorithm
-    from canter.envs import make_vec_env
     from canter.core.runtime import setup_jax
+    from canter.envs import make_vec_env
 
     setup_jax()
     for config in configs:
@@ -165,7 +126,7 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
     for config, resume, run_dir in zip(configs, resumes, run_dirs):
         state = None
         if resume is not None:
-            from canter.use.policy import load_state
+            from canter.training.restore import load_state
 
             out = Path(resume)
             _, _, state, header = load_state(out)
@@ -173,7 +134,7 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
             earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
         else:
             start_step = 0
-            out = Path(run_dir) if run_dir is not None else new_run_dir(config)
+            out = Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config)
             earlier.append(None)
         if start_step >= config.run.total_steps:
             raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
@@ -200,10 +161,11 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
             if states[i] is None:
                 states[i] = algorithm.init_state(config, spec)
             out.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(out / "config.toml", lambda f: f.write(to_toml(config).encode()))
             if resumes[i] is None:
-                atomic_write_bytes(out / "versions.json",
-                                              lambda f: f.write(json.dumps(versions(), indent=2).encode()))
+                run_folder.create(out, config)
+            else:
+                run_folder.migrate(out)
+                run_folder.write_config(out, config)
         return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
     finally:
         env.close()
@@ -322,7 +284,7 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
     import jax.numpy as jnp
 
     from canter.algos import get_algorithm
-    from canter.algos.onpolicy_rollout import init_env_carry
+    from canter.envs.episodes import init_env_carry
 
     config = configs[0]
     group = len(configs)
@@ -422,11 +384,11 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
 
 def resume_config(run_dir: Path, total_steps: int | None) -> Config:
     """The saved config of a run, with only the step budget changed."""
-    from canter.use.policy import read_run_config
+    from canter.training.run_folder import read_config
 
     if not Path(run_dir).is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
-    config = read_run_config(Path(run_dir))
+    config = read_config(Path(run_dir))
     if total_steps is not None:
         config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
     return config

@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
-from canter.config.schema import Config, to_toml
+from canter.core.seeding import EVAL, env_seeds
 from canter.errors import CanterError
 from canter.use.policy import Policy
-from canter.core.seeding import EVAL, env_seeds
 
 MAX_EVAL_ENVS = 32
 
@@ -43,8 +42,8 @@ def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, see
     """Run exactly `episodes` episodes. Each env gets a fixed quota, so short episodes are not over-represented.
 
     `prepare_env(env)` is called on every Gymnasium env right after it is made and before its first reset (the
-    robustness sweeps edit the MuJoCo model there); it forces the Gymnasium backend."""
-    from canter.envs import make_vec_env
+    robustness sweeps edit the MuJoCo model there); it forces the backend that builds single envs (Gymnasium)."""
+    from canter.envs.registry import make_vec_env, single_env_backend
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
@@ -52,7 +51,7 @@ def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, see
     backend = backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
     extra = {}
     if prepare_env is not None:
-        backend, extra = "gymnasium", {"on_make": prepare_env}
+        backend, extra = single_env_backend().name, {"on_make": prepare_env}
     num_envs = min(episodes, MAX_EVAL_ENVS)
     quota = np.full(num_envs, episodes // num_envs)
     quota[: episodes % num_envs] += 1
@@ -89,19 +88,3 @@ def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, see
     finally:
         env.close()
     return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started)
-
-
-def seed_group_key(config: Config) -> str:
-    """Runs whose configs are equal once the seed and the bookkeeping keys that cannot change what is learned are
-    blanked differ only in seed."""
-    run = replace(config.run, seed=0, out_dir="", tensorboard=False, checkpoint_every=0, keep_checkpoints=1,
-                  video_every=0)
-    return to_toml(replace(config, run=run))
-
-
-def group_by_config(configs: list[Config]) -> list[list[int]]:
-    """Indices of the configs, grouped by `seed_group_key`, in order of first appearance."""
-    groups: dict[str, list[int]] = {}
-    for i, config in enumerate(configs):
-        groups.setdefault(seed_group_key(config), []).append(i)
-    return list(groups.values())

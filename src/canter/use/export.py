@@ -27,7 +27,7 @@ def load_actor(run_dir: str | Path) -> tuple[ExportedActor, dict[str, str]]:
     """The exported actor of a run's newest checkpoint, and facts about it for the file's metadata."""
     from canter import __version__
     from canter.algos import get_algorithm
-    from canter.use.policy import load_state
+    from canter.training.restore import load_state
 
     config, facts, state, _ = load_state(Path(run_dir))
     actor = get_algorithm(config.run.algo).export_actor(config, state, facts)

@@ -15,8 +15,8 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
 - `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
   replacement from a seeded generator.
 
-Runs whose resolved configs differ only in keys that do not change learning (`IGNORED_KEYS`: the seed, where
-outputs go, ...) form one group. Groups are labelled by the keys in which they differ (`group_labels`).
+Runs that are seeds of one experiment (`canter.config.experiment`: equal in every key that changes what is
+learned) form one group. Groups are labelled by the keys in which they differ (`group_labels`).
 Drawing uses matplotlib's object API with the Agg canvas, so no global backend is touched.
 """
 
@@ -26,46 +26,31 @@ import csv
 import io
 import math
 import warnings
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from canter.config.schema import Config, SECTIONS, from_toml_text
+from canter.config.algorithms import all_plot_labels
+from canter.config.experiment import differing_keys, experiment_key, flat_config
+from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import run_history
+from canter.training.run_folder import read_config
 
-# Keys that do not change what is learned: runs differing only in these are repeats of one experiment.
-IGNORED_KEYS = ("run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints", "run.tensorboard",
-                "run.max_minutes", "run.stop_at_return", "env.envpool_shards")
 # Keys that name an experiment; a label uses only these when they tell the groups apart.
 HEADLINE_KEYS = ("env.id", "run.algo", "run.preset")
 SHORT_NAMES = {"env.id": "env", "run.algo": "algo", "run.preset": "preset"}
 
 # metrics.csv columns that are bookkeeping rather than curves.
 NOT_CURVES = ("global_step", "iteration", "wall_time", "episodes")
-# (title, y-axis label with units) of the columns canter and its algorithms log; others get their column name.
+# (title, y-axis label with units) of the columns every run logs; each algorithm declares its own
+# (`AlgorithmSpec.plot_labels`), and other columns get their column name.
 PANEL_LABELS: dict[str, tuple[str, str]] = {
     "episodic_return": ("Episode return", "return per episode (sum of rewards)"),
     "episodic_length": ("Episode length", "steps per episode"),
     "sps": ("Training speed", "env steps / s"),
-    "policy_loss": ("Policy loss", "loss (dimensionless)"),
-    "value_loss": ("Value loss", "loss (squared return units)"),
-    "entropy": ("Policy entropy", "nats"),
-    "approx_kl": ("Approx. KL (old ‖ new)", "nats"),
-    "clip_frac": ("Clip fraction", "fraction of samples clipped"),
-    "explained_variance": ("Explained variance", "1 − Var[R − V] / Var[R]"),
-    "learning_rate": ("Learning rate", "Adam step size"),
-    "epochs_run": ("Epochs run", "epochs per iteration"),
-    "actor_loss": ("Actor loss", "loss (−Q units)"),
-    "critic_loss": ("Critic loss", "loss (squared return units)"),
-    "q_mean": ("Mean Q value", "return units"),
-    "alpha": ("Entropy temperature α", "dimensionless"),
-    "policy_kl": ("Policy KL (old ‖ new)", "nats"),
-    "kl_beta": ("KL penalty coefficient β", "dimensionless"),
-    "sym_loss": ("Symmetry loss", "mean squared difference"),
-    "surrogate_gain": ("Surrogate gain", "advantage units"),
 }
 X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
 CONFIDENCE = 0.95
@@ -126,27 +111,10 @@ def load_run(run_dir: str | Path) -> RunCurves:
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
     columns = read_metrics(run_dir / "metrics.csv")
-    config_path = run_dir / "config.toml"
-    if not config_path.is_file():
-        raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
-    return RunCurves(run_dir, from_toml_text(config_path.read_text(), str(config_path)), columns)
+    return RunCurves(run_dir, read_config(run_dir), columns)
 
 
 # ------------------------------------------------------------------------------------------------------ grouping
-
-def flat_config(config: Config) -> dict[str, Any]:
-    return {f"{s}.{f.name}": getattr(getattr(config, s), f.name) for s in SECTIONS for f in fields(getattr(config, s))}
-
-
-def experiment_key(config: Config) -> tuple:
-    return tuple((k, v) for k, v in flat_config(config).items() if k not in IGNORED_KEYS)
-
-
-def differing_keys(configs: Sequence[Config]) -> list[str]:
-    """Keys (outside IGNORED_KEYS) whose values are not the same in every config, in config order."""
-    flats = [flat_config(c) for c in configs]
-    return [k for k in flats[0] if k not in IGNORED_KEYS and any(f[k] != flats[0][k] for f in flats[1:])]
-
 
 def _show(key: str, value: Any) -> str:
     name = SHORT_NAMES.get(key, key)
@@ -162,17 +130,18 @@ def group_labels(configs: Sequence[Config]) -> list[str]:
     if len(configs) == 1:
         return [" ".join(_show(k, flats[0][k]) for k in HEADLINE_KEYS)]
     diff = differing_keys(configs)
-    headline = [k for k in HEADLINE_KEYS if k in diff]
+    headline = [k for k in HEADLINE_KEYS if any(f.get(k) != flats[0].get(k) for f in flats[1:])]
     labels = []
     for flat in flats:
-        same_headline = [f for f in flats if all(f[k] == flat[k] for k in headline)]
-        extra = [k for k in diff if k not in headline and any(f[k] != flat[k] for f in same_headline)]
+        same_headline = [f for f in flats if all(f.get(k) == flat.get(k) for k in headline)]
+        extra = [k for k in diff if k not in headline and k in flat
+                 and any(f.get(k) != flat[k] for f in same_headline)]
         labels.append(", ".join(_show(k, flat[k]) for k in headline + extra) or "same config")
     return labels
 
 
 def group_runs(runs: Sequence[RunCurves]) -> list[Group]:
-    """Runs whose configs differ only in IGNORED_KEYS (seeds, output places) form one group, in first-seen order."""
+    """Runs that are seeds of one experiment (`canter.config.experiment`) form one group, in first-seen order."""
     keyed: dict[tuple, list[RunCurves]] = {}
     for run in runs:
         keyed.setdefault(experiment_key(run.config), []).append(run)
@@ -312,8 +281,9 @@ def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -
 
 
 def panel_labels(column: str) -> tuple[str, str]:
-    if column in PANEL_LABELS:
-        return PANEL_LABELS[column]
+    labels = {**all_plot_labels(), **PANEL_LABELS}
+    if column in labels:
+        return labels[column]
     if column.startswith("info/"):
         return f"Env term: {column[5:]}", "per-episode value"
     return column.replace("_", " ").capitalize(), column

@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canter.training import checkpoint
-from canter.config.schema import Config, from_toml_text
+from canter.config.schema import Config
 from canter.errors import CanterError
-
-
-@dataclass(frozen=True)
-class PolicyFacts:
-    env_id: str
-    backend: str
-    obs_dim: int
-    act_dim: int
-    action_low: np.ndarray
-    action_high: np.ndarray
-    global_step: int
+from canter.training.restore import PolicyFacts, load_state
 
 
 class Policy:
@@ -60,33 +48,6 @@ class Policy:
             self._key, key = jax.random.split(self._key)
         action = np.asarray(self._act(self.params, self.obs_stats, obs, key, deterministic))
         return action[0] if single else action
-
-
-def read_run_config(run_dir: Path) -> Config:
-    path = Path(run_dir) / "config.toml"
-    if not path.is_file():
-        raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
-    return from_toml_text(path.read_text(), str(path))
-
-
-def load_state(run_dir: Path, checkpoint_file: Path | None = None):
-    """(config, facts, train state, header) from the newest checkpoint of a run folder."""
-    from canter.algos import get_algorithm
-    from canter.core.runtime import setup_jax
-
-    setup_jax()
-    run_dir = Path(run_dir)
-    path = checkpoint_file or checkpoint.latest(run_dir)
-    arrays, header = checkpoint.read(path)
-    config = from_toml_text(header["config"], str(path))
-    env = header["env"]
-    facts = PolicyFacts(env_id=env["id"], backend=env["backend"], obs_dim=int(env["obs_dim"]),
-                        act_dim=int(env["act_dim"]), action_low=np.asarray(env["action_low"], np.float32),
-                        action_high=np.asarray(env["action_high"], np.float32),
-                        global_step=int(header["global_step"]))
-    template = get_algorithm(config.run.algo).init_state(config, facts)
-    state = checkpoint.restore(template, arrays, path)
-    return config, facts, state, header
 
 
 def load(run_dir: str | Path, checkpoint_file: str | Path | None = None) -> Policy:

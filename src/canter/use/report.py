@@ -18,9 +18,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from canter.training import checkpoint
-from canter.config.schema import Config, to_toml
+from canter.config.schema import Config
+from canter.config.serialize import to_toml
 from canter.errors import CanterError
+from canter.training import checkpoint
 
 VIDEO_TYPES = {".mp4": "video/mp4", ".webm": "video/webm"}
 IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
@@ -53,11 +54,11 @@ def _natural_key(path: Path) -> list:
 
 def run_facts(run_dir: str | Path) -> RunFacts:
     """What the report needs from a run folder; a one-line error when it has no checkpoint."""
-    from canter.use.policy import read_run_config
+    from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
     checkpoint.latest(run_dir)   # refuses folders without a checkpoint before any work is done
-    config = read_run_config(run_dir)
+    config = read_config(run_dir)
     try:
         summary = json.loads((run_dir / "summary.json").read_text())
     except (OSError, ValueError):
@@ -112,14 +113,15 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[Any]], numeric_from: i
 
 def config_section(facts: Sequence[RunFacts]) -> str:
     """The keys in which the runs differ (the seed included), then each run's full resolved config."""
-    from canter.use.plot import flat_config
+    from canter.config.experiment import flat_config
 
     flats = [flat_config(f.config) for f in facts]
+    keys = list(dict.fromkeys(k for fl in flats for k in fl))
     parts = []
     if len(facts) > 1:
-        differing = [k for k in flats[0] if any(fl[k] != flats[0][k] for fl in flats[1:]) and k != "run.out_dir"]
+        differing = [k for k in keys if any(fl.get(k) != flats[0].get(k) for fl in flats[1:]) and k != "run.out_dir"]
         if differing:
-            rows = [[k] + [_show_value(fl[k]) for fl in flats] for k in differing]
+            rows = [[k] + [_show_value(fl.get(k)) for fl in flats] for k in differing]
             parts.append("<p>Keys that differ between the runs:</p>"
                          + _table(["key"] + [f"run {i + 1}" for i in range(len(facts))], rows, numeric_from=99))
         else:
@@ -138,7 +140,8 @@ def _show_value(value: Any) -> str:
 
 def group_of_each(facts: Sequence[RunFacts]) -> list[str]:
     """For each run, the label of its group (runs that differ only in seed share one), as `canter plot` draws it."""
-    from canter.use.plot import experiment_key, group_labels
+    from canter.config.experiment import experiment_key
+    from canter.use.plot import group_labels
 
     keys = list(dict.fromkeys(experiment_key(f.config) for f in facts))
     first = [next(f.config for f in facts if experiment_key(f.config) == k) for k in keys]

@@ -152,15 +152,15 @@ def check_spec(env_id: str, spec: VarySpec) -> np.ndarray:
 
 
 def _make_gymnasium(env_id: str) -> Any:
-    from canter.envs import resolve_backend
-    from canter.envs.gymnasium_backend import make_single
+    from canter.envs.registry import resolve_backend, single_env_backend
 
+    backend = single_env_backend()
     try:
-        resolve_backend(env_id, "gymnasium")
+        resolve_backend(env_id, backend.name)
     except CanterError:
         raise CanterError(f"--vary needs the Gymnasium version of {env_id}, and Gymnasium has no such env "
                           f"(DM Control and other EnvPool-only envs cannot be varied)") from None
-    return make_single(env_id)
+    return backend.make_single(env_id)
 
 
 def sweep(policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int,

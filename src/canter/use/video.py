@@ -15,33 +15,23 @@ Which simulator replays the policy:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import re
 import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import numpy as np
 
 from canter.errors import CanterError
+from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
 _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
-_FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
-
-
-@contextlib.contextmanager
-def _quiet_fork() -> Iterator[None]:
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=_FORK_WARNING, category=RuntimeWarning)
-        yield
 
 
 # ------------------------------------------------------------------------------------------------------ OpenGL
@@ -50,7 +40,7 @@ def _probe(backend: str) -> bool:
     env = dict(os.environ, MUJOCO_GL=backend)
     env.pop("PYOPENGL_PLATFORM", None)
     try:
-        with _quiet_fork():
+        with quiet_fork():
             done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, timeout=120)
         return done.returncode == 0
     except (OSError, subprocess.TimeoutExpired):
@@ -91,29 +81,15 @@ def _headless_in_this_process() -> bool:
 
 # -------------------------------------------------------------------------------------------------- simulators
 
-def dmc_task(env_id: str) -> tuple[str, str] | None:
-    """(domain, task) of an EnvPool DM Control id such as WalkerWalk-v1, or None for other ids."""
-    try:
-        from envpool.registration import registry
-    except ImportError:
-        return None
-    entry = registry.specs.get(env_id)
-    if entry is None or not entry[0].endswith(".dmc"):
-        return None
-    domain = re.sub(r"^Dmc|EnvSpec$", "", entry[1])
-    domain = re.sub(r"(?<=[a-z])(?=[A-Z])", "_", domain).lower()
-    return domain, entry[2]["task_name"]
-
-
 class _GymnasiumPlayer:
     def __init__(self, env_id: str, width: int, height: int, camera: str | None) -> None:
         import gymnasium as gym
 
-        from canter.envs import resolve_backend
-        from canter.envs.gymnasium_backend import make_single
+        from canter.envs.registry import resolve_backend, single_env_backend
 
+        backend = single_env_backend()
         try:
-            resolve_backend(env_id, "gymnasium")
+            resolve_backend(env_id, backend.name)
         except CanterError:
             raise CanterError(f"cannot replay {env_id}: Gymnasium has no such env to render") from None
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
@@ -126,7 +102,7 @@ class _GymnasiumPlayer:
         elif camera is not None:
             raise CanterError(f"--camera applies to MuJoCo envs; {env_id} has a fixed view")
         try:
-            self.env = make_single(env_id, **kwargs)
+            self.env = backend.make_single(env_id, **kwargs)
         except ValueError as exc:
             raise CanterError(f"{env_id}: {exc}") from None
         if camera is not None:
@@ -280,15 +256,16 @@ def record_video(run_dir: str | Path, out_path: str | Path, episodes: int = 1, w
     if not _headless_in_this_process():
         return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, checkpoint_file,
                                      max_steps)
+    from canter.envs.registry import dm_control_task
     from canter.use.policy import load
 
     configure_gl()
     policy = load(run_dir, checkpoint_file)
-    task = dmc_task(policy.facts.env_id)
+    task = dm_control_task(policy.facts.env_id)
     player = (_DMControlPlayer(*task, width, height, camera) if task
               else _GymnasiumPlayer(policy.facts.env_id, width, height, camera))
     try:
-        with _quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
+        with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
             writer = _AtomicVideo(out, fps)
             try:
                 returns = [player.episode(policy, seed + i, max_steps, writer.append) for i in range(episodes)]
@@ -306,8 +283,8 @@ def _record_in_subprocess(run_dir: Any, out: Path, episodes: int, width: int, he
     request = dict(run_dir=str(run_dir), out_path=str(out), episodes=episodes, width=width, height=height, fps=fps,
                    camera=camera, seed=seed, max_steps=max_steps,
                    checkpoint_file=None if checkpoint_file is None else str(checkpoint_file))
-    with _quiet_fork():
-        done = subprocess.run([sys.executable, "-m", "canter.use.video", json.dumps(request)], env=_child_env(),
+    with quiet_fork():
+        done = subprocess.run([sys.executable, "-m", "canter.use.video", json.dumps(request)], env=child_env(),
                               capture_output=True, text=True)
     lines = done.stdout.strip().splitlines()
     if done.returncode != 0 or not lines:
@@ -316,67 +293,9 @@ def _record_in_subprocess(run_dir: Any, out: Path, episodes: int, width: int, he
     return json.loads(lines[-1])
 
 
-def _child_env() -> dict[str, str]:
-    """This process's environment, with canter's own source folder first on PYTHONPATH."""
-    source = str(Path(__file__).resolve().parents[1])
-    path = os.environ.get("PYTHONPATH")
-    return dict(os.environ, PYTHONPATH=source + (os.pathsep + path if path else ""))
-
-
-# ------------------------------------------------------------------------------------------- during training
-
-class TrainingVideos:
-    """`run.video_every`: at every multiple of `every` env steps, snapshot the train state and render one episode
-    to RUN/videos/step_<step>.mp4 in a separate, lower-priority process. A renderer crash (MuJoCo aborts the
-    process on some errors) costs only that video and a warning; training never waits except for the previous
-    video (one at a time) and, at the end, for the last one."""
-
-    WAIT_SECONDS = 900
-
-    def __init__(self, run_dir: Path, every: int, start_step: int) -> None:
-        """every == 0 switches videos off."""
-        self.folder = Path(run_dir) / "videos"
-        self.every = every
-        self.next_step = (start_step // every + 1) * every if every else None
-        self._job: tuple[subprocess.Popen, Path, int] | None = None
-
-    def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
-        if self.next_step is None or step < self.next_step:
-            return
-        self.next_step = (step // self.every + 1) * self.every
-        self._finish()
-        self.folder.mkdir(parents=True, exist_ok=True)
-        snapshot = self.folder / f".snapshot_{step:012d}.npz"
-        save_snapshot(snapshot)
-        request = dict(run_dir=str(self.folder.parent), out_path=str(self.folder / f"step_{step:012d}.mp4"),
-                       checkpoint_file=str(snapshot), episodes=1, nice=10)
-        with open(self.folder / "render.log", "a") as log, _quiet_fork():
-            process = subprocess.Popen([sys.executable, "-m", "canter.use.video", json.dumps(request)],
-                                       stdout=log, stderr=log, stdin=subprocess.DEVNULL, env=_child_env(),
-                                       start_new_session=True)
-        self._job = (process, snapshot, step)
-
-    def _finish(self) -> None:
-        if self._job is None:
-            return
-        process, snapshot, step = self._job
-        self._job = None
-        try:
-            code = process.wait(timeout=self.WAIT_SECONDS)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            code = process.wait()
-        snapshot.unlink(missing_ok=True)
-        if code != 0:
-            print(f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
-                  file=sys.stderr)
-
-    def close(self) -> None:
-        self._finish()
-
-
 def _main(argv: list[str]) -> int:
-    """Internal entry point for the subprocesses above: one JSON request; prints the returns as JSON."""
+    """Entry point of the render subprocesses (`_record_in_subprocess`, `canter.training.videos`): one JSON request;
+    prints the returns as JSON."""
     request = json.loads(argv[0])
     nice = request.pop("nice", 0)
     if nice:

@@ -1,4 +1,5 @@
-"""The jitted unit of off-policy training, shared by td3, ddpg and sac.
+"""The jitted unit of off-policy training, shared by td3, ddpg and sac, which plug in as an `OffPolicyLearner`
+(canter.algos.offpolicy.learner).
 
 One call runs `steps_per_call / num_envs` vector-env steps in `lax.scan`. Each step acts (uniformly random actions
 until `learning_starts` env steps have been taken, then the exploring policy), steps the envs, stores the valid
@@ -18,18 +19,23 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from canter.algos.offpolicy import SAC_METRICS, UPDATE_METRICS, learners, noise
-from canter.algos.offpolicy.networks import deterministic_action, squashed_gaussian
-from canter.config.schema import Config, OffPolicyConfig
-from canter.envs.base import StepOutput, is_summed_info
-from canter.core.normalize import RunningStats, init_stats, normalize, scale_reward, update_stats
+from canter.algos.offpolicy.learner import OffPolicyLearner
+from canter.config.schema import Config
+from canter.core.normalize import (
+    RunningStats,
+    init_stats,
+    normalize,
+    scale_reward,
+    update_stats,
+)
 from canter.core.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
-from canter.algos.onpolicy_rollout import EnvCarry
+from canter.envs.base import StepOutput
+from canter.envs.episodes import EnvCarry, track_episodes
 
 
 class OffPolicyState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly, the replay buffer included."""
-    learner: learners.Learner
+    learner: Any                 # the algorithm's learner state
     buffer: ReplayBuffer
     ou_state: jnp.ndarray        # [num_envs, act_dim] Ornstein-Uhlenbeck noise (zeros unless noise = ou)
     obs_stats: RunningStats
@@ -40,48 +46,19 @@ class OffPolicyState(NamedTuple):
     vector_steps: jnp.ndarray    # vector-env steps taken, for train_freq
 
 
-def section(config: Config) -> OffPolicyConfig:
-    return getattr(config, config.run.algo)
+def vector_steps_per_call(config: Config, learner: OffPolicyLearner) -> int:
+    return max(1, learner.cfg.steps_per_call // config.env.num_envs)
 
 
-def vector_steps_per_call(config: Config) -> int:
-    return max(1, section(config).steps_per_call // config.env.num_envs)
-
-
-def target_entropy(config: Config, act_dim: int) -> float:
-    value = config.sac.target_entropy
-    return float(-act_dim) if value is None else float(value)
-
-
-def init_train_state(config: Config, obs_dim: int, act_dim: int) -> OffPolicyState:
-    cfg = section(config)
+def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, act_dim: int) -> OffPolicyState:
     key, init_key = jax.random.split(jax.random.key(config.run.seed))
     return OffPolicyState(
-        learner=learners.init_learner(init_key, config.run.algo, cfg, obs_dim, act_dim),
-        buffer=init_buffer(cfg.buffer_size, obs_dim, act_dim),
+        learner=learner.init(init_key, obs_dim, act_dim),
+        buffer=init_buffer(learner.cfg.buffer_size, obs_dim, act_dim),
         ou_state=jnp.zeros((config.env.num_envs, act_dim), jnp.float32),
         obs_stats=init_stats((obs_dim,)), return_stats=init_stats(()), key=jax.random.key_data(key),
         iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64),
         vector_steps=jnp.zeros((), jnp.int64))
-
-
-def make_update(config: Config, act_dim: int) -> Callable[[learners.Learner, Transitions, jax.Array], tuple]:
-    algo, cfg = config.run.algo, section(config)
-    if algo == "sac":
-        entropy = target_entropy(config, act_dim)
-        return lambda learner, batch, key: learners.sac_update(learner, batch, key, cfg, entropy)
-    return lambda learner, batch, key: learners.deterministic_update(learner, batch, key, cfg, algo == "td3")
-
-
-def exploring_action(config: Config, learner: learners.Learner, obs: jnp.ndarray, ou_state: jnp.ndarray,
-                     key: jax.Array) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """The behaviour policy's action in [-1, 1] and the next OU state."""
-    cfg = section(config)
-    if config.run.algo == "sac":
-        mean, log_std = squashed_gaussian(learner.actor, obs, cfg.activation)
-        return jnp.tanh(mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, jnp.float32)), ou_state
-    action = deterministic_action(learner.actor, obs, cfg.activation)
-    return noise.explore(cfg.noise, action, ou_state, key, cfg.noise_std, cfg.ou_theta, cfg.ou_dt)
 
 
 def _all_finite(tree: Any) -> jnp.ndarray:
@@ -89,17 +66,17 @@ def _all_finite(tree: Any) -> jnp.ndarray:
                               if jnp.issubdtype(x.dtype, jnp.floating)]))
 
 
-def make_iteration(config: Config, spec: Any, env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]):
+def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
+                   env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]):
     """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`; lr_fraction is unused (constant
-    learning rates)."""
-    cfg = section(config)
+    learning rates). Of `config`, only `env.*` is read: the algorithm's keys come from `learner.cfg`."""
+    cfg = learner.cfg
     env_cfg = config.env
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
     center, half = (high + low) / 2.0, (high - low) / 2.0
-    num_steps = vector_steps_per_call(config)
-    update = make_update(config, spec.act_dim)
-    names = UPDATE_METRICS + (SAC_METRICS if config.run.algo == "sac" else ())
+    num_steps = vector_steps_per_call(config, learner)
+    names = learner.update_metrics
 
     def prepare(batch: Transitions, obs_stats: RunningStats, return_stats: RunningStats) -> Transitions:
         if env_cfg.normalize_obs:
@@ -109,75 +86,64 @@ def make_iteration(config: Config, spec: Any, env_step: Callable[[Any, jnp.ndarr
             batch = batch._replace(reward=scale_reward(return_stats, batch.reward, env_cfg.clip_reward))
         return batch
 
-    def train(learner, buffer, obs_stats, return_stats, key):
-        """`gradient_steps` updates; returns the learner and per-metric (sums, counts) over them."""
-        def one(learner, step_key):
+    def train(learner_state, buffer, obs_stats, return_stats, key):
+        """`gradient_steps` updates; returns the learner state and per-metric (sums, counts) over them."""
+        def one(learner_state, step_key):
             sample_key, update_key = jax.random.split(step_key)
             batch = prepare(sample(buffer, sample_key, cfg.batch_size), obs_stats, return_stats)
-            learner, diag = update(learner, batch, update_key)
-            return learner, diag
+            return learner.update(learner_state, batch, update_key)
 
         if cfg.gradient_steps == 1:
-            learner, diag = one(learner, key)
+            learner_state, diag = one(learner_state, key)
             diag = {k: v[None] for k, v in diag.items()}
         else:
-            learner, diag = jax.lax.scan(one, learner, jax.random.split(key, cfg.gradient_steps))
+            learner_state, diag = jax.lax.scan(one, learner_state, jax.random.split(key, cfg.gradient_steps))
         sums = {k: jnp.nansum(diag[k]) for k in names}
         counts = {k: jnp.sum(~jnp.isnan(diag[k])).astype(jnp.float32) for k in names}
-        return learner, sums, counts
+        return learner_state, sums, counts
 
     def env_loop_step(loop, step_key):
-        learner, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums, counts \
-            = loop
+        (learner_state, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums,
+         counts) = loop
         random_key, explore_key, train_key = jax.random.split(step_key, 3)
         valid = ~carry.prev_done
         if env_cfg.normalize_obs:
             obs_stats = update_stats(obs_stats, carry.obs, valid)
         policy_obs = normalize(obs_stats, carry.obs, env_cfg.clip_obs) if env_cfg.normalize_obs else carry.obs
-        policy_action, next_ou = exploring_action(config, learner, policy_obs, ou_state, explore_key)
+        policy_action, next_ou = learner.explore(learner_state, policy_obs, ou_state, explore_key)
         random_action = jax.random.uniform(random_key, policy_action.shape, jnp.float32, -1.0, 1.0)
         action = jnp.where(global_step < cfg.learning_starts, random_action, policy_action)
         env_state, out = env_step(carry.env_state, center + half * action)
+        next_carry, episodes = track_episodes(carry, env_state, out, cfg.gamma)
 
-        valid_f = valid.astype(jnp.float32)
-        done = (out.terminated | out.truncated) & valid
         step_finite = jnp.all(jnp.isfinite(out.obs)) & jnp.all(jnp.isfinite(out.reward))
         healthy = healthy & step_finite
         # Once anything non-finite appears, nothing more is stored or learned in this call.
         buffer = insert(buffer, Transitions(carry.obs, action, out.reward, out.obs,
                                             out.terminated.astype(jnp.float32)), valid & healthy)
-        discounted = carry.discounted_return * cfg.gamma * valid_f + out.reward * valid_f
         if env_cfg.normalize_reward:
-            return_stats = update_stats(return_stats, discounted, valid)
-        keep = 1.0 - done.astype(jnp.float32)
-        ou_state = next_ou * keep[:, None]
+            return_stats = update_stats(return_stats, episodes.discounted_return, valid)
+        ou_state = next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None]
         global_step = global_step + valid.sum().astype(jnp.int64)
         vector_steps = vector_steps + 1
 
         do_train = healthy & (global_step >= cfg.learning_starts) & (vector_steps % cfg.train_freq == 0)
 
-        def run(learner):
-            return train(learner, buffer, obs_stats, return_stats, train_key)
+        def run(learner_state):
+            return train(learner_state, buffer, obs_stats, return_stats, train_key)
 
-        def skip(learner):
+        def skip(learner_state):
             zeros = {k: jnp.float32(0.0) for k in names}
-            return learner, zeros, zeros
+            return learner_state, zeros, zeros
 
-        learner, step_sums, step_counts = jax.lax.cond(do_train, run, skip, learner)
+        learner_state, step_sums, step_counts = jax.lax.cond(do_train, run, skip, learner_state)
         sums = {k: sums[k] + step_sums[k] for k in names}
         counts = {k: counts[k] + step_counts[k] for k in names}
 
-        episode_return = carry.episode_return + out.reward * valid_f
-        episode_length = carry.episode_length + valid.astype(jnp.int32)
-        info_sums = {k: carry.info_sums[k] + out.info[k] * valid_f for k in carry.info_sums}
-        length_f = jnp.maximum(episode_length.astype(jnp.float32), 1.0)
-        episode_info = {k: v if is_summed_info(k) else v / length_f for k, v in info_sums.items()}
-        carry = EnvCarry(env_state, out.obs, done, discounted * keep, episode_return * keep,
-                         episode_length * (1 - done.astype(jnp.int32)), {k: v * keep for k, v in info_sums.items()})
-        record = dict(done=done, valid=valid, episode_return=episode_return, episode_length=episode_length,
-                      episode_info=episode_info)
-        return (learner, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy,
-                sums, counts), record
+        record = dict(done=episodes.done, valid=valid, episode_return=episodes.episode_return,
+                      episode_length=episodes.episode_length, episode_info=episodes.episode_info)
+        return (learner_state, buffer, ou_state, obs_stats, return_stats, next_carry, global_step, vector_steps,
+                healthy, sums, counts), record
 
     def iteration(state: OffPolicyState, carry: EnvCarry, lr_fraction: jnp.ndarray):
         key, loop_key = jax.random.split(jax.random.wrap_key_data(state.key))
@@ -185,10 +151,10 @@ def make_iteration(config: Config, spec: Any, env_step: Callable[[Any, jnp.ndarr
         init = (state.learner, state.buffer, state.ou_state, state.obs_stats, state.return_stats, carry,
                 state.global_step, state.vector_steps, jnp.asarray(True), zeros, zeros)
         final, records = jax.lax.scan(env_loop_step, init, jax.random.split(loop_key, num_steps))
-        learner, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums, counts \
-            = final
-        finite = healthy & _all_finite(learner)
-        new_state = OffPolicyState(learner, buffer, ou_state, obs_stats, return_stats, jax.random.key_data(key),
+        (learner_state, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums,
+         counts) = final
+        finite = healthy & _all_finite(learner_state)
+        new_state = OffPolicyState(learner_state, buffer, ou_state, obs_stats, return_stats, jax.random.key_data(key),
                                    state.iteration + 1, global_step, vector_steps)
         # A non-finite call hands back the state it was given (its buffer keeps only the finite transitions it
         # stored), so the trainer can checkpoint the last good state although the input buffers were donated.

@@ -3,13 +3,14 @@
 Actions inside the learner live in [-1, 1]: actors end in tanh, the replay buffer stores these coordinates, and only
 the env sees `center + half_range * a`. The critics of one algorithm (two for td3 and sac, one for ddpg) are one
 parameter tree whose leaves carry a leading critic axis, evaluated with `vmap`: one batched matmul per layer instead
-of one per critic.
+of one per critic. Every network learns by Adam at a constant learning rate.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import optax
 
 from canter.core.networks import init_mlp, mlp
 
@@ -51,3 +52,13 @@ def squashed_gaussian(actor: list, obs: jnp.ndarray, activation: str) -> tuple[j
     mean, raw = out[..., :act_dim], out[..., act_dim:]
     log_std = LOG_STD_MIN + 0.5 * (LOG_STD_MAX - LOG_STD_MIN) * (jnp.tanh(raw) + 1.0)
     return mean, log_std
+
+
+def init_adam(params, lr: float):
+    return optax.adam(lr).init(params)
+
+
+def adam_step(params, opt_state, grads, lr: float):
+    """(params, opt_state) after one Adam step along `grads`."""
+    updates, opt_state = optax.adam(lr).update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state

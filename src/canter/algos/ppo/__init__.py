@@ -35,8 +35,8 @@ def make_gaussian_act(config: Config, spec: Any):
     """`act(params, obs_stats, raw_obs, key, deterministic)` for the diagonal Gaussian actor of ppo and its kin."""
     import jax.numpy as jnp
 
-    from canter.core.networks import policy_dist, sample_action
     from canter.algos.onpolicy_rollout import normalize_obs
+    from canter.core.networks import policy_dist, sample_action
 
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
@@ -79,10 +79,10 @@ def validate_continuous(config: Config, spec: Any) -> None:
 
 
 ALGORITHMS = {
-    "ppo": Algorithm(name="ppo", on_policy=True, init_state=_init_state, make_iteration=_make_iteration,
+    "ppo": Algorithm(name="ppo", init_state=_init_state, make_iteration=_make_iteration,
                      metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
                      export_actor=export_gaussian_actor, validate=validate_continuous),
-    "rpo": Algorithm(name="rpo", on_policy=True, init_state=_init_state, make_iteration=_make_rpo_iteration,
+    "rpo": Algorithm(name="rpo", init_state=_init_state, make_iteration=_make_rpo_iteration,
                      metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
                      export_actor=export_gaussian_actor, validate=validate_continuous),
 }

@@ -8,13 +8,14 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from canter.algos.onpolicy_rollout import collect, estimate_advantages
 from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
 from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config.schema import Config
-from canter.envs.base import EnvSpec
 from canter.core.networks import Params, init_params
 from canter.core.normalize import RunningStats, init_stats
-from canter.algos.onpolicy_rollout import EnvCarry, collect, estimate_advantages
+from canter.envs.base import EnvSpec
+from canter.envs.episodes import EnvCarry
 
 
 class TrainState(NamedTuple):

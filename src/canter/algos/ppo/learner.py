@@ -12,7 +12,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from canter.algos.ppo.losses import LossVariant, Minibatch, gaussian_kl, masked_mean, ppo_loss
+from canter.algos.ppo.losses import (
+    LossVariant,
+    Minibatch,
+    gaussian_kl,
+    masked_mean,
+    ppo_loss,
+)
 from canter.config.schema import Config
 from canter.core.networks import Params, policy_dist
 

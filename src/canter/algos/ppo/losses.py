@@ -9,9 +9,18 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from canter.algos.ppo.sections import PPOConfig
 from canter.algos.ppo.symmetry import MirrorPair, parse_groups, symmetric_loss
-from canter.config.schema import Config, NetConfig, PPOConfig
-from canter.core.networks import LOG_2PI, Params, gaussian_entropy, gaussian_log_prob, policy_dist, value
+from canter.config.schema import Config
+from canter.core.netconfig import NetConfig
+from canter.core.networks import (
+    LOG_2PI,
+    Params,
+    gaussian_entropy,
+    gaussian_log_prob,
+    policy_dist,
+    value,
+)
 
 
 class Minibatch(NamedTuple):

@@ -8,7 +8,11 @@ from __future__ import annotations
 from typing import Any
 
 from canter.algos import Algorithm
-from canter.algos.ppo import export_gaussian_actor, gaussian_policy_params, make_gaussian_act
+from canter.algos.ppo import (
+    export_gaussian_actor,
+    gaussian_policy_params,
+    make_gaussian_act,
+)
 from canter.config.schema import Config
 from canter.errors import CanterError
 
@@ -35,7 +39,7 @@ def _validate(config: Config, spec: Any) -> None:
 
 
 ALGORITHMS = {
-    "trpo": Algorithm(name="trpo", on_policy=True, init_state=_init_state, make_iteration=_make_iteration,
+    "trpo": Algorithm(name="trpo", init_state=_init_state, make_iteration=_make_iteration,
                       metric_names=TRPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
                       export_actor=export_gaussian_actor, validate=_validate),
 }

@@ -14,14 +14,26 @@ import jax.numpy as jnp
 import optax
 from jax.flatten_util import ravel_pytree
 
+from canter.algos.onpolicy_rollout import collect, estimate_advantages
 from canter.algos.ppo.iteration import explained_variance
 from canter.algos.ppo.losses import gaussian_kl, masked_mean, normalize_advantages
-from canter.algos.trpo.natural import backtracking_line_search, conjugate_gradient, fisher_vector_product
+from canter.algos.trpo.natural import (
+    backtracking_line_search,
+    conjugate_gradient,
+    fisher_vector_product,
+)
 from canter.config.schema import Config
-from canter.envs.base import EnvSpec
-from canter.core.networks import Params, gaussian_entropy, gaussian_log_prob, init_params, policy_dist, value
+from canter.core.networks import (
+    Params,
+    gaussian_entropy,
+    gaussian_log_prob,
+    init_params,
+    policy_dist,
+    value,
+)
 from canter.core.normalize import RunningStats, init_stats
-from canter.algos.onpolicy_rollout import EnvCarry, collect, estimate_advantages
+from canter.envs.base import EnvSpec
+from canter.envs.episodes import EnvCarry
 
 
 class TrainState(NamedTuple):

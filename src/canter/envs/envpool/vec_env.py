@@ -1,9 +1,4 @@
-"""EnvPool backend: native MuJoCo, Box2D and DM Control envs stepped in C++.
-
-Training steps the pool inside the jitted rollout through EnvPool's XLA custom call. The pool always uses one
-worker thread: with two threads the XLA path corrupted MuJoCo's memory here (the process dies with no Python
-exception), and a crash no handler can catch must not be reachable from the CLI.
-"""
+"""EnvPool's pools behind the `VecEnv` protocol."""
 
 from __future__ import annotations
 
@@ -13,37 +8,13 @@ from typing import Any
 import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
+from canter.envs.envpool import NAME
+from canter.envs.envpool.shards import default_shards, shard_sizes
 
 # EnvPool rebuilds its Gymnasium spaces on every reset and host step, declaring float32 Boxes with float64 bounds
 # (Pendulum, Box2D); Gymnasium warns about that cast each time. The warning is about EnvPool's own spec code and
 # gives the user nothing to act on, so it is silenced for the process (this exact message only).
 warnings.filterwarnings("ignore", message=r".*precision lowered by casting to float32")
-
-# EnvPool families with continuous actions that canter trains on.
-_CONTINUOUS_MODULES = ("envpool.mujoco.gym", "envpool.mujoco.dmc")
-_CONTINUOUS_IDS = ("BipedalWalker-v3", "BipedalWalkerHardcore-v3", "LunarLanderContinuous-v2",
-                   "LunarLanderContinuous-v3", "Pendulum-v1", "MountainCarContinuous-v0")
-
-
-def available() -> bool:
-    try:
-        import envpool  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-def supported_ids() -> list[str]:
-    if not available():
-        return []
-    from envpool.registration import registry
-
-    ids = []
-    for env_id, spec in registry.specs.items():
-        module = spec[0] if isinstance(spec, tuple) else ""
-        if module in _CONTINUOUS_MODULES or env_id in _CONTINUOUS_IDS:
-            ids.append(env_id)
-    return ids
 
 
 def _flatten(obs: Any, keys: tuple[str, ...] | None, xp: Any) -> Any:
@@ -51,22 +22,6 @@ def _flatten(obs: Any, keys: tuple[str, ...] | None, xp: Any) -> Any:
         return obs.astype(xp.float32)
     parts = [obs[k].reshape(obs[k].shape[0], -1).astype(xp.float32) for k in keys]
     return xp.concatenate(parts, axis=-1)
-
-
-def default_shards(num_envs: int) -> int:
-    """One single-threaded pool per core (fewer when there are fewer envs than cores)."""
-    import os
-
-    return max(1, min(os.cpu_count() or 1, num_envs))
-
-
-def shard_sizes(num_envs: int, shards: int) -> list[int]:
-    """Envs per pool, as even as possible: 5 envs on 2 shards are 3 + 2. An uneven split still steps both pools at
-    once, where insisting on an even one would leave 5 envs (5 seeds of one env each) on a single core."""
-    if not 1 <= shards <= num_envs:
-        raise ValueError(f"{shards} envpool shards cannot split {num_envs} envs; use 1 to {num_envs}")
-    base, extra = divmod(num_envs, shards)
-    return [base + 1 if i < extra else base for i in range(shards)]
 
 
 class EnvPoolVecEnv:
@@ -104,7 +59,7 @@ class EnvPoolVecEnv:
                                        and np.issubdtype(v.dtype, np.floating)))
         config = pool.spec.config
         self.spec = EnvSpec(
-            id=env_id, backend="envpool", num_envs=num_envs, obs_dim=obs_dim, act_dim=int(np.prod(act_space.shape)),
+            id=env_id, backend=NAME, num_envs=num_envs, obs_dim=obs_dim, act_dim=int(np.prod(act_space.shape)),
             action_low=tuple(float(x) for x in np.asarray(act_space.low).reshape(-1)),
             action_high=tuple(float(x) for x in np.asarray(act_space.high).reshape(-1)),
             max_episode_steps=int(getattr(config, "max_episode_steps", 0)) or None, info_keys=self._info_keys)

@@ -1,4 +1,4 @@
-"""Gymnasium backend: any registered or custom env, one Python env object per slot.
+"""Gymnasium envs, one Python env object per slot, behind the `VecEnv` protocol.
 
 It reproduces EnvPool's episode semantics (see `canter.envs.base`), so the learner trains identically on both.
 Inside jit the step is an ordered `io_callback`; it is slower than EnvPool but runs everywhere.
@@ -11,29 +11,8 @@ from typing import Any
 import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
-from canter.errors import CanterError, DiscreteActionsError
-
-
-def _space_error(env_id: str, space: Any) -> CanterError:
-    return CanterError(f"{env_id}: observation space {space} is not supported; canter needs a Box or a Dict of "
-                       f"Boxes (wrap the env to produce one)")
-
-
-def make_single(env_id: str, **kwargs: Any) -> Any:
-    """gym.make with a flattened Dict observation, checked to be continuous-control."""
-    import gymnasium as gym
-
-    env = gym.make(env_id, **kwargs)
-    obs_space = env.observation_space
-    if isinstance(obs_space, gym.spaces.Dict):
-        if not all(isinstance(s, gym.spaces.Box) for s in obs_space.spaces.values()):
-            raise _space_error(env_id, obs_space)
-        env = gym.wrappers.FlattenObservation(env)
-    elif not isinstance(obs_space, gym.spaces.Box):
-        raise _space_error(env_id, obs_space)
-    if not isinstance(env.action_space, gym.spaces.Box):
-        raise DiscreteActionsError(env_id, env.action_space)
-    return env
+from canter.envs.gymnasium import NAME
+from canter.envs.gymnasium.single import make_single
 
 
 class GymnasiumVecEnv:
@@ -58,7 +37,7 @@ class GymnasiumVecEnv:
         act = first.action_space
         spec = getattr(first, "spec", None)
         self.spec = EnvSpec(
-            id=env_id, backend="gymnasium", num_envs=num_envs, obs_dim=int(np.prod(first.observation_space.shape)),
+            id=env_id, backend=NAME, num_envs=num_envs, obs_dim=int(np.prod(first.observation_space.shape)),
             act_dim=int(np.prod(act.shape)),
             action_low=tuple(float(x) for x in np.asarray(act.low).reshape(-1)),
             action_high=tuple(float(x) for x in np.asarray(act.high).reshape(-1)),

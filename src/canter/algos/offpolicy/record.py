@@ -1,0 +1,88 @@
+"""The `Algorithm` record of an off-policy algorithm, built around its `OffPolicyLearner`, with the acting, export
+and checks that td3, ddpg and sac share."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from canter.algos.offpolicy.iteration import init_train_state, make_iteration
+from canter.algos.offpolicy.learner import LOOP_METRICS, OffPolicyLearner
+from canter.algos.offpolicy.sections import OffPolicyConfig
+from canter.algos.protocol import Algorithm, ExportedActor
+from canter.config.schema import Config
+from canter.errors import CanterError
+
+
+def offpolicy_algorithm(name: str, make_learner: Callable[[Config, Any], OffPolicyLearner],
+                        update_metrics: tuple[str, ...]) -> Algorithm:
+    """The `Algorithm` record of the algorithm whose learner `make_learner(config, spec)` builds."""
+
+    def init_state(config: Config, spec: Any):
+        return init_train_state(config, make_learner(config, spec), spec.obs_dim, spec.act_dim)
+
+    def iteration(config: Config, spec: Any, env_step: Any):
+        return make_iteration(config, make_learner(config, spec), spec, env_step)
+
+    def make_act(config: Config, spec: Any):
+        return _make_act(config, make_learner(config, spec), spec)
+
+    def export_actor(config: Config, state: Any, spec: Any) -> ExportedActor:
+        return _export_tanh_actor(config, make_learner(config, spec).cfg, state, spec)
+
+    def validate(config: Config, spec: Any) -> None:
+        _validate_bounded_actions(name, spec)
+
+    return Algorithm(name=name, init_state=init_state, make_iteration=iteration,
+                     metric_names=update_metrics + LOOP_METRICS, make_act=make_act, policy_params=_policy_params,
+                     export_actor=export_actor, validate=validate, donate_state=True)
+
+
+def _make_act(config: Config, learner: OffPolicyLearner, spec: Any):
+    """`act(actor, obs_stats, raw_obs, key, deterministic)`: the learner's action mapped onto the action bounds."""
+    import jax.numpy as jnp
+
+    from canter.algos.onpolicy_rollout import normalize_obs
+
+    low = jnp.asarray(spec.action_low, jnp.float32)
+    high = jnp.asarray(spec.action_high, jnp.float32)
+    center, half = (high + low) / 2.0, (high - low) / 2.0
+
+    def act(actor, obs_stats, obs, key, deterministic: bool):
+        action = learner.act(actor, normalize_obs(config, obs_stats, obs), key, deterministic)
+        return jnp.clip(center + half * action, low, high)
+
+    return act
+
+
+def _policy_params(state: Any) -> Any:
+    return state.learner.actor
+
+
+def _export_tanh_actor(config: Config, section: OffPolicyConfig, state: Any, spec: Any) -> ExportedActor:
+    """Every off-policy actor is a tanh-squashed MLP whose first `act_dim` outputs are the deterministic action."""
+    import jax
+
+    from canter.core.normalize import EPSILON
+
+    actor = jax.device_get(state.learner.actor)
+    stats = jax.device_get(state.obs_stats)
+    return ExportedActor(
+        weights=[np.asarray(layer["w"], np.float32) for layer in actor],
+        biases=[np.asarray(layer["b"], np.float32) for layer in actor],
+        activation=section.activation, squash=True, normalize=config.env.normalize_obs,
+        obs_mean=np.asarray(stats.mean, np.float32), obs_var=np.asarray(stats.var, np.float32), obs_eps=EPSILON,
+        clip_obs=config.env.clip_obs, action_low=np.asarray(spec.action_low, np.float32),
+        action_high=np.asarray(spec.action_high, np.float32), output_slice=spec.act_dim)
+
+
+def _validate_bounded_actions(name: str, spec: Any) -> None:
+    """Bounded actions are required: the actors map tanh outputs onto [low, high]."""
+    if spec is None:
+        return
+    low, high = np.asarray(spec.action_low), np.asarray(spec.action_high)
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
+        raise CanterError(f"{name} needs finite action bounds (it squashes actions with tanh); "
+                          f"{getattr(spec, 'id', getattr(spec, 'env_id', 'this env'))} has low={low.tolist()} "
+                          f"high={high.tolist()}")

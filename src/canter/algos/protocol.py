@@ -1,0 +1,71 @@
+"""The runtime record of an algorithm, which the trainer, run folders and `canter.load` use.
+
+Every algorithm plugs into the same trainer, run folder, checkpoints, logging and `canter.load` through one
+`Algorithm` record. The trainer knows nothing else about an algorithm:
+
+- `init_state(config, spec)` builds the train state: a NamedTuple pytree that a checkpoint holds in full. It must
+  have the fields `obs_stats` (a `RunningStats`, used by the policy), `iteration` and `global_step`.
+- `make_iteration(config, spec, env_step)` returns `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`,
+  a pure function the trainer jits. One call is the unit between which the host logs, checkpoints and checks for
+  signals. `metrics` holds `steps` (env steps taken, autoreset steps excluded), `finite` (bool), `finished`,
+  `episode_return`, `episode_length` (arrays [T, N]) and `episode_info` (dict of [T, N]), plus one scalar per name
+  in `metric_names`. Several seeds train together by `jax.vmap` over this function (canter.training.seedgroup), so it
+  must stay pure JAX and must not read `config.run.seed` (the seed belongs in `init_state`).
+- `metric_names`: the algorithm's diagnostics, written as metrics.csv columns in this order.
+- `make_act(config, spec)` returns `act(policy_params, obs_stats, raw_obs, key, deterministic) -> action`, clipped
+  to the action bounds; `policy_params(state)` picks what it needs out of the train state.
+- `export_actor(config, state, spec)` describes the deterministic actor as plain arrays (`ExportedActor`), for ONNX and
+  npz export.
+- `donate_state`: see the field's comment.
+- `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts.
+  `spec` is None when only the config is known.
+
+Where a `spec` is passed, only `obs_dim`, `act_dim`, `action_low` and `action_high` may be read: a loaded policy
+passes its `PolicyFacts` instead of an `EnvSpec`.
+
+What an algorithm declares without JAX (its config sections, the keys it reads, checks, search space, preset tables,
+plot labels) is its `AlgorithmSpec` (`canter.config.algorithms`), built in its folder's `sections.py`.
+`canter.algos.registry` lists those modules, one line per algorithm folder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ExportedActor:
+    """A deterministic actor as plain arrays: `x = clip((obs - mean) / sqrt(var + eps), -clip_obs, clip_obs)` when
+    `normalize` is set, then dense layers with `activation` between them, then `tanh` and an affine map onto
+    [low, high] when `squash` is set, and finally a clip to [low, high]."""
+    weights: list[np.ndarray]
+    biases: list[np.ndarray]
+    activation: str
+    squash: bool
+    normalize: bool
+    obs_mean: np.ndarray
+    obs_var: np.ndarray
+    obs_eps: float
+    clip_obs: float
+    action_low: np.ndarray
+    action_high: np.ndarray
+    output_slice: int   # keep only the first `output_slice` outputs (a head may also predict the log std)
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    name: str
+    init_state: Callable[..., Any]
+    make_iteration: Callable[..., Any]
+    metric_names: tuple[str, ...]
+    make_act: Callable[..., Any]
+    policy_params: Callable[[Any], Any]
+    export_actor: Callable[..., ExportedActor]
+    validate: Callable[..., None]
+    # Donate the train state to jit so large arrays (a replay buffer) are updated in place, not copied per call.
+    # The input state is then invalid after the call, so an iteration reporting `finite` False must return the
+    # last good state itself: the trainer checkpoints the returned state in that case.
+    donate_state: bool = False

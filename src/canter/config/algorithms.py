@@ -1,0 +1,112 @@
+"""What each algorithm declares to the rest of canter, without importing JAX: its name, the config keys it reads,
+its config checks, its search space, its preset overrides and its plot labels.
+
+Each algorithm builds one `AlgorithmSpec` in its own folder (`canter/algos/<name>/sections.py`) and registers it
+there; `canter/algos/registry.py` lists those modules, one line per algorithm. This package never imports them.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+from canter.config.schema import field_names
+from canter.errors import CanterError
+
+CORE_READS = ("env", "run")
+
+
+@dataclass(frozen=True)
+class AlgorithmSpec:
+    name: str
+    summary: str
+    # The module whose `ALGORITHMS[name]` is the runtime `canter.algos.Algorithm` record (imported lazily: JAX).
+    runtime: str
+    # What it reads beyond env.* and run.*: whole sections ("ppo") or single keys ("ppo.n_steps").
+    reads: tuple[str, ...]
+    # Checks across the keys it reads (each section's own checks run for every section); `validate(config)`.
+    validate: Callable[[Any], None]
+    on_policy: bool
+    # (package, file) of the TOML search space that `canter tune` uses by default.
+    search_space: tuple[str, str]
+    # Per preset name, the preset table this algorithm adds on top of the preset file (the same layout as a preset:
+    # plain sections and `[env_overrides."<glob>"]`).
+    preset_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    # (title, y-axis label) of the metrics.csv columns it logs.
+    plot_labels: Mapping[str, tuple[str, str]] = field(default_factory=dict)
+    # On-policy: the samples of one rollout (`rollout_batch(config)`), and the keys that must divide it, which
+    # `canter tune` cuts to the batch when it samples them larger.
+    rollout_batch: Callable[[Any], int] | None = None
+    batch_divisors: tuple[str, ...] = ()
+    # Seeds train one per process (`canter bench`) rather than vmapped in one program: see docs/multiseed.md.
+    seeds_train_apart: bool = False
+
+
+_REGISTERED: dict[str, AlgorithmSpec] = {}
+
+
+def register_algorithm(spec: AlgorithmSpec) -> None:
+    known = _REGISTERED.get(spec.name)
+    if known is not None and known is not spec:
+        raise ValueError(f"algorithm '{spec.name}' is already registered")
+    _REGISTERED[spec.name] = spec
+
+
+def algorithm_names() -> list[str]:
+    return list(_REGISTERED)
+
+
+def check_algorithm_name(name: str) -> None:
+    if name not in _REGISTERED:
+        close = difflib.get_close_matches(name, list(_REGISTERED), n=1, cutoff=0.5)
+        hint = f"did you mean {close[0]}? " if close else ""
+        raise CanterError(f"unknown algorithm '{name}'; {hint}choose one of: {', '.join(_REGISTERED)}")
+
+
+def algorithm_spec(name: str) -> AlgorithmSpec:
+    check_algorithm_name(name)
+    return _REGISTERED[name]
+
+
+def all_plot_labels() -> dict[str, tuple[str, str]]:
+    labels: dict[str, tuple[str, str]] = {}
+    for spec in _REGISTERED.values():
+        labels.update(spec.plot_labels)
+    return labels
+
+
+def reads_key(algo: str, key: str) -> bool:
+    """Whether `algo` reads `section.key` (or the whole section when `key` is a section name)."""
+    reads = algorithm_spec(algo).reads
+    section = key.partition(".")[0]
+    return section in CORE_READS or section in reads or key in reads
+
+
+def read_sections(algo: str) -> list[tuple[str, tuple[str, ...] | None]]:
+    """(section, names) for what `algo` reads beyond env and run, in its declared order: None means the whole
+    section, a tuple the single keys it reads of it."""
+    out: dict[str, list[str] | None] = {}
+    for item in algorithm_spec(algo).reads:
+        section, _, name = item.partition(".")
+        if not name:
+            out[section] = None
+        elif out.get(section, []) is not None:
+            out.setdefault(section, []).append(name)  # type: ignore[union-attr]
+    return [(s, None if names is None else tuple(names)) for s, names in out.items()]
+
+
+def unread_key_error(algo: str, key: str) -> str:
+    """The one-line refusal of a key that `algo` would silently ignore, pointing to the key it does read."""
+    section, _, name = key.partition(".")
+    reads = algorithm_spec(algo).reads
+    sections = [s for s in reads if "." not in s]
+    single = [k for k in reads if "." in k]
+    listed = ", ".join([f"{s}.*" for s in sections] + single + ["env.*", "run.*"])
+    twins = [f"{s}.{name}" for s in sections if s != section and name in field_names(s)]
+    if twins:
+        fix = f"set {twins[0]} instead"
+    else:
+        readers = ", ".join(a for a in _REGISTERED if reads_key(a, key)) or "no algorithm"
+        fix = f"drop it ({key} is read by {readers})"
+    return f"{key} has no effect on {algo}, which reads {listed}; {fix}"

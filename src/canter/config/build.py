@@ -1,0 +1,57 @@
+"""Resolving a config from its layers: defaults < preset < config file < `--set` < explicit flags."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from canter.config.algorithms import check_algorithm_name, reads_key, unread_key_error
+from canter.config.overrides import (
+    apply_overrides,
+    flatten_toml,
+    load_toml,
+    parse_set_args,
+)
+from canter.config.presets import canonical_preset, preset_overrides
+from canter.config.schema import Config
+from canter.config.validate import validate
+from canter.errors import CanterError
+
+
+def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
+                 sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None,
+                 algo: str | None = None, check_unread: bool = True) -> Config:
+    """Resolve defaults < preset < config file < --set (< explicit flags), then validate. The algorithm is known
+    before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does not
+    read is refused (unless `check_unread` is off), since it would change nothing."""
+    file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
+    set_data = parse_set_args(sets or [])
+    resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
+    if not resolved_id:
+        raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
+    preset = canonical_preset(preset)
+    config = Config()
+    first: dict[str, Any] = {"env.id": resolved_id, "run.preset": preset}
+    resolved_algo = algo or set_data.get("run.algo") or file_data.get("run.algo")
+    if resolved_algo:
+        check_algorithm_name(str(resolved_algo))
+        first["run.algo"] = resolved_algo
+    config = apply_overrides(config, first, "arguments")
+    config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
+    config = apply_overrides(config, file_data, str(config_file))
+    config = apply_overrides(config, set_data, "--set")
+    if check_unread:
+        for key in set_data:
+            if not reads_key(config.run.algo, key):
+                raise CanterError(unread_key_error(config.run.algo, key))
+    flags: dict[str, Any] = {}
+    if env_id:
+        flags["env.id"] = env_id
+    if algo:
+        flags["run.algo"] = algo
+    if seed is not None:
+        flags["run.seed"] = seed
+    if total_steps is not None:
+        flags["run.total_steps"] = total_steps
+    config = apply_overrides(config, flags, "arguments")
+    validate(config)
+    return config

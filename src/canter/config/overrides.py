@@ -1,0 +1,70 @@
+"""`{"section.key": value}` overrides: reading them from `--set` and TOML, and applying them to a config with their
+names and types checked."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from canter.config.schema import Config, field_names, section_names
+from canter.config.values import coerce, field_types
+from canter.errors import CanterError
+
+
+def all_keys() -> list[str]:
+    return [f"{s}.{name}" for s in section_names() for name in field_names(s)]
+
+
+def unknown_key_error(key: str, source: str) -> CanterError:
+    close = difflib.get_close_matches(key, all_keys(), n=3, cutoff=0.5)
+    hint = f"; did you mean {', '.join(close)}?" if close else f"; sections are {', '.join(section_names())}"
+    return CanterError(f"unknown config key '{key}' in {source}{hint}")
+
+
+def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> Config:
+    """Apply `{"section.key": value}` overrides, checking names and types."""
+    sections: dict[str, dict[str, Any]] = {}
+    known = section_names()
+    for key, value in overrides.items():
+        section, _, name = key.partition(".")
+        if section not in known or name not in field_names(section):
+            raise unknown_key_error(key, source)
+        sections.setdefault(section, {})[name] = coerce(key, field_types(section)[name], value)
+    return config.replace(**{s: dataclasses.replace(config.section(s), **values) for s, values in sections.items()})
+
+
+def parse_set_args(items: list[str]) -> dict[str, str]:
+    overrides: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CanterError(f"--set expects section.key=value, got {item!r}")
+        overrides[key.strip()] = value.strip()
+    return overrides
+
+
+def flatten_toml(data: dict[str, Any], source: str) -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for section, values in data.items():
+        if not isinstance(values, dict):
+            raise unknown_key_error(section, source)
+        for name, value in values.items():
+            if isinstance(value, dict):
+                raise unknown_key_error(f"{section}.{name}", source)
+            flat[f"{section}.{name}"] = value
+    return flat
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise CanterError(f"config file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise CanterError(f"malformed TOML in {path}: {exc}") from None
+    except UnicodeDecodeError:
+        raise CanterError(f"config file {path} is not UTF-8 text") from None

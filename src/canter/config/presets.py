@@ -1,0 +1,93 @@
+"""Presets: named TOML layers shipped in `canter/presets/`, each completed by the tables algorithms declare for it.
+
+A preset file holds plain sections and `[env_overrides."<glob>"]` tables (fnmatch on the env id without any
+`module:` prefix); its top-level `algos` list, when present, names the only algorithms it holds settings for. An
+algorithm adds its own table per preset (`AlgorithmSpec.preset_overrides`, same layout), applied after the file's.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import sys
+import tomllib
+from importlib import resources
+from typing import Any
+
+from canter.config.algorithms import algorithm_spec
+from canter.config.overrides import flatten_toml
+from canter.errors import CanterError
+
+# Former names of the report presets: `seed000-...` read like a run seed, so they were renamed after the report
+# they reproduce. The old names keep working, with a notice.
+ALIASES = {
+    "seed000-halfcheetah": "report000-halfcheetah",
+    "seed000-humanoidstandup": "report000-humanoidstandup",
+    "seed002-bipedalwalker-ppo": "report002-bipedalwalker-ppo",
+    "seed002-ddpg": "report002-ddpg",
+    "seed002-hopper-trpo": "report002-hopper-trpo",
+}
+
+
+def preset_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("canter.presets").iterdir() if p.name.endswith(".toml"))
+
+
+def canonical_preset(name: str) -> str:
+    """The preset's current name; an old name prints a one-line notice and maps to its new one."""
+    if name in ALIASES:
+        print(f"canter: note: preset {name} is now called {ALIASES[name]}; use the new name", file=sys.stderr)
+        return ALIASES[name]
+    return name
+
+
+def shipped_preset_text(name: str) -> str:
+    """The text of the preset file shipped under `name`."""
+    if name not in preset_names():
+        raise CanterError(f"unknown preset '{name}'; choose one of: {', '.join(preset_names())}")
+    return resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
+
+
+def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None]:
+    """A preset's tables, and apart from them the algorithms it declares it holds settings for (its top-level
+    `algos`, None for all)."""
+    table = tomllib.loads(shipped_preset_text(name))
+    return table, table.pop("algos", None)
+
+
+def preset_algorithms(name: str) -> list[str] | None:
+    """The algorithms a preset declares it holds settings for (its top-level `algos`), or None for all."""
+    return _read_preset(name)[1]
+
+
+def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, Any]:
+    """Flatten one preset table: its plain sections, then its `[env_overrides."<glob>"]` tables matching env_id.
+    Later layers win."""
+    table = dict(table)
+    per_env = table.pop("env_overrides", {})
+    flat = flatten_toml(table, source)
+    base_id = env_id.split(":")[-1]
+    for pattern, tables in per_env.items():
+        if fnmatch.fnmatch(base_id, pattern):
+            flat.update(flatten_toml(tables, source))
+    return flat
+
+
+def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
+    """A preset's keys for this env and algorithm: the preset file's layer, then the algorithm's own table for
+    this preset. A preset whose top-level `algos` list names the algorithms it holds settings for refuses the
+    others, which would otherwise get the bare defaults under its name."""
+    table, supported = _read_preset(name)
+    if supported and algo not in supported:
+        raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
+                          f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset")
+    flat = preset_layer(table, env_id, f"preset {name}")
+    own = algorithm_spec(algo).preset_overrides.get(name)
+    if own:
+        flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {name}"))
+    return flat
+
+
+def algorithm_preset_tables(package: str, algo: str) -> dict[str, Any]:
+    """An algorithm's own preset tables: `[<algo>.<preset>...]` in the presets.toml of its package."""
+    table = tomllib.loads(resources.files(package).joinpath("presets.toml").read_text())
+    return dict(table.get(algo, {}))

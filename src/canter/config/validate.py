@@ -1,0 +1,46 @@
+"""Validation of a resolved config, in one place: the env and run sections, every section's own checks, and the
+checks its algorithm declares across the keys it reads. Each failure is a one-line CanterError."""
+
+from __future__ import annotations
+
+import math
+
+from canter.config.algorithms import algorithm_spec
+from canter.config.schema import Config, check_section, section_names
+from canter.errors import CanterError
+
+ACTIVATIONS = ("tanh", "relu", "elu")
+
+
+def need(ok: bool, message: str) -> None:
+    if not ok:
+        raise CanterError(message)
+
+
+def need_positive(key: str, value: float) -> None:
+    need(math.isfinite(value) and value > 0, f"{key} must be > 0, got {value}")
+
+
+def validate(config: Config) -> None:
+    from canter.envs.registry import backend_names
+
+    env, run = config.env, config.run
+    need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
+    backends = ("auto", *backend_names())
+    need(env.backend in backends, f"env.backend must be {', '.join(backends[:-1])} or {backends[-1]}, "
+                                  f"got '{env.backend}'")
+    need(env.num_envs >= 1, f"env.num_envs must be >= 1, got {env.num_envs}")
+    need(0 <= env.envpool_shards <= env.num_envs,
+         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}")
+    need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
+    need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
+    spec = algorithm_spec(run.algo)
+    for name in section_names():
+        check_section(name, config.section(name))
+    spec.validate(config)
+    need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
+    need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
+    need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
+    need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
+    if run.max_minutes is not None:
+        need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")

@@ -1,0 +1,104 @@
+"""Typed values: a TOML value or a `--set` string becomes the field's type, or a one-line error."""
+
+from __future__ import annotations
+
+import math
+import types
+import typing
+from dataclasses import fields
+from typing import Any
+
+from canter.config.schema import section_type
+from canter.errors import CanterError
+
+
+def field_types(section: str) -> dict[str, Any]:
+    cls = section_type(section)
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in fields(cls)}
+
+
+def is_optional(tp: Any) -> tuple[bool, Any]:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return True, args[0]
+    return False, tp
+
+
+def type_name(tp: Any) -> str:
+    optional, inner = is_optional(tp)
+    if typing.get_origin(inner) is tuple:
+        base = "comma-separated integers"
+    else:
+        base = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(inner, str(inner))
+    return f"{base} or none" if optional else base
+
+
+def coerce(key: str, tp: Any, value: Any) -> Any:
+    """Convert a TOML value or a `--set` string to the field's type, or raise a one-line CanterError."""
+    optional, inner = is_optional(tp)
+    bad = CanterError(f"{key}: expected {type_name(tp)}, got {value!r}")
+    if optional and (value is None or (isinstance(value, str) and value.strip().lower() in ("none", "null", ""))):
+        return None
+    if typing.get_origin(inner) is tuple:
+        if isinstance(value, str):
+            parts = [p for p in value.replace("-", ",").split(",") if p.strip()] if value.strip() else []
+            try:
+                return tuple(int(p) for p in parts)
+            except ValueError:
+                raise bad from None
+        if isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            return tuple(value)
+        raise bad
+    if inner is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.strip().lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+            return value.strip().lower() in ("true", "1", "yes", "on")
+        raise bad
+    if inner is int:
+        if isinstance(value, bool):
+            raise bad
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, str):
+            try:
+                number = float(value)
+            except ValueError:
+                raise bad from None
+            if number.is_integer():
+                return int(number)
+        raise bad
+    if inner is float:
+        if isinstance(value, bool):
+            raise bad
+        if isinstance(value, (int, float)):
+            return float(value)
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                raise bad from None
+        raise bad
+    if inner is str:
+        if isinstance(value, str):
+            return value
+        raise bad
+    raise bad
+
+
+def toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf") if not math.isnan(
+            value) else "nan"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        return f'"{escaped}"'
+    raise TypeError(value)

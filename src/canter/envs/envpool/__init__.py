@@ -1,0 +1,71 @@
+"""EnvPool backend: native MuJoCo, Box2D and DM Control envs stepped in C++.
+
+Training steps the pool inside the jitted rollout through EnvPool's XLA custom call. The pool always uses one
+worker thread: with two threads the XLA path corrupted MuJoCo's memory here (the process dies with no Python
+exception), and a crash no handler can catch must not be reachable from the CLI.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from canter.envs.base import Backend, VecEnv
+from canter.errors import CanterError
+
+NAME = "envpool"
+
+# EnvPool families with continuous actions that canter trains on.
+_CONTINUOUS_MODULES = ("envpool.mujoco.gym", "envpool.mujoco.dmc")
+_CONTINUOUS_IDS = ("BipedalWalker-v3", "BipedalWalkerHardcore-v3", "LunarLanderContinuous-v2",
+                   "LunarLanderContinuous-v3", "Pendulum-v1", "MountainCarContinuous-v0")
+
+
+class EnvPoolBackend(Backend):
+    name = NAME
+    label = "EnvPool"
+
+    def available(self) -> bool:
+        try:
+            import envpool  # noqa: F401
+        except Exception:
+            return False
+        return True
+
+    def supported_ids(self) -> list[str]:
+        if not self.available():
+            return []
+        from envpool.registration import registry
+
+        ids = []
+        for env_id, spec in registry.specs.items():
+            module = spec[0] if isinstance(spec, tuple) else ""
+            if module in _CONTINUOUS_MODULES or env_id in _CONTINUOUS_IDS:
+                ids.append(env_id)
+        return ids
+
+    def make(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
+        from canter.envs.envpool.vec_env import EnvPoolVecEnv
+
+        if not 0 <= shards <= num_envs:
+            raise CanterError(f"env.envpool_shards {shards} cannot split {num_envs} envs; use 0 (auto) to {num_envs}")
+        try:
+            return EnvPoolVecEnv(env_id, num_envs, seeds, shards=shards, **kwargs)
+        except ValueError as exc:
+            raise CanterError(f"{env_id}: {exc}; canter trains continuous-action envs") from None
+
+    def dm_control_task(self, env_id: str) -> tuple[str, str] | None:
+        """Read from EnvPool's registry: the spec class names the domain (DmcWalkerEnvSpec), the config the task."""
+        try:
+            from envpool.registration import registry
+        except ImportError:
+            return None
+        entry = registry.specs.get(env_id)
+        if entry is None or not entry[0].endswith(".dmc"):
+            return None
+        domain = re.sub(r"^Dmc|EnvSpec$", "", entry[1])
+        domain = re.sub(r"(?<=[a-z])(?=[A-Z])", "_", domain).lower()
+        return domain, entry[2]["task_name"]
+
+
+BACKEND = EnvPoolBackend()

@@ -1,0 +1,67 @@
+"""Gymnasium backend: any registered or custom env, one Python env object per slot.
+
+It runs everywhere and takes envs from the user's own modules (`module:EnvId`). It builds single envs too, so
+robustness sweeps edit their MuJoCo model and videos render them.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from canter.envs.base import Backend, VecEnv
+from canter.errors import CanterError
+
+NAME = "gymnasium"
+
+
+class GymnasiumBackend(Backend):
+    name = NAME
+    label = "Gymnasium"
+    custom_ids = True
+    single_envs = True
+
+    def available(self) -> bool:
+        try:
+            import gymnasium  # noqa: F401
+        except Exception:
+            return False
+        return True
+
+    def supported_ids(self) -> list[str]:
+        if not self.available():
+            return []
+        import gymnasium as gym
+
+        return list(gym.registry.keys())
+
+    def load_custom(self, env_id: str) -> None:
+        module, _, name = env_id.partition(":")
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise CanterError(f"cannot import module '{module}' for env '{env_id}' ({exc}); check that it is "
+                              f"installed or on PYTHONPATH") from None
+        if name not in self.supported_ids():
+            raise CanterError(f"module '{module}' did not register '{name}' with gymnasium; "
+                              f"call gymnasium.register(id='{name}', ...) in it")
+
+    def make(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
+        """`shards` does not apply: every env is its own Python object. `on_make(env)`, if given in kwargs, is called
+        on each env before its first reset."""
+        from canter.envs.gymnasium.vec_env import GymnasiumVecEnv
+
+        try:
+            return GymnasiumVecEnv(env_id, num_envs, seeds, **kwargs)
+        except CanterError:
+            raise
+        except ImportError as exc:
+            raise CanterError(f"{env_id}: a dependency is missing ({exc}); install it and retry") from None
+
+    def make_single(self, env_id: str, **kwargs: Any) -> Any:
+        from canter.envs.gymnasium.single import make_single
+
+        return make_single(env_id, **kwargs)
+
+
+BACKEND = GymnasiumBackend()

@@ -1,0 +1,114 @@
+"""THE list of env backends. Adding one is a package under `canter.envs` exposing `BACKEND` plus one line here.
+
+Each backend's package is imported on first use, and importing it imports no env library, so config validation and
+the CLI read the names here without paying for gymnasium, envpool or mujoco.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from canter.errors import CanterError
+
+if TYPE_CHECKING:
+    from canter.envs.base import Backend, VecEnv
+
+AUTO = "auto"
+
+# name -> package. The order is `auto`'s: it takes the first backend that has the id.
+_BACKENDS = {
+    "envpool": "canter.envs.envpool",
+    "gymnasium": "canter.envs.gymnasium",
+}
+
+
+def backend_names() -> tuple[str, ...]:
+    return tuple(_BACKENDS)
+
+
+def backend_choices() -> tuple[str, ...]:
+    """What env.backend and --backend accept."""
+    return (AUTO, *_BACKENDS)
+
+
+def describe_backend_choices() -> str:
+    """The accepted names as a phrase for messages: auto, envpool or gymnasium."""
+    return _or(list(backend_choices()))
+
+
+def backend_doc() -> str:
+    """The reference text of env.backend: what `auto` picks, then the accepted names."""
+    labels = [get_backend(name).label for name in _BACKENDS]
+    order = ", else ".join([f"{label} where it has the id" for label in labels[:-1]] + labels[-1:])
+    return f"`{AUTO}` ({order}), {_or([f'`{name}`' for name in _BACKENDS])}."
+
+
+def get_backend(name: str) -> Backend:
+    if name not in _BACKENDS:
+        raise CanterError(f"unknown env backend '{name}'; use {describe_backend_choices()}")
+    return importlib.import_module(_BACKENDS[name]).BACKEND
+
+
+def backends() -> list[Backend]:
+    """Every backend, in `auto` order."""
+    return [get_backend(name) for name in _BACKENDS]
+
+
+def single_env_backend() -> Backend:
+    """The backend that builds one Gymnasium-API env at a time: robustness sweeps edit its MuJoCo model and videos
+    render it."""
+    return next(backend for backend in backends() if backend.single_envs)
+
+
+def dm_control_task(env_id: str) -> tuple[str, str] | None:
+    """(domain, task) of dm_control's suite that env_id runs, or None when it is not a DM Control env."""
+    return next((task for backend in backends() if (task := backend.dm_control_task(env_id))), None)
+
+
+def known_ids() -> list[str]:
+    return sorted({env_id for backend in backends() for env_id in backend.supported_ids()})
+
+
+def resolve_backend(env_id: str, backend: str) -> str:
+    """The name of the backend that will run env_id, or a one-line error naming the nearest known ids."""
+    if ":" in env_id:
+        return _resolve_custom(env_id, backend)
+    if backend == AUTO:
+        for candidate in backends():
+            if env_id in candidate.supported_ids():
+                return candidate.name
+        raise _unknown(env_id, known_ids(), "canter")
+    chosen = get_backend(backend)
+    if not chosen.available():
+        others = [other.name for other in backends() if other is not chosen and other.available()] or [AUTO]
+        raise CanterError(f"{chosen.label} is not installed on this platform; use --backend {_or(others)}")
+    ids = chosen.supported_ids()
+    if env_id not in ids:
+        raise _unknown(env_id, sorted(ids), chosen.label)
+    return chosen.name
+
+
+def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0,
+                 **kwargs: Any) -> VecEnv:
+    """`shards` applies to backends with pools (0: one single-threaded pool per core); kwargs go to the env."""
+    return get_backend(resolve_backend(env_id, backend)).make(env_id, num_envs, seeds, shards, **kwargs)
+
+
+def _resolve_custom(env_id: str, backend: str) -> str:
+    custom = next(candidate for candidate in backends() if candidate.custom_ids)
+    if backend not in (AUTO, custom.name):
+        raise CanterError(f"custom env '{env_id}' needs the {custom.name} backend; drop --backend {backend}")
+    custom.load_custom(env_id)
+    return custom.name
+
+
+def _unknown(env_id: str, candidates: list[str], where: str) -> CanterError:
+    close = difflib.get_close_matches(env_id, candidates, n=3, cutoff=0.6)
+    hint = f"; did you mean {', '.join(close)}?" if close else "; for a custom env pass module:EnvId"
+    return CanterError(f"unknown env id '{env_id}' for {where}{hint}")
+
+
+def _or(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"

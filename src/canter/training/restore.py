@@ -1,0 +1,45 @@
+"""A saved train state back in memory: the config, the env facts and the state of a checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.config.schema import Config
+from canter.config.serialize import from_toml_text
+from canter.training import checkpoint
+
+
+@dataclass(frozen=True)
+class PolicyFacts:
+    """What a policy needs of its env, kept in each checkpoint so that it loads without the env."""
+    env_id: str
+    backend: str
+    obs_dim: int
+    act_dim: int
+    action_low: np.ndarray
+    action_high: np.ndarray
+    global_step: int
+
+
+def load_state(run_dir: Path, checkpoint_file: Path | None = None) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
+    """(config, facts, train state, header) from the newest checkpoint of a run folder."""
+    from canter.algos import get_algorithm
+    from canter.core.runtime import setup_jax
+
+    setup_jax()
+    run_dir = Path(run_dir)
+    path = checkpoint_file or checkpoint.latest(run_dir)
+    arrays, header = checkpoint.read(path)
+    config = from_toml_text(header["config"], str(path))
+    env = header["env"]
+    facts = PolicyFacts(env_id=env["id"], backend=env["backend"], obs_dim=int(env["obs_dim"]),
+                        act_dim=int(env["act_dim"]), action_low=np.asarray(env["action_low"], np.float32),
+                        action_high=np.asarray(env["action_high"], np.float32),
+                        global_step=int(header["global_step"]))
+    template = get_algorithm(config.run.algo).init_state(config, facts)
+    state = checkpoint.restore(template, arrays, path)
+    return config, facts, state, header

@@ -1,0 +1,126 @@
+"""A run folder: its name, what it holds, its format version, and the one migration path from each older format.
+
+A run folder holds config.toml (what the run reads of its config), versions.json (the packages and machine that
+made it, and `run_format`), metrics.csv, summary.json, checkpoints/, and optionally tb/ and videos/.
+
+Formats:
+- 1: config.toml holds every config section, whether the algorithm reads it or not; versions.json has no
+  `run_format`.
+- 2: config.toml holds env, run and what the algorithm reads (`canter.config.serialize`).
+
+Reading never writes: a folder of any known format reads as the same config (keys a format-1 file holds but the
+algorithm does not read are ignored). Writing to a folder (`--resume`) first migrates it to the current format.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import secrets
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Callable
+
+from canter.config.schema import Config
+from canter.config.serialize import from_toml_text, to_toml
+from canter.errors import CanterError
+from canter.files import atomic_write_bytes
+
+RUN_FORMAT = 2
+CONFIG_FILE = "config.toml"
+VERSIONS_FILE = "versions.json"
+
+
+def _safe(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in text)
+
+
+def new_run_dir(config: Config) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    name = (f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
+            f"{stamp}-{secrets.token_hex(2)}")
+    return Path(config.run.out_dir) / name
+
+
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo where there is one (benchmark tables need more than 'x86_64')."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def versions() -> dict[str, Any]:
+    from importlib import metadata
+
+    def version(name: str) -> str | None:
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+
+    return {"canter": version("canter"), "python": platform.python_version(), "jax": version("jax"),
+            "jaxlib": version("jaxlib"), "optax": version("optax"), "envpool": version("envpool"),
+            "mujoco": version("mujoco"), "gymnasium": version("gymnasium"), "numpy": version("numpy"),
+            "platform": platform.platform(), "cpu": cpu_name(), "cpu_count": os.cpu_count()}
+
+
+def _read_versions(run_dir: Path) -> dict[str, Any]:
+    path = Path(run_dir) / VERSIONS_FILE
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _write_versions(run_dir: Path, data: dict[str, Any]) -> None:
+    atomic_write_bytes(Path(run_dir) / VERSIONS_FILE, lambda f: f.write(json.dumps(data, indent=2).encode()))
+
+
+def run_format(run_dir: Path) -> int:
+    """The folder's format version (1 when versions.json does not name one)."""
+    found = int(_read_versions(run_dir).get("run_format", 1))
+    if found > RUN_FORMAT:
+        raise CanterError(f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a "
+                          f"newer canter")
+    return found
+
+
+def read_config(run_dir: Path) -> Config:
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
+    run_format(run_dir)
+    return from_toml_text(path.read_text(), str(path))
+
+
+def write_config(run_dir: Path, config: Config) -> None:
+    atomic_write_bytes(Path(run_dir) / CONFIG_FILE, lambda f: f.write(to_toml(config).encode()))
+
+
+def create(run_dir: Path, config: Config) -> None:
+    """Start a new run folder in the current format."""
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    write_config(run_dir, config)
+    _write_versions(run_dir, dict(versions(), run_format=RUN_FORMAT))
+
+
+def _config_reads_only(run_dir: Path) -> None:
+    """1 -> 2: config.toml keeps only what the run's algorithm reads."""
+    write_config(run_dir, read_config(run_dir))
+
+
+MIGRATIONS: dict[int, Callable[[Path], None]] = {1: _config_reads_only}
+
+
+def migrate(run_dir: Path) -> None:
+    """Bring a folder to the current format in place, one version at a time."""
+    found = run_format(run_dir)
+    for version in range(found, RUN_FORMAT):
+        MIGRATIONS[version](Path(run_dir))
+        _write_versions(run_dir, dict(_read_versions(run_dir), run_format=version + 1))

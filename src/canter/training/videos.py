@@ -1,0 +1,83 @@
+"""`run.video_every`: videos of the policy rendered while it trains, each in a child process.
+
+The child runs `python -m canter.use.video` on a snapshot of the train state, so that rendering (and everything it
+imports: MuJoCo's OpenGL, Gymnasium's renderers, dm_control) stays out of the training process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+from typing import Callable, Iterator
+
+_FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
+
+
+@contextlib.contextmanager
+def quiet_fork() -> Iterator[None]:
+    """Silence JAX's warning about forking for a subprocess that execs at once."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_FORK_WARNING, category=RuntimeWarning)
+        yield
+
+
+def child_env() -> dict[str, str]:
+    """This process's environment, with the folder that holds the canter package first on PYTHONPATH."""
+    source = str(Path(__file__).resolve().parents[2])
+    path = os.environ.get("PYTHONPATH")
+    return dict(os.environ, PYTHONPATH=source + (os.pathsep + path if path else ""))
+
+
+class TrainingVideos:
+    """At every multiple of `every` env steps, snapshot the train state and render one episode to
+    RUN/videos/step_<step>.mp4 in a separate, lower-priority process. A renderer crash (MuJoCo aborts the process on
+    some errors) costs only that video and a warning; training never waits except for the previous video (one at a
+    time) and, at the end, for the last one."""
+
+    WAIT_SECONDS = 900
+
+    def __init__(self, run_dir: Path, every: int, start_step: int) -> None:
+        """every == 0 switches videos off."""
+        self.folder = Path(run_dir) / "videos"
+        self.every = every
+        self.next_step = (start_step // every + 1) * every if every else None
+        self._job: tuple[subprocess.Popen, Path, int] | None = None
+
+    def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
+        if self.next_step is None or step < self.next_step:
+            return
+        self.next_step = (step // self.every + 1) * self.every
+        self._finish()
+        self.folder.mkdir(parents=True, exist_ok=True)
+        snapshot = self.folder / f".snapshot_{step:012d}.npz"
+        save_snapshot(snapshot)
+        request = dict(run_dir=str(self.folder.parent), out_path=str(self.folder / f"step_{step:012d}.mp4"),
+                       checkpoint_file=str(snapshot), episodes=1, nice=10)
+        with open(self.folder / "render.log", "a") as log, quiet_fork():
+            process = subprocess.Popen([sys.executable, "-m", "canter.use.video", json.dumps(request)],
+                                       stdout=log, stderr=log, stdin=subprocess.DEVNULL, env=child_env(),
+                                       start_new_session=True)
+        self._job = (process, snapshot, step)
+
+    def _finish(self) -> None:
+        if self._job is None:
+            return
+        process, snapshot, step = self._job
+        self._job = None
+        try:
+            code = process.wait(timeout=self.WAIT_SECONDS)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            code = process.wait()
+        snapshot.unlink(missing_ok=True)
+        if code != 0:
+            print(f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
+                  file=sys.stderr)
+
+    def close(self) -> None:
+        self._finish()

@@ -1,0 +1,145 @@
+"""The env backend registry: every registered backend works behind the protocol, `auto` follows registry order, and
+backend names are spelled only in the registry and the backends' own packages."""
+
+import ast
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from canter.envs import registry
+from canter.envs.registry import (
+    backend_choices,
+    backend_names,
+    backends,
+    describe_backend_choices,
+    get_backend,
+    known_ids,
+    make_vec_env,
+    resolve_backend,
+    single_env_backend,
+)
+from canter.errors import CanterError
+
+SRC = Path(registry.__file__).resolve().parents[1]
+
+
+def _smoke_id(backend) -> str:
+    ids = backend.supported_ids()
+    return "Pendulum-v1" if "Pendulum-v1" in ids else sorted(ids)[0]
+
+
+@pytest.mark.parametrize("name", backend_names())
+def test_every_backend_makes_resets_steps_and_closes(name):
+    backend = get_backend(name)
+    if not backend.available():
+        pytest.skip(f"{backend.label} is not installed here")
+    env = make_vec_env(_smoke_id(backend), name, 2, [1, 2])
+    try:
+        spec = env.spec
+        assert spec.backend == name and spec.num_envs == 2 and spec.obs_dim > 0 and spec.act_dim > 0
+        assert len(spec.action_low) == len(spec.action_high) == spec.act_dim
+        obs = env.reset()
+        assert obs.shape == (2, spec.obs_dim) and obs.dtype == np.float32
+        for _ in range(3):
+            out = env.host_step(np.zeros((2, spec.act_dim), np.float32))
+            assert out.obs.shape == (2, spec.obs_dim) and out.reward.shape == (2,)
+            assert set(out.info) == set(spec.info_keys)
+
+        def run(state):
+            def body(state, _):
+                return env.jax_step(state, jnp.zeros((2, spec.act_dim), jnp.float32))
+            return jax.lax.scan(body, state, None, length=3)
+
+        _, out = jax.jit(run)(env.initial_state())
+        assert out.obs.shape == (3, 2, spec.obs_dim) and out.terminated.dtype == jnp.bool_
+    finally:
+        env.close()
+
+
+def test_registry_lines_name_their_backends():
+    assert backend_choices() == ("auto", *backend_names())
+    assert describe_backend_choices() == "auto, envpool or gymnasium"
+    for name in backend_names():
+        assert get_backend(name).name == name and get_backend(name).label
+    assert sum(backend.custom_ids for backend in backends()) >= 1
+    assert single_env_backend().single_envs
+    with pytest.raises(CanterError, match="unknown env backend 'envpol'; use auto, envpool or gymnasium"):
+        resolve_backend("Hopper-v5", "envpol")
+
+
+def test_auto_takes_the_first_backend_in_registry_order(monkeypatch):
+    for env_id in known_ids():
+        first = next(backend.name for backend in backends() if env_id in backend.supported_ids())
+        assert resolve_backend(env_id, "auto") == first, env_id
+    assert resolve_backend("Hopper-v5", "auto") == "envpool"  # both have it; EnvPool comes first
+    gymnasium_only = sorted(set(get_backend("gymnasium").supported_ids()) - set(get_backend("envpool").supported_ids()))
+    assert resolve_backend(gymnasium_only[0], "auto") == "gymnasium"
+    assert resolve_backend("canter_test_envs:DictObs-v0", "auto") == "gymnasium"  # the one that takes module:EnvId
+    monkeypatch.setattr(registry, "_BACKENDS", dict(reversed(registry._BACKENDS.items())))
+    assert resolve_backend("Hopper-v5", "auto") == "gymnasium"
+
+
+def test_config_and_registry_import_no_env_library():
+    """Config validation and the CLI's --backend choices read the registry; that must stay cheap."""
+    script = ("import sys\n"
+              "import canter.config\n"
+              "from canter.envs import registry\n"
+              "registry.backends(), registry.backend_doc()\n"
+              "print(sorted(m for m in ('envpool', 'gymnasium', 'mujoco') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+def _backend_name_uses(path: Path, names: tuple[str, ...]) -> list[str]:
+    """String literals outside docstrings that spell a backend name as a word. Allowed: a library's dotted module
+    path (envpool.registration), longer names (envpool_shards) and package metadata lookups, `version("envpool")`
+    and its `"envpool":` dict key."""
+    word = re.compile(rf"(?<![\w.\-])({'|'.join(names)})(?![\w.\[])")
+    tree = ast.parse(path.read_text())
+    allowed = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body \
+                and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant):
+            allowed.add(id(node.body[0].value))
+        if _is_version_call(node):
+            allowed.update(id(arg) for arg in node.args)
+        if isinstance(node, ast.Dict):
+            allowed.update(id(key) for key, value in zip(node.keys, node.values) if _is_version_call(value))
+    return [f"{path.name}:{node.lineno}: {node.value!r}" for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in allowed
+            and word.search(node.value)]
+
+
+def _is_version_call(node) -> bool:
+    return isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "version"
+
+
+def test_backend_names_are_spelled_only_in_the_registry_and_the_backends():
+    envs = SRC / "envs"
+    uses = [use for path in sorted(SRC.rglob("*.py")) if envs not in path.parents
+            for use in _backend_name_uses(path, backend_names())]
+    assert uses == [], "ask canter.envs.registry instead of naming a backend:\n" + "\n".join(uses)
+
+
+def test_the_name_scan_flags_names_and_spares_library_references(tmp_path):
+    sample = tmp_path / "sample.py"
+    sample.write_text('''"""Runs on "envpool" or gymnasium."""
+import importlib
+from importlib.metadata import version
+
+versions = {"envpool": version("envpool")}
+importlib.import_module("envpool.registration")
+shards = "env.envpool_shards"
+extra = "gymnasium[mujoco]"
+backend = "gymnasium"
+hint = f"use --backend envpool for {shards}"
+''')
+    assert _backend_name_uses(sample, ("envpool", "gymnasium")) == [
+        "sample.py:9: 'gymnasium'", "sample.py:10: 'use --backend envpool for '"]
