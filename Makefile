@@ -1,12 +1,13 @@
 # make demo: fresh machine -> venv, install, train Hopper-v5 with the default preset, evaluate, print the score.
-# make test: fresh machine -> venv, install, run the whole suite.
-# make test-fast: the same without the slow tests (pytest -m "not slow"): the unit tests, in under 2 minutes.
+# make lint: ruff (lint and format check) and mypy, which must report nothing.
+# make test: fresh machine -> venv, install, lint, run the whole suite.
+# make test-fast: lint, then the suite without the slow tests (pytest -m "not slow"): the unit tests, in under 2 minutes.
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 DEMO_DIR ?= runs/demo
 
-.PHONY: install test test-fast demo bench clean docs
+.PHONY: install lint test test-fast demo bench clean docs
 
 install: $(VENV)/.installed
 
@@ -16,10 +17,13 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e ".[test,distributed]"
 	touch $@
 
-test: install
+lint: install
+	$(VENV)/bin/ruff check src tests benchmarks && $(VENV)/bin/ruff format --check src tests benchmarks && $(VENV)/bin/mypy
+
+test: lint
 	$(PY) -m pytest -q --durations=15
 
-test-fast: install
+test-fast: lint
 	$(PY) -m pytest -q -m "not slow"
 
 demo: install
@@ -34,4 +38,4 @@ bench: install
 	bash benchmarks/ppo_speed/run.sh
 
 clean:
-	rm -rf $(VENV) build *.egg-info src/*.egg-info
+	rm -rf $(VENV) build *.egg-info src/*.egg-info .mypy_cache .ruff_cache

@@ -73,20 +73,27 @@ def cells(found: dict[str, dict]):
 
 
 def results_table(found: dict[str, dict]) -> str:
-    lines = ["| env | algo | seed | eval return (10 episodes, deterministic) | train return (last 20 eps) | wall min "
-             "| SPS | published (1M) |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    lines = [
+        "| env | algo | seed | eval return (10 episodes, deterministic) | train return (last 20 eps) | wall min "
+        "| SPS | published (1M) |",
+        "|---|---|---:|---:|---:|---:|---:|---|",
+    ]
     for algo, env, variant, rows in cells(found):
         published = published_for(algo, env, BUDGET)
         name = label(algo, variant)
         for r in rows:
             e, s = r["evaluation"], r["summary"]
-            lines.append(f"| {env} | {name} | {r['seed']} | **{e['mean']:,.0f} ± {e['std']:,.0f}** | "
-                         f"{s['recent_return']:,.0f} | {r['wall_seconds'] / 60:.1f} | {r['sps']:.0f} | "
-                         f"{published} |")
+            lines.append(
+                f"| {env} | {name} | {r['seed']} | **{e['mean']:,.0f} ± {e['std']:,.0f}** | "
+                f"{s['recent_return']:,.0f} | {r['wall_seconds'] / 60:.1f} | {r['sps']:.0f} | "
+                f"{published} |"
+            )
         if len(rows) > 1:
             means = [r["eval_mean"] for r in rows]
-            lines.append(f"| {env} | {name} | mean of {len(rows)} | **{np.mean(means):,.0f} ± {np.std(means):,.0f}**"
-                         f" (median {np.median(means):,.0f}) | | | | {published} |")
+            lines.append(
+                f"| {env} | {name} | mean of {len(rows)} | **{np.mean(means):,.0f} ± {np.std(means):,.0f}**"
+                f" (median {np.median(means):,.0f}) | | | | {published} |"
+            )
     return "\n".join(lines)
 
 
@@ -95,8 +102,10 @@ def readme_table(found: dict[str, dict]) -> str:
     for algo, env, variant, rows in cells(found):
         per_seed = ", ".join(f"{r['eval_mean']:,.0f} (s{r['seed']})" for r in rows)
         mean = np.mean([r["eval_mean"] for r in rows])
-        lines.append(f"| {env} | {label(algo, variant)} | {len(rows)} | {per_seed} | **{mean:,.0f}** | "
-                     f"{published_for(algo, env, BUDGET)} |")
+        lines.append(
+            f"| {env} | {label(algo, variant)} | {len(rows)} | {per_seed} | **{mean:,.0f}** | "
+            f"{published_for(algo, env, BUDGET)} |"
+        )
     return "\n".join(lines)
 
 
@@ -128,9 +137,13 @@ def main() -> int:
     stale = []
     # Bytes, not text: results.csv has \r\n line ends, which text mode would translate.
     read = lambda path: path.read_bytes().decode() if path.is_file() else ""  # noqa: E731
-    wanted = {path: replace_after(read(path), marker, table) for path, marker, table in (
-        (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
-        (ROOT / "README.md", README_MARKER, readme_table(found)))}
+    wanted = {
+        path: replace_after(read(path), marker, table)
+        for path, marker, table in (
+            (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
+            (ROOT / "README.md", README_MARKER, readme_table(found)),
+        )
+    }
     for variant, archive in VARIANTS.items():
         wanted.update({archive / name: content for name, content in bench_files(found[variant]).items()})
     for path, new in wanted.items():
@@ -145,8 +158,10 @@ def main() -> int:
                 if folders:
                     plot_env(folders, archive / f"plot_{env}.png")
     if args.check and stale:
-        print(f"stale off-policy tables in {', '.join(map(str, stale))}; run python benchmarks/offpolicy_tables.py",
-              file=sys.stderr)
+        print(
+            f"stale off-policy tables in {', '.join(map(str, stale))}; run python benchmarks/offpolicy_tables.py",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -6,6 +6,7 @@ import numpy as np
 
 class NaNAfter(gym.Env):
     """Returns a NaN observation after `after` steps."""
+
     observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
     action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
 
@@ -38,8 +39,10 @@ class DiscreteObs(gym.Env):
 
 class DictObs(gym.Env):
     """Dict observation; counts steps so episode lengths are known (terminates at 7, truncated by 10)."""
-    observation_space = gym.spaces.Dict({"b": gym.spaces.Box(-1, 1, (2,), np.float32),
-                                         "a": gym.spaces.Box(-1, 1, (1,), np.float32)})
+
+    observation_space = gym.spaces.Dict(
+        {"b": gym.spaces.Box(-1, 1, (2,), np.float32), "a": gym.spaces.Box(-1, 1, (1,), np.float32)}
+    )
     action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
 
     def reset(self, *, seed=None, options=None):

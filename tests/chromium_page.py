@@ -8,6 +8,7 @@ needed. Chromium's own --enable-logging output does not tell console levels apar
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -20,8 +21,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync", "--mute-audio", "--remote-debugging-pipe"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--mute-audio",
+    "--remote-debugging-pipe",
+]
 
 # Waits for every video to have decoded a frame (or failed), then describes the page's media.
 MEDIA_STATE = """
@@ -97,8 +107,12 @@ def _errors(events: list[dict]) -> list[str]:
     for event in events:
         method, params = event.get("method"), event.get("params", {})
         if method == "Runtime.consoleAPICalled" and params.get("type") in ("error", "assert"):
-            found.append("console." + params["type"] + ": " + " ".join(
-                str(a.get("value", a.get("description", ""))) for a in params.get("args", [])))
+            found.append(
+                "console."
+                + params["type"]
+                + ": "
+                + " ".join(str(a.get("value", a.get("description", ""))) for a in params.get("args", []))
+            )
         elif method == "Runtime.exceptionThrown":
             details = params.get("exceptionDetails", {})
             found.append("exception: " + details.get("exception", {}).get("description", details.get("text", "")))
@@ -114,9 +128,13 @@ def inspect_page(path: str | Path, timeout: float = 90.0) -> PageReport:
     profile = tempfile.mkdtemp(prefix="canter-chromium-")
     command = " ".join(shlex.quote(part) for part in [CHROMIUM, *FLAGS, f"--user-data-dir={profile}"])
     # bash, not sh: dash redirects only single-digit descriptors.
-    process = subprocess.Popen(["/bin/bash", "-c", f"exec {command} 3<&{to_chrome_read} 4>&{from_chrome_write}"],
-                               pass_fds=(to_chrome_read, from_chrome_write), stdin=subprocess.DEVNULL,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(
+        ["/bin/bash", "-c", f"exec {command} 3<&{to_chrome_read} 4>&{from_chrome_write}"],
+        pass_fds=(to_chrome_read, from_chrome_write),
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     os.close(to_chrome_read)
     os.close(from_chrome_write)
     pipe = _Pipe(to_chrome_write, from_chrome_read, timeout)
@@ -129,14 +147,20 @@ def inspect_page(path: str | Path, timeout: float = 90.0) -> PageReport:
         loaded = "errorText" not in navigation
         if loaded:
             pipe.wait_for("Page.loadEventFired")
-        media = json.loads(pipe.send("Runtime.evaluate", {"expression": MEDIA_STATE, "awaitPromise": True,
-                                                          "returnByValue": True}, session=session)["result"]["value"])
-        dom = pipe.send("Runtime.evaluate", {"expression": "document.documentElement.outerHTML",
-                                             "returnByValue": True}, session=session)["result"]["value"]
-        try:
+        media = json.loads(
+            pipe.send(
+                "Runtime.evaluate",
+                {"expression": MEDIA_STATE, "awaitPromise": True, "returnByValue": True},
+                session=session,
+            )["result"]["value"]
+        )
+        dom = pipe.send(
+            "Runtime.evaluate",
+            {"expression": "document.documentElement.outerHTML", "returnByValue": True},
+            session=session,
+        )["result"]["value"]
+        with contextlib.suppress(RuntimeError):  # the pipe may close before the reply arrives
             pipe.send("Browser.close")
-        except RuntimeError:
-            pass   # the pipe may close before the reply arrives
         return PageReport(loaded, dom, media, _errors(pipe.events))
     finally:
         os.close(to_chrome_write)

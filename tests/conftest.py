@@ -1,3 +1,4 @@
+import contextlib
 import os
 
 import pytest
@@ -36,9 +37,20 @@ def tiny_run(tmp_path_factory):
     from canter.config.build import build_config
 
     out = tmp_path_factory.mktemp("shared_runs")
-    config = build_config("Pendulum-v1", preset="fast", total_steps=8192,
-                          sets=TINY + [f"run.out_dir={out}", "run.checkpoint_every=4096", "env.num_envs=4",
-                                       "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2"])
+    config = build_config(
+        "Pendulum-v1",
+        preset="fast",
+        total_steps=8192,
+        sets=TINY
+        + [
+            f"run.out_dir={out}",
+            "run.checkpoint_every=4096",
+            "env.num_envs=4",
+            "ppo.n_steps=256",
+            "ppo.minibatch_size=256",
+            "ppo.epochs=2",
+        ],
+    )
     return _train_inside(out, config)
 
 
@@ -47,10 +59,8 @@ def _choose_gl() -> None:
     from canter.errors import CanterError
     from canter.use.video import configure_gl
 
-    try:
+    with contextlib.suppress(CanterError):  # the video tests then fail with the message naming the package to install
         configure_gl()
-    except CanterError:
-        pass  # the video tests then fail with the message naming the package to install
 
 
 _choose_gl()
@@ -63,9 +73,21 @@ def tiny_hopper_run(tmp_path_factory):
     from canter.training.loop import train
 
     out = tmp_path_factory.mktemp("hopper_runs")
-    config = build_config("Hopper-v5", preset="fast", total_steps=256, seed=1,
-                          sets=TINY + [f"run.out_dir={out}", "env.backend=envpool", "env.num_envs=2",
-                                       "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
+    config = build_config(
+        "Hopper-v5",
+        preset="fast",
+        total_steps=256,
+        seed=1,
+        sets=TINY
+        + [
+            f"run.out_dir={out}",
+            "env.backend=envpool",
+            "env.num_envs=2",
+            "ppo.n_steps=64",
+            "ppo.minibatch_size=128",
+            "ppo.epochs=1",
+        ],
+    )
     return train(config).run_dir
 
 

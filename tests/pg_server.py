@@ -35,8 +35,10 @@ def _free_port() -> int:
 def postgres_url():
     bin_dir = _bin_dir()
     if bin_dir is None or not (bin_dir / "pg_ctl").exists():
-        pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) are not installed; .ci/run installs the "
-                    "Debian postgresql package")
+        pytest.skip(
+            "PostgreSQL server binaries (initdb, pg_ctl) are not installed; .ci/run installs the "
+            "Debian postgresql package"
+        )
     as_user: list[str] = []
     folder = Path(tempfile.mkdtemp(prefix="canter-pg-"))
     if os.geteuid() == 0:
@@ -48,14 +50,30 @@ def postgres_url():
         as_user = ["runuser", "-u", "postgres", "--"]
     data, log = folder / "data", folder / "server.log"
     port = _free_port()
-    run = lambda *args: subprocess.run(as_user + [str(a) for a in args], check=True, capture_output=True,  # noqa
-                                       timeout=120)
+
+    def run(*args: object) -> subprocess.CompletedProcess:
+        return subprocess.run(as_user + [str(a) for a in args], check=True, capture_output=True, timeout=120)
+
     run(bin_dir / "initdb", "-D", data, "-A", "trust", "-U", "postgres", "--no-sync", "-E", "UTF8")
-    run(bin_dir / "pg_ctl", "-D", data, "-l", log, "-w", "-t", "60", "-o",
-        f"-p {port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=50", "start")
+    run(
+        bin_dir / "pg_ctl",
+        "-D",
+        data,
+        "-l",
+        log,
+        "-w",
+        "-t",
+        "60",
+        "-o",
+        f"-p {port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=50",
+        "start",
+    )
     try:
         yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
     finally:
-        subprocess.run(as_user + [str(bin_dir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
-                       capture_output=True, timeout=60)
+        subprocess.run(
+            as_user + [str(bin_dir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
+            capture_output=True,
+            timeout=60,
+        )
         shutil.rmtree(folder, ignore_errors=True)

@@ -1,4 +1,3 @@
-
 import pytest
 
 from canter.algos import algorithm_names, check_algorithm_name, get_algorithm
@@ -36,8 +35,11 @@ def test_continuous_only_algorithms_name_themselves_for_discrete_actions(tmp_pat
 def test_env_dependent_checks_happen_before_any_work(tmp_path):
     from canter.training.loop import train
 
-    config = build_config("Hopper-v4", algo="rpo", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4",
-                                                         "sym.coef=0.02", "sym.groups=3:7=7:11,11:14=14:17"])
+    config = build_config(
+        "Hopper-v4",
+        algo="rpo",
+        sets=[f"run.out_dir={tmp_path}", "env.num_envs=4", "sym.coef=0.02", "sym.groups=3:7=7:11,11:14=14:17"],
+    )
     with pytest.raises(CanterError, match=r"sym.groups: index 16 is out of the action range 0..2 .*\(rpo\)"):
         train(config)
     with pytest.raises(CanterError, match=r"sym.coef has no effect on trpo, .*drop it"):

@@ -17,9 +17,22 @@ from canter.orchestrate.bench import (
     varying_keys,
 )
 
-TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4",
-        "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2",
-        "--set", "run.checkpoint_every=512"]
+TINY = [
+    "--set",
+    "net.hidden=16,16",
+    "--set",
+    "run.tensorboard=false",
+    "--set",
+    "env.num_envs=4",
+    "--set",
+    "ppo.n_steps=128",
+    "--set",
+    "ppo.minibatch_size=256",
+    "--set",
+    "ppo.epochs=2",
+    "--set",
+    "run.checkpoint_every=512",
+]
 
 
 def test_published_scores_are_shipped_with_their_sources():
@@ -36,9 +49,13 @@ def test_published_scores_are_shipped_with_their_sources():
 
 
 def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
-    settings = BenchSettings(algos=("ppo",), envs=("Hopper-v5", "Walker2d-v5"), seeds=(0, 1), total_steps=1000,
-                             grid=(("ppo.ent_coef", ("0.01", "1e-4", "0")), ("net.hidden", ("64-64",)),
-                                   ("ppo.clip", ("0.2",))))
+    settings = BenchSettings(
+        algos=("ppo",),
+        envs=("Hopper-v5", "Walker2d-v5"),
+        seeds=(0, 1),
+        total_steps=1000,
+        grid=(("ppo.ent_coef", ("0.01", "1e-4", "0")), ("net.hidden", ("64-64",)), ("ppo.clip", ("0.2",))),
+    )
     cells = make_cells(settings)
     assert len(cells) == 2 * 3
     names = [c.name for c in cells]
@@ -50,34 +67,51 @@ def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
     assert varying_keys(cells) == ["ppo.ent_coef"]
     assert cells[0].run_dir(Path("b"), 1) == Path("b") / (names[0] + "__s1")
     # run.algo as a grid axis is the algorithm axis (seed 000's ablation: PPO vs RPO, entropy coef).
-    algo_cells = make_cells(BenchSettings(algos=(), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
-                                          grid=(("run.algo", ("ppo", "rpo")), ("ppo.ent_coef", ("0", "0.01")))))
+    algo_cells = make_cells(
+        BenchSettings(
+            algos=(),
+            envs=("Hopper-v5",),
+            seeds=(0,),
+            total_steps=1000,
+            grid=(("run.algo", ("ppo", "rpo")), ("ppo.ent_coef", ("0", "0.01"))),
+        )
+    )
     assert [(c.algo, c.config.run.algo, c.config.ppo.ent_coef) for c in algo_cells] == [
-        ("ppo", "ppo", 0.0), ("ppo", "ppo", 0.01), ("rpo", "rpo", 0.0), ("rpo", "rpo", 0.01)]
+        ("ppo", "ppo", 0.0),
+        ("ppo", "ppo", 0.01),
+        ("rpo", "rpo", 0.0),
+        ("rpo", "rpo", 0.01),
+    ]
     assert algo_cells[3].name == "Hopper-v5__rpo__ppo.ent_coef=0.01"
 
 
 def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
-    cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0, 1),
-                                     total_steps=1000))
+    cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0, 1), total_steps=1000))
     jobs = make_jobs(cells, (0, 1))
     assert [(j.name, j.seeds) for j in jobs] == [
-        ("Hopper-v5__ppo", (0, 1)), ("Hopper-v5__td3__s0", (0,)), ("Hopper-v5__td3__s1", (1,)),
-        ("Hopper-v5__sac__s0", (0,)), ("Hopper-v5__sac__s1", (1,))]
+        ("Hopper-v5__ppo", (0, 1)),
+        ("Hopper-v5__td3__s0", (0,)),
+        ("Hopper-v5__td3__s1", (1,)),
+        ("Hopper-v5__sac__s0", (0,)),
+        ("Hopper-v5__sac__s1", (1,)),
+    ]
     assert jobs[1].cell is jobs[2].cell is cells[1]
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--algos", "ppo,nope"], "unknown algorithm 'nope'"),
-    (["--envs", "Hopper-v5,Hoper-v5"], "unknown env id 'Hoper-v5'"),
-    (["--grid", "ppo.entcoef=0,1"], "unknown config key 'ppo.entcoef'"),
-    (["--grid", "ppo.epochs=1,x"], "ppo.epochs: expected an integer"),
-    (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
-    (["--grid", "run.seed=1,2"], "use --seeds"),
-    (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
-    (["--seeds", "0,x"], "expected whole numbers separated by commas"),
-    (["--seeds", "1,2,1"], "each seed may appear once"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--algos", "ppo,nope"], "unknown algorithm 'nope'"),
+        (["--envs", "Hopper-v5,Hoper-v5"], "unknown env id 'Hoper-v5'"),
+        (["--grid", "ppo.entcoef=0,1"], "unknown config key 'ppo.entcoef'"),
+        (["--grid", "ppo.epochs=1,x"], "ppo.epochs: expected an integer"),
+        (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
+        (["--grid", "run.seed=1,2"], "use --seeds"),
+        (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
+        (["--seeds", "0,x"], "expected whole numbers separated by commas"),
+        (["--seeds", "1,2,1"], "each seed may appear once"),
+    ],
+)
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
     base = ["bench", "--seeds", "0", "--total-steps", "1000", "--out", str(tmp_path / "b")]
     if "--envs" not in argv:
@@ -93,8 +127,9 @@ def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monke
 
     monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3)
-    assert capsys.readouterr().err == ("canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow "
-                                       "each other down\n")
+    assert capsys.readouterr().err == (
+        "canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow each other down\n"
+    )
     canter.orchestrate.jobs.warn_if_more_jobs_than_cores(2)
     assert capsys.readouterr().err == ""
     # A refused command prints its one-line error and nothing else, whatever --jobs says.
@@ -114,8 +149,23 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     from canter.use.policy import load
 
     out = tmp_path / "bench"
-    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0,1", "--total-steps", "1024",
-            "--grid", "ppo.ent_coef=0,0.01", "--eval-episodes", "2", "--jobs", "2", "--out", str(out)] + TINY
+    argv = [
+        "bench",
+        "--envs",
+        "InvertedPendulum-v4",
+        "--seeds",
+        "0,1",
+        "--total-steps",
+        "1024",
+        "--grid",
+        "ppo.ent_coef=0,0.01",
+        "--eval-episodes",
+        "2",
+        "--jobs",
+        "2",
+        "--out",
+        str(out),
+    ] + TINY
     code = main(argv)
     captured = capsys.readouterr()
     assert code == 0, captured.err
@@ -174,9 +224,27 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     import optuna
 
     url = f"sqlite:///{tmp_path / 'grid.db'}"
-    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "512", "--grid",
-            "ppo.clip=0.1,0.2", "--eval-episodes", "1", "--storage", url, "--study", "grid", "--heartbeat", "2",
-            "--out", str(tmp_path / "bench")] + TINY
+    argv = [
+        "bench",
+        "--envs",
+        "InvertedPendulum-v4",
+        "--seeds",
+        "0",
+        "--total-steps",
+        "512",
+        "--grid",
+        "ppo.clip=0.1,0.2",
+        "--eval-episodes",
+        "1",
+        "--storage",
+        url,
+        "--study",
+        "grid",
+        "--heartbeat",
+        "2",
+        "--out",
+        str(tmp_path / "bench"),
+    ] + TINY
     assert main(argv) == 0, capsys.readouterr().err
     study = optuna.load_study(study_name="grid", storage=url)
     cells = sorted(t.params["cell"] for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE)
@@ -194,8 +262,21 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
 @pytest.mark.slow
 def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys):
     out = tmp_path / "bench"
-    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "4096", "--eval-episodes", "1",
-            "--out", str(out), "--set", "run.max_minutes=0.0001"] + TINY
+    argv = [
+        "bench",
+        "--envs",
+        "InvertedPendulum-v4",
+        "--seeds",
+        "0",
+        "--total-steps",
+        "4096",
+        "--eval-episodes",
+        "1",
+        "--out",
+        str(out),
+        "--set",
+        "run.max_minutes=0.0001",
+    ] + TINY
     code = main(argv)
     captured = capsys.readouterr()
     assert code != 0 and "Traceback" not in captured.err
@@ -206,9 +287,22 @@ def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys)
     assert summary["stop_reason"] == "max_minutes" and summary["global_step"] < 4096
 
 
-TINY_TD3 = ["--set", "td3.hidden=16,16", "--set", "run.tensorboard=false", "--set", "td3.learning_starts=100",
-            "--set", "td3.buffer_size=1000", "--set", "td3.batch_size=32", "--set", "td3.steps_per_call=100",
-            "--set", "run.checkpoint_every=200"]
+TINY_TD3 = [
+    "--set",
+    "td3.hidden=16,16",
+    "--set",
+    "run.tensorboard=false",
+    "--set",
+    "td3.learning_starts=100",
+    "--set",
+    "td3.buffer_size=1000",
+    "--set",
+    "td3.batch_size=32",
+    "--set",
+    "td3.steps_per_call=100",
+    "--set",
+    "run.checkpoint_every=200",
+]
 
 
 @pytest.mark.slow
@@ -218,19 +312,35 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
 
     out = tmp_path / "bench"
     url = f"sqlite:///{tmp_path / 'grid.db'}"
-    argv = ["bench", "--algos", "td3", "--envs", "Pendulum-v1", "--seeds", "0,1", "--total-steps", "400",
-            "--eval-episodes", "1", "--out", str(out)] + TINY_TD3
+    argv = [
+        "bench",
+        "--algos",
+        "td3",
+        "--envs",
+        "Pendulum-v1",
+        "--seeds",
+        "0,1",
+        "--total-steps",
+        "400",
+        "--eval-episodes",
+        "1",
+        "--out",
+        str(out),
+    ] + TINY_TD3
     assert main(argv + ["--storage", url, "--study", "td3", "--heartbeat", "2"]) == 0, capsys.readouterr().err
     study = optuna.load_study(study_name="td3", storage=url)
-    done = sorted((t.params["cell"], [r["seed"] for r in t.user_attrs["records"]]) for t in study.trials
-                  if t.state == optuna.trial.TrialState.COMPLETE)
+    done = sorted(
+        (t.params["cell"], [r["seed"] for r in t.user_attrs["records"]])
+        for t in study.trials
+        if t.state == optuna.trial.TrialState.COMPLETE
+    )
     assert done == [("Pendulum-v1__td3__s0", [0]), ("Pendulum-v1__td3__s1", [1])]
     [stored] = read_rows(out / "results.csv")
     means = [json.loads((out / f"Pendulum-v1__td3__s{s}" / "eval.json").read_text())["mean"] for s in (0, 1)]
     assert stored["seeds"] == "2" and float(stored["return_mean"]) == pytest.approx(np.mean(means), abs=1e-3)
     capsys.readouterr()
 
-    assert main(argv) == 0   # locally: both seeds' jobs are found finished, and the row is the same
+    assert main(argv) == 0  # locally: both seeds' jobs are found finished, and the row is the same
     printed = capsys.readouterr().out
     assert "skip Pendulum-v1__td3__s0 (finished)" in printed and "skip Pendulum-v1__td3__s1 (finished)" in printed
     [local] = read_rows(out / "results.csv")
@@ -243,35 +353,59 @@ def test_a_resumed_runs_record_counts_every_session(tmp_path):
     # The summary of the last session, as runs resumed before totals were carried over wrote it.
     (tmp_path / "summary.json").write_text(json.dumps({"global_step": 300, "wall_seconds": 5.0, "sps": 40.0}))
     (tmp_path / "eval.json").write_text(json.dumps({"mean": 7.0}))
-    (tmp_path / "metrics.csv").write_text("global_step,iteration,wall_time,sps,episodes\n"
-                                          "100,1,10.0,10.0,1\n200,2,20.0,10.0,1\n300,3,5.0,40.0,1\n")
+    (tmp_path / "metrics.csv").write_text(
+        "global_step,iteration,wall_time,sps,episodes\n100,1,10.0,10.0,1\n200,2,20.0,10.0,1\n300,3,5.0,40.0,1\n"
+    )
     record = seed_record(tmp_path, 0)
-    assert record == {"seed": 0, "eval_mean": 7.0, "wall_seconds": pytest.approx(25.0),
-                      "sps": pytest.approx(300 / (10 + 10 + 2.5))}
+    assert record == {
+        "seed": 0,
+        "eval_mean": 7.0,
+        "wall_seconds": pytest.approx(25.0),
+        "sps": pytest.approx(300 / (10 + 10 + 2.5)),
+    }
 
 
 def test_a_set_reaches_the_cells_whose_algorithm_reads_it():
     from canter.errors import CanterError
 
-    cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
-                                     sets=("td3.tau=0.01", "sac.tau=0.02", "net.hidden=32,32")))
+    cells = make_cells(
+        BenchSettings(
+            algos=("ppo", "td3", "sac"),
+            envs=("Hopper-v5",),
+            seeds=(0,),
+            total_steps=1000,
+            sets=("td3.tau=0.01", "sac.tau=0.02", "net.hidden=32,32"),
+        )
+    )
     by_algo = {c.algo: c.config for c in cells}
     assert by_algo["td3"].td3.tau == 0.01 and by_algo["sac"].sac.tau == 0.02
     assert by_algo["ppo"].net.hidden == (32, 32) and by_algo["td3"].td3.hidden == (256, 256)
     with pytest.raises(CanterError, match=r"^--set net.hidden has no effect on td3, .*set td3.hidden instead$"):
-        make_cells(BenchSettings(algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
-                                 sets=("net.hidden=32,32",)))
+        make_cells(
+            BenchSettings(
+                algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000, sets=("net.hidden=32,32",)
+            )
+        )
     # A grid over a key one algorithm ignores would give that algorithm identical cells.
     with pytest.raises(CanterError, match=r"^--grid td3.tau: td3.tau has no effect on sac, .*of its own$"):
-        make_cells(BenchSettings(algos=("td3", "sac"), envs=("Hopper-v5",), seeds=(0,), total_steps=1000,
-                                 grid=(("td3.tau", ("0.01", "0.02")),)))
+        make_cells(
+            BenchSettings(
+                algos=("td3", "sac"),
+                envs=("Hopper-v5",),
+                seeds=(0,),
+                total_steps=1000,
+                grid=(("td3.tau", ("0.01", "0.02")),),
+            )
+        )
 
 
 def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
     from canter.orchestrate.bench import combine_records, results_table
 
-    records = [{"seed": 0, "eval_mean": 10.0, "wall_seconds": 600.0, "sps": 100.0},
-               {"seed": 1, "eval_mean": 20.0, "wall_seconds": 1200.0, "sps": 300.0}]
+    records = [
+        {"seed": 0, "eval_mean": 10.0, "wall_seconds": 600.0, "sps": 100.0},
+        {"seed": 1, "eval_mean": 20.0, "wall_seconds": 1200.0, "sps": 300.0},
+    ]
     settings = BenchSettings(algos=("ppo", "td3"), envs=("Hopper-v5",), seeds=(0, 1), total_steps=1000)
     ppo, td3 = sorted(make_cells(settings), key=lambda c: c.algo)
     # A vmapped group: one process, so the slowest seed's wall time and the seeds' rates together.

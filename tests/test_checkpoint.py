@@ -16,8 +16,10 @@ def _state(seed=0):
 
 def _equal(a, b):
     la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
-    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) and
-                                      np.asarray(x).dtype == np.asarray(y).dtype for x, y in zip(la, lb))
+    return len(la) == len(lb) and all(
+        np.array_equal(np.asarray(x), np.asarray(y)) and np.asarray(x).dtype == np.asarray(y).dtype
+        for x, y in zip(la, lb)
+    )
 
 
 def test_round_trip_is_exact_and_leaves_no_temp_files(tmp_path):
@@ -65,8 +67,7 @@ def test_prune_keeps_newest(tmp_path):
     for step in (10, 20, 30, 40):
         checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})
     checkpoint.prune(tmp_path, 2)
-    assert [p.name for p in checkpoint.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz",
-                                                                      "ckpt_000000000040.npz"]
+    assert [p.name for p in checkpoint.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz", "ckpt_000000000040.npz"]
     assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"
     empty = tmp_path / "empty_run"
     empty.mkdir()
@@ -84,7 +85,7 @@ def test_compressed_checkpoint_reads_back_the_same_and_is_smaller(tmp_path):
     ckpt.save(packed, state, {"global_step": 1}, compress=True)
     assert packed.stat().st_size < plain.stat().st_size / 10
     for path in (plain, packed):
-        arrays, header = ckpt.read(path)
+        arrays, _header = ckpt.read(path)
         restored = ckpt.restore(state, arrays, path)
         np.testing.assert_array_equal(restored["w"], state["w"])
         np.testing.assert_array_equal(restored["buffer"], state["buffer"])

@@ -5,12 +5,21 @@ import shutil
 from pathlib import Path
 
 import pytest
-from conftest import TINY
 
 from canter.cli.main import main
+from conftest import TINY
 
-FAST = ["--quiet", "--set", "env.num_envs=4", "--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256",
-        "--set", "ppo.epochs=2"] + [x for s in TINY for x in ("--set", s)]
+FAST = [
+    "--quiet",
+    "--set",
+    "env.num_envs=4",
+    "--set",
+    "ppo.n_steps=128",
+    "--set",
+    "ppo.minibatch_size=256",
+    "--set",
+    "ppo.epochs=2",
+] + [x for s in TINY for x in ("--set", s)]
 
 
 def run_cli(argv, capsys):
@@ -27,9 +36,26 @@ def only_run(folder: Path) -> Path:
 
 @pytest.mark.slow
 def test_train_eval_resume_smoke(tmp_path, capsys):
-    code, out, err = run_cli(["train", "Pendulum-v1", "--seed", "3", "--total-steps", "2e3", "--out-dir",
-                              str(tmp_path), "--preset", "cleanrl", "--set", "ppo.clip=0.1",
-                              "--set", "net.hidden=16,8"] + FAST, capsys)
+    code, out, err = run_cli(
+        [
+            "train",
+            "Pendulum-v1",
+            "--seed",
+            "3",
+            "--total-steps",
+            "2e3",
+            "--out-dir",
+            str(tmp_path),
+            "--preset",
+            "cleanrl",
+            "--set",
+            "ppo.clip=0.1",
+            "--set",
+            "net.hidden=16,8",
+        ]
+        + FAST,
+        capsys,
+    )
     assert code == 0, err
     run = only_run(tmp_path)
     assert run.name.startswith("Pendulum-v1__ppo__cleanrl__s3__")
@@ -53,19 +79,22 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_custom_gymnasium_env(tmp_path, capsys):
-    code, out, err = run_cli(["train", "canter_test_envs:DictObs-v0", "--total-steps", "1000", "--out-dir",
-                              str(tmp_path)] + FAST, capsys)
+    code, _out, err = run_cli(
+        ["train", "canter_test_envs:DictObs-v0", "--total-steps", "1000", "--out-dir", str(tmp_path)] + FAST, capsys
+    )
     assert code == 0, err
     run = only_run(tmp_path)
-    assert "backend = \"auto\"" in (run / "config.toml").read_text()
-    code, out, err = run_cli(["eval", str(run), "--episodes", "2"], capsys)
+    assert 'backend = "auto"' in (run / "config.toml").read_text()
+    code, _out, err = run_cli(["eval", str(run), "--episodes", "2"], capsys)
     assert code == 0, err
 
 
 @pytest.mark.slow
 def test_gymnasium_backend_flag(tmp_path, capsys):
-    code, out, err = run_cli(["train", "Pendulum-v1", "--backend", "gymnasium", "--total-steps", "600",
-                              "--out-dir", str(tmp_path)] + FAST, capsys)
+    code, _out, err = run_cli(
+        ["train", "Pendulum-v1", "--backend", "gymnasium", "--total-steps", "600", "--out-dir", str(tmp_path)] + FAST,
+        capsys,
+    )
     assert code == 0, err
     assert 'backend = "gymnasium"' in (only_run(tmp_path) / "config.toml").read_text()
 
@@ -113,7 +142,7 @@ def _bad_inputs(tmp_path, run):
 @pytest.mark.slow
 def test_bad_inputs_are_one_line_errors(tmp_path, capsys, tiny_run):
     for argv, message in _bad_inputs(tmp_path, tiny_run.run_dir):
-        code, out, err = run_cli(argv, capsys)
+        code, _out, err = run_cli(argv, capsys)
         assert code != 0, argv
         lines = [line for line in err.splitlines() if line.strip()]
         assert len(lines) == 1, (argv, err)
@@ -126,5 +155,5 @@ def test_quiet_is_offered_where_there_is_a_progress_bar_only(capsys):
         main(["train", "--help"])
     assert "--quiet" in capsys.readouterr().out
     for argv in (["eval", "run"], ["video", "run", "--out", "a.mp4"]):
-        code, out, err = run_cli(argv + ["--quiet"], capsys)
+        code, _out, err = run_cli(argv + ["--quiet"], capsys)
         assert code == 2 and err.count("\n") == 1 and "unrecognized arguments: --quiet" in err, err

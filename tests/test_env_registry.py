@@ -54,6 +54,7 @@ def test_every_backend_makes_resets_steps_and_closes(name):
         def run(state):
             def body(state, _):
                 return env.jax_step(state, jnp.zeros((2, spec.act_dim), jnp.float32))
+
             return jax.lax.scan(body, state, None, length=3)
 
         _, out = jax.jit(run)(env.initial_state())
@@ -87,11 +88,13 @@ def test_auto_takes_the_first_backend_in_registry_order(monkeypatch):
 
 def test_config_and_registry_import_no_env_library():
     """Config validation and the CLI's --backend choices read the registry; that must stay cheap."""
-    script = ("import sys\n"
-              "import canter.config\n"
-              "from canter.envs import registry\n"
-              "registry.backends(), registry.backend_doc()\n"
-              "print(sorted(m for m in ('envpool', 'gymnasium', 'mujoco') if m in sys.modules))\n")
+    script = (
+        "import sys\n"
+        "import canter.config\n"
+        "from canter.envs import registry\n"
+        "registry.backends(), registry.backend_doc()\n"
+        "print(sorted(m for m in ('envpool', 'gymnasium', 'mujoco') if m in sys.modules))\n"
+    )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
@@ -105,16 +108,25 @@ def _backend_name_uses(path: Path, names: tuple[str, ...]) -> list[str]:
     tree = ast.parse(path.read_text())
     allowed = set()
     for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body \
-                and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant):
+        if (
+            isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.body
+            and isinstance(node.body[0], ast.Expr)
+            and isinstance(node.body[0].value, ast.Constant)
+        ):
             allowed.add(id(node.body[0].value))
         if _is_version_call(node):
             allowed.update(id(arg) for arg in node.args)
         if isinstance(node, ast.Dict):
             allowed.update(id(key) for key, value in zip(node.keys, node.values) if _is_version_call(value))
-    return [f"{path.name}:{node.lineno}: {node.value!r}" for node in ast.walk(tree)
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in allowed
-            and word.search(node.value)]
+    return [
+        f"{path.name}:{node.lineno}: {node.value!r}"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant)
+        and isinstance(node.value, str)
+        and id(node) not in allowed
+        and word.search(node.value)
+    ]
 
 
 def _is_version_call(node) -> bool:
@@ -123,8 +135,12 @@ def _is_version_call(node) -> bool:
 
 def test_backend_names_are_spelled_only_in_the_registry_and_the_backends():
     envs = SRC / "envs"
-    uses = [use for path in sorted(SRC.rglob("*.py")) if envs not in path.parents
-            for use in _backend_name_uses(path, backend_names())]
+    uses = [
+        use
+        for path in sorted(SRC.rglob("*.py"))
+        if envs not in path.parents
+        for use in _backend_name_uses(path, backend_names())
+    ]
     assert uses == [], "ask canter.envs.registry instead of naming a backend:\n" + "\n".join(uses)
 
 
@@ -142,4 +158,6 @@ backend = "gymnasium"
 hint = f"use --backend envpool for {shards}"
 ''')
     assert _backend_name_uses(sample, ("envpool", "gymnasium")) == [
-        "sample.py:9: 'gymnasium'", "sample.py:10: 'use --backend envpool for '"]
+        "sample.py:9: 'gymnasium'",
+        "sample.py:10: 'use --backend envpool for '",
+    ]

@@ -8,13 +8,16 @@ from canter.envs import make_vec_env, resolve_backend
 from canter.errors import CanterError
 
 
-@pytest.mark.parametrize("env_id, backend, obs_dim, act_dim", [
-    ("Hopper-v5", "envpool", 11, 3),
-    ("Hopper-v5", "gymnasium", 11, 3),
-    ("Pendulum-v1", "envpool", 3, 1),
-    ("WalkerWalk-v1", "envpool", 24, 6),
-    ("canter_test_envs:DictObs-v0", "gymnasium", 3, 2),
-])
+@pytest.mark.parametrize(
+    "env_id, backend, obs_dim, act_dim",
+    [
+        ("Hopper-v5", "envpool", 11, 3),
+        ("Hopper-v5", "gymnasium", 11, 3),
+        ("Pendulum-v1", "envpool", 3, 1),
+        ("WalkerWalk-v1", "envpool", 24, 6),
+        ("canter_test_envs:DictObs-v0", "gymnasium", 3, 2),
+    ],
+)
 def test_protocol_shapes_and_dtypes(env_id, backend, obs_dim, act_dim):
     env = make_vec_env(env_id, backend if ":" not in env_id else "auto", 3, [1, 2, 3])
     try:
@@ -27,6 +30,7 @@ def test_protocol_shapes_and_dtypes(env_id, backend, obs_dim, act_dim):
             def body(state, _):
                 state, out = env.jax_step(state, jnp.zeros((3, act_dim), jnp.float32))
                 return state, out
+
             return jax.lax.scan(body, state, None, length=4)
 
         _, out = jax.jit(run)(env.initial_state())
@@ -46,14 +50,16 @@ def test_envpool_spaces_build_without_gymnasium_cast_warnings():
     import subprocess
     import sys
 
-    script = ("import numpy as np\n"
-              "from canter.envs import make_vec_env\n"
-              "for env_id in ('Pendulum-v1', 'BipedalWalker-v3'):\n"
-              "    for num_envs in (1, 2):\n"
-              "        env = make_vec_env(env_id, 'envpool', num_envs, list(range(num_envs)))\n"
-              "        env.host_step(np.zeros((num_envs, env.spec.act_dim), np.float32))\n"
-              "        env.close()\n"
-              "print('stepped')\n")
+    script = (
+        "import numpy as np\n"
+        "from canter.envs import make_vec_env\n"
+        "for env_id in ('Pendulum-v1', 'BipedalWalker-v3'):\n"
+        "    for num_envs in (1, 2):\n"
+        "        env = make_vec_env(env_id, 'envpool', num_envs, list(range(num_envs)))\n"
+        "        env.host_step(np.zeros((num_envs, env.spec.act_dim), np.float32))\n"
+        "        env.close()\n"
+        "print('stepped')\n"
+    )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "stepped" in done.stdout, done.stderr
     assert "precision lowered" not in done.stderr and "Warning" not in done.stderr, done.stderr
@@ -68,8 +74,12 @@ def test_dict_observations_are_flattened_in_key_order():
 
 def _roll(env, actions):
     outs = [env.host_step(a) for a in actions]
-    return (np.stack([o.obs for o in outs]), np.stack([o.reward for o in outs]),
-            np.stack([o.terminated for o in outs]), np.stack([o.truncated for o in outs]))
+    return (
+        np.stack([o.obs for o in outs]),
+        np.stack([o.reward for o in outs]),
+        np.stack([o.terminated for o in outs]),
+        np.stack([o.truncated for o in outs]),
+    )
 
 
 @pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5"])
@@ -109,19 +119,19 @@ def test_two_run_seeds_share_no_env_seed():
             for seed in env_seeds(run_seed, 256, purpose):
                 assert seed not in seen, (run_seed, purpose, seen.get(seed))
                 seen[seed] = (run_seed, purpose)
-                assert 0 <= seed < 2 ** 31
+                assert 0 <= seed < 2**31
     assert env_seeds(0, 4) == env_seeds(0, 4)
     assert env_seeds(0, 4, RESUME, 100) != env_seeds(0, 4, RESUME, 200)
 
 
 def test_unknown_ids_and_spaces_are_clear_errors():
-    with pytest.raises(CanterError, match="unknown env id 'Hoper-v5'.*Hopper-v5"):
+    with pytest.raises(CanterError, match=r"unknown env id 'Hoper-v5'.*Hopper-v5"):
         resolve_backend("Hoper-v5", "auto")
     with pytest.raises(CanterError, match="cannot import module 'no_such_module'"):
         resolve_backend("no_such_module:Env-v0", "auto")
     with pytest.raises(CanterError, match="not supported; canter needs a Box or a Dict of Boxes"):
         make_vec_env("canter_test_envs:DiscreteObs-v0", "auto", 1, [0])
-    with pytest.raises(CanterError, match="custom env .* needs the gymnasium backend"):
+    with pytest.raises(CanterError, match=r"custom env .* needs the gymnasium backend"):
         resolve_backend("canter_test_envs:DictObs-v0", "envpool")
     assert resolve_backend("Hopper-v5", "auto") == "envpool"
 
@@ -139,6 +149,7 @@ def test_sharded_pools_step_like_one_pool():
     def run(env):
         def body(state, action):
             return env.jax_step(state, action)
+
         return jax.jit(lambda s, a: jax.lax.scan(body, s, a))(env.initial_state(), jnp.asarray(actions))[1]
 
     reference = jax.tree_util.tree_leaves(run(envs[0]))

@@ -9,7 +9,7 @@ from canter.envs.base import StepOutput
 from canter.envs.episodes import EnvCarry, init_env_carry, track_episodes
 
 GAMMA = 0.9
-INFO_KEYS = ("reward_forward", "x_velocity")   # summed over an episode, and averaged per step
+INFO_KEYS = ("reward_forward", "x_velocity")  # summed over an episode, and averaged per step
 
 # Two envs, eight steps. Env 0 terminates at step 2 and is truncated at step 5; env 1 terminates at step 6. The step
 # after each of those is an autoreset step: its reward, info and flags are junk that must count toward nothing.
@@ -55,11 +55,13 @@ def reference(gamma):
 
 def run(gamma):
     """`track_episodes` over the sequence inside `lax.scan`, as the env loops call it."""
-    outputs = StepOutput(obs=jnp.arange(len(REWARD) * 2 * 3, dtype=jnp.float32).reshape(len(REWARD), 2, 3),
-                         reward=jnp.array(REWARD, jnp.float32), terminated=jnp.array(TERMINATED, bool),
-                         truncated=jnp.array(TRUNCATED, bool),
-                         info={"reward_forward": jnp.array(FORWARD, jnp.float32),
-                               "x_velocity": jnp.array(VELOCITY, jnp.float32)})
+    outputs = StepOutput(
+        obs=jnp.arange(len(REWARD) * 2 * 3, dtype=jnp.float32).reshape(len(REWARD), 2, 3),
+        reward=jnp.array(REWARD, jnp.float32),
+        terminated=jnp.array(TERMINATED, bool),
+        truncated=jnp.array(TRUNCATED, bool),
+        info={"reward_forward": jnp.array(FORWARD, jnp.float32), "x_velocity": jnp.array(VELOCITY, jnp.float32)},
+    )
 
     def step(carry, out):
         carry, episodes = track_episodes(carry, carry.env_state + 1, out, gamma)
@@ -71,7 +73,7 @@ def run(gamma):
 
 def test_episode_statistics_match_a_python_loop_across_autoreset_steps():
     expected = reference(GAMMA)
-    carry, got = run(GAMMA)
+    _carry, got = run(GAMMA)
     np.testing.assert_array_equal(got.valid, expected["valid"])
     np.testing.assert_array_equal(got.done, expected["done"])
     np.testing.assert_array_equal(got.episode_length, expected["length"])
@@ -97,7 +99,7 @@ def test_finished_episodes_report_their_totals_and_autoreset_steps_are_invalid()
 
 
 def test_the_carry_restarts_where_an_episode_ended_and_keeps_the_step_output():
-    carry, got = run(GAMMA)
+    carry, _got = run(GAMMA)
     assert isinstance(carry, EnvCarry)
     assert int(carry.env_state) == len(REWARD)
     np.testing.assert_array_equal(carry.obs, np.arange(len(REWARD) * 6, dtype=np.float32).reshape(-1, 2, 3)[-1])

@@ -107,6 +107,6 @@ def test_cli_eval_on_another_env_with_matching_shapes(tiny_hopper_run, capsys):
 
 def test_canter_evaluate_stays_the_function_after_the_module_is_imported():
     import canter
-    import canter.use.evaluate  # noqa: F401
+    import canter.use.evaluate
 
     assert callable(canter.evaluate) and canter.evaluate.__module__ == "canter"

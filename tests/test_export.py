@@ -1,6 +1,7 @@
 """canter export: the ONNX file and the documented numpy forward pass compute canter's own policy."""
 
 import inspect
+import itertools
 import re
 from pathlib import Path
 
@@ -36,8 +37,10 @@ def reference_actor(actor: ExportedActor, obs: np.ndarray) -> np.ndarray:
     for row in obs.astype(np.float64):
         x = list(row)
         if actor.normalize:
-            x = [min(max((v - m) / np.sqrt(var + actor.obs_eps), -actor.clip_obs), actor.clip_obs)
-                 for v, m, var in zip(x, actor.obs_mean, actor.obs_var)]
+            x = [
+                min(max((v - m) / np.sqrt(var + actor.obs_eps), -actor.clip_obs), actor.clip_obs)
+                for v, m, var in zip(x, actor.obs_mean, actor.obs_var)
+            ]
         for i, (w, b) in enumerate(zip(actor.weights, actor.biases)):
             x = [sum(x[k] * w[k, j] for k in range(len(x))) + b[j] for j in range(w.shape[1])]
             if i < len(actor.weights) - 1:
@@ -53,18 +56,27 @@ def reference_actor(actor: ExportedActor, obs: np.ndarray) -> np.ndarray:
 def hand_actor(seed, activation, squash, normalize, output_slice, sizes=(5, 8, 6, 4)):
     rng = np.random.default_rng(seed)
     return ExportedActor(
-        weights=[rng.normal(size=(a, b)).astype(np.float32) for a, b in zip(sizes[:-1], sizes[1:])],
-        biases=[rng.normal(size=b).astype(np.float32) for b in sizes[1:]], activation=activation, squash=squash,
-        normalize=normalize, obs_mean=rng.normal(size=sizes[0]).astype(np.float32),
-        obs_var=rng.uniform(0.1, 4.0, size=sizes[0]).astype(np.float32), obs_eps=1e-8, clip_obs=2.5,
+        weights=[rng.normal(size=(a, b)).astype(np.float32) for a, b in itertools.pairwise(sizes)],
+        biases=[rng.normal(size=b).astype(np.float32) for b in sizes[1:]],
+        activation=activation,
+        squash=squash,
+        normalize=normalize,
+        obs_mean=rng.normal(size=sizes[0]).astype(np.float32),
+        obs_var=rng.uniform(0.1, 4.0, size=sizes[0]).astype(np.float32),
+        obs_eps=1e-8,
+        clip_obs=2.5,
         action_low=np.array([-1.0, -0.5], np.float32)[:output_slice],
-        action_high=np.array([1.0, 2.0], np.float32)[:output_slice], output_slice=output_slice)
+        action_high=np.array([1.0, 2.0], np.float32)[:output_slice],
+        output_slice=output_slice,
+    )
 
 
-@pytest.mark.parametrize("activation,squash,normalize", [("tanh", False, True), ("relu", True, True),
-                                                          ("elu", True, False), ("tanh", True, True)])
+@pytest.mark.parametrize(
+    "activation,squash,normalize",
+    [("tanh", False, True), ("relu", True, True), ("elu", True, False), ("tanh", True, True)],
+)
 def test_hand_built_actor_onnx_and_numpy_match_the_contract(activation, squash, normalize):
-    actor = hand_actor(1, activation, squash, normalize, output_slice=2)   # head has 4 outputs, 2 are actions
+    actor = hand_actor(1, activation, squash, normalize, output_slice=2)  # head has 4 outputs, 2 are actions
     obs = (np.random.default_rng(2).normal(size=(50, 5)) * 4).astype(np.float32)
     expected = reference_actor(actor, obs)
     got_onnx = run_onnx(onnx_bytes(actor), obs)
@@ -96,8 +108,12 @@ def test_exported_run_matches_canter_load(tiny_run, tmp_path, capsys):
     stats = policy.obs_stats
     rng = np.random.default_rng(0)
     # Around the normalizer's mean, and far outside it so that the observation clip is exercised too.
-    obs = (np.asarray(stats.mean) + rng.normal(size=(256, policy.obs_dim)) * np.sqrt(np.asarray(stats.var))
-           * np.repeat([[1.0], [30.0]], 128, axis=0)).astype(np.float32)
+    obs = (
+        np.asarray(stats.mean)
+        + rng.normal(size=(256, policy.obs_dim))
+        * np.sqrt(np.asarray(stats.var))
+        * np.repeat([[1.0], [30.0]], 128, axis=0)
+    ).astype(np.float32)
     expected = policy(obs)
     got = run_onnx(onnx_path.read_bytes(), obs)
     assert got.shape == expected.shape and np.abs(got - expected).max() <= 1e-5
@@ -145,12 +161,18 @@ def test_export_of_a_run_state_with_large_actions_matches_the_policy(tiny_run):
 
     config, facts, state, _ = load_state(tiny_run.run_dir)
     rng = np.random.default_rng(3)
-    actor = [{"w": (rng.normal(size=np.shape(layer["w"])) * 2).astype(np.float32),
-              "b": rng.normal(size=np.shape(layer["b"])).astype(np.float32)} for layer in state.params["actor"]]
+    actor = [
+        {
+            "w": (rng.normal(size=np.shape(layer["w"])) * 2).astype(np.float32),
+            "b": rng.normal(size=np.shape(layer["b"])).astype(np.float32),
+        }
+        for layer in state.params["actor"]
+    ]
     state = state._replace(params=dict(state.params, actor=actor))
     algorithm = get_algorithm(config.run.algo)
-    policy = Policy(config, facts, jax.device_put(algorithm.policy_params(state)), jax.device_put(state.obs_stats),
-                    tiny_run.run_dir)
+    policy = Policy(
+        config, facts, jax.device_put(algorithm.policy_params(state)), jax.device_put(state.obs_stats), tiny_run.run_dir
+    )
     obs = (rng.normal(size=(300, facts.obs_dim)) * 3).astype(np.float32)
     expected = policy(obs)
     assert (expected == facts.action_low).any() and (expected == facts.action_high).any()

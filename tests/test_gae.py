@@ -15,10 +15,7 @@ def reference_gae(rewards, values, terminated, done, valid, gamma, lam):
                 continue
             next_value = 0.0 if terminated[t, n] else values[t + 1, n]
             delta = rewards[t, n] + gamma * next_value - values[t, n]
-            if done[t, n]:
-                running = delta
-            else:
-                running = delta + gamma * lam * running
+            running = delta if done[t, n] else delta + gamma * lam * running
             adv[t, n] = running
     return adv, (adv + values[:-1]) * valid
 
@@ -30,8 +27,8 @@ def test_gae_matches_python_loop_with_termination_truncation_and_reset_steps():
     values = rng.normal(size=(T + 1, N)).astype(np.float32)
     terminated = np.zeros((T, N), bool)
     truncated = np.zeros((T, N), bool)
-    terminated[3, 0] = True      # env 0 terminates at 3, autoreset step at 4
-    truncated[7, 1] = True       # env 1 truncated at 7: bootstrap from values[8] (true final obs)
+    terminated[3, 0] = True  # env 0 terminates at 3, autoreset step at 4
+    truncated[7, 1] = True  # env 1 truncated at 7: bootstrap from values[8] (true final obs)
     terminated[T - 1, 2] = True  # env 2 ends on the last step
     done = terminated | truncated
     valid = np.ones((T, N), bool)

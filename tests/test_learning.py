@@ -11,13 +11,13 @@ from canter.use.policy import load
 
 pytestmark = pytest.mark.slow
 
-PENDULUM = ["env.num_envs=8", "ppo.n_steps=64", "ppo.minibatch_size=128", "net.hidden=32,32",
-            "run.tensorboard=false"]
+PENDULUM = ["env.num_envs=8", "ppo.n_steps=64", "ppo.minibatch_size=128", "net.hidden=32,32", "run.tensorboard=false"]
 
 
 def test_inverted_pendulum_reaches_900(tmp_path):
-    config = build_config("InvertedPendulum-v4", seed=0, total_steps=40_000,
-                          sets=PENDULUM + [f"run.out_dir={tmp_path}"])
+    config = build_config(
+        "InvertedPendulum-v4", seed=0, total_steps=40_000, sets=PENDULUM + [f"run.out_dir={tmp_path}"]
+    )
     result = train(config)
     policy = load(result.run_dir)
     score = evaluate(policy, episodes=10, deterministic=True, seed=0)
@@ -27,15 +27,23 @@ def test_inverted_pendulum_reaches_900(tmp_path):
     assert actions.shape == (64, 1) and np.all(np.abs(actions) <= 3.0)
 
 
-@pytest.mark.parametrize("algo, extra", [
-    ("rpo", []),
-    ("trpo", ["trpo.critic_minibatch_size=128"]),
-    ("ppo", ["ppo.objective=kl_penalty"]),
-])
+@pytest.mark.parametrize(
+    "algo, extra",
+    [
+        ("rpo", []),
+        ("trpo", ["trpo.critic_minibatch_size=128"]),
+        ("ppo", ["ppo.objective=kl_penalty"]),
+    ],
+)
 def test_variants_balance_the_inverted_pendulum(tmp_path, algo, extra):
     common = [item for item in PENDULUM if reads_key(algo, item.partition("=")[0])]  # trpo has no minibatches
-    config = build_config("InvertedPendulum-v4", seed=0, total_steps=40_000, algo=algo,
-                          sets=common + extra + [f"run.out_dir={tmp_path}", "run.checkpoint_every=0"])
+    config = build_config(
+        "InvertedPendulum-v4",
+        seed=0,
+        total_steps=40_000,
+        algo=algo,
+        sets=common + extra + [f"run.out_dir={tmp_path}", "run.checkpoint_every=0"],
+    )
     result = train(config)
     score = evaluate(load(result.run_dir), episodes=5, deterministic=True, seed=0)
     assert score.mean >= 900, (algo, score.returns)
@@ -52,9 +60,8 @@ def check_kl_beta_is_adapted_and_checkpointed(run_dir, config):
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
     betas = [float(r["kl_beta"]) for r in rows]
     assert betas[0] == config.ppo.kl_penalty_beta and len(set(betas)) > 1
-    for row, next_beta in zip(rows, betas[1:]):   # each iteration's beta follows the rule from the previous one
-        expected = adapt_kl_beta(np.float32(row["kl_beta"]), np.float32(row["policy_kl"]),
-                                 config.ppo.kl_penalty_target)
+    for row, next_beta in zip(rows, betas[1:]):  # each iteration's beta follows the rule from the previous one
+        expected = adapt_kl_beta(np.float32(row["kl_beta"]), np.float32(row["policy_kl"]), config.ppo.kl_penalty_target)
         assert next_beta == pytest.approx(float(expected), rel=1e-4)
     _, _, state, _ = load_state(run_dir)
     last = rows[-1]

@@ -6,16 +6,21 @@ import pytest
 from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, totals_until
 
 
+def read_rows(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
 def test_metrics_csv_columns_and_append(tmp_path):
     logger = MetricsLogger(tmp_path, ("policy_loss",), ("reward_run",), tensorboard=False)
-    row = {c: 1.0 for c in BASE_COLUMNS}
+    row = dict.fromkeys(BASE_COLUMNS, 1.0)
     row.update(global_step=10, episodic_return=math.nan, **{"info/reward_run": 2.5})
     logger.log(row)
     logger.close()
     again = MetricsLogger(tmp_path, ("policy_loss",), ("reward_run",), tensorboard=False)  # a resumed run appends
     again.log(dict(row, global_step=20))
     again.close()
-    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    rows = read_rows(tmp_path / "metrics.csv")
     assert [r["global_step"] for r in rows] == ["10", "20"]
     assert rows[0]["episodic_return"] == "" and rows[0]["info/reward_run"] == "2.5"
 
@@ -40,39 +45,55 @@ def test_progress_bar_shows_steps_sps_and_return_and_quiet_is_silent(capsys):
 def test_a_resume_drops_rows_after_its_checkpoint(tmp_path):
     logger = MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False)
     for iteration in (1, 2, 3):
-        logger.log({c: 1.0 for c in BASE_COLUMNS} | {"global_step": 10 * iteration, "iteration": iteration})
+        logger.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 10 * iteration, "iteration": iteration})
     logger.close()
     again = MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=20)
-    again.log({c: 1.0 for c in BASE_COLUMNS} | {"global_step": 30, "iteration": 3})
+    again.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 30, "iteration": 3})
     again.close()
-    assert [r["global_step"] for r in csv.DictReader(open(tmp_path / "metrics.csv"))] == ["10", "20", "30"]
+    assert [r["global_step"] for r in read_rows(tmp_path / "metrics.csv")] == ["10", "20", "30"]
 
 
 def _old_style_rows(tmp_path):
     """Three sessions as older runs logged them, each restarting wall_time at 0: a SIGTERM after iteration 4
     (step 500), then a kill after iteration 6 that lost it; the resume from the checkpoint at iteration 5 redid
     iteration 6 as step 650."""
-    lines = ["global_step,iteration,wall_time,sps,episodes,episodic_return,episodic_length",
-             "100,1,12.0,10.0,1,5.0,100", "200,2,22.0,10.0,2,5.0,100", "500,4,2.0,20.0,,,",
-             "600,5,7.0,20.0,1,5.0,100", "700,6,12.0,20.0,4,5.0,100",
-             "650,6,6.0,25.0,1,5.0,100", "800,7,10.0,50.0,3,5.0,100"]
+    lines = [
+        "global_step,iteration,wall_time,sps,episodes,episodic_return,episodic_length",
+        "100,1,12.0,10.0,1,5.0,100",
+        "200,2,22.0,10.0,2,5.0,100",
+        "500,4,2.0,20.0,,,",
+        "600,5,7.0,20.0,1,5.0,100",
+        "700,6,12.0,20.0,4,5.0,100",
+        "650,6,6.0,25.0,1,5.0,100",
+        "800,7,10.0,50.0,3,5.0,100",
+    ]
     (tmp_path / "metrics.csv").write_text("\n".join(lines) + "\n")
     return tmp_path / "metrics.csv"
 
 
 def test_totals_of_old_style_rows_leave_out_the_lost_iteration(tmp_path):
     path = _old_style_rows(tmp_path)
-    assert totals_until(path, 10_000) == {"wall_seconds": pytest.approx(22 + 7 + 10),
-                                          "train_seconds": pytest.approx(10 + 10 + 15 + 5 + 2 + 3),
-                                          "episodes": 1 + 2 + 1 + 1 + 3}
-    assert totals_until(path, 650) == {"wall_seconds": pytest.approx(35.0), "train_seconds": pytest.approx(42.0),
-                                       "episodes": 5}
+    assert totals_until(path, 10_000) == {
+        "wall_seconds": pytest.approx(22 + 7 + 10),
+        "train_seconds": pytest.approx(10 + 10 + 15 + 5 + 2 + 3),
+        "episodes": 1 + 2 + 1 + 1 + 3,
+    }
+    assert totals_until(path, 650) == {
+        "wall_seconds": pytest.approx(35.0),
+        "train_seconds": pytest.approx(42.0),
+        "episodes": 5,
+    }
     assert totals_until(path, 99)["episodes"] == 0
 
 
 def test_resuming_old_style_rows_rewrites_them_as_one_history(tmp_path):
     _old_style_rows(tmp_path)
     MetricsLogger(tmp_path, (), (), tensorboard=False, resume_step=650).close()
-    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    rows = read_rows(tmp_path / "metrics.csv")
     assert [(r["global_step"], float(r["wall_time"])) for r in rows] == [
-        ("100", 12.0), ("200", 22.0), ("500", 24.0), ("600", 29.0), ("650", 35.0)]
+        ("100", 12.0),
+        ("200", 22.0),
+        ("500", 24.0),
+        ("600", 29.0),
+        ("650", 35.0),
+    ]

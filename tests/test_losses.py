@@ -31,14 +31,20 @@ def test_single_sample_by_hand():
     # mean 0, log std 0 -> log pi(a=1) = -0.5 - 0.5 log 2 pi; old log prob chosen so that ratio = e^0.5 > 1 + clip.
     params = constant_params(0.0, 0.0, 2.0)
     new_lp = log_normal(1.0, 0.0, 0.0)
-    batch = Minibatch(obs=jnp.zeros((1, 2)), actions=jnp.ones((1, 1)), log_probs=jnp.array([new_lp - 0.5]),
-                      values=jnp.array([1.0]), advantages=jnp.array([3.0]), returns=jnp.array([4.0]),
-                      mask=jnp.ones(1))
+    batch = Minibatch(
+        obs=jnp.zeros((1, 2)),
+        actions=jnp.ones((1, 1)),
+        log_probs=jnp.array([new_lp - 0.5]),
+        values=jnp.array([1.0]),
+        advantages=jnp.array([3.0]),
+        returns=jnp.array([4.0]),
+        mask=jnp.ones(1),
+    )
     ppo = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=True, ent_coef=0.01, vf_coef=0.5)
     loss, d = ppo_loss(params, batch, NET, ppo)
     ratio = math.exp(0.5)
-    policy_loss = max(-3.0 * ratio, -3.0 * 1.2)              # = -3.6: the clipped term wins
-    value_loss = 0.5 * max((2.0 - 4.0) ** 2, (1.0 + 0.2 - 4.0) ** 2)   # clipped value 1.2 -> (2.8)^2
+    policy_loss = max(-3.0 * ratio, -3.0 * 1.2)  # = -3.6: the clipped term wins
+    value_loss = 0.5 * max((2.0 - 4.0) ** 2, (1.0 + 0.2 - 4.0) ** 2)  # clipped value 1.2 -> (2.8)^2
     entropy = 0.5 * (1 + math.log(2 * math.pi))
     assert float(d["policy_loss"]) == pytest.approx(policy_loss, rel=1e-5)
     assert float(d["value_loss"]) == pytest.approx(value_loss, rel=1e-5)
@@ -61,8 +67,15 @@ def test_batch_matches_numpy_reference_and_ignores_masked_rows():
     mask = np.ones(B, np.float32)
     mask[[2, 5]] = 0.0
     ppo = PPOConfig(clip=0.2, norm_adv=True, clip_vloss=False, ent_coef=0.0, vf_coef=0.5)
-    batch = Minibatch(jnp.zeros((B, 2)), jnp.asarray(actions), jnp.asarray(old_lp), jnp.asarray(old_values),
-                      jnp.asarray(adv), jnp.asarray(returns), jnp.asarray(mask))
+    batch = Minibatch(
+        jnp.zeros((B, 2)),
+        jnp.asarray(actions),
+        jnp.asarray(old_lp),
+        jnp.asarray(old_values),
+        jnp.asarray(adv),
+        jnp.asarray(returns),
+        jnp.asarray(mask),
+    )
     loss, d = ppo_loss(params, batch, NET, ppo)
 
     keep = mask > 0
@@ -105,9 +118,15 @@ def vector_params(means, log_stds, value=0.0):
 
 def one_sample(actions, old_log_prob, advantage=1.0):
     n = 1
-    return Minibatch(obs=jnp.zeros((n, 2), jnp.float32), actions=jnp.asarray([actions], jnp.float32),
-                     log_probs=jnp.array([old_log_prob], jnp.float32), values=jnp.zeros(n),
-                     advantages=jnp.array([advantage]), returns=jnp.zeros(n), mask=jnp.ones(n))
+    return Minibatch(
+        obs=jnp.zeros((n, 2), jnp.float32),
+        actions=jnp.asarray([actions], jnp.float32),
+        log_probs=jnp.array([old_log_prob], jnp.float32),
+        values=jnp.zeros(n),
+        advantages=jnp.array([advantage]),
+        returns=jnp.zeros(n),
+        mask=jnp.ones(n),
+    )
 
 
 PLAIN = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=False, ent_coef=0.0, vf_coef=0.0)
@@ -127,8 +146,8 @@ def test_rpo_loss_evaluates_the_stored_action_under_the_shifted_mean():
     old_lp = log_normal(0.7, 0.2, 0.0) + log_normal(0.3, -0.1, -0.5)
     batch = one_sample(action, old_lp, advantage=2.0)
     key = jax.random.key(5)
-    loss, d = ppo_loss(params, batch, NET, PLAIN, LossVariant(rpo_alpha=0.5), key)
-    z = np.asarray(jax.random.uniform(key, (1, 2), jnp.float32, -0.5, 0.5))[0]   # the draw rpo_shift makes
+    _loss, d = ppo_loss(params, batch, NET, PLAIN, LossVariant(rpo_alpha=0.5), key)
+    z = np.asarray(jax.random.uniform(key, (1, 2), jnp.float32, -0.5, 0.5))[0]  # the draw rpo_shift makes
     new_lp = log_normal(0.7, 0.2 + z[0], 0.0) + log_normal(0.3, -0.1 + z[1], -0.5)
     ratio = math.exp(new_lp - old_lp)
     assert float(d["policy_loss"]) == pytest.approx(max(-2.0 * ratio, -2.0 * min(max(ratio, 0.8), 1.2)), rel=1e-5)
@@ -143,8 +162,9 @@ def test_gaussian_kl_closed_form():
     def kl_1d(mp, lp, mq, lq):
         return lq - lp + (math.exp(2 * lp) + (mp - mq) ** 2) / (2 * math.exp(2 * lq)) - 0.5
 
-    got = float(gaussian_kl(jnp.array([0.5, -1.0]), jnp.array([-0.3, 0.2]), jnp.array([0.0, 0.4]),
-                            jnp.array([0.0, -0.1])))
+    got = float(
+        gaussian_kl(jnp.array([0.5, -1.0]), jnp.array([-0.3, 0.2]), jnp.array([0.0, 0.4]), jnp.array([0.0, -0.1]))
+    )
     assert got == pytest.approx(kl_1d(0.5, -0.3, 0.0, 0.0) + kl_1d(-1.0, 0.2, 0.4, -0.1), rel=1e-6)
     assert float(gaussian_kl(jnp.ones(3), jnp.zeros(3), jnp.ones(3), jnp.zeros(3))) == 0.0
 
@@ -153,13 +173,14 @@ def test_kl_penalty_objective_by_hand():
     # New policy N(0, 1); old policy N(0.5, e^-0.3); stored action 1.0 with its old log-prob; beta 3.
     params = vector_params([0.0], [0.0])
     old_lp = log_normal(1.0, 0.5, -0.3)
-    batch = one_sample([1.0], old_lp, advantage=1.5)._replace(old_mean=jnp.array([[0.5]]),
-                                                               old_log_std=jnp.array([[-0.3]]))
+    batch = one_sample([1.0], old_lp, advantage=1.5)._replace(
+        old_mean=jnp.array([[0.5]]), old_log_std=jnp.array([[-0.3]])
+    )
     ppo = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=False, ent_coef=0.0, vf_coef=0.0, objective="kl_penalty")
     loss, d = ppo_loss(params, batch, NET, ppo, LossVariant(kl_penalty=True), None, 3.0)
     ratio = math.exp(log_normal(1.0, 0.0, 0.0) - old_lp)
     kl = 0.0 + 0.3 + (math.exp(-0.6) + 0.25) / 2 - 0.5
-    assert float(d["policy_loss"]) == pytest.approx(-1.5 * ratio + 3.0 * kl, rel=1e-5)   # no clipping
+    assert float(d["policy_loss"]) == pytest.approx(-1.5 * ratio + 3.0 * kl, rel=1e-5)  # no clipping
     assert float(loss) == pytest.approx(-1.5 * ratio + 3.0 * kl, rel=1e-5)
 
 

@@ -20,8 +20,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import TINY
-from signals import sigterm_once_logging
 
 import canter
 from canter.cli.main import main
@@ -32,12 +30,19 @@ from canter.training.loop import resume_config, resume_seeds, train, train_seeds
 from canter.training.restore import load_state
 from canter.training.run_folder import read_config
 from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
+from conftest import TINY
+from signals import sigterm_once_logging
 
-ATOL = 1e-5       # losses and parameters
-RTOL = 1e-5       # episodic returns
+ATOL = 1e-5  # losses and parameters
+RTOL = 1e-5  # episodic returns
 LOSSES = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance")
-SMALL = TINY + ["env.num_envs=4", "ppo.n_steps=64", "ppo.minibatch_size=64", "ppo.epochs=2",
-                "run.checkpoint_every=1024"]
+SMALL = TINY + [
+    "env.num_envs=4",
+    "ppo.n_steps=64",
+    "ppo.minibatch_size=64",
+    "ppo.epochs=2",
+    "run.checkpoint_every=1024",
+]
 
 
 def _config(out, env="Hopper-v5", total=2048, extra=(), seed=None):
@@ -74,6 +79,7 @@ def _assert_same_curve(alone_dir, grouped_dir):
 
 # ------------------------------------------------------------------------------------------ the env split, alone
 
+
 def _slot_env(num_slots):
     """A fake env whose every output names the slot it came from, so a wrong split is visible."""
     slots = jnp.arange(num_slots, dtype=jnp.float32)
@@ -95,6 +101,7 @@ def test_group_step_splits_one_env_seed_major_under_jit_and_scan():
         def body(c, _):
             c, out = step(c, action)
             return c, out
+
         return jax.lax.scan(body, counter, None, length=4)
 
     counters = stack([jnp.int32(0)] * seeds)
@@ -127,6 +134,7 @@ def test_stack_unstack_and_first_obs_split():
 
 
 # ---------------------------------------------------------------------------------------- seeds in a group
+
 
 @pytest.fixture(scope="module")
 def hopper_group(tmp_path_factory):
@@ -188,9 +196,10 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path)
 
     with pytest.raises(CanterError, match="repeated seeds"):
         resume_seeds([folders[0], folders[0]], 4096)
-    (alone_copy / "config.toml").write_text((alone_copy / "config.toml").read_text().replace(
-        "gamma = 0.99", "gamma = 0.9"))
-    with pytest.raises(CanterError, match="differs .* in more than run.seed"):
+    (alone_copy / "config.toml").write_text(
+        (alone_copy / "config.toml").read_text().replace("gamma = 0.99", "gamma = 0.9")
+    )
+    with pytest.raises(CanterError, match=r"differs .* in more than run.seed"):
         resume_seeds([folders[0], alone_copy], 4096)
 
 
@@ -215,8 +224,9 @@ def test_sigterm_stops_every_seed_with_a_checkpoint(tmp_path):
 
 @pytest.mark.slow
 def test_non_finite_seeds_stop_with_their_last_good_checkpoint(tmp_path):
-    config = _config(tmp_path, "canter_test_envs:NaNAfter-v0", 50_000,
-                     ["env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"])
+    config = _config(
+        tmp_path, "canter_test_envs:NaNAfter-v0", 50_000, ["env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"]
+    )
     with pytest.raises(CanterError, match=r"seed 0: non-finite .* after step \d+.*; seed 1: non-finite"):
         train_seeds(config, [0, 1])
     folders = sorted(tmp_path.iterdir())
@@ -249,25 +259,49 @@ def test_bad_seed_lists_are_refused(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--seeds", "0,x"], "expected whole numbers separated by commas"),
-    (["--seeds", "1,2,1"], "each seed may appear once"),
-    (["--seeds", ""], "expected whole numbers"),
-    (["--seeds", "0,1", "--seed", "3"], "--seed and --seeds exclude each other"),
-    (["--resume", "a", "b", "--seeds", "0,1"], "only --total-steps and --quiet"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--seeds", "0,x"], "expected whole numbers separated by commas"),
+        (["--seeds", "1,2,1"], "each seed may appear once"),
+        (["--seeds", ""], "expected whole numbers"),
+        (["--seeds", "0,1", "--seed", "3"], "--seed and --seeds exclude each other"),
+        (["--resume", "a", "b", "--seeds", "0,1"], "only --total-steps and --quiet"),
+    ],
+)
 def test_bad_seeds_flag_is_a_one_line_error(argv, message, capsys):
-    assert main(["train", "Hopper-v5", "--total-steps", "1000"] + argv if argv[0] != "--resume"
-                else ["train"] + argv) == 2
+    assert (
+        main(["train", "Hopper-v5", "--total-steps", "1000"] + argv if argv[0] != "--resume" else ["train"] + argv) == 2
+    )
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("canter: error:") and message in err
 
 
 @pytest.mark.slow
 def test_cli_seeds_trains_a_group(tmp_path, capsys):
-    code = main(["train", "Pendulum-v1", "--seeds", "4,5", "--total-steps", "512", "--quiet", "--out-dir",
-                 str(tmp_path), "--set", "env.num_envs=4", "--set", "ppo.n_steps=64", "--set",
-                 "ppo.minibatch_size=64", "--set", "ppo.epochs=1", "--set", "net.hidden=8"])
+    code = main(
+        [
+            "train",
+            "Pendulum-v1",
+            "--seeds",
+            "4,5",
+            "--total-steps",
+            "512",
+            "--quiet",
+            "--out-dir",
+            str(tmp_path),
+            "--set",
+            "env.num_envs=4",
+            "--set",
+            "ppo.n_steps=64",
+            "--set",
+            "ppo.minibatch_size=64",
+            "--set",
+            "ppo.epochs=1",
+            "--set",
+            "net.hidden=8",
+        ]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert out.count("run: ") == 2

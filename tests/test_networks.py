@@ -20,8 +20,9 @@ def test_log_prob_and_entropy_match_scipy():
     action = rng.normal(size=(5, 3)).astype(np.float32)
     expected = norm.logpdf(action, mean, np.exp(log_std)).sum(-1)
     np.testing.assert_allclose(np.asarray(gaussian_log_prob(mean, log_std, action)), expected, rtol=1e-5)
-    np.testing.assert_allclose(np.asarray(gaussian_entropy(log_std)), norm.entropy(mean, np.exp(log_std)).sum(-1),
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(gaussian_entropy(log_std)), norm.entropy(mean, np.exp(log_std)).sum(-1), rtol=1e-5
+    )
 
 
 def test_shapes_dtypes_and_log_std_options():

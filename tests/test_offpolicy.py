@@ -57,9 +57,19 @@ def reference_transitions(vector_steps):
 
 
 def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_only():
-    config = build_config("Pendulum-v1", algo="td3", sets=[
-        "env.num_envs=2", "td3.steps_per_call=20", "td3.learning_starts=1000000", "td3.buffer_size=64",
-        "td3.batch_size=4", "td3.hidden=4", "td3.noise=ou"])
+    config = build_config(
+        "Pendulum-v1",
+        algo="td3",
+        sets=[
+            "env.num_envs=2",
+            "td3.steps_per_call=20",
+            "td3.learning_starts=1000000",
+            "td3.buffer_size=64",
+            "td3.batch_size=4",
+            "td3.hidden=4",
+            "td3.noise=ou",
+        ],
+    )
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
     learner = TD3(config.td3)
     state = init_train_state(config, learner, 2, 1)
@@ -71,8 +81,16 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
     size = int(state.buffer.size)
     assert size == len(expected) == int(metrics["steps"]) == int(state.global_step)
     data = jax.device_get(state.buffer.data)
-    got = [(int(data.obs[i, 0]), int(data.obs[i, 1]), int(data.reward[i]), int(data.next_obs[i, 0]),
-            float(data.terminated[i])) for i in range(size)]
+    got = [
+        (
+            int(data.obs[i, 0]),
+            int(data.obs[i, 1]),
+            int(data.reward[i]),
+            int(data.next_obs[i, 0]),
+            float(data.terminated[i]),
+        )
+        for i in range(size)
+    ]
     assert got == expected
     # The truncated step stores its true final observation (4) and does not stop bootstrapping.
     assert (3, 1, 4, 4, 0.0) in got and (2, 0, 3, 3, 1.0) in got
@@ -105,9 +123,16 @@ def test_v1_checkpoints_load_into_each_algorithms_own_learner_state(algo):
 
 
 def _config(algo, out_dir, total, extra=()):
-    sets = [f"{algo}.hidden=64,64", f"{algo}.learning_starts=1000", f"{algo}.steps_per_call=500",
-            f"{algo}.buffer_size=20000", "run.compress_checkpoints=true",
-            "run.tensorboard=false", f"run.out_dir={out_dir}", "run.checkpoint_every=0"]
+    sets = [
+        f"{algo}.hidden=64,64",
+        f"{algo}.learning_starts=1000",
+        f"{algo}.steps_per_call=500",
+        f"{algo}.buffer_size=20000",
+        "run.compress_checkpoints=true",
+        "run.tensorboard=false",
+        f"run.out_dir={out_dir}",
+        "run.checkpoint_every=0",
+    ]
     return build_config("Pendulum-v1", algo=algo, seed=0, total_steps=total, sets=sets + list(extra))
 
 
@@ -149,7 +174,7 @@ def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
         x = x @ w + b
         if i < len(exported.weights) - 1:
             x = np.maximum(x, 0.0)
-    x = np.tanh(x[:, :exported.output_slice])
+    x = np.tanh(x[:, : exported.output_slice])
     low, high = exported.action_low, exported.action_high
     np.testing.assert_allclose(first, np.clip(low + (x + 1) / 2 * (high - low), low, high), rtol=1e-4, atol=1e-5)
     if algo == "sac":
@@ -172,7 +197,7 @@ def test_onnx_export_of_an_off_policy_run_matches_canter_load(algo, learned, tmp
 
 @pytest.mark.slow
 def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_path):
-    source = learned("td3").run_dir       # its checkpoint is compressed (run.compress_checkpoints)
+    source = learned("td3").run_dir  # its checkpoint is compressed (run.compress_checkpoints)
     _, _, before, header = load_state(source)
     steps = int(header["global_step"])
     assert int(before.buffer.size) == steps and int(before.learner.updates) > 0
@@ -181,8 +206,10 @@ def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_pat
         shutil.copytree(source, copy)
     results = [train(resume_config(copy, steps + 1000), resume=copy) for copy in copies]
     s1, s2 = (load_state(r.run_dir)[2] for r in results)
-    same = [np.array_equal(np.asarray(a), np.asarray(b))
-            for a, b in zip(jax.tree_util.tree_leaves(s1), jax.tree_util.tree_leaves(s2))]
+    same = [
+        np.array_equal(np.asarray(a), np.asarray(b))
+        for a, b in zip(jax.tree_util.tree_leaves(s1), jax.tree_util.tree_leaves(s2))
+    ]
     assert all(same), "two resumes of one checkpoint must be identical"
     assert int(s1.buffer.size) == results[0].global_step >= steps + 1000
     assert int(s1.learner.updates) > int(before.learner.updates)
@@ -192,9 +219,19 @@ def test_resume_restores_the_replay_buffer_and_is_deterministic(learned, tmp_pat
 
 @pytest.mark.slow
 def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_path):
-    config = build_config("canter_test_envs:NaNAfter-v0", algo="td3", total_steps=50_000, sets=[
-        "td3.hidden=8", "td3.learning_starts=50", "td3.steps_per_call=100", "td3.batch_size=16",
-        "run.tensorboard=false", f"run.out_dir={tmp_path}"])
+    config = build_config(
+        "canter_test_envs:NaNAfter-v0",
+        algo="td3",
+        total_steps=50_000,
+        sets=[
+            "td3.hidden=8",
+            "td3.learning_starts=50",
+            "td3.steps_per_call=100",
+            "td3.batch_size=16",
+            "run.tensorboard=false",
+            f"run.out_dir={tmp_path}",
+        ],
+    )
     with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
         train(config)
     run_dir = next(tmp_path.iterdir())
@@ -204,15 +241,18 @@ def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_p
     assert all(np.isfinite(np.asarray(x)).all() for x in leaves if np.issubdtype(np.asarray(x).dtype, np.floating))
 
 
-@pytest.mark.parametrize("sets, message", [
-    (["td3.buffer_size=100", "td3.batch_size=256"], "td3.buffer_size 100 is smaller than td3.batch_size 256"),
-    (["sac.tau=1.5"], r"sac.tau must be in \(0, 1\]"),
-    (["ddpg.tau=0"], r"ddpg.tau must be in \(0, 1\]"),
-    (["ddpg.noise=pink"], "ddpg.noise must be gaussian, ou or none"),
-    (["sac.noise=gaussian"], "sac.noise must be none"),
-    (["td3.policy_delay=0"], "td3.policy_delay must be >= 1"),
-    (["sac.alpha=0"], "sac.alpha must be > 0"),
-])
+@pytest.mark.parametrize(
+    "sets, message",
+    [
+        (["td3.buffer_size=100", "td3.batch_size=256"], "td3.buffer_size 100 is smaller than td3.batch_size 256"),
+        (["sac.tau=1.5"], r"sac.tau must be in \(0, 1\]"),
+        (["ddpg.tau=0"], r"ddpg.tau must be in \(0, 1\]"),
+        (["ddpg.noise=pink"], "ddpg.noise must be gaussian, ou or none"),
+        (["sac.noise=gaussian"], "sac.noise must be none"),
+        (["td3.policy_delay=0"], "td3.policy_delay must be >= 1"),
+        (["sac.alpha=0"], "sac.alpha must be > 0"),
+    ],
+)
 def test_bad_hyperparameters_are_refused_before_any_work(sets, message):
     with pytest.raises(CanterError, match=message):
         build_config("Pendulum-v1", algo=sets[0].partition(".")[0], sets=sets)
@@ -229,7 +269,7 @@ def test_presets_give_off_policy_runs_one_env_and_raw_observations():
         for algo in ("td3", "ddpg", "sac"):
             config = build_config("HalfCheetah-v4", preset=preset, algo=algo)
             assert config.env.num_envs == 1 and not config.env.normalize_obs and not config.env.normalize_reward
-    assert build_config("HalfCheetah-v4", preset="fast").env.num_envs == 16   # ppo keeps its own
+    assert build_config("HalfCheetah-v4", preset="fast").env.num_envs == 16  # ppo keeps its own
     seed = build_config("BipedalWalker-v3", preset="report002-ddpg")
     assert seed.run.algo == "ddpg" and seed.env.num_envs == 4 and seed.ddpg.batch_size == 512
     assert seed.ddpg.tau == 0.001 and seed.ddpg.train_freq == 16 and seed.ddpg.noise_std == pytest.approx(0.89066, 1e-4)
@@ -245,14 +285,32 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
 
     from canter.training.run_folder import read_config
 
-    sets = [f"{algo}.hidden=16,16", "run.tensorboard=false", f"{algo}.learning_starts=100",
-            f"{algo}.buffer_size=1000", f"{algo}.batch_size=32", f"{algo}.steps_per_call=100",
-            "run.checkpoint_every=200"]
-    config = build_config("Pendulum-v1", total_steps=400, seed=1, sets=sets + [f"run.out_dir={tmp_path / 'alone'}"],
-                          algo=algo)
+    sets = [
+        f"{algo}.hidden=16,16",
+        "run.tensorboard=false",
+        f"{algo}.learning_starts=100",
+        f"{algo}.buffer_size=1000",
+        f"{algo}.batch_size=32",
+        f"{algo}.steps_per_call=100",
+        "run.checkpoint_every=200",
+    ]
+    config = build_config(
+        "Pendulum-v1", total_steps=400, seed=1, sets=sets + [f"run.out_dir={tmp_path / 'alone'}"], algo=algo
+    )
     alone = train(config, quiet=True)
-    argv = ["train", "Pendulum-v1", "--algo", algo, "--seeds", "0,1", "--total-steps", "400", "--quiet",
-            "--out-dir", str(tmp_path / "group")]
+    argv = [
+        "train",
+        "Pendulum-v1",
+        "--algo",
+        algo,
+        "--seeds",
+        "0,1",
+        "--total-steps",
+        "400",
+        "--quiet",
+        "--out-dir",
+        str(tmp_path / "group"),
+    ]
     assert main(argv + [arg for s in sets for arg in ("--set", s)]) == 0
     # The CLI points at the faster way to train several off-policy seeds.
     assert f"canter: note: {algo} seeds train faster one per process" in capsys.readouterr().err
@@ -270,4 +328,4 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     np.testing.assert_allclose(g["episodic_return"], a["episodic_return"], rtol=1e-5)
     for name in ("critic_loss", "actor_loss", "q_mean"):
         np.testing.assert_allclose(g[name], a[name], rtol=1e-4, atol=1e-4, err_msg=name)
-    assert not np.allclose(other["critic_loss"][1:], a["critic_loss"][1:], rtol=1e-2)   # another seed really differs
+    assert not np.allclose(other["critic_loss"][1:], a["critic_loss"][1:], rtol=1e-2)  # another seed really differs

@@ -25,8 +25,11 @@ def test_td_target_takes_the_min_of_the_critics_and_stops_only_on_termination():
     np.testing.assert_allclose(losses.td_target(reward, terminated, next_q, 0.9), [1 + 0.9 * 3, 2.0, 0.5 - 0.9 * 2])
     # SAC's soft target adds the entropy bonus -alpha * log pi inside the bootstrap.
     bonus = jnp.array([0.1, 0.2, 0.3])
-    np.testing.assert_allclose(losses.td_target(reward, terminated, next_q, 0.9, bonus),
-                               [1 + 0.9 * 3.1, 2.0, 0.5 + 0.9 * (-2 + 0.3)], rtol=1e-6)
+    np.testing.assert_allclose(
+        losses.td_target(reward, terminated, next_q, 0.9, bonus),
+        [1 + 0.9 * 3.1, 2.0, 0.5 + 0.9 * (-2 + 0.3)],
+        rtol=1e-6,
+    )
 
 
 def test_target_smoothing_noise_is_clipped_then_the_action_is_clipped():
@@ -57,8 +60,9 @@ def test_tanh_log_det_matches_the_naive_form_and_stays_finite():
 def test_squashed_log_prob_is_the_change_of_variables_density():
     mean, log_std = 0.3, math.log(0.8)
     u = np.linspace(-2.0, 2.5, 7)
-    action, log_prob = losses.squashed_sample(jnp.full((7, 1), mean), jnp.full((7, 1), log_std),
-                                              jnp.asarray((u - mean) / 0.8)[:, None])
+    action, log_prob = losses.squashed_sample(
+        jnp.full((7, 1), mean), jnp.full((7, 1), log_std), jnp.asarray((u - mean) / 0.8)[:, None]
+    )
     # p_a(a) = p_u(u) / |da/du| with the derivative taken numerically.
     gauss = np.exp(-0.5 * ((u - mean) / 0.8) ** 2) / (0.8 * math.sqrt(2 * math.pi))
     h = 1e-4
@@ -68,21 +72,25 @@ def test_squashed_log_prob_is_the_change_of_variables_density():
     # And the density integrates to one over (-1, 1).
     a = np.linspace(-1 + 1e-6, 1 - 1e-6, 200_001)
     pre = np.arctanh(a)
-    _, lp = losses.squashed_sample(jnp.full((a.size, 1), mean), jnp.full((a.size, 1), log_std),
-                                   jnp.asarray((pre - mean) / 0.8, jnp.float32)[:, None])
+    _, lp = losses.squashed_sample(
+        jnp.full((a.size, 1), mean),
+        jnp.full((a.size, 1), log_std),
+        jnp.asarray((pre - mean) / 0.8, jnp.float32)[:, None],
+    )
     assert np.trapezoid(np.exp(np.asarray(lp, np.float64)), a) == pytest.approx(1.0, abs=2e-3)
 
 
 def test_temperature_and_sac_actor_losses():
     log_alpha = jnp.float32(0.5)
-    log_prob = jnp.array([-1.0, -3.0])   # entropy estimate 2, above the target -2
+    log_prob = jnp.array([-1.0, -3.0])  # entropy estimate 2, above the target -2
     assert float(losses.temperature_loss(log_alpha, log_prob, -2.0)) == pytest.approx(-0.5 * -4.0)
     grad = float(jax.grad(losses.temperature_loss)(log_alpha, log_prob, -2.0))
-    assert grad == pytest.approx(4.0)    # gradient descent lowers alpha when entropy exceeds the target
+    assert grad == pytest.approx(4.0)  # gradient descent lowers alpha when entropy exceeds the target
     assert float(jax.grad(losses.temperature_loss)(log_alpha, jnp.array([3.0]), -2.0)) < 0
     q = jnp.array([[1.0, 4.0], [2.0, 3.0]])
     assert float(losses.sac_actor_loss(q, log_prob, jnp.float32(0.5))) == pytest.approx(
-        ((0.5 * -1 - 1) + (0.5 * -3 - 3)) / 2)
+        ((0.5 * -1 - 1) + (0.5 * -3 - 3)) / 2
+    )
 
 
 def test_ou_process_statistics():
@@ -94,9 +102,9 @@ def test_ou_process_statistics():
         return x, x
 
     _, xs = jax.lax.scan(step, jnp.zeros((chains,), jnp.float32), jax.random.split(jax.random.key(0), steps))
-    settled = np.asarray(xs[100:])            # the process forgets its start within ~10 / (theta dt) steps
+    settled = np.asarray(xs[100:])  # the process forgets its start within ~10 / (theta dt) steps
     expected_std = noise.ou_stationary_std(theta, sigma, dt)
-    assert expected_std == pytest.approx(sigma * math.sqrt(dt / (1 - 0.9 ** 2)))
+    assert expected_std == pytest.approx(sigma * math.sqrt(dt / (1 - 0.9**2)))
     assert abs(settled.mean()) < 0.01
     assert settled.std() == pytest.approx(expected_std, rel=0.02)
     lag1 = np.mean(settled[1:] * settled[:-1]) / settled.var()
@@ -123,9 +131,9 @@ def test_stacked_critics_equal_separate_networks():
     obs, act = jnp.ones((4, 3)), jnp.full((4, 2), 0.5)
     q = jax.jit(q_values, static_argnums=3)(critics, obs, act, "relu")
     for i in range(2):
-        one = jax.tree_util.tree_map(lambda leaf: leaf[i], critics)
+        one = jax.tree_util.tree_map(lambda leaf, i=i: leaf[i], critics)
         np.testing.assert_allclose(q[i], mlp(one, jnp.concatenate([obs, act], -1), "relu")[:, 0], rtol=1e-6)
-    assert not np.allclose(q[0], q[1])       # independent initializations
+    assert not np.allclose(q[0], q[1])  # independent initializations
 
 
 # Jitted once per learner (a frozen dataclass of its config): eager dispatch of every op (and of both lax.cond
@@ -135,10 +143,13 @@ _update = jax.jit(lambda learner, state, batch, key: learner.update(state, batch
 
 def _batch(key, n=8, obs_dim=3, act_dim=2):
     k = jax.random.split(key, 4)
-    return Transitions(jax.random.normal(k[0], (n, obs_dim), jnp.float32),
-                       jax.random.uniform(k[1], (n, act_dim), jnp.float32, -1, 1),
-                       jax.random.normal(k[2], (n,), jnp.float32), jax.random.normal(k[3], (n, obs_dim), jnp.float32),
-                       jnp.zeros((n,), jnp.float32))
+    return Transitions(
+        jax.random.normal(k[0], (n, obs_dim), jnp.float32),
+        jax.random.uniform(k[1], (n, act_dim), jnp.float32, -1, 1),
+        jax.random.normal(k[2], (n,), jnp.float32),
+        jax.random.normal(k[3], (n, obs_dim), jnp.float32),
+        jnp.zeros((n,), jnp.float32),
+    )
 
 
 def _changed(a, b):
@@ -149,11 +160,14 @@ DETERMINISTIC_FIELDS = ("actor", "critics", "target_actor", "target_critics", "a
 SAC_FIELDS = ("actor", "critics", "target_critics", "actor_opt", "critic_opt", "log_alpha", "alpha_opt", "updates")
 
 
-@pytest.mark.parametrize("make, fields, critics, actor_out", [
-    (lambda: DDPG(replace(Config().ddpg, hidden=(8,))), DETERMINISTIC_FIELDS, 1, 2),
-    (lambda: TD3(replace(Config().td3, hidden=(8,))), DETERMINISTIC_FIELDS, 2, 2),
-    (lambda: SAC(replace(Config().sac, hidden=(8,)), -2.0), SAC_FIELDS, 2, 4),
-])
+@pytest.mark.parametrize(
+    "make, fields, critics, actor_out",
+    [
+        (lambda: DDPG(replace(Config().ddpg, hidden=(8,))), DETERMINISTIC_FIELDS, 1, 2),
+        (lambda: TD3(replace(Config().td3, hidden=(8,))), DETERMINISTIC_FIELDS, 2, 2),
+        (lambda: SAC(replace(Config().sac, hidden=(8,)), -2.0), SAC_FIELDS, 2, 4),
+    ],
+)
 def test_learner_states_hold_exactly_what_their_algorithm_uses(make, fields, critics, actor_out):
     state = make().init(jax.random.key(0), 3, 2)
     assert state._fields == fields
@@ -182,7 +196,7 @@ def test_acting_is_deterministic_on_request_and_explores_otherwise():
     state = td3.init(jax.random.key(0), 3, 2)
     np.testing.assert_array_equal(td3.act(state.actor, obs, key, True), deterministic_action(state.actor, obs, "relu"))
     explored, _ = td3.explore(state, obs, ou, key)
-    np.testing.assert_array_equal(explored, deterministic_action(state.actor, obs, "relu"))    # noise = none
+    np.testing.assert_array_equal(explored, deterministic_action(state.actor, obs, "relu"))  # noise = none
     noisy = td3.act(state.actor, obs, key, False)
     assert not np.allclose(noisy, explored) and np.all(np.abs(noisy) <= 1.0)
 
@@ -195,8 +209,10 @@ def test_td3_delays_the_actor_and_target_updates():
     first, diag = _update(TD3(cfg), learner, batch, jax.random.key(2))
     # Step 0: critic, actor and targets all move; targets by exactly tau toward the new online nets.
     assert _changed(first.critics, learner.critics) and _changed(first.actor, learner.actor)
-    for target, old, new in ((first.target_actor, learner.target_actor, first.actor),
-                             (first.target_critics, learner.target_critics, first.critics)):
+    for target, old, new in (
+        (first.target_actor, learner.target_actor, first.actor),
+        (first.target_critics, learner.target_critics, first.critics),
+    ):
         for t, o, n in zip(*(jax.tree_util.tree_leaves(x) for x in (target, old, new))):
             np.testing.assert_allclose(t, 0.9 * np.asarray(o) + 0.1 * np.asarray(n), rtol=1e-5, atol=1e-7)
     assert np.isfinite(float(diag["actor_loss"])) and int(first.updates) == 1
@@ -228,8 +244,12 @@ def test_ddpg_critic_step_descends_on_the_hand_computed_target():
     batch = _batch(jax.random.key(1))
     from canter.algos.offpolicy.networks import deterministic_action
 
-    next_q = q_values(learner.target_critics, batch.next_obs,
-                      deterministic_action(learner.target_actor, batch.next_obs, "relu"), "relu")
+    next_q = q_values(
+        learner.target_critics,
+        batch.next_obs,
+        deterministic_action(learner.target_actor, batch.next_obs, "relu"),
+        "relu",
+    )
     target = batch.reward + 0.5 * next_q[0]
     before = float(jnp.mean((q_values(learner.critics, batch.obs, batch.action, "relu")[0] - target) ** 2))
     new, diag = _update(DDPG(cfg), learner, batch, jax.random.key(2))
@@ -246,8 +266,9 @@ def test_sac_update_moves_alpha_toward_the_target_entropy():
     # A freshly initialized policy has near-maximal entropy, far above a target of -10: alpha must fall.
     new, diag = _update(SAC(cfg, -10.0), learner, batch, jax.random.key(2))
     assert float(diag["alpha"]) < 0.5 and float(new.log_alpha) < math.log(0.5)
-    for t, o, n in zip(*(jax.tree_util.tree_leaves(x) for x in (new.target_critics, learner.target_critics,
-                                                                new.critics))):
+    for t, o, n in zip(
+        *(jax.tree_util.tree_leaves(x) for x in (new.target_critics, learner.target_critics, new.critics))
+    ):
         np.testing.assert_allclose(t, (1 - cfg.tau) * np.asarray(o) + cfg.tau * np.asarray(n), rtol=1e-5, atol=1e-7)
     # An unreachable target entropy (+10) raises it.
     new, _ = _update(SAC(cfg, 10.0), learner, batch, jax.random.key(2))

@@ -15,14 +15,14 @@ from canter.config.overrides import apply_overrides
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
 from canter.use.plot import (
-    Group,
+    Experiment,
     RunCurves,
     bootstrap_band,
     choose_metrics,
     common_grid,
-    group_band,
-    group_labels,
-    group_runs,
+    experiment_band,
+    experiment_labels,
+    experiments_of,
     interpolate,
     load_run,
     moving_average,
@@ -35,7 +35,7 @@ def test_moving_average_matches_a_loop_with_nans():
     for window in (1, 2, 3, 5, 20):
         expected = []
         for i in range(len(y)):
-            chunk = [v for v in y[max(0, i - window + 1): i + 1] if not math.isnan(v)]
+            chunk = [v for v in y[max(0, i - window + 1) : i + 1] if not math.isnan(v)]
             expected.append(sum(chunk) / len(chunk) if chunk else math.nan)
         np.testing.assert_allclose(moving_average(y, window), expected, rtol=1e-12, equal_nan=True)
     np.testing.assert_array_equal(moving_average(y, 1), y)
@@ -68,7 +68,7 @@ def test_bootstrap_band_matches_a_numpy_loop():
 
 def test_bootstrap_band_width_is_about_the_normal_interval():
     samples = np.random.default_rng(0).normal(size=(40, 200))
-    mean, low, high = bootstrap_band(samples, seed=1)
+    _mean, low, high = bootstrap_band(samples, seed=1)
     expected = 2 * 1.96 * samples.std(axis=0, ddof=1) / math.sqrt(40)
     assert 0.85 < np.median((high - low) / expected) < 1.1
 
@@ -89,15 +89,16 @@ def test_interpolation_onto_a_common_grid():
     np.testing.assert_allclose(grid, np.linspace(0.0, 3300.0, 5))
     # Runs that barely overlap keep their own resolution rather than share a grid of 3 points.
     np.testing.assert_allclose(common_grid([np.arange(3.0), np.arange(10.0, 13.0)]), np.arange(13.0))
-    assert len(common_grid([np.array([0.0, 1e-9, 2e-9, 1e9])])) == 4000   # capped
+    assert len(common_grid([np.array([0.0, 1e-9, 2e-9, 1e9])])) == 4000  # capped
     np.testing.assert_allclose(interpolate(x1, 2 * x1 + 1, grid), [1.0, 1651.0, 3301.0, 4951.0, np.nan])
-    y2 = np.array([1.0, np.nan, 3.0, 5.0, 7.0])   # a NaN row is skipped, not propagated
-    np.testing.assert_allclose(interpolate(x2, y2, np.array([0.0, 100.0, 2050.0, 2275.0])),
-                               [np.nan, 1.0, 3.0, 4.0])
+    y2 = np.array([1.0, np.nan, 3.0, 5.0, 7.0])  # a NaN row is skipped, not propagated
+    np.testing.assert_allclose(interpolate(x2, y2, np.array([0.0, 100.0, 2050.0, 2275.0])), [np.nan, 1.0, 3.0, 4.0])
     assert np.isnan(interpolate(x2, np.full(5, np.nan), grid)).all()
     # Held for up to `hold` past the ends, NaN beyond.
-    np.testing.assert_allclose(interpolate(x1, 2 * x1 + 1, np.array([-50.0, -150.0, 3050.0, 3150.0]), hold=100.0),
-                               [1.0, np.nan, 6001.0, np.nan])
+    np.testing.assert_allclose(
+        interpolate(x1, 2 * x1 + 1, np.array([-50.0, -150.0, 3050.0, 3150.0]), hold=100.0),
+        [1.0, np.nan, 6001.0, np.nan],
+    )
 
 
 def test_seeds_ending_an_iteration_apart_draw_no_spike_at_the_end():
@@ -105,12 +106,12 @@ def test_seeds_ending_an_iteration_apart_draw_no_spike_at_the_end():
     # average both seeds, not show the later seed alone.
     early = fake_run(np.arange(1000.0, 100_001.0, 1000.0), np.full(100, 1000.0), seed=0)
     late = fake_run(np.arange(1000.0, 100_001.0, 1000.0) + 900.0, np.full(100, 5000.0), seed=1)
-    band = group_band(Group("g", (early, late)), "episodic_return")
+    band = experiment_band(Experiment("g", (early, late)), "episodic_return")
     assert band.x[-1] == 100_900.0
     np.testing.assert_allclose(band.mean, 3000.0)
     # A run that stops far short of the other still drops out instead of being extended.
     short = fake_run(np.arange(1000.0, 50_001.0, 1000.0), np.full(50, 1000.0), seed=2)
-    band = group_band(Group("g", (short, late)), "episodic_return")
+    band = experiment_band(Experiment("g", (short, late)), "episodic_return")
     assert band.mean[-1] == 5000.0
     np.testing.assert_allclose(band.mean[band.x <= 50_000.0], 3000.0)
 
@@ -118,37 +119,44 @@ def test_seeds_ending_an_iteration_apart_draw_no_spike_at_the_end():
 def fake_run(steps, values, seed=0, **sets) -> RunCurves:
     config = build_config("Pendulum-v1", seed=seed, sets=[f"{k}={v}" for k, v in sets.items()])
     steps = np.asarray(steps, float)
-    return RunCurves(Path(f"run{seed}"), config, {"global_step": steps, "wall_time": steps / 100.0,
-                                                  "episodic_return": np.asarray(values, float)})
+    return RunCurves(
+        Path(f"run{seed}"),
+        config,
+        {"global_step": steps, "wall_time": steps / 100.0, "episodic_return": np.asarray(values, float)},
+    )
 
 
 def test_group_band_averages_runs_with_different_step_grids():
-    a = fake_run([0, 1000, 2000, 3000], [0.0, 10.0, 20.0, 30.0], seed=0)        # y = x / 100
-    b = fake_run([0, 1500, 3000], [5.0, 20.0, 35.0], seed=1)                    # y = x / 100 + 5
-    band = group_band(Group("g", (a, b)), "episodic_return")
+    a = fake_run([0, 1000, 2000, 3000], [0.0, 10.0, 20.0, 30.0], seed=0)  # y = x / 100
+    b = fake_run([0, 1500, 3000], [5.0, 20.0, 35.0], seed=1)  # y = x / 100 + 5
+    band = experiment_band(Experiment("g", (a, b)), "episodic_return")
     np.testing.assert_allclose(band.x, np.linspace(0, 3000, 4))
     np.testing.assert_allclose(band.mean, band.x / 100 + 2.5)
     assert band.runs == 2 and (band.low <= band.mean).all() and (band.high >= band.mean).all()
     # Where only one run reaches, the mean is that run's value and the band collapses onto it.
     c = fake_run([0, 1500, 4500], [5.0, 20.0, 50.0], seed=2)
-    longer = group_band(Group("g", (a, c)), "episodic_return")
-    np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 6))   # run a's spacing of 1000 sets the grid
+    longer = experiment_band(Experiment("g", (a, c)), "episodic_return")
+    np.testing.assert_allclose(longer.x, np.linspace(0, 4500, 6))  # run a's spacing of 1000 sets the grid
     # Run a holds its last value (30) for one logging interval (1000) past its end at 3000: x = 3600 averages
     # both runs, x = 4500 is c's alone.
-    np.testing.assert_allclose(longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, (30 + 41) / 2,
-                                             50.0])
+    np.testing.assert_allclose(
+        longer.mean, [(0 + 5) / 2, (9 + 14) / 2, (18 + 23) / 2, (27 + 32) / 2, (30 + 41) / 2, 50.0]
+    )
     assert longer.low[-1] == longer.high[-1] == 50.0
-    wall = group_band(Group("g", (a, b)), "episodic_return", x_axis="wall")
+    wall = experiment_band(Experiment("g", (a, b)), "episodic_return", x_axis="wall")
     np.testing.assert_allclose(wall.mean, wall.x + 2.5)
-    smoothed = group_band(Group("g", (a,)), "episodic_return", smooth=2)
+    smoothed = experiment_band(Experiment("g", (a,)), "episodic_return", smooth=2)
     np.testing.assert_allclose(smoothed.mean, [0.0, 5.0, 15.0, 25.0])
-    assert group_band(Group("g", (a,)), "approx_kl") is None
+    assert experiment_band(Experiment("g", (a,)), "approx_kl") is None
 
 
 def test_grouping_and_labels():
-    runs = [fake_run([0, 1], [0, 1], seed=0), fake_run([0, 1], [0, 1], seed=1, **{"run.out_dir": "elsewhere"}),
-            fake_run([0, 1], [0, 1], seed=0, **{"ppo.clip": 0.3})]
-    groups = group_runs(runs)
+    runs = [
+        fake_run([0, 1], [0, 1], seed=0),
+        fake_run([0, 1], [0, 1], seed=1, **{"run.out_dir": "elsewhere"}),
+        fake_run([0, 1], [0, 1], seed=0, **{"ppo.clip": 0.3}),
+    ]
+    groups = experiments_of(runs)
     assert [len(g.runs) for g in groups] == [2, 1]
     assert [g.label for g in groups] == ["ppo.clip=0.2", "ppo.clip=0.3"]
 
@@ -156,19 +164,26 @@ def test_grouping_and_labels():
     cleanrl = build_config("Hopper-v5", preset="cleanrl")
     cleanrl_clip = apply_overrides(cleanrl, {"ppo.clip": 0.1}, "test")
     # A preset changes many keys; the label names the preset, plus the key that tells equal presets apart.
-    assert group_labels([fast, cleanrl, cleanrl_clip]) == ["preset=fast", "preset=cleanrl, ppo.clip=0.2",
-                                                           "preset=cleanrl, ppo.clip=0.1"]
-    assert group_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
+    assert experiment_labels([fast, cleanrl, cleanrl_clip]) == [
+        "preset=fast",
+        "preset=cleanrl, ppo.clip=0.2",
+        "preset=cleanrl, ppo.clip=0.1",
+    ]
+    assert experiment_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
     # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
     td3 = fast.replace(run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
-    assert group_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
+    assert experiment_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
 
 
 def test_choose_metrics_defaults_and_globs():
     run = fake_run([0, 1], [0, 1])
-    columns = dict(run.columns, sps=np.array([5.0, 6.0]), critic_loss=np.array([1.0, np.nan]),
-                   empty=np.array([np.nan, np.nan]), **{"info/reward_ctrl": np.array([1.0, 2.0]),
-                                                        "info/x_velocity": np.array([0.0, 1.0])})
+    columns = dict(
+        run.columns,
+        sps=np.array([5.0, 6.0]),
+        critic_loss=np.array([1.0, np.nan]),
+        empty=np.array([np.nan, np.nan]),
+        **{"info/reward_ctrl": np.array([1.0, 2.0]), "info/x_velocity": np.array([0.0, 1.0])},
+    )
     run = RunCurves(run.run_dir, run.config, columns)
     assert choose_metrics([run], None) == ["episodic_return", "sps", "critic_loss"]
     assert choose_metrics([run], ["info/*", "sps"]) == ["info/reward_ctrl", "info/x_velocity", "sps"]
@@ -199,18 +214,27 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
     (other / "config.toml").write_text(to_toml(config))
 
     runs = [str(tiny_run.run_dir), str(tiny_run_seed1.run_dir), str(other)]
-    code, out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "c.png"), "--smooth", "3"], capsys)
+    code, _out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "c.png"), "--smooth", "3"], capsys)
     assert code == 0, err
     image = matplotlib.image.imread(tmp_path / "c.png")
     assert image.shape[0] > 600 and image.shape[1] > 1000 and image[..., :3].std() > 0.05
 
-    code, out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "c.svg"), "--x", "wall",
-                              "--metrics", "episodic_return,approx_kl"], capsys)
+    code, _out, err = run_cli(
+        ["plot", *runs, "--out", str(tmp_path / "c.svg"), "--x", "wall", "--metrics", "episodic_return,approx_kl"],
+        capsys,
+    )
     assert code == 0, err
     svg = (tmp_path / "c.svg").read_text()
-    ET.fromstring(svg)   # well-formed
-    for text in ("Pendulum-v1", "Episode return", "Approx. KL", "wall time (s)", "ppo.clip=0.2 (2 runs)",
-                 "ppo.clip=0.3 (1 run)", "95% bootstrap CI"):
+    ET.fromstring(svg)  # well-formed
+    for text in (
+        "Pendulum-v1",
+        "Episode return",
+        "Approx. KL",
+        "wall time (s)",
+        "ppo.clip=0.2 (2 runs)",
+        "ppo.clip=0.3 (1 run)",
+        "95% bootstrap CI",
+    ):
         assert text in svg, text
     assert "Clip fraction" not in svg
     assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["c.png", "c.svg"]
@@ -220,17 +244,17 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
 def test_plot_cli_bad_input(tiny_run, tmp_path, capsys):
     no_metrics = tmp_path / "empty_run"
     no_metrics.mkdir()
-    code, out, err = run_cli(["plot", str(no_metrics), "--out", str(tmp_path / "c.png")], capsys)
+    code, _out, err = run_cli(["plot", str(no_metrics), "--out", str(tmp_path / "c.png")], capsys)
     assert code == 2 and err.count("\n") == 1 and "no metrics.csv" in err
 
-    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--metrics", "nope"], capsys)
+    code, _out, err = run_cli(["plot", str(tiny_run.run_dir), "--metrics", "nope"], capsys)
     assert code == 2 and err.count("\n") == 1 and "choose from: episodic_return" in err
 
-    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(tmp_path / "c.jpeg2")], capsys)
+    code, _out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(tmp_path / "c.jpeg2")], capsys)
     assert code == 2 and ".png" in err
 
     blocker = tmp_path / "a_file"
     blocker.write_text("")
-    code, out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(blocker / "c.png")], capsys)
+    code, _out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(blocker / "c.png")], capsys)
     assert code == 2 and err.count("\n") == 1 and "cannot write" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "empty_run"]

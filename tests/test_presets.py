@@ -16,8 +16,15 @@ from canter.config.presets import (
 from canter.envs import make_vec_env
 
 # Presets without an `# env:` header line are general; they are checked on the seeds' tasks.
-GENERAL_ENVS = ("HalfCheetah-v4", "Hopper-v4", "Walker2d-v4", "Humanoid-v4", "HumanoidStandup-v4", "Ant-v4",
-                "BipedalWalker-v3")
+GENERAL_ENVS = (
+    "HalfCheetah-v4",
+    "Hopper-v4",
+    "Walker2d-v4",
+    "Humanoid-v4",
+    "HumanoidStandup-v4",
+    "Ant-v4",
+    "BipedalWalker-v3",
+)
 
 
 def preset_envs(name: str) -> tuple[str, ...]:
@@ -38,8 +45,9 @@ def spec_of(env_id: str):
 
 @pytest.mark.parametrize("name", preset_names())
 def test_preset_builds_a_valid_config_for_its_envs(name):
-    assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), \
+    assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), (
         "a preset starts with a comment header that gives its source"
+    )
     for env_id in preset_envs(name):
         declared = preset_algorithms(name)
         pinned = None if declared else preset_overrides(name, env_id).get("run.algo")
@@ -52,8 +60,12 @@ def test_preset_builds_a_valid_config_for_its_envs(name):
 def test_seed_presets_hold_the_seeds_numbers():
     standup = build_config("HumanoidStandup-v4", preset="report000-humanoidstandup")
     assert standup.run.algo == "rpo" and standup.run.total_steps == 5_000_000
-    assert (standup.ppo.n_steps, standup.ppo.minibatch_size, standup.ppo.lr, standup.ppo.ent_coef) == \
-        (2048, 64, 2e-5, 1e-4)
+    assert (standup.ppo.n_steps, standup.ppo.minibatch_size, standup.ppo.lr, standup.ppo.ent_coef) == (
+        2048,
+        64,
+        2e-5,
+        1e-4,
+    )
     assert standup.rpo.alpha == 0.5 and standup.sym.coef == 0.02 and standup.sym.groups == "3:7=7:11,11:14=14:17"
     cheetah = build_config("HalfCheetah-v4", preset="report000-halfcheetah")
     assert cheetah.ppo.ent_coef == 0.5 and cheetah.run.seed == 8 and cheetah.ppo.minibatch_size == 32
@@ -71,7 +83,7 @@ def test_rpo_alpha_is_small_where_0_5_collapses(preset):
     for env_id in ("Ant-v4", "InvertedDoublePendulum-v4", "Reacher-v4", "Pusher-v4"):
         assert build_config(env_id, preset=preset, algo="rpo").rpo.alpha == 0.01
     assert build_config("Hopper-v4", preset=preset, algo="rpo").rpo.alpha == 0.5
-    assert build_config("Ant-v4", preset=preset, algo="ppo").rpo.alpha == 0.5   # only rpo's table
+    assert build_config("Ant-v4", preset=preset, algo="ppo").rpo.alpha == 0.5  # only rpo's table
 
 
 def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
@@ -90,12 +102,12 @@ def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     config = build_config("HumanoidStandup-v4", preset="report000-humanoidstandup")
-    reflect = np.diag([1.0, -1.0, 1.0])     # the sagittal plane is y = 0
+    reflect = np.diag([1.0, -1.0, 1.0])  # the sagittal plane is y = 0
     for pair in parse_groups(config.sym.groups, config.sym.negate):
         # The seed's pairs put the right limb first and the left limb as its mirror.
         for right, left, sign in zip(pair.first, pair.mirror, pair.signs):
             right_name, left_name = model.actuator(right).name, model.actuator(left).name
-            assert right_name.startswith("right_") and left_name == "left_" + right_name[len("right_"):]
+            assert right_name.startswith("right_") and left_name == "left_" + right_name[len("right_") :]
             axis_r = data.xaxis[model.actuator(right).trnid[0]]
             axis_l = data.xaxis[model.actuator(left).trnid[0]]
             np.testing.assert_allclose(axis_l, sign * -(reflect @ axis_r), atol=1e-6)
@@ -132,12 +144,16 @@ def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
     assert preset["sac"].pop("alpha_lr") == 3e-4 and not preset["sac"]["autotune"]
     as_run["sac"].pop("alpha_lr")
     assert as_run["sac"] == preset["sac"]
-    assert {k: v for k, v in as_run["run"].items() if k != "preset"} == \
-        {k: v for k, v in preset["run"].items() if k != "preset"}
+    assert {k: v for k, v in as_run["run"].items() if k != "preset"} == {
+        k: v for k, v in preset["run"].items() if k != "preset"
+    }
     ddpg = build_config("Hopper-v5", preset="tianshou", algo="ddpg").ddpg
     assert (ddpg.actor_lr, ddpg.critic_lr, ddpg.policy_delay, ddpg.learning_starts) == (1e-3, 1e-3, 1, 25_000)
     td3 = build_config("Hopper-v5", preset="tianshou", algo="td3").td3
     assert td3 == build_config("Hopper-v5", preset="cleanrl", algo="td3").td3
-    with pytest.raises(CanterError, match=r"preset tianshou holds settings for sac, td3, ddpg only, not ppo; "
-                                          r"train one of those algorithms with it \(e.g. --algo sac\)"):
+    with pytest.raises(
+        CanterError,
+        match=r"preset tianshou holds settings for sac, td3, ddpg only, not ppo; "
+        r"train one of those algorithms with it \(e.g. --algo sac\)",
+    ):
         build_config("Walker2d-v5", preset="tianshou")

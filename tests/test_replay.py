@@ -7,8 +7,13 @@ from canter.core.replay import Transitions, init_buffer, insert, sample
 
 def _rows(values, obs_dim=2, act_dim=1):
     v = np.asarray(values, np.float32)
-    return Transitions(np.repeat(v[:, None], obs_dim, 1), np.repeat(v[:, None], act_dim, 1) / 10, v * 100,
-                       np.repeat(v[:, None], obs_dim, 1) + 0.5, (v % 2 == 0).astype(np.float32))
+    return Transitions(
+        np.repeat(v[:, None], obs_dim, 1),
+        np.repeat(v[:, None], act_dim, 1) / 10,
+        v * 100,
+        np.repeat(v[:, None], obs_dim, 1) + 0.5,
+        (v % 2 == 0).astype(np.float32),
+    )
 
 
 def test_insert_wraps_and_skips_masked_rows_like_a_python_ring_buffer():

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from chromium_page import CHROMIUM, inspect_page
 
 from canter.cli.main import main
+from chromium_page import CHROMIUM, inspect_page
 
 needs_chromium = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="chromium is not installed")
 # Starting Chromium forks; JAX warns about forks in general, but the child only execs bash and Chromium.
@@ -66,9 +66,11 @@ def run_with_media(tiny_run, tmp_path):
 @needs_chromium
 def test_the_browser_check_catches_console_errors(tmp_path):
     page = tmp_path / "bad.html"
-    page.write_text("<!DOCTYPE html><html><head><title>t</title></head><body><p>hi</p>"
-                    "<script>console.error('deliberate error'); console.log('harmless log line');</script>"
-                    "<script>undefinedFunction();</script></body></html>")
+    page.write_text(
+        "<!DOCTYPE html><html><head><title>t</title></head><body><p>hi</p>"
+        "<script>console.error('deliberate error'); console.log('harmless log line');</script>"
+        "<script>undefinedFunction();</script></body></html>"
+    )
     report = inspect_page(page)
     assert report.loaded
     assert any("deliberate error" in e for e in report.console_errors)
@@ -97,7 +99,7 @@ def test_report_in_a_headless_browser(run_with_media, tiny_run_seed1, tmp_path, 
     assert page.loaded and page.console_errors == []
     assert page.media["title"].startswith("canter report: Pendulum-v1 (2 runs)")
     images = page.media["images"]
-    assert len(images) == 2 and all(i["complete"] and i["width"] > 0 for i in images)   # curves + robustness
+    assert len(images) == 2 and all(i["complete"] and i["width"] > 0 for i in images)  # curves + robustness
     assert len(page.media["videos"]) == 1
     video = page.media["videos"][0]
     assert video["error"] is None and video["ready"] >= 2 and (video["width"], video["height"]) == (64, 48)
@@ -109,11 +111,11 @@ def test_report_in_a_headless_browser(run_with_media, tiny_run_seed1, tmp_path, 
     # The evaluation table reports what canter.evaluate computes for the same seed.
     expected = evaluate(load(run_with_media), episodes=2, seed=0)
     starts = [i for i, c in enumerate(dom.cells) if c == f"1. {run_with_media.name}"]
-    assert len(starts) == 2   # the runs table, then the evaluation table (run, steps, episodes, return, ...)
-    row = dom.cells[starts[1]: starts[1] + 6]
+    assert len(starts) == 2  # the runs table, then the evaluation table (run, steps, episodes, return, ...)
+    row = dom.cells[starts[1] : starts[1] + 6]
     assert row[2] == "2" and row[3] == f"{expected.mean:.1f} ± {expected.std:.1f}"
-    assert "env=Pendulum-v1 algo=ppo preset=fast: mean of 2 runs" in dom.cells   # seeds summarised together
-    assert "run.seed" in dom.cells   # the config section lists the differing key
+    assert "env=Pendulum-v1 algo=ppo preset=fast: mean of 2 runs" in dom.cells  # seeds summarised together
+    assert "run.seed" in dom.cells  # the config section lists the differing key
 
 
 def test_report_without_evaluation_or_media(tiny_run, tmp_path, capsys):
@@ -150,10 +152,10 @@ def test_report_records_a_video_with_canter_video(tiny_run, tmp_path, capsys):
     assert len(videos) == 1 and videos[0].startswith("data:video/mp4;base64,")
     (tmp_path / "embedded.mp4").write_bytes(base64.b64decode(videos[0].split(",", 1)[1]))
     frames = iio.imread(tmp_path / "embedded.mp4")
-    assert frames.shape[0] == 201 and frames.shape[1:3] == (360, 480)   # reset frame + 200 Pendulum steps
-    assert frames.std() > 5   # not blank
+    assert frames.shape[0] == 201 and frames.shape[1:3] == (360, 480)  # reset frame + 200 Pendulum steps
+    assert frames.std() > 5  # not blank
     assert "recorded for this report" in out.read_text()
-    assert not (tiny_run.run_dir / "videos").exists()   # nothing written into the run folder
+    assert not (tiny_run.run_dir / "videos").exists()  # nothing written into the run folder
 
 
 def test_report_shows_a_robustness_sweep_with_its_numbers(tiny_hopper_run, tmp_path, capsys):
@@ -166,9 +168,9 @@ def test_report_shows_a_robustness_sweep_with_its_numbers(tiny_hopper_run, tmp_p
     out = tmp_path / "r.html"
     assert main(["report", str(run), "--episodes", "0", "--out", str(out)]) == 0
     text = out.read_text()
-    assert text.count("<img ") == 2   # curves + the sweep's plot
+    assert text.count("<img ") == 2  # curves + the sweep's plot
     cells = parse(text).cells
     points = sweep["runs"][0]["points"]
     for scale, point in zip(("0.5", "1.5"), points):
-        row = cells[cells.index(scale):][:2]
+        row = cells[cells.index(scale) :][:2]
         assert row[1] == f"{point['return_mean']:.1f} ± {point['return_std']:.1f}"

@@ -4,7 +4,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_gae import reference_gae
 
 from canter.algos.onpolicy_rollout import collect, estimate_advantages
 from canter.algos.ppo.iteration import init_train_state, make_iteration
@@ -12,12 +11,20 @@ from canter.config.build import build_config
 from canter.core.networks import value
 from canter.envs import make_vec_env
 from canter.envs.episodes import init_env_carry
+from test_gae import reference_gae
 
 
 def _setup(env_id, backend, num_envs, n_steps):
-    config = build_config(env_id, sets=[f"env.backend={backend}", f"env.num_envs={num_envs}",
-                                        f"ppo.n_steps={n_steps}", f"ppo.minibatch_size={n_steps}",
-                                        "net.hidden=8"])
+    config = build_config(
+        env_id,
+        sets=[
+            f"env.backend={backend}",
+            f"env.num_envs={num_envs}",
+            f"ppo.n_steps={n_steps}",
+            f"ppo.minibatch_size={n_steps}",
+            "net.hidden=8",
+        ],
+    )
     env = make_vec_env(config.env.id, config.env.backend, num_envs, list(range(num_envs)))
     state = init_train_state(config, env.spec.obs_dim, env.spec.act_dim)
     carry = init_env_carry(env.initial_state(), env.reset(), env.spec.info_keys)
@@ -27,8 +34,7 @@ def _setup(env_id, backend, num_envs, n_steps):
 def _collect(config, env, state, carry):
     low = jnp.asarray(env.spec.action_low, jnp.float32)
     high = jnp.asarray(env.spec.action_high, jnp.float32)
-    fn = jax.jit(lambda s, c, k: collect(s.params, s.obs_stats, s.return_stats, c, k, env.jax_step, low, high,
-                                         config))
+    fn = jax.jit(lambda s, c, k: collect(s.params, s.obs_stats, s.return_stats, c, k, env.jax_step, low, high, config))
     return fn(state, carry, jax.random.key(0))
 
 
@@ -61,9 +67,15 @@ def test_estimate_advantages_bootstraps_from_the_last_observation_and_matches_a_
     assert values.shape == (25, 2) and advantages.shape == returns.shape == (24, 2)
     np.testing.assert_allclose(values[-1], value(state.params, next_obs, config.net), rtol=1e-6)
     np.testing.assert_allclose(values[:-1], value(state.params, tr.obs, config.net), rtol=1e-6)
-    expected_adv, expected_ret = reference_gae(np.asarray(tr.reward), np.asarray(values), np.asarray(tr.terminated),
-                                               np.asarray(tr.done), np.asarray(tr.valid), config.ppo.gamma,
-                                               config.ppo.gae_lambda)
+    expected_adv, expected_ret = reference_gae(
+        np.asarray(tr.reward),
+        np.asarray(values),
+        np.asarray(tr.terminated),
+        np.asarray(tr.done),
+        np.asarray(tr.valid),
+        config.ppo.gamma,
+        config.ppo.gae_lambda,
+    )
     np.testing.assert_allclose(advantages, expected_adv, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(returns * tr.valid, expected_ret, rtol=1e-4, atol=1e-5)
 

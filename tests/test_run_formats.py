@@ -29,8 +29,11 @@ def v1_runs(tmp_path):
 
 
 def _digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_fixtures_are_format_1_and_read_as_their_algorithms():
@@ -54,8 +57,20 @@ def test_v1_runs_evaluate_plot_report_and_export_without_being_written(v1_runs, 
     assert len(evaluated["groups"]) == 1 and evaluated["groups"][0]["seeds"] == [3, 0, 1]
     assert main(["plot", *runs, "--out", str(tmp_path / "curves.png")]) == 0
     assert (tmp_path / "curves.png").stat().st_size > 0
-    assert main(["report", str(v1_runs / "ppo"), str(v1_runs / "td3"), "--episodes", "1",
-                 "--out", str(tmp_path / "report.html")]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(v1_runs / "ppo"),
+                str(v1_runs / "td3"),
+                "--episodes",
+                "1",
+                "--out",
+                str(tmp_path / "report.html"),
+            ]
+        )
+        == 0
+    )
     assert "td3" in (tmp_path / "report.html").read_text()
     for name in ALGORITHM_RUNS:
         out = tmp_path / f"{name}.npz"
@@ -77,8 +92,9 @@ def test_a_v1_run_resumes_and_is_migrated(v1_runs, name):
     unread = {"td3", "ddpg", "sac", "trpo", "rpo"} - {name}
     assert not any(f"[{section}]" in text for section in unread)
     # Every key the algorithm reads is kept (the others, such as the ppo.minibatch_size trpo ignores, are dropped).
-    assert flat_config(read_config(run)) == \
-        flat_config(read_config(FIXTURES / name).with_values("run", total_steps=steps + 400))
+    assert flat_config(read_config(run)) == flat_config(
+        read_config(FIXTURES / name).with_values("run", total_steps=steps + 400)
+    )
 
 
 def test_a_v1_seed_group_resumes_together(v1_runs):
@@ -95,7 +111,7 @@ def test_migration_is_one_step_per_version_and_a_newer_format_is_refused(v1_runs
     assert run_format(run) == 2
     assert "[ppo]" not in (run / "config.toml").read_text()
     versions = json.loads((run / "versions.json").read_text())
-    assert versions["run_format"] == 2 and versions["jax"]   # the packages that made the run are kept
+    assert versions["run_format"] == 2 and versions["jax"]  # the packages that made the run are kept
     (run / "versions.json").write_text(json.dumps(dict(versions, run_format=RUN_FORMAT + 1)))
     from canter.errors import CanterError
 

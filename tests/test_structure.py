@@ -92,7 +92,7 @@ def test_the_import_graph_has_no_cycles_between_layers():
         state[module] = 1
         for nxt in sorted(edges.get(module, ())):
             if state.get(nxt) == 1:
-                raise AssertionError("import cycle: " + " -> ".join(path[path.index(nxt):] + [nxt]))
+                raise AssertionError("import cycle: " + " -> ".join(path[path.index(nxt) :] + [nxt]))
             if nxt not in state:
                 visit(nxt, path + [nxt])
         state[module] = 2
@@ -103,11 +103,18 @@ def test_the_import_graph_has_no_cycles_between_layers():
 
 
 def test_one_rule_decides_which_runs_are_seeds_of_one_experiment():
-    defining = [m for m in MODULES for node in ast.walk(ast.parse((PACKAGE.parent / (m.replace(".", "/") + ".py"))
-                                                                  .read_text()
-                                                                  if (PACKAGE.parent / (m.replace(".", "/") + ".py"))
-                                                                  .exists() else ""))
-                if isinstance(node, ast.FunctionDef) and node.name in ("experiment_key", "flat_config")]
+    defining = [
+        m
+        for m in MODULES
+        for node in ast.walk(
+            ast.parse(
+                (PACKAGE.parent / (m.replace(".", "/") + ".py")).read_text()
+                if (PACKAGE.parent / (m.replace(".", "/") + ".py")).exists()
+                else ""
+            )
+        )
+        if isinstance(node, ast.FunctionDef) and node.name in ("experiment_key", "flat_config")
+    ]
     assert sorted(set(defining)) == ["canter.config.experiment"]
 
 
@@ -115,7 +122,9 @@ def test_building_a_config_imports_neither_jax_nor_an_env_library():
     import subprocess
     import sys
 
-    code = ("import sys, canter; canter.build_config('Hopper-v5', algo='sac'); canter.build_config('Hopper-v5'); "
-            "print(sorted(m for m in ('jax', 'gymnasium', 'envpool', 'mujoco') if m in sys.modules))")
+    code = (
+        "import sys, canter; canter.build_config('Hopper-v5', algo='sac'); canter.build_config('Hopper-v5'); "
+        "print(sorted(m for m in ('jax', 'gymnasium', 'envpool', 'mujoco') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

@@ -3,19 +3,24 @@ import shutil
 import jax
 import numpy as np
 import pytest
-from conftest import TINY
-from signals import sigterm_once_logging
 
 from canter.config.algorithms import reads_key
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training.loop import resume_config, train
 from canter.training.restore import load_state
+from conftest import TINY
+from signals import sigterm_once_logging
 
 pytestmark = pytest.mark.slow
 
-SMALL = TINY + ["env.num_envs=4", "ppo.n_steps=256", "ppo.minibatch_size=256", "ppo.epochs=2",
-                "run.checkpoint_every=2048"]
+SMALL = TINY + [
+    "env.num_envs=4",
+    "ppo.n_steps=256",
+    "ppo.minibatch_size=256",
+    "ppo.epochs=2",
+    "run.checkpoint_every=2048",
+]
 
 
 def _config(total=4096, env="Pendulum-v1", extra=()):
@@ -23,8 +28,10 @@ def _config(total=4096, env="Pendulum-v1", extra=()):
 
 
 def _leaves_equal(a, b):
-    return all(np.array_equal(np.asarray(x), np.asarray(y))
-               for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+    return all(
+        np.array_equal(np.asarray(x), np.asarray(y))
+        for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
+    )
 
 
 def _resume_twice(run_dir, total, copy):
@@ -44,8 +51,18 @@ def test_run_folder_contents(tiny_run):
     for name in ("config.toml", "versions.json", "metrics.csv", "summary.json"):
         assert (run / name).is_file()
     header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
-    for column in ("global_step", "episodic_return", "approx_kl", "clip_frac", "explained_variance", "sps",
-                   "learning_rate", "policy_loss", "value_loss", "entropy"):
+    for column in (
+        "global_step",
+        "episodic_return",
+        "approx_kl",
+        "clip_frac",
+        "explained_variance",
+        "sps",
+        "learning_rate",
+        "policy_loss",
+        "value_loss",
+        "entropy",
+    ):
         assert column in header
     assert tiny_run.global_step >= 8192 and tiny_run.sps > 0 and tiny_run.compile_seconds > 0
 
@@ -95,7 +112,8 @@ def test_resume_after_a_hard_kill_redoes_the_lost_rows_and_keeps_whole_run_total
     assert 2048 <= int(header["global_step"]) < first.global_step and header["totals"]["wall_seconds"] > 0
 
     again = train(resume_config(run, 4096), resume=run)
-    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    with open(run / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
     steps = [int(r["global_step"]) for r in rows]
     walls = [float(r["wall_time"]) for r in rows]
     assert steps == sorted(set(steps)) and steps[-1] == again.global_step >= 4096
@@ -109,8 +127,9 @@ def test_resume_after_a_hard_kill_redoes_the_lost_rows_and_keeps_whole_run_total
 
 
 def test_stop_conditions(tmp_path):
-    r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000",
-                                            "run.tensorboard=true"]))
+    r = train(
+        _config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.stop_at_return=-100000", "run.tensorboard=true"])
+    )
     assert r.stop_reason == "stop_at_return" and r.global_step < 100_000
     events = list((r.run_dir / "tb").glob("events.out.tfevents.*"))
     assert events and events[0].stat().st_size > 0
@@ -128,12 +147,15 @@ def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
 
 
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):
-    config = _config(total=50_000, env="canter_test_envs:NaNAfter-v0",
-                     extra=[f"run.out_dir={tmp_path}", "env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"])
+    config = _config(
+        total=50_000,
+        env="canter_test_envs:NaNAfter-v0",
+        extra=[f"run.out_dir={tmp_path}", "env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"],
+    )
     with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
         train(config)
     run_dir = next(tmp_path.iterdir())
-    _, _, state, header = load_state(run_dir)
+    _, _, state, _header = load_state(run_dir)
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
 
 
@@ -147,7 +169,6 @@ def test_trpo_resume_is_deterministic_and_continues(tmp_path):
     assert int(s1.iteration) > int(before.iteration) and not _leaves_equal(s1.params, before.params)
     header = (r1.run_dir / "metrics.csv").read_text().splitlines()[0].split(",")
     assert {"surrogate_gain", "policy_kl", "step_accepted", "cg_iterations", "value_loss"} <= set(header)
-
 
 
 def test_clipped_ppo_checkpoints_hold_no_kl_beta(tiny_run):

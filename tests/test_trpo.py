@@ -49,10 +49,12 @@ def _tiny_problem(state_dependent_std=False, seed=0):
     # Larger output weights than the 0.01 init, so the means depend visibly on the observation.
     params["actor"][-1]["w"] = jax.random.normal(jax.random.key(seed + 1), params["actor"][-1]["w"].shape)
     rng = np.random.default_rng(seed)
-    batch = PolicyBatch(obs=jnp.asarray(rng.normal(size=(12, 2)), jnp.float32),
-                        actions=jnp.asarray(rng.normal(size=(12, 2)), jnp.float32),
-                        advantages=jnp.asarray(rng.normal(size=12), jnp.float32),
-                        mask=jnp.asarray([1.0] * 10 + [0.0] * 2))
+    batch = PolicyBatch(
+        obs=jnp.asarray(rng.normal(size=(12, 2)), jnp.float32),
+        actions=jnp.asarray(rng.normal(size=(12, 2)), jnp.float32),
+        advantages=jnp.asarray(rng.normal(size=12), jnp.float32),
+        mask=jnp.asarray([1.0] * 10 + [0.0] * 2),
+    )
     policy, _ = split_policy(params)
     return config, policy, batch
 
@@ -107,21 +109,29 @@ def test_policy_step_improves_the_surrogate_within_the_trust_region(max_kl):
     assert gain > 0 and gain == pytest.approx(float(d["surrogate_gain"]), rel=1e-4)
     assert kl <= max_kl and kl == pytest.approx(float(d["policy_kl"]), rel=1e-4)
     # The quadratic model aims at the edge of the region, so the KL of the taken step is of the order of max_kl.
-    assert kl > max_kl * 0.8 ** 10 * 0.5
+    assert kl > max_kl * 0.8**10 * 0.5
 
 
 def test_critic_regression_fits_the_returns():
-    config = Config().replace(net=NetConfig(hidden=(8,)), trpo=TRPOConfig(critic_lr=1e-2, critic_epochs=50,
-                                                                critic_minibatch_size=8))
+    config = Config().replace(
+        net=NetConfig(hidden=(8,)), trpo=TRPOConfig(critic_lr=1e-2, critic_epochs=50, critic_minibatch_size=8)
+    )
     params = init_params(jax.random.key(0), config.net, 2, 1)
     rng = np.random.default_rng(0)
     obs = jnp.asarray(rng.normal(size=(32, 2)), jnp.float32)
     returns = obs[:, 0] * 2.0 - obs[:, 1]
     mask = jnp.ones(32).at[5].set(0.0)
-    poisoned = returns.at[5].set(1e6)    # a masked row must not pull the fit
+    poisoned = returns.at[5].set(1e6)  # a masked row must not pull the fit
     regression = jax.jit(critic_regression, static_argnums=6)
-    critic, _, loss = regression(params["critic"], critic_optimizer(config).init(params["critic"]), obs, poisoned,
-                                 mask, jax.random.key(1), config)
+    critic, _, loss = regression(
+        params["critic"],
+        critic_optimizer(config).init(params["critic"]),
+        obs,
+        poisoned,
+        mask,
+        jax.random.key(1),
+        config,
+    )
     initial = float(jnp.mean(jnp.square(returns)))
     assert math.isfinite(float(loss)) and float(loss) < 0.05 * initial
     fitted = np.asarray(value({"critic": critic}, obs, config.net))

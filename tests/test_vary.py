@@ -37,9 +37,14 @@ def test_parse_spec():
     assert parse_spec("gravity=2") == VarySpec("gravity", None, (2.0,))
     assert parse_spec("geom_friction=0.5").name is None
     assert parse_spec("body_mass:torso=0.5,1").slug == "body_mass_torso"
-    for bad, message in [("body_mass:torso", "expected PARAM"), ("mass:torso=1", "valid: body_mass"),
-                         ("body_mass:torso=1,x", "not a number"), ("body_mass:torso=0", "> 0"),
-                         ("body_mass:torso=nan", "> 0"), ("gravity:z=1", "takes no name")]:
+    for bad, message in [
+        ("body_mass:torso", "expected PARAM"),
+        ("mass:torso=1", "valid: body_mass"),
+        ("body_mass:torso=1,x", "not a number"),
+        ("body_mass:torso=0", "> 0"),
+        ("body_mass:torso=nan", "> 0"),
+        ("gravity:z=1", "takes no name"),
+    ]:
         with pytest.raises(CanterError, match=message):
             parse_spec(bad)
 
@@ -70,12 +75,19 @@ def test_stale_subtree_mass_is_what_mj_setconst_fixes():
     env.close()
 
 
-@pytest.mark.parametrize("text, read, row", [
-    ("geom_friction:foot_geom=0.5", lambda m: m.geom_friction, lambda m: object_names(m, "geom").index("foot_geom")),
-    ("actuator_gear:thigh_joint=0.5", lambda m: m.actuator_gear, lambda m: 0),
-    ("gravity=0.5", lambda m: m.opt.gravity, lambda m: slice(None)),
-    ("body_mass=0.5", lambda m: m.body_mass, lambda m: slice(None)),
-])
+@pytest.mark.parametrize(
+    "text, read, row",
+    [
+        (
+            "geom_friction:foot_geom=0.5",
+            lambda m: m.geom_friction,
+            lambda m: object_names(m, "geom").index("foot_geom"),
+        ),
+        ("actuator_gear:thigh_joint=0.5", lambda m: m.actuator_gear, lambda m: 0),
+        ("gravity=0.5", lambda m: m.opt.gravity, lambda m: slice(None)),
+        ("body_mass=0.5", lambda m: m.body_mass, lambda m: slice(None)),
+    ],
+)
 def test_other_parameters_scale_only_their_target(text, read, row):
     env, model, data = hopper()
     before = np.array(read(model), copy=True)
@@ -89,7 +101,7 @@ def test_other_parameters_scale_only_their_target(text, read, row):
 
 def test_unknown_name_lists_the_valid_names():
     env, model, _ = hopper()
-    with pytest.raises(CanterError, match="valid body names: world, torso, thigh, leg, foot$"):
+    with pytest.raises(CanterError, match=r"valid body names: world, torso, thigh, leg, foot$"):
         original_value(model, parse_spec("body_mass:torsoo=1"))
     with pytest.raises(CanterError, match="valid actuator names: thigh_joint, leg_joint, foot_joint"):
         original_value(model, parse_spec("actuator_gear:hip=1"))
@@ -123,8 +135,9 @@ def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
     assert points[0]["return_mean"] == pytest.approx(np.mean(points[0]["returns"]))
     assert points[1]["value"] == pytest.approx(3 * points[0]["value"]) == pytest.approx(1.5 * report["original"])
     # Two runs (here the same one twice) on one plot, written where --out says.
-    code = main(["eval", str(run), str(run), "--episodes", "1", "--vary", "gravity=0.9",
-                 "--out", str(tmp_path / "g.png")])
+    code = main(
+        ["eval", str(run), str(run), "--episodes", "1", "--vary", "gravity=0.9", "--out", str(tmp_path / "g.png")]
+    )
     assert code == 0
     assert len(json.loads((tmp_path / "g.json").read_text())["runs"]) == 2
     assert (tmp_path / "g.png").stat().st_size > 10_000
@@ -142,6 +155,6 @@ def test_cli_vary_bad_inputs(tiny_hopper_run, tmp_path, capsys):
         (["--vary", "body_mass:torso=0.5", "--vary", "gravity=0.9"], "one parameter per command"),
     ]:
         code = main(["eval", str(tiny_hopper_run), "--episodes", "1"] + argv)
-        out, err = capsys.readouterr()
+        _out, err = capsys.readouterr()
         assert code != 0 and message in err and err.count("\n") == 1, (argv, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing partial left behind

@@ -6,20 +6,20 @@ import sys
 import imageio.v2 as imageio
 import numpy as np
 import pytest
-from conftest import TINY
 
 from canter.cli.main import main
 from canter.envs.registry import dm_control_task
 from canter.errors import CanterError
 from canter.training.videos import TrainingVideos, quiet_fork
 from canter.use import video
+from conftest import TINY
 
 
 def frames_of(path) -> np.ndarray:
     if str(path).endswith(".gif"):
         return np.stack([f[..., :3] for f in imageio.mimread(path)])
     with imageio.get_reader(path, format="FFMPEG") as reader, quiet_fork():
-        return np.stack([frame for frame in reader])  # list(reader) would trust its len(), which is inf
+        return np.stack([frame for frame in reader])  # noqa: C416  list(reader) would trust its len(), which is inf
 
 
 def assert_real_video(frames: np.ndarray, count: int, width: int, height: int) -> None:
@@ -30,8 +30,24 @@ def assert_real_video(frames: np.ndarray, count: int, width: int, height: int) -
 
 @pytest.mark.slow
 def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
-    code = main(["video", str(tiny_hopper_run), "--out", "hopper.mp4", "--episodes", "2", "--max-steps", "8",
-                 "--width", "64", "--height", "48", "--fps", "10"])
+    code = main(
+        [
+            "video",
+            str(tiny_hopper_run),
+            "--out",
+            "hopper.mp4",
+            "--episodes",
+            "2",
+            "--max-steps",
+            "8",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--fps",
+            "10",
+        ]
+    )
     out, err = capsys.readouterr()
     assert code == 0, err
     assert out.count("return") == 2
@@ -41,8 +57,9 @@ def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
 
 @pytest.mark.slow
 def test_gif_of_a_non_mujoco_env_is_resized(tiny_run):
-    returns = video.record_video(tiny_run.run_dir, "pendulum.gif", episodes=1, width=40, height=30, fps=20,
-                                 max_steps=12)
+    returns = video.record_video(
+        tiny_run.run_dir, "pendulum.gif", episodes=1, width=40, height=30, fps=20, max_steps=12
+    )
     assert len(returns) == 1 and np.isfinite(returns[0])
     assert_real_video(frames_of("pendulum.gif"), 13, 40, 30)
 
@@ -76,8 +93,12 @@ def test_dm_control_run_renders_through_dm_control(tmp_path):
     from canter.config.build import build_config
     from canter.training.loop import train
 
-    config = build_config("WalkerWalk-v1", total_steps=128, sets=TINY + [
-        f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"])
+    config = build_config(
+        "WalkerWalk-v1",
+        total_steps=128,
+        sets=TINY
+        + [f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"],
+    )
     run = train(config).run_dir
     assert dm_control_task("WalkerWalk-v1") == ("walker", "walk")
     assert dm_control_task("Hopper-v5") is None
@@ -101,9 +122,19 @@ def test_video_every_during_training(tmp_path):
     from canter.config.build import build_config
     from canter.training.loop import train
 
-    config = build_config("Pendulum-v1", total_steps=512, sets=TINY + [
-        f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=128", "ppo.minibatch_size=128", "ppo.epochs=1",
-        "run.video_every=256"])
+    config = build_config(
+        "Pendulum-v1",
+        total_steps=512,
+        sets=TINY
+        + [
+            f"run.out_dir={tmp_path}",
+            "env.num_envs=2",
+            "ppo.n_steps=128",
+            "ppo.minibatch_size=128",
+            "ppo.epochs=1",
+            "run.video_every=256",
+        ],
+    )
     run = train(config).run_dir
     videos = sorted(p.name for p in (run / "videos").iterdir() if not p.name.startswith("render"))
     assert len(videos) == 2 and all(re.fullmatch(r"step_\d{12}\.mp4", name) for name in videos), videos
@@ -133,7 +164,7 @@ def test_gl_selection(monkeypatch):
     with pytest.raises(CanterError, match="apt-get install -y libegl1 libosmesa6"):
         video.configure_gl()
     monkeypatch.setenv("MUJOCO_GL", "egl")
-    with pytest.raises(CanterError, match="apt-get install -y libegl1$"):
+    with pytest.raises(CanterError, match=r"apt-get install -y libegl1$"):
         video.configure_gl()
 
 

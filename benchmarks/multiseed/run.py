@@ -26,26 +26,26 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 ROWS = ("one", "group", "sequential", "concurrent")
-TARGET = 3.0   # issue 5: five seeds together within 3x the wall time of one
+TARGET = 3.0  # issue 5: five seeds together within 3x the wall time of one
 
 
 @dataclass
 class Row:
     name: str
     seeds: list[int]
-    wall: float            # whole processes, from the first start to the last exit
-    cpu: float             # user + system seconds of those processes
-    steps: int             # env steps over all seeds
+    wall: float  # whole processes, from the first start to the last exit
+    cpu: float  # user + system seconds of those processes
+    steps: int  # env steps over all seeds
     train_sps: list[float]  # per seed, summary.json sps (compile excluded)
-    compile: list[float]   # per process, summary.json compile_seconds
+    compile: list[float]  # per process, summary.json compile_seconds
     returns: list[float | None]
-    load: float            # 1-minute load average before the row
+    load: float  # 1-minute load average before the row
 
 
 def _steps(text: str) -> int:
@@ -76,8 +76,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description="canter: several seeds in one process vs one seed vs separate processes")
     p.add_argument("--env", default="Hopper-v5")
     p.add_argument("--preset", default="fast", help="canter preset for every row (default fast)")
-    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="passed to every canter train command; repeatable")
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="passed to every canter train command; repeatable",
+    )
     p.add_argument("--total-steps", type=_steps, default=200_000, help="env steps per seed (default 2e5)")
     p.add_argument("--seeds", type=_seeds, default=[0, 1, 2, 3, 4])
     p.add_argument("--only", type=_only, default=list(ROWS))
@@ -105,7 +111,8 @@ def _run_processes(commands: list[list[str]], logs: list[Path], concurrent: bool
         procs = []
         for command in batch:
             log = next(log_iter)
-            procs.append((subprocess.Popen(command, stdout=open(log, "w"), stderr=subprocess.STDOUT, cwd=ROOT), log))
+            with open(log, "w") as out:  # the child keeps its own copy of the descriptor
+                procs.append((subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT), log))
         for proc, log in procs:
             if proc.wait() != 0:
                 raise SystemExit(f"{' '.join(proc.args)} failed; see {log}")
@@ -120,8 +127,17 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
     seeds = [args.seeds[0]] if name == "one" else list(args.seeds)
     folder = out / name
     folder.mkdir(parents=True, exist_ok=True)
-    base = _canter() + ["train", args.env, "--preset", args.preset, "--total-steps", str(args.total_steps),
-                        "--quiet", "--out-dir", str(folder)]
+    base = _canter() + [
+        "train",
+        args.env,
+        "--preset",
+        args.preset,
+        "--total-steps",
+        str(args.total_steps),
+        "--quiet",
+        "--out-dir",
+        str(folder),
+    ]
     for item in args.sets:
         base += ["--set", item]
     if name == "group":
@@ -135,8 +151,17 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
     if len(summaries) != len(seeds):
         raise SystemExit(f"{name}: expected {len(seeds)} run folders in {folder}, found {len(summaries)}")
     compile_seconds = sorted({s["compile_seconds"] for s in summaries})
-    return Row(name, seeds, wall, cpu, sum(s["global_step"] for s in summaries), [s["sps"] for s in summaries],
-               compile_seconds, [s["recent_return"] for s in summaries], load)
+    return Row(
+        name,
+        seeds,
+        wall,
+        cpu,
+        sum(s["global_step"] for s in summaries),
+        [s["sps"] for s in summaries],
+        compile_seconds,
+        [s["recent_return"] for s in summaries],
+        load,
+    )
 
 
 def _machine() -> str:
@@ -147,57 +172,75 @@ def _machine() -> str:
         mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     except (ValueError, OSError):
         mem = float("nan")
-    return (f"{cpu_name()}, {os.cpu_count()} logical cores, {mem:.0f} GiB, {platform.platform()}, Python "
-            f"{platform.python_version()}; canter {v['canter']}, jax {v['jax']}, envpool {v['envpool']}, "
-            f"mujoco {v['mujoco']}")
+    return (
+        f"{cpu_name()}, {os.cpu_count()} logical cores, {mem:.0f} GiB, {platform.platform()}, Python "
+        f"{platform.python_version()}; canter {v['canter']}, jax {v['jax']}, envpool {v['envpool']}, "
+        f"mujoco {v['mujoco']}"
+    )
 
 
 def _commit() -> str:
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "src"], cwd=ROOT, capture_output=True, text=True,
-                               check=True).stdout.strip()
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "src"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.strip()
         return sha + (" (src modified)" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
 
 def section(rows: list[Row], args: argparse.Namespace, out: Path) -> str:
-    now = datetime.now(timezone.utc)
+    now = datetime.now(UTC)
     n = len(args.seeds)
     settings = f"preset {args.preset}" + "".join(f", --set {item}" for item in args.sets)
-    lines = [f"## {now:%Y-%m-%d %H:%M} UTC — {args.env}, {settings}, {args.total_steps:,} steps per seed, seeds "
-             f"{','.join(map(str, args.seeds))}", "",
-             f"- machine: {_machine()}",
-             f"- canter commit: {_commit()}",
-             "- 1-minute load average before each row: "
-             + ", ".join(f"{r.name} {r.load:.2f}" for r in rows)
-             + " (well above 0 means something else was using the cores and the numbers are not clean)",
-             f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}", "",
-             "| row | seeds | processes | process wall (s) | CPU (s) | steps, all seeds | steps/s of wall, all seeds "
-             "| train SPS per seed (compile excluded) | compile per process (s) | wall / one seed |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"## {now:%Y-%m-%d %H:%M} UTC — {args.env}, {settings}, {args.total_steps:,} steps per seed, seeds "
+        f"{','.join(map(str, args.seeds))}",
+        "",
+        f"- machine: {_machine()}",
+        f"- canter commit: {_commit()}",
+        "- 1-minute load average before each row: "
+        + ", ".join(f"{r.name} {r.load:.2f}" for r in rows)
+        + " (well above 0 means something else was using the cores and the numbers are not clean)",
+        f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}",
+        "",
+        "| row | seeds | processes | process wall (s) | CPU (s) | steps, all seeds | steps/s of wall, all seeds "
+        "| train SPS per seed (compile excluded) | compile per process (s) | wall / one seed |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     one = next((r for r in rows if r.name == "one"), None)
     for r in rows:
         processes = 1 if r.name == "group" else len(r.seeds)
         ratio = f"{r.wall / one.wall:.2f}×" if one else "—"
         sps = ", ".join(f"{s:,.0f}" for s in r.train_sps)
-        compile_text = ", ".join(f"{c:.1f}" for c in r.compile) if len(r.compile) <= 2 else \
-            f"{min(r.compile):.1f}–{max(r.compile):.1f}"
-        lines.append(f"| {r.name} | {len(r.seeds)} | {processes} | {r.wall:.1f} | {r.cpu:.1f} | {r.steps:,} | "
-                     f"{r.steps / r.wall:,.0f} | {sps} | {compile_text} | {ratio} |")
+        compile_text = (
+            ", ".join(f"{c:.1f}" for c in r.compile)
+            if len(r.compile) <= 2
+            else f"{min(r.compile):.1f}–{max(r.compile):.1f}"
+        )
+        lines.append(
+            f"| {r.name} | {len(r.seeds)} | {processes} | {r.wall:.1f} | {r.cpu:.1f} | {r.steps:,} | "
+            f"{r.steps / r.wall:,.0f} | {sps} | {compile_text} | {ratio} |"
+        )
     lines.append("")
     by = {r.name: r for r in rows}
     if one and "group" in by:
         verdict = "meets" if by["group"].wall <= TARGET * one.wall else "misses"
-        lines.append(f"- {n} seeds in one process took {by['group'].wall / one.wall:.2f}× the wall time of one seed "
-                     f"(target ≤ {TARGET:.0f}×: {verdict} it) and {by['group'].cpu / one.cpu:.2f}× its CPU time.")
+        lines.append(
+            f"- {n} seeds in one process took {by['group'].wall / one.wall:.2f}× the wall time of one seed "
+            f"(target ≤ {TARGET:.0f}×: {verdict} it) and {by['group'].cpu / one.cpu:.2f}× its CPU time."
+        )
     for name in ("sequential", "concurrent"):
         if "group" in by and name in by:
             how = "one after another" if name == "sequential" else "at once"
-            lines.append(f"- against {n} separate processes run {how}: the group took {by['group'].wall / by[name].wall:.2f}× their wall time and "
-                         f"{by['group'].cpu / by[name].cpu:.2f}× their CPU time.")
+            lines.append(
+                f"- against {n} separate processes run {how}: the group took "
+                f"{by['group'].wall / by[name].wall:.2f}× their wall time and "
+                f"{by['group'].cpu / by[name].cpu:.2f}× their CPU time."
+            )
     lines.append("")
     return "\n".join(lines) + "\n"
 
@@ -215,8 +258,10 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     if not args.no_write:
         if not args.results.exists():
-            args.results.write_text("# Several seeds in one process\n\nWritten by `benchmarks/multiseed/run.py`; "
-                                    "each run appends a dated section.\n\n")
+            args.results.write_text(
+                "# Several seeds in one process\n\nWritten by `benchmarks/multiseed/run.py`; "
+                "each run appends a dated section.\n\n"
+            )
         with open(args.results, "a") as f:
             f.write(text)
     return 0

@@ -41,11 +41,11 @@ class Row:
     ok: bool = False
     error: str = ""
     steps: int | None = None
-    process_wall: float | None = None     # whole training process, measured from outside
-    wall: float | None = None             # the tool's own wall time (after imports)
-    sps: float | None = None              # compile excluded
+    process_wall: float | None = None  # whole training process, measured from outside
+    wall: float | None = None  # the tool's own wall time (after imports)
+    sps: float | None = None  # compile excluded
     compile: float | None = None
-    train_return: float | None = None     # mean raw return of the last 20 training episodes
+    train_return: float | None = None  # mean raw return of the last 20 training episodes
     eval_mean: float | None = None
     eval_std: float | None = None
     eval_process_wall: float | None = None
@@ -81,10 +81,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seeds", type=_seeds, default=[0], help="comma list of seeds (default 0)")
     p.add_argument("--skip-sb3", action="store_true", help="run only canter")
     p.add_argument("--only", type=_only, default=None, help=f"comma list of {','.join(TOOLS)}")
-    p.add_argument("--sb3-python", default=str(ROOT / "benchmarks" / ".sb3-venv" / "bin" / "python"),
-                   help="interpreter of the SB3 venv (run.sh makes it)")
-    p.add_argument("--sb3-threads", type=int, default=2, help="torch threads for SB3 (default 2, the core count "
-                   "here); torch with 2 threads slows down badly when anything else holds a core")
+    p.add_argument(
+        "--sb3-python",
+        default=str(ROOT / "benchmarks" / ".sb3-venv" / "bin" / "python"),
+        help="interpreter of the SB3 venv (run.sh makes it)",
+    )
+    p.add_argument(
+        "--sb3-threads",
+        type=int,
+        default=2,
+        help="torch threads for SB3 (default 2, the core count "
+        "here); torch with 2 threads slows down badly when anything else holds a core",
+    )
     p.add_argument("--canter", default=None, help="canter command (default: the one beside this interpreter)")
     p.add_argument("--out-dir", default=None, help="where run folders and logs go (default benchmarks/runs/<stamp>)")
     p.add_argument("--results", default=str(HERE / "results.md"), help="markdown file to append the section to")
@@ -101,15 +109,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 # ---------------------------------------------------------------------------------------------- running tools
 
+
 def _run(cmd: list[str], log: Path, cwd: Path = ROOT) -> tuple[int, float, str]:
     """Run one whole process; its stdout and stderr go to `log`. Returns (exit code, wall seconds, stdout)."""
     print(f"  $ {' '.join(cmd)}", flush=True)
     start = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                          stdin=subprocess.DEVNULL)
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, stdin=subprocess.DEVNULL)
     wall = time.perf_counter() - start
-    log.write_text(f"$ {' '.join(cmd)}\n# exit {proc.returncode}, {wall:.1f} s\n--- stdout\n{proc.stdout}"
-                   f"--- stderr\n{proc.stderr}")
+    log.write_text(
+        f"$ {' '.join(cmd)}\n# exit {proc.returncode}, {wall:.1f} s\n--- stdout\n{proc.stdout}--- stderr\n{proc.stderr}"
+    )
     return proc.returncode, wall, proc.stdout
 
 
@@ -135,9 +144,23 @@ def run_canter(preset: str, seed: int, args: argparse.Namespace, out: Path) -> R
     folder = out / f"{row.tool}__s{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     canter = canter_cmd(args)
-    code, wall, _ = _run(canter + ["train", ENV_ID, "--preset", preset, "--seed", str(seed), "--total-steps",
-                                   str(args.total_steps), "--quiet", "--out-dir", str(folder)],
-                         folder / "train.log")
+    code, wall, _ = _run(
+        canter
+        + [
+            "train",
+            ENV_ID,
+            "--preset",
+            preset,
+            "--seed",
+            str(seed),
+            "--total-steps",
+            str(args.total_steps),
+            "--quiet",
+            "--out-dir",
+            str(folder),
+        ],
+        folder / "train.log",
+    )
     row.process_wall = wall
     if code != 0:
         return _fail(row, "canter train", code, folder / "train.log")
@@ -158,8 +181,9 @@ def run_canter(preset: str, seed: int, args: argparse.Namespace, out: Path) -> R
         row.extra["versions"] = json.loads((run / "versions.json").read_text())
 
     eval_json = folder / "eval.json"
-    code, wall, _ = _run(canter + ["eval", str(run), "--episodes", str(EVAL_EPISODES), "--json", str(eval_json)],
-                         folder / "eval.log")
+    code, wall, _ = _run(
+        canter + ["eval", str(run), "--episodes", str(EVAL_EPISODES), "--json", str(eval_json)], folder / "eval.log"
+    )
     row.eval_process_wall = wall
     if code != 0:
         return _fail(row, "canter eval", code, folder / "eval.log")
@@ -180,8 +204,10 @@ def run_sb3(seed: int, args: argparse.Namespace, out: Path) -> Row:
     script = [args.sb3_python, str(HERE / "sb3_ppo.py"), "--seed", str(seed), "--threads", str(args.sb3_threads)]
     model_dir = folder / "model"
     # Train in one process and evaluate in another, as for canter, so the process wall time is training only.
-    code, wall, stdout = _run(script + ["--total-steps", str(args.total_steps), "--save", str(model_dir),
-                                        "--eval-episodes", "0"], folder / "train.log")
+    code, wall, stdout = _run(
+        script + ["--total-steps", str(args.total_steps), "--save", str(model_dir), "--eval-episodes", "0"],
+        folder / "train.log",
+    )
     row.process_wall = wall
     row.run_dir = str(folder)
     if code != 0:
@@ -198,8 +224,9 @@ def run_sb3(seed: int, args: argparse.Namespace, out: Path) -> Row:
     row.extra["versions"] = result.get("versions", {})
     row.extra["hyperparameters"] = result.get("hyperparameters", {})
 
-    code, wall, stdout = _run(script + ["--eval-from", str(model_dir), "--eval-episodes", str(EVAL_EPISODES)],
-                              folder / "eval.log")
+    code, wall, stdout = _run(
+        script + ["--eval-from", str(model_dir), "--eval-episodes", str(EVAL_EPISODES)], folder / "eval.log"
+    )
     row.eval_process_wall = wall
     evaluated = _json_line(stdout) if code == 0 else None
     if evaluated is None:
@@ -217,6 +244,7 @@ def _json_line(stdout: str) -> dict | None:
 
 # ------------------------------------------------------------------------------------------ machine & versions
 
+
 def machine() -> dict[str, str]:
     from canter.training.run_folder import cpu_name
 
@@ -231,16 +259,23 @@ def machine() -> dict[str, str]:
                 break
     except OSError:
         pass
-    return {"cpu": cpu, "cores": f"{cores} logical ({usable} usable)", "memory": memory,
-            "os": f"{platform.system()} {platform.release()}", "python": platform.python_version()}
+    return {
+        "cpu": cpu,
+        "cores": f"{cores} logical ({usable} usable)",
+        "memory": memory,
+        "os": f"{platform.system()} {platform.release()}",
+        "python": platform.python_version(),
+    }
 
 
 def git_commit() -> str:
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                                check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src", "pyproject.toml"], cwd=ROOT,
-                               capture_output=True, text=True).stdout.strip()
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "src", "pyproject.toml"], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip()
         return commit + (" (src modified)" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
@@ -253,12 +288,23 @@ def versions(rows: list[Row]) -> dict[str, str]:
         except metadata.PackageNotFoundError:
             return "not installed"
 
-    found = {"canter": local("canter"), "jax": local("jax"), "jaxlib": local("jaxlib"), "envpool": local("envpool"),
-             "mujoco (canter)": local("mujoco")}
+    found = {
+        "canter": local("canter"),
+        "jax": local("jax"),
+        "jaxlib": local("jaxlib"),
+        "envpool": local("envpool"),
+        "mujoco (canter)": local("mujoco"),
+    }
     sb3 = next((r.extra["versions"] for r in rows if r.tool == "sb3" and r.extra.get("versions")), None)
     if sb3:
-        found.update({"stable-baselines3": sb3.get("stable_baselines3"), "torch": sb3.get("torch"),
-                      "gymnasium (sb3)": sb3.get("gymnasium"), "mujoco (sb3)": sb3.get("mujoco")})
+        found.update(
+            {
+                "stable-baselines3": sb3.get("stable_baselines3"),
+                "torch": sb3.get("torch"),
+                "gymnasium (sb3)": sb3.get("gymnasium"),
+                "mujoco (sb3)": sb3.get("mujoco"),
+            }
+        )
     else:
         found.update({"stable-baselines3": "not run", "torch": "not run"})
     return {k: str(v) for k, v in found.items()}
@@ -266,8 +312,10 @@ def versions(rows: list[Row]) -> dict[str, str]:
 
 # ----------------------------------------------------------------------------------------------------- table
 
-HEADER = ("| tool/preset | seed | steps | process wall (s) | SPS (compile excluded) | compile (s) | "
-          "final train return (last 20 eps) | eval return mean ± std (10 eps, deterministic) | SPS ratio vs SB3 |")
+HEADER = (
+    "| tool/preset | seed | steps | process wall (s) | SPS (compile excluded) | compile (s) | "
+    "final train return (last 20 eps) | eval return mean ± std (10 eps, deterministic) | SPS ratio vs SB3 |"
+)
 RULE = "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
 
 
@@ -293,8 +341,10 @@ def table(rows: list[Row]) -> str:
             continue
         compile_ = _f(r.compile, ".1f", "— (none)") if r.tool == "sb3" else _f(r.compile)
         evaluation = "—" if r.eval_mean is None else f"{r.eval_mean:.1f} ± {r.eval_std:.1f}"
-        lines.append(f"| {r.tool} | {r.seed} | {_f(r.steps, ',')} | {_f(r.process_wall)} | {_f(r.sps, ',.0f')} | "
-                     f"{compile_} | {_f(r.train_return)} | {evaluation} | {ratio(r.sps)} |")
+        lines.append(
+            f"| {r.tool} | {r.seed} | {_f(r.steps, ',')} | {_f(r.process_wall)} | {_f(r.sps, ',.0f')} | "
+            f"{compile_} | {_f(r.train_return)} | {evaluation} | {ratio(r.sps)} |"
+        )
     seeds = sorted({r.seed for r in rows})
     if len(seeds) > 1:
         for tool in dict.fromkeys(r.tool for r in rows):
@@ -307,10 +357,12 @@ def table(rows: list[Row]) -> str:
                 m = sum(evals) / len(evals)
                 spread = f"{m:.1f} ± {(sum((e - m) ** 2 for e in evals) / len(evals)) ** 0.5:.1f} (over seeds)"
             sps = _mean([r.sps for r in group])
-            lines.append(f"| **{tool}** | mean of {len(group)} | {_f(_mean([r.steps for r in group]), ',.0f')} | "
-                         f"{_f(_mean([r.process_wall for r in group]))} | {_f(sps, ',.0f')} | "
-                         f"{_f(_mean([r.compile for r in group]))} | "
-                         f"{_f(_mean([r.train_return for r in group]))} | {spread} | {ratio(sps)} |")
+            lines.append(
+                f"| **{tool}** | mean of {len(group)} | {_f(_mean([r.steps for r in group]), ',.0f')} | "
+                f"{_f(_mean([r.process_wall for r in group]))} | {_f(sps, ',.0f')} | "
+                f"{_f(_mean([r.compile for r in group]))} | "
+                f"{_f(_mean([r.train_return for r in group]))} | {spread} | {ratio(sps)} |"
+            )
     return "\n".join(lines)
 
 
@@ -324,9 +376,11 @@ def speedups(rows: list[Row]) -> list[str]:
         group = [r for r in rows if r.tool == tool and r.ok]
         if group:
             wall, sps = _mean([r.process_wall for r in group]), _mean([r.sps for r in group])
-            out.append(f"- {tool} vs SB3: {sps / sb3_sps:.2f}× the SPS (compile excluded), "
-                       f"{sb3_wall / wall:.2f}× faster in whole-process wall time "
-                       f"({wall:.1f} s vs {sb3_wall:.1f} s).")
+            out.append(
+                f"- {tool} vs SB3: {sps / sb3_sps:.2f}× the SPS (compile excluded), "
+                f"{sb3_wall / wall:.2f}× faster in whole-process wall time "
+                f"({wall:.1f} s vs {sb3_wall:.1f} s)."
+            )
     return out
 
 
@@ -334,18 +388,22 @@ def section(rows: list[Row], args: argparse.Namespace, started: datetime, out: P
     m = machine()
     v = versions(rows)
     smoke = args.total_steps < 1_000_000
-    lines = [f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()} — {ENV_ID}, {args.total_steps:,} steps, "
-             f"seed{'s' if len(args.seeds) > 1 else ''} {','.join(map(str, args.seeds))}"
-             + (" (smoke run, not a benchmark)" if smoke else ""), "",
-             f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
-             f"- date: {started.isoformat(timespec='seconds')}",
-             "- 1-minute load average before each run: "
-             + ", ".join(f"{r.tool} s{r.seed} {r.extra.get('load_before', 0):.2f}" for r in rows)
-             + " (well above 0 means something else was using the cores and the numbers are not clean)",
-             f"- canter commit: {git_commit()}; SB3 torch threads: {args.sb3_threads}",
-             "- versions: " + ", ".join(f"{k} {val}" for k, val in v.items()),
-             f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}",
-             "", table(rows)]
+    lines = [
+        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()} — {ENV_ID}, {args.total_steps:,} steps, "
+        f"seed{'s' if len(args.seeds) > 1 else ''} {','.join(map(str, args.seeds))}"
+        + (" (smoke run, not a benchmark)" if smoke else ""),
+        "",
+        f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
+        f"- date: {started.isoformat(timespec='seconds')}",
+        "- 1-minute load average before each run: "
+        + ", ".join(f"{r.tool} s{r.seed} {r.extra.get('load_before', 0):.2f}" for r in rows)
+        + " (well above 0 means something else was using the cores and the numbers are not clean)",
+        f"- canter commit: {git_commit()}; SB3 torch threads: {args.sb3_threads}",
+        "- versions: " + ", ".join(f"{k} {val}" for k, val in v.items()),
+        f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}",
+        "",
+        table(rows),
+    ]
     extra = speedups(rows)
     if extra:
         lines += [""] + extra
@@ -378,18 +436,23 @@ def write_results(path: Path, text: str) -> None:
 
 # ------------------------------------------------------------------------------------------------------ main
 
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     started = datetime.now().astimezone()
     out = Path(args.out_dir) if args.out_dir else ROOT / "benchmarks" / "runs" / started.strftime("%Y%m%d-%H%M%S")
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    print(f"PPO speed benchmark: {ENV_ID}, {args.total_steps:,} steps, seeds {args.seeds}, tools {args.tools}",
-          flush=True)
+    print(
+        f"PPO speed benchmark: {ENV_ID}, {args.total_steps:,} steps, seeds {args.seeds}, tools {args.tools}", flush=True
+    )
     print(f"run folders and logs: {out}", flush=True)
     if os.getloadavg()[0] > 0.5:
-        print(f"warning: 1-minute load average is {os.getloadavg()[0]:.2f}; something else is using the cores, "
-              f"so the timings will not be clean", flush=True)
+        print(
+            f"warning: 1-minute load average is {os.getloadavg()[0]:.2f}; something else is using the cores, "
+            f"so the timings will not be clean",
+            flush=True,
+        )
 
     rows: list[Row] = []
     for seed in args.seeds:
@@ -399,10 +462,13 @@ def main(argv: list[str] | None = None) -> int:
             row = run_sb3(seed, args, out) if tool == "sb3" else run_canter(tool.split("-", 1)[1], seed, args, out)
             row.extra["load_before"] = load_before
             if row.ok:
-                print(f"  steps {row.steps:,} | process wall {row.process_wall:.1f} s | {row.sps:,.0f} SPS"
-                      f" | compile {_f(row.compile, '.1f', 'none')}{' s' if row.compile is not None else ''}"
-                      f" | load {row.extra.get('load_before', 0):.2f} | train return {_f(row.train_return)}"
-                      f" | eval {row.eval_mean:.1f} ± {row.eval_std:.1f}", flush=True)
+                print(
+                    f"  steps {row.steps:,} | process wall {row.process_wall:.1f} s | {row.sps:,.0f} SPS"
+                    f" | compile {_f(row.compile, '.1f', 'none')}{' s' if row.compile is not None else ''}"
+                    f" | load {row.extra.get('load_before', 0):.2f} | train return {_f(row.train_return)}"
+                    f" | eval {row.eval_mean:.1f} ± {row.eval_std:.1f}",
+                    flush=True,
+                )
             rows.append(row)
 
     text = section(rows, args, started, out)

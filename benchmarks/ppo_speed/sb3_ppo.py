@@ -46,8 +46,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--eval-episodes", type=int, default=10, help="0: no evaluation")
     p.add_argument("--save", default=None, metavar="DIR", help="save model.zip and vecnormalize.pkl after training")
     p.add_argument("--eval-from", default=None, metavar="DIR", help="only evaluate a model saved with --save")
-    p.add_argument("--clip-range-vf", type=_clip_vf, default=0.2,
-                   help="value clipping (CleanRL clip_vloss with clip 0.2); 'none' turns it off")
+    p.add_argument(
+        "--clip-range-vf",
+        type=_clip_vf,
+        default=0.2,
+        help="value clipping (CleanRL clip_vloss with clip 0.2); 'none' turns it off",
+    )
     return p.parse_args(argv)
 
 
@@ -68,16 +72,41 @@ def main(argv: list[str] | None = None) -> int:
 
     gamma = 0.99
     lr = 3e-4
-    env = VecNormalize(DummyVecEnv([lambda: make_env(args.env)]), norm_obs=True, norm_reward=True, clip_obs=10.0,
-                       clip_reward=10.0, gamma=gamma)
-    hyper = dict(n_steps=2048, batch_size=64, n_epochs=10, gamma=gamma, gae_lambda=0.95, clip_range=0.2,
-                 clip_range_vf=args.clip_range_vf, normalize_advantage=True, ent_coef=0.0, vf_coef=0.5,
-                 max_grad_norm=0.5)
-    policy_kwargs = dict(net_arch=dict(pi=[64, 64], vf=[64, 64]), activation_fn=torch.nn.Tanh, log_std_init=0.0,
-                         ortho_init=True)  # SB3 sets Adam eps=1e-5 itself, as CleanRL does
-    model = PPO("MlpPolicy", env, learning_rate=lambda progress_remaining: lr * progress_remaining,
-                policy_kwargs=policy_kwargs, seed=args.seed, device="cpu", verbose=0, stats_window_size=20,
-                **hyper)
+    env = VecNormalize(
+        DummyVecEnv([lambda: make_env(args.env)]),
+        norm_obs=True,
+        norm_reward=True,
+        clip_obs=10.0,
+        clip_reward=10.0,
+        gamma=gamma,
+    )
+    hyper = dict(
+        n_steps=2048,
+        batch_size=64,
+        n_epochs=10,
+        gamma=gamma,
+        gae_lambda=0.95,
+        clip_range=0.2,
+        clip_range_vf=args.clip_range_vf,
+        normalize_advantage=True,
+        ent_coef=0.0,
+        vf_coef=0.5,
+        max_grad_norm=0.5,
+    )
+    policy_kwargs = dict(
+        net_arch=dict(pi=[64, 64], vf=[64, 64]), activation_fn=torch.nn.Tanh, log_std_init=0.0, ortho_init=True
+    )  # SB3 sets Adam eps=1e-5 itself, as CleanRL does
+    model = PPO(
+        "MlpPolicy",
+        env,
+        learning_rate=lambda progress_remaining: lr * progress_remaining,
+        policy_kwargs=policy_kwargs,
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+        stats_window_size=20,
+        **hyper,
+    )
 
     learn_start = time.perf_counter()
     model.learn(total_timesteps=args.total_steps, progress_bar=False)
@@ -94,14 +123,29 @@ def main(argv: list[str] | None = None) -> int:
 
     env.close()
     row = {
-        "tool": "sb3", "env": args.env, "seed": args.seed, "steps": steps,
-        "wall_seconds": wall_seconds, "train_seconds": train_seconds, "sps": steps / train_seconds,
-        "final_train_return": float(np.mean(recent)) if recent else None, "train_episodes": len(recent),
+        "tool": "sb3",
+        "env": args.env,
+        "seed": args.seed,
+        "steps": steps,
+        "wall_seconds": wall_seconds,
+        "train_seconds": train_seconds,
+        "sps": steps / train_seconds,
+        "final_train_return": float(np.mean(recent)) if recent else None,
+        "train_episodes": len(recent),
         **evaluate(args, model, env.obs_rms),
-        "hyperparameters": dict(hyper, learning_rate=f"{lr} linearly annealed", net_arch="pi=[64,64] vf=[64,64]",
-                                activation="tanh", log_std_init=0.0, ortho_init=True, num_envs=1,
-                                vec_normalize="obs+reward, clip 10", torch_threads=args.threads),
-        "versions": versions(), "python": sys.version.split()[0],
+        "hyperparameters": dict(
+            hyper,
+            learning_rate=f"{lr} linearly annealed",
+            net_arch="pi=[64,64] vf=[64,64]",
+            activation="tanh",
+            log_std_init=0.0,
+            ortho_init=True,
+            num_envs=1,
+            vec_normalize="obs+reward, clip 10",
+            torch_threads=args.threads,
+        ),
+        "versions": versions(),
+        "python": sys.version.split()[0],
     }
     print(json.dumps(row), flush=True)
     return 0
@@ -123,16 +167,22 @@ def evaluate(args: argparse.Namespace, model, obs_rms) -> dict:
     if args.eval_episodes < 1:
         return {"eval_mean": None, "eval_std": None, "eval_returns": [], "eval_seconds": 0.0}
     start = time.perf_counter()
-    eval_env = VecNormalize(DummyVecEnv([lambda: make_env(args.env)]), training=False, norm_obs=True,
-                            norm_reward=False, clip_obs=10.0)
+    eval_env = VecNormalize(
+        DummyVecEnv([lambda: make_env(args.env)]), training=False, norm_obs=True, norm_reward=False, clip_obs=10.0
+    )
     eval_env.obs_rms = obs_rms.copy()
     eval_env.seed(args.seed + 1_000_003)
-    returns, _lengths = evaluate_policy(model, eval_env, n_eval_episodes=args.eval_episodes, deterministic=True,
-                                        return_episode_rewards=True)
+    returns, _lengths = evaluate_policy(
+        model, eval_env, n_eval_episodes=args.eval_episodes, deterministic=True, return_episode_rewards=True
+    )
     eval_env.close()
     returns = np.asarray(returns, dtype=float)
-    return {"eval_mean": float(returns.mean()), "eval_std": float(returns.std()),
-            "eval_returns": [float(r) for r in returns], "eval_seconds": time.perf_counter() - start}
+    return {
+        "eval_mean": float(returns.mean()),
+        "eval_std": float(returns.std()),
+        "eval_returns": [float(r) for r in returns],
+        "eval_seconds": time.perf_counter() - start,
+    }
 
 
 def eval_only(args: argparse.Namespace) -> int:
@@ -147,8 +197,14 @@ def eval_only(args: argparse.Namespace) -> int:
     model = PPO.load(folder / "model.zip", device="cpu")
     with open(folder / "vecnormalize.pkl", "rb") as f:
         obs_rms = pickle.load(f).obs_rms
-    row = {"tool": "sb3", "env": args.env, "seed": args.seed, "steps": int(model.num_timesteps),
-           **evaluate(args, model, obs_rms), "versions": versions()}
+    row = {
+        "tool": "sb3",
+        "env": args.env,
+        "seed": args.seed,
+        "steps": int(model.num_timesteps),
+        **evaluate(args, model, obs_rms),
+        "versions": versions(),
+    }
     print(json.dumps(row), flush=True)
     return 0
 

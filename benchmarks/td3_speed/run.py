@@ -56,7 +56,7 @@ class Row:
     compile: float | None = None
     train_return: float | None = None
     load_before: float = 0.0
-    cpu_seconds: float | None = None      # user + sys of the whole training process
+    cpu_seconds: float | None = None  # user + sys of the whole training process
     extra: dict = field(default_factory=dict)
 
     def projected_minutes(self) -> float | None:
@@ -105,9 +105,23 @@ def run_canter(args: argparse.Namespace, out: Path) -> Row:
     row = Row("canter td3")
     folder = out / "canter"
     folder.mkdir(parents=True, exist_ok=True)
-    cmd = ppo.canter_cmd(args) + ["train", ENV_ID, "--algo", "td3", "--seed", str(args.seed), "--total-steps",
-                                  str(args.total_steps), "--set", f"td3.learning_starts={args.learning_starts}",
-                                  "--set", "run.checkpoint_every=0", "--quiet", "--out-dir", str(folder)]
+    cmd = ppo.canter_cmd(args) + [
+        "train",
+        ENV_ID,
+        "--algo",
+        "td3",
+        "--seed",
+        str(args.seed),
+        "--total-steps",
+        str(args.total_steps),
+        "--set",
+        f"td3.learning_starts={args.learning_starts}",
+        "--set",
+        "run.checkpoint_every=0",
+        "--quiet",
+        "--out-dir",
+        str(folder),
+    ]
     code, wall, _ = ppo._run(cmd, folder / "train.log")
     row.process_wall = wall
     if code != 0:
@@ -129,8 +143,18 @@ def run_sb3(args: argparse.Namespace, out: Path) -> Row:
     if not Path(args.sb3_python).exists():
         row.error = f"no SB3 venv at {args.sb3_python}; make it with benchmarks/ppo_speed/run.sh"
         return row
-    cmd = [args.sb3_python, str(HERE / "sb3_td3.py"), "--total-steps", str(args.total_steps), "--learning-starts",
-           str(args.learning_starts), "--seed", str(args.seed), "--threads", str(args.sb3_threads)]
+    cmd = [
+        args.sb3_python,
+        str(HERE / "sb3_td3.py"),
+        "--total-steps",
+        str(args.total_steps),
+        "--learning-starts",
+        str(args.learning_starts),
+        "--seed",
+        str(args.seed),
+        "--threads",
+        str(args.sb3_threads),
+    ]
     code, wall, stdout = ppo._run(cmd, folder / "train.log")
     row.process_wall = wall
     result = ppo._json_line(stdout) if code == 0 else None
@@ -151,25 +175,32 @@ def _f(value, fmt=".1f"):
 def section(rows: list[Row], args: argparse.Namespace, started: datetime) -> str:
     m = ppo.machine()
     sb3 = next((r for r in rows if r.tool.startswith("SB3") and r.ok), None)
-    lines = [f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()}: {ENV_ID}, {args.total_steps:,} steps, "
-             f"learning_starts {args.learning_starts:,}, seed {args.seed}"
-             + (" (short probe)" if args.total_steps < FULL_STEPS else ""), "",
-             f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
-             f"- date: {started.isoformat(timespec='seconds')}; canter commit {ppo.git_commit()}",
-             "- 1-minute load average before each run: " + ", ".join(f"{r.tool} {r.load_before:.2f}" for r in rows)
-             + " (above ~0.5 means other processes shared the 2 cores, and absolute numbers are pessimistic)",
-             "", "| tool | steps | process wall (s) | SPS (all) | warm-up SPS | steady SPS (after learning_starts) | "
-             "projected 1M time (min) | compile (s) | process CPU time (s) | train return (last 20 eps) | "
-             "steady SPS vs SB3 |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()}: {ENV_ID}, {args.total_steps:,} steps, "
+        f"learning_starts {args.learning_starts:,}, seed {args.seed}"
+        + (" (short probe)" if args.total_steps < FULL_STEPS else ""),
+        "",
+        f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
+        f"- date: {started.isoformat(timespec='seconds')}; canter commit {ppo.git_commit()}",
+        "- 1-minute load average before each run: "
+        + ", ".join(f"{r.tool} {r.load_before:.2f}" for r in rows)
+        + " (above ~0.5 means other processes shared the 2 cores, and absolute numbers are pessimistic)",
+        "",
+        "| tool | steps | process wall (s) | SPS (all) | warm-up SPS | steady SPS (after learning_starts) | "
+        "projected 1M time (min) | compile (s) | process CPU time (s) | train return (last 20 eps) | "
+        "steady SPS vs SB3 |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         if not r.ok:
             lines.append(f"| {r.tool} | failed: {r.error} | | | | | | | | | |")
             continue
         ratio = f"{r.steady_sps / sb3.steady_sps:.2f}×" if sb3 and sb3.steady_sps and r.steady_sps else "—"
-        lines.append(f"| {r.tool} | {_f(r.steps, ',')} | {_f(r.process_wall)} | {_f(r.sps, ',.0f')} | "
-                     f"{_f(r.warmup_sps, ',.0f')} | {_f(r.steady_sps, ',.0f')} | {_f(r.projected_minutes())} | "
-                     f"{_f(r.compile)} | {_f(r.cpu_seconds)} | {_f(r.train_return)} | {ratio} |")
+        lines.append(
+            f"| {r.tool} | {_f(r.steps, ',')} | {_f(r.process_wall)} | {_f(r.sps, ',.0f')} | "
+            f"{_f(r.warmup_sps, ',.0f')} | {_f(r.steady_sps, ',.0f')} | {_f(r.projected_minutes())} | "
+            f"{_f(r.compile)} | {_f(r.cpu_seconds)} | {_f(r.train_return)} | {ratio} |"
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -46,14 +46,33 @@ def main(argv: list[str] | None = None) -> int:
     after_imports = time.perf_counter()
     env = Monitor(gym.make(args.env))
     act_dim = env.action_space.shape[0]
-    hyper = dict(learning_rate=3e-4, buffer_size=1_000_000, learning_starts=args.learning_starts, batch_size=256,
-                 tau=0.005, gamma=0.99, train_freq=1, gradient_steps=1, policy_delay=2, target_policy_noise=0.2,
-                 target_noise_clip=0.5)
-    model = TD3("MlpPolicy", env, action_noise=NormalActionNoise(np.zeros(act_dim), 0.1 * np.ones(act_dim)),
-                policy_kwargs=dict(net_arch=[256, 256]), seed=args.seed, device="cpu", verbose=0, **hyper)
+    hyper = dict(
+        learning_rate=3e-4,
+        buffer_size=1_000_000,
+        learning_starts=args.learning_starts,
+        batch_size=256,
+        tau=0.005,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        policy_delay=2,
+        target_policy_noise=0.2,
+        target_noise_clip=0.5,
+    )
+    model = TD3(
+        "MlpPolicy",
+        env,
+        action_noise=NormalActionNoise(np.zeros(act_dim), 0.1 * np.ones(act_dim)),
+        policy_kwargs=dict(net_arch=[256, 256]),
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+        **hyper,
+    )
 
     class Clock(BaseCallback):
         """The time at which learning starts, for the steady-state rate."""
+
         def __init__(self) -> None:
             super().__init__()
             self.mark: tuple[float, int] | None = None
@@ -75,14 +94,29 @@ def main(argv: list[str] | None = None) -> int:
     import mujoco
     import stable_baselines3
 
-    print(json.dumps({
-        "tool": "sb3", "steps": args.total_steps, "wall_seconds": end - after_imports,
-        "process_seconds_in_python": end - started, "sps": args.total_steps / (end - learn_start),
-        "steady_sps": steady, "final_train_return": float(np.mean(returns)) if returns else None,
-        "seed": args.seed, "learning_starts": args.learning_starts, "hyperparameters": dict(hyper, net_arch=[256, 256]),
-        "versions": {"stable_baselines3": stable_baselines3.__version__, "torch": torch.__version__,
-                     "gymnasium": gymnasium.__version__, "mujoco": mujoco.__version__,
-                     "python": sys.version.split()[0]}}))
+    print(
+        json.dumps(
+            {
+                "tool": "sb3",
+                "steps": args.total_steps,
+                "wall_seconds": end - after_imports,
+                "process_seconds_in_python": end - started,
+                "sps": args.total_steps / (end - learn_start),
+                "steady_sps": steady,
+                "final_train_return": float(np.mean(returns)) if returns else None,
+                "seed": args.seed,
+                "learning_starts": args.learning_starts,
+                "hyperparameters": dict(hyper, net_arch=[256, 256]),
+                "versions": {
+                    "stable_baselines3": stable_baselines3.__version__,
+                    "torch": torch.__version__,
+                    "gymnasium": gymnasium.__version__,
+                    "mujoco": mujoco.__version__,
+                    "python": sys.version.split()[0],
+                },
+            }
+        )
+    )
     return 0
 
 

@@ -4,11 +4,17 @@ rollout shared by ppo, rpo and trpo, and one folder per family: ppo/ (ppo, rpo),
 
 from canter.algos.protocol import Algorithm, ExportedActor
 from canter.algos.registry import (
-           algorithm_names,
-           check_algorithm_name,
-           get_algorithm,
-           seeds_train_apart,
+    algorithm_names,
+    check_algorithm_name,
+    get_algorithm,
+    seeds_train_apart,
 )
 
-__all__ = ["Algorithm", "ExportedActor", "algorithm_names", "check_algorithm_name", "get_algorithm",
-           "seeds_train_apart"]
+__all__ = [
+    "Algorithm",
+    "ExportedActor",
+    "algorithm_names",
+    "check_algorithm_name",
+    "get_algorithm",
+    "seeds_train_apart",
+]

@@ -7,7 +7,8 @@ excluded from the observation and reward normalizers, the episode statistics, th
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -30,9 +31,9 @@ class Transition(NamedTuple):
     obs: jnp.ndarray
     action: jnp.ndarray
     log_prob: jnp.ndarray
-    reward: jnp.ndarray        # scaled, for learning
+    reward: jnp.ndarray  # scaled, for learning
     terminated: jnp.ndarray
-    done: jnp.ndarray          # an episode ended at this step (terminated or truncated; never on reset steps)
+    done: jnp.ndarray  # an episode ended at this step (terminated or truncated; never on reset steps)
     valid: jnp.ndarray
     episode_return: jnp.ndarray
     episode_length: jnp.ndarray
@@ -43,9 +44,17 @@ def normalize_obs(config: Config, stats: RunningStats, obs: jnp.ndarray) -> jnp.
     return normalize(stats, obs, config.env.clip_obs) if config.env.normalize_obs else obs
 
 
-def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats, carry: EnvCarry, key: jax.Array,
-            env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]], action_low: jnp.ndarray,
-            action_high: jnp.ndarray, config: Config):
+def collect(
+    params: Params,
+    obs_stats: RunningStats,
+    return_stats: RunningStats,
+    carry: EnvCarry,
+    key: jax.Array,
+    env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]],
+    action_low: jnp.ndarray,
+    action_high: jnp.ndarray,
+    config: Config,
+) -> tuple[RunningStats, RunningStats, EnvCarry, Transition, jnp.ndarray]:
     """Run `ppo.n_steps` steps. Returns (obs_stats, return_stats, carry, transitions [T, N], next_obs [N, D]),
     where next_obs is the normalized observation after the last step, for the bootstrap value. Values are computed
     afterwards in one batch: the critic is not needed to act, and every op inside the env loop costs time."""
@@ -68,8 +77,18 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
             learn_reward = scale_reward(return_stats, out.reward, env_cfg.clip_reward)
         else:
             learn_reward = out.reward
-        transition = Transition(obs, action, log_prob, learn_reward, out.terminated & valid, episodes.done, valid,
-                                episodes.episode_return, episodes.episode_length, episodes.episode_info)
+        transition = Transition(
+            obs,
+            action,
+            log_prob,
+            learn_reward,
+            out.terminated & valid,
+            episodes.done,
+            valid,
+            episodes.episode_return,
+            episodes.episode_length,
+            episodes.episode_info,
+        )
         return (obs_stats, return_stats, carry), transition
 
     keys = jax.random.split(key, config.ppo.n_steps)
@@ -78,10 +97,19 @@ def collect(params: Params, obs_stats: RunningStats, return_stats: RunningStats,
     return obs_stats, return_stats, carry, transitions, next_obs
 
 
-def estimate_advantages(params: Params, transitions: Any, next_obs: jnp.ndarray, config: Config):
+def estimate_advantages(
+    params: Params, transitions: Any, next_obs: jnp.ndarray, config: Config
+) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
     """The critic's values of a collected rollout, next_obs included ([T + 1, N]), and its GAE advantages and
     returns ([T, N])."""
     values = value(params, jnp.concatenate([transitions.obs, next_obs[None]], axis=0), config.net)
-    advantages, returns = compute_gae(transitions.reward, values, transitions.terminated, transitions.done,
-                                      transitions.valid, config.ppo.gamma, config.ppo.gae_lambda)
+    advantages, returns = compute_gae(
+        transitions.reward,
+        values,
+        transitions.terminated,
+        transitions.done,
+        transitions.valid,
+        config.ppo.gamma,
+        config.ppo.gae_lambda,
+    )
     return values, advantages, returns

@@ -30,8 +30,9 @@ plot labels) is its `AlgorithmSpec` (`canter.config.algorithms`), built in its f
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,7 @@ class ExportedActor:
     """A deterministic actor as plain arrays: `x = clip((obs - mean) / sqrt(var + eps), -clip_obs, clip_obs)` when
     `normalize` is set, then dense layers with `activation` between them, then `tanh` and an affine map onto
     [low, high] when `squash` is set, and finally a clip to [low, high]."""
+
     weights: list[np.ndarray]
     biases: list[np.ndarray]
     activation: str
@@ -52,7 +54,7 @@ class ExportedActor:
     clip_obs: float
     action_low: np.ndarray
     action_high: np.ndarray
-    output_slice: int   # keep only the first `output_slice` outputs (a head may also predict the log std)
+    output_slice: int  # keep only the first `output_slice` outputs (a head may also predict the log std)
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from canter.config.algorithms import (
 )
 
 DECLARATIONS = (
-    "canter.algos.ppo.sections",        # ppo, rpo
-    "canter.algos.trpo.sections",       # trpo
+    "canter.algos.ppo.sections",  # ppo, rpo
+    "canter.algos.trpo.sections",  # trpo
     "canter.algos.offpolicy.sections",  # td3, ddpg, sac
 )
 for _module in DECLARATIONS:

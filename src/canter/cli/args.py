@@ -20,8 +20,9 @@ def seeds_arg(text: str) -> tuple[int, ...]:
     try:
         seeds = tuple(int(part) for part in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas such as 0,1,2, got {text!r}") \
-            from None
+        raise argparse.ArgumentTypeError(
+            f"expected whole numbers separated by commas such as 0,1,2, got {text!r}"
+        ) from None
     if len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"each seed may appear once, got {text!r}")
     return seeds

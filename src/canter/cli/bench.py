@@ -15,25 +15,41 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("bench", help="run a benchmark grid; writes results.md/.csv and plots",
-                       description="Run every (algo, env, grid values) cell for every seed, each seed a run folder "
-                                   "under --out with a deterministic name; re-running skips finished runs and "
-                                   "resumes interrupted ones. Writes results.md, results.csv and plot_ENV.png.")
+    b = sub.add_parser(
+        "bench",
+        help="run a benchmark grid; writes results.md/.csv and plots",
+        description="Run every (algo, env, grid values) cell for every seed, each seed a run folder "
+        "under --out with a deterministic name; re-running skips finished runs and "
+        "resumes interrupted ones. Writes results.md, results.csv and plot_ENV.png.",
+    )
     b.add_argument("--algos", type=_names, default=None, help="comma-separated algorithms (default ppo)")
     b.add_argument("--envs", type=_names, default=None, help="comma-separated env ids, e.g. Hopper-v5,Walker2d-v5")
     b.add_argument("--seeds", type=seeds_arg, default=(0, 1, 2), help="comma-separated seeds (default 0,1,2)")
     b.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per run (1e6 works)")
-    b.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
-                   help="a hyperparameter axis, repeatable: ppo.ent_coef=0.01,1e-4,0 or net.hidden=64-64,128-64")
-    b.add_argument("--jobs", type=int, default=1,
-                   help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed)")
+    b.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a hyperparameter axis, repeatable: ppo.ent_coef=0.01,1e-4,0 or net.hidden=64-64,128-64",
+    )
+    b.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed)",
+    )
     b.add_argument("--out", default="bench", help="bench folder (default bench/)")
     b.add_argument("--preset", default="fast", help="preset under the grid values (default fast)")
     b.add_argument("--config", default=None, help="TOML file under the grid values")
     b.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
     b.add_argument("--eval-episodes", type=int, default=10, help="deterministic episodes of the final evaluation")
-    b.add_argument("--storage", default=None, metavar="URL",
-                   help="share the grid through this Optuna storage (e.g. postgresql://user:pw@host/db)")
+    b.add_argument(
+        "--storage",
+        default=None,
+        metavar="URL",
+        help="share the grid through this Optuna storage (e.g. postgresql://user:pw@host/db)",
+    )
     b.add_argument("--study", default=None, metavar="NAME", help="study name with --storage (default: --out name)")
     b.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS", help="with --storage: heartbeat interval")
     b.set_defaults(func=run)
@@ -50,10 +66,21 @@ def run(args: argparse.Namespace) -> int:
             raise CanterError(f"give the {key} values either with {flag} or with --grid {key}=..., not both")
     if args.envs is None and "env.id" not in grid_keys:
         raise CanterError("no environments given; pass --envs Hopper-v5,Walker2d-v5")
-    settings = BenchSettings(algos=args.algos or ("ppo",), envs=args.envs or (), seeds=args.seeds,
-                             total_steps=args.total_steps, grid=grid, jobs=args.jobs, out_dir=args.out,
-                             preset=args.preset, config_file=args.config, sets=tuple(args.set),
-                             eval_episodes=args.eval_episodes, storage_url=args.storage, study_name=args.study,
-                             heartbeat_seconds=args.heartbeat)
+    settings = BenchSettings(
+        algos=args.algos or ("ppo",),
+        envs=args.envs or (),
+        seeds=args.seeds,
+        total_steps=args.total_steps,
+        grid=grid,
+        jobs=args.jobs,
+        out_dir=args.out,
+        preset=args.preset,
+        config_file=args.config,
+        sets=tuple(args.set),
+        eval_episodes=args.eval_episodes,
+        storage_url=args.storage,
+        study_name=args.study,
+        heartbeat_seconds=args.heartbeat,
+    )
     bench(settings)
     return 0

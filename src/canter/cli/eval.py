@@ -15,21 +15,37 @@ from canter.files import check_writable, write_output
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.envs.registry import backend_choices
 
-    e = sub.add_parser("eval", help="evaluate run folders (and robustness sweeps with --vary)",
-                       description="Evaluate the newest checkpoint of runs. Runs that differ only in run.seed are "
-                                   "also summarised as a group.")
+    e = sub.add_parser(
+        "eval",
+        help="evaluate run folders (and robustness sweeps with --vary)",
+        description="Evaluate the newest checkpoint of runs. Runs that differ only in run.seed are "
+        "also summarised as a group.",
+    )
     e.add_argument("runs", nargs="+", help="run folders")
     e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value)")
     e.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     e.add_argument("--env", default=None, help="evaluate on another env with the same observation/action sizes")
-    e.add_argument("--backend", choices=backend_choices(), default=None,
-                   help="env backend (default: the run's own for its env, else auto)")
+    e.add_argument(
+        "--backend",
+        choices=backend_choices(),
+        default=None,
+        help="env backend (default: the run's own for its env, else auto)",
+    )
     e.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON")
-    e.add_argument("--vary", default=None, action="append", metavar="PARAM[:NAME]=S1,S2,...",
-                   help="robustness sweep on the Gymnasium env: scale body_mass:BODY, geom_friction:GEOM, "
-                        "actuator_gear:ACTUATOR (omit :NAME for all) or gravity, e.g. body_mass:torso=0.5,1,1.5")
-    e.add_argument("--out", default=None, metavar="PATH.png",
-                   help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png in each run")
+    e.add_argument(
+        "--vary",
+        default=None,
+        action="append",
+        metavar="PARAM[:NAME]=S1,S2,...",
+        help="robustness sweep on the Gymnasium env: scale body_mass:BODY, geom_friction:GEOM, "
+        "actuator_gear:ACTUATOR (omit :NAME for all) or gravity, e.g. body_mass:torso=0.5,1,1.5",
+    )
+    e.add_argument(
+        "--out",
+        default=None,
+        metavar="PATH.png",
+        help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png in each run",
+    )
     e.add_argument("--seed", type=int, default=None, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)
 
@@ -48,9 +64,11 @@ def run(args: argparse.Namespace) -> int:
         from canter.use.vary import parse_spec
 
         if len(args.vary) > 1:
-            # One sweep per command: a second --vary used to replace the first without a word.
-            raise CanterError(f"--vary is given {len(args.vary)} times; sweep one parameter per command "
-                              f"(run canter eval once per --vary)")
+            # One sweep per command: argparse would let a second --vary silently replace the first.
+            raise CanterError(
+                f"--vary is given {len(args.vary)} times; sweep one parameter per command "
+                f"(run canter eval once per --vary)"
+            )
         spec = parse_spec(args.vary[0])
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
@@ -67,13 +85,28 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
 
     rows = []
     for policy in policies:
-        result = evaluate(policy, episodes=args.episodes, deterministic=not args.stochastic, seed=seed,
-                          env_id=args.env, backend=args.backend)
-        rows.append(dict(run=str(policy.source), env=args.env or policy.facts.env_id, algo=policy.config.run.algo,
-                         seed=policy.config.run.seed, deterministic=not args.stochastic,
-                         global_step=policy.facts.global_step, **result.summary()))
-    groups = [_group_row(rows, members) for members in group_by_experiment([p.config for p in policies])
-              if len(members) > 1]
+        result = evaluate(
+            policy,
+            episodes=args.episodes,
+            deterministic=not args.stochastic,
+            seed=seed,
+            env_id=args.env,
+            backend=args.backend,
+        )
+        rows.append(
+            dict(
+                run=str(policy.source),
+                env=args.env or policy.facts.env_id,
+                algo=policy.config.run.algo,
+                seed=policy.config.run.seed,
+                deterministic=not args.stochastic,
+                global_step=policy.facts.global_step,
+                **result.summary(),
+            )
+        )
+    groups = [
+        _group_row(rows, members) for members in group_by_experiment([p.config for p in policies]) if len(members) > 1
+    ]
     _print_table(rows, groups)
     if args.json:
         write_output(args.json, json.dumps({"runs": rows, "groups": groups}, indent=2).encode())
@@ -88,26 +121,35 @@ def _group_row(rows: list[dict[str, Any]], members: list[int]) -> dict[str, Any]
     means = np.array([r["return_mean"] for r in chosen])
     lengths = np.array([r["length_mean"] for r in chosen])
     first = chosen[0]
-    return {"label": f"{first['env']} {first['algo']}, seeds {','.join(str(r['seed']) for r in chosen)}",
-            "runs": [r["run"] for r in chosen], "seeds": [r["seed"] for r in chosen],
-            "return_mean": float(means.mean()), "return_std": float(means.std()),
-            "length_mean": float(lengths.mean()), "length_std": float(lengths.std()),
-            "eval_seconds": float(sum(r["eval_seconds"] for r in chosen)),
-            "episodes": int(sum(r["episodes"] for r in chosen))}
+    return {
+        "label": f"{first['env']} {first['algo']}, seeds {','.join(str(r['seed']) for r in chosen)}",
+        "runs": [r["run"] for r in chosen],
+        "seeds": [r["seed"] for r in chosen],
+        "return_mean": float(means.mean()),
+        "return_std": float(means.std()),
+        "length_mean": float(lengths.mean()),
+        "length_std": float(lengths.std()),
+        "eval_seconds": float(sum(r["eval_seconds"] for r in chosen)),
+        "episodes": int(sum(r["episodes"] for r in chosen)),
+    }
 
 
 def _short(text: str, width: int) -> str:
-    return text if len(text) <= width else "..." + text[-(width - 3):]
+    return text if len(text) <= width else "..." + text[-(width - 3) :]
 
 
 def _print_table(rows: list[dict[str, Any]], groups: list[dict[str, Any]]) -> None:
     print(f"{'run':<56} {'steps':>10} {'return (mean ± std)':>21} {'length':>15} {'time':>7}")
     for r in rows:
-        print(f"{_short(r['run'], 56):<56} {r['global_step']:>10,} {r['return_mean']:>11.1f} ± {r['return_std']:<7.1f}"
-              f" {r['length_mean']:>6.1f} ± {r['length_std']:<6.1f} {r['eval_seconds']:>6.1f}s")
+        print(
+            f"{_short(r['run'], 56):<56} {r['global_step']:>10,} {r['return_mean']:>11.1f} ± {r['return_std']:<7.1f}"
+            f" {r['length_mean']:>6.1f} ± {r['length_std']:<6.1f} {r['eval_seconds']:>6.1f}s"
+        )
     for g in groups:
-        print(f"{_short('group: ' + g['label'], 56):<56} {'':>10} {g['return_mean']:>11.1f} ± {g['return_std']:<7.1f}"
-              f" {g['length_mean']:>6.1f} ± {g['length_std']:<6.1f} {g['eval_seconds']:>6.1f}s")
+        print(
+            f"{_short('group: ' + g['label'], 56):<56} {'':>10} {g['return_mean']:>11.1f} ± {g['return_std']:<7.1f}"
+            f" {g['length_mean']:>6.1f} ± {g['length_std']:<6.1f} {g['eval_seconds']:>6.1f}s"
+        )
     if groups:
         print("group rows: mean ± std across the runs' mean returns and lengths")
 
@@ -131,20 +173,33 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
         check_writable(path)
         check_writable(path.with_suffix(".json"))
     series = []
-    print(f"{env_id}: {spec.text} ({args.episodes} episodes per value, "
-          f"{'stochastic' if args.stochastic else 'deterministic'})")
+    print(
+        f"{env_id}: {spec.text} ({args.episodes} episodes per value, "
+        f"{'stochastic' if args.stochastic else 'deterministic'})"
+    )
     print(f"{'run':<40} {'scale':>6} {'return (mean ± std)':>21} {'length':>15} {'time':>7}")
     for policy, label in zip(policies, _labels(policies)):
         points = sweep(policy, spec, args.episodes, not args.stochastic, seed, env_id)
         series.append((label, points))
         for p in points:
-            print(f"{_short(label, 40):<40} {p['scale']:>6.3g} {p['return_mean']:>11.1f} ± {p['return_std']:<7.1f}"
-                  f" {p['length_mean']:>6.1f} ± {p['length_std']:<6.1f} {p['eval_seconds']:>6.1f}s")
-    report = {"env": env_id, "vary": spec.text, "param": spec.param, "name": spec.name,
-              "original": original.tolist(), "episodes": args.episodes, "deterministic": not args.stochastic,
-              "seed": seed,
-              "runs": [{"run": str(p.source), "label": label, "global_step": p.facts.global_step, "points": points}
-                       for p, (label, points) in zip(policies, series)]}
+            print(
+                f"{_short(label, 40):<40} {p['scale']:>6.3g} {p['return_mean']:>11.1f} ± {p['return_std']:<7.1f}"
+                f" {p['length_mean']:>6.1f} ± {p['length_std']:<6.1f} {p['eval_seconds']:>6.1f}s"
+            )
+    report = {
+        "env": env_id,
+        "vary": spec.text,
+        "param": spec.param,
+        "name": spec.name,
+        "original": original.tolist(),
+        "episodes": args.episodes,
+        "deterministic": not args.stochastic,
+        "seed": seed,
+        "runs": [
+            {"run": str(p.source), "label": label, "global_step": p.facts.global_step, "points": points}
+            for p, (label, points) in zip(policies, series)
+        ],
+    }
     data = json.dumps(report, indent=2).encode()
     image = plot(series, spec, original, env_id)
     for path in outputs:

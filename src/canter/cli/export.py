@@ -8,12 +8,16 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="export the deterministic policy (ONNX or npz)",
-                       description="Export the newest checkpoint's deterministic policy, with observation "
-                                   "normalization and action clipping baked in.")
+    p = sub.add_parser(
+        "export",
+        help="export the deterministic policy (ONNX or npz)",
+        description="Export the newest checkpoint's deterministic policy, with observation "
+        "normalization and action clipping baked in.",
+    )
     p.add_argument("run", help="run folder")
-    p.add_argument("--format", choices=("onnx", "npz"), default=None,
-                   help="file format (default: from the --out extension)")
+    p.add_argument(
+        "--format", choices=("onnx", "npz"), default=None, help="file format (default: from the --out extension)"
+    )
     p.add_argument("--out", required=True, help="output file, e.g. policy.onnx or policy.npz")
     p.set_defaults(func=run)
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import Sequence
+from collections.abc import Sequence
+from typing import NoReturn
 
 from canter.errors import CanterError
 
@@ -15,7 +16,7 @@ COMMANDS = ("train", "eval", "video", "plot", "export", "report", "tune", "bench
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # argparse would print usage over several lines
+    def error(self, message: str) -> NoReturn:  # argparse would print usage over several lines
         # main() already prefixes "canter: error:", so only a subcommand's name ("train") is worth adding.
         command = self.prog.removeprefix("canter").strip()
         raise CanterError(f"{command}: {message} (see --help)" if command else f"{message} (see --help)")

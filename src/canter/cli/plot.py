@@ -8,18 +8,29 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plot", help="learning curves and diagnostics of run folders (PNG/SVG)",
-                       description="Plot learning curves and diagnostics. Runs whose configs differ only in the "
-                                   "seed are drawn as one mean line with a 95%% bootstrap band; groups are "
-                                   "labelled by the config keys in which they differ.")
+    p = sub.add_parser(
+        "plot",
+        help="learning curves and diagnostics of run folders (PNG/SVG)",
+        description="Plot learning curves and diagnostics. Runs whose configs differ only in the "
+        "seed are drawn as one mean line with a 95%% bootstrap band; groups are "
+        "labelled by the config keys in which they differ.",
+    )
     p.add_argument("runs", nargs="+", help="run folders")
     p.add_argument("--out", default="curves.png", help="output image; .png, .svg or .pdf (default curves.png)")
     p.add_argument("--x", choices=("steps", "wall"), default="steps", help="x axis: env steps or wall time")
-    p.add_argument("--smooth", type=int, default=1, metavar="W",
-                   help="trailing moving average over W logged rows of each run (default 1: none)")
-    p.add_argument("--metrics", default=None, metavar="COL,COL",
-                   help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' "
-                        "(default: all but info/*)")
+    p.add_argument(
+        "--smooth",
+        type=int,
+        default=1,
+        metavar="W",
+        help="trailing moving average over W logged rows of each run (default 1: none)",
+    )
+    p.add_argument(
+        "--metrics",
+        default=None,
+        metavar="COL,COL",
+        help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' (default: all but info/*)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap resampling")
     p.set_defaults(func=run)
 

@@ -8,26 +8,31 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("report", help="one self-contained HTML page about run folders",
-                       description="Write one HTML file with the runs' config, an evaluation table, learning "
-                                   "curves, robustness plots (RUN/robustness/*.png) and a video (RUN/videos/), "
-                                   "all embedded.")
+    p = sub.add_parser(
+        "report",
+        help="one self-contained HTML page about run folders",
+        description="Write one HTML file with the runs' config, an evaluation table, learning "
+        "curves, robustness plots (RUN/robustness/*.png) and a video (RUN/videos/), "
+        "all embedded.",
+    )
     p.add_argument("runs", nargs="+", help="run folders")
     p.add_argument("--out", default="report.html", help="output HTML file (default report.html)")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per run; 0 skips evaluation")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
     p.add_argument("--smooth", type=int, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
-    p.add_argument("--video", action="store_true",
-                   help="render one deterministic episode of each run for the page (instead of RUN/videos/)")
+    p.add_argument(
+        "--video",
+        action="store_true",
+        help="render one deterministic episode of each run for the page (instead of RUN/videos/)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from canter.use.report import build_report
 
-    check_writable(args.out)   # before the evaluation, which can take minutes
-    page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth,
-                        video=args.video)
+    check_writable(args.out)  # before the evaluation, which can take minutes
+    page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth, video=args.video)
     write_output(args.out, page.encode("utf-8"))
     print(f"wrote {args.out}")
     return 0

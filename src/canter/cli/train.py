@@ -15,8 +15,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     from canter.config.presets import preset_names
     from canter.envs.registry import backend_choices
 
-    t = sub.add_parser("train", help="train a policy; writes a run folder",
-                       description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.")
+    t = sub.add_parser(
+        "train",
+        help="train a policy; writes a run folder",
+        description="Train a policy. Precedence: defaults < --preset < --config < --set < flags.",
+    )
     t.add_argument("env", nargs="?", help="env id (Hopper-v5) or module:EnvId for a custom Gymnasium env")
     t.add_argument("--algo", default=None, help=f"algorithm: {', '.join(algorithm_names())} (default ppo)")
     t.add_argument("--preset", default=None, help=f"preset overlay: {', '.join(preset_names())} (default fast)")
@@ -24,17 +27,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
     t.add_argument("--backend", choices=backend_choices(), default=None)
-    t.add_argument("--stop-at-return", type=float, default=None,
-                   help="stop once the mean of the last 20 training episodes reaches this")
+    t.add_argument(
+        "--stop-at-return",
+        type=float,
+        default=None,
+        help="stop once the mean of the last 20 training episodes reaches this",
+    )
     t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
     t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
-    t.add_argument("--video-every", type=steps_arg, default=None, metavar="N",
-                   help="render an episode to RUN/videos/step_<step>.mp4 every N env steps (run.video_every)")
-    t.add_argument("--seeds", type=seeds_arg, default=None, metavar="S1,S2,...",
-                   help="train one run per seed together in one vmapped program (instead of --seed)")
-    t.add_argument("--resume", nargs="+", default=None, metavar="RUN_DIR",
-                   help="continue a run from its newest checkpoint; several run folders that differ only in "
-                        "run.seed resume together as one group")
+    t.add_argument(
+        "--video-every",
+        type=steps_arg,
+        default=None,
+        metavar="N",
+        help="render an episode to RUN/videos/step_<step>.mp4 every N env steps (run.video_every)",
+    )
+    t.add_argument(
+        "--seeds",
+        type=seeds_arg,
+        default=None,
+        metavar="S1,S2,...",
+        help="train one run per seed together in one vmapped program (instead of --seed)",
+    )
+    t.add_argument(
+        "--resume",
+        nargs="+",
+        default=None,
+        metavar="RUN_DIR",
+        help="continue a run from its newest checkpoint; several run folders that differ only in "
+        "run.seed resume together as one group",
+    )
     t.add_argument("--seed", type=int, default=None, help="run seed")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
@@ -48,16 +70,29 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
     if args.resume:
-        changed = [flag for flag, value in (("env", args.env), ("--algo", args.algo), ("--preset", args.preset),
-                                             ("--config", args.config), ("--set", args.set), ("--seed", args.seed),
-                                             ("--seeds", args.seeds), ("--backend", args.backend),
-                                             ("--stop-at-return", args.stop_at_return),
-                                             ("--max-minutes", args.max_minutes), ("--out-dir", args.out_dir),
-                                             ("--video-every", args.video_every))
-                   if value]
+        changed = [
+            flag
+            for flag, value in (
+                ("env", args.env),
+                ("--algo", args.algo),
+                ("--preset", args.preset),
+                ("--config", args.config),
+                ("--set", args.set),
+                ("--seed", args.seed),
+                ("--seeds", args.seeds),
+                ("--backend", args.backend),
+                ("--stop-at-return", args.stop_at_return),
+                ("--max-minutes", args.max_minutes),
+                ("--out-dir", args.out_dir),
+                ("--video-every", args.video_every),
+            )
+            if value
+        ]
         if changed:
-            raise CanterError(f"--resume uses the saved config; only --total-steps and --quiet may be given "
-                              f"(got {', '.join(changed)})")
+            raise CanterError(
+                f"--resume uses the saved config; only --total-steps and --quiet may be given "
+                f"(got {', '.join(changed)})"
+            )
         if len(args.resume) > 1:
             results = resume_seeds([Path(d) for d in args.resume], args.total_steps, quiet=args.quiet)
         else:
@@ -76,20 +111,31 @@ def run(args: argparse.Namespace) -> int:
         if args.video_every is not None:
             extra["run.video_every"] = args.video_every
         sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
-        config = build_config(args.env, preset=args.preset or "fast", config_file=args.config, sets=sets,
-                              seed=args.seed, total_steps=args.total_steps, algo=args.algo)
+        config = build_config(
+            args.env,
+            preset=args.preset or "fast",
+            config_file=args.config,
+            sets=sets,
+            seed=args.seed,
+            total_steps=args.total_steps,
+            algo=args.algo,
+        )
         if args.seeds is not None:
             if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
-                print(f"canter: note: {config.run.algo} seeds train faster one per process than in a group "
-                      f"(docs/multiseed.md); `canter bench --algos {config.run.algo} --seeds ... --jobs 2` does that",
-                      file=sys.stderr)
+                print(
+                    f"canter: note: {config.run.algo} seeds train faster one per process than in a group "
+                    f"(docs/multiseed.md); `canter bench --algos {config.run.algo} --seeds ... --jobs 2` does that",
+                    file=sys.stderr,
+                )
             results = train_seeds(config, args.seeds, quiet=args.quiet)
         else:
             results = [train(config, quiet=args.quiet)]
     for result in results:
         recent = "n/a" if result.recent_return is None else f"{result.recent_return:.1f}"
         print(f"run: {result.run_dir}")
-        print(f"steps {result.global_step:,} | {result.sps:,.0f} SPS (compile {result.compile_seconds:.1f} s apart) "
-              f"| wall {result.wall_seconds:.1f} s | return (last 20 episodes) {recent} | "
-              f"stopped: {result.stop_reason}")
+        print(
+            f"steps {result.global_step:,} | {result.sps:,.0f} SPS (compile {result.compile_seconds:.1f} s apart) "
+            f"| wall {result.wall_seconds:.1f} s | return (last 20 episodes) {recent} | "
+            f"stopped: {result.stop_reason}"
+        )
     return 0

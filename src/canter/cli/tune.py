@@ -9,11 +9,14 @@ from canter.errors import CanterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    t = sub.add_parser("tune", help="tune hyperparameters with Optuna",
-                       description="Optuna search (TPE sampler, median pruner on intermediate deterministic "
-                                   "evaluations). The study lives in OUT_DIR/STUDY (SQLite) unless --storage is "
-                                   "given; with a shared --storage and --study, run the same command on any number "
-                                   "of machines. Writes best.toml (for canter train --config) and summary.md.")
+    t = sub.add_parser(
+        "tune",
+        help="tune hyperparameters with Optuna",
+        description="Optuna search (TPE sampler, median pruner on intermediate deterministic "
+        "evaluations). The study lives in OUT_DIR/STUDY (SQLite) unless --storage is "
+        "given; with a shared --storage and --study, run the same command on any number "
+        "of machines. Writes best.toml (for canter train --config) and summary.md.",
+    )
     t.add_argument("env", nargs="?", help="env id, e.g. Hopper-v5")
     t.add_argument("--algo", default="ppo", help="algorithm to tune (default ppo)")
     t.add_argument("--trials", type=int, default=50, help="finished (complete + pruned) trials of the whole study")
@@ -33,12 +36,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
     t.add_argument("--out-dir", default="tune", help="folder of study folders (default tune/)")
     t.add_argument("--study", default=None, metavar="NAME", help="study name (default ENV__ALGO)")
-    t.add_argument("--storage", default=None, metavar="URL",
-                   help="Optuna RDB URL, e.g. postgresql://user:pw@host/db (default: SQLite in the study folder)")
-    t.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS",
-                   help="trial heartbeat interval; a trial silent for 3x this is failed and retried")
-    t.add_argument("--sampler-seed", type=int, default=None,
-                   help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)")
+    t.add_argument(
+        "--storage",
+        default=None,
+        metavar="URL",
+        help="Optuna RDB URL, e.g. postgresql://user:pw@host/db (default: SQLite in the study folder)",
+    )
+    t.add_argument(
+        "--heartbeat",
+        type=int,
+        default=60,
+        metavar="SECONDS",
+        help="trial heartbeat interval; a trial silent for 3x this is failed and retried",
+    )
+    t.add_argument(
+        "--sampler-seed",
+        type=int,
+        default=None,
+        help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)",
+    )
     t.set_defaults(func=run)
 
 
@@ -60,11 +76,27 @@ def run(args: argparse.Namespace) -> int:
     from canter.orchestrate.tune import TuneSettings, tune
 
     settings = TuneSettings(
-        env_id=args.env, algo=args.algo, trials=args.trials, jobs=args.jobs, total_steps=args.total_steps,
-        seeds=tuple(range(args.seed, args.seed + args.seeds_per_trial)), startup_trials=args.startup_trials,
-        evaluations=args.evaluations, eval_episodes=args.eval_episodes, trial_minutes=args.trial_minutes,
-        study_hours=args.study_hours, preset=args.preset, config_file=args.config, sets=tuple(args.set),
-        space_file=args.space, out_dir=args.out_dir, study_name=args.study, storage_url=args.storage,
-        heartbeat_seconds=args.heartbeat, grace_seconds=3 * args.heartbeat, sampler_seed=args.sampler_seed)
+        env_id=args.env,
+        algo=args.algo,
+        trials=args.trials,
+        jobs=args.jobs,
+        total_steps=args.total_steps,
+        seeds=tuple(range(args.seed, args.seed + args.seeds_per_trial)),
+        startup_trials=args.startup_trials,
+        evaluations=args.evaluations,
+        eval_episodes=args.eval_episodes,
+        trial_minutes=args.trial_minutes,
+        study_hours=args.study_hours,
+        preset=args.preset,
+        config_file=args.config,
+        sets=tuple(args.set),
+        space_file=args.space,
+        out_dir=args.out_dir,
+        study_name=args.study,
+        storage_url=args.storage,
+        heartbeat_seconds=args.heartbeat,
+        grace_seconds=3 * args.heartbeat,
+        sampler_seed=args.sampler_seed,
+    )
     tune(settings)
     return 0

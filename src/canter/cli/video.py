@@ -9,10 +9,13 @@ import time
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.use.video import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH
 
-    v = sub.add_parser("video", help="render a run's policy to an MP4 or GIF",
-                       description="Render episodes of the newest checkpoint with MuJoCo's offscreen renderer (EGL or "
-                                   "OSMesa; MUJOCO_GL picks one), Box2D's for BipedalWalker, dm_control's for DM "
-                                   "Control runs. EnvPool runs replay in the equivalent Gymnasium env.")
+    v = sub.add_parser(
+        "video",
+        help="render a run's policy to an MP4 or GIF",
+        description="Render episodes of the newest checkpoint with MuJoCo's offscreen renderer (EGL or "
+        "OSMesa; MUJOCO_GL picks one), Box2D's for BipedalWalker, dm_control's for DM "
+        "Control runs. EnvPool runs replay in the equivalent Gymnasium env.",
+    )
     v.add_argument("run", help="run folder")
     v.add_argument("--out", required=True, help="output file: .mp4 (H.264) or .gif")
     v.add_argument("--episodes", type=int, default=1)
@@ -30,9 +33,18 @@ def run(args: argparse.Namespace) -> int:
     from canter.use.video import record_video
 
     started = time.perf_counter()
-    returns = record_video(args.run, args.out, episodes=args.episodes, width=args.width, height=args.height,
-                           fps=args.fps, camera=args.camera, seed=args.seed if args.seed is not None else 0,
-                           checkpoint_file=args.checkpoint, max_steps=args.max_steps)
+    returns = record_video(
+        args.run,
+        args.out,
+        episodes=args.episodes,
+        width=args.width,
+        height=args.height,
+        fps=args.fps,
+        camera=args.camera,
+        seed=args.seed if args.seed is not None else 0,
+        checkpoint_file=args.checkpoint,
+        max_steps=args.max_steps,
+    )
     for i, value in enumerate(returns):
         print(f"episode {i + 1}: return {value:.1f}")
     print(f"wrote {args.out} ({len(returns)} episodes) in {time.perf_counter() - started:.1f} s")

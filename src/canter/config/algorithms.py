@@ -8,8 +8,9 @@ there; `canter/algos/registry.py` lists those modules, one line per algorithm. T
 from __future__ import annotations
 
 import difflib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from canter.config.schema import field_names
 from canter.errors import CanterError
@@ -91,8 +92,8 @@ def read_sections(algo: str) -> list[tuple[str, tuple[str, ...] | None]]:
         section, _, name = item.partition(".")
         if not name:
             out[section] = None
-        elif out.get(section, []) is not None:
-            out.setdefault(section, []).append(name)  # type: ignore[union-attr]
+        elif (names := out.setdefault(section, [])) is not None:  # None: the whole section is read already
+            names.append(name)
     return [(s, None if names is None else tuple(names)) for s, names in out.items()]
 
 

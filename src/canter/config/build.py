@@ -17,9 +17,16 @@ from canter.config.validate import validate
 from canter.errors import CanterError
 
 
-def build_config(env_id: str | None, preset: str = "fast", config_file: str | None = None,
-                 sets: list[str] | None = None, seed: int | None = None, total_steps: int | None = None,
-                 algo: str | None = None, check_unread: bool = True) -> Config:
+def build_config(
+    env_id: str | None,
+    preset: str = "fast",
+    config_file: str | None = None,
+    sets: list[str] | None = None,
+    seed: int | None = None,
+    total_steps: int | None = None,
+    algo: str | None = None,
+    check_unread: bool = True,
+) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags), then validate. The algorithm is known
     before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does not
     read is refused (unless `check_unread` is off), since it would change nothing."""

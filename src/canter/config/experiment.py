@@ -10,8 +10,9 @@ schedule follows the budget.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import fields
-from typing import Any, Sequence
+from typing import Any
 
 from canter.config.fields import LEARNING, role_of
 from canter.config.schema import Config
@@ -20,8 +21,11 @@ from canter.config.serialize import written_keys
 
 def flat_config(config: Config) -> dict[str, Any]:
     """`{"section.key": value}` of every key the run reads."""
-    return {f"{section}.{name}": getattr(config.section(section), name) for section, names in written_keys(config)
-            for name in names}
+    return {
+        f"{section}.{name}": getattr(config.section(section), name)
+        for section, names in written_keys(config)
+        for name in names
+    }
 
 
 def learning_keys(config: Config) -> list[str]:

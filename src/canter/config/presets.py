@@ -78,8 +78,10 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
     others, which would otherwise get the bare defaults under its name."""
     table, supported = _read_preset(name)
     if supported and algo not in supported:
-        raise CanterError(f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
-                          f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset")
+        raise CanterError(
+            f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
+            f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset"
+        )
     flat = preset_layer(table, env_id, f"preset {name}")
     own = algorithm_spec(algo).preset_overrides.get(name)
     if own:

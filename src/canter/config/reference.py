@@ -15,9 +15,19 @@ def docs_table() -> str:
         defaults = section_type(section)()
         for f in fields(defaults):
             default = getattr(defaults, f.name)
-            shown = "none" if default is None else (
-                ",".join(map(str, default)) if isinstance(default, tuple) else str(default).lower()
-                if isinstance(default, bool) else str(default))
-            rows.append(f"| `{section}.{f.name}` | {type_name(types_[f.name])} | `{shown or '(empty)'}` "
-                        f"| {f.metadata.get('doc', '')} |")
+            shown = (
+                "none"
+                if default is None
+                else (
+                    ",".join(map(str, default))
+                    if isinstance(default, tuple)
+                    else str(default).lower()
+                    if isinstance(default, bool)
+                    else str(default)
+                )
+            )
+            rows.append(
+                f"| `{section}.{f.name}` | {type_name(types_[f.name])} | `{shown or '(empty)'}` "
+                f"| {f.metadata.get('doc', '')} |"
+            )
     return "\n".join(rows)

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable
+from typing import Any
 
 from canter.config.fields import BUDGET, OUTPUT, SEED, setting
 from canter.envs.registry import AUTO, backend_doc
@@ -22,9 +23,12 @@ class EnvConfig:
     id: str = setting("Environment id, e.g. Hopper-v5, or `module:EnvId` for a custom Gymnasium env.", default="")
     backend: str = setting(backend_doc(), default=AUTO)
     num_envs: int = setting("Parallel environments stepped per rollout step.", default=1)
-    envpool_shards: int = setting("EnvPool only: split the envs over this many single-threaded pools that step "
-                                  "concurrently, as evenly as the count allows; 0 means one per CPU core.", default=0,
-                                  role=OUTPUT)
+    envpool_shards: int = setting(
+        "EnvPool only: split the envs over this many single-threaded pools that step "
+        "concurrently, as evenly as the count allows; 0 means one per CPU core.",
+        default=0,
+        role=OUTPUT,
+    )
     normalize_obs: bool = setting("Running observation normalization (stats saved with the policy).", default=True)
     clip_obs: float = setting("Clip normalized observations to +-clip_obs.", default=10.0)
     normalize_reward: bool = setting("Divide rewards by the running std of the discounted return.", default=True)
@@ -34,24 +38,34 @@ class EnvConfig:
 @dataclass(frozen=True)
 class RunConfig:
     algo: str = setting("Algorithm.", default="ppo")
-    preset: str = setting("Name of the preset this config was built from (recorded, not applied).", default="none",
-                          role=OUTPUT)
+    preset: str = setting(
+        "Name of the preset this config was built from (recorded, not applied).", default="none", role=OUTPUT
+    )
     seed: int = setting("Run seed: network init, sampling and the derived per-env seeds.", default=0, role=SEED)
-    total_steps: int = setting("Environment steps to train for (reset steps of EnvPool are not counted).",
-                               default=1_000_000, role=BUDGET)
+    total_steps: int = setting(
+        "Environment steps to train for (reset steps of EnvPool are not counted).", default=1_000_000, role=BUDGET
+    )
     out_dir: str = setting("Folder that receives run folders.", default="runs", role=OUTPUT)
-    checkpoint_every: int = setting("Write a checkpoint every this many env steps (0: only at the end).",
-                                    default=200_000, role=OUTPUT)
+    checkpoint_every: int = setting(
+        "Write a checkpoint every this many env steps (0: only at the end).", default=200_000, role=OUTPUT
+    )
     keep_checkpoints: int = setting("Keep the newest K checkpoints.", default=3, role=OUTPUT)
-    compress_checkpoints: bool = setting("Deflate checkpoint arrays (worth it for off-policy replay buffers).",
-                                         default=False, role=OUTPUT)
-    stop_at_return: float | None = setting("Stop once the mean return of the last 20 training episodes reaches "
-                                           "this.", default=None, role=BUDGET)
-    max_minutes: float | None = setting("Stop cleanly, with a checkpoint, after this many wall minutes.",
-                                        default=None, role=BUDGET)
+    compress_checkpoints: bool = setting(
+        "Deflate checkpoint arrays (worth it for off-policy replay buffers).", default=False, role=OUTPUT
+    )
+    stop_at_return: float | None = setting(
+        "Stop once the mean return of the last 20 training episodes reaches this.", default=None, role=BUDGET
+    )
+    max_minutes: float | None = setting(
+        "Stop cleanly, with a checkpoint, after this many wall minutes.", default=None, role=BUDGET
+    )
     tensorboard: bool = setting("Write TensorBoard event files.", default=True, role=OUTPUT)
-    video_every: int = setting("Render one episode to videos/step_<step>.mp4 in the run folder every this many env "
-                               "steps, in a separate process (0: never).", default=0, role=OUTPUT)
+    video_every: int = setting(
+        "Render one episode to videos/step_<step>.mp4 in the run folder every this many env "
+        "steps, in a separate process (0: never).",
+        default=0,
+        role=OUTPUT,
+    )
 
 
 # A section's own checks: `check(section, name)` raises CanterError for a value that makes no sense on its own.
@@ -101,6 +115,7 @@ def _default_sections() -> tuple[tuple[str, Any], ...]:
 @dataclass(frozen=True)
 class Config:
     """A resolved configuration: `config.env`, `config.run` and every registered section as `config.<name>`."""
+
     env: EnvConfig = field(default_factory=EnvConfig)
     run: RunConfig = field(default_factory=RunConfig)
     sections: tuple[tuple[str, Any], ...] = field(default_factory=_default_sections)
@@ -122,7 +137,9 @@ class Config:
         unknown = [k for k in changes if k not in names and k not in CORE_SECTIONS]
         if unknown:
             close = difflib.get_close_matches(unknown[0], list(section_names()), n=1)
-            raise CanterError(f"config has no section '{unknown[0]}'" + (f"; did you mean {close[0]}?" if close else ""))
+            raise CanterError(
+                f"config has no section '{unknown[0]}'" + (f"; did you mean {close[0]}?" if close else "")
+            )
         sections = tuple((name, changes.get(name, value)) for name, value in self.sections)
         core = {k: v for k, v in changes.items() if k in CORE_SECTIONS}
         return dataclasses.replace(self, sections=sections, **core)

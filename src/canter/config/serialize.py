@@ -20,11 +20,14 @@ from canter.errors import CanterError
 
 def written_keys(config: Config) -> list[tuple[str, list[str]]]:
     """(section, keys) that a run of this config reads, in config.toml order: env, the algorithm's, run."""
+
     def names(section: str) -> list[str]:
         return [f.name for f in fields(config.section(section))]
 
-    algorithm = [(section, list(only) if only is not None else names(section))
-                 for section, only in read_sections(config.run.algo)]
+    algorithm = [
+        (section, list(only) if only is not None else names(section))
+        for section, only in read_sections(config.run.algo)
+    ]
     return [("env", names("env")), *algorithm, ("run", names("run"))]
 
 

@@ -27,11 +27,15 @@ def validate(config: Config) -> None:
     env, run = config.env, config.run
     need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
     backends = ("auto", *backend_names())
-    need(env.backend in backends, f"env.backend must be {', '.join(backends[:-1])} or {backends[-1]}, "
-                                  f"got '{env.backend}'")
+    need(
+        env.backend in backends,
+        f"env.backend must be {', '.join(backends[:-1])} or {backends[-1]}, got '{env.backend}'",
+    )
     need(env.num_envs >= 1, f"env.num_envs must be >= 1, got {env.num_envs}")
-    need(0 <= env.envpool_shards <= env.num_envs,
-         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}")
+    need(
+        0 <= env.envpool_shards <= env.num_envs,
+        f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}",
+    )
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
     spec = algorithm_spec(run.algo)

@@ -94,8 +94,13 @@ def toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
-        return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf") if not math.isnan(
-            value) else "nan"
+        return (
+            repr(value)
+            if math.isfinite(value)
+            else ("inf" if value > 0 else "-inf")
+            if not math.isnan(value)
+            else "nan"
+        )
     if isinstance(value, tuple):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, str):

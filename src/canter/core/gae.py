@@ -16,8 +16,15 @@ import jax
 import jax.numpy as jnp
 
 
-def compute_gae(rewards: jnp.ndarray, values: jnp.ndarray, terminated: jnp.ndarray, done: jnp.ndarray,
-                valid: jnp.ndarray, gamma: float, gae_lambda: float) -> tuple[jnp.ndarray, jnp.ndarray]:
+def compute_gae(
+    rewards: jnp.ndarray,
+    values: jnp.ndarray,
+    terminated: jnp.ndarray,
+    done: jnp.ndarray,
+    valid: jnp.ndarray,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Return (advantages, returns), both [T, N]; entries of invalid steps are 0 and must be masked by the caller."""
     not_terminated = 1.0 - terminated.astype(jnp.float32)
     not_done = 1.0 - done.astype(jnp.float32)

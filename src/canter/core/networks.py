@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -29,7 +30,7 @@ def _dense(key: jax.Array, n_in: int, n_out: int, gain: float, ortho: bool) -> d
 def init_mlp(key: jax.Array, sizes: list[int], out_gain: float, ortho: bool) -> list[dict[str, jnp.ndarray]]:
     keys = jax.random.split(key, len(sizes) - 1)
     layers = []
-    for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+    for i, (n_in, n_out) in enumerate(itertools.pairwise(sizes)):
         last = i == len(sizes) - 2
         layers.append(_dense(keys[i], n_in, n_out, out_gain if last else math.sqrt(2.0), ortho))
     return layers
@@ -50,8 +51,7 @@ def init_params(key: jax.Array, net: NetConfig, obs_dim: int, act_dim: int) -> P
     if net.state_dependent_std:
         # Start the log-std half of the head at log_std_init regardless of the observation.
         last = actor[-1]
-        actor[-1] = {"w": last["w"].at[:, act_dim:].set(0.0),
-                     "b": last["b"].at[act_dim:].set(net.log_std_init)}
+        actor[-1] = {"w": last["w"].at[:, act_dim:].set(0.0), "b": last["b"].at[act_dim:].set(net.log_std_init)}
     params: Params = {
         "actor": actor,
         "critic": init_mlp(critic_key, [obs_dim, *critic_hidden, 1], 1.0, net.ortho_init),

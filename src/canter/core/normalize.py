@@ -16,7 +16,8 @@ EPSILON = 1e-8  # added to variances before the square root
 class RunningStats(NamedTuple):
     mean: jnp.ndarray
     var: jnp.ndarray
-    count: jnp.ndarray
+    # Shadows tuple.count, but the name is part of every checkpoint's leaf paths.
+    count: jnp.ndarray  # type: ignore[assignment]
 
 
 def init_stats(shape: tuple[int, ...]) -> RunningStats:

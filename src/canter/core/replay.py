@@ -15,23 +15,28 @@ import jax.numpy as jnp
 
 
 class Transitions(NamedTuple):
-    obs: jnp.ndarray          # [..., obs_dim] raw observation acted on
-    action: jnp.ndarray       # [..., act_dim] the action taken, in the policy's [-1, 1] coordinates
-    reward: jnp.ndarray       # [...] raw env reward
-    next_obs: jnp.ndarray     # [..., obs_dim] the true next observation (the final one when an episode ended)
-    terminated: jnp.ndarray   # [...] float32 1.0 only for a true terminal state (time limits bootstrap)
+    obs: jnp.ndarray  # [..., obs_dim] raw observation acted on
+    action: jnp.ndarray  # [..., act_dim] the action taken, in the policy's [-1, 1] coordinates
+    reward: jnp.ndarray  # [...] raw env reward
+    next_obs: jnp.ndarray  # [..., obs_dim] the true next observation (the final one when an episode ended)
+    terminated: jnp.ndarray  # [...] float32 1.0 only for a true terminal state (time limits bootstrap)
 
 
 class ReplayBuffer(NamedTuple):
-    data: Transitions         # arrays of leading size `capacity`
-    ptr: jnp.ndarray          # int32, the next slot to write
-    size: jnp.ndarray         # int32, filled slots
+    data: Transitions  # arrays of leading size `capacity`
+    ptr: jnp.ndarray  # int32, the next slot to write
+    size: jnp.ndarray  # int32, filled slots
 
 
 def init_buffer(capacity: int, obs_dim: int, act_dim: int) -> ReplayBuffer:
     f32 = jnp.float32
-    data = Transitions(jnp.zeros((capacity, obs_dim), f32), jnp.zeros((capacity, act_dim), f32),
-                       jnp.zeros((capacity,), f32), jnp.zeros((capacity, obs_dim), f32), jnp.zeros((capacity,), f32))
+    data = Transitions(
+        jnp.zeros((capacity, obs_dim), f32),
+        jnp.zeros((capacity, act_dim), f32),
+        jnp.zeros((capacity,), f32),
+        jnp.zeros((capacity, obs_dim), f32),
+        jnp.zeros((capacity,), f32),
+    )
     return ReplayBuffer(data, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32))
 
 
@@ -46,8 +51,9 @@ def insert(buffer: ReplayBuffer, batch: Transitions, mask: jnp.ndarray) -> Repla
     offsets = jnp.cumsum(keep, dtype=jnp.int32) - keep
     # Skipped rows get an out-of-range index, which mode="drop" ignores.
     slots = jnp.where(mask, (buffer.ptr + offsets) % capacity, capacity)
-    data = jax.tree_util.tree_map(lambda store, rows: store.at[slots].set(rows.astype(store.dtype), mode="drop"),
-                                  buffer.data, batch)
+    data = jax.tree_util.tree_map(
+        lambda store, rows: store.at[slots].set(rows.astype(store.dtype), mode="drop"), buffer.data, batch
+    )
     count = keep.sum().astype(jnp.int32)
     return ReplayBuffer(data, (buffer.ptr + count) % capacity, jnp.minimum(buffer.size + count, capacity))
 

@@ -6,4 +6,4 @@ from __future__ import annotations
 from canter.envs.base import EnvSpec, StepOutput, VecEnv, is_summed_info
 from canter.envs.registry import known_ids, make_vec_env, resolve_backend
 
-__all__ = ["EnvSpec", "StepOutput", "VecEnv", "is_summed_info", "make_vec_env", "resolve_backend", "known_ids"]
+__all__ = ["EnvSpec", "StepOutput", "VecEnv", "is_summed_info", "known_ids", "make_vec_env", "resolve_backend"]

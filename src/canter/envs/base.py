@@ -34,11 +34,11 @@ class EnvSpec:
 
 
 class StepOutput(NamedTuple):
-    obs: Any          # [N, obs_dim] float32
-    reward: Any       # [N] float32, raw env reward
-    terminated: Any   # [N] bool
-    truncated: Any    # [N] bool
-    info: Any         # dict key -> [N] float32, the reward terms and similar scalars the env reports
+    obs: Any  # [N, obs_dim] float32
+    reward: Any  # [N] float32, raw env reward
+    terminated: Any  # [N] bool
+    truncated: Any  # [N] bool
+    info: Any  # dict key -> [N] float32, the reward terms and similar scalars the env reports
 
 
 class VecEnv(Protocol):
@@ -56,8 +56,19 @@ class VecEnv(Protocol):
 
 
 # Info entries that are bookkeeping, not measurements.
-IGNORED_INFO_KEYS = frozenset({"env_id", "players", "elapsed_step", "TimeLimit.truncated", "episode", "_episode",
-                               "final_observation", "final_info", "terminal_observation"})
+IGNORED_INFO_KEYS = frozenset(
+    {
+        "env_id",
+        "players",
+        "elapsed_step",
+        "TimeLimit.truncated",
+        "episode",
+        "_episode",
+        "final_observation",
+        "final_info",
+        "terminal_observation",
+    }
+)
 
 
 def is_summed_info(key: str) -> bool:
@@ -72,7 +83,7 @@ class Backend(Protocol):
 
     The optional capabilities default to absent; a backend that has one sets its flag and overrides its method."""
 
-    name: str   # the value of env.backend and --backend
+    name: str  # the value of env.backend and --backend
     label: str  # how messages and docs name it
     # Accepts `module:EnvId`: ids that a user's module registers when imported (`load_custom`).
     custom_ids: bool = False

@@ -90,8 +90,7 @@ def resolve_backend(env_id: str, backend: str) -> str:
     return chosen.name
 
 
-def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0,
-                 **kwargs: Any) -> VecEnv:
+def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
     """`shards` applies to backends with pools (0: one single-threaded pool per core); kwargs go to the env."""
     return get_backend(resolve_backend(env_id, backend)).make(env_id, num_envs, seeds, shards, **kwargs)
 

@@ -1,8 +1,8 @@
 """`canter bench`: a grid of algorithms x envs x hyperparameter values x seeds, each run an ordinary run folder.
 
-A cell is one (algo, env, grid values) combination. A job is what one child process trains (`canter.orchestrate.jobs`): all
-of a cell's seeds together as one vmapped group, or, for the off-policy algorithms
-(`canter.algos.SEEDS_TRAIN_APART`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic
+A cell is one (algo, env, grid values) combination. A job is what one child process trains
+(`canter.orchestrate.jobs`): all of a cell's seeds together as one vmapped group, or, for the off-policy algorithms
+(`canter.algos.seeds_train_apart`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic
 names built from the env, the algorithm, every grid value and the seed, so re-running the same command finds them:
 finished runs are skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished
 run's final policy is evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv`
@@ -23,7 +23,7 @@ import tomllib
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from canter.orchestrate.jobs import (
     warn_if_more_jobs_than_cores,
 )
 
+if TYPE_CHECKING:
+    from canter.orchestrate.study import Outcome
+
 # Grid keys that have their own flag or belong to the bench itself.
 _AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
 _FORBIDDEN = {"run.seed": "--seeds", "run.total_steps": "--total-steps", "run.out_dir": "--out"}
@@ -59,7 +62,7 @@ class BenchSettings:
     envs: tuple[str, ...]
     seeds: tuple[int, ...]
     total_steps: int
-    grid: tuple[tuple[str, tuple[str, ...]], ...] = ()   # (key, raw values) in the order given
+    grid: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (key, raw values) in the order given
     jobs: int = 1
     out_dir: str = "bench"
     preset: str = "fast"
@@ -76,7 +79,7 @@ class BenchSettings:
 class Cell:
     algo: str
     env_id: str
-    values: tuple[tuple[str, str], ...]   # every grid axis: (key, canonical value)
+    values: tuple[tuple[str, str], ...]  # every grid axis: (key, canonical value)
     config: Config
 
     @property
@@ -91,9 +94,10 @@ class Cell:
 @dataclass(frozen=True)
 class Job:
     """The seeds of one cell that one child process trains together."""
+
     cell: Cell
     seeds: tuple[int, ...]
-    apart: bool   # one seed of a cell whose seeds train apart: the seed is part of the name
+    apart: bool  # one seed of a cell whose seeds train apart: the seed is part of the name
 
     @property
     def name(self) -> str:
@@ -160,8 +164,9 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             import difflib
 
             close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
-            raise CanterError(f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?"
-                                                                      if close else ""))
+            raise CanterError(
+                f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?" if close else "")
+            )
         section, _, name = key.partition(".")
         values = [canonical(coerce(key, field_types(section)[name], v)) for v in raw]
         if len(set(values)) != len(values):
@@ -189,8 +194,15 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             sets = [item for key, item in set_keys.items() if key not in known or reads_key(algo, key)]
             sets += [f"{key}={value}" for key, value in pairs]
             try:
-                config = build_config(env_id, preset=settings.preset, config_file=settings.config_file, sets=sets,
-                                      seed=settings.seeds[0], total_steps=settings.total_steps, algo=algo)
+                config = build_config(
+                    env_id,
+                    preset=settings.preset,
+                    config_file=settings.config_file,
+                    sets=sets,
+                    seed=settings.seeds[0],
+                    total_steps=settings.total_steps,
+                    algo=algo,
+                )
             except CanterError as exc:
                 where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
                 raise CanterError(f"cell ({where}): {exc}") from None
@@ -207,16 +219,20 @@ def varying_keys(cells: list[Cell]) -> list[str]:
 def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
     cell = job.cell
     config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
-    return JobSpec(to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
-                   settings.eval_episodes)
+    return JobSpec(
+        to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds}, settings.eval_episodes
+    )
 
 
 def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
     for seed in seeds:
         run_dir = cell.run_dir(bench_dir, seed)
         evaluation = read_json(run_dir / EVAL_FILE)
-        if run_status(run_dir, settings.total_steps) != "done" or not evaluation or \
-                evaluation.get("episodes") != settings.eval_episodes:
+        if (
+            run_status(run_dir, settings.total_steps) != "done"
+            or not evaluation
+            or evaluation.get("episodes") != settings.eval_episodes
+        ):
             return False
     return True
 
@@ -238,16 +254,19 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
             try:
                 found = dict(experiment_key(read_config(saved.parent)))
             except (CanterError, OSError):
-                continue   # unreadable: the run is not usable anyway, and training it anew rewrites the file
+                continue  # unreadable: the run is not usable anyway, and training it anew rewrites the file
             differing = [k for k in expected if found.get(k) != expected[k]]
             if differing:
                 key = differing[0]
                 more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
-                raise CanterError(f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
-                                  f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it")
+                raise CanterError(
+                    f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
+                    f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it"
+                )
 
 
 # ---------------------------------------------------------------------------------------------------- results
+
 
 def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
     """What the table needs of one finished run: its final eval mean, wall seconds and SPS (None where missing).
@@ -264,8 +283,12 @@ def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
         totals = totals_until(run_dir / "metrics.csv", int(summary["global_step"]))
         if totals["train_seconds"] > 0:
             wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
-    return {"seed": seed, "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
-            "wall_seconds": wall, "sps": sps}
+    return {
+        "seed": seed,
+        "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
+        "wall_seconds": wall,
+        "sps": sps,
+    }
 
 
 def cell_result(cell: Cell, settings: BenchSettings, bench_dir: Path) -> dict[str, Any]:
@@ -283,12 +306,19 @@ def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]
     walls = [r["wall_seconds"] for r in records if r["wall_seconds"] is not None]
     sps = [r["sps"] for r in records if r["sps"] is not None]
     apart = seeds_train_apart(cell.algo)
-    return {"cell": cell.name, "env": cell.env_id, "algo": cell.algo, "values": dict(cell.values),
-            "seeds": len(evals), "return_mean": float(np.mean(evals)) if evals else math.nan,
-            "return_std": float(np.std(evals)) if evals else math.nan,
-            "return_median": float(np.median(evals)) if evals else math.nan, "seed_returns": evals,
-            "wall_minutes": float(np.mean(walls) if apart else np.max(walls)) / 60 if walls else math.nan,
-            "sps": float(np.mean(sps) if apart else np.sum(sps)) if sps else math.nan}
+    return {
+        "cell": cell.name,
+        "env": cell.env_id,
+        "algo": cell.algo,
+        "values": dict(cell.values),
+        "seeds": len(evals),
+        "return_mean": float(np.mean(evals)) if evals else math.nan,
+        "return_std": float(np.std(evals)) if evals else math.nan,
+        "return_median": float(np.median(evals)) if evals else math.nan,
+        "seed_returns": evals,
+        "wall_minutes": float(np.mean(walls) if apart else np.max(walls)) / 60 if walls else math.nan,
+        "sps": float(np.mean(sps) if apart else np.sum(sps)) if sps else math.nan,
+    }
 
 
 def published_scores() -> dict[str, Any]:
@@ -313,31 +343,66 @@ def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: i
 
     data = published_scores()
     short = [k.split(".", 1)[1] for k in keys]
-    header = ["env", "algo"] + short + ["return (mean ± std over seeds)", "median", "seeds", "cell wall min",
-                                        "cell SPS", "published"]
-    md = ["| " + " | ".join(header) + " |",
-          "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---:|---|"]
+    header = (
+        ["env", "algo"]
+        + short
+        + ["return (mean ± std over seeds)", "median", "seeds", "cell wall min", "cell SPS", "published"]
+    )
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * 2 + "---|" * len(short) + "---:|---:|---:|---:|---:|---|"]
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    writer.writerow(["env", "algo"] + keys + ["return_mean", "return_std", "return_median", "seeds", "wall_minutes",
-                                               "sps", "published"])
+    writer.writerow(
+        ["env", "algo"]
+        + keys
+        + ["return_mean", "return_std", "return_median", "seeds", "wall_minutes", "sps", "published"]
+    )
     for r in results:
         reference = published_for(r["algo"], r["env"], total_steps, data)
         grid_values = [r["values"].get(k, "") for k in keys]
-        md.append("| " + " | ".join([r["env"], r["algo"]] + grid_values + [
-            f"{r['return_mean']:.1f} ± {r['return_std']:.1f}", f"{r['return_median']:.1f}", str(r["seeds"]),
-            f"{r['wall_minutes']:.1f}", f"{r['sps']:,.0f}", reference]) + " |")
-        writer.writerow([r["env"], r["algo"]] + grid_values + [
-            f"{r['return_mean']:.3f}", f"{r['return_std']:.3f}", f"{r['return_median']:.3f}", r["seeds"],
-            f"{r['wall_minutes']:.3f}", f"{r['sps']:.1f}", reference])
+        md.append(
+            "| "
+            + " | ".join(
+                [r["env"], r["algo"]]
+                + grid_values
+                + [
+                    f"{r['return_mean']:.1f} ± {r['return_std']:.1f}",
+                    f"{r['return_median']:.1f}",
+                    str(r["seeds"]),
+                    f"{r['wall_minutes']:.1f}",
+                    f"{r['sps']:,.0f}",
+                    reference,
+                ]
+            )
+            + " |"
+        )
+        writer.writerow(
+            [r["env"], r["algo"]]
+            + grid_values
+            + [
+                f"{r['return_mean']:.3f}",
+                f"{r['return_std']:.3f}",
+                f"{r['return_median']:.3f}",
+                r["seeds"],
+                f"{r['wall_minutes']:.3f}",
+                f"{r['sps']:.1f}",
+                reference,
+            ]
+        )
     sources = data["sources"]
     apart = sorted({r["algo"] for r in results if seeds_train_apart(r["algo"])})
     if apart:
-        md += ["", f"Cell wall min and cell SPS of {', '.join(apart)}: the mean per seed, since each of their seeds "
-                   "trains as a job of its own (for the other algorithms, a cell's seeds train together: its wall "
-                   "time, and the steps per second of all its seeds)."]
-    md += ["", "Published: " + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})"
-                                         for k, v in sources.items()) + "."]
+        md += [
+            "",
+            f"Cell wall min and cell SPS of {', '.join(apart)}: the mean per seed, since each of their seeds "
+            "trains as a job of its own (for the other algorithms, a cell's seeds train together: its wall "
+            "time, and the steps per second of all its seeds).",
+        ]
+    md += [
+        "",
+        "Published: "
+        + "; ".join(f"{k} = {v['name']} ({v['where']}; {v['measure']})" for k, v in sources.items())
+        + ".",
+    ]
     return "\n".join(md) + "\n", buffer.getvalue()
 
 
@@ -350,8 +415,7 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
 
 
-def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings,
-                  bench_dir: Path) -> str:
+def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings, bench_dir: Path) -> str:
     from canter.files import write_output
 
     keys = varying_keys(cells)
@@ -359,8 +423,7 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
     write_output(bench_dir / "results.md", markdown.encode())
     write_output(bench_dir / "results.csv", table_csv.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
-        run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id
-                    for seed in settings.seeds]
+        run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
         run_dirs = [d for d in run_dirs if (d / "metrics.csv").is_file() and (d / "config.toml").is_file()]
         if run_dirs:
             plot_env(run_dirs, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
@@ -368,6 +431,7 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
 
 
 # ------------------------------------------------------------------------------------------------------- running
+
 
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
     """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
@@ -395,8 +459,10 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                 del running[slot]
                 if code == 0 and not seeds_finished(job.cell, job.seeds, settings, bench_dir):
                     # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
-                    reason = ("stopped before its budget (a signal or run.max_minutes); it is checkpointed and a "
-                              "re-run resumes it")
+                    reason = (
+                        "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a "
+                        "re-run resumes it"
+                    )
                     failures.setdefault(job.cell.name, reason)
                     print(f"STOP  {job.name}: {reason}", flush=True)
                 elif code == 0:
@@ -412,15 +478,18 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     return failures
 
 
-def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSettings, bench_dir: Path):
+def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSettings, bench_dir: Path) -> Outcome:
     from optuna.trial import TrialState
 
     from canter.orchestrate.study import Outcome
 
     name = trial.suggest_categorical("cell", list(jobs))
     for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
-        if other.params.get("cell") == name and other.number != trial.number and (
-                other.state == TrialState.COMPLETE or other.number < trial.number):
+        if (
+            other.params.get("cell") == name
+            and other.number != trial.number
+            and (other.state == TrialState.COMPLETE or other.number < trial.number)
+        ):
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
     job = jobs[name]
     folder = bench_dir / ".cells" / job.name
@@ -443,11 +512,18 @@ def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) 
 
     from canter.orchestrate.study import StorageSettings, open_storage
 
-    storage = open_storage(StorageSettings(settings.storage_url, settings.heartbeat_seconds,
-                                           3 * settings.heartbeat_seconds))
+    assert settings.storage_url is not None, "only a bench with --storage runs through a study"
+    storage = open_storage(
+        StorageSettings(settings.storage_url, settings.heartbeat_seconds, 3 * settings.heartbeat_seconds)
+    )
     sampler = optuna.samplers.GridSampler({"cell": [j.name for j in jobs]})
-    study = optuna.create_study(storage=storage, study_name=settings.study_name or bench_dir.name,
-                                direction="maximize", sampler=sampler, load_if_exists=True)
+    study = optuna.create_study(
+        storage=storage,
+        study_name=settings.study_name or bench_dir.name,
+        direction="maximize",
+        sampler=sampler,
+        load_if_exists=True,
+    )
     return storage, study
 
 
@@ -457,12 +533,20 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path) ->
     jobs = make_jobs(cells, settings.seeds)
     storage, study = _open_grid_study(jobs, settings, bench_dir)
     by_name = {j.name: j for j in jobs}
-    run_worker(study, storage, len(jobs), lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
-               heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+    run_worker(
+        study,
+        storage,
+        len(jobs),
+        lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+        heartbeat_seconds=settings.heartbeat_seconds,
+        poll_seconds=settings.poll_seconds,
+        ask_new=False,
+    )
 
 
-def run_distributed(cells: list[Cell], settings: BenchSettings,
-                    bench_dir: Path) -> tuple[list[dict[str, Any]], dict[str, str]]:
+def run_distributed(
+    cells: list[Cell], settings: BenchSettings, bench_dir: Path
+) -> tuple[list[dict[str, Any]], dict[str, str]]:
     """Share the jobs with other workers through an Optuna study; returns the results of every cell whose jobs all
     finished (by any worker) and the failure reasons of the cells with a failed job."""
     from optuna.trial import TrialState
@@ -473,15 +557,23 @@ def run_distributed(cells: list[Cell], settings: BenchSettings,
     storage, study = _open_grid_study(jobs, settings, bench_dir)
     by_name = {j.name: j for j in jobs}
     # Enqueue the jobs that no trial holds yet (a first run, or a job whose trial failed).
-    held = {t.params.get("cell") for t in study.get_trials(deepcopy=False, states=(
-        TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))}
+    held = {
+        t.params.get("cell")
+        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))
+    }
     for name in by_name:
         if name not in held:
             study.enqueue_trial({"cell": name})
     if settings.jobs == 1:
-        run_worker(study, storage, len(by_name),
-                   lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
-                   heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, ask_new=False)
+        run_worker(
+            study,
+            storage,
+            len(by_name),
+            lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+            heartbeat_seconds=settings.heartbeat_seconds,
+            poll_seconds=settings.poll_seconds,
+            ask_new=False,
+        )
     elif run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
         raise CanterError("a bench worker failed; its error is printed above")
     done, failed = {}, {}
@@ -523,6 +615,8 @@ def bench(settings: BenchSettings) -> str:
     markdown = write_results(finished, results, settings, bench_dir) if results else ""
     print(markdown, end="")
     if failures:
-        raise CanterError(f"{len(failures)} of {len(cells)} cells failed ({next(iter(failures.values()))}); "
-                          f"re-run the same command to retry them")
+        raise CanterError(
+            f"{len(failures)} of {len(cells)} cells failed ({next(iter(failures.values()))}); "
+            f"re-run the same command to retry them"
+        )
     return markdown

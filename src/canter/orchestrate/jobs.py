@@ -13,15 +13,17 @@ with `eval_episodes` it then writes each run's final deterministic evaluation to
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
@@ -31,6 +33,7 @@ SUMMARY_FILE = "summary.json"
 
 
 # ------------------------------------------------------------------------------------------------ run folder status
+
 
 def run_status(run_dir: Path, total_steps: int) -> str:
     """`done` (trained to total_steps), `partial` (stopped after a checkpoint) or `new` (nothing usable)."""
@@ -55,14 +58,18 @@ def read_json(path: Path) -> dict[str, Any] | None:
 
 # ------------------------------------------------------------------------------------------------------ CPU limits
 
+
 def thread_env(threads: int, cpus: list[int] | None = None) -> dict[str, str]:
     """Environment variables that cap a JAX process at `threads` threads; they must be set before JAX is imported.
     `CANTER_CPUS` pins the process to those cores (read by `apply_cpu_pinning`)."""
     flags = os.environ.get("XLA_FLAGS", "")
-    extra = f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} " \
-            f"intra_op_parallelism_threads={threads}"
-    env = {"XLA_FLAGS": f"{flags} {extra}".strip(), "OMP_NUM_THREADS": str(threads),
-           "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    extra = f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} intra_op_parallelism_threads={threads}"
+    env = {
+        "XLA_FLAGS": f"{flags} {extra}".strip(),
+        "OMP_NUM_THREADS": str(threads),
+        "OPENBLAS_NUM_THREADS": str(threads),
+        "MKL_NUM_THREADS": str(threads),
+    }
     if cpus:
         env["CANTER_CPUS"] = ",".join(map(str, cpus))
     return env
@@ -71,10 +78,8 @@ def thread_env(threads: int, cpus: list[int] | None = None) -> dict[str, str]:
 def apply_cpu_pinning() -> None:
     cpus = os.environ.get("CANTER_CPUS")
     if cpus and hasattr(os, "sched_setaffinity"):
-        try:
+        with contextlib.suppress(OSError):
             os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
-        except OSError:
-            pass
 
 
 def job_layout(jobs: int) -> list[dict[str, str]]:
@@ -83,7 +88,7 @@ def job_layout(jobs: int) -> list[dict[str, str]]:
     if jobs > len(cores):
         return [thread_env(1) for _ in range(jobs)]
     per = len(cores) // jobs
-    return [thread_env(per, cores[i * per:(i + 1) * per]) for i in range(jobs)]
+    return [thread_env(per, cores[i * per : (i + 1) * per]) for i in range(jobs)]
 
 
 def warn_if_more_jobs_than_cores(jobs: int) -> None:
@@ -91,27 +96,36 @@ def warn_if_more_jobs_than_cores(jobs: int) -> None:
     refused command prints only its error."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     if jobs > cores:
-        print(f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each other down",
-              file=sys.stderr)
+        print(
+            f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each other down",
+            file=sys.stderr,
+        )
 
 
 # --------------------------------------------------------------------------------------------------- child process
 
+
 @dataclass(frozen=True)
 class JobSpec:
     config_toml: str
-    run_dirs: dict[int, str]          # seed -> run folder
-    eval_episodes: int = 0            # 0: no final evaluation
+    run_dirs: dict[int, str]  # seed -> run folder
+    eval_episodes: int = 0  # 0: no final evaluation
 
     def to_json(self) -> str:
-        return json.dumps({"config_toml": self.config_toml, "run_dirs": {str(k): v for k, v in self.run_dirs.items()},
-                           "eval_episodes": self.eval_episodes})
+        return json.dumps(
+            {
+                "config_toml": self.config_toml,
+                "run_dirs": {str(k): v for k, v in self.run_dirs.items()},
+                "eval_episodes": self.eval_episodes,
+            }
+        )
 
     @staticmethod
-    def from_json(text: str) -> "JobSpec":
+    def from_json(text: str) -> JobSpec:
         data = json.loads(text)
-        return JobSpec(data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()},
-                       int(data["eval_episodes"]))
+        return JobSpec(
+            data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()}, int(data["eval_episodes"])
+        )
 
 
 def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
@@ -119,22 +133,21 @@ def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) ->
     folder.mkdir(parents=True, exist_ok=True)
     spec_path = folder / "job.json"
     spec_path.write_text(spec.to_json())
-    log = open(folder / "train.log", "ab")
-    try:
-        return subprocess.Popen([sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)], stdout=log,
-                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                env={**os.environ, **(env or {})})
-    finally:
-        log.close()
+    with open(folder / "train.log", "ab") as log:
+        return subprocess.Popen(
+            [sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env={**os.environ, **(env or {})},
+        )
 
 
 def failure_reason(folder: Path, returncode: int) -> str:
     """The child's one-line error (`canter: error: ...`), else the last line of its log, with the exit status."""
     lines = []
-    try:
+    with contextlib.suppress(OSError):
         lines = [line for line in (folder / "train.log").read_text(errors="replace").splitlines() if line.strip()]
-    except OSError:
-        pass
     errors = [line for line in lines if line.startswith("canter: error:")]
     last = errors[-1] if errors else (lines[-1] if lines else "no output")
     how = f"killed by signal {-returncode}" if returncode < 0 else f"exit {returncode}"
@@ -207,13 +220,19 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     if cached and cached.get("checkpoint") == step and cached.get("episodes") == episodes:
         return cached
     result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=0)
-    data = {"checkpoint": step, "episodes": episodes, "mean": result.mean, "std": result.std,
-            "returns": [float(r) for r in result.returns]}
+    data = {
+        "checkpoint": step,
+        "episodes": episodes,
+        "mean": result.mean,
+        "std": result.std,
+        "returns": [float(r) for r in result.returns],
+    }
     atomic_write_bytes(path, lambda f: f.write(json.dumps(data, indent=2).encode()))
     return data
 
 
 # ------------------------------------------------------------------------------------------------ worker processes
+
 
 def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], name: str) -> list[int]:
     """Call `work(*args)` once per entry of `worker_args`, each in a process of its own pinned to its share of the
@@ -222,8 +241,10 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
     import multiprocessing
 
     context = multiprocessing.get_context("spawn")
-    processes = [context.Process(target=_worker_main, args=(work, args, caps), name=f"{name}-{i}")
-                 for i, (args, caps) in enumerate(zip(worker_args, job_layout(len(worker_args))))]
+    processes = [
+        context.Process(target=_worker_main, args=(work, args, caps), name=f"{name}-{i}")
+        for i, (args, caps) in enumerate(zip(worker_args, job_layout(len(worker_args))))
+    ]
     for p in processes:
         p.start()
     try:

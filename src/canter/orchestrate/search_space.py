@@ -38,14 +38,14 @@ _RANGE_KEYS = {"low", "high", "log", "step"}
 
 @dataclass(frozen=True)
 class Param:
-    key: str                                  # section.key
-    choices: tuple[Any, ...] | None = None    # values as Optuna stores them (tuples as "64-64" strings)
+    key: str  # section.key
+    choices: tuple[Any, ...] | None = None  # values as Optuna stores them (tuples as "64-64" strings)
     low: float | int | None = None
     high: float | int | None = None
     log: bool = False
     step: float | int | None = None
     integer: bool = False
-    same_as: str | None = None                # takes the value sampled for another key
+    same_as: str | None = None  # takes the value sampled for another key
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,9 @@ class SearchSpace:
                 continue
             if p.choices is not None:
                 values[p.key] = trial.suggest_categorical(p.key, list(p.choices))
-            elif p.integer:
+                continue
+            assert p.low is not None and p.high is not None, "a param without choices is a range"
+            if p.integer:
                 values[p.key] = trial.suggest_int(p.key, int(p.low), int(p.high), step=int(p.step or 1), log=p.log)
             else:
                 values[p.key] = trial.suggest_float(p.key, float(p.low), float(p.high), step=p.step, log=p.log)
@@ -134,7 +136,7 @@ def _check_ties(params: list[Param], source: str) -> None:
         if other is None or other.same_as is not None:
             raise CanterError(f"{source}: [{p.key}] same_as = {p.same_as!r} must name a sampled key of this space")
         section, _, name = p.key.partition(".")
-        for value in (other.choices or (other.low, other.high)):
+        for value in other.choices or (other.low, other.high):
             _check_alone(p.key, coerce(p.key, field_types(section)[name], value), source)
 
 
@@ -143,11 +145,12 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     field_type = field_types(section)[name]
     extra = set(spec) - _RANGE_KEYS - {"choices", "same_as"}
     if extra:
-        raise CanterError(f"{source}: [{key}] has unknown entries {sorted(extra)}; use choices, or low, high, "
-                          f"log, step, or same_as")
+        raise CanterError(
+            f"{source}: [{key}] has unknown entries {sorted(extra)}; use choices, or low, high, log, step, or same_as"
+        )
     if "same_as" in spec:
         if set(spec) != {"same_as"} or not isinstance(spec["same_as"], str):
-            raise CanterError(f"{source}: [{key}] same_as = \"section.key\" stands alone")
+            raise CanterError(f'{source}: [{key}] same_as = "section.key" stands alone')
         return Param(key, same_as=spec["same_as"])
     if "choices" in spec:
         if set(spec) != {"choices"}:

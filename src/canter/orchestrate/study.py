@@ -12,10 +12,12 @@ FAILED with the reason `surplus`, so the number of finished trials ends exactly 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from canter.errors import CanterError
 
@@ -33,7 +35,7 @@ class StorageSettings:
 
 def normalize_url(url: str) -> str:
     """`postgresql://` means the psycopg2 driver of the `distributed` extra (SQLAlchemy 2.1 would pick psycopg 3)."""
-    if url.startswith("postgresql://") or url.startswith("postgres://"):
+    if url.startswith(("postgresql://", "postgres://")):
         return "postgresql+psycopg2://" + url.split("://", 1)[1]
     return url
 
@@ -46,8 +48,10 @@ def describe_url(url: str) -> tuple[str, str]:
     try:
         parsed = make_url(url)
     except ArgumentError:
-        raise CanterError(f"--storage {url!r} is not a database URL; use sqlite:///path/study.db or "
-                          f"postgresql://user:password@host:5432/dbname") from None
+        raise CanterError(
+            f"--storage {url!r} is not a database URL; use sqlite:///path/study.db or "
+            f"postgresql://user:password@host:5432/dbname"
+        ) from None
     driver = parsed.drivername
     if driver.startswith("sqlite"):
         return driver, parsed.database or "(memory)"
@@ -70,19 +74,28 @@ def open_storage(settings: StorageSettings) -> Any:
         engine_kwargs = {"pool_pre_ping": True}
     try:
         return optuna.storages.RDBStorage(
-            normalize_url(settings.url), engine_kwargs=engine_kwargs, heartbeat_interval=settings.heartbeat_seconds,
+            normalize_url(settings.url),
+            engine_kwargs=engine_kwargs,
+            heartbeat_interval=settings.heartbeat_seconds,
             grace_period=settings.grace_seconds,
             heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
-                max_retry=settings.max_retry))
+                max_retry=settings.max_retry
+            ),
+        )
     except (ImportError, ModuleNotFoundError):
-        hint = "pip install 'canter[distributed]'" if driver.startswith("postgresql") else \
-            f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
-        raise CanterError(f"cannot connect to the {driver} storage at {host}: its database driver is not "
-                          f"installed; {hint}") from None
+        hint = (
+            "pip install 'canter[distributed]'"
+            if driver.startswith("postgresql")
+            else f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
+        )
+        raise CanterError(
+            f"cannot connect to the {driver} storage at {host}: its database driver is not installed; {hint}"
+        ) from None
     except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
         reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
-        raise CanterError(f"cannot connect to the {driver} storage at {host}: "
-                          f"{reason[0] if reason else type(exc).__name__}") from None
+        raise CanterError(
+            f"cannot connect to the {driver} storage at {host}: {reason[0] if reason else type(exc).__name__}"
+        ) from None
 
 
 def quiet_optuna() -> None:
@@ -98,9 +111,10 @@ def quiet_optuna() -> None:
 
 # ------------------------------------------------------------------------------------------------------- the loop
 
+
 @dataclass(frozen=True)
 class Outcome:
-    state: str                   # "complete", "pruned" or "fail"
+    state: str  # "complete", "pruned" or "fail"
     value: float | None = None
     reason: str | None = None
 
@@ -115,13 +129,12 @@ class _Heartbeat:
 
     def _beat(self, interval: float) -> None:
         while not self._stop.is_set():
-            try:
+            # A lost connection: the next beat retries, the grace period covers the gap.
+            with contextlib.suppress(Exception):
                 self._storage.record_heartbeat(self._trial_id)
-            except Exception:  # a lost connection: the next beat retries, the grace period covers the gap
-                pass
             self._stop.wait(interval)
 
-    def __enter__(self) -> "_Heartbeat":
+    def __enter__(self) -> _Heartbeat:
         self._thread.start()
         return self
 
@@ -146,8 +159,17 @@ def _surplus(study: Any, number: int, target: int) -> bool:
     return sum(1 for t in study.get_trials(deepcopy=False, states=alive) if t.number < number) >= target
 
 
-def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any], Outcome], *, heartbeat_seconds: float,
-               poll_seconds: float = 1.0, deadline: float | None = None, ask_new: bool = True) -> None:
+def run_worker(
+    study: Any,
+    storage: Any,
+    target: int,
+    run_trial: Callable[[Any], Outcome],
+    *,
+    heartbeat_seconds: float,
+    poll_seconds: float = 1.0,
+    deadline: float | None = None,
+    ask_new: bool = True,
+) -> None:
     """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes).
     With `ask_new=False` only queued (WAITING) trials are run, and the worker returns once none is queued or
     running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial."""
@@ -162,8 +184,10 @@ def run_worker(study: Any, storage: Any, target: int, run_trial: Callable[[Any],
         if finished >= target or (deadline is not None and time.time() >= deadline):
             return
         if n["FAIL"] >= max(10, 2 * target) and finished == 0:
-            raise CanterError(f"study '{study.study_name}': {n['FAIL']} trials failed and none finished; see the "
-                              f"'{FAIL_REASON}' of the failed trials (canter tune prints them)")
+            raise CanterError(
+                f"study '{study.study_name}': {n['FAIL']} trials failed and none finished; see the "
+                f"'{FAIL_REASON}' of the failed trials (canter tune prints them)"
+            )
         if n["WAITING"] == 0:
             if not ask_new and n["RUNNING"] == 0:
                 return

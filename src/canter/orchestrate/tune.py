@@ -47,9 +47,6 @@ DB_FILE = "study.db"
 BEST_FILE = "best.toml"
 SUMMARY_FILE = "summary.md"
 PRESET_ATTR = "preset"
-# Keys that describe one run rather than the hyperparameters; the best preset leaves them out.
-RUN_BOOKKEEPING = ("run.preset", "run.seed", "run.out_dir", "run.checkpoint_every", "run.keep_checkpoints",
-                   "run.max_minutes", "run.tensorboard", "run.video_every")
 _CKPT = re.compile(r"^ckpt_(\d{12})\.npz$")
 
 
@@ -60,9 +57,9 @@ class TuneSettings:
     trials: int = 50
     jobs: int = 1
     total_steps: int = 1_000_000
-    seeds: tuple[int, ...] = (0,)           # every trial trains these seeds
-    startup_trials: int = 10                # random trials before TPE; also the pruner's startup
-    evaluations: int = 20                   # checkpoints evaluated per trial
+    seeds: tuple[int, ...] = (0,)  # every trial trains these seeds
+    startup_trials: int = 10  # random trials before TPE; also the pruner's startup
+    evaluations: int = 20  # checkpoints evaluated per trial
     eval_episodes: int = 5
     trial_minutes: float | None = None
     study_hours: float | None = None
@@ -97,23 +94,33 @@ class TuneSettings:
 
 
 def base_config(settings: TuneSettings) -> Config:
-    return build_config(settings.env_id, preset=settings.preset, config_file=settings.config_file,
-                        sets=list(settings.sets), seed=settings.seeds[0], total_steps=settings.total_steps,
-                        algo=settings.algo)
+    return build_config(
+        settings.env_id,
+        preset=settings.preset,
+        config_file=settings.config_file,
+        sets=list(settings.sets),
+        seed=settings.seeds[0],
+        total_steps=settings.total_steps,
+        algo=settings.algo,
+    )
 
 
 def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
     """Everything that can be refused before a trial starts."""
-    for name, value, low in (("--trials", settings.trials, 1), ("--jobs", settings.jobs, 1),
-                             ("--evaluations", settings.evaluations, 1), ("--eval-episodes", settings.eval_episodes, 1),
-                             ("--seeds-per-trial", len(settings.seeds), 1)):
+    for name, value, low in (
+        ("--trials", settings.trials, 1),
+        ("--jobs", settings.jobs, 1),
+        ("--evaluations", settings.evaluations, 1),
+        ("--eval-episodes", settings.eval_episodes, 1),
+        ("--seeds-per-trial", len(settings.seeds), 1),
+    ):
         if value < low:
             raise CanterError(f"{name} must be >= {low}, got {value}")
     if settings.startup_trials < 0:
         raise CanterError(f"--startup-trials must be >= 0, got {settings.startup_trials}")
-    for name, value in (("--trial-minutes", settings.trial_minutes), ("--study-hours", settings.study_hours)):
-        if value is not None and not value > 0:
-            raise CanterError(f"{name} must be > 0, got {value}")
+    for name, limit in (("--trial-minutes", settings.trial_minutes), ("--study-hours", settings.study_hours)):
+        if limit is not None and not limit > 0:
+            raise CanterError(f"{name} must be > 0, got {limit}")
     config = base_config(settings)
     from canter.envs import resolve_backend
 
@@ -129,11 +136,21 @@ def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
 
 def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:
     config = apply_sample(base, values)
-    return replace(config, run=replace(config.run, out_dir=str(trial_dir), checkpoint_every=settings.eval_interval,
-                                       keep_checkpoints=settings.evaluations + 2, tensorboard=False, max_minutes=None))
+    return replace(
+        config,
+        run=replace(
+            config.run,
+            out_dir=str(trial_dir),
+            checkpoint_every=settings.eval_interval,
+            keep_checkpoints=settings.evaluations + 2,
+            tensorboard=False,
+            max_minutes=None,
+        ),
+    )
 
 
 # ------------------------------------------------------------------------------------------------- the config file
+
 
 def _config_file_value(value: Any) -> str:
     from canter.config.values import toml_value
@@ -142,21 +159,21 @@ def _config_file_value(value: Any) -> str:
 
 
 def config_file_toml(config: Config) -> str:
-    """The config as a TOML file that `canter train --config FILE` takes as it is: every key the algorithm reads
-    except run bookkeeping, `none` written as the string "none"."""
-    from canter.config.serialize import written_keys
+    """The config as a TOML file that `canter train --config FILE` takes as it is: the keys that define the
+    experiment (`canter.config.experiment`) and the step budget the trials trained for, which the learning-rate
+    schedule follows; `none` is written as the string "none"."""
+    from canter.config.experiment import flat_config, learning_keys
 
-    lines: list[str] = []
-    for section, names in written_keys(config):
-        table = config.section(section)
-        body = [f"{name} = {_config_file_value(getattr(table, name))}" for name in names
-                if f"{section}.{name}" not in RUN_BOOKKEEPING]
-        if body:
-            lines += [f"[{section}]"] + body + [""]
-    return "\n".join(lines)
+    flat = flat_config(config)
+    tables: dict[str, list[str]] = {}
+    for key in [*learning_keys(config), "run.total_steps"]:
+        section, _, name = key.partition(".")
+        tables.setdefault(section, []).append(f"{name} = {_config_file_value(flat[key])}")
+    return "\n".join(line for section, body in tables.items() for line in [f"[{section}]", *body, ""])
 
 
 # ------------------------------------------------------------------------------------------------------- a trial
+
 
 def _checkpoint_steps(run_dir: Path) -> list[int]:
     folder = run_dir / "checkpoints"
@@ -213,8 +230,8 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 
     proc = start_job(JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
-    reported: dict[int, float] = {}   # evaluation index -> mean return over seeds
-    skipped: set[int] = set()   # evaluation indices whose checkpoint disappeared
+    reported: dict[int, float] = {}  # evaluation index -> mean return over seeds
+    skipped: set[int] = set()  # evaluation indices whose checkpoint disappeared
     try:
         while True:
             code = proc.poll()
@@ -222,8 +239,14 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
             ready = set.intersection(*(set(f) for f in found)) - set(reported) - skipped
             for index in sorted(ready):
                 try:
-                    value = float(np.mean([evaluate_checkpoint(d, f[index], settings.eval_episodes)
-                                           for d, f in zip(run_dirs.values(), found)]))
+                    value = float(
+                        np.mean(
+                            [
+                                evaluate_checkpoint(d, f[index], settings.eval_episodes)
+                                for d, f in zip(run_dirs.values(), found)
+                            ]
+                        )
+                    )
                 except CanterError:
                     skipped.add(index)  # removed by the trainer meanwhile; the next checkpoint will do
                     continue
@@ -238,8 +261,10 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
             if deadline is not None and time.monotonic() > deadline:
                 stop_job(proc, grace_seconds=5)
                 done = max(reported, default=0) * settings.eval_interval
-                return Outcome("fail", reason=f"exceeded --trial-minutes {settings.trial_minutes:g} "
-                                              f"(stopped after about {done} steps)")
+                return Outcome(
+                    "fail",
+                    reason=f"exceeded --trial-minutes {settings.trial_minutes:g} (stopped after about {done} steps)",
+                )
             time.sleep(settings.poll_seconds)
     finally:
         stop_job(proc)
@@ -258,6 +283,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 
 # ------------------------------------------------------------------------------------------------------ the study
 
+
 def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
     """The study with this worker's sampler and pruner (they are not stored; every worker makes its own). With
     --sampler-seed, job J samples with seed + J, so parallel jobs do not propose the same random trials."""
@@ -266,10 +292,17 @@ def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
     quiet_optuna()
     seed = None if settings.sampler_seed is None else settings.sampler_seed + job
     sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
-    pruner = optuna.pruners.MedianPruner(n_startup_trials=max(1, settings.startup_trials // 2),
-                                         n_warmup_steps=settings.total_steps // 3)
-    return optuna.create_study(storage=storage, study_name=settings.name, direction="maximize", sampler=sampler,
-                               pruner=pruner, load_if_exists=True)
+    pruner = optuna.pruners.MedianPruner(
+        n_startup_trials=max(1, settings.startup_trials // 2), n_warmup_steps=settings.total_steps // 3
+    )
+    return optuna.create_study(
+        storage=storage,
+        study_name=settings.name,
+        direction="maximize",
+        sampler=sampler,
+        pruner=pruner,
+        load_if_exists=True,
+    )
 
 
 def worker(settings: TuneSettings, job: int = 0) -> None:
@@ -278,8 +311,15 @@ def worker(settings: TuneSettings, job: int = 0) -> None:
     storage = open_storage(settings.storage)
     study = make_study(settings, storage, job)
     deadline = _study_deadline(study, settings)
-    run_worker(study, storage, settings.trials, lambda trial: run_trial(trial, settings, config, space),
-               heartbeat_seconds=settings.heartbeat_seconds, poll_seconds=settings.poll_seconds, deadline=deadline)
+    run_worker(
+        study,
+        storage,
+        settings.trials,
+        lambda trial: run_trial(trial, settings, config, space),
+        heartbeat_seconds=settings.heartbeat_seconds,
+        poll_seconds=settings.poll_seconds,
+        deadline=deadline,
+    )
 
 
 def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
@@ -305,13 +345,15 @@ def tune(settings: TuneSettings) -> Any:
     else:
         failed = run_workers(worker, [(settings, i) for i in range(settings.jobs)], "canter-tune")
         if failed:
-            raise CanterError(f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); "
-                              f"their error is printed above")
+            raise CanterError(
+                f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); their error is printed above"
+            )
     write_results(study, settings)
     return study
 
 
 # ---------------------------------------------------------------------------------------------------- the report
+
 
 def _short(key: str) -> str:
     return key.split(".", 1)[1] if "." in key else key
@@ -333,12 +375,18 @@ def summary_table(study: Any, top: int = 10) -> str:
     done.sort(key=lambda t: -t.value)
     if done:
         keys = list(done[0].params)
-        lines += ["", "| trial | return | minutes | " + " | ".join(_short(k) for k in keys) + " |",
-                  "|---:|---:|---:|" + "---:|" * len(keys)]
+        lines += [
+            "",
+            "| trial | return | minutes | " + " | ".join(_short(k) for k in keys) + " |",
+            "|---:|---:|---:|" + "---:|" * len(keys),
+        ]
         for t in done[:top]:
             minutes = (t.datetime_complete - t.datetime_start).total_seconds() / 60 if t.datetime_start else math.nan
-            lines.append(f"| {t.number} | {t.value:.1f} | {minutes:.1f} | " +
-                         " | ".join(_fmt(t.params.get(k)) for k in keys) + " |")
+            lines.append(
+                f"| {t.number} | {t.value:.1f} | {minutes:.1f} | "
+                + " | ".join(_fmt(t.params.get(k)) for k in keys)
+                + " |"
+            )
     reasons: dict[str, int] = {}
     for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL, TrialState.PRUNED)):
         reason = t.user_attrs.get(FAIL_REASON) or t.user_attrs.get("note")
@@ -365,10 +413,12 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
         print("no trial completed, so there is no best preset yet")
         return None
     best = max(complete, key=lambda t: t.value)
-    header = (f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
-              f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
-              f"{', '.join(map(str, settings.seeds))}\n"
-              f"train with: canter train --config {BEST_FILE} --seed 0")
+    header = (
+        f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
+        f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
+        f"{', '.join(map(str, settings.seeds))}\n"
+        f"train with: canter train --config {BEST_FILE} --seed 0"
+    )
     body = best.user_attrs[PRESET_ATTR]
     path = settings.study_dir / BEST_FILE
     write_output(path, ("\n".join(f"# {line}" for line in header.splitlines()) + "\n" + body).encode())

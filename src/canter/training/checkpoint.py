@@ -51,7 +51,8 @@ def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False)
     payload = {f"leaf:{k}": v for k, v in arrays.items()}
     payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     writer = np.savez_compressed if compress else np.savez
-    atomic_write_bytes(Path(path), lambda f: writer(f, **payload))
+    # numpy's stub lets **kwds of arrays also fill its `allow_pickle: bool`, so any dict of arrays is refused.
+    atomic_write_bytes(Path(path), lambda f: writer(f, **payload))  # type: ignore[arg-type]
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -64,12 +65,15 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
             header = json.loads(bytes(data["header"]).decode())
             arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(f"checkpoint {path} is corrupt or truncated; resume from an earlier checkpoint in "
-                          f"{path.parent}") from None
+        raise CanterError(
+            f"checkpoint {path} is corrupt or truncated; resume from an earlier checkpoint in {path.parent}"
+        ) from None
     version = header.get("format_version")
     if version != FORMAT_VERSION:
-        raise CanterError(f"checkpoint {path} has format version {version}, this canter reads version "
-                          f"{FORMAT_VERSION}; use the canter release that wrote it")
+        raise CanterError(
+            f"checkpoint {path} has format version {version}, this canter reads version "
+            f"{FORMAT_VERSION}; use the canter release that wrote it"
+        )
     expected = header.pop("sha256", None)
     if expected != _digest(arrays, header):
         raise CanterError(f"checkpoint {path} fails its content hash (corrupt); resume from an earlier checkpoint")
@@ -87,8 +91,10 @@ def restore(template: Any, arrays: dict[str, np.ndarray], source: Path) -> Any:
             raise CanterError(f"checkpoint {source} does not match this config (missing '{name}')")
         value = arrays[name]
         if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
-            raise CanterError(f"checkpoint {source} does not match this config ('{name}' has shape {value.shape}, "
-                              f"expected {np.shape(leaf)})")
+            raise CanterError(
+                f"checkpoint {source} does not match this config ('{name}' has shape {value.shape}, "
+                f"expected {np.shape(leaf)})"
+            )
         restored.append(value)
     return jax.tree_util.tree_unflatten(treedef, restored)
 
@@ -114,8 +120,9 @@ def latest(run_dir: Path) -> Path:
         raise CanterError(f"run folder not found: {run_dir}")
     found = list_checkpoints(run_dir)
     if not found:
-        raise CanterError(f"no checkpoint in {run_dir}; train first, or pass the run folder that holds "
-                          f"checkpoints/ckpt_*.npz")
+        raise CanterError(
+            f"no checkpoint in {run_dir}; train first, or pass the run folder that holds checkpoints/ckpt_*.npz"
+        )
     return found[-1]
 
 

@@ -45,9 +45,10 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
     """The rows of the training a run kept, each with its run totals so far (wall seconds, training seconds,
     episodes), `wall_time` rewritten to count from the run's start.
 
-    Rows logged after a run's last checkpoint are lost work when the process dies without saving. Runs written
-    before resumes dropped such rows still hold them, followed by the resumed session's rows, whose `iteration`
-    restarts below theirs. Those runs also restarted `wall_time` at 0 on every resume."""
+    Rows logged after a run's last checkpoint are lost work when the process dies without saving. A resume drops
+    them (`MetricsLogger`), but a format-1 run folder (docs/architecture.md) can still hold them, followed by the
+    resumed session's rows, whose `iteration` restarts below theirs; such a folder may also restart `wall_time` at
+    0 on every resume."""
     kept: list[tuple[dict[str, str], dict[str, float]]] = []
     wall_offset = previous_wall = 0.0
     for row in rows:
@@ -59,39 +60,50 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
         elif kept and raw_wall < previous_wall:  # a resume after a clean stop, which loses no rows
             wall_offset = kept[-1][1]["wall_seconds"]
         previous_wall = raw_wall if raw_wall == raw_wall else previous_wall
-        before = kept[-1][1] if kept else {"global_step": 0.0, "wall_seconds": 0.0, "train_seconds": 0.0,
-                                           "episodes": 0}
+        before = kept[-1][1] if kept else {"global_step": 0.0, "wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
         step, wall, sps = _number(row["global_step"]), _number(row.get("wall_time")), _number(row.get("sps"))
         wall = wall_offset + wall if wall == wall else before["wall_seconds"]
-        totals = {"global_step": step, "wall_seconds": wall,
-                  "train_seconds": before["train_seconds"] + ((step - before["global_step"]) / sps if sps > 0 else 0.0),
-                  "episodes": before["episodes"] + (int(_number(row["episodes"])) if row.get("episodes") else 0)}
+        totals = {
+            "global_step": step,
+            "wall_seconds": wall,
+            "train_seconds": before["train_seconds"] + ((step - before["global_step"]) / sps if sps > 0 else 0.0),
+            "episodes": before["episodes"] + (int(_number(row["episodes"])) if row.get("episodes") else 0),
+        }
         kept.append((dict(row, wall_time=f"{wall:.3f}"), totals))
     return kept
 
 
 def totals_until(path: Path, step: int) -> dict[str, float]:
     """Wall seconds, training seconds and episodes of a run up to its checkpoint at `step`. A resume reads these
-    from the checkpoint; this rebuilds them from metrics.csv for checkpoints written before they were stored."""
+    from the checkpoint; this rebuilds them from metrics.csv for a format-1 checkpoint that does not hold them."""
     _, rows = _rows(Path(path))
     history = [totals for _, totals in run_history(rows) if totals["global_step"] <= step]
     last = history[-1] if history else {"wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
-    return {"wall_seconds": last["wall_seconds"], "train_seconds": last["train_seconds"],
-            "episodes": int(last["episodes"])}
+    return {
+        "wall_seconds": last["wall_seconds"],
+        "train_seconds": last["train_seconds"],
+        "episodes": int(last["episodes"]),
+    }
 
 
 class MetricsLogger:
     """Appends to metrics.csv and TensorBoard. A resumed run passes `resume_step`: rows and events logged after
     that checkpoint belong to training that was lost with the process, so they are dropped and redone."""
 
-    def __init__(self, run_dir: Path, metric_names: tuple[str, ...], info_keys: tuple[str, ...],
-                 tensorboard: bool, resume_step: int | None = None) -> None:
+    def __init__(
+        self,
+        run_dir: Path,
+        metric_names: tuple[str, ...],
+        info_keys: tuple[str, ...],
+        tensorboard: bool,
+        resume_step: int | None = None,
+    ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
         self.columns = columns_for(metric_names, info_keys)
         if resume_step is not None:
             self._drop_rows_after(resume_step)
         exists = self.path.is_file() and self.path.stat().st_size > 0
-        self._file = open(self.path, "a", newline="")
+        self._file = open(self.path, "a", newline="")  # noqa: SIM115  (held open until close())
         self._writer = csv.DictWriter(self._file, fieldnames=self.columns, extrasaction="ignore")
         if not exists:
             self._writer.writeheader()
@@ -118,6 +130,7 @@ class MetricsLogger:
             writer.writeheader()
             writer.writerows(kept)
             f.write(text.getvalue().encode())
+
         atomic_write_bytes(self.path, write)
 
     def log(self, row: dict[str, Any]) -> None:
@@ -131,9 +144,15 @@ class MetricsLogger:
                     continue
                 if isinstance(value, float) and math.isnan(value):
                     continue
-                tag = key if "/" in key else (f"charts/{key}" if key in ("episodic_return", "episodic_length",
-                                                                           "sps", "learning_rate", "episodes")
-                                              else f"losses/{key}")
+                tag = (
+                    key
+                    if "/" in key
+                    else (
+                        f"charts/{key}"
+                        if key in ("episodic_return", "episodic_length", "sps", "learning_rate", "episodes")
+                        else f"losses/{key}"
+                    )
+                )
                 self._tb.add_scalar(tag, value, step)
 
     def close(self) -> None:
@@ -153,19 +172,27 @@ class Progress:
         from rich.progress import Progress as RichProgress
 
         self._total = total
-        self._bar = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(bar_width=24),
-                                 TextColumn("{task.fields[steps]}"), TextColumn("{task.fields[sps]} SPS"),
-                                 TextColumn("ret {task.fields[ret]}"), TextColumn("ETA"), TimeRemainingColumn(),
-                                 transient=False)
+        self._bar = RichProgress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(bar_width=24),
+            TextColumn("{task.fields[steps]}"),
+            TextColumn("{task.fields[sps]} SPS"),
+            TextColumn("ret {task.fields[ret]}"),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            transient=False,
+        )
         self._bar.start()
-        self._task = self._bar.add_task(description, total=total, completed=start, steps=self._steps(start),
-                                        sps="-", ret="-")
+        self._task = self._bar.add_task(
+            description, total=total, completed=start, steps=self._steps(start), sps="-", ret="-"
+        )
 
     def _steps(self, step: int) -> str:
         def short(n: float) -> str:
             if n >= 1e6:
                 return f"{n / 1e6:.2f}M"
             return f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n:,.0f}"
+
         return f"{short(step)}/{short(self._total)}"
 
     def update(self, step: int, sps: float, recent_return: float | None) -> None:

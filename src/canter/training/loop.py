@@ -9,6 +9,7 @@ import signal
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
@@ -33,12 +34,12 @@ RECENT_EPISODES = 20
 class RunResult:
     run_dir: Path
     global_step: int
-    recent_return: float | None      # mean raw return of the last 20 training episodes
+    recent_return: float | None  # mean raw return of the last 20 training episodes
     episodes: int
-    wall_seconds: float               # the whole run, compile and earlier sessions of a resumed run included
-    compile_seconds: float            # this session's compile
-    sps: float                        # env steps per second over the whole run, compile excluded
-    stop_reason: str                  # budget | stop_at_return | max_minutes | signal
+    wall_seconds: float  # the whole run, compile and earlier sessions of a resumed run included
+    compile_seconds: float  # this session's compile
+    sps: float  # env steps per second over the whole run, compile excluded
+    stop_reason: str  # budget | stop_at_return | max_minutes | signal
 
 
 class _StopFlag:
@@ -48,7 +49,7 @@ class _StopFlag:
         self.signal: int | None = None
         self._previous: dict[int, Any] = {}
 
-    def __enter__(self) -> "_StopFlag":
+    def __enter__(self) -> _StopFlag:
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._previous[sig] = signal.signal(sig, self._handle)
@@ -65,23 +66,32 @@ class _StopFlag:
 
 
 def _env_header(spec: Any) -> dict[str, Any]:
-    return {"id": spec.id, "backend": spec.backend, "obs_dim": spec.obs_dim, "act_dim": spec.act_dim,
-            "action_low": list(spec.action_low), "action_high": list(spec.action_high),
-            "max_episode_steps": spec.max_episode_steps, "info_keys": list(spec.info_keys)}
+    return {
+        "id": spec.id,
+        "backend": spec.backend,
+        "obs_dim": spec.obs_dim,
+        "act_dim": spec.act_dim,
+        "action_low": list(spec.action_low),
+        "action_high": list(spec.action_high),
+        "max_episode_steps": spec.max_episode_steps,
+        "info_keys": list(spec.info_keys),
+    }
 
 
-def train(config: Config, *, resume: str | Path | None = None, quiet: bool = True,
-          run_dir: str | Path | None = None) -> RunResult:
+def train(
+    config: Config, *, resume: str | Path | None = None, quiet: bool = True, run_dir: str | Path | None = None
+) -> RunResult:
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
 
-def train_seeds(config: Config, seeds: list[int], *, quiet: bool = True,
-                run_dirs: list[str | Path] | None = None) -> list[RunResult]:
-    """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is replaced by
-    each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and follows
-    the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
+def train_seeds(
+    config: Config, seeds: Sequence[int], *, quiet: bool = True, run_dirs: Sequence[str | Path] | None = None
+) -> list[RunResult]:
+    """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is
+    replaced by each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and
+    follows the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
@@ -90,24 +100,29 @@ def train_seeds(config: Config, seeds: list[int], *, quiet: bool = True,
     if run_dirs is not None and len(run_dirs) != len(seeds):
         raise CanterError(f"{len(run_dirs)} run folders given for {len(seeds)} seeds")
     configs = [replace(config, run=replace(config.run, seed=seed)) for seed in seeds]
-    return _train_group(configs, [None] * len(seeds), list(run_dirs or [None] * len(seeds)), quiet)
+    dirs: list[str | Path | None] = list(run_dirs) if run_dirs is not None else [None] * len(seeds)
+    return _train_group(configs, [None] * len(seeds), dirs, quiet)
 
 
-def resume_seeds(run_dirs: list[str | Path], total_steps: int | None = None, *,
-                 quiet: bool = True) -> list[RunResult]:
+def resume_seeds(
+    run_dirs: Sequence[str | Path], total_steps: int | None = None, *, quiet: bool = True
+) -> list[RunResult]:
     """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
     (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
     would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
     configs = [resume_config(Path(d), total_steps) for d in run_dirs]
     seeds = [c.run.seed for c in configs]
     if len(set(seeds)) != len(seeds):
-        raise CanterError(f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct "
-                          f"seeds")
+        raise CanterError(
+            f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct seeds"
+        )
     reference = replace(configs[0].run, seed=0)
     for run_dir, config in zip(run_dirs, configs):
         if replace(config, run=replace(config.run, seed=0)) != replace(configs[0], run=reference):
-            raise CanterError(f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
-                              f"folders with different configs one at a time")
+            raise CanterError(
+                f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
+                f"folders with different configs one at a time"
+            )
     return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
 
 
@@ -137,8 +152,10 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
             out = Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config)
             earlier.append(None)
         if start_step >= config.run.total_steps:
-            raise CanterError(f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
-                              f"steps; pass --total-steps larger than {start_step} to extend it")
+            raise CanterError(
+                f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
+                f"steps; pass --total-steps larger than {start_step} to extend it"
+            )
         purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
         # A seed's envs get exactly the seeds its single-seed run would give them, wherever it sits in the group.
         seeds += env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
@@ -148,11 +165,14 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
 
     config = configs[0]
     try:
-        env = make_vec_env(config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds,
-                           config.env.envpool_shards)
+        env = make_vec_env(
+            config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds, config.env.envpool_shards
+        )
     except DiscreteActionsError as exc:
-        raise CanterError(f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
-                          f"({exc.space}); choose an env with Box actions") from None
+        raise CanterError(
+            f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
+            f"({exc.space}); choose an env with Box actions"
+        ) from None
     spec = replace(env.spec, num_envs=config.env.num_envs)  # what one seed sees
     algorithm = get_algorithm(config.run.algo)
     try:
@@ -174,8 +194,15 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
 class _SeedRun:
     """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
 
-    def __init__(self, config: Config, spec: Any, out: Path, start_step: int, metric_names: tuple[str, ...],
-                 earlier: dict[str, float] | None) -> None:
+    def __init__(
+        self,
+        config: Config,
+        spec: Any,
+        out: Path,
+        start_step: int,
+        metric_names: tuple[str, ...],
+        earlier: dict[str, float] | None,
+    ) -> None:
         """`earlier`: wall seconds, training seconds and episodes of the sessions before a resume."""
         self.config = config
         self.out = out
@@ -190,11 +217,16 @@ class _SeedRun:
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
-        self.logger = MetricsLogger(out, metric_names, spec.info_keys, config.run.tensorboard,
-                                    resume_step=start_step if start_step > 0 else None)
+        self.logger = MetricsLogger(
+            out,
+            metric_names,
+            spec.info_keys,
+            config.run.tensorboard,
+            resume_step=start_step if start_step > 0 else None,
+        )
         self.videos = TrainingVideos(out, config.run.video_every, start_step)
         self.closed = False
-        self.stop_reason: str | None = None     # set once the seed is done; the group may still run
+        self.stop_reason: str | None = None  # set once the seed is done; the group may still run
         self.error: str | None = None
         self.result: RunResult | None = None
 
@@ -203,14 +235,25 @@ class _SeedRun:
         return float(np.mean(self.recent)) if self.recent else None
 
     def totals(self, started: float) -> dict[str, float]:
-        return {"wall_seconds": self.earlier_wall + time.perf_counter() - started, "train_seconds": self.run_seconds,
-                "episodes": self.episodes}
+        return {
+            "wall_seconds": self.earlier_wall + time.perf_counter() - started,
+            "train_seconds": self.run_seconds,
+            "episodes": self.episodes,
+        }
 
     def save(self, train_state: Any, step: int, started: float) -> None:
-        header = dict(self.header_base, global_step=step, saved_at=datetime.now().isoformat(timespec="seconds"),
-                      totals=self.totals(started))
-        checkpoint.save(checkpoint.checkpoint_path(self.out, step), train_state, header,
-                        compress=self.config.run.compress_checkpoints)
+        header = dict(
+            self.header_base,
+            global_step=step,
+            saved_at=datetime.now().isoformat(timespec="seconds"),
+            totals=self.totals(started),
+        )
+        checkpoint.save(
+            checkpoint.checkpoint_path(self.out, step),
+            train_state,
+            header,
+            compress=self.config.run.compress_checkpoints,
+        )
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
     def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> None:
@@ -223,8 +266,10 @@ class _SeedRun:
         self.episodes += int(finished.sum())
         self.recent.extend(float(r) for r in returns)
         row: dict[str, Any] = {
-            "global_step": self.global_step, "iteration": iteration,
-            "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3), "sps": round(steps / elapsed, 1),
+            "global_step": self.global_step,
+            "iteration": iteration,
+            "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3),
+            "sps": round(steps / elapsed, 1),
             "episodes": int(finished.sum()),
             "episodic_return": float(returns.mean()) if returns.size else math.nan,
             "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
@@ -237,13 +282,20 @@ class _SeedRun:
         self.logger.log(row)
 
     def checkpoint_due(self) -> bool:
-        return (self.next_checkpoint is not None and self.global_step >= self.next_checkpoint
-                and self.global_step < self.config.run.total_steps)
+        return (
+            self.next_checkpoint is not None
+            and self.global_step >= self.next_checkpoint
+            and self.global_step < self.config.run.total_steps
+        )
 
     def own_stop_reason(self) -> str | None:
         run = self.config.run
-        if run.stop_at_return is not None and len(self.recent) >= RECENT_EPISODES \
-                and self.recent_mean >= run.stop_at_return:
+        if (
+            run.stop_at_return is not None
+            and len(self.recent) >= RECENT_EPISODES
+            and (mean := self.recent_mean) is not None
+            and mean >= run.stop_at_return
+        ):
             return "stop_at_return"
         return None
 
@@ -252,13 +304,17 @@ class _SeedRun:
         self.save(train_state, self.global_step, started)
         self.close()
         self.result = RunResult(
-            run_dir=self.out, global_step=self.global_step, recent_return=self.recent_mean, episodes=self.episodes,
-            wall_seconds=self.earlier_wall + time.perf_counter() - started, compile_seconds=compile_seconds,
+            run_dir=self.out,
+            global_step=self.global_step,
+            recent_return=self.recent_mean,
+            episodes=self.episodes,
+            wall_seconds=self.earlier_wall + time.perf_counter() - started,
+            compile_seconds=compile_seconds,
             sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
-            stop_reason=reason)
+            stop_reason=reason,
+        )
         summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
-        atomic_write_bytes(self.out / "summary.json",
-                                      lambda f: f.write(json.dumps(summary, indent=2).encode()))
+        atomic_write_bytes(self.out / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
 
     def close(self) -> None:
         if not self.closed:
@@ -271,12 +327,23 @@ class _SeedRun:
         self.stop_reason = "non_finite"
         self.save(last_good_state, self.global_step, started)
         self.close()
-        self.error = (f"non-finite observation, reward or parameter during the iteration after step "
-                      f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}")
+        self.error = (
+            f"non-finite observation, reward or parameter during the iteration after step "
+            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
+        )
 
 
-def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: list[Path], start_steps: list[int],
-          earlier: list[dict[str, float] | None], quiet: bool, started: float) -> list[RunResult]:
+def _loop(
+    configs: list[Config],
+    env: Any,
+    spec: Any,
+    states: list[Any],
+    outs: list[Path],
+    start_steps: list[int],
+    earlier: list[dict[str, float] | None],
+    quiet: bool,
+    started: float,
+) -> list[RunResult]:
     """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
     non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
     inside the vmapped program until the last seed is done, but nothing of it is kept."""
@@ -291,6 +358,7 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
     algorithm = get_algorithm(config.run.algo)
     total = config.run.total_steps
     donate = (0,) if algorithm.donate_state else ()
+    pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
     if group == 1:
         state = states[0]
         carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
@@ -301,11 +369,13 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
 
         state = seedgroup.stack(states)
         handle = env.initial_state()
-        carry = seedgroup.stack([init_env_carry(handle, obs, spec.info_keys)
-                                 for obs in seedgroup.split_first_obs(env.reset(), group)])
-        iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step,
-                                                                                                  group))),
-                            donate_argnums=donate)
+        carry = seedgroup.stack(
+            [init_env_carry(handle, obs, spec.info_keys) for obs in seedgroup.split_first_obs(env.reset(), group)]
+        )
+        iteration = jax.jit(
+            jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step, group))),
+            donate_argnums=donate,
+        )
         pick = seedgroup.unstack
 
     if algorithm.donate_state:
@@ -315,8 +385,10 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
         values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
         return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
 
-    runs = [_SeedRun(c, spec, out, start, algorithm.metric_names, before)
-            for c, out, start, before in zip(configs, outs, start_steps, earlier)]
+    runs = [
+        _SeedRun(c, spec, out, start, algorithm.metric_names, before)
+        for c, out, start, before in zip(configs, outs, start_steps, earlier)
+    ]
     compile_start = time.perf_counter()
     compiled = iteration.lower(state, carry, fractions(runs)).compile()
     compile_seconds = time.perf_counter() - compile_start
@@ -347,8 +419,13 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
                         run.save(pick(new_state, i), run.global_step, started)
                         every = run.config.run.checkpoint_every
                         run.next_checkpoint = (run.global_step // every + 1) * every
-                    run.videos.maybe_record(run.global_step, lambda path, i=i, run=run: checkpoint.save(
-                        path, pick(new_state, i), dict(run.header_base, global_step=run.global_step)))
+
+                    def save_snapshot(
+                        path: Path, i: int = i, run: _SeedRun = run, group_state: Any = new_state
+                    ) -> None:
+                        checkpoint.save(path, pick(group_state, i), dict(run.header_base, global_step=run.global_step))
+
+                    run.videos.maybe_record(run.global_step, save_snapshot)
                 state = new_state
 
                 group_reason = None
@@ -366,8 +443,11 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
                         run.finish(pick(state, i), reason, compile_seconds, started)
                 active = [run for run in runs if run.stop_reason is None] or runs
                 recents = [run.recent_mean for run in runs if run.recent_mean is not None]
-                progress.update(min(run.global_step for run in active), steps / elapsed,
-                                float(np.mean(recents)) if recents else None)
+                progress.update(
+                    min(run.global_step for run in active),
+                    steps / elapsed,
+                    float(np.mean(recents)) if recents else None,
+                )
     finally:
         progress.close()
         for run in runs:
@@ -377,9 +457,13 @@ def _loop(configs: list[Config], env: Any, spec: Any, states: list[Any], outs: l
     if failed:
         if group == 1:
             raise CanterError(failed[0].error)
-        raise CanterError("; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed)
-                          + "; the other seeds finished normally")
-    return [run.result for run in runs]
+        raise CanterError(
+            "; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed)
+            + "; the other seeds finished normally"
+        )
+    results = [run.result for run in runs if run.result is not None]
+    assert len(results) == len(runs), "a seed that did not fail has finished"
+    return results
 
 
 def resume_config(run_dir: Path, total_steps: int | None) -> Config:

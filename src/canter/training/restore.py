@@ -16,6 +16,7 @@ from canter.training import checkpoint
 @dataclass(frozen=True)
 class PolicyFacts:
     """What a policy needs of its env, kept in each checkpoint so that it loads without the env."""
+
     env_id: str
     backend: str
     obs_dim: int
@@ -36,10 +37,15 @@ def load_state(run_dir: Path, checkpoint_file: Path | None = None) -> tuple[Conf
     arrays, header = checkpoint.read(path)
     config = from_toml_text(header["config"], str(path))
     env = header["env"]
-    facts = PolicyFacts(env_id=env["id"], backend=env["backend"], obs_dim=int(env["obs_dim"]),
-                        act_dim=int(env["act_dim"]), action_low=np.asarray(env["action_low"], np.float32),
-                        action_high=np.asarray(env["action_high"], np.float32),
-                        global_step=int(header["global_step"]))
+    facts = PolicyFacts(
+        env_id=env["id"],
+        backend=env["backend"],
+        obs_dim=int(env["obs_dim"]),
+        act_dim=int(env["act_dim"]),
+        action_low=np.asarray(env["action_low"], np.float32),
+        action_high=np.asarray(env["action_high"], np.float32),
+        global_step=int(header["global_step"]),
+    )
     template = get_algorithm(config.run.algo).init_state(config, facts)
     state = checkpoint.restore(template, arrays, path)
     return config, facts, state, header

@@ -18,9 +18,10 @@ import json
 import os
 import platform
 import secrets
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
@@ -38,8 +39,10 @@ def _safe(text: str) -> str:
 
 def new_run_dir(config: Config) -> Path:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    name = (f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
-            f"{stamp}-{secrets.token_hex(2)}")
+    name = (
+        f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
+        f"{stamp}-{secrets.token_hex(2)}"
+    )
     return Path(config.run.out_dir) / name
 
 
@@ -63,10 +66,20 @@ def versions() -> dict[str, Any]:
         except metadata.PackageNotFoundError:
             return None
 
-    return {"canter": version("canter"), "python": platform.python_version(), "jax": version("jax"),
-            "jaxlib": version("jaxlib"), "optax": version("optax"), "envpool": version("envpool"),
-            "mujoco": version("mujoco"), "gymnasium": version("gymnasium"), "numpy": version("numpy"),
-            "platform": platform.platform(), "cpu": cpu_name(), "cpu_count": os.cpu_count()}
+    return {
+        "canter": version("canter"),
+        "python": platform.python_version(),
+        "jax": version("jax"),
+        "jaxlib": version("jaxlib"),
+        "optax": version("optax"),
+        "envpool": version("envpool"),
+        "mujoco": version("mujoco"),
+        "gymnasium": version("gymnasium"),
+        "numpy": version("numpy"),
+        "platform": platform.platform(),
+        "cpu": cpu_name(),
+        "cpu_count": os.cpu_count(),
+    }
 
 
 def _read_versions(run_dir: Path) -> dict[str, Any]:
@@ -86,8 +99,9 @@ def run_format(run_dir: Path) -> int:
     """The folder's format version (1 when versions.json does not name one)."""
     found = int(_read_versions(run_dir).get("run_format", 1))
     if found > RUN_FORMAT:
-        raise CanterError(f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a "
-                          f"newer canter")
+        raise CanterError(
+            f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"
+        )
     return found
 
 

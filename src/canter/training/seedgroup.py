@@ -13,7 +13,8 @@ stacked S times like everything else, the rule steps with copy 0 and broadcasts 
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +36,7 @@ def group_step(env_step: Callable[[Any, Any], tuple[Any, Any]], group_size: int)
         return new_state, jax.tree.map(lambda x: split(x)[0], out)
 
     @step.def_vmap
-    def rule(axis_size: int, in_batched: list, state: Any, action: jnp.ndarray):
+    def rule(axis_size: int, in_batched: list, state: Any, action: jnp.ndarray) -> tuple[Any, Any]:
         if axis_size != group_size:
             raise ValueError(f"group_step built for {group_size} seeds is vmapped over {axis_size}")
         state_batched, action_batched = in_batched

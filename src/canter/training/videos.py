@@ -12,8 +12,8 @@ import os
 import subprocess
 import sys
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 _FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
 
@@ -56,12 +56,22 @@ class TrainingVideos:
         self.folder.mkdir(parents=True, exist_ok=True)
         snapshot = self.folder / f".snapshot_{step:012d}.npz"
         save_snapshot(snapshot)
-        request = dict(run_dir=str(self.folder.parent), out_path=str(self.folder / f"step_{step:012d}.mp4"),
-                       checkpoint_file=str(snapshot), episodes=1, nice=10)
+        request = dict(
+            run_dir=str(self.folder.parent),
+            out_path=str(self.folder / f"step_{step:012d}.mp4"),
+            checkpoint_file=str(snapshot),
+            episodes=1,
+            nice=10,
+        )
         with open(self.folder / "render.log", "a") as log, quiet_fork():
-            process = subprocess.Popen([sys.executable, "-m", "canter.use.video", json.dumps(request)],
-                                       stdout=log, stderr=log, stdin=subprocess.DEVNULL, env=child_env(),
-                                       start_new_session=True)
+            process = subprocess.Popen(
+                [sys.executable, "-m", "canter.use.video", json.dumps(request)],
+                stdout=log,
+                stderr=log,
+                stdin=subprocess.DEVNULL,
+                env=child_env(),
+                start_new_session=True,
+            )
         self._job = (process, snapshot, step)
 
     def _finish(self) -> None:
@@ -76,8 +86,10 @@ class TrainingVideos:
             code = process.wait()
         snapshot.unlink(missing_ok=True)
         if code != 0:
-            print(f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
-                  file=sys.stderr)
+            print(
+                f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
+                file=sys.stderr,
+            )
 
     def close(self) -> None:
         self._finish()

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -30,15 +31,27 @@ class EvalResult:
         return float(self.returns.std())
 
     def summary(self) -> dict[str, Any]:
-        return {"episodes": int(self.returns.size), "return_mean": self.mean, "return_std": self.std,
-                "length_mean": float(self.lengths.mean()), "length_std": float(self.lengths.std()),
-                "eval_seconds": self.wall_seconds, "returns": [float(r) for r in self.returns],
-                "lengths": [int(n) for n in self.lengths]}
+        return {
+            "episodes": int(self.returns.size),
+            "return_mean": self.mean,
+            "return_std": self.std,
+            "length_mean": float(self.lengths.mean()),
+            "length_std": float(self.lengths.std()),
+            "eval_seconds": self.wall_seconds,
+            "returns": [float(r) for r in self.returns],
+            "lengths": [int(n) for n in self.lengths],
+        }
 
 
-def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, seed: int = 0,
-             env_id: str | None = None, backend: str | None = None,
-             prepare_env: Callable[[Any], None] | None = None) -> EvalResult:
+def evaluate(
+    policy: Policy,
+    episodes: int = 10,
+    deterministic: bool = True,
+    seed: int = 0,
+    env_id: str | None = None,
+    backend: str | None = None,
+    prepare_env: Callable[[Any], None] | None = None,
+) -> EvalResult:
     """Run exactly `episodes` episodes. Each env gets a fixed quota, so short episodes are not over-represented.
 
     `prepare_env(env)` is called on every Gymnasium env right after it is made and before its first reset (the
@@ -49,7 +62,7 @@ def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, see
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
     env_id = env_id or policy.facts.env_id
     backend = backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
-    extra = {}
+    extra: dict[str, Any] = {}
     if prepare_env is not None:
         backend, extra = single_env_backend().name, {"on_make": prepare_env}
     num_envs = min(episodes, MAX_EVAL_ENVS)
@@ -59,8 +72,10 @@ def evaluate(policy: Policy, episodes: int = 10, deterministic: bool = True, see
     env = make_vec_env(env_id, backend, num_envs, env_seeds(seed, num_envs, EVAL), **extra)
     try:
         if env.spec.obs_dim != policy.obs_dim or env.spec.act_dim != policy.act_dim:
-            raise CanterError(f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
-                              f"policy expects {policy.obs_dim}/{policy.act_dim}; pick a matching --env")
+            raise CanterError(
+                f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
+                f"policy expects {policy.obs_dim}/{policy.act_dim}; pick a matching --env"
+            )
         obs = env.reset()
         if not deterministic:
             policy(obs[:1], deterministic=False, seed=seed)  # seed the sampling stream

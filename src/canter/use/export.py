@@ -8,8 +8,9 @@ squash onto the action bounds, and the final clip to the bounds. Everything is f
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -31,8 +32,14 @@ def load_actor(run_dir: str | Path) -> tuple[ExportedActor, dict[str, str]]:
 
     config, facts, state, _ = load_state(Path(run_dir))
     actor = get_algorithm(config.run.algo).export_actor(config, state, facts)
-    meta = {"producer": f"canter {__version__}", "env_id": facts.env_id, "algo": config.run.algo,
-            "global_step": str(facts.global_step), "obs_dim": str(facts.obs_dim), "act_dim": str(facts.act_dim)}
+    meta = {
+        "producer": f"canter {__version__}",
+        "env_id": facts.env_id,
+        "algo": config.run.algo,
+        "global_step": str(facts.global_step),
+        "obs_dim": str(facts.obs_dim),
+        "act_dim": str(facts.act_dim),
+    }
     return actor, meta
 
 
@@ -49,6 +56,7 @@ def format_for(path: str | Path, requested: str | None) -> str:
 
 # ---------------------------------------------------------------------------------------------------------- npz
 
+
 def npz_arrays(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> dict[str, np.ndarray]:
     """The flat arrays of an npz export: w0, b0, w1, b1, ... (w is [inputs, outputs]), the normalizer, the bounds
     and the switches; `meta_<name>` strings describe where the policy came from."""
@@ -57,12 +65,18 @@ def npz_arrays(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> d
         arrays[f"w{i}"] = np.asarray(w, np.float32)
         arrays[f"b{i}"] = np.asarray(b, np.float32)
     arrays.update(
-        num_layers=np.asarray(len(actor.weights)), activation=np.asarray(actor.activation),
-        normalize=np.asarray(actor.normalize), obs_mean=np.asarray(actor.obs_mean, np.float32),
-        obs_var=np.asarray(actor.obs_var, np.float32), obs_eps=np.asarray(actor.obs_eps, np.float32),
-        clip_obs=np.asarray(actor.clip_obs, np.float32), output_slice=np.asarray(actor.output_slice),
-        squash=np.asarray(actor.squash), action_low=np.asarray(actor.action_low, np.float32),
-        action_high=np.asarray(actor.action_high, np.float32))
+        num_layers=np.asarray(len(actor.weights)),
+        activation=np.asarray(actor.activation),
+        normalize=np.asarray(actor.normalize),
+        obs_mean=np.asarray(actor.obs_mean, np.float32),
+        obs_var=np.asarray(actor.obs_var, np.float32),
+        obs_eps=np.asarray(actor.obs_eps, np.float32),
+        clip_obs=np.asarray(actor.clip_obs, np.float32),
+        output_slice=np.asarray(actor.output_slice),
+        squash=np.asarray(actor.squash),
+        action_low=np.asarray(actor.action_low, np.float32),
+        action_high=np.asarray(actor.action_high, np.float32),
+    )
     for key, value in (meta or {}).items():
         arrays[f"meta_{key}"] = np.asarray(value)
     return arrays
@@ -70,7 +84,8 @@ def npz_arrays(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> d
 
 def npz_bytes(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> bytes:
     buffer = io.BytesIO()
-    np.savez(buffer, **npz_arrays(actor, meta))
+    # numpy's stub lets **kwds of arrays also fill its `allow_pickle: bool`, so any dict of arrays is refused.
+    np.savez(buffer, **npz_arrays(actor, meta))  # type: ignore[arg-type]
     return buffer.getvalue()
 
 
@@ -83,8 +98,11 @@ def numpy_forward(p, obs):
     if p["normalize"]:
         std = np.sqrt(p["obs_var"] + p["obs_eps"])
         x = np.clip((x - p["obs_mean"]) / std, -p["clip_obs"], p["clip_obs"])
-    activation = {"tanh": np.tanh, "relu": lambda v: np.maximum(v, 0),
-                  "elu": lambda v: np.where(v > 0, v, np.expm1(v))}[str(p["activation"])]
+    activation = {
+        "tanh": lambda v: np.tanh(v),
+        "relu": lambda v: np.maximum(v, 0),
+        "elu": lambda v: np.where(v > 0, v, np.expm1(v)),
+    }[str(p["activation"])]
     n = int(p["num_layers"])
     for i in range(n):
         x = x @ p[f"w{i}"] + p[f"b{i}"]
@@ -99,23 +117,25 @@ def numpy_forward(p, obs):
 
 # --------------------------------------------------------------------------------------------------------- onnx
 
-def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None):
+
+def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> Any:
     """An ONNX model with input `obs` [batch, obs_dim] float32 and output `action` [batch, act_dim] float32."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
     if actor.activation not in ONNX_ACTIVATIONS:
-        raise CanterError(f"cannot export activation '{actor.activation}' to ONNX; "
-                          f"supported: {', '.join(ONNX_ACTIVATIONS)}")
+        raise CanterError(
+            f"cannot export activation '{actor.activation}' to ONNX; supported: {', '.join(ONNX_ACTIVATIONS)}"
+        )
     obs_dim = int(np.shape(actor.weights[0])[0])
     act_dim = int(actor.output_slice)
     nodes, inits = [], []
 
-    def const(name: str, value) -> str:
+    def const(name: str, value: Any) -> str:
         inits.append(numpy_helper.from_array(np.asarray(value, np.float32), name))
         return name
 
-    def node(op: str, inputs: list[str], output: str, **attrs) -> str:
+    def node(op: str, inputs: list[str], output: str, **attrs: Any) -> str:
         nodes.append(helper.make_node(op, inputs, [output], name=output, **attrs))
         return output
 
@@ -125,8 +145,11 @@ def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None):
         std = np.sqrt(np.asarray(actor.obs_var, np.float32) + np.float32(actor.obs_eps))
         x = node("Sub", [x, const("obs_mean", actor.obs_mean)], "obs_centered")
         x = node("Div", [x, const("obs_std", std)], "obs_scaled")
-        x = node("Clip", [x, const("clip_obs_low", -actor.clip_obs), const("clip_obs_high", actor.clip_obs)],
-                 "obs_normalized")
+        x = node(
+            "Clip",
+            [x, const("clip_obs_low", -actor.clip_obs), const("clip_obs_high", actor.clip_obs)],
+            "obs_normalized",
+        )
     last = len(actor.weights) - 1
     for i, (w, b) in enumerate(zip(actor.weights, actor.biases)):
         x = node("MatMul", [x, const(f"w{i}", w)], f"matmul{i}")
@@ -134,9 +157,11 @@ def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None):
         if i < last:
             x = node(ONNX_ACTIVATIONS[actor.activation], [x], f"hidden{i}")
     if act_dim != int(np.shape(actor.weights[-1])[1]):
-        inits += [numpy_helper.from_array(np.array([0], np.int64), "slice_start"),
-                  numpy_helper.from_array(np.array([act_dim], np.int64), "slice_end"),
-                  numpy_helper.from_array(np.array([1], np.int64), "slice_axis")]
+        inits += [
+            numpy_helper.from_array(np.array([0], np.int64), "slice_start"),
+            numpy_helper.from_array(np.array([act_dim], np.int64), "slice_end"),
+            numpy_helper.from_array(np.array([1], np.int64), "slice_axis"),
+        ]
         x = node("Slice", [x, "slice_start", "slice_end", "slice_axis"], "action_mean")
     low = np.asarray(actor.action_low, np.float32)
     high = np.asarray(actor.action_high, np.float32)
@@ -149,11 +174,18 @@ def onnx_model(actor: ExportedActor, meta: Mapping[str, str] | None = None):
     node("Min", [x, const("action_high", high)], "action")
 
     graph = helper.make_graph(
-        nodes, "canter_policy",
+        nodes,
+        "canter_policy",
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_dim])],
-        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", act_dim])], initializer=inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", ONNX_OPSET)],
-                              producer_name="canter", doc_string="Deterministic policy: obs -> action")
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", act_dim])],
+        initializer=inits,
+    )
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", ONNX_OPSET)],
+        producer_name="canter",
+        doc_string="Deterministic policy: obs -> action",
+    )
     model.ir_version = ONNX_IR_VERSION
     helper.set_model_props(model, dict(meta or {}))
     onnx.checker.check_model(model, full_check=True)

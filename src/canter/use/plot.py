@@ -3,7 +3,7 @@
 The numerics are pure functions over numpy arrays, each tested against a plain reference:
 
 - `moving_average(y, window)`: trailing window over a run's own logged rows (row i averages rows i-W+1..i that
-  are not NaN; the first rows average what exists so far), applied per run before anything else, as in seed 002
+  are not NaN; the first rows average what exists so far), applied per run before anything else, as in report 002
   ("values reported every 2048 steps and smoothed with a window of 50").
 - `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
   seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
@@ -16,7 +16,7 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
   replacement from a seeded generator.
 
 Runs that are seeds of one experiment (`canter.config.experiment`: equal in every key that changes what is
-learned) form one group. Groups are labelled by the keys in which they differ (`group_labels`).
+learned) form one group. Groups are labelled by the keys in which they differ (`experiment_labels`).
 Drawing uses matplotlib's object API with the Agg canvas, so no global backend is touched.
 """
 
@@ -26,9 +26,10 @@ import csv
 import io
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import run_history
 from canter.training.run_folder import read_config
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 # Keys that name an experiment; a label uses only these when they tell the groups apart.
 HEADLINE_KEYS = ("env.id", "run.algo", "run.preset")
@@ -61,11 +65,13 @@ BOOTSTRAP_SAMPLES = 2000
 class RunCurves:
     run_dir: Path
     config: Config
-    columns: dict[str, np.ndarray]   # numeric metrics.csv columns, NaN where a row has no value
+    columns: dict[str, np.ndarray]  # numeric metrics.csv columns, NaN where a row has no value
 
 
 @dataclass(frozen=True)
-class Group:
+class Experiment:
+    """The runs that are seeds of one experiment, with the label a plot gives them."""
+
     label: str
     runs: tuple[RunCurves, ...]
 
@@ -81,6 +87,7 @@ class Band:
 
 # ------------------------------------------------------------------------------------------------------ reading
 
+
 def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
@@ -93,7 +100,7 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     if not header or not rows:
         raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
     if "global_step" in header and "iteration" in header:
-        rows = [row for row, _ in run_history(rows)]  # older resumed runs still hold the rows of lost work
+        rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
     columns: dict[str, np.ndarray] = {}
     for name in header:
         cells = [row.get(name) or "" for row in rows]
@@ -116,13 +123,14 @@ def load_run(run_dir: str | Path) -> RunCurves:
 
 # ------------------------------------------------------------------------------------------------------ grouping
 
+
 def _show(key: str, value: Any) -> str:
     name = SHORT_NAMES.get(key, key)
     shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
     return f"{name}={shown}"
 
 
-def group_labels(configs: Sequence[Config]) -> list[str]:
+def experiment_labels(configs: Sequence[Config]) -> list[str]:
     """One label per config, from the keys in which they differ: the headline keys (env, algo, preset) when they
     tell the configs apart, plus any other differing key needed to tell apart configs whose headline is equal.
     A single config is labelled by its env, algo and preset."""
@@ -134,23 +142,23 @@ def group_labels(configs: Sequence[Config]) -> list[str]:
     labels = []
     for flat in flats:
         same_headline = [f for f in flats if all(f.get(k) == flat.get(k) for k in headline)]
-        extra = [k for k in diff if k not in headline and k in flat
-                 and any(f.get(k) != flat[k] for f in same_headline)]
+        extra = [k for k in diff if k not in headline and k in flat and any(f.get(k) != flat[k] for f in same_headline)]
         labels.append(", ".join(_show(k, flat[k]) for k in headline + extra) or "same config")
     return labels
 
 
-def group_runs(runs: Sequence[RunCurves]) -> list[Group]:
+def experiments_of(runs: Sequence[RunCurves]) -> list[Experiment]:
     """Runs that are seeds of one experiment (`canter.config.experiment`) form one group, in first-seen order."""
     keyed: dict[tuple, list[RunCurves]] = {}
     for run in runs:
         keyed.setdefault(experiment_key(run.config), []).append(run)
     members = list(keyed.values())
-    labels = group_labels([m[0].config for m in members])
-    return [Group(label, tuple(m)) for label, m in zip(labels, members)]
+    labels = experiment_labels([m[0].config for m in members])
+    return [Experiment(label, tuple(m)) for label, m in zip(labels, members)]
 
 
 # ------------------------------------------------------------------------------------------------------ numerics
+
 
 def moving_average(y: np.ndarray, window: int) -> np.ndarray:
     """Trailing moving average over the last `window` rows, ignoring NaNs (NaN only if all rows in it are NaN).
@@ -204,8 +212,9 @@ def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray, hold: float = 0.
     return np.where(inside, np.interp(grid, x, y), np.nan)
 
 
-def bootstrap_band(samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES,
-                   seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bootstrap_band(
+    samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean over runs (rows of `samples` [runs, points]) and a percentile bootstrap band: draw `resamples` sets
     of runs with replacement (index matrix [resamples, runs] from `np.random.default_rng(seed)`), average each
     set, and take the (1 ± confidence)/2 quantiles of those averages at each point. NaNs are ignored."""
@@ -218,18 +227,21 @@ def bootstrap_band(samples: np.ndarray, confidence: float = CONFIDENCE, resample
         if n == 1:
             return mean, mean.copy(), mean.copy()
         index = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
-        means = np.nanmean(samples[index], axis=1)   # [resamples, points]
+        means = np.nanmean(samples[index], axis=1)  # [resamples, points]
         tail = (1.0 - confidence) / 2.0
         low, high = np.nanquantile(means, [tail, 1.0 - tail], axis=0)
     return mean, low, high
 
 
-def group_band(group: Group, column: str, x_axis: str = "steps", smooth: int = 1, seed: int = 0) -> Band | None:
+def experiment_band(
+    group: Experiment, column: str, x_axis: str = "steps", smooth: int = 1, seed: int = 0
+) -> Band | None:
     """The curve of one column for one group: per-run smoothing, interpolation onto a common grid, then the mean
     and bootstrap band over runs. None when no run of the group logged the column."""
     x_column = X_AXES[x_axis][0]
-    runs = [r for r in group.runs if column in r.columns and x_column in r.columns
-            and not np.isnan(r.columns[column]).all()]
+    runs = [
+        r for r in group.runs if column in r.columns and x_column in r.columns and not np.isnan(r.columns[column]).all()
+    ]
     if not runs:
         return None
     xs = [r.columns[x_column] for r in runs]
@@ -245,6 +257,7 @@ def group_band(group: Group, column: str, x_axis: str = "steps", smooth: int = 1
 
 
 # ------------------------------------------------------------------------------------------------------ panels
+
 
 def available_metrics(runs: Sequence[RunCurves]) -> list[str]:
     """Columns that can be drawn, in panel order: return, length and speed first, then the algorithms'
@@ -275,8 +288,9 @@ def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -
             missing.append(pattern)
         chosen += [c for c in matches if c not in chosen]
     if missing:
-        raise CanterError(f"no column {', '.join(missing)} with values in these runs; choose from: "
-                          f"{', '.join(available)}")
+        raise CanterError(
+            f"no column {', '.join(missing)} with values in these runs; choose from: {', '.join(available)}"
+        )
     return chosen
 
 
@@ -301,8 +315,14 @@ def figure_format(path: str | Path) -> str:
     return FORMATS[suffix]
 
 
-def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps", smooth: int = 1,
-         seed: int = 0, columns: int = 3):
+def draw(
+    groups: Sequence[Experiment],
+    metrics: Sequence[str],
+    x_axis: str = "steps",
+    smooth: int = 1,
+    seed: int = 0,
+    columns: int = 3,
+) -> Figure:
     """A matplotlib Figure with one panel per metric and one line (mean) plus band (95% CI) per group."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -315,13 +335,13 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
     # One panel alone is widened so that the legend and its caption fit without being cut at the edges.
     width = max(5.0 * columns, 7.5)
     fig = Figure(figsize=(width, 3.4 * rows + 1.0), layout="constrained")
-    FigureCanvasAgg(fig)   # headless: no pyplot, no display, no global backend switch
+    FigureCanvasAgg(fig)  # headless: no pyplot, no display, no global backend switch
     axes = fig.subplots(rows, columns, squeeze=False).ravel()
     colors = [f"C{i % 10}" for i in range(len(groups))]
     for ax, metric in zip(axes, metrics):
         title, unit = panel_labels(metric)
         for group, color in zip(groups, colors):
-            band = group_band(group, metric, x_axis, smooth, seed)
+            band = experiment_band(group, metric, x_axis, smooth, seed)
             if band is None:
                 continue
             ax.plot(band.x, band.mean, color=color, linewidth=1.6)
@@ -333,30 +353,46 @@ def draw(groups: Sequence[Group], metrics: Sequence[str], x_axis: str = "steps",
         ax.xaxis.set_major_formatter(EngFormatter(sep=""))
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=8)
-    for ax in axes[len(metrics):]:
+    for ax in axes[len(metrics) :]:
         ax.set_visible(False)
     from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=c, linewidth=2.5) for c in colors]
     names = [f"{g.label} ({len(g.runs)} run{'s' if len(g.runs) > 1 else ''})" for g in groups]
     smoothing = f"moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
-    band_note = f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds" if any(
-        len(g.runs) > 1 for g in groups) else ""
+    band_note = (
+        f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds"
+        if any(len(g.runs) > 1 for g in groups)
+        else ""
+    )
     envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
     import textwrap
 
-    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}",
-                            width=int(width * 13))
-    fig.legend(handles, names, loc="outside upper center", ncols=min(len(groups), 3 if width > 8 else 2),
-               fontsize=10, title=caption, title_fontsize=10, frameon=False)
+    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}", width=int(width * 13))
+    fig.legend(
+        handles,
+        names,
+        loc="outside upper center",
+        ncols=min(len(groups), 3 if width > 8 else 2),
+        fontsize=10,
+        title=caption,
+        title_fontsize=10,
+        frameon=False,
+    )
     return fig
 
 
-def render(run_dirs: Sequence[str | Path], fmt: str = "png", metrics: Sequence[str] | None = None,
-           x_axis: str = "steps", smooth: int = 1, seed: int = 0) -> bytes:
+def render(
+    run_dirs: Sequence[str | Path],
+    fmt: str = "png",
+    metrics: Sequence[str] | None = None,
+    x_axis: str = "steps",
+    smooth: int = 1,
+    seed: int = 0,
+) -> bytes:
     """Read runs, group them, draw the chosen panels; the image file's bytes."""
     runs = [load_run(r) for r in run_dirs]
-    groups = group_runs(runs)
+    groups = experiments_of(runs)
     fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed)
     buffer = io.BytesIO()
     fig.savefig(buffer, format=fmt, dpi=110)

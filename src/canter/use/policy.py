@@ -40,7 +40,9 @@ class Policy:
         if single:
             obs = obs[None]
         if obs.ndim != 2 or obs.shape[1] != self.obs_dim:
-            raise CanterError(f"policy expects observations of shape (batch, {self.obs_dim}), got {np.shape(obs_batch)}")
+            raise CanterError(
+                f"policy expects observations of shape (batch, {self.obs_dim}), got {np.shape(obs_batch)}"
+            )
         key = self._key
         if not deterministic:
             if seed is not None:

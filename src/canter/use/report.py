@@ -11,10 +11,11 @@ import html
 import json
 import re
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -31,9 +32,9 @@ IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
 class RunFacts:
     run_dir: Path
     config: Config
-    summary: dict[str, Any]          # summary.json of a finished training (empty while a run is going)
+    summary: dict[str, Any]  # summary.json of a finished training (empty while a run is going)
     robustness_plots: tuple[Path, ...]
-    videos: tuple[Path, ...]         # RUN/videos/*.mp4|*.webm|*.gif in natural order; the last is embedded
+    videos: tuple[Path, ...]  # RUN/videos/*.mp4|*.webm|*.gif in natural order; the last is embedded
 
 
 @dataclass(frozen=True)
@@ -57,17 +58,23 @@ def run_facts(run_dir: str | Path) -> RunFacts:
     from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
-    checkpoint.latest(run_dir)   # refuses folders without a checkpoint before any work is done
+    checkpoint.latest(run_dir)  # refuses folders without a checkpoint before any work is done
     config = read_config(run_dir)
     try:
         summary = json.loads((run_dir / "summary.json").read_text())
     except (OSError, ValueError):
-        summary = {}   # still training, or stopped before the end: the table shows dashes
-    robustness = tuple(sorted((run_dir / "robustness").rglob("*.png"), key=_natural_key)) \
-        if (run_dir / "robustness").is_dir() else ()
+        summary = {}  # still training, or stopped before the end: the table shows dashes
+    robustness = (
+        tuple(sorted((run_dir / "robustness").rglob("*.png"), key=_natural_key))
+        if (run_dir / "robustness").is_dir()
+        else ()
+    )
     videos_dir = run_dir / "videos"
-    videos = tuple(sorted((p for p in videos_dir.iterdir() if p.suffix.lower() in (*VIDEO_TYPES, ".gif")),
-                          key=_natural_key)) if videos_dir.is_dir() else ()
+    videos = (
+        tuple(sorted((p for p in videos_dir.iterdir() if p.suffix.lower() in (*VIDEO_TYPES, ".gif")), key=_natural_key))
+        if videos_dir.is_dir()
+        else ()
+    )
     return RunFacts(run_dir, config, summary, robustness, videos)
 
 
@@ -80,13 +87,23 @@ def evaluate_runs(run_dirs: Sequence[Path], episodes: int, seed: int) -> list[Ev
     for run_dir in run_dirs:
         policy = load(run_dir)
         result = evaluate(policy, episodes=episodes, deterministic=True, seed=seed)
-        rows.append(EvalRow(run_dir.name, policy.facts.global_step, result.mean, result.std,
-                            float(result.lengths.mean()), float(result.lengths.std()), result.wall_seconds,
-                            int(result.returns.size)))
+        rows.append(
+            EvalRow(
+                run_dir.name,
+                policy.facts.global_step,
+                result.mean,
+                result.std,
+                float(result.lengths.mean()),
+                float(result.lengths.std()),
+                result.wall_seconds,
+                int(result.returns.size),
+            )
+        )
     return rows
 
 
 # ------------------------------------------------------------------------------------------------------ HTML
+
 
 def data_uri(path_or_bytes: Path | bytes, mime: str) -> str:
     data = path_or_bytes.read_bytes() if isinstance(path_or_bytes, Path) else path_or_bytes
@@ -100,14 +117,18 @@ def _e(value: Any) -> str:
 def _duration(seconds: float | None) -> str:
     if seconds is None:
         return "–"
-    seconds = int(round(seconds))
+    seconds = round(seconds)
     return f"{seconds // 3600}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}"
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[Any]], numeric_from: int = 1) -> str:
     head = "".join(f"<th>{_e(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td class='{'num' if i >= numeric_from else ''}'>{_e(c)}</td>"
-                                    for i, c in enumerate(row)) + "</tr>" for row in rows)
+    body = "".join(
+        "<tr>"
+        + "".join(f"<td class='{'num' if i >= numeric_from else ''}'>{_e(c)}</td>" for i, c in enumerate(row))
+        + "</tr>"
+        for row in rows
+    )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -122,13 +143,17 @@ def config_section(facts: Sequence[RunFacts]) -> str:
         differing = [k for k in keys if any(fl.get(k) != flats[0].get(k) for fl in flats[1:]) and k != "run.out_dir"]
         if differing:
             rows = [[k] + [_show_value(fl.get(k)) for fl in flats] for k in differing]
-            parts.append("<p>Keys that differ between the runs:</p>"
-                         + _table(["key"] + [f"run {i + 1}" for i in range(len(facts))], rows, numeric_from=99))
+            parts.append(
+                "<p>Keys that differ between the runs:</p>"
+                + _table(["key"] + [f"run {i + 1}" for i in range(len(facts))], rows, numeric_from=99)
+            )
         else:
             parts.append("<p>The runs have identical configs.</p>")
     for i, f in enumerate(facts):
-        parts.append(f"<details><summary>run {i + 1}: {_e(f.run_dir.name)} — full resolved config</summary>"
-                     f"<pre>{_e(to_toml(f.config))}</pre></details>")
+        parts.append(
+            f"<details><summary>run {i + 1}: {_e(f.run_dir.name)} — full resolved config</summary>"
+            f"<pre>{_e(to_toml(f.config))}</pre></details>"
+        )
     return "\n".join(parts)
 
 
@@ -138,60 +163,89 @@ def _show_value(value: Any) -> str:
     return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
-def group_of_each(facts: Sequence[RunFacts]) -> list[str]:
+def experiment_of_each(facts: Sequence[RunFacts]) -> list[str]:
     """For each run, the label of its group (runs that differ only in seed share one), as `canter plot` draws it."""
     from canter.config.experiment import experiment_key
-    from canter.use.plot import group_labels
+    from canter.use.plot import experiment_labels
 
     keys = list(dict.fromkeys(experiment_key(f.config) for f in facts))
     first = [next(f.config for f in facts if experiment_key(f.config) == k) for k in keys]
-    labels = dict(zip(keys, group_labels(first)))
+    labels = dict(zip(keys, experiment_labels(first)))
     return [labels[experiment_key(f.config)] for f in facts]
 
 
 def runs_section(facts: Sequence[RunFacts]) -> str:
     rows = []
-    for i, (f, group) in enumerate(zip(facts, group_of_each(facts))):
+    for i, (f, group) in enumerate(zip(facts, experiment_of_each(facts))):
         s = f.summary
-        rows.append([f"{i + 1}. {f.run_dir.name}", group, f.config.run.seed,
-                     f"{s['global_step']:,}" if "global_step" in s else "–", _duration(s.get("wall_seconds")),
-                     f"{s['sps']:,.0f}" if "sps" in s else "–", s.get("stop_reason", "–")])
-    return _table(["run", "group (config differences)", "seed", "steps", "train time (h:mm:ss)", "SPS",
-                   "stopped by"], rows, numeric_from=2)
+        rows.append(
+            [
+                f"{i + 1}. {f.run_dir.name}",
+                group,
+                f.config.run.seed,
+                f"{s['global_step']:,}" if "global_step" in s else "–",
+                _duration(s.get("wall_seconds")),
+                f"{s['sps']:,.0f}" if "sps" in s else "–",
+                s.get("stop_reason", "–"),
+            ]
+        )
+    return _table(
+        ["run", "group (config differences)", "seed", "steps", "train time (h:mm:ss)", "SPS", "stopped by"],
+        rows,
+        numeric_from=2,
+    )
 
 
 def eval_section(facts: Sequence[RunFacts], rows: Sequence[EvalRow]) -> str:
     """One row per run, then one summary row per group of runs that differ only in seed (mean ± std over the
     runs' mean returns)."""
-    table_rows = [[f"{i + 1}. {r.run}", f"{r.global_step:,}", r.episodes, f"{r.return_mean:.1f} ± {r.return_std:.1f}",
-                   f"{r.length_mean:.1f} ± {r.length_std:.1f}", f"{r.eval_seconds:.2f}"]
-                  for i, r in enumerate(rows)]
+    table_rows = [
+        [
+            f"{i + 1}. {r.run}",
+            f"{r.global_step:,}",
+            r.episodes,
+            f"{r.return_mean:.1f} ± {r.return_std:.1f}",
+            f"{r.length_mean:.1f} ± {r.length_std:.1f}",
+            f"{r.eval_seconds:.2f}",
+        ]
+        for i, r in enumerate(rows)
+    ]
     groups: dict[str, list[int]] = {}
-    for i, label in enumerate(group_of_each(facts)):
+    for i, label in enumerate(experiment_of_each(facts)):
         groups.setdefault(label, []).append(i)
     for label, members in groups.items():
         if len(members) > 1:
             means = np.array([rows[i].return_mean for i in members])
             lengths = np.array([rows[i].length_mean for i in members])
-            table_rows.append([f"{label}: mean of {len(members)} runs", "", "",
-                               f"{means.mean():.1f} ± {means.std():.1f}",
-                               f"{lengths.mean():.1f} ± {lengths.std():.1f}", ""])
-    return _table(["run", "steps", "episodes", "return (mean ± std)", "episode length (steps)", "eval time (s)"],
-                  table_rows)
+            table_rows.append(
+                [
+                    f"{label}: mean of {len(members)} runs",
+                    "",
+                    "",
+                    f"{means.mean():.1f} ± {means.std():.1f}",
+                    f"{lengths.mean():.1f} ± {lengths.std():.1f}",
+                    "",
+                ]
+            )
+    return _table(
+        ["run", "steps", "episodes", "return (mean ± std)", "episode length (steps)", "eval time (s)"], table_rows
+    )
 
 
-def media_section(facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, list[float]]] | None = None
-                  ) -> tuple[str, str]:
+def media_section(
+    facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, list[float]]] | None = None
+) -> tuple[str, str]:
     """(robustness HTML, video HTML); empty strings when no run has any. `recorded` maps a run folder to a video
     made for this report and its episode returns; it is shown instead of the run's own videos."""
     robustness, videos = [], []
     for i, f in enumerate(facts):
         for plot in f.robustness_plots:
-            robustness.append(f"<figure><img alt='robustness plot of run {i + 1}' "
-                              f"src='{data_uri(plot, 'image/png')}'><figcaption>run {i + 1}: "
-                              f"{_e(plot.relative_to(f.run_dir))}</figcaption></figure>"
-                              + robustness_table(plot.with_suffix(".json")))
-        if f.run_dir in (recorded or {}):
+            robustness.append(
+                f"<figure><img alt='robustness plot of run {i + 1}' "
+                f"src='{data_uri(plot, 'image/png')}'><figcaption>run {i + 1}: "
+                f"{_e(plot.relative_to(f.run_dir))}</figcaption></figure>" + robustness_table(plot.with_suffix(".json"))
+            )
+        if recorded is not None and f.run_dir in recorded:
             chosen, returns = recorded[f.run_dir]
             shown = ", ".join(f"{r:.1f}" for r in returns)
             caption = f"run {i + 1}: recorded for this report, deterministic, episode return {_e(shown)}"
@@ -204,8 +258,10 @@ def media_section(facts: Sequence[RunFacts], recorded: dict[Path, tuple[Path, li
             continue
         suffix = chosen.suffix.lower()
         if suffix in VIDEO_TYPES:
-            tag = (f"<video controls muted loop playsinline preload='auto' "
-                   f"src='{data_uri(chosen, VIDEO_TYPES[suffix])}'></video>")
+            tag = (
+                f"<video controls muted loop playsinline preload='auto' "
+                f"src='{data_uri(chosen, VIDEO_TYPES[suffix])}'></video>"
+            )
         else:
             tag = f"<img alt='video of run {i + 1}' src='{data_uri(chosen, IMAGE_TYPES[suffix])}'>"
         videos.append(f"<figure>{tag}<figcaption>{caption}</figcaption></figure>")
@@ -219,8 +275,10 @@ def robustness_table(path: Path) -> str:
         data = json.loads(path.read_text())
         runs = data["runs"]
         scales = [p["scale"] for p in runs[0]["points"]]
-        rows = [[f"{scale:g}"] + [f"{r['points'][j]['return_mean']:.1f} ± {r['points'][j]['return_std']:.1f}"
-                                  for r in runs] for j, scale in enumerate(scales)]
+        rows = [
+            [f"{scale:g}"] + [f"{r['points'][j]['return_mean']:.1f} ± {r['points'][j]['return_std']:.1f}" for r in runs]
+            for j, scale in enumerate(scales)
+        ]
         header = ["scale"] + [f"return: {r['label']}" for r in runs]
         note = f"{data['env']}, {data['vary']}, {data['episodes']} episodes per value"
     except (OSError, ValueError, KeyError, TypeError, IndexError):
@@ -241,8 +299,14 @@ pre { background: #f7f7f7; padding: 0.6rem; font-size: 0.8rem; overflow-x: auto;
 """
 
 
-def render_html(facts: Sequence[RunFacts], eval_rows: Sequence[EvalRow] | None, episodes: int, curves_png: bytes,
-                smooth: int, recorded: dict[Path, tuple[Path, list[float]]] | None = None) -> str:
+def render_html(
+    facts: Sequence[RunFacts],
+    eval_rows: Sequence[EvalRow] | None,
+    episodes: int,
+    curves_png: bytes,
+    smooth: int,
+    recorded: dict[Path, tuple[Path, list[float]]] | None = None,
+) -> str:
     from canter import __version__
 
     envs = sorted({f.config.env.id for f in facts})
@@ -251,31 +315,42 @@ def render_html(facts: Sequence[RunFacts], eval_rows: Sequence[EvalRow] | None, 
     if eval_rows is None:
         evaluation = "<p class='note'>Not evaluated (--episodes 0).</p>"
     else:
-        evaluation = (f"<p class='note'>{episodes} deterministic episodes per run on fresh envs, normalizer "
-                      f"statistics frozen; ± is the standard deviation over episodes.</p>"
-                      + eval_section(facts, eval_rows))
+        evaluation = (
+            f"<p class='note'>{episodes} deterministic episodes per run on fresh envs, normalizer "
+            f"statistics frozen; ± is the standard deviation over episodes.</p>" + eval_section(facts, eval_rows)
+        )
     smoothing = f"trailing moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
     sections = [
         ("Runs", runs_section(facts)),
         ("Evaluation", evaluation),
-        ("Learning curves", f"<p class='note'>Runs that differ only in seed are averaged; shaded: 95% bootstrap "
-                            f"confidence band of the mean; {smoothing}.</p>"
-                            f"<img alt='learning curves' src='{data_uri(curves_png, 'image/png')}'>"),
-        ("Robustness", robustness or "<p class='note'>No robustness plot in these runs "
-                                     "(<code>canter eval RUN --vary ...</code> writes one under RUN/robustness/).</p>"),
+        (
+            "Learning curves",
+            f"<p class='note'>Runs that differ only in seed are averaged; shaded: 95% bootstrap "
+            f"confidence band of the mean; {smoothing}.</p>"
+            f"<img alt='learning curves' src='{data_uri(curves_png, 'image/png')}'>",
+        ),
+        (
+            "Robustness",
+            robustness
+            or "<p class='note'>No robustness plot in these runs "
+            "(<code>canter eval RUN --vary ...</code> writes one under RUN/robustness/).</p>",
+        ),
         ("Video", videos or "<p class='note'>No video in these runs' videos/ folders.</p>"),
         ("Config", config_section(facts)),
     ]
-    generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    generated = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     body = "\n".join(f"<section><h2>{_e(name)}</h2>\n{content}\n</section>" for name, content in sections)
-    return (f"<!DOCTYPE html>\n<html lang='en'>\n<head>\n<meta charset='utf-8'>\n"
-            f"<meta name='viewport' content='width=device-width, initial-scale=1'>\n<title>{_e(title)}</title>\n"
-            f"<style>{STYLE}</style>\n</head>\n<body>\n<h1>{_e(title)}</h1>\n"
-            f"<p class='note'>Generated {generated} by canter {_e(__version__)}.</p>\n{body}\n</body>\n</html>\n")
+    return (
+        f"<!DOCTYPE html>\n<html lang='en'>\n<head>\n<meta charset='utf-8'>\n"
+        f"<meta name='viewport' content='width=device-width, initial-scale=1'>\n<title>{_e(title)}</title>\n"
+        f"<style>{STYLE}</style>\n</head>\n<body>\n<h1>{_e(title)}</h1>\n"
+        f"<p class='note'>Generated {generated} by canter {_e(__version__)}.</p>\n{body}\n</body>\n</html>\n"
+    )
 
 
-def build_report(run_dirs: Sequence[str | Path], episodes: int = 10, seed: int = 0, smooth: int = 1,
-                 video: bool = False) -> str:
+def build_report(
+    run_dirs: Sequence[str | Path], episodes: int = 10, seed: int = 0, smooth: int = 1, video: bool = False
+) -> str:
     """The report page. With `video`, one deterministic episode of each run is rendered for it (canter.use.video)
     rather than embedding the newest file of the run's videos/ folder."""
     from canter.use.plot import render

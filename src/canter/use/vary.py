@@ -19,9 +19,9 @@ from canter.errors import CanterError
 
 @dataclass(frozen=True)
 class Param:
-    field: str          # mjModel array that is scaled
-    kind: str | None    # the named MuJoCo object it is indexed by (None: one global value)
-    label: str          # for tables and plot axes
+    field: str  # mjModel array that is scaled
+    kind: str | None  # the named MuJoCo object it is indexed by (None: one global value)
+    label: str  # for tables and plot axes
     unit: str
 
 
@@ -38,8 +38,8 @@ _COUNTS = {"body": "nbody", "geom": "ngeom", "actuator": "nu"}
 
 @dataclass(frozen=True)
 class VarySpec:
-    param: str                  # a key of PARAMS
-    name: str | None            # body/geom/actuator name; None scales every one of them
+    param: str  # a key of PARAMS
+    name: str | None  # body/geom/actuator name; None scales every one of them
     scales: tuple[float, ...]
 
     @property
@@ -105,8 +105,9 @@ def target_index(model: Any, spec: VarySpec) -> slice | int:
         return slice(None)
     names = object_names(model, kind)
     if spec.name not in names:
-        raise CanterError(f"--vary: no {kind} named {spec.name!r} in this model; valid {kind} names: "
-                          f"{', '.join(names)}")
+        raise CanterError(
+            f"--vary: no {kind} named {spec.name!r} in this model; valid {kind} names: {', '.join(names)}"
+        )
     return names.index(spec.name)
 
 
@@ -158,13 +159,16 @@ def _make_gymnasium(env_id: str) -> Any:
     try:
         resolve_backend(env_id, backend.name)
     except CanterError:
-        raise CanterError(f"--vary needs the Gymnasium version of {env_id}, and Gymnasium has no such env "
-                          f"(DM Control and other EnvPool-only envs cannot be varied)") from None
+        raise CanterError(
+            f"--vary needs the Gymnasium version of {env_id}, and Gymnasium has no such env "
+            f"(DM Control and other EnvPool-only envs cannot be varied)"
+        ) from None
     return backend.make_single(env_id)
 
 
-def sweep(policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int,
-          env_id: str | None = None) -> list[dict[str, Any]]:
+def sweep(
+    policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int, env_id: str | None = None
+) -> list[dict[str, Any]]:
     """Evaluate `policy` at every scale on fresh Gymnasium envs; one summary dict per scale."""
     from canter.use.evaluate import evaluate
 
@@ -172,19 +176,20 @@ def sweep(policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed:
     original = check_spec(env_id, spec)
     points = []
     for scale in spec.scales:
+
         def prepare(env: Any, scale: float = scale) -> None:
             model, data = mujoco_handles(env, env_id)
             apply_scale(model, data, spec, scale)
 
-        result = evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id,
-                          prepare_env=prepare)
+        result = evaluate(
+            policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, prepare_env=prepare
+        )
         value = original * scale
         points.append(dict(scale=scale, value=value.tolist(), **result.summary()))
     return points
 
 
-def plot(series: list[tuple[str, list[dict[str, Any]]]], spec: VarySpec, original: np.ndarray,
-         env_id: str) -> bytes:
+def plot(series: list[tuple[str, list[dict[str, Any]]]], spec: VarySpec, original: np.ndarray, env_id: str) -> bytes:
     """PNG of return mean ± std against the scale, one line per (label, points)."""
     import io
 
@@ -199,7 +204,7 @@ def plot(series: list[tuple[str, list[dict[str, Any]]]], spec: VarySpec, origina
             x = np.array([p["scale"] for p in points])
             mean = np.array([p["return_mean"] for p in points])
             std = np.array([p["return_std"] for p in points])
-            line, = ax.plot(x, mean, marker="o", label=label)
+            (line,) = ax.plot(x, mean, marker="o", label=label)
             ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         ax.axvline(1.0, color="grey", lw=0.8, ls="--")
         param = PARAMS[spec.param]

@@ -15,14 +15,16 @@ Which simulator replays the policy:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +37,7 @@ _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free(
 
 
 # ------------------------------------------------------------------------------------------------------ OpenGL
+
 
 def _probe(backend: str) -> bool:
     env = dict(os.environ, MUJOCO_GL=backend)
@@ -49,8 +52,10 @@ def _probe(backend: str) -> bool:
 
 def unavailable_message(tried: list[str]) -> str:
     packages = " ".join(GL_PACKAGES[b] for b in tried if b in GL_PACKAGES) or " ".join(GL_PACKAGES.values())
-    return (f"headless rendering is unavailable: MuJoCo could not open an OpenGL context with MUJOCO_GL="
-            f"{' or '.join(tried)}; install the system package(s): apt-get install -y {packages}")
+    return (
+        f"headless rendering is unavailable: MuJoCo could not open an OpenGL context with MUJOCO_GL="
+        f"{' or '.join(tried)}; install the system package(s): apt-get install -y {packages}"
+    )
 
 
 def configure_gl() -> str:
@@ -61,8 +66,9 @@ def configure_gl() -> str:
             raise CanterError(unavailable_message([chosen]))
         return chosen
     if "mujoco" in sys.modules:
-        raise CanterError("mujoco was imported before MUJOCO_GL was set; set MUJOCO_GL=egl (or osmesa) in the "
-                          "environment")
+        raise CanterError(
+            "mujoco was imported before MUJOCO_GL was set; set MUJOCO_GL=egl (or osmesa) in the environment"
+        )
     for backend in GL_PACKAGES:
         if _probe(backend):
             os.environ["MUJOCO_GL"] = backend
@@ -80,6 +86,7 @@ def _headless_in_this_process() -> bool:
 
 
 # -------------------------------------------------------------------------------------------------- simulators
+
 
 class _GymnasiumPlayer:
     def __init__(self, env_id: str, width: int, height: int, camera: str | None) -> None:
@@ -116,8 +123,10 @@ class _GymnasiumPlayer:
         names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) or str(i) for i in range(model.ncam)]
         if (camera.isdigit() and int(camera) >= model.ncam) or (not camera.isdigit() and camera not in names):
             self.env.close()
-            raise CanterError(f"{env_id} has no camera {camera!r}; cameras: {', '.join(names) or 'none'} (omit "
-                              f"--camera for the default view)")
+            raise CanterError(
+                f"{env_id} has no camera {camera!r}; cameras: {', '.join(names) or 'none'} (omit "
+                f"--camera for the default view)"
+            )
 
     def _frame(self) -> np.ndarray:
         try:
@@ -133,7 +142,8 @@ class _GymnasiumPlayer:
         while not done and (max_steps <= 0 or steps < max_steps):
             action = policy(np.asarray(obs, np.float32).reshape(-1), deterministic=True)
             obs, reward, terminated, truncated, _ = self.env.step(
-                action.reshape(self.env.action_space.shape).astype(self.env.action_space.dtype))
+                action.reshape(self.env.action_space.shape).astype(self.env.action_space.dtype)
+            )
             total += float(reward)
             steps += 1
             done = terminated or truncated
@@ -149,8 +159,10 @@ class _DMControlPlayer:
         try:
             from dm_control import suite
         except ImportError:
-            raise CanterError("rendering a DM Control run needs dm_control: pip install 'dm_control==1.0.38' (the "
-                              "last release that works with the pinned mujoco 3.6.0)") from None
+            raise CanterError(
+                "rendering a DM Control run needs dm_control: pip install 'dm_control==1.0.38' (the "
+                "last release that works with the pinned mujoco 3.6.0)"
+            ) from None
         by_lower = {(d.lower(), t.lower()): (d, t) for d, t in suite.ALL_TASKS}  # EnvPool spells humanoid_CMU
         if (domain, task.lower()) not in by_lower:
             raise CanterError(f"dm_control has no task {domain}/{task} to replay this run in")
@@ -158,7 +170,7 @@ class _DMControlPlayer:
         self._domain, self._task = by_lower[(domain, task.lower())]
         self.width, self.height = width, height
         self.camera: int | str = int(camera) if camera is not None and camera.isdigit() else (camera or 0)
-        self.env = None
+        self.env: Any = None  # dm_control's Environment of the current episode (dm_control has no type hints)
 
     def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
         self.env = self._suite.load(self._domain, self._task, task_kwargs={"random": seed})
@@ -166,8 +178,9 @@ class _DMControlPlayer:
         on_frame(self._frame())
         total, steps = 0.0, 0
         while not step.last() and (max_steps <= 0 or steps < max_steps):
-            obs = np.concatenate([np.asarray(step.observation[k], np.float32).reshape(-1)
-                                  for k in sorted(step.observation)])
+            obs = np.concatenate(
+                [np.asarray(step.observation[k], np.float32).reshape(-1) for k in sorted(step.observation)]
+            )
             step = self.env.step(policy(obs, deterministic=True).astype(np.float64))
             total += float(step.reward or 0.0)
             steps += 1
@@ -195,6 +208,7 @@ def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------------ writing
 
+
 class _AtomicVideo:
     """Frames go to a temp file beside the output, renamed into place only once the video is complete."""
 
@@ -212,9 +226,17 @@ class _AtomicVideo:
         if suffix == ".gif":
             self.writer = imageio.get_writer(self.tmp, mode="I", duration=1000.0 / fps, loop=0)
         else:
-            self.writer = imageio.get_writer(self.tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
-                                             pixelformat="yuv420p", macro_block_size=1, quality=7,
-                                             ffmpeg_log_level="error")
+            self.writer = imageio.get_writer(
+                self.tmp,
+                format="FFMPEG",
+                mode="I",
+                fps=fps,
+                codec="libx264",
+                pixelformat="yuv420p",
+                macro_block_size=1,
+                quality=7,
+                ffmpeg_log_level="error",
+            )
 
     def append(self, frame: np.ndarray) -> None:
         self.writer.append_data(np.ascontiguousarray(frame[..., :3], dtype=np.uint8))
@@ -228,10 +250,8 @@ class _AtomicVideo:
         os.replace(self.tmp, self.out)
 
     def abort(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # the temp file goes either way
             self.writer.close()
-        except Exception:  # the temp file goes either way
-            pass
         self.tmp.unlink(missing_ok=True)
 
 
@@ -246,24 +266,37 @@ def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int
         raise CanterError(f"MP4 (H.264, yuv420p) needs an even width and height, got {width}x{height}")
 
 
-def record_video(run_dir: str | Path, out_path: str | Path, episodes: int = 1, width: int = DEFAULT_WIDTH,
-                 height: int = DEFAULT_HEIGHT, fps: int = DEFAULT_FPS, camera: str | None = None, seed: int = 0,
-                 checkpoint_file: str | Path | None = None, max_steps: int = 0) -> list[float]:
+def record_video(
+    run_dir: str | Path,
+    out_path: str | Path,
+    episodes: int = 1,
+    width: int = DEFAULT_WIDTH,
+    height: int = DEFAULT_HEIGHT,
+    fps: int = DEFAULT_FPS,
+    camera: str | None = None,
+    seed: int = 0,
+    checkpoint_file: str | Path | None = None,
+    max_steps: int = 0,
+) -> list[float]:
     """Render `episodes` deterministic episodes of a run's newest checkpoint (or `checkpoint_file`) to an MP4 or
     GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`."""
     out = Path(out_path)
     check_video_args(out, episodes, width, height, fps)
     if not _headless_in_this_process():
-        return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, checkpoint_file,
-                                     max_steps)
+        return _record_in_subprocess(
+            run_dir, out, episodes, width, height, fps, camera, seed, checkpoint_file, max_steps
+        )
     from canter.envs.registry import dm_control_task
     from canter.use.policy import load
 
     configure_gl()
     policy = load(run_dir, checkpoint_file)
     task = dm_control_task(policy.facts.env_id)
-    player = (_DMControlPlayer(*task, width, height, camera) if task
-              else _GymnasiumPlayer(policy.facts.env_id, width, height, camera))
+    player = (
+        _DMControlPlayer(*task, width, height, camera)
+        if task
+        else _GymnasiumPlayer(policy.facts.env_id, width, height, camera)
+    )
     try:
         with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
             writer = _AtomicVideo(out, fps)
@@ -278,14 +311,37 @@ def record_video(run_dir: str | Path, out_path: str | Path, episodes: int = 1, w
     return returns
 
 
-def _record_in_subprocess(run_dir: Any, out: Path, episodes: int, width: int, height: int, fps: int,
-                          camera: str | None, seed: int, checkpoint_file: Any, max_steps: int) -> list[float]:
-    request = dict(run_dir=str(run_dir), out_path=str(out), episodes=episodes, width=width, height=height, fps=fps,
-                   camera=camera, seed=seed, max_steps=max_steps,
-                   checkpoint_file=None if checkpoint_file is None else str(checkpoint_file))
+def _record_in_subprocess(
+    run_dir: Any,
+    out: Path,
+    episodes: int,
+    width: int,
+    height: int,
+    fps: int,
+    camera: str | None,
+    seed: int,
+    checkpoint_file: Any,
+    max_steps: int,
+) -> list[float]:
+    request = dict(
+        run_dir=str(run_dir),
+        out_path=str(out),
+        episodes=episodes,
+        width=width,
+        height=height,
+        fps=fps,
+        camera=camera,
+        seed=seed,
+        max_steps=max_steps,
+        checkpoint_file=None if checkpoint_file is None else str(checkpoint_file),
+    )
     with quiet_fork():
-        done = subprocess.run([sys.executable, "-m", "canter.use.video", json.dumps(request)], env=child_env(),
-                              capture_output=True, text=True)
+        done = subprocess.run(
+            [sys.executable, "-m", "canter.use.video", json.dumps(request)],
+            env=child_env(),
+            capture_output=True,
+            text=True,
+        )
     lines = done.stdout.strip().splitlines()
     if done.returncode != 0 or not lines:
         error = (done.stderr.strip().splitlines() or ["no output"])[-1]

@@ -19,18 +19,20 @@ from canter.config.schema import Config
 
 class DDPGLearner(NamedTuple):
     """The learner state of ddpg, and of td3."""
+
     actor: Any
-    critics: Any                 # stacked: leading axis = number of critics
+    critics: Any  # stacked: leading axis = number of critics
     target_actor: Any
     target_critics: Any
     actor_opt: Any
     critic_opt: Any
-    updates: Any                 # int32 gradient steps taken, for policy_delay
+    updates: Any  # int32 gradient steps taken, for policy_delay
 
 
 @dataclass(frozen=True)
 class DDPG:
     """The ddpg learner of the shared off-policy loop (`OffPolicyLearner`)."""
+
     cfg: OffPolicyConfig
     num_critics: ClassVar[int] = 1
     update_metrics: ClassVar[tuple[str, ...]] = UPDATE_METRICS
@@ -47,9 +49,15 @@ class DDPG:
         critics = init_critics(critic_key, obs_dim, act_dim, cfg.hidden, self.num_critics)
         # Targets start as copies: distinct buffers, since the train state is donated to jit leaf by leaf.
         copy = lambda tree: jax.tree_util.tree_map(jnp.array, tree)  # noqa: E731
-        return DDPGLearner(actor=actor, critics=critics, target_actor=copy(actor), target_critics=copy(critics),
-                           actor_opt=init_adam(actor, cfg.actor_lr), critic_opt=init_adam(critics, cfg.critic_lr),
-                           updates=jnp.zeros((), jnp.int32))
+        return DDPGLearner(
+            actor=actor,
+            critics=critics,
+            target_actor=copy(actor),
+            target_critics=copy(critics),
+            actor_opt=init_adam(actor, cfg.actor_lr),
+            critic_opt=init_adam(critics, cfg.critic_lr),
+            updates=jnp.zeros((), jnp.int32),
+        )
 
     def target_action(self, next_action: Any, key: Any) -> Any:
         """The action the critic target bootstraps with, given the target actor's."""
@@ -84,23 +92,37 @@ class DDPG:
 
         def actor_objective(actor):
             return losses.deterministic_actor_loss(
-                q_values(first_critic(critics), batch.obs, deterministic_action(actor, batch.obs, act), act))
+                q_values(first_critic(critics), batch.obs, deterministic_action(actor, batch.obs, act), act)
+            )
 
         def update_actor(operand):
             actor, actor_opt, target_actor, target_critics = operand
             actor_loss, grads = jax.value_and_grad(actor_objective)(actor)
             actor, actor_opt = adam_step(actor, actor_opt, grads, cfg.actor_lr)
-            return (actor, actor_opt, losses.polyak(target_actor, actor, cfg.tau),
-                    losses.polyak(target_critics, critics, cfg.tau), actor_loss)
+            return (
+                actor,
+                actor_opt,
+                losses.polyak(target_actor, actor, cfg.tau),
+                losses.polyak(target_critics, critics, cfg.tau),
+                actor_loss,
+            )
 
         def skip(operand):
             return (*operand, jnp.float32(jnp.nan))
 
         operand = (learner.actor, learner.actor_opt, learner.target_actor, learner.target_critics)
         actor, actor_opt, target_actor, target_critics, actor_loss = jax.lax.cond(
-            learner.updates % cfg.policy_delay == 0, update_actor, skip, operand)
-        new = DDPGLearner(actor=actor, critics=critics, target_actor=target_actor, target_critics=target_critics,
-                          actor_opt=actor_opt, critic_opt=critic_opt, updates=learner.updates + 1)
+            learner.updates % cfg.policy_delay == 0, update_actor, skip, operand
+        )
+        new = DDPGLearner(
+            actor=actor,
+            critics=critics,
+            target_actor=target_actor,
+            target_critics=target_critics,
+            actor_opt=actor_opt,
+            critic_opt=critic_opt,
+            updates=learner.updates + 1,
+        )
         return new, {"critic_loss": critic_loss, "actor_loss": actor_loss, "q_mean": jnp.mean(q)}
 
     def explore(self, learner: DDPGLearner, obs: Any, ou_state: Any, key: Any) -> tuple[Any, Any]:

@@ -14,7 +14,8 @@ done step stores its true final observation, and only `terminated` stops bootstr
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -35,15 +36,16 @@ from canter.envs.episodes import EnvCarry, track_episodes
 
 class OffPolicyState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly, the replay buffer included."""
-    learner: Any                 # the algorithm's learner state
+
+    learner: Any  # the algorithm's learner state
     buffer: ReplayBuffer
-    ou_state: jnp.ndarray        # [num_envs, act_dim] Ornstein-Uhlenbeck noise (zeros unless noise = ou)
+    ou_state: jnp.ndarray  # [num_envs, act_dim] Ornstein-Uhlenbeck noise (zeros unless noise = ou)
     obs_stats: RunningStats
     return_stats: RunningStats
     key: jax.Array
     iteration: jnp.ndarray
     global_step: jnp.ndarray
-    vector_steps: jnp.ndarray    # vector-env steps taken, for train_freq
+    vector_steps: jnp.ndarray  # vector-env steps taken, for train_freq
 
 
 def vector_steps_per_call(config: Config, learner: OffPolicyLearner) -> int:
@@ -56,18 +58,26 @@ def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, ac
         learner=learner.init(init_key, obs_dim, act_dim),
         buffer=init_buffer(learner.cfg.buffer_size, obs_dim, act_dim),
         ou_state=jnp.zeros((config.env.num_envs, act_dim), jnp.float32),
-        obs_stats=init_stats((obs_dim,)), return_stats=init_stats(()), key=jax.random.key_data(key),
-        iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64),
-        vector_steps=jnp.zeros((), jnp.int64))
+        obs_stats=init_stats((obs_dim,)),
+        return_stats=init_stats(()),
+        key=jax.random.key_data(key),
+        iteration=jnp.zeros((), jnp.int32),
+        global_step=jnp.zeros((), jnp.int64),
+        vector_steps=jnp.zeros((), jnp.int64),
+    )
 
 
 def _all_finite(tree: Any) -> jnp.ndarray:
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree)
-                              if jnp.issubdtype(x.dtype, jnp.floating)]))
+    return jnp.all(
+        jnp.stack(
+            [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
+        )
+    )
 
 
-def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
-                   env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]):
+def make_iteration(
+    config: Config, learner: OffPolicyLearner, spec: Any, env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]
+) -> Callable[[OffPolicyState, EnvCarry, jnp.ndarray], tuple[OffPolicyState, EnvCarry, dict[str, Any]]]:
     """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`; lr_fraction is unused (constant
     learning rates). Of `config`, only `env.*` is read: the algorithm's keys come from `learner.cfg`."""
     cfg = learner.cfg
@@ -80,14 +90,17 @@ def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
 
     def prepare(batch: Transitions, obs_stats: RunningStats, return_stats: RunningStats) -> Transitions:
         if env_cfg.normalize_obs:
-            batch = batch._replace(obs=normalize(obs_stats, batch.obs, env_cfg.clip_obs),
-                                   next_obs=normalize(obs_stats, batch.next_obs, env_cfg.clip_obs))
+            batch = batch._replace(
+                obs=normalize(obs_stats, batch.obs, env_cfg.clip_obs),
+                next_obs=normalize(obs_stats, batch.next_obs, env_cfg.clip_obs),
+            )
         if env_cfg.normalize_reward:
             batch = batch._replace(reward=scale_reward(return_stats, batch.reward, env_cfg.clip_reward))
         return batch
 
     def train(learner_state, buffer, obs_stats, return_stats, key):
         """`gradient_steps` updates; returns the learner state and per-metric (sums, counts) over them."""
+
         def one(learner_state, step_key):
             sample_key, update_key = jax.random.split(step_key)
             batch = prepare(sample(buffer, sample_key, cfg.batch_size), obs_stats, return_stats)
@@ -103,8 +116,19 @@ def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
         return learner_state, sums, counts
 
     def env_loop_step(loop, step_key):
-        (learner_state, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums,
-         counts) = loop
+        (
+            learner_state,
+            buffer,
+            ou_state,
+            obs_stats,
+            return_stats,
+            carry,
+            global_step,
+            vector_steps,
+            healthy,
+            sums,
+            counts,
+        ) = loop
         random_key, explore_key, train_key = jax.random.split(step_key, 3)
         valid = ~carry.prev_done
         if env_cfg.normalize_obs:
@@ -119,8 +143,11 @@ def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
         step_finite = jnp.all(jnp.isfinite(out.obs)) & jnp.all(jnp.isfinite(out.reward))
         healthy = healthy & step_finite
         # Once anything non-finite appears, nothing more is stored or learned in this call.
-        buffer = insert(buffer, Transitions(carry.obs, action, out.reward, out.obs,
-                                            out.terminated.astype(jnp.float32)), valid & healthy)
+        buffer = insert(
+            buffer,
+            Transitions(carry.obs, action, out.reward, out.obs, out.terminated.astype(jnp.float32)),
+            valid & healthy,
+        )
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
         ou_state = next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None]
@@ -140,34 +167,90 @@ def make_iteration(config: Config, learner: OffPolicyLearner, spec: Any,
         sums = {k: sums[k] + step_sums[k] for k in names}
         counts = {k: counts[k] + step_counts[k] for k in names}
 
-        record = dict(done=episodes.done, valid=valid, episode_return=episodes.episode_return,
-                      episode_length=episodes.episode_length, episode_info=episodes.episode_info)
-        return (learner_state, buffer, ou_state, obs_stats, return_stats, next_carry, global_step, vector_steps,
-                healthy, sums, counts), record
+        record = dict(
+            done=episodes.done,
+            valid=valid,
+            episode_return=episodes.episode_return,
+            episode_length=episodes.episode_length,
+            episode_info=episodes.episode_info,
+        )
+        return (
+            learner_state,
+            buffer,
+            ou_state,
+            obs_stats,
+            return_stats,
+            next_carry,
+            global_step,
+            vector_steps,
+            healthy,
+            sums,
+            counts,
+        ), record
 
-    def iteration(state: OffPolicyState, carry: EnvCarry, lr_fraction: jnp.ndarray):
+    def iteration(
+        state: OffPolicyState, carry: EnvCarry, lr_fraction: jnp.ndarray
+    ) -> tuple[OffPolicyState, EnvCarry, dict[str, Any]]:
         key, loop_key = jax.random.split(jax.random.wrap_key_data(state.key))
         zeros = {k: jnp.float32(0.0) for k in names}
-        init = (state.learner, state.buffer, state.ou_state, state.obs_stats, state.return_stats, carry,
-                state.global_step, state.vector_steps, jnp.asarray(True), zeros, zeros)
+        init = (
+            state.learner,
+            state.buffer,
+            state.ou_state,
+            state.obs_stats,
+            state.return_stats,
+            carry,
+            state.global_step,
+            state.vector_steps,
+            jnp.asarray(True),
+            zeros,
+            zeros,
+        )
         final, records = jax.lax.scan(env_loop_step, init, jax.random.split(loop_key, num_steps))
-        (learner_state, buffer, ou_state, obs_stats, return_stats, carry, global_step, vector_steps, healthy, sums,
-         counts) = final
+        (
+            learner_state,
+            buffer,
+            ou_state,
+            obs_stats,
+            return_stats,
+            carry,
+            global_step,
+            vector_steps,
+            healthy,
+            sums,
+            counts,
+        ) = final
         finite = healthy & _all_finite(learner_state)
-        new_state = OffPolicyState(learner_state, buffer, ou_state, obs_stats, return_stats, jax.random.key_data(key),
-                                   state.iteration + 1, global_step, vector_steps)
+        new_state = OffPolicyState(
+            learner_state,
+            buffer,
+            ou_state,
+            obs_stats,
+            return_stats,
+            jax.random.key_data(key),
+            state.iteration + 1,
+            global_step,
+            vector_steps,
+        )
         # A non-finite call hands back the state it was given (its buffer keeps only the finite transitions it
         # stored), so the trainer can checkpoint the last good state although the input buffers were donated.
-        small_new = new_state._replace(buffer=None)
-        small_old = state._replace(buffer=None)
+        small_new = {k: v for k, v in new_state._asdict().items() if k != "buffer"}
+        small_old = {k: v for k, v in state._asdict().items() if k != "buffer"}
         kept = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), small_new, small_old)
-        new_state = kept._replace(buffer=buffer)
+        new_state = OffPolicyState(buffer=buffer, **kept)
         steps = records["valid"].sum().astype(jnp.int64)
         metrics = {k: jnp.where(counts[k] > 0, sums[k] / jnp.maximum(counts[k], 1.0), jnp.nan) for k in names}
-        metrics.update(gradient_steps=counts["critic_loss"], buffer_size=buffer.size.astype(jnp.float32),
-                       learning_rate=jnp.float32(cfg.actor_lr), steps=steps, finite=finite,
-                       finished=records["done"], episode_return=records["episode_return"],
-                       episode_length=records["episode_length"], episode_info=records["episode_info"])
+        metrics.update(
+            gradient_steps=counts["critic_loss"],
+            buffer_size=buffer.size.astype(jnp.float32),
+            learning_rate=jnp.float32(cfg.actor_lr),
+            steps=steps,
+            finite=finite,
+            finished=records["done"],
+            episode_return=records["episode_return"],
+            episode_length=records["episode_length"],
+            episode_info=records["episode_info"],
+        )
         return new_state, carry, metrics
 
     return iteration

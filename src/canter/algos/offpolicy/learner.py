@@ -18,10 +18,14 @@ class OffPolicyLearner(Protocol):
     """One off-policy algorithm as the shared loop sees it. Actions are in [-1, 1]; `state` is the algorithm's
     learner state, a NamedTuple holding `actor`, the parameters that `act` takes."""
 
-    # The algorithm's own config section: the loop reads the keys that all of them share.
-    cfg: OffPolicyConfig
-    # The keys of the diagnostics dict that `update` returns, in metrics.csv order.
-    update_metrics: tuple[str, ...]
+    # Read-only properties, so that a frozen dataclass with a narrower section or a class-level tuple satisfies them.
+    @property
+    def cfg(self) -> OffPolicyConfig:
+        """The algorithm's own config section: the loop reads the keys that all of them share."""
+
+    @property
+    def update_metrics(self) -> tuple[str, ...]:
+        """The keys of the diagnostics dict that `update` returns, in metrics.csv order."""
 
     def init(self, key: Any, obs_dim: int, act_dim: int) -> Any: ...
 

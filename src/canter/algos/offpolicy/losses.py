@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -12,15 +13,21 @@ from canter.core.networks import gaussian_log_prob
 LOG_2 = math.log(2.0)
 
 
-def td_target(reward: jnp.ndarray, terminated: jnp.ndarray, next_q: jnp.ndarray, gamma: float,
-              next_entropy_bonus: jnp.ndarray | float = 0.0) -> jnp.ndarray:
+def td_target(
+    reward: jnp.ndarray,
+    terminated: jnp.ndarray,
+    next_q: jnp.ndarray,
+    gamma: float,
+    next_entropy_bonus: jnp.ndarray | float = 0.0,
+) -> jnp.ndarray:
     """`r + gamma * (1 - terminated) * (min over critics of next_q + bonus)`; next_q is [num_critics, B].
     Truncated transitions have terminated = 0 and so bootstrap."""
     return reward + gamma * (1.0 - terminated) * (jnp.min(next_q, axis=0) + next_entropy_bonus)
 
 
-def smoothed_target_action(target_action: jnp.ndarray, noise: jnp.ndarray, noise_std: float,
-                           noise_clip: float) -> jnp.ndarray:
+def smoothed_target_action(
+    target_action: jnp.ndarray, noise: jnp.ndarray, noise_std: float, noise_clip: float
+) -> jnp.ndarray:
     """TD3's target policy smoothing: `clip(a' + clip(std * noise, -c, c), -1, 1)` for standard normal `noise`."""
     return jnp.clip(target_action + jnp.clip(noise_std * noise, -noise_clip, noise_clip), -1.0, 1.0)
 
@@ -30,7 +37,7 @@ def critic_loss(q: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
     return jnp.sum(jnp.mean(jnp.square(q - target[None]), axis=-1))
 
 
-def polyak(target, online, tau: float):
+def polyak(target: Any, online: Any, tau: float) -> Any:
     """`tau * online + (1 - tau) * target`, leaf by leaf."""
     return jax.tree_util.tree_map(lambda t, o: (tau * o + (1.0 - tau) * t).astype(t.dtype), target, online)
 

@@ -8,6 +8,8 @@ of one per critic. Every network learns by Adam at a constant learning rate.
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import optax
@@ -54,11 +56,11 @@ def squashed_gaussian(actor: list, obs: jnp.ndarray, activation: str) -> tuple[j
     return mean, log_std
 
 
-def init_adam(params, lr: float):
+def init_adam(params: Any, lr: float) -> Any:
     return optax.adam(lr).init(params)
 
 
-def adam_step(params, opt_state, grads, lr: float):
+def adam_step(params: Any, opt_state: Any, grads: Any, lr: float) -> tuple[Any, Any]:
     """(params, opt_state) after one Adam step along `grads`."""
     updates, opt_state = optax.adam(lr).update(grads, opt_state, params)
     return optax.apply_updates(params, updates), opt_state

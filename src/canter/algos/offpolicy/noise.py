@@ -22,8 +22,9 @@ def ou_stationary_std(theta: float, sigma: float, dt: float) -> float:
     return sigma * math.sqrt(dt / (1.0 - (1.0 - theta * dt) ** 2))
 
 
-def explore(kind: str, action: jnp.ndarray, ou_state: jnp.ndarray, key: jax.Array, std: float, theta: float,
-            dt: float) -> tuple[jnp.ndarray, jnp.ndarray]:
+def explore(
+    kind: str, action: jnp.ndarray, ou_state: jnp.ndarray, key: jax.Array, std: float, theta: float, dt: float
+) -> tuple[jnp.ndarray, jnp.ndarray]:
     """(noisy action clipped to [-1, 1], next OU state) for `kind` gaussian, ou or none."""
     if kind == "gaussian":
         noisy = action + std * jax.random.normal(key, action.shape, jnp.float32)

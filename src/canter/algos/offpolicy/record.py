@@ -3,7 +3,8 @@ and checks that td3, ddpg and sac share."""
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -15,17 +16,18 @@ from canter.config.schema import Config
 from canter.errors import CanterError
 
 
-def offpolicy_algorithm(name: str, make_learner: Callable[[Config, Any], OffPolicyLearner],
-                        update_metrics: tuple[str, ...]) -> Algorithm:
+def offpolicy_algorithm(
+    name: str, make_learner: Callable[[Config, Any], OffPolicyLearner], update_metrics: tuple[str, ...]
+) -> Algorithm:
     """The `Algorithm` record of the algorithm whose learner `make_learner(config, spec)` builds."""
 
-    def init_state(config: Config, spec: Any):
+    def init_state(config: Config, spec: Any) -> Any:
         return init_train_state(config, make_learner(config, spec), spec.obs_dim, spec.act_dim)
 
-    def iteration(config: Config, spec: Any, env_step: Any):
+    def iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:
         return make_iteration(config, make_learner(config, spec), spec, env_step)
 
-    def make_act(config: Config, spec: Any):
+    def make_act(config: Config, spec: Any) -> Callable[..., Any]:
         return _make_act(config, make_learner(config, spec), spec)
 
     def export_actor(config: Config, state: Any, spec: Any) -> ExportedActor:
@@ -34,12 +36,20 @@ def offpolicy_algorithm(name: str, make_learner: Callable[[Config, Any], OffPoli
     def validate(config: Config, spec: Any) -> None:
         _validate_bounded_actions(name, spec)
 
-    return Algorithm(name=name, init_state=init_state, make_iteration=iteration,
-                     metric_names=update_metrics + LOOP_METRICS, make_act=make_act, policy_params=_policy_params,
-                     export_actor=export_actor, validate=validate, donate_state=True)
+    return Algorithm(
+        name=name,
+        init_state=init_state,
+        make_iteration=iteration,
+        metric_names=update_metrics + LOOP_METRICS,
+        make_act=make_act,
+        policy_params=_policy_params,
+        export_actor=export_actor,
+        validate=validate,
+        donate_state=True,
+    )
 
 
-def _make_act(config: Config, learner: OffPolicyLearner, spec: Any):
+def _make_act(config: Config, learner: OffPolicyLearner, spec: Any) -> Callable[..., Any]:
     """`act(actor, obs_stats, raw_obs, key, deterministic)`: the learner's action mapped onto the action bounds."""
     import jax.numpy as jnp
 
@@ -49,7 +59,7 @@ def _make_act(config: Config, learner: OffPolicyLearner, spec: Any):
     high = jnp.asarray(spec.action_high, jnp.float32)
     center, half = (high + low) / 2.0, (high - low) / 2.0
 
-    def act(actor, obs_stats, obs, key, deterministic: bool):
+    def act(actor: Any, obs_stats: Any, obs: Any, key: Any, deterministic: bool) -> Any:
         action = learner.act(actor, normalize_obs(config, obs_stats, obs), key, deterministic)
         return jnp.clip(center + half * action, low, high)
 
@@ -71,10 +81,17 @@ def _export_tanh_actor(config: Config, section: OffPolicyConfig, state: Any, spe
     return ExportedActor(
         weights=[np.asarray(layer["w"], np.float32) for layer in actor],
         biases=[np.asarray(layer["b"], np.float32) for layer in actor],
-        activation=section.activation, squash=True, normalize=config.env.normalize_obs,
-        obs_mean=np.asarray(stats.mean, np.float32), obs_var=np.asarray(stats.var, np.float32), obs_eps=EPSILON,
-        clip_obs=config.env.clip_obs, action_low=np.asarray(spec.action_low, np.float32),
-        action_high=np.asarray(spec.action_high, np.float32), output_slice=spec.act_dim)
+        activation=section.activation,
+        squash=True,
+        normalize=config.env.normalize_obs,
+        obs_mean=np.asarray(stats.mean, np.float32),
+        obs_var=np.asarray(stats.var, np.float32),
+        obs_eps=EPSILON,
+        clip_obs=config.env.clip_obs,
+        action_low=np.asarray(spec.action_low, np.float32),
+        action_high=np.asarray(spec.action_high, np.float32),
+        output_slice=spec.act_dim,
+    )
 
 
 def _validate_bounded_actions(name: str, spec: Any) -> None:
@@ -83,6 +100,8 @@ def _validate_bounded_actions(name: str, spec: Any) -> None:
         return
     low, high = np.asarray(spec.action_low), np.asarray(spec.action_high)
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
-        raise CanterError(f"{name} needs finite action bounds (it squashes actions with tanh); "
-                          f"{getattr(spec, 'id', getattr(spec, 'env_id', 'this env'))} has low={low.tolist()} "
-                          f"high={high.tolist()}")
+        raise CanterError(
+            f"{name} needs finite action bounds (it squashes actions with tanh); "
+            f"{getattr(spec, 'id', getattr(spec, 'env_id', 'this env'))} has low={low.tolist()} "
+            f"high={high.tolist()}"
+        )

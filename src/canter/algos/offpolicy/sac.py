@@ -17,14 +17,14 @@ from canter.config.schema import Config
 
 
 class SACLearner(NamedTuple):
-    actor: Any                   # outputs the mean and the raw log std of the pre-tanh Gaussian
-    critics: Any                 # stacked: leading axis = number of critics
+    actor: Any  # outputs the mean and the raw log std of the pre-tanh Gaussian
+    critics: Any  # stacked: leading axis = number of critics
     target_critics: Any
     actor_opt: Any
     critic_opt: Any
-    log_alpha: Any               # float32 log of the entropy temperature
+    log_alpha: Any  # float32 log of the entropy temperature
     alpha_opt: Any
-    updates: Any                 # int32 gradient steps taken, for policy_delay
+    updates: Any  # int32 gradient steps taken, for policy_delay
 
 
 def entropy_target(cfg: SACConfig, act_dim: int) -> float:
@@ -35,6 +35,7 @@ def entropy_target(cfg: SACConfig, act_dim: int) -> float:
 @dataclass(frozen=True)
 class SAC:
     """The sac learner of the shared off-policy loop (`OffPolicyLearner`)."""
+
     cfg: SACConfig
     target_entropy: float
     update_metrics: ClassVar[tuple[str, ...]] = UPDATE_METRICS + ("alpha", "entropy")
@@ -52,10 +53,16 @@ class SAC:
         log_alpha = jnp.log(jnp.asarray(cfg.alpha, jnp.float32))
         # The target starts as a copy: distinct buffers, since the train state is donated to jit leaf by leaf.
         target_critics = jax.tree_util.tree_map(jnp.array, critics)
-        return SACLearner(actor=actor, critics=critics, target_critics=target_critics,
-                          actor_opt=init_adam(actor, cfg.actor_lr), critic_opt=init_adam(critics, cfg.critic_lr),
-                          log_alpha=log_alpha, alpha_opt=init_adam(log_alpha, cfg.alpha_lr),
-                          updates=jnp.zeros((), jnp.int32))
+        return SACLearner(
+            actor=actor,
+            critics=critics,
+            target_critics=target_critics,
+            actor_opt=init_adam(actor, cfg.actor_lr),
+            critic_opt=init_adam(critics, cfg.critic_lr),
+            log_alpha=log_alpha,
+            alpha_opt=init_adam(log_alpha, cfg.alpha_lr),
+            updates=jnp.zeros((), jnp.int32),
+        )
 
     def update(self, learner: SACLearner, batch: Any, key: Any) -> tuple[SACLearner, dict]:
         """A critic step against the soft target, a Polyak update of the target critics, and every `policy_delay`
@@ -76,10 +83,12 @@ class SAC:
         alpha = jnp.exp(learner.log_alpha)
         mean, log_std = squashed_gaussian(learner.actor, batch.next_obs, act)
         next_action, next_log_prob = losses.squashed_sample(
-            mean, log_std, jax.random.normal(next_key, mean.shape, jnp.float32))
+            mean, log_std, jax.random.normal(next_key, mean.shape, jnp.float32)
+        )
         next_q = q_values(learner.target_critics, batch.next_obs, next_action, act)
         target = jax.lax.stop_gradient(
-            losses.td_target(batch.reward, batch.terminated, next_q, cfg.gamma, -alpha * next_log_prob))
+            losses.td_target(batch.reward, batch.terminated, next_q, cfg.gamma, -alpha * next_log_prob)
+        )
 
         def critic_objective(critics):
             q = q_values(critics, batch.obs, batch.action, act)
@@ -91,8 +100,9 @@ class SAC:
 
         def actor_objective(actor):
             mean, log_std = squashed_gaussian(actor, batch.obs, act)
-            action, log_prob = losses.squashed_sample(mean, log_std,
-                                                      jax.random.normal(actor_key, mean.shape, jnp.float32))
+            action, log_prob = losses.squashed_sample(
+                mean, log_std, jax.random.normal(actor_key, mean.shape, jnp.float32)
+            )
             q_pi = q_values(critics, batch.obs, action, act)
             return losses.sac_actor_loss(q_pi, log_prob, alpha), log_prob
 
@@ -110,12 +120,25 @@ class SAC:
 
         operand = (learner.actor, learner.actor_opt, learner.log_alpha, learner.alpha_opt)
         actor, actor_opt, log_alpha, alpha_opt, actor_loss, entropy = jax.lax.cond(
-            learner.updates % cfg.policy_delay == 0, update_actor, skip, operand)
-        new = SACLearner(actor=actor, critics=critics, target_critics=target_critics, actor_opt=actor_opt,
-                         critic_opt=critic_opt, log_alpha=log_alpha, alpha_opt=alpha_opt,
-                         updates=learner.updates + 1)
-        return new, {"critic_loss": critic_loss, "actor_loss": actor_loss, "q_mean": jnp.mean(q),
-                     "alpha": jnp.exp(log_alpha), "entropy": entropy}
+            learner.updates % cfg.policy_delay == 0, update_actor, skip, operand
+        )
+        new = SACLearner(
+            actor=actor,
+            critics=critics,
+            target_critics=target_critics,
+            actor_opt=actor_opt,
+            critic_opt=critic_opt,
+            log_alpha=log_alpha,
+            alpha_opt=alpha_opt,
+            updates=learner.updates + 1,
+        )
+        return new, {
+            "critic_loss": critic_loss,
+            "actor_loss": actor_loss,
+            "q_mean": jnp.mean(q),
+            "alpha": jnp.exp(log_alpha),
+            "entropy": entropy,
+        }
 
     def explore(self, learner: SACLearner, obs: Any, ou_state: Any, key: Any) -> tuple[Any, Any]:
         """sac explores by sampling its policy; it has no OU noise, whose state passes through unchanged."""

@@ -17,35 +17,43 @@ from canter.config.validate import ACTIVATIONS, need, need_positive
 class OffPolicyConfig:
     """Keys shared by td3, ddpg and sac (each section has its own copy, with its own defaults). The networks are
     set here rather than in `net.*`, whose defaults and presets are PPO's."""
+
     buffer_size: int = setting("Replay buffer capacity in transitions (kept on the JAX device).", default=1_000_000)
     batch_size: int = setting("Transitions per gradient step.", default=256)
     learning_starts: int = setting("Env steps of uniformly random actions before the first update.", default=25_000)
     train_freq: int = setting("Update after every this many vector-env steps.", default=1)
     gradient_steps: int = setting("Gradient steps per update.", default=1)
-    policy_delay: int = setting("Update the actor (and the targets, for td3/ddpg) every this many gradient steps.",
-                             default=1)
-    tau: float = setting("Polyak coefficient of the target networks: target <- tau * online + (1 - tau) * target.",
-                      default=0.005)
+    policy_delay: int = setting(
+        "Update the actor (and the targets, for td3/ddpg) every this many gradient steps.", default=1
+    )
+    tau: float = setting(
+        "Polyak coefficient of the target networks: target <- tau * online + (1 - tau) * target.", default=0.005
+    )
     gamma: float = setting("Discount factor.", default=0.99)
     actor_lr: float = setting("Adam learning rate of the actor.", default=3e-4)
     critic_lr: float = setting("Adam learning rate of the critic(s).", default=3e-4)
     hidden: tuple[int, ...] = setting("Hidden layer sizes of the actor and of each critic.", default=(256, 256))
     activation: str = setting("Hidden activation: relu, tanh or elu.", default="relu")
-    noise: str = setting("Exploration noise: gaussian, ou (Ornstein-Uhlenbeck, per env, reset at episode end) or "
-                      "none. Ignored by sac.", default="gaussian")
-    noise_std: float = setting("Exploration noise std (OU: sigma), as a fraction of the action half-range.",
-                            default=0.1)
+    noise: str = setting(
+        "Exploration noise: gaussian, ou (Ornstein-Uhlenbeck, per env, reset at episode end) or none. Ignored by sac.",
+        default="gaussian",
+    )
+    noise_std: float = setting(
+        "Exploration noise std (OU: sigma), as a fraction of the action half-range.", default=0.1
+    )
     ou_theta: float = setting("OU mean-reversion rate theta.", default=0.15)
     ou_dt: float = setting("OU time step dt.", default=0.01)
-    steps_per_call: int = setting("Env steps per jitted call of the training loop (the logging/checkpoint unit).",
-                               default=1000)
+    steps_per_call: int = setting(
+        "Env steps per jitted call of the training loop (the logging/checkpoint unit).", default=1000
+    )
 
 
 @dataclass(frozen=True)
 class TD3Config(OffPolicyConfig):
     policy_delay: int = setting("Update the actor and the targets every this many gradient steps.", default=2)
-    target_noise: float = setting("Std of the target policy smoothing noise (fraction of the action half-range).",
-                               default=0.2)
+    target_noise: float = setting(
+        "Std of the target policy smoothing noise (fraction of the action half-range).", default=0.2
+    )
     noise_clip: float = setting("Clip of the target policy smoothing noise.", default=0.5)
 
 
@@ -68,15 +76,20 @@ class SACConfig(OffPolicyConfig):
 def check_offpolicy(s: OffPolicyConfig, name: str) -> None:
     for key in ("buffer_size", "batch_size", "train_freq", "gradient_steps", "policy_delay", "steps_per_call"):
         need(getattr(s, key) >= 1, f"{name}.{key} must be >= 1, got {getattr(s, key)}")
-    need(s.buffer_size >= s.batch_size, f"{name}.buffer_size {s.buffer_size} is smaller than {name}.batch_size "
-                                        f"{s.batch_size}; raise the buffer or lower the batch")
+    need(
+        s.buffer_size >= s.batch_size,
+        f"{name}.buffer_size {s.buffer_size} is smaller than {name}.batch_size "
+        f"{s.batch_size}; raise the buffer or lower the batch",
+    )
     need(s.learning_starts >= 0, f"{name}.learning_starts must be >= 0, got {s.learning_starts}")
     need(0 < s.tau <= 1, f"{name}.tau must be in (0, 1], got {s.tau}")
     need(0 < s.gamma <= 1, f"{name}.gamma must be in (0, 1], got {s.gamma}")
     for key in ("actor_lr", "critic_lr", "ou_theta", "ou_dt"):
         need_positive(f"{name}.{key}", getattr(s, key))
-    need(len(s.hidden) >= 1 and all(h > 0 for h in s.hidden),
-         f"{name}.hidden must be positive sizes such as 256,256, got {s.hidden}")
+    need(
+        len(s.hidden) >= 1 and all(h > 0 for h in s.hidden),
+        f"{name}.hidden must be positive sizes such as 256,256, got {s.hidden}",
+    )
     need(s.activation in ACTIVATIONS, f"{name}.activation must be tanh, relu or elu, got '{s.activation}'")
     need(s.noise in ("gaussian", "ou", "none"), f"{name}.noise must be gaussian, ou or none, got '{s.noise}'")
     need(math.isfinite(s.noise_std) and s.noise_std >= 0, f"{name}.noise_std must be >= 0, got {s.noise_std}")
@@ -94,8 +107,7 @@ def check_sac(s: SACConfig, name: str) -> None:
     for key in ("alpha", "alpha_lr"):
         need_positive(f"{name}.{key}", getattr(s, key))
     if s.target_entropy is not None:
-        need(math.isfinite(s.target_entropy), f"{name}.target_entropy must be finite or none, got "
-                                              f"{s.target_entropy}")
+        need(math.isfinite(s.target_entropy), f"{name}.target_entropy must be finite or none, got {s.target_entropy}")
 
 
 def _no_cross_checks(config: object) -> None:
@@ -116,18 +128,31 @@ register_section("sac", SACConfig, check_sac)
 
 
 def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> AlgorithmSpec:
-    return AlgorithmSpec(name=name, summary=summary, runtime=f"{PACKAGE}.algorithms", reads=(name,), validate=_no_cross_checks,
-                         on_policy=False, search_space=(PACKAGE, f"search_space_{name}.toml"),
-                         preset_overrides=algorithm_preset_tables(PACKAGE, name), plot_labels=labels, seeds_train_apart=True)
+    return AlgorithmSpec(
+        name=name,
+        summary=summary,
+        runtime=f"{PACKAGE}.algorithms",
+        reads=(name,),
+        validate=_no_cross_checks,
+        on_policy=False,
+        search_space=(PACKAGE, f"search_space_{name}.toml"),
+        preset_overrides=algorithm_preset_tables(PACKAGE, name),
+        plot_labels=labels,
+        seeds_train_apart=True,
+    )
 
 
 # Seeds train one per process: under the vmap the step's `lax.cond`s (warm-up, td3's delayed actor step) see a
 # per-seed predicate and become selects that compute both branches, and stacking seeds' 256-wide products gains
 # nothing on a CPU core: two td3 seeds in one group trained at 0.67x the steps per second of one seed alone on the
 # same core (docs/multiseed.md).
-for spec in (_spec("td3", "Twin Delayed DDPG (off-policy, replay buffer)", UPDATE_LABELS),
-             _spec("ddpg", "Deep Deterministic Policy Gradient (off-policy, replay buffer)", UPDATE_LABELS),
-             _spec("sac", "Soft Actor-Critic with automatic entropy tuning (off-policy)",
-                   {**UPDATE_LABELS, "alpha": ("Entropy temperature α", "dimensionless"),
-                    "entropy": ("Policy entropy", "nats")})):
+for spec in (
+    _spec("td3", "Twin Delayed DDPG (off-policy, replay buffer)", UPDATE_LABELS),
+    _spec("ddpg", "Deep Deterministic Policy Gradient (off-policy, replay buffer)", UPDATE_LABELS),
+    _spec(
+        "sac",
+        "Soft Actor-Critic with automatic entropy tuning (off-policy)",
+        {**UPDATE_LABELS, "alpha": ("Entropy temperature α", "dimensionless"), "entropy": ("Policy entropy", "nats")},
+    ),
+):
     register_algorithm(spec)

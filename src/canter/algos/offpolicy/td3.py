@@ -16,6 +16,7 @@ from canter.config.schema import Config
 @dataclass(frozen=True)
 class TD3(DDPG):
     """The td3 learner of the shared off-policy loop (`OffPolicyLearner`); its state is `DDPGLearner`."""
+
     cfg: TD3Config
     num_critics: ClassVar[int] = 2
 

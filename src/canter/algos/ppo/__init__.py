@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -9,29 +10,40 @@ import numpy as np
 from canter.algos import Algorithm, ExportedActor
 from canter.config.schema import Config
 
-PPO_METRICS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "explained_variance",
-               "learning_rate", "epochs_run", "policy_kl", "kl_beta", "sym_loss")
+PPO_METRICS = (
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_frac",
+    "explained_variance",
+    "learning_rate",
+    "epochs_run",
+    "policy_kl",
+    "kl_beta",
+    "sym_loss",
+)
 
 
-def _init_state(config: Config, spec: Any):
+def _init_state(config: Config, spec: Any) -> Any:
     from canter.algos.ppo.iteration import init_train_state
 
     return init_train_state(config, spec.obs_dim, spec.act_dim)
 
 
-def _make_iteration(config: Config, spec: Any, env_step: Any):
+def _make_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:
     from canter.algos.ppo.iteration import make_iteration
 
     return make_iteration(config, spec, env_step)
 
 
-def _make_rpo_iteration(config: Config, spec: Any, env_step: Any):
+def _make_rpo_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:
     from canter.algos.ppo.iteration import make_iteration
 
     return make_iteration(config, spec, env_step, rpo=True)
 
 
-def make_gaussian_act(config: Config, spec: Any):
+def make_gaussian_act(config: Config, spec: Any) -> Callable[..., Any]:
     """`act(params, obs_stats, raw_obs, key, deterministic)` for the diagonal Gaussian actor of ppo and its kin."""
     import jax.numpy as jnp
 
@@ -41,7 +53,7 @@ def make_gaussian_act(config: Config, spec: Any):
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
 
-    def act(params, obs_stats, obs, key, deterministic: bool):
+    def act(params: Any, obs_stats: Any, obs: Any, key: Any, deterministic: bool) -> Any:
         mean, log_std = policy_dist(params, normalize_obs(config, obs_stats, obs), config.net)
         action = mean if deterministic else sample_action(key, mean, log_std)
         return jnp.clip(action, low, high)
@@ -63,10 +75,17 @@ def export_gaussian_actor(config: Config, state: Any, spec: Any) -> ExportedActo
     return ExportedActor(
         weights=[np.asarray(layer["w"], np.float32) for layer in actor],
         biases=[np.asarray(layer["b"], np.float32) for layer in actor],
-        activation=config.net.activation, squash=False, normalize=config.env.normalize_obs,
-        obs_mean=np.asarray(stats.mean, np.float32), obs_var=np.asarray(stats.var, np.float32), obs_eps=EPSILON,
-        clip_obs=config.env.clip_obs, action_low=np.asarray(spec.action_low, np.float32),
-        action_high=np.asarray(spec.action_high, np.float32), output_slice=spec.act_dim)
+        activation=config.net.activation,
+        squash=False,
+        normalize=config.env.normalize_obs,
+        obs_mean=np.asarray(stats.mean, np.float32),
+        obs_var=np.asarray(stats.var, np.float32),
+        obs_eps=EPSILON,
+        clip_obs=config.env.clip_obs,
+        action_low=np.asarray(spec.action_low, np.float32),
+        action_high=np.asarray(spec.action_high, np.float32),
+        output_slice=spec.act_dim,
+    )
 
 
 def validate_continuous(config: Config, spec: Any) -> None:
@@ -79,10 +98,24 @@ def validate_continuous(config: Config, spec: Any) -> None:
 
 
 ALGORITHMS = {
-    "ppo": Algorithm(name="ppo", init_state=_init_state, make_iteration=_make_iteration,
-                     metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
-                     export_actor=export_gaussian_actor, validate=validate_continuous),
-    "rpo": Algorithm(name="rpo", init_state=_init_state, make_iteration=_make_rpo_iteration,
-                     metric_names=PPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
-                     export_actor=export_gaussian_actor, validate=validate_continuous),
+    "ppo": Algorithm(
+        name="ppo",
+        init_state=_init_state,
+        make_iteration=_make_iteration,
+        metric_names=PPO_METRICS,
+        make_act=make_gaussian_act,
+        policy_params=gaussian_policy_params,
+        export_actor=export_gaussian_actor,
+        validate=validate_continuous,
+    ),
+    "rpo": Algorithm(
+        name="rpo",
+        init_state=_init_state,
+        make_iteration=_make_rpo_iteration,
+        metric_names=PPO_METRICS,
+        make_act=make_gaussian_act,
+        policy_params=gaussian_policy_params,
+        export_actor=export_gaussian_actor,
+        validate=validate_continuous,
+    ),
 }

@@ -3,6 +3,7 @@ logs, checkpoints and handles signals between calls."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -20,6 +21,7 @@ from canter.envs.episodes import EnvCarry
 
 class TrainState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly."""
+
     params: Params
     opt_state: Any
     obs_stats: RunningStats
@@ -27,17 +29,24 @@ class TrainState(NamedTuple):
     key: jax.Array
     iteration: jnp.ndarray
     global_step: jnp.ndarray
-    kl_beta: Any = None   # the adaptive KL penalty weight; None (no leaf) unless ppo.objective = kl_penalty
+    kl_beta: Any = None  # the adaptive KL penalty weight; None (no leaf) unless ppo.objective = kl_penalty
 
 
 def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
     key, init_key = jax.random.split(jax.random.key(config.run.seed))
     params = init_params(init_key, config.net, obs_dim, act_dim)
-    return TrainState(params=params, opt_state=make_optimizer(config).init(params), obs_stats=init_stats((obs_dim,)),
-                      return_stats=init_stats(()), key=jax.random.key_data(key),
-                      iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64),
-                      kl_beta=(jnp.asarray(config.ppo.kl_penalty_beta, jnp.float32)
-                               if config.ppo.objective == "kl_penalty" else None))
+    return TrainState(
+        params=params,
+        opt_state=make_optimizer(config).init(params),
+        obs_stats=init_stats((obs_dim,)),
+        return_stats=init_stats(()),
+        key=jax.random.key_data(key),
+        iteration=jnp.zeros((), jnp.int32),
+        global_step=jnp.zeros((), jnp.int64),
+        kl_beta=(
+            jnp.asarray(config.ppo.kl_penalty_beta, jnp.float32) if config.ppo.objective == "kl_penalty" else None
+        ),
+    )
 
 
 def explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
@@ -51,43 +60,75 @@ def explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.nd
     return jnp.where(target_var > 0, 1.0 - var(target - predicted) / target_var, jnp.nan)
 
 
-def make_iteration(config: Config, spec: EnvSpec, env_step, rpo: bool = False):
+def make_iteration(
+    config: Config, spec: EnvSpec, env_step: Any, rpo: bool = False
+) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
     """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit. `rpo` turns the
     loss into RPO's (the rollout is the same: actions are sampled from the unshifted policy)."""
     variant = loss_variant(config, rpo)
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
 
-    def iteration(state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray):
+    def iteration(
+        state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray
+    ) -> tuple[TrainState, EnvCarry, dict[str, Any]]:
         key, rollout_key, update_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
         obs_stats, return_stats, carry, tr, next_obs = collect(
-            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
+            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config
+        )
         values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         mask = tr.valid.astype(jnp.float32)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
-        batch = Minibatch(flat(tr.obs), flat(tr.action), flat(tr.log_prob), flat(values[:-1]), flat(advantages),
-                          flat(returns), flat(mask))
+        batch = Minibatch(
+            flat(tr.obs),
+            flat(tr.action),
+            flat(tr.log_prob),
+            flat(values[:-1]),
+            flat(advantages),
+            flat(returns),
+            flat(mask),
+        )
         critic_lr = config.ppo.critic_lr if config.ppo.critic_lr is not None else config.ppo.lr
         fraction = lr_fraction if config.ppo.anneal_lr else jnp.float32(1.0)
         actor_lr, critic_lr = config.ppo.lr * fraction, critic_lr * fraction
         kl_beta = state.kl_beta if variant.kl_penalty else jnp.float32(0.0)
-        params, opt_state, diagnostics = ppo_update(state.params, state.opt_state, batch, update_key,
-                                                    actor_lr, critic_lr, config, variant, kl_beta)
-        new_beta = (adapt_kl_beta(kl_beta, diagnostics["policy_kl"], config.ppo.kl_penalty_target)
-                    if variant.kl_penalty else None)
+        params, opt_state, diagnostics = ppo_update(
+            state.params, state.opt_state, batch, update_key, actor_lr, critic_lr, config, variant, kl_beta
+        )
+        new_beta = (
+            adapt_kl_beta(kl_beta, diagnostics["policy_kl"], config.ppo.kl_penalty_target)
+            if variant.kl_penalty
+            else None
+        )
         steps = tr.valid.sum().astype(jnp.int64)
-        finite = (jnp.all(jnp.isfinite(tr.obs)) & jnp.all(jnp.isfinite(tr.reward))
-                  & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)])))
+        finite = (
+            jnp.all(jnp.isfinite(tr.obs))
+            & jnp.all(jnp.isfinite(tr.reward))
+            & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
+        )
         metrics = dict(diagnostics)
         metrics.setdefault("sym_loss", jnp.float32(0.0))
         metrics.update(
             kl_beta=kl_beta if variant.kl_penalty else jnp.float32(jnp.nan),
             explained_variance=explained_variance(batch.values, batch.returns, batch.mask),
-            learning_rate=jnp.asarray(actor_lr, jnp.float32), steps=steps, finite=finite,
-            finished=tr.done, episode_return=tr.episode_return, episode_length=tr.episode_length,
-            episode_info=tr.episode_info)
-        new_state = TrainState(params, opt_state, obs_stats, return_stats, jax.random.key_data(key),
-                               state.iteration + 1, state.global_step + steps, new_beta)
+            learning_rate=jnp.asarray(actor_lr, jnp.float32),
+            steps=steps,
+            finite=finite,
+            finished=tr.done,
+            episode_return=tr.episode_return,
+            episode_length=tr.episode_length,
+            episode_info=tr.episode_info,
+        )
+        new_state = TrainState(
+            params,
+            opt_state,
+            obs_stats,
+            return_stats,
+            jax.random.key_data(key),
+            state.iteration + 1,
+            state.global_step + steps,
+            new_beta,
+        )
         return new_state, carry, metrics
 
     return iteration

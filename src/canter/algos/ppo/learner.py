@@ -26,13 +26,16 @@ KL_BETA_MIN, KL_BETA_MAX = 1e-5, 1e5
 
 
 def make_optimizer(config: Config) -> optax.GradientTransformation:
-    return optax.chain(optax.clip_by_global_norm(config.ppo.max_grad_norm),
-                       optax.scale_by_adam(eps=config.ppo.adam_eps))
+    return optax.chain(
+        optax.clip_by_global_norm(config.ppo.max_grad_norm), optax.scale_by_adam(eps=config.ppo.adam_eps)
+    )
 
 
 def _apply_lrs(updates: Params, actor_lr: Any, critic_lr: Any) -> Params:
-    return {k: jax.tree_util.tree_map(lambda u: (-(critic_lr if k == "critic" else actor_lr) * u).astype(u.dtype), v)
-            for k, v in updates.items()}
+    def descend(tree: Any, lr: Any) -> Any:
+        return jax.tree_util.tree_map(lambda u: (-lr * u).astype(u.dtype), tree)
+
+    return {k: descend(v, critic_lr if k == "critic" else actor_lr) for k, v in updates.items()}
 
 
 class UpdateResult(NamedTuple):
@@ -41,8 +44,17 @@ class UpdateResult(NamedTuple):
     diagnostics: dict
 
 
-def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array, actor_lr: Any, critic_lr: Any,
-               config: Config, variant: LossVariant = LossVariant(), kl_beta: Any = 0.0) -> UpdateResult:
+def ppo_update(
+    params: Params,
+    opt_state: Any,
+    batch: Minibatch,
+    key: jax.Array,
+    actor_lr: Any,
+    critic_lr: Any,
+    config: Config,
+    variant: LossVariant = LossVariant(),
+    kl_beta: Any = 0.0,
+) -> UpdateResult:
     """Run `epochs` passes of `num_minibatches` gradient steps; stop early on target KL if configured.
 
     `variant` selects the loss (ppo, rpo, kl_penalty, symmetric term); `kl_beta` is the current penalty weight.
@@ -52,7 +64,7 @@ def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array,
     num_minibatches = batch_size // config.ppo.minibatch_size
     target_kl = config.ppo.target_kl
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
-    diag_names = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")
+    diag_names: tuple[str, ...] = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")
     diag_names += ("sym_loss",) if variant.symmetric else ()
     zero_diag = {k: jnp.float32(0.0) for k in diag_names}
     old_mean, old_log_std = policy_dist(params, batch.obs, config.net)
@@ -74,7 +86,8 @@ def ppo_update(params: Params, opt_state: Any, batch: Minibatch, key: jax.Array,
         def run(operand):
             params, opt_state = operand
             permutation = jax.random.permutation(epoch_key, batch_size)
-            # A derived key for RPO's shifts, so the minibatch order is the same as before RPO existed.
+            # A derived key for RPO's shifts, so that ppo's minibatch order does not depend on whether RPO shifts
+            # are drawn.
             loss_keys = jax.random.split(jax.random.fold_in(epoch_key, 1), num_minibatches)
             steps = (permutation.reshape(num_minibatches, -1), loss_keys)
             (params, opt_state), diags = jax.lax.scan(minibatch_step, (params, opt_state), steps)

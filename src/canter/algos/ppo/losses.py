@@ -24,25 +24,26 @@ from canter.core.networks import (
 
 
 class Minibatch(NamedTuple):
-    obs: jnp.ndarray          # [B, obs_dim], normalized as the policy saw it
-    actions: jnp.ndarray      # [B, act_dim], unclipped samples
-    log_probs: jnp.ndarray    # [B], under the policy that collected them
-    values: jnp.ndarray       # [B], critic estimates at collection time
-    advantages: jnp.ndarray   # [B]
-    returns: jnp.ndarray      # [B]
-    mask: jnp.ndarray         # [B], 0 for EnvPool autoreset steps
-    old_mean: Any = None      # [B, act_dim], the collecting policy's mean; only the kl_penalty objective needs it
-    old_log_std: Any = None   # [B, act_dim]
+    obs: jnp.ndarray  # [B, obs_dim], normalized as the policy saw it
+    actions: jnp.ndarray  # [B, act_dim], unclipped samples
+    log_probs: jnp.ndarray  # [B], under the policy that collected them
+    values: jnp.ndarray  # [B], critic estimates at collection time
+    advantages: jnp.ndarray  # [B]
+    returns: jnp.ndarray  # [B]
+    mask: jnp.ndarray  # [B], 0 for EnvPool autoreset steps
+    old_mean: Any = None  # [B, act_dim], the collecting policy's mean; only the kl_penalty objective needs it
+    old_log_std: Any = None  # [B, act_dim]
 
 
 @dataclass(frozen=True)
 class LossVariant:
     """The static choices that turn the PPO loss into one of its relatives."""
-    rpo_alpha: float = 0.0                   # > 0: RPO, the mean is shifted by U(-alpha, alpha) per dimension
-    kl_penalty: bool = False                 # surrogate - beta * KL instead of the clipped surrogate
+
+    rpo_alpha: float = 0.0  # > 0: RPO, the mean is shifted by U(-alpha, alpha) per dimension
+    kl_penalty: bool = False  # surrogate - beta * KL instead of the clipped surrogate
     sym_coef: float = 0.0
     sym_pairs: tuple[MirrorPair, ...] = ()
-    sym_compare: str = "mean"                # or "log_prob"
+    sym_compare: str = "mean"  # or "log_prob"
 
     @property
     def symmetric(self) -> bool:
@@ -50,13 +51,18 @@ class LossVariant:
 
 
 def loss_variant(config: Config, rpo: bool) -> LossVariant:
-    return LossVariant(rpo_alpha=config.rpo.alpha if rpo else 0.0, kl_penalty=config.ppo.objective == "kl_penalty",
-                       sym_coef=config.sym.coef, sym_pairs=parse_groups(config.sym.groups, config.sym.negate),
-                       sym_compare=config.sym.compare)
+    return LossVariant(
+        rpo_alpha=config.rpo.alpha if rpo else 0.0,
+        kl_penalty=config.ppo.objective == "kl_penalty",
+        sym_coef=config.sym.coef,
+        sym_pairs=parse_groups(config.sym.groups, config.sym.negate),
+        sym_compare=config.sym.compare,
+    )
 
 
-def gaussian_kl(mean_p: jnp.ndarray, log_std_p: jnp.ndarray, mean_q: jnp.ndarray,
-                log_std_q: jnp.ndarray) -> jnp.ndarray:
+def gaussian_kl(
+    mean_p: jnp.ndarray, log_std_p: jnp.ndarray, mean_q: jnp.ndarray, log_std_q: jnp.ndarray
+) -> jnp.ndarray:
     """KL(p || q) of diagonal Gaussians, summed over the last axis."""
     var_p, var_q = jnp.exp(2.0 * log_std_p), jnp.exp(2.0 * log_std_q)
     return jnp.sum(log_std_q - log_std_p + (var_p + jnp.square(mean_p - mean_q)) / (2.0 * var_q) - 0.5, axis=-1)
@@ -84,14 +90,24 @@ def normalize_advantages(advantages: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndar
     return (advantages - mean) / (std + 1e-8)
 
 
-def ppo_loss(params: Params, batch: Minibatch, net: NetConfig, ppo: PPOConfig, variant: LossVariant = LossVariant(),
-             key: jax.Array | None = None, kl_beta: Any = 0.0) -> tuple[jnp.ndarray, dict]:
+def ppo_loss(
+    params: Params,
+    batch: Minibatch,
+    net: NetConfig,
+    ppo: PPOConfig,
+    variant: LossVariant = LossVariant(),
+    key: jax.Array | None = None,
+    kl_beta: Any = 0.0,
+) -> tuple[jnp.ndarray, dict]:
     """Clipped surrogate (or surrogate - kl_beta * KL) + (optionally clipped) value loss - entropy bonus
     [+ sym_coef * symmetric action loss]. `key` draws RPO's shift. Returns (loss, diagnostics)."""
     mask = batch.mask
     mean, log_std = policy_dist(params, batch.obs, net)
     # RPO re-evaluates the stored actions under a shifted mean; everything downstream sees the shifted policy.
-    eval_mean = rpo_shift(key, mean, variant.rpo_alpha) if variant.rpo_alpha > 0 else mean
+    eval_mean = mean
+    if variant.rpo_alpha > 0:
+        assert key is not None, "RPO draws its mean shift from `key`"
+        eval_mean = rpo_shift(key, mean, variant.rpo_alpha)
     new_log_probs = gaussian_log_prob(eval_mean, log_std, batch.actions)
     log_ratio = new_log_probs - batch.log_probs
     ratio = jnp.exp(log_ratio)
@@ -123,12 +139,14 @@ def ppo_loss(params: Params, batch: Minibatch, net: NetConfig, ppo: PPOConfig, v
             sym_loss = symmetric_loss(per_dim, variant.sym_pairs, mask, use_signs=False)
         loss = loss + variant.sym_coef * sym_loss
         diagnostics["sym_loss"] = sym_loss
-    diagnostics.update({
-        "policy_loss": policy_loss,
-        "value_loss": value_loss,
-        "entropy": entropy,
-        # The low-variance k3 estimator of KL(old || new) (Schulman's note), as CleanRL logs it.
-        "approx_kl": masked_mean((ratio - 1.0) - log_ratio, mask),
-        "clip_frac": masked_mean((jnp.abs(ratio - 1.0) > ppo.clip).astype(jnp.float32), mask),
-    })
+    diagnostics.update(
+        {
+            "policy_loss": policy_loss,
+            "value_loss": value_loss,
+            "entropy": entropy,
+            # The low-variance k3 estimator of KL(old || new) (Schulman's note), as CleanRL logs it.
+            "approx_kl": masked_mean((ratio - 1.0) - log_ratio, mask),
+            "clip_frac": masked_mean((jnp.abs(ratio - 1.0) > ppo.clip).astype(jnp.float32), mask),
+        }
+    )
     return loss, diagnostics

@@ -32,35 +32,55 @@ class PPOConfig:
     ent_coef: float = setting("Entropy bonus coefficient.", default=0.0)
     vf_coef: float = setting("Value loss coefficient.", default=0.5)
     max_grad_norm: float = setting("Global gradient-norm clip (actor and critic together).", default=0.5)
-    target_kl: float | None = setting("Stop the epochs of an iteration once approx KL exceeds this; `none` is off.",
-                                   default=None)
-    objective: str = setting("Policy objective: `clip` (clipped surrogate) or `kl_penalty` (surrogate - beta * KL, "
-                          "with beta adapted after each iteration, PPO paper sec. 4).", default="clip")
-    kl_penalty_target: float = setting("kl_penalty only: KL target d; beta halves when the iteration's mean KL < d/1.5 "
-                                    "and doubles when it is > 1.5 d.", default=0.01)
-    kl_penalty_beta: float = setting("kl_penalty only: initial beta (the current beta is part of the train state).",
-                                  default=1.0)
-
+    target_kl: float | None = setting(
+        "Stop the epochs of an iteration once approx KL exceeds this; `none` is off.", default=None
+    )
+    objective: str = setting(
+        "Policy objective: `clip` (clipped surrogate) or `kl_penalty` (surrogate - beta * KL, "
+        "with beta adapted after each iteration, PPO paper sec. 4).",
+        default="clip",
+    )
+    kl_penalty_target: float = setting(
+        "kl_penalty only: KL target d; beta halves when the iteration's mean KL < d/1.5 "
+        "and doubles when it is > 1.5 d.",
+        default=0.01,
+    )
+    kl_penalty_beta: float = setting(
+        "kl_penalty only: initial beta (the current beta is part of the train state).", default=1.0
+    )
 
 
 @dataclass(frozen=True)
 class RPOConfig:
     """rpo: PPO whose update re-evaluates stored actions under a randomly shifted mean (Rahman & Xue 2023)."""
-    alpha: float = setting("Half-width of the per-dimension shift z ~ U(-alpha, alpha) added to the policy mean when "
-                        "the update re-evaluates stored actions (rollouts sample from the unshifted policy).",
-                        default=0.5)
+
+    alpha: float = setting(
+        "Half-width of the per-dimension shift z ~ U(-alpha, alpha) added to the policy mean when "
+        "the update re-evaluates stored actions (rollouts sample from the unshifted policy).",
+        default=0.5,
+    )
 
 
 @dataclass(frozen=True)
 class SymConfig:
     """Symmetric action loss for ppo and rpo (report 000)."""
+
     coef: float = setting("Weight of the symmetric action loss; 0 turns it off.", default=0.0)
-    groups: str = setting("Mirrored action groups as `a:b=c:d` pairs of half-open index ranges of equal length, comma "
-                       "separated (a single index `i` means `i:i+1`), e.g. `3:7=7:11,11:14=14:17`.", default="")
-    negate: tuple[int, ...] = setting("Indices on the right-hand side of a pair whose sign is flipped before comparing "
-                                   "means (joints whose axis is mirrored, so mirrored motion is -a).", default=())
-    compare: str = setting("What is compared across a pair: `mean` (the policy means) or `log_prob` (per-dimension "
-                        "log-probabilities of the stored actions, as report 000 does).", default="mean")
+    groups: str = setting(
+        "Mirrored action groups as `a:b=c:d` pairs of half-open index ranges of equal length, comma "
+        "separated (a single index `i` means `i:i+1`), e.g. `3:7=7:11,11:14=14:17`.",
+        default="",
+    )
+    negate: tuple[int, ...] = setting(
+        "Indices on the right-hand side of a pair whose sign is flipped before comparing "
+        "means (joints whose axis is mirrored, so mirrored motion is -a).",
+        default=(),
+    )
+    compare: str = setting(
+        "What is compared across a pair: `mean` (the policy means) or `log_prob` (per-dimension "
+        "log-probabilities of the stored actions, as report 000 does).",
+        default="mean",
+    )
 
 
 def check_ppo(ppo: PPOConfig, name: str) -> None:
@@ -77,8 +97,7 @@ def check_ppo(ppo: PPOConfig, name: str) -> None:
     need(0 <= ppo.gae_lambda <= 1, f"{name}.gae_lambda must be in [0, 1], got {ppo.gae_lambda}")
     for key in ("ent_coef", "vf_coef"):
         need(getattr(ppo, key) >= 0, f"{name}.{key} must be >= 0, got {getattr(ppo, key)}")
-    need(ppo.objective in ("clip", "kl_penalty"), f"{name}.objective must be clip or kl_penalty, got "
-                                                  f"'{ppo.objective}'")
+    need(ppo.objective in ("clip", "kl_penalty"), f"{name}.objective must be clip or kl_penalty, got '{ppo.objective}'")
     for key in ("kl_penalty_target", "kl_penalty_beta"):
         need_positive(f"{name}.{key}", getattr(ppo, key))
 
@@ -101,9 +120,11 @@ def rollout_batch(config: Config) -> int:
 
 def _check_minibatch(config: Config) -> None:
     ppo, batch = config.ppo, rollout_batch(config)
-    need(batch % ppo.minibatch_size == 0,
-         f"ppo.minibatch_size {ppo.minibatch_size} does not divide the batch {batch} "
-         f"(ppo.n_steps {ppo.n_steps} x env.num_envs {config.env.num_envs}); pick a divisor")
+    need(
+        batch % ppo.minibatch_size == 0,
+        f"ppo.minibatch_size {ppo.minibatch_size} does not divide the batch {batch} "
+        f"(ppo.n_steps {ppo.n_steps} x env.num_envs {config.env.num_envs}); pick a divisor",
+    )
 
 
 PPO_LABELS = {
@@ -129,14 +150,30 @@ register_section("rpo", RPOConfig, check_rpo)
 register_section("sym", SymConfig, check_sym)
 
 PPO = AlgorithmSpec(
-    name="ppo", summary="Proximal Policy Optimization (clipped, or adaptive KL penalty)",
-    runtime=PACKAGE, reads=("net", "ppo", "sym"), validate=_check_minibatch, on_policy=True,
-    search_space=(PACKAGE, "search_space_ppo.toml"), preset_overrides=algorithm_preset_tables(PACKAGE, "ppo"),
-    plot_labels=PPO_LABELS, rollout_batch=rollout_batch, batch_divisors=("ppo.minibatch_size",))
+    name="ppo",
+    summary="Proximal Policy Optimization (clipped, or adaptive KL penalty)",
+    runtime=PACKAGE,
+    reads=("net", "ppo", "sym"),
+    validate=_check_minibatch,
+    on_policy=True,
+    search_space=(PACKAGE, "search_space_ppo.toml"),
+    preset_overrides=algorithm_preset_tables(PACKAGE, "ppo"),
+    plot_labels=PPO_LABELS,
+    rollout_batch=rollout_batch,
+    batch_divisors=("ppo.minibatch_size",),
+)
 RPO = AlgorithmSpec(
-    name="rpo", summary="Robust Policy Optimization: PPO with a uniformly shifted mean in the update",
-    runtime=PACKAGE, reads=("net", "ppo", "rpo", "sym"), validate=_check_minibatch, on_policy=True,
-    search_space=(PACKAGE, "search_space_rpo.toml"), preset_overrides=algorithm_preset_tables(PACKAGE, "rpo"),
-    plot_labels=PPO_LABELS, rollout_batch=rollout_batch, batch_divisors=("ppo.minibatch_size",))
+    name="rpo",
+    summary="Robust Policy Optimization: PPO with a uniformly shifted mean in the update",
+    runtime=PACKAGE,
+    reads=("net", "ppo", "rpo", "sym"),
+    validate=_check_minibatch,
+    on_policy=True,
+    search_space=(PACKAGE, "search_space_rpo.toml"),
+    preset_overrides=algorithm_preset_tables(PACKAGE, "rpo"),
+    plot_labels=PPO_LABELS,
+    rollout_batch=rollout_batch,
+    batch_divisors=("ppo.minibatch_size",),
+)
 register_algorithm(PPO)
 register_algorithm(RPO)

@@ -5,6 +5,7 @@ The actor is the same diagonal Gaussian as ppo's, so acting, export and `canter.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from canter.algos import Algorithm
@@ -16,17 +17,27 @@ from canter.algos.ppo import (
 from canter.config.schema import Config
 from canter.errors import CanterError
 
-TRPO_METRICS = ("surrogate_gain", "policy_kl", "step_accepted", "step_fraction", "line_search_steps",
-                "cg_iterations", "cg_residual", "value_loss", "entropy", "explained_variance")
+TRPO_METRICS = (
+    "surrogate_gain",
+    "policy_kl",
+    "step_accepted",
+    "step_fraction",
+    "line_search_steps",
+    "cg_iterations",
+    "cg_residual",
+    "value_loss",
+    "entropy",
+    "explained_variance",
+)
 
 
-def _init_state(config: Config, spec: Any):
+def _init_state(config: Config, spec: Any) -> Any:
     from canter.algos.trpo.iteration import init_train_state
 
     return init_train_state(config, spec.obs_dim, spec.act_dim)
 
 
-def _make_iteration(config: Config, spec: Any, env_step: Any):
+def _make_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:
     from canter.algos.trpo.iteration import make_iteration
 
     return make_iteration(config, spec, env_step)
@@ -34,12 +45,21 @@ def _make_iteration(config: Config, spec: Any, env_step: Any):
 
 def _validate(config: Config, spec: Any) -> None:
     if config.sym.coef > 0:
-        raise CanterError("sym.coef > 0: the symmetric action loss is available to ppo and rpo, not trpo; "
-                          "set sym.coef=0 or use --algo rpo")
+        raise CanterError(
+            "sym.coef > 0: the symmetric action loss is available to ppo and rpo, not trpo; "
+            "set sym.coef=0 or use --algo rpo"
+        )
 
 
 ALGORITHMS = {
-    "trpo": Algorithm(name="trpo", init_state=_init_state, make_iteration=_make_iteration,
-                      metric_names=TRPO_METRICS, make_act=make_gaussian_act, policy_params=gaussian_policy_params,
-                      export_actor=export_gaussian_actor, validate=_validate),
+    "trpo": Algorithm(
+        name="trpo",
+        init_state=_init_state,
+        make_iteration=_make_iteration,
+        metric_names=TRPO_METRICS,
+        make_act=make_gaussian_act,
+        policy_params=gaussian_policy_params,
+        export_actor=export_gaussian_actor,
+        validate=_validate,
+    ),
 }

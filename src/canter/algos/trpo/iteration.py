@@ -7,6 +7,7 @@ ppo.n_steps, ppo.gamma, ppo.gae_lambda and ppo.norm_adv.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -38,7 +39,8 @@ from canter.envs.episodes import EnvCarry
 
 class TrainState(NamedTuple):
     """Everything a checkpoint must hold to continue learning exactly."""
-    params: Params            # {"actor", "log_std" (unless state-dependent), "critic"}
+
+    params: Params  # {"actor", "log_std" (unless state-dependent), "critic"}
     critic_opt_state: Any
     obs_stats: RunningStats
     return_stats: RunningStats
@@ -54,9 +56,15 @@ def critic_optimizer(config: Config) -> optax.GradientTransformation:
 def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
     key, init_key = jax.random.split(jax.random.key(config.run.seed))
     params = init_params(init_key, config.net, obs_dim, act_dim)
-    return TrainState(params=params, critic_opt_state=critic_optimizer(config).init(params["critic"]),
-                      obs_stats=init_stats((obs_dim,)), return_stats=init_stats(()), key=jax.random.key_data(key),
-                      iteration=jnp.zeros((), jnp.int32), global_step=jnp.zeros((), jnp.int64))
+    return TrainState(
+        params=params,
+        critic_opt_state=critic_optimizer(config).init(params["critic"]),
+        obs_stats=init_stats((obs_dim,)),
+        return_stats=init_stats(()),
+        key=jax.random.key_data(key),
+        iteration=jnp.zeros((), jnp.int32),
+        global_step=jnp.zeros((), jnp.int64),
+    )
 
 
 def split_policy(params: Params) -> tuple[Params, Params]:
@@ -72,10 +80,10 @@ class PolicyBatch(NamedTuple):
 
 
 class PolicyObjectives(NamedTuple):
-    theta: jnp.ndarray      # the current policy parameters, flattened
-    unravel: Any            # flat vector -> policy params
-    surrogate: Any          # flat -> E[pi(a|s) / pi_old(a|s) * A], to maximize
-    mean_kl: Any            # flat -> E[KL(pi_old(.|s) || pi(.|s))]; its Hessian at theta is the Fisher matrix
+    theta: jnp.ndarray  # the current policy parameters, flattened
+    unravel: Any  # flat vector -> policy params
+    surrogate: Any  # flat -> E[pi(a|s) / pi_old(a|s) * A], to maximize
+    mean_kl: Any  # flat -> E[KL(pi_old(.|s) || pi(.|s))]; its Hessian at theta is the Fisher matrix
 
 
 def policy_objectives(policy: Params, batch: PolicyBatch, config: Config) -> PolicyObjectives:
@@ -110,20 +118,31 @@ def policy_step(policy: Params, batch: PolicyBatch, config: Config) -> tuple[Par
     # Step to where the quadratic model of the KL reaches max_kl: 0.5 s^T F s = max_kl.
     scale = jnp.sqrt(2.0 * trpo.max_kl / jnp.maximum(curvature, 1e-12))
     full_step = jnp.where((curvature > 0) & jnp.isfinite(curvature), scale, 0.0) * cg.x
-    search = backtracking_line_search(surrogate, mean_kl, theta, full_step, trpo.max_kl, trpo.line_search_shrink,
-                                      trpo.line_search_iters)
+    search = backtracking_line_search(
+        surrogate, mean_kl, theta, full_step, trpo.max_kl, trpo.line_search_shrink, trpo.line_search_iters
+    )
     diagnostics = {
-        "surrogate_gain": search.improvement, "policy_kl": search.kl,
-        "step_accepted": search.accepted.astype(jnp.float32), "step_fraction": search.fraction,
-        "line_search_steps": search.steps.astype(jnp.float32), "cg_iterations": cg.iterations.astype(jnp.float32),
+        "surrogate_gain": search.improvement,
+        "policy_kl": search.kl,
+        "step_accepted": search.accepted.astype(jnp.float32),
+        "step_fraction": search.fraction,
+        "line_search_steps": search.steps.astype(jnp.float32),
+        "cg_iterations": cg.iterations.astype(jnp.float32),
         "cg_residual": cg.residual_norm,
         "entropy": masked_mean(gaussian_entropy(policy_dist(policy, batch.obs, config.net)[1]), batch.mask),
     }
     return unravel(search.theta), diagnostics
 
 
-def critic_regression(critic: Params, opt_state: Any, obs: jnp.ndarray, returns: jnp.ndarray, mask: jnp.ndarray,
-                      key: jax.Array, config: Config) -> tuple[Params, Any, jnp.ndarray]:
+def critic_regression(
+    critic: Params,
+    opt_state: Any,
+    obs: jnp.ndarray,
+    returns: jnp.ndarray,
+    mask: jnp.ndarray,
+    key: jax.Array,
+    config: Config,
+) -> tuple[Params, Any, jnp.ndarray]:
     """`trpo.critic_epochs` passes of Adam on the masked MSE to the returns, in shuffled minibatches. Returns the
     new critic, optimizer state and the mean loss of the last epoch."""
     optimizer = critic_optimizer(config)
@@ -147,22 +166,28 @@ def critic_regression(critic: Params, opt_state: Any, obs: jnp.ndarray, returns:
         carry, losses = jax.lax.scan(minibatch_step, carry, permutation)
         return carry, losses.mean()
 
-    (critic, opt_state), losses = jax.lax.scan(epoch, (critic, opt_state),
-                                               jax.random.split(key, config.trpo.critic_epochs))
+    (critic, opt_state), losses = jax.lax.scan(
+        epoch, (critic, opt_state), jax.random.split(key, config.trpo.critic_epochs)
+    )
     return critic, opt_state, losses[-1]
 
 
-def make_iteration(config: Config, spec: EnvSpec, env_step):
+def make_iteration(
+    config: Config, spec: EnvSpec, env_step: Any
+) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
     """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit. TRPO has no
     policy learning rate, and the critic's is constant, so lr_fraction is unused."""
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)
 
-    def iteration(state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray):
+    def iteration(
+        state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray
+    ) -> tuple[TrainState, EnvCarry, dict[str, Any]]:
         del lr_fraction
         key, rollout_key, critic_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
         obs_stats, return_stats, carry, tr, next_obs = collect(
-            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config)
+            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config
+        )
         values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         mask = flat(tr.valid.astype(jnp.float32))
@@ -170,22 +195,38 @@ def make_iteration(config: Config, spec: EnvSpec, env_step):
         if config.ppo.norm_adv:
             advantages = normalize_advantages(advantages, mask)
         policy, critic = split_policy(state.params)
-        policy, diagnostics = policy_step(policy, PolicyBatch(flat(tr.obs), flat(tr.action), advantages, mask),
-                                          config)
+        policy, diagnostics = policy_step(policy, PolicyBatch(flat(tr.obs), flat(tr.action), advantages, mask), config)
         critic, critic_opt_state, value_loss = critic_regression(
-            critic, state.critic_opt_state, flat(tr.obs), flat(returns), mask, critic_key, config)
+            critic, state.critic_opt_state, flat(tr.obs), flat(returns), mask, critic_key, config
+        )
         params = dict(policy, critic=critic)
 
         steps = tr.valid.sum().astype(jnp.int64)
-        finite = (jnp.all(jnp.isfinite(tr.obs)) & jnp.all(jnp.isfinite(tr.reward))
-                  & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)])))
+        finite = (
+            jnp.all(jnp.isfinite(tr.obs))
+            & jnp.all(jnp.isfinite(tr.reward))
+            & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
+        )
         metrics = dict(diagnostics)
         metrics.update(
-            value_loss=value_loss, explained_variance=explained_variance(flat(values[:-1]), flat(returns), mask),
-            steps=steps, finite=finite, finished=tr.done, episode_return=tr.episode_return,
-            episode_length=tr.episode_length, episode_info=tr.episode_info)
-        new_state = TrainState(params, critic_opt_state, obs_stats, return_stats, jax.random.key_data(key),
-                               state.iteration + 1, state.global_step + steps)
+            value_loss=value_loss,
+            explained_variance=explained_variance(flat(values[:-1]), flat(returns), mask),
+            steps=steps,
+            finite=finite,
+            finished=tr.done,
+            episode_return=tr.episode_return,
+            episode_length=tr.episode_length,
+            episode_info=tr.episode_info,
+        )
+        new_state = TrainState(
+            params,
+            critic_opt_state,
+            obs_stats,
+            return_stats,
+            jax.random.key_data(key),
+            state.iteration + 1,
+            state.global_step + steps,
+        )
         return new_state, carry, metrics
 
     return iteration

@@ -4,7 +4,8 @@ Fisher-vector product by autodiff of the mean KL, and the backtracking line sear
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -15,11 +16,10 @@ Vector = jnp.ndarray
 class CGResult(NamedTuple):
     x: Vector
     iterations: jnp.ndarray
-    residual_norm: jnp.ndarray   # ||b - A x||, from the recurrence
+    residual_norm: jnp.ndarray  # ||b - A x||, from the recurrence
 
 
-def conjugate_gradient(matvec: Callable[[Vector], Vector], b: Vector, max_iters: int,
-                       tol: float = 1e-10) -> CGResult:
+def conjugate_gradient(matvec: Callable[[Vector], Vector], b: Vector, max_iters: int, tol: float = 1e-10) -> CGResult:
     """Solve A x = b for symmetric positive definite A given only `matvec(v) = A v`, starting from x = 0. Stops
     after `max_iters` iterations or once the squared residual drops below `tol`."""
 
@@ -42,8 +42,9 @@ def conjugate_gradient(matvec: Callable[[Vector], Vector], b: Vector, max_iters:
     return CGResult(x, i, jnp.sqrt(r_dot_r))
 
 
-def fisher_vector_product(mean_kl: Callable[[Vector], jnp.ndarray], theta: Vector,
-                          damping: float) -> Callable[[Vector], Vector]:
+def fisher_vector_product(
+    mean_kl: Callable[[Vector], jnp.ndarray], theta: Vector, damping: float
+) -> Callable[[Vector], Vector]:
     """`v -> (H + damping I) v`, H the Hessian of `mean_kl` at `theta`. With `mean_kl(θ) = E[KL(π_θold || π_θ)]`
     evaluated at θ = θold, H is the Fisher information matrix. The product is forward-over-reverse autodiff (a jvp of
     the gradient), never forming H."""
@@ -57,16 +58,22 @@ def fisher_vector_product(mean_kl: Callable[[Vector], jnp.ndarray], theta: Vecto
 
 class LineSearchResult(NamedTuple):
     theta: Vector
-    accepted: jnp.ndarray        # bool: a step was taken
-    steps: jnp.ndarray           # candidates tried (1 = the full step)
-    fraction: jnp.ndarray        # fraction of the full step taken (0 if rejected)
-    improvement: jnp.ndarray     # surrogate gain of the accepted step (0 if rejected)
-    kl: jnp.ndarray              # mean KL of the accepted step (0 if rejected)
+    accepted: jnp.ndarray  # bool: a step was taken
+    steps: jnp.ndarray  # candidates tried (1 = the full step)
+    fraction: jnp.ndarray  # fraction of the full step taken (0 if rejected)
+    improvement: jnp.ndarray  # surrogate gain of the accepted step (0 if rejected)
+    kl: jnp.ndarray  # mean KL of the accepted step (0 if rejected)
 
 
-def backtracking_line_search(surrogate: Callable[[Vector], jnp.ndarray], mean_kl: Callable[[Vector], jnp.ndarray],
-                             theta: Vector, full_step: Vector, max_kl: float, shrink: float,
-                             max_iters: int) -> LineSearchResult:
+def backtracking_line_search(
+    surrogate: Callable[[Vector], jnp.ndarray],
+    mean_kl: Callable[[Vector], jnp.ndarray],
+    theta: Vector,
+    full_step: Vector,
+    max_kl: float,
+    shrink: float,
+    max_iters: int,
+) -> LineSearchResult:
     """Try θ + shrink^j * full_step for j = 0, 1, ... and take the first candidate whose surrogate improves on
     `surrogate(theta)` and whose KL is at most `max_kl`. If none of `max_iters` candidates qualifies, keep θ."""
     base = surrogate(theta)
@@ -86,7 +93,14 @@ def backtracking_line_search(surrogate: Callable[[Vector], jnp.ndarray], mean_kl
 
     zero = jnp.zeros((), theta.dtype)
     j, accepted, fraction, gain, kl = jax.lax.while_loop(
-        cond, body, (jnp.zeros((), jnp.int32), jnp.asarray(False), zero, zero, zero))
+        cond, body, (jnp.zeros((), jnp.int32), jnp.asarray(False), zero, zero, zero)
+    )
     fraction = jnp.where(accepted, fraction, zero)
-    return LineSearchResult(jnp.where(accepted, theta + fraction * full_step, theta), accepted, j, fraction,
-                            jnp.where(accepted, gain, zero), jnp.where(accepted, kl, zero))
+    return LineSearchResult(
+        jnp.where(accepted, theta + fraction * full_step, theta),
+        accepted,
+        j,
+        fraction,
+        jnp.where(accepted, gain, zero),
+        jnp.where(accepted, kl, zero),
+    )

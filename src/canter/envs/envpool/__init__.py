@@ -17,8 +17,14 @@ NAME = "envpool"
 
 # EnvPool families with continuous actions that canter trains on.
 _CONTINUOUS_MODULES = ("envpool.mujoco.gym", "envpool.mujoco.dmc")
-_CONTINUOUS_IDS = ("BipedalWalker-v3", "BipedalWalkerHardcore-v3", "LunarLanderContinuous-v2",
-                   "LunarLanderContinuous-v3", "Pendulum-v1", "MountainCarContinuous-v0")
+_CONTINUOUS_IDS = (
+    "BipedalWalker-v3",
+    "BipedalWalkerHardcore-v3",
+    "LunarLanderContinuous-v2",
+    "LunarLanderContinuous-v3",
+    "Pendulum-v1",
+    "MountainCarContinuous-v0",
+)
 
 
 class EnvPoolBackend(Backend):

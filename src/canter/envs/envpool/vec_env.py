@@ -36,16 +36,25 @@ class EnvPoolVecEnv:
         sizes = shard_sizes(num_envs, shards or default_shards(num_envs))
         starts = np.cumsum([0] + sizes).tolist()
         self._slices = [slice(start, start + size) for start, size in zip(starts, sizes)]
-        self._pools = [envpool.make(env_id, env_type="gymnasium", num_envs=size, batch_size=size,
-                                    seed=list(seeds[part]), num_threads=1, **kwargs)
-                       for size, part in zip(sizes, self._slices)]
+        self._pools = [
+            envpool.make(
+                env_id,
+                env_type="gymnasium",
+                num_envs=size,
+                batch_size=size,
+                seed=list(seeds[part]),
+                num_threads=1,
+                **kwargs,
+            )
+            for size, part in zip(sizes, self._slices)
+        ]
         pool = self._pools[0]
         obs_space, act_space = pool.observation_space, pool.action_space
         if not isinstance(act_space, gym.spaces.Box):
             raise ValueError(f"{env_id} has discrete actions")
         if isinstance(obs_space, gym.spaces.Dict):
             self._obs_keys: tuple[str, ...] | None = tuple(sorted(obs_space.spaces))
-            obs_dim = sum(int(np.prod(obs_space[k].shape)) or 1 for k in self._obs_keys)
+            obs_dim = sum(_entry_size(obs_space[k].shape) for k in self._obs_keys)
         else:
             self._obs_keys = None
             obs_dim = int(np.prod(obs_space.shape))
@@ -54,15 +63,28 @@ class EnvPoolVecEnv:
         resets = [p.reset() for p in self._pools]
         self._first_obs = np.concatenate([_flatten(obs, self._obs_keys, np) for obs, _ in resets])
         info = resets[0][1]
-        self._info_keys = tuple(sorted(k for k, v in info.items() if k not in IGNORED_INFO_KEYS
-                                       and isinstance(v, np.ndarray) and v.shape == (sizes[0],)
-                                       and np.issubdtype(v.dtype, np.floating)))
+        self._info_keys = tuple(
+            sorted(
+                k
+                for k, v in info.items()
+                if k not in IGNORED_INFO_KEYS
+                and isinstance(v, np.ndarray)
+                and v.shape == (sizes[0],)
+                and np.issubdtype(v.dtype, np.floating)
+            )
+        )
         config = pool.spec.config
         self.spec = EnvSpec(
-            id=env_id, backend=NAME, num_envs=num_envs, obs_dim=obs_dim, act_dim=int(np.prod(act_space.shape)),
+            id=env_id,
+            backend=NAME,
+            num_envs=num_envs,
+            obs_dim=obs_dim,
+            act_dim=int(np.prod(act_space.shape)),
             action_low=tuple(float(x) for x in np.asarray(act_space.low).reshape(-1)),
             action_high=tuple(float(x) for x in np.asarray(act_space.high).reshape(-1)),
-            max_episode_steps=int(getattr(config, "max_episode_steps", 0)) or None, info_keys=self._info_keys)
+            max_episode_steps=int(getattr(config, "max_episode_steps", 0)) or None,
+            info_keys=self._info_keys,
+        )
         self._xla: list | None = None
 
     def reset(self) -> np.ndarray:
@@ -95,13 +117,23 @@ class EnvPoolVecEnv:
 
     def _merge(self, outs: list, xp: Any) -> StepOutput:
         cat = xp.concatenate
-        return StepOutput(cat([_flatten(o[0], self._obs_keys, xp) for o in outs]),
-                          cat([o[1].astype(xp.float32) for o in outs]),
-                          cat([o[2].astype(bool) for o in outs]), cat([o[3].astype(bool) for o in outs]),
-                          {k: cat([o[4][k].astype(xp.float32) for o in outs]) for k in self._info_keys})
+        return StepOutput(
+            cat([_flatten(o[0], self._obs_keys, xp) for o in outs]),
+            cat([o[1].astype(xp.float32) for o in outs]),
+            cat([o[2].astype(bool) for o in outs]),
+            cat([o[3].astype(bool) for o in outs]),
+            {k: cat([o[4][k].astype(xp.float32) for o in outs]) for k in self._info_keys},
+        )
 
     def close(self) -> None:
         for pool in self._pools:
             close = getattr(pool, "close", None)
             if close is not None:
                 close()
+
+
+def _entry_size(shape: tuple[int, ...] | None) -> int:
+    """Flat size of one entry of a Dict observation; a scalar entry is one number."""
+    if shape is None:
+        raise ValueError("a Dict observation entry has no shape")
+    return int(np.prod(shape)) or 1

@@ -40,11 +40,15 @@ class GymnasiumBackend(Backend):
         try:
             importlib.import_module(module)
         except ImportError as exc:
-            raise CanterError(f"cannot import module '{module}' for env '{env_id}' ({exc}); check that it is "
-                              f"installed or on PYTHONPATH") from None
+            raise CanterError(
+                f"cannot import module '{module}' for env '{env_id}' ({exc}); check that it is "
+                f"installed or on PYTHONPATH"
+            ) from None
         if name not in self.supported_ids():
-            raise CanterError(f"module '{module}' did not register '{name}' with gymnasium; "
-                              f"call gymnasium.register(id='{name}', ...) in it")
+            raise CanterError(
+                f"module '{module}' did not register '{name}' with gymnasium; "
+                f"call gymnasium.register(id='{name}', ...) in it"
+            )
 
     def make(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
         """`shards` does not apply: every env is its own Python object. `on_make(env)`, if given in kwargs, is called

@@ -8,8 +8,10 @@ from canter.errors import CanterError, DiscreteActionsError
 
 
 def _space_error(env_id: str, space: Any) -> CanterError:
-    return CanterError(f"{env_id}: observation space {space} is not supported; canter needs a Box or a Dict of "
-                       f"Boxes (wrap the env to produce one)")
+    return CanterError(
+        f"{env_id}: observation space {space} is not supported; canter needs a Box or a Dict of "
+        f"Boxes (wrap the env to produce one)"
+    )
 
 
 def make_single(env_id: str, **kwargs: Any) -> Any:

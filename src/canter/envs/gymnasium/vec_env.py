@@ -24,24 +24,36 @@ class GymnasiumVecEnv:
         first = self._envs[0]
         self._num_envs = num_envs
         self._needs_reset = np.zeros(num_envs, bool)
-        observations, infos = zip(*(env.reset(seed=int(seed)) for env, seed in zip(self._envs, seeds)))
+        observations, _infos = zip(*(env.reset(seed=int(seed)) for env, seed in zip(self._envs, seeds)))
         self._first_obs = np.stack([np.asarray(o, np.float32).reshape(-1) for o in observations])
         # Probe one throwaway step on a separate env so the info keys are known before training starts.
         probe = make_single(env_id, **kwargs)
         probe.reset(seed=0)
         _, _, _, _, probe_info = probe.step(probe.action_space.sample() * 0)
         probe.close()
-        self._info_keys = tuple(sorted(k for k, v in probe_info.items() if k not in IGNORED_INFO_KEYS
-                                       and np.ndim(v) == 0 and isinstance(v, (int, float, np.number))
-                                       and not isinstance(v, (bool, np.bool_))))
+        self._info_keys = tuple(
+            sorted(
+                k
+                for k, v in probe_info.items()
+                if k not in IGNORED_INFO_KEYS
+                and np.ndim(v) == 0
+                and isinstance(v, (int, float, np.number))
+                and not isinstance(v, (bool, np.bool_))
+            )
+        )
         act = first.action_space
         spec = getattr(first, "spec", None)
         self.spec = EnvSpec(
-            id=env_id, backend=NAME, num_envs=num_envs, obs_dim=int(np.prod(first.observation_space.shape)),
+            id=env_id,
+            backend=NAME,
+            num_envs=num_envs,
+            obs_dim=int(np.prod(first.observation_space.shape)),
             act_dim=int(np.prod(act.shape)),
             action_low=tuple(float(x) for x in np.asarray(act.low).reshape(-1)),
             action_high=tuple(float(x) for x in np.asarray(act.high).reshape(-1)),
-            max_episode_steps=getattr(spec, "max_episode_steps", None), info_keys=self._info_keys)
+            max_episode_steps=getattr(spec, "max_episode_steps", None),
+            info_keys=self._info_keys,
+        )
         self._action_shape = act.shape
         self._action_dtype = act.dtype
 
@@ -82,10 +94,13 @@ class GymnasiumVecEnv:
         from jax.experimental import io_callback
 
         n = self._num_envs
-        shapes = StepOutput(jax.ShapeDtypeStruct((n, self.spec.obs_dim), jnp.float32),
-                            jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.bool_),
-                            jax.ShapeDtypeStruct((n,), jnp.bool_),
-                            {k: jax.ShapeDtypeStruct((n,), jnp.float32) for k in self._info_keys})
+        shapes = StepOutput(
+            jax.ShapeDtypeStruct((n, self.spec.obs_dim), jnp.float32),
+            jax.ShapeDtypeStruct((n,), jnp.float32),
+            jax.ShapeDtypeStruct((n,), jnp.bool_),
+            jax.ShapeDtypeStruct((n,), jnp.bool_),
+            {k: jax.ShapeDtypeStruct((n,), jnp.float32) for k in self._info_keys},
+        )
         out = io_callback(lambda a: self.host_step(np.asarray(a)), shapes, action.astype(jnp.float32), ordered=True)
         return state + 1, StepOutput(*out)
 
