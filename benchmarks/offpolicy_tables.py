@@ -4,7 +4,8 @@ Each finished 1M-step run of `canter bench --algos td3,ddpg,sac ... --out runs/o
 benchmarks/results/offpolicy-1m/<env>__<algo>__s<seed>/ (config.toml, eval.json, metrics.csv, summary.json,
 versions.json). Runs made with another preset live in an archive of their own (VARIANTS) and get rows of their
 own, labelled with the preset. This script turns those folders into the two tables, between their marker
-comments, and rewrites each archive's own bench files (results.md, results.csv and one curve per env, as
+comments (a seed whose eval.json lacks episode lengths is marked, and a cell that got seeds after its first results
+says so), and rewrites each archive's own bench files (results.md, results.csv and one curve per env, as
 `canter bench` writes them), so that the bench's training runs need not be repeated to refresh them:
 
     python benchmarks/offpolicy_tables.py           # rewrite the tables, results.md/.csv and the curves
@@ -37,8 +38,21 @@ VARIANTS = {"": ARCHIVE, "tianshou": ROOT / "benchmarks" / "results" / "sac-tian
 ALGOS = ("td3", "ddpg", "sac")
 ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 BUDGET = 1_000_000
-RESULTS_MARKER = "<!-- offpolicy-table -->\n"
-README_MARKER = "<!-- offpolicy-readme-table -->\n"
+# Each generated block sits between its start and end marker comments.
+RESULTS_MARKERS = ("<!-- offpolicy-table -->\n", "<!-- /offpolicy-table -->")
+README_MARKERS = ("<!-- offpolicy-readme-table -->\n", "<!-- /offpolicy-readme-table -->")
+# Seeds added to a cell after its first results were in, and why: the cell itself says so
+# (benchmarks/results/README.md tells the whole story).
+LATE_SEEDS: dict[tuple[str, str, str], tuple[tuple[int, ...], str]] = {
+    ("td3", "Walker2d-v5", ""): ((3, 4, 5), "one at a time, until the mean met the target"),
+}
+# Marks a seed whose eval.json has no episode lengths: it was written before the bench recorded them, and old runs
+# are not retrained only to add them.
+NO_LENGTHS = "†"
+NO_LENGTHS_NOTE = (
+    f"{NO_LENGTHS} This run's eval.json holds each evaluation episode's return but not its length: it was written "
+    "before `canter bench` recorded lengths, and the run was not retrained only to add them."
+)
 
 
 def label(algo: str, variant: str) -> str:
@@ -72,6 +86,40 @@ def cells(found: dict[str, dict]):
                     yield algo, env, variant, rows
 
 
+def lacks_lengths(record: dict) -> bool:
+    return "lengths" not in record["evaluation"]
+
+
+def marked(text: str, record: dict) -> str:
+    return text + NO_LENGTHS if lacks_lengths(record) else text
+
+
+def seed_span(seeds: tuple[int, ...]) -> str:
+    """Seeds as the tables name them: 3-5 for three or more consecutive seeds, else 3, 5."""
+    consecutive = len(seeds) > 2 and list(seeds) == list(range(seeds[0], seeds[-1] + 1))
+    return f"{seeds[0]}-{seeds[-1]}" if consecutive else ", ".join(map(str, seeds))
+
+
+def late_seeds_note(algo: str, env: str, variant: str, rows: list[dict]) -> tuple[str, str]:
+    """For a cell that got seeds after its first results: what the cell says of them, and the mean of the seeds it
+    had before them. Empty strings for every other cell."""
+    late, why = LATE_SEEDS.get((algo, env, variant), ((), ""))
+    late = tuple(r["seed"] for r in rows if r["seed"] in late)
+    first = [r for r in rows if r["seed"] not in late]
+    if not late or not first:
+        return "", ""
+    note = f"seed{'s' if len(late) > 1 else ''} {seed_span(late)} added after the first results, {why}"
+    first_mean = np.mean([r["eval_mean"] for r in first])
+    before = f"seeds {seed_span(tuple(r['seed'] for r in first))} alone: {first_mean:,.0f}"
+    return note, before
+
+
+def footnote(found: dict[str, dict]) -> str:
+    """The note under a table that marks a seed whose eval.json lacks lengths, when one does."""
+    rows = [r for _, _, _, cell_rows in cells(found) for r in cell_rows]
+    return f"\n\n{NO_LENGTHS_NOTE}" if any(lacks_lengths(r) for r in rows) else ""
+
+
 def results_table(found: dict[str, dict]) -> str:
     lines = [
         "| env | algo | seed | eval return (10 episodes, deterministic) | train return (last 20 eps) | wall min "
@@ -83,30 +131,34 @@ def results_table(found: dict[str, dict]) -> str:
         name = label(algo, variant)
         for r in rows:
             e, s = r["evaluation"], r["summary"]
+            score = marked(f"**{e['mean']:,.0f} ± {e['std']:,.0f}**", r)
             lines.append(
-                f"| {env} | {name} | {r['seed']} | **{e['mean']:,.0f} ± {e['std']:,.0f}** | "
+                f"| {env} | {name} | {r['seed']} | {score} | "
                 f"{s['recent_return']:,.0f} | {r['wall_seconds'] / 60:.1f} | {r['sps']:.0f} | "
                 f"{published} |"
             )
         if len(rows) > 1:
             means = [r["eval_mean"] for r in rows]
+            late, before = late_seeds_note(algo, env, variant, rows)
             lines.append(
-                f"| {env} | {name} | mean of {len(rows)} | **{np.mean(means):,.0f} ± {np.std(means):,.0f}**"
-                f" (median {np.median(means):,.0f}) | | | | {published} |"
+                f"| {env} | {name} | mean of {len(rows)}{f' ({late})' if late else ''} | "
+                f"**{np.mean(means):,.0f} ± {np.std(means):,.0f}** (median {np.median(means):,.0f}"
+                f"{f'; {before}' if before else ''}) | | | | {published} |"
             )
-    return "\n".join(lines)
+    return "\n".join(lines) + footnote(found)
 
 
 def readme_table(found: dict[str, dict]) -> str:
     lines = ["| env | algo | seeds | return per seed | mean | published (1M) |", "|---|---|---:|---|---:|---|"]
     for algo, env, variant, rows in cells(found):
-        per_seed = ", ".join(f"{r['eval_mean']:,.0f} (s{r['seed']})" for r in rows)
+        per_seed = ", ".join(marked(f"{r['eval_mean']:,.0f} (s{r['seed']})", r) for r in rows)
         mean = np.mean([r["eval_mean"] for r in rows])
+        late, before = late_seeds_note(algo, env, variant, rows)
         lines.append(
-            f"| {env} | {label(algo, variant)} | {len(rows)} | {per_seed} | **{mean:,.0f}** | "
-            f"{published_for(algo, env, BUDGET)} |"
+            f"| {env} | {label(algo, variant)} | {len(rows)}{f' ({late})' if late else ''} | {per_seed} | "
+            f"**{mean:,.0f}**{f' ({before})' if before else ''} | {published_for(algo, env, BUDGET)} |"
         )
-    return "\n".join(lines)
+    return "\n".join(lines) + footnote(found)
 
 
 def bench_files(runs: dict[tuple[str, str], list[dict]]) -> dict[str, str]:
@@ -122,11 +174,11 @@ def bench_files(runs: dict[tuple[str, str], list[dict]]) -> dict[str, str]:
     return {"results.md": markdown, "results.csv": table_csv}
 
 
-def replace_after(text: str, marker: str, table: str) -> str:
-    """Put `table` between `marker` and the next blank line."""
-    start = text.index(marker) + len(marker)
-    end = text.index("\n\n", start)
-    return text[:start] + table + text[end:]
+def replace_between(text: str, markers: tuple[str, str], block: str) -> str:
+    """Put `block` between the start and the end marker, a blank line before the end marker."""
+    begin, end = markers
+    start = text.index(begin) + len(begin)
+    return text[:start] + block + "\n\n" + text[text.index(end, start) :]
 
 
 def main() -> int:
@@ -138,10 +190,10 @@ def main() -> int:
     # Bytes, not text: results.csv has \r\n line ends, which text mode would translate.
     read = lambda path: path.read_bytes().decode() if path.is_file() else ""  # noqa: E731
     wanted = {
-        path: replace_after(read(path), marker, table)
-        for path, marker, table in (
-            (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKER, results_table(found)),
-            (ROOT / "README.md", README_MARKER, readme_table(found)),
+        path: replace_between(read(path), markers, table)
+        for path, markers, table in (
+            (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKERS, results_table(found)),
+            (ROOT / "README.md", README_MARKERS, readme_table(found)),
         )
     }
     for variant, archive in VARIANTS.items():

@@ -1,8 +1,8 @@
 """A real, throwaway PostgreSQL server for the distributed tests (session-scoped fixture `postgres_url`).
 
-Nothing is installed here: CI installs Debian's postgresql package (.ci/run). The server runs from a temp data
-folder on a free port and is stopped at the end. PostgreSQL refuses to run as root, so under root it runs as the
-`postgres` user.
+Nothing is installed here: CI installs Debian's postgresql package (.ci/run). Without it the tests that need the
+server skip, or fail under CI (`under_ci`). The server runs from a temp data folder on a free port and is stopped at
+the end. PostgreSQL refuses to run as root, so under root it runs as the `postgres` user.
 """
 
 import glob
@@ -15,6 +15,8 @@ import tempfile
 from pathlib import Path
 
 import pytest
+
+from under_ci import program_missing
 
 
 def _bin_dir() -> Path | None:
@@ -35,17 +37,14 @@ def _free_port() -> int:
 def postgres_url():
     bin_dir = _bin_dir()
     if bin_dir is None or not (bin_dir / "pg_ctl").exists():
-        pytest.skip(
-            "PostgreSQL server binaries (initdb, pg_ctl) are not installed; .ci/run installs the "
-            "Debian postgresql package"
-        )
+        program_missing("PostgreSQL server binaries (initdb, pg_ctl) are not installed", "postgresql")
     as_user: list[str] = []
     folder = Path(tempfile.mkdtemp(prefix="canter-pg-"))
     if os.geteuid() == 0:
         try:
             user = pwd.getpwnam("postgres")
         except KeyError:
-            pytest.skip("running as root and there is no 'postgres' user to run the server as")
+            program_missing("running as root and there is no 'postgres' user to run the server as", "postgresql")
         os.chown(folder, user.pw_uid, user.pw_gid)
         as_user = ["runuser", "-u", "postgres", "--"]
     data, log = folder / "data", folder / "server.log"

@@ -159,7 +159,7 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
         "1024",
         "--grid",
         "ppo.ent_coef=0,0.01",
-        "--eval-episodes",
+        "--episodes",
         "2",
         "--jobs",
         "2",
@@ -183,8 +183,18 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     run = out / "InvertedPendulum-v4__ppo__ppo.ent_coef=0.01__s1"
     again = evaluate(load(run), episodes=2, deterministic=True, seed=0)
     assert json.loads((run / "eval.json").read_text())["returns"] == pytest.approx(list(again.returns))
+    assert json.loads((run / "eval.json").read_text())["lengths"] == [int(n) for n in again.lengths]
+    for folder in out.glob("*__s*"):  # every eval.json the bench writes holds each episode's return and length
+        evaluation = json.loads((folder / "eval.json").read_text())
+        assert len(evaluation["returns"]) == len(evaluation["lengths"]) == 2
     assert (out / "plot_InvertedPendulum-v4.png").stat().st_size > 0
     assert "| InvertedPendulum-v4 | ppo | 0.01 |" in (out / "results.md").read_text()
+    # Below the table, the statistics of the seeds' evaluations, and all of them in statistics.json.
+    assert "| InvertedPendulum-v4 | ppo, ent_coef=0.01 | 2 | " in (out / "results.md").read_text()
+    statistics = json.loads((out / "statistics.json").read_text())
+    assert [c["method"] for c in statistics["cells"]] == ["ppo, ent_coef=0.0", "ppo, ent_coef=0.01"]
+    assert statistics["cells"][1]["scores"] == pytest.approx(means)
+    assert statistics["probability_of_improvement"][0]["x"] == "ppo, ent_coef=0.0"
 
     # Interrupt one run after its first checkpoint: no final checkpoint, summary or evaluation.
     cut = out / "InvertedPendulum-v4__ppo__ppo.ent_coef=0.0__s1"
@@ -234,7 +244,7 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
         "512",
         "--grid",
         "ppo.clip=0.1,0.2",
-        "--eval-episodes",
+        "--episodes",
         "1",
         "--storage",
         url,
@@ -270,7 +280,7 @@ def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys)
         "0",
         "--total-steps",
         "4096",
-        "--eval-episodes",
+        "--episodes",
         "1",
         "--out",
         str(out),
@@ -322,7 +332,7 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
         "0,1",
         "--total-steps",
         "400",
-        "--eval-episodes",
+        "--episodes",
         "1",
         "--out",
         str(out),
@@ -420,3 +430,70 @@ def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
     assert "Cell wall min and cell SPS of td3: the mean per seed" in markdown
     markdown, _ = results_table([group], [], 1000)
     assert "mean per seed" not in markdown
+
+
+def test_bench_defaults_to_five_seeds():
+    from canter.cli.main import build_parser
+
+    args = build_parser().parse_args(["bench", "--envs", "Hopper-v5"])
+    assert args.seeds == (0, 1, 2, 3, 4)
+
+
+def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
+    import canter.use.statistics
+    from canter.orchestrate.bench import combine_records, results_markdown
+    from canter.use.reference_scores import normalizer_for
+
+    monkeypatch.setattr(canter.use.statistics, "REPS", 100)  # few resamples: the plumbing, not the coverage
+    settings = BenchSettings(
+        algos=("ppo", "trpo"), envs=("Hopper-v5", "Walker2d-v5"), seeds=(0, 1, 2, 3, 4), total_steps=1000
+    )
+    returns = {
+        ("ppo", "Hopper-v5"): [3300.0, 3250.0, 2900.0, 3400.0, 1000.0],
+        ("ppo", "Walker2d-v5"): [4000.0, 3000.0, 4200.0, 3900.0, 3800.0],
+        ("trpo", "Hopper-v5"): [2000.0, 2100.0, 2050.0, 1900.0, 2500.0],
+        ("trpo", "Walker2d-v5"): [3500.0, 3600.0, 3700.0, 3400.0, 3300.0],
+    }
+    results = [
+        combine_records(
+            cell,
+            [
+                {"seed": s, "eval_mean": v, "wall_seconds": 60.0, "sps": 100.0}
+                for s, v in enumerate(returns[(cell.algo, cell.env_id)])
+            ],
+        )
+        for cell in make_cells(settings)
+    ]
+    markdown, table_csv, statistics_json = results_markdown(results, [], 1000)
+    table, statistics = markdown.split("\n## Statistics\n")
+    assert table.startswith("| env | algo | return (mean ± std over seeds) |")
+    assert table_csv.splitlines()[0].startswith("env,algo,return_mean,return_std,return_median,seeds")
+    for heading in ("Final return per env", "Across envs, normalized", "Performance profile", "Probability of"):
+        assert f"### {heading}" in statistics
+    assert "| env | method | n | IQM | mean | median | optimality gap | reference |" in statistics
+    assert "| Hopper-v5 | ppo | 5 | 3,150.0 [" in statistics  # IQM of 5: one cut at each end
+    assert "| ppo | trpo | Hopper-v5, Walker2d-v5 | " in statistics
+
+    data = json.loads(statistics_json)
+    hopper = data["cells"][0]
+    assert (hopper["env"], hopper["method"], hopper["scores"]) == ("Hopper-v5", "ppo", returns[("ppo", "Hopper-v5")])
+    for name in ("iqm", "mean", "median", "optimality_gap"):
+        interval = hopper["return"][name]
+        assert interval["low"] <= interval["estimate"] <= interval["high"], name
+    assert hopper["return"]["mean"]["estimate"] == pytest.approx(np.mean(returns[("ppo", "Hopper-v5")]))
+    assert hopper["return"]["gamma"] == 2609.3 and hopper["normalizer"]["reference_source"] == "Tianshou"
+    [ppo, _trpo] = data["across_envs"]
+    assert ppo["envs"] == ["Hopper-v5", "Walker2d-v5"] and ppo["normalized"]["runs"] == 5
+    walker = normalizer_for("ppo", "Walker2d-v5")
+    assert ppo["normalized"]["mean"]["estimate"] == pytest.approx(
+        np.mean(
+            [
+                (np.mean(returns[("ppo", "Hopper-v5")]) - hopper["normalizer"]["random"])
+                / (2609.3 - hopper["normalizer"]["random"]),
+                (np.mean(returns[("ppo", "Walker2d-v5")]) - walker.random) / (walker.reference - walker.random),
+            ]
+        )
+    )
+    assert set(data["performance_profiles"]) == {"ppo", "trpo"}
+    [comparison] = data["probability_of_improvement"]
+    assert (comparison["x"], comparison["y"]) == ("ppo", "trpo") and data["bootstrap"]["reps"] == 100

@@ -25,3 +25,49 @@ def test_offpolicy_tables_match_the_committed_runs():
     script = README.parent / "benchmarks" / "offpolicy_tables.py"
     done = subprocess.run([sys.executable, str(script), "--check"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def _offpolicy_tables():
+    import importlib.util
+
+    path = README.parent / "benchmarks" / "offpolicy_tables.py"
+    spec = importlib.util.spec_from_file_location("offpolicy_tables", path)
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _record(seed, mean, lengths):
+    evaluation = {"mean": mean, "std": 1.0, "returns": [mean]} | ({"lengths": [1000]} if lengths else {})
+    return {
+        "seed": seed,
+        "eval_mean": mean,
+        "evaluation": evaluation,
+        "summary": {"recent_return": mean},
+        "wall_seconds": 60.0,
+        "sps": 100.0,
+    }
+
+
+def test_offpolicy_tables_mark_evaluations_without_lengths_and_late_seeds():
+    tables = _offpolicy_tables()
+    rows = [_record(0, 1000.0, False), _record(1, 2000.0, True), _record(2, 3000.0, True), _record(3, 4000.0, True)]
+    found = {variant: {} for variant in tables.VARIANTS} | {"": {("td3", "Walker2d-v5"): rows}}
+    readme = tables.readme_table(found)
+    assert "1,000 (s0)†, 2,000 (s1), 3,000 (s2), 4,000 (s3)" in readme
+    assert "| 4 (seed 3 added after the first results, one at a time, until the mean met the target) |" in readme
+    assert "**2,500** (seeds 0-2 alone: 2,000)" in readme
+    assert readme.endswith(tables.NO_LENGTHS_NOTE)
+    results = tables.results_table(found)
+    assert "| 0 | **1,000 ± 1**† |" in results and "| 1 | **2,000 ± 1** |" in results
+    assert "mean of 4 (seed 3 added after the first results" in results and results.endswith(tables.NO_LENGTHS_NOTE)
+    # Every evaluation with lengths and no late seeds: no marks and no note.
+    found[""] = {("td3", "Hopper-v5"): [r for r in rows if r["seed"]]}
+    assert "†" not in tables.readme_table(found) + tables.results_table(found)
+    assert tables.seed_span((3, 4, 5)) == "3-5" and tables.seed_span((3, 5)) == "3, 5"
+
+
+def test_the_readme_says_which_td3_walker2d_seeds_came_after_the_first_results():
+    [row] = [line for line in README.read_text().splitlines() if line.startswith("| Walker2d-v5 | td3 |")]
+    assert "seeds 3-5 added after the first results" in row

@@ -20,14 +20,19 @@ from canter.use.plot import (
     bootstrap_band,
     choose_metrics,
     common_grid,
+    draw,
     experiment_band,
     experiment_labels,
     experiments_of,
     interpolate,
     load_run,
+    method_labels,
     moving_average,
+    range_band,
     read_metrics,
+    unused_diagnostic,
 )
+from canter.use.scoreboard import RunScore, build_scoreboard
 
 
 def test_moving_average_matches_a_loop_with_nans():
@@ -150,6 +155,79 @@ def test_group_band_averages_runs_with_different_step_grids():
     assert experiment_band(Experiment("g", (a,)), "approx_kl") is None
 
 
+def test_groups_of_fewer_than_five_runs_get_the_range_and_larger_ones_a_bootstrap_ci():
+    steps = np.arange(0.0, 5000.0, 1000.0)
+    runs = [fake_run(steps, steps / 100 + 10 * i, seed=i) for i in range(5)]
+    three = experiment_band(Experiment("g", tuple(runs[:3])), "episodic_return")
+    assert three.kind == "range" and three.runs == 3
+    np.testing.assert_allclose(three.mean, steps / 100 + 10)
+    np.testing.assert_allclose(three.low, steps / 100)
+    np.testing.assert_allclose(three.high, steps / 100 + 20)
+    five = experiment_band(Experiment("g", tuple(runs)), "episodic_return", seed=3)
+    assert five.kind == "bootstrap" and five.runs == 5
+    samples = np.stack([steps / 100 + 10 * i for i in range(5)])
+    for got, expected in zip((five.mean, five.low, five.high), bootstrap_band(samples, seed=3)):
+        np.testing.assert_allclose(got, expected)
+    assert experiment_band(Experiment("g", runs[:1]), "episodic_return").kind == "single"
+    mean, low, high = range_band(np.array([[1.0, np.nan], [3.0, 2.0], [2.0, 4.0]]))
+    np.testing.assert_allclose(mean, [2.0, 3.0])
+    np.testing.assert_allclose(low, [1.0, 2.0])
+    np.testing.assert_allclose(high, [3.0, 4.0])
+
+
+def test_the_legend_states_each_groups_n_and_band_and_the_statistics_sit_below(tmp_path):
+    steps = np.arange(0.0, 5000.0, 1000.0)
+    five = Experiment("preset=fast", tuple(fake_run(steps, steps / 100 + i, seed=i) for i in range(5)))
+    three = Experiment("preset=cleanrl", tuple(fake_run(steps, steps / 50 + i, seed=i) for i in range(3)))
+    single = Experiment("ppo.clip=0.3", (fake_run(steps, steps, seed=9),))
+    scores = [RunScore("preset=fast", "Hopper-v5", "ppo", 3000.0 + 10 * i, f"s{i}") for i in range(5)]
+    scores += [RunScore("preset=cleanrl", "Hopper-v5", "ppo", 2000.0 + 10 * i, f"s{i}") for i in range(3)]
+    board = build_scoreboard(scores, "final deterministic evaluation", reps=50)
+    fig = draw([five, three, single], ["episodic_return"], board=board)
+    fig.savefig(tmp_path / "c.svg", format="svg")
+    svg = (tmp_path / "c.svg").read_text()
+    for text in (
+        "preset=fast (5 runs), band: 95% CI",
+        "preset=cleanrl (3 runs), band: range",
+        "ppo.clip=0.3 (1 run), no band",
+        "groups of fewer than 5 runs): min to max of the runs",
+        "groups of 5 runs or more): percentile bootstrap CI of the mean",
+        "Final scores: final deterministic evaluation",
+        "preset=fast (n=5)",
+        "Performance profile",
+        "P(preset=fast &gt; preset=cleanrl)",
+        "Normalized score: 0 = uniformly random actions",
+        "(Tianshou ppo)",
+    ):
+        assert text in svg, text
+    # Without several runs in any group there is nothing to put intervals on, so no statistics row.
+    alone = build_scoreboard(scores[:1], "final deterministic evaluation", reps=50)
+    draw([single], ["episodic_return"], board=alone).savefig(tmp_path / "one.svg", format="svg")
+    assert "Final scores" not in (tmp_path / "one.svg").read_text()
+
+
+def test_unused_diagnostics_are_left_out_of_the_default_panels():
+    def with_diagnostics(**sets):
+        run = fake_run([0, 1, 2], [0.0, 0.0, 0.0], **sets)
+        columns = dict(
+            run.columns,
+            sym_loss=np.zeros(3),
+            kl_beta=np.array([1.0, 0.5, 0.25]),
+            clip_frac=np.zeros(3),
+        )
+        return RunCurves(run.run_dir, run.config, columns)
+
+    clipped = with_diagnostics()
+    # Without sym.coef and with the clipped objective, the symmetry loss and the KL penalty's beta are off; the
+    # clip fraction stays although it never left 0, and so does the return.
+    assert choose_metrics([clipped], None) == ["episodic_return", "clip_frac"]
+    assert unused_diagnostic([clipped], "sym_loss") and not unused_diagnostic([clipped], "clip_frac")
+    assert choose_metrics([clipped], ["sym_loss"]) == ["sym_loss"]  # named, it is drawn
+    penalty = with_diagnostics(**{"ppo.objective": "kl_penalty"})
+    assert choose_metrics([penalty], None) == ["episodic_return", "kl_beta", "clip_frac"]
+    assert choose_metrics([clipped, penalty], None) == ["episodic_return", "kl_beta", "clip_frac"]
+
+
 def test_grouping_and_labels():
     runs = [
         fake_run([0, 1], [0, 1], seed=0),
@@ -170,6 +248,15 @@ def test_grouping_and_labels():
         "preset=cleanrl, ppo.clip=0.1",
     ]
     assert experiment_labels([fast]) == ["env=Hopper-v5 algo=ppo preset=fast"]
+    # A method is a label without its env: the same preset on two envs is one method.
+    walker = build_config("Walker2d-v5", preset="fast")
+    assert experiment_labels([fast, walker, cleanrl]) == [
+        "env=Hopper-v5, preset=fast",
+        "env=Walker2d-v5, preset=fast",
+        "env=Hopper-v5, preset=cleanrl",
+    ]
+    assert method_labels([fast, walker, cleanrl]) == ["preset=fast", "preset=fast", "preset=cleanrl"]
+    assert method_labels([fast]) == ["algo=ppo, preset=fast"]
     # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
     td3 = fast.replace(run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
     assert experiment_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
@@ -231,13 +318,25 @@ def test_plot_cli_png_and_svg(tiny_run, tiny_run_seed1, tmp_path, capsys):
         "Episode return",
         "Approx. KL",
         "wall time (s)",
-        "ppo.clip=0.2 (2 runs)",
-        "ppo.clip=0.3 (1 run)",
-        "95% bootstrap CI",
+        "ppo.clip=0.2 (2 runs), band: range",
+        "ppo.clip=0.3 (1 run), no band",
+        "groups of fewer than 5 runs): min to max of the runs",
+        # The final scores' statistics: the runs have no eval.json, so their recent training return counts.
+        "Final scores: training return",
+        "stratified-bootstrap CIs",
+        "IQM",
+        "Optimality gap",
+        "ppo.clip=0.2 (n=2)",
+        "Probability of improvement",
     ):
         assert text in svg, text
-    assert "Clip fraction" not in svg
-    assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["c.png", "c.svg"]
+    assert "Clip fraction" not in svg and "95% bootstrap CI" not in svg
+    # The default panels leave out the symmetry loss, which these runs (sym.coef = 0) log as 0.
+    code, _out, err = run_cli(["plot", *runs, "--out", str(tmp_path / "all.svg")], capsys)
+    assert code == 0, err
+    svg = (tmp_path / "all.svg").read_text()
+    assert "Policy loss" in svg and "Clip fraction" in svg and "Symmetry loss" not in svg
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["all.svg", "c.png", "c.svg"]
 
 
 @pytest.mark.slow

@@ -11,8 +11,16 @@ import pytest
 
 from canter.cli.main import main
 from chromium_page import CHROMIUM, inspect_page
+from under_ci import program_missing
 
-needs_chromium = pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="chromium is not installed")
+
+@pytest.fixture
+def chromium_installed():
+    if not Path(CHROMIUM).exists():
+        program_missing(f"chromium is not installed ({CHROMIUM} not found)", "chromium")
+
+
+needs_chromium = pytest.mark.usefixtures("chromium_installed")
 # Starting Chromium forks; JAX warns about forks in general, but the child only execs bash and Chromium.
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")]
 
@@ -104,7 +112,7 @@ def test_report_in_a_headless_browser(run_with_media, tiny_run_seed1, tmp_path, 
     video = page.media["videos"][0]
     assert video["error"] is None and video["ready"] >= 2 and (video["width"], video["height"]) == (64, 48)
     dom = parse(page.dom)
-    for heading in ("Runs", "Evaluation", "Learning curves", "Robustness", "Video", "Config"):
+    for heading in ("Runs", "Evaluation", "Statistics", "Learning curves", "Robustness", "Video", "Config"):
         assert f"<h2>{heading}</h2>" in page.dom
     assert "step_000004096.mp4" in page.dom and "robustness/body_mass-torso.png" in page.dom
 
@@ -115,6 +123,13 @@ def test_report_in_a_headless_browser(run_with_media, tiny_run_seed1, tmp_path, 
     row = dom.cells[starts[1] : starts[1] + 6]
     assert row[2] == "2" and row[3] == f"{expected.mean:.1f} ± {expected.std:.1f}"
     assert "env=Pendulum-v1 algo=ppo preset=fast: mean of 2 runs" in dom.cells  # seeds summarised together
+    # The statistics aggregate this evaluation: the two seeds are one cell, whose mean is the mean of the runs'.
+    group_mean = dom.cells[dom.cells.index("env=Pendulum-v1 algo=ppo preset=fast: mean of 2 runs") + 3]
+    start = dom.cells.index("Pendulum-v1")
+    cell = dom.cells[start : start + 8]
+    assert cell[1:3] == ["algo=ppo, preset=fast", "2"] and cell[7] == "none published"
+    assert float(cell[4].split(" [")[0].replace(",", "")) == pytest.approx(float(group_mean.split(" ± ")[0]), abs=0.051)
+    assert "this report's evaluation" in page.dom
     assert "run.seed" in dom.cells  # the config section lists the differing key
 
 
@@ -123,6 +138,7 @@ def test_report_without_evaluation_or_media(tiny_run, tmp_path, capsys):
     assert main(["report", str(tiny_run.run_dir), "--episodes", "0", "--out", str(out)]) == 0
     text = out.read_text()
     assert "Not evaluated" in text and "No video" in text and "No robustness plot" in text
+    assert "No statistics: they need a group of two or more runs" in text  # one run has no interval
     assert len(re.findall(r"<img ", text)) == 1
 
 

@@ -44,11 +44,12 @@ def train_seeds(config: Config, seeds: Sequence[int], quiet: bool = True) -> lis
     return _train_seeds(config, seeds, quiet=quiet)
 
 
-def load(run_dir: str | Path) -> Policy:
-    """Load the newest checkpoint of a run folder as a callable `Policy`."""
+def load(run_dir: str | Path, checkpoint: str | Path = "last") -> Policy:
+    """Load a checkpoint of a run folder as a callable `Policy`: `"last"` (the newest), `"best"` (the best state
+    evaluated during training, `run.eval_every`) or a checkpoint file."""
     from canter.use.policy import load as _load
 
-    return _load(run_dir)
+    return _load(run_dir, checkpoint)
 
 
 def evaluate(
@@ -59,7 +60,8 @@ def evaluate(
     env_id: str | None = None,
     backend: str | None = None,
 ) -> EvalResult:
-    """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time)."""
+    """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time). A
+    best checkpoint plays held-out env seeds, which the evaluations that chose it never played."""
     from canter.use.evaluate import evaluate as _evaluate
 
     return _evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, backend=backend)

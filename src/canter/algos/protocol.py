@@ -71,3 +71,26 @@ class Algorithm:
     # The input state is then invalid after the call, so an iteration reporting `finite` False must return the
     # last good state itself: the trainer checkpoints the returned state in that case.
     donate_state: bool = False
+
+
+def export_mlp_actor(
+    config: Any, actor: Any, obs_stats: Any, spec: Any, activation: str, squash: bool
+) -> ExportedActor:
+    """An MLP actor (a list of {"w", "b"} layers) and its observation statistics, on the host, as plain arrays; its
+    first `act_dim` outputs are the deterministic action."""
+    from canter.core.normalize import EPSILON
+
+    return ExportedActor(
+        weights=[np.asarray(layer["w"], np.float32) for layer in actor],
+        biases=[np.asarray(layer["b"], np.float32) for layer in actor],
+        activation=activation,
+        squash=squash,
+        normalize=config.env.normalize_obs,
+        obs_mean=np.asarray(obs_stats.mean, np.float32),
+        obs_var=np.asarray(obs_stats.var, np.float32),
+        obs_eps=EPSILON,
+        clip_obs=config.env.clip_obs,
+        action_low=np.asarray(spec.action_low, np.float32),
+        action_high=np.asarray(spec.action_high, np.float32),
+        output_slice=spec.act_dim,
+    )

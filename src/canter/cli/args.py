@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from canter.errors import CanterError
+
 
 def steps_arg(text: str) -> int:
     try:
@@ -26,3 +28,23 @@ def seeds_arg(text: str) -> tuple[int, ...]:
     if len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"each seed may appear once, got {text!r}")
     return seeds
+
+
+def add_checkpoint_arg(parser: argparse.ArgumentParser) -> None:
+    """`--checkpoint last|best|FILE`, with one meaning in every command that reads a run's policy."""
+    parser.add_argument(
+        "--checkpoint",
+        default="last",
+        metavar="last|best|FILE",
+        help="which checkpoint: last (the newest, default), best (the best evaluated during training, "
+        "checkpoints/best.npz; see train --eval-every) or a checkpoint file",
+    )
+
+
+def check_one_run_for_a_file(checkpoint: str, runs: list[str]) -> None:
+    """A checkpoint file is one run's; `last` and `best` name one checkpoint in each run folder."""
+    if checkpoint not in ("last", "best") and len(runs) > 1:
+        raise CanterError(
+            f"--checkpoint {checkpoint} is one checkpoint file, but {len(runs)} run folders are given; "
+            f"pass one run folder, or --checkpoint last or best"
+        )

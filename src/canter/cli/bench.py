@@ -20,11 +20,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run a benchmark grid; writes results.md/.csv and plots",
         description="Run every (algo, env, grid values) cell for every seed, each seed a run folder "
         "under --out with a deterministic name; re-running skips finished runs and "
-        "resumes interrupted ones. Writes results.md, results.csv and plot_ENV.png.",
+        "resumes interrupted ones. Writes results.md (with IQM, mean, median and optimality gap and their 95%% "
+        "bootstrap intervals), results.csv, statistics.json and plot_ENV.png.",
     )
     b.add_argument("--algos", type=_names, default=None, help="comma-separated algorithms (default ppo)")
     b.add_argument("--envs", type=_names, default=None, help="comma-separated env ids, e.g. Hopper-v5,Walker2d-v5")
-    b.add_argument("--seeds", type=seeds_arg, default=(0, 1, 2), help="comma-separated seeds (default 0,1,2)")
+    b.add_argument("--seeds", type=seeds_arg, default=(0, 1, 2, 3, 4), help="comma-separated seeds (default 0,1,2,3,4)")
     b.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per run (1e6 works)")
     b.add_argument(
         "--grid",
@@ -43,7 +44,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--preset", default="fast", help="preset under the grid values (default fast)")
     b.add_argument("--config", default=None, help="TOML file under the grid values")
     b.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
-    b.add_argument("--eval-episodes", type=int, default=10, help="deterministic episodes of the final evaluation")
+    b.add_argument(
+        "--episodes",
+        type=int,
+        default=10,
+        help="deterministic episodes of each run's final evaluation, as in canter eval (default 10)",
+    )
+    # `--eval-episodes` means episodes per evaluation during training (train, tune); bench's final evaluation was
+    # renamed to `--episodes`, and the old spelling is refused with the new one.
+    b.add_argument("--eval-episodes", type=int, default=None, help=argparse.SUPPRESS)
     b.add_argument(
         "--storage",
         default=None,
@@ -58,6 +67,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.errors import CanterError
     from canter.orchestrate.bench import BenchSettings, bench, parse_grid_arg
+
+    if args.eval_episodes is not None:
+        raise CanterError(
+            f"bench --eval-episodes is now --episodes (episodes of each run's final evaluation); "
+            f"pass --episodes {args.eval_episodes}"
+        )
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
     grid_keys = {key for key, _ in grid}
@@ -77,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         preset=args.preset,
         config_file=args.config,
         sets=tuple(args.set),
-        eval_episodes=args.eval_episodes,
+        eval_episodes=args.episodes,
         storage_url=args.storage,
         study_name=args.study,
         heartbeat_seconds=args.heartbeat,

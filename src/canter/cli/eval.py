@@ -1,5 +1,5 @@
-"""`canter eval`: evaluate the newest checkpoint of run folders with frozen normalizer statistics, optionally across
-scaled physical parameters (`--vary`)."""
+"""`canter eval`: evaluate a checkpoint of run folders (the newest, the best, or a file) with frozen normalizer
+statistics, optionally across scaled physical parameters (`--vary`)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -18,10 +19,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e = sub.add_parser(
         "eval",
         help="evaluate run folders (and robustness sweeps with --vary)",
-        description="Evaluate the newest checkpoint of runs. Runs that differ only in run.seed are "
-        "also summarised as a group.",
+        description="Evaluate a checkpoint of runs (the newest by default). Runs that differ only in run.seed "
+        "are also summarised as a group. A best checkpoint plays held-out env seeds, which the evaluations that "
+        "chose it never played.",
     )
     e.add_argument("runs", nargs="+", help="run folders")
+    add_checkpoint_arg(e)
     e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value)")
     e.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     e.add_argument("--env", default=None, help="evaluate on another env with the same observation/action sizes")
@@ -72,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         spec = parse_spec(args.vary[0])
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
-    policies = [load(run_dir) for run_dir in args.runs]
+    check_one_run_for_a_file(args.checkpoint, args.runs)
+    policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
     seed = args.seed if args.seed is not None else 0
     if spec is not None:
         return _vary(args, spec, policies, seed)
@@ -81,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
     from canter.config.experiment import group_by_experiment
-    from canter.use.evaluate import evaluate
+    from canter.use.evaluate import evaluate, seed_stream
 
     rows = []
     for policy in policies:
@@ -100,6 +104,8 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
                 algo=policy.config.run.algo,
                 seed=policy.config.run.seed,
                 deterministic=not args.stochastic,
+                checkpoint=policy.checkpoint,
+                seed_stream=seed_stream(policy),
                 global_step=policy.facts.global_step,
                 **result.summary(),
             )
@@ -124,6 +130,7 @@ def _group_row(rows: list[dict[str, Any]], members: list[int]) -> dict[str, Any]
     return {
         "label": f"{first['env']} {first['algo']}, seeds {','.join(str(r['seed']) for r in chosen)}",
         "runs": [r["run"] for r in chosen],
+        "checkpoint": first["checkpoint"],
         "seeds": [r["seed"] for r in chosen],
         "return_mean": float(means.mean()),
         "return_std": float(means.std()),
@@ -138,20 +145,28 @@ def _short(text: str, width: int) -> str:
     return text if len(text) <= width else "..." + text[-(width - 3) :]
 
 
+def _checkpoint_label(checkpoint: str) -> str:
+    return checkpoint if checkpoint in ("last", "best") else "file"
+
+
 def _print_table(rows: list[dict[str, Any]], groups: list[dict[str, Any]]) -> None:
-    print(f"{'run':<56} {'steps':>10} {'return (mean ± std)':>21} {'length':>15} {'time':>7}")
+    print(f"{'run':<56} {'ckpt':<4} {'steps':>10} {'return (mean ± std)':>21} {'length':>15} {'time':>7}")
     for r in rows:
         print(
-            f"{_short(r['run'], 56):<56} {r['global_step']:>10,} {r['return_mean']:>11.1f} ± {r['return_std']:<7.1f}"
+            f"{_short(r['run'], 56):<56} {_checkpoint_label(r['checkpoint']):<4} {r['global_step']:>10,} "
+            f"{r['return_mean']:>11.1f} ± {r['return_std']:<7.1f}"
             f" {r['length_mean']:>6.1f} ± {r['length_std']:<6.1f} {r['eval_seconds']:>6.1f}s"
         )
     for g in groups:
         print(
-            f"{_short('group: ' + g['label'], 56):<56} {'':>10} {g['return_mean']:>11.1f} ± {g['return_std']:<7.1f}"
+            f"{_short('group: ' + g['label'], 56):<56} {_checkpoint_label(g['checkpoint']):<4} {'':>10} "
+            f"{g['return_mean']:>11.1f} ± {g['return_std']:<7.1f}"
             f" {g['length_mean']:>6.1f} ± {g['length_std']:<6.1f} {g['eval_seconds']:>6.1f}s"
         )
     if groups:
         print("group rows: mean ± std across the runs' mean returns and lengths")
+    if any(r["seed_stream"] == "held-out" for r in rows):
+        print("best checkpoints played held-out env seeds, apart from the evaluations that chose them")
 
 
 def _labels(policies: list) -> list[str]:
@@ -196,7 +211,13 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
         "deterministic": not args.stochastic,
         "seed": seed,
         "runs": [
-            {"run": str(p.source), "label": label, "global_step": p.facts.global_step, "points": points}
+            {
+                "run": str(p.source),
+                "label": label,
+                "checkpoint": p.checkpoint,
+                "global_step": p.facts.global_step,
+                "points": points,
+            }
             for p, (label, points) in zip(policies, series)
         ],
     }

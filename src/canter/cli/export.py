@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from canter.cli.args import add_checkpoint_arg
 from canter.files import check_writable, write_output
 
 
@@ -11,10 +12,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "export",
         help="export the deterministic policy (ONNX or npz)",
-        description="Export the newest checkpoint's deterministic policy, with observation "
-        "normalization and action clipping baked in.",
+        description="Export the deterministic policy of a checkpoint (the newest by default), with "
+        "observation normalization and action clipping baked in.",
     )
     p.add_argument("run", help="run folder")
+    add_checkpoint_arg(p)
     p.add_argument(
         "--format", choices=("onnx", "npz"), default=None, help="file format (default: from the --out extension)"
     )
@@ -27,6 +29,6 @@ def run(args: argparse.Namespace) -> int:
 
     fmt = format_for(args.out, args.format)
     check_writable(args.out)
-    write_output(args.out, export_bytes(args.run, fmt))
+    write_output(args.out, export_bytes(args.run, fmt, args.checkpoint))
     print(f"wrote {args.out} ({fmt})")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file
 from canter.files import check_writable, write_output
 
 
@@ -16,6 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "all embedded.",
     )
     p.add_argument("runs", nargs="+", help="run folders")
+    add_checkpoint_arg(p)
     p.add_argument("--out", default="report.html", help="output HTML file (default report.html)")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per run; 0 skips evaluation")
     p.add_argument("--seed", type=int, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
@@ -31,8 +33,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.use.report import build_report
 
+    check_one_run_for_a_file(args.checkpoint, args.runs)
     check_writable(args.out)  # before the evaluation, which can take minutes
-    page = build_report(args.runs, episodes=args.episodes, seed=args.seed, smooth=args.smooth, video=args.video)
+    page = build_report(
+        args.runs,
+        episodes=args.episodes,
+        seed=args.seed,
+        smooth=args.smooth,
+        video=args.video,
+        which=args.checkpoint,
+    )
     write_output(args.out, page.encode("utf-8"))
     print(f"wrote {args.out}")
     return 0

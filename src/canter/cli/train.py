@@ -43,6 +43,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render an episode to RUN/videos/step_<step>.mp4 every N env steps (run.video_every)",
     )
     t.add_argument(
+        "--eval-every",
+        type=steps_arg,
+        default=None,
+        metavar="N",
+        help="evaluate as `canter eval` does every N env steps and at the end, into metrics.csv's eval/* "
+        "columns, keeping the best state as checkpoints/best.npz (run.eval_every; default: never)",
+    )
+    t.add_argument(
+        "--eval-episodes",
+        type=int,
+        default=None,
+        metavar="K",
+        help="episodes of each evaluation during training (run.eval_episodes, default 10)",
+    )
+    t.add_argument(
         "--seeds",
         type=seeds_arg,
         default=None,
@@ -85,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
                 ("--max-minutes", args.max_minutes),
                 ("--out-dir", args.out_dir),
                 ("--video-every", args.video_every),
+                ("--eval-every", args.eval_every),
+                ("--eval-episodes", args.eval_episodes),
             )
             if value
         ]
@@ -110,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
             extra["run.out_dir"] = args.out_dir
         if args.video_every is not None:
             extra["run.video_every"] = args.video_every
+        if args.eval_every is not None:
+            extra["run.eval_every"] = args.eval_every
+        if args.eval_episodes is not None:
+            extra["run.eval_episodes"] = args.eval_episodes
         sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
         config = build_config(
             args.env,
@@ -120,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
             total_steps=args.total_steps,
             algo=args.algo,
         )
+        if args.eval_episodes is not None and not config.run.eval_every:
+            raise CanterError(
+                "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
+            )
         if args.seeds is not None:
             if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
                 print(

@@ -1,9 +1,12 @@
-"""`canter video`: render deterministic episodes of a run's newest checkpoint to an MP4 or GIF, headless."""
+"""`canter video`: render deterministic episodes of a run's checkpoint (the newest by default) to an MP4 or GIF,
+headless."""
 
 from __future__ import annotations
 
 import argparse
 import time
+
+from canter.cli.args import add_checkpoint_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -12,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v = sub.add_parser(
         "video",
         help="render a run's policy to an MP4 or GIF",
-        description="Render episodes of the newest checkpoint with MuJoCo's offscreen renderer (EGL or "
+        description="Render episodes of a checkpoint (the newest by default) with MuJoCo's offscreen renderer (EGL or "
         "OSMesa; MUJOCO_GL picks one), Box2D's for BipedalWalker, dm_control's for DM "
         "Control runs. EnvPool runs replay in the equivalent Gymnasium env.",
     )
@@ -24,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--fps", type=int, default=DEFAULT_FPS)
     v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
-    v.add_argument("--checkpoint", default=None, help="a checkpoint file instead of the newest one")
+    add_checkpoint_arg(v)
     v.add_argument("--seed", type=int, default=None, help="env seed of the first episode (default 0)")
     v.set_defaults(func=run)
 
@@ -42,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         fps=args.fps,
         camera=args.camera,
         seed=args.seed if args.seed is not None else 0,
-        checkpoint_file=args.checkpoint,
+        checkpoint=args.checkpoint,
         max_steps=args.max_steps,
     )
     for i, value in enumerate(returns):

@@ -42,6 +42,9 @@ class AlgorithmSpec:
     batch_divisors: tuple[str, ...] = ()
     # Seeds train one per process (`canter bench`) rather than vmapped in one program: see docs/multiseed.md.
     seeds_train_apart: bool = False
+    # The metrics.csv columns that a config turns off (logged as 0 or empty then), which plots leave out:
+    # `unused_metrics(config)`.
+    unused_metrics: Callable[[Any], tuple[str, ...]] = lambda config: ()
 
 
 _REGISTERED: dict[str, AlgorithmSpec] = {}
@@ -75,6 +78,11 @@ def all_plot_labels() -> dict[str, tuple[str, str]]:
     for spec in _REGISTERED.values():
         labels.update(spec.plot_labels)
     return labels
+
+
+def unused_metrics(config: Any) -> tuple[str, ...]:
+    """The diagnostics that the run's config turns off."""
+    return algorithm_spec(config.run.algo).unused_metrics(config)
 
 
 def reads_key(algo: str, key: str) -> bool:

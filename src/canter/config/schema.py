@@ -66,6 +66,13 @@ class RunConfig:
         default=0,
         role=OUTPUT,
     )
+    eval_every: int = setting(
+        "Evaluate as `canter eval` does every this many env steps and at the end (metrics.csv's eval/* columns; "
+        "the best state is kept as checkpoints/best.npz; 0: never).",
+        default=0,
+        role=OUTPUT,
+    )
+    eval_episodes: int = setting("Episodes of each evaluation during training.", default=10, role=OUTPUT)
 
 
 # A section's own checks: `check(section, name)` raises CanterError for a value that makes no sense on its own.

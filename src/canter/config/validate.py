@@ -46,5 +46,7 @@ def validate(config: Config) -> None:
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
     need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
+    need(run.eval_every >= 0, f"run.eval_every must be >= 0, got {run.eval_every}")
+    need(run.eval_episodes >= 1, f"run.eval_episodes must be >= 1, got {run.eval_episodes}")
     if run.max_minutes is not None:
         need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")

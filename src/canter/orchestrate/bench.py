@@ -5,8 +5,9 @@ A cell is one (algo, env, grid values) combination. A job is what one child proc
 (`canter.algos.seeds_train_apart`), one seed; up to `--jobs` jobs run at once. Run folders have deterministic
 names built from the env, the algorithm, every grid value and the seed, so re-running the same command finds them:
 finished runs are skipped, runs stopped after a checkpoint resume, and only what is missing trains. Each finished
-run's final policy is evaluated deterministically (`eval.json`), and the bench writes `results.md`, `results.csv`
-and a plot per env.
+run's final policy is evaluated deterministically (`eval.json`), and the bench writes `results.md` (the table, then
+the statistics of `canter.use.scoreboard`: aggregates with 95% bootstrap intervals, profiles, probabilities of
+improvement), `results.csv`, `statistics.json` and a plot per env.
 
 With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
 enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
@@ -19,9 +20,7 @@ import io
 import itertools
 import math
 import time
-import tomllib
 from dataclasses import dataclass, replace
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,9 +46,11 @@ from canter.orchestrate.jobs import (
     stop_job,
     warn_if_more_jobs_than_cores,
 )
+from canter.use.reference_scores import published_scores
 
 if TYPE_CHECKING:
     from canter.orchestrate.study import Outcome
+    from canter.use.scoreboard import Scoreboard
 
 # Grid keys that have their own flag or belong to the bench itself.
 _AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
@@ -321,11 +322,6 @@ def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]
     }
 
 
-def published_scores() -> dict[str, Any]:
-    """The shipped table of published scores (canter/data/published.toml)."""
-    return tomllib.loads(resources.files("canter.data").joinpath("published.toml").read_text())
-
-
 def published_for(algo: str, env_id: str, total_steps: int, data: dict[str, Any] | None = None) -> str:
     """'CR 2383±272, TS 2609±701' for this algo and env at the bench's budget (else at 1M steps, marked)."""
     data = data or published_scores()
@@ -415,13 +411,44 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
 
 
+def method_label(result: dict[str, Any], keys: list[str]) -> str:
+    """A cell's algorithm and grid values without its env: the cells of one method on several envs."""
+    return ", ".join([result["algo"]] + [f"{k.split('.', 1)[1]}={result['values'][k]}" for k in keys])
+
+
+def results_scoreboard(results: list[dict[str, Any]], keys: list[str], reps: int | None = None) -> Scoreboard | None:
+    """IQM, mean, median and optimality gap with their intervals, per cell and per method across envs, the
+    performance profiles and the probabilities of improvement (`canter.use.scoreboard`) of the seeds' final
+    evaluations. None when no cell has an evaluated seed."""
+    from canter.use.scoreboard import EVAL_SOURCE, RunScore, build_scoreboard
+    from canter.use.statistics import REPS
+
+    scores = [
+        RunScore(method_label(r, keys), r["env"], r["algo"], value, f"{r['cell']}#{i}")
+        for r in results
+        for i, value in enumerate(r["seed_returns"])
+    ]
+    return build_scoreboard(scores, EVAL_SOURCE, reps=reps or REPS) if scores else None
+
+
+def results_markdown(results: list[dict[str, Any]], keys: list[str], total_steps: int) -> tuple[str, str, str]:
+    """(results.md: the table, then the statistics; results.csv; statistics.json, empty without scores)."""
+    markdown, table_csv = results_table(results, keys, total_steps)
+    board = results_scoreboard(results, keys)
+    if board is None:
+        return markdown, table_csv, ""
+    return markdown + "\n## Statistics\n\n" + board.markdown(), table_csv, board.json()
+
+
 def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: BenchSettings, bench_dir: Path) -> str:
     from canter.files import write_output
 
     keys = varying_keys(cells)
-    markdown, table_csv = results_table(results, keys, settings.total_steps)
+    markdown, table_csv, statistics_json = results_markdown(results, keys, settings.total_steps)
     write_output(bench_dir / "results.md", markdown.encode())
     write_output(bench_dir / "results.csv", table_csv.encode())
+    if statistics_json:
+        write_output(bench_dir / "statistics.json", statistics_json.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
         run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
         run_dirs = [d for d in run_dirs if (d / "metrics.csv").is_file() and (d / "config.toml").is_file()]
@@ -600,7 +627,7 @@ def bench(settings: BenchSettings) -> str:
     if settings.jobs < 1:
         raise CanterError(f"--jobs must be >= 1, got {settings.jobs}")
     if settings.eval_episodes < 1:
-        raise CanterError(f"--eval-episodes must be >= 1, got {settings.eval_episodes}")
+        raise CanterError(f"--episodes must be >= 1, got {settings.eval_episodes}")
     cells = make_cells(settings)
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)

@@ -209,7 +209,8 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
 
 
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
-    """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json."""
+    """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json with every episode's
+    return and length. A cached evaluation without lengths (written before they were kept) is done again."""
     from canter.training import checkpoint
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
@@ -217,15 +218,17 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     path = run_dir / EVAL_FILE
     cached = read_json(path)
     step = checkpoint.latest(run_dir).name
-    if cached and cached.get("checkpoint") == step and cached.get("episodes") == episodes:
+    if cached and cached.get("checkpoint") == step and cached.get("episodes") == episodes and "lengths" in cached:
         return cached
     result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=0)
+    summary = result.summary()
     data = {
         "checkpoint": step,
         "episodes": episodes,
         "mean": result.mean,
         "std": result.std,
-        "returns": [float(r) for r in result.returns],
+        "returns": summary["returns"],
+        "lengths": summary["lengths"],
     }
     atomic_write_bytes(path, lambda f: f.write(json.dumps(data, indent=2).encode()))
     return data

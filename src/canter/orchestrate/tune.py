@@ -1,13 +1,14 @@
 """`canter tune`: Optuna search over a shipped, editable search space, on one machine or many.
 
-A trial samples a config from the search space, trains it (one child process per trial, all seeds of the trial in
-it, see `canter.orchestrate.jobs`) with a checkpoint every 1/`evaluations` of the budget, and the worker evaluates every
-checkpoint deterministically while training goes on. The mean over the trial's seeds is reported to Optuna's
-median pruner; a pruned trial's training is stopped. The objective is the deterministic evaluation return of the
-final policies, averaged over `--seeds-per-trial` seeds (the same seeds for every trial, so trials differ only in
-their hyperparameters).
+A trial samples a config from the search space and trains it (one child process per trial, all seeds of the trial in
+it, see `canter.orchestrate.jobs`), evaluating during training every 1/`evaluations` of the budget and at its end
+(`run.eval_every`, `run.eval_episodes`: the protocol of `canter eval`, on the same eval env seeds in every trial).
+The worker reads those evaluations from the runs' metrics.csv as they are logged and reports their mean over the
+trial's seeds to Optuna's median pruner; a pruned trial's training is stopped. The objective is the evaluation at
+the end of the budget, averaged over `--seeds-per-trial` seeds (the same seeds for every trial, so trials differ
+only in their hyperparameters).
 
-Evaluating checkpoints rather than training in chunks keeps the learning-rate schedule of a trial identical to
+Evaluating during training rather than training in chunks keeps the learning-rate schedule of a trial identical to
 that of a single `canter train` of the same config, so the best trial's preset reproduces what was measured.
 
 Parallel `--jobs` are spawned worker processes, each pinned to its share of the cores with XLA's thread pools
@@ -17,9 +18,10 @@ postgresql://...`, where any number of machines run the same command).
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import os
-import re
 import socket
 import time
 from dataclasses import dataclass, replace
@@ -47,7 +49,6 @@ DB_FILE = "study.db"
 BEST_FILE = "best.toml"
 SUMMARY_FILE = "summary.md"
 PRESET_ATTR = "preset"
-_CKPT = re.compile(r"^ckpt_(\d{12})\.npz$")
 
 
 @dataclass(frozen=True)
@@ -59,8 +60,8 @@ class TuneSettings:
     total_steps: int = 1_000_000
     seeds: tuple[int, ...] = (0,)  # every trial trains these seeds
     startup_trials: int = 10  # random trials before TPE; also the pruner's startup
-    evaluations: int = 20  # checkpoints evaluated per trial
-    eval_episodes: int = 5
+    evaluations: int = 20  # evaluations during training per trial
+    eval_episodes: int = 5  # episodes per evaluation
     trial_minutes: float | None = None
     study_hours: float | None = None
     preset: str = "fast"
@@ -141,8 +142,10 @@ def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings
         run=replace(
             config.run,
             out_dir=str(trial_dir),
-            checkpoint_every=settings.eval_interval,
-            keep_checkpoints=settings.evaluations + 2,
+            checkpoint_every=0,
+            keep_checkpoints=1,
+            eval_every=settings.eval_interval,
+            eval_episodes=settings.eval_episodes,
             tensorboard=False,
             max_minutes=None,
         ),
@@ -175,41 +178,29 @@ def config_file_toml(config: Config) -> str:
 # ------------------------------------------------------------------------------------------------------- a trial
 
 
-def _checkpoint_steps(run_dir: Path) -> list[int]:
-    folder = run_dir / "checkpoints"
-    try:
-        return sorted(int(m.group(1)) for p in folder.iterdir() if (m := _CKPT.match(p.name)))
-    except OSError:
-        return []
-
-
 def evaluation_index(step: int, settings: TuneSettings) -> int:
-    """Which of the trial's evaluations a checkpoint at `step` is: 1 .. evaluations, the last for the final one.
-    Seeds count their own env steps (EnvPool's autoreset steps are not steps), so the seeds of a group reach an
-    evaluation point at slightly different steps; their checkpoints are matched by this index."""
+    """Which of the trial's evaluations one at `step` is: 1 .. evaluations, the last for the one at the end of the
+    budget. Seeds count their own env steps (EnvPool's autoreset steps are not steps), so the seeds of a group reach
+    an evaluation point at slightly different steps; their evaluations are matched by this index."""
     if step >= settings.total_steps:
         return settings.evaluations
     return max(1, min(step // settings.eval_interval, settings.evaluations - 1))
 
 
-def _checkpoints_by_index(run_dir: Path, settings: TuneSettings) -> dict[int, int]:
-    return {evaluation_index(step, settings): step for step in _checkpoint_steps(run_dir)}
-
-
-def evaluate_checkpoint(run_dir: Path, step: int, episodes: int) -> float:
-    """Deterministic mean return of the checkpoint at `step` (eval env seeds from seed 0, same for every trial)."""
-    import jax
-
-    from canter.algos import get_algorithm
-    from canter.training import checkpoint
-    from canter.training.restore import load_state
-    from canter.use.evaluate import evaluate
-    from canter.use.policy import Policy
-
-    config, facts, state, _ = load_state(run_dir, checkpoint.checkpoint_path(run_dir, step))
-    params = get_algorithm(config.run.algo).policy_params(state)
-    policy = Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), run_dir)
-    return evaluate(policy, episodes=episodes, deterministic=True, seed=0).mean
+def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float]:
+    """Evaluation index -> mean return of the evaluations a run has logged to its metrics.csv so far (a line the
+    trainer is still writing is left for the next look)."""
+    try:
+        text = (run_dir / "metrics.csv").read_text()
+    except OSError:
+        return {}
+    complete = text[: text.rfind("\n") + 1]
+    found = {}
+    for row in csv.DictReader(io.StringIO(complete)):
+        value = row.get("eval/return_mean")
+        if value and row.get("eval/episodes"):
+            found[evaluation_index(int(row["global_step"]), settings)] = float(value)
+    return found
 
 
 def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpace) -> Outcome:
@@ -231,25 +222,13 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     proc = start_job(JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
     reported: dict[int, float] = {}  # evaluation index -> mean return over seeds
-    skipped: set[int] = set()  # evaluation indices whose checkpoint disappeared
     try:
         while True:
             code = proc.poll()
-            found = [_checkpoints_by_index(d, settings) for d in run_dirs.values()]
-            ready = set.intersection(*(set(f) for f in found)) - set(reported) - skipped
+            found = [logged_evaluations(d, settings) for d in run_dirs.values()]
+            ready = set.intersection(*(set(f) for f in found)) - set(reported)
             for index in sorted(ready):
-                try:
-                    value = float(
-                        np.mean(
-                            [
-                                evaluate_checkpoint(d, f[index], settings.eval_episodes)
-                                for d, f in zip(run_dirs.values(), found)
-                            ]
-                        )
-                    )
-                except CanterError:
-                    skipped.add(index)  # removed by the trainer meanwhile; the next checkpoint will do
-                    continue
+                value = float(np.mean([f[index] for f in found]))
                 reported[index] = value
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 trial.report(value, step)
@@ -277,7 +256,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
             return Outcome("pruned", reason=f"diverged: {reason}")
         return Outcome("fail", reason=reason)
     if not reported:
-        return Outcome("fail", reason="training finished without a checkpoint to evaluate")
+        return Outcome("fail", reason="training finished without an evaluation")
     return Outcome("complete", value=reported[max(reported)])
 
 

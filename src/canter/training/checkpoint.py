@@ -4,6 +4,10 @@ A checkpoint is one `.npz` file: the train state's leaves as arrays (named by th
 header with the format version, the resolved config, env facts needed to rebuild the policy without the env, the
 step count and a SHA-256 over everything else. It is written to a temp file in the same folder, fsynced and
 renamed, so a reader sees either the old file or the new one, never half of one.
+
+A run folder keeps its newest `run.keep_checkpoints` checkpoints as `checkpoints/ckpt_<step>.npz` and, when it
+evaluates during training, the best evaluated state as `checkpoints/best.npz`, whose header also records the
+evaluation (`evaluation`); pruning never touches it. `resolve` picks one of them by name: `last`, `best` or a file.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from canter.files import atomic_write_bytes
 
 FORMAT_VERSION = 1
 _NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
+BEST_FILE = "best.npz"
+LAST, BEST = "last", "best"
 
 
 def _path_name(path: tuple) -> str:
@@ -53,6 +59,15 @@ def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False)
     writer = np.savez_compressed if compress else np.savez
     # numpy's stub lets **kwds of arrays also fill its `allow_pickle: bool`, so any dict of arrays is refused.
     atomic_write_bytes(Path(path), lambda f: writer(f, **payload))  # type: ignore[arg-type]
+
+
+def read_header(path: Path) -> dict[str, Any]:
+    """The header alone, unverified (the arrays are not read); a one-line CanterError for an unreadable file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return json.loads(bytes(data["header"]).decode())
+    except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
+        raise CanterError(f"checkpoint {path} is corrupt or truncated; delete it or train again") from None
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -126,6 +141,30 @@ def latest(run_dir: Path) -> Path:
     return found[-1]
 
 
+def best_path(run_dir: Path) -> Path:
+    return checkpoint_dir(run_dir) / BEST_FILE
+
+
+def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
+    """The checkpoint file that `which` names for a run folder: `last` (the newest), `best` (the best evaluated
+    state) or a checkpoint file (any path; a `Path` is always a file)."""
+    if isinstance(which, Path) or which not in (LAST, BEST):
+        return Path(which)
+    if which == LAST:
+        return latest(run_dir)
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CanterError(f"run folder not found: {run_dir}")
+    path = best_path(run_dir)
+    if not path.is_file():
+        raise CanterError(
+            f"{run_dir} has no best checkpoint: it never evaluated during training (train with --eval-every N); "
+            f"use --checkpoint last or a checkpoint file"
+        )
+    return path
+
+
 def prune(run_dir: Path, keep: int) -> None:
+    """Delete all but the newest `keep` ckpt_<step>.npz files (never best.npz)."""
     for old in list_checkpoints(run_dir)[:-keep]:
         old.unlink(missing_ok=True)

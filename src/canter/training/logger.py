@@ -10,6 +10,8 @@ metrics.csv has one row per iteration. Columns:
   `entropy`, `approx_kl`, `clip_frac`, `explained_variance`, `learning_rate`, `epochs_run`, averaged over the
   iteration's minibatches.
 - `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
+- with `run.eval_every` > 0, `eval/return_mean`, `eval/return_std`, `eval/length_mean`, `eval/episodes`: the
+  evaluation during training after this iteration (`canter.training.evaluation`), empty in rows without one.
 """
 
 from __future__ import annotations
@@ -19,11 +21,14 @@ import math
 from pathlib import Path
 from typing import Any
 
+from canter.training.evaluation import EVAL_COLUMNS
+
 BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
 
 
-def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...]) -> list[str]:
-    return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys]
+def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...], evaluates: bool = False) -> list[str]:
+    evaluation = list(EVAL_COLUMNS) if evaluates else []
+    return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys] + evaluation
 
 
 def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
@@ -97,9 +102,10 @@ class MetricsLogger:
         info_keys: tuple[str, ...],
         tensorboard: bool,
         resume_step: int | None = None,
+        evaluates: bool = False,
     ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
-        self.columns = columns_for(metric_names, info_keys)
+        self.columns = columns_for(metric_names, info_keys, evaluates)
         if resume_step is not None:
             self._drop_rows_after(resume_step)
         exists = self.path.is_file() and self.path.stat().st_size > 0

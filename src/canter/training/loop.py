@@ -24,6 +24,7 @@ from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
 from canter.training import checkpoint, run_folder
+from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
 
@@ -223,6 +224,12 @@ class _SeedRun:
             spec.info_keys,
             config.run.tensorboard,
             resume_step=start_step if start_step > 0 else None,
+            evaluates=config.run.eval_every > 0,
+        )
+        self.evaluation = (
+            TrainingEvaluation(config, spec, start_step, _best_return(out) if start_step else None)
+            if config.run.eval_every
+            else None
         )
         self.videos = TrainingVideos(out, config.run.video_every, start_step)
         self.closed = False
@@ -241,22 +248,41 @@ class _SeedRun:
             "episodes": self.episodes,
         }
 
-    def save(self, train_state: Any, step: int, started: float) -> None:
-        header = dict(
+    def _header(self, step: int, started: float) -> dict[str, Any]:
+        return dict(
             self.header_base,
             global_step=step,
             saved_at=datetime.now().isoformat(timespec="seconds"),
             totals=self.totals(started),
         )
+
+    def save(self, train_state: Any, step: int, started: float) -> None:
         checkpoint.save(
             checkpoint.checkpoint_path(self.out, step),
             train_state,
-            header,
+            self._header(step, started),
             compress=self.config.run.compress_checkpoints,
         )
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
-    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> None:
+    def evaluation_due(self) -> bool:
+        return self.evaluation is not None and self.evaluation.due(self.global_step)
+
+    def evaluate(self, train_state: Any, started: float) -> dict[str, float]:
+        """Evaluate the state after this iteration; a new best score saves it as checkpoints/best.npz. Returns
+        the eval/* columns of this iteration's row."""
+        assert self.evaluation is not None
+        result = self.evaluation.evaluate(train_state, self.global_step)
+        if self.evaluation.improves(result):
+            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
+            header = dict(self._header(self.global_step, started), evaluation=evaluation)
+            checkpoint.save(
+                checkpoint.best_path(self.out), train_state, header, compress=self.config.run.compress_checkpoints
+            )
+        return result.columns()
+
+    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> dict[str, Any]:
+        """This iteration's metrics.csv row, which the loop logs once any evaluation has joined it."""
         steps = int(metrics["steps"])
         self.global_step += steps
         self.run_seconds += elapsed
@@ -279,7 +305,7 @@ class _SeedRun:
         for key, values in metrics["episode_info"].items():
             chosen = np.asarray(values)[finished]
             row[f"info/{key}"] = float(chosen.mean()) if chosen.size else math.nan
-        self.logger.log(row)
+        return row
 
     def checkpoint_due(self) -> bool:
         return (
@@ -413,7 +439,10 @@ def _loop(
                         # A donated state is gone; such an algorithm returns the last good state itself.
                         run.fail(pick(new_state if algorithm.donate_state else state, i), started)
                         continue
-                    run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
+                    row = run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
+                    if run.evaluation_due():
+                        row.update(run.evaluate(pick(new_state, i), started))
+                    run.logger.log(row)
                     steps += int(seed_metrics["steps"])
                     if run.checkpoint_due():
                         run.save(pick(new_state, i), run.global_step, started)
@@ -464,6 +493,14 @@ def _loop(
     results = [run.result for run in runs if run.result is not None]
     assert len(results) == len(runs), "a seed that did not fail has finished"
     return results
+
+
+def _best_return(run_dir: Path) -> float | None:
+    """The score of the run's best.npz, so that a resumed run keeps its best state until a better one comes."""
+    path = checkpoint.best_path(run_dir)
+    if not path.is_file():
+        return None
+    return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
 
 
 def resume_config(run_dir: Path, total_steps: int | None) -> Config:

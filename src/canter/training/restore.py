@@ -26,14 +26,15 @@ class PolicyFacts:
     global_step: int
 
 
-def load_state(run_dir: Path, checkpoint_file: Path | None = None) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
-    """(config, facts, train state, header) from the newest checkpoint of a run folder."""
+def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
+    """(config, facts, train state, header) from a checkpoint of a run folder: `which` is `last` (the newest),
+    `best` or a checkpoint file (`checkpoint.resolve`)."""
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
 
     setup_jax()
     run_dir = Path(run_dir)
-    path = checkpoint_file or checkpoint.latest(run_dir)
+    path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(header["config"], str(path))
     env = header["env"]

@@ -1,7 +1,7 @@
 """A run folder: its name, what it holds, its format version, and the one migration path from each older format.
 
-A run folder holds config.toml (what the run reads of its config), versions.json (the packages and machine that
-made it, and `run_format`), metrics.csv, summary.json, checkpoints/, and optionally tb/ and videos/.
+A run folder holds config.toml (what the run reads of its config), versions.json (the packages, code commit and
+machine that made it, and `run_format`), metrics.csv, summary.json, checkpoints/, and optionally tb/ and videos/.
 
 Formats:
 - 1: config.toml holds every config section, whether the algorithm reads it or not; versions.json has no
@@ -27,6 +27,7 @@ from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
+from canter.training import provenance
 
 RUN_FORMAT = 2
 CONFIG_FILE = "config.toml"
@@ -58,6 +59,9 @@ def cpu_name() -> str:
 
 
 def versions() -> dict[str, Any]:
+    """The packages, code and machine that make a run. `canter` is the package version; `canter_commit` and
+    `canter_dirty` name the git commit canter runs from and whether the checkout differs from it, and are null when
+    it does not run from a checkout (or git is missing). `gpu` is null without a GPU."""
     from importlib import metadata
 
     def version(name: str) -> str | None:
@@ -66,8 +70,11 @@ def versions() -> dict[str, Any]:
         except metadata.PackageNotFoundError:
             return None
 
+    commit = provenance.canter_commit()
     return {
         "canter": version("canter"),
+        "canter_commit": commit.sha if commit else None,
+        "canter_dirty": commit.dirty if commit else None,
         "python": platform.python_version(),
         "jax": version("jax"),
         "jaxlib": version("jaxlib"),
@@ -79,6 +86,7 @@ def versions() -> dict[str, Any]:
         "platform": platform.platform(),
         "cpu": cpu_name(),
         "cpu_count": os.cpu_count(),
+        "gpu": provenance.gpu_name(),
     }
 
 

@@ -59,7 +59,7 @@ class TrainingVideos:
         request = dict(
             run_dir=str(self.folder.parent),
             out_path=str(self.folder / f"step_{step:012d}.mp4"),
-            checkpoint_file=str(snapshot),
+            checkpoint=str(snapshot),
             episodes=1,
             nice=10,
         )

@@ -24,18 +24,20 @@ ONNX_IR_VERSION = 8
 ONNX_ACTIVATIONS = {"tanh": "Tanh", "relu": "Relu", "elu": "Elu"}
 
 
-def load_actor(run_dir: str | Path) -> tuple[ExportedActor, dict[str, str]]:
-    """The exported actor of a run's newest checkpoint, and facts about it for the file's metadata."""
+def load_actor(run_dir: str | Path, checkpoint: str | Path = "last") -> tuple[ExportedActor, dict[str, str]]:
+    """The exported actor of a run's checkpoint (`last`, `best` or a file), and facts about it for the file's
+    metadata."""
     from canter import __version__
     from canter.algos import get_algorithm
     from canter.training.restore import load_state
 
-    config, facts, state, _ = load_state(Path(run_dir))
+    config, facts, state, _ = load_state(Path(run_dir), checkpoint)
     actor = get_algorithm(config.run.algo).export_actor(config, state, facts)
     meta = {
         "producer": f"canter {__version__}",
         "env_id": facts.env_id,
         "algo": config.run.algo,
+        "checkpoint": checkpoint if checkpoint in ("last", "best") else Path(checkpoint).name,
         "global_step": str(facts.global_step),
         "obs_dim": str(facts.obs_dim),
         "act_dim": str(facts.act_dim),
@@ -196,6 +198,6 @@ def onnx_bytes(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> b
     return onnx_model(actor, meta).SerializeToString()
 
 
-def export_bytes(run_dir: str | Path, fmt: str) -> bytes:
-    actor, meta = load_actor(run_dir)
+def export_bytes(run_dir: str | Path, fmt: str, checkpoint: str | Path = "last") -> bytes:
+    actor, meta = load_actor(run_dir, checkpoint)
     return onnx_bytes(actor, meta) if fmt == "onnx" else npz_bytes(actor, meta)

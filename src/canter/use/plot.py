@@ -12,8 +12,13 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
   where it holds its first or last value: seeds of one budget stop up to an iteration apart, and without that
   the last grid points would average only the seed that logged last, drawing a spike. Further out a run does
   not count (no extrapolation), so where only some runs reach, the mean and band are over those runs.
-- `bootstrap_band(samples)`: the mean over runs and a percentile bootstrap confidence band, resampling runs with
-  replacement from a seeded generator.
+- the band around a group's mean: with fewer than 5 runs, `range_band(samples)`, the range (min to max) of the
+  runs, since a bootstrap over 2-4 runs is little more than that range and covers far less than it claims; with 5 or
+  more, `bootstrap_band(samples)`, a 95% percentile bootstrap confidence band of the mean, resampling runs with
+  replacement from a seeded generator. The legend names the band of each group and its number of runs.
+
+Below the curves, the final score of every run (`canter.use.scoreboard`) is summarised with rliable's aggregates
+and intervals, profiles and probabilities of improvement (`canter.use.score_plot`).
 
 Runs that are seeds of one experiment (`canter.config.experiment`: equal in every key that changes what is
 learned) form one group. Groups are labelled by the keys in which they differ (`experiment_labels`).
@@ -33,12 +38,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from canter.config.algorithms import all_plot_labels
+from canter.config.algorithms import all_plot_labels, unused_metrics
 from canter.config.experiment import differing_keys, experiment_key, flat_config
 from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import run_history
 from canter.training.run_folder import read_config
+from canter.use.scoreboard import EVAL_SOURCE, LAST_EVAL_SOURCE, RunScore, Scoreboard, build_scoreboard, run_score
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -48,17 +54,29 @@ HEADLINE_KEYS = ("env.id", "run.algo", "run.preset")
 SHORT_NAMES = {"env.id": "env", "run.algo": "algo", "run.preset": "preset"}
 
 # metrics.csv columns that are bookkeeping rather than curves.
-NOT_CURVES = ("global_step", "iteration", "wall_time", "episodes")
+NOT_CURVES = ("global_step", "iteration", "wall_time", "episodes", "eval/return_std", "eval/episodes")
+# Evaluations during training (`run.eval_every`) are drawn unsmoothed: each point already averages its episodes,
+# and they lie many logged rows apart.
+EVAL_PREFIX = "eval/"
+# The first panels, in this order, where the runs have them.
+LEADING_PANELS = ("episodic_return", "eval/return_mean", "episodic_length", "eval/length_mean", "sps")
 # (title, y-axis label with units) of the columns every run logs; each algorithm declares its own
 # (`AlgorithmSpec.plot_labels`), and other columns get their column name.
 PANEL_LABELS: dict[str, tuple[str, str]] = {
     "episodic_return": ("Episode return", "return per episode (sum of rewards)"),
     "episodic_length": ("Episode length", "steps per episode"),
+    "eval/return_mean": ("Evaluation return", "mean return of deterministic eval episodes"),
+    "eval/length_mean": ("Evaluation episode length", "steps per eval episode"),
     "sps": ("Training speed", "env steps / s"),
 }
 X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
 CONFIDENCE = 0.95
 BOOTSTRAP_SAMPLES = 2000
+# Groups with fewer runs get the range of their runs as band, groups with this many or more a bootstrap CI.
+MIN_RUNS_FOR_CI = 5
+# Band kinds, and how the legend names them.
+RANGE, BOOTSTRAP, SINGLE = "range", "bootstrap", "single"
+BAND_NAMES = {RANGE: "band: range", BOOTSTRAP: f"band: {CONFIDENCE:.0%} CI", SINGLE: "no band"}
 
 
 @dataclass(frozen=True)
@@ -83,6 +101,7 @@ class Band:
     low: np.ndarray
     high: np.ndarray
     runs: int
+    kind: str  # RANGE, BOOTSTRAP or SINGLE
 
 
 # ------------------------------------------------------------------------------------------------------ reading
@@ -130,6 +149,20 @@ def _show(key: str, value: Any) -> str:
     return f"{name}={shown}"
 
 
+def _label_keys(flats: Sequence[dict[str, Any]], configs: Sequence[Config]) -> list[list[str]]:
+    """The keys that label each config (see `experiment_labels`)."""
+    if len(configs) == 1:
+        return [list(HEADLINE_KEYS)]
+    diff = differing_keys(configs)
+    headline = [k for k in HEADLINE_KEYS if any(f.get(k) != flats[0].get(k) for f in flats[1:])]
+    keys = []
+    for flat in flats:
+        same_headline = [f for f in flats if all(f.get(k) == flat.get(k) for k in headline)]
+        extra = [k for k in diff if k not in headline and k in flat and any(f.get(k) != flat[k] for f in same_headline)]
+        keys.append(headline + extra)
+    return keys
+
+
 def experiment_labels(configs: Sequence[Config]) -> list[str]:
     """One label per config, from the keys in which they differ: the headline keys (env, algo, preset) when they
     tell the configs apart, plus any other differing key needed to tell apart configs whose headline is equal.
@@ -137,13 +170,20 @@ def experiment_labels(configs: Sequence[Config]) -> list[str]:
     flats = [flat_config(c) for c in configs]
     if len(configs) == 1:
         return [" ".join(_show(k, flats[0][k]) for k in HEADLINE_KEYS)]
-    diff = differing_keys(configs)
-    headline = [k for k in HEADLINE_KEYS if any(f.get(k) != flats[0].get(k) for f in flats[1:])]
+    return [
+        ", ".join(_show(k, flat[k]) for k in keys) or "same config"
+        for flat, keys in zip(flats, _label_keys(flats, configs))
+    ]
+
+
+def method_labels(configs: Sequence[Config]) -> list[str]:
+    """The label of each config without its env: configs whose labels differ only in the env are one method, whose
+    scores on several envs the statistics aggregate. A label left empty names the algorithm and preset."""
+    flats = [flat_config(c) for c in configs]
     labels = []
-    for flat in flats:
-        same_headline = [f for f in flats if all(f.get(k) == flat.get(k) for k in headline)]
-        extra = [k for k in diff if k not in headline and k in flat and any(f.get(k) != flat[k] for f in same_headline)]
-        labels.append(", ".join(_show(k, flat[k]) for k in headline + extra) or "same config")
+    for flat, keys in zip(flats, _label_keys(flats, configs)):
+        kept = [k for k in keys if k != "env.id"] or ["run.algo", "run.preset"]
+        labels.append(", ".join(_show(k, flat[k]) for k in kept))
     return labels
 
 
@@ -212,6 +252,15 @@ def interpolate(x: np.ndarray, y: np.ndarray, grid: np.ndarray, hold: float = 0.
     return np.where(inside, np.interp(grid, x, y), np.nan)
 
 
+def range_band(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, minimum and maximum over runs (rows of `samples` [runs, points]) at each point, ignoring NaNs."""
+    samples = np.asarray(samples, float)
+    with warnings.catch_warnings():
+        # Points where every run is NaN are expected (no episode finished yet there).
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(samples, axis=0), np.nanmin(samples, axis=0), np.nanmax(samples, axis=0)
+
+
 def bootstrap_band(
     samples: np.ndarray, confidence: float = CONFIDENCE, resamples: int = BOOTSTRAP_SAMPLES, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -237,7 +286,8 @@ def experiment_band(
     group: Experiment, column: str, x_axis: str = "steps", smooth: int = 1, seed: int = 0
 ) -> Band | None:
     """The curve of one column for one group: per-run smoothing, interpolation onto a common grid, then the mean
-    and bootstrap band over runs. None when no run of the group logged the column."""
+    over runs and its band: the range of the runs below MIN_RUNS_FOR_CI runs, a bootstrap CI from there on. None
+    when no run of the group logged the column."""
     x_column = X_AXES[x_axis][0]
     runs = [
         r for r in group.runs if column in r.columns and x_column in r.columns and not np.isnan(r.columns[column]).all()
@@ -245,41 +295,50 @@ def experiment_band(
     if not runs:
         return None
     xs = [r.columns[x_column] for r in runs]
-    ys = [moving_average(r.columns[column], smooth) for r in runs]
+    window = 1 if column.startswith(EVAL_PREFIX) else smooth
+    ys = [moving_average(r.columns[column], window) for r in runs]
     if len(runs) == 1:
         keep = ~(np.isnan(xs[0]) | np.isnan(ys[0]))
         x, y = xs[0][keep], ys[0][keep]
-        return Band(x, y, y.copy(), y.copy(), 1)
+        return Band(x, y, y.copy(), y.copy(), 1, SINGLE)
     grid = common_grid(xs)
     samples = np.stack([interpolate(x, y, grid, logging_interval(x)) for x, y in zip(xs, ys)])
+    if len(runs) < MIN_RUNS_FOR_CI:
+        return Band(grid, *range_band(samples), len(runs), RANGE)
     mean, low, high = bootstrap_band(samples, seed=seed)
-    return Band(grid, mean, low, high, len(runs))
+    return Band(grid, mean, low, high, len(runs), BOOTSTRAP)
 
 
 # ------------------------------------------------------------------------------------------------------ panels
 
 
 def available_metrics(runs: Sequence[RunCurves]) -> list[str]:
-    """Columns that can be drawn, in panel order: return, length and speed first, then the algorithms'
-    diagnostics in logged order; `info/*` columns last."""
+    """Columns that can be drawn, in panel order: training and evaluation return, their lengths and speed
+    first, then the algorithms' diagnostics in logged order; `info/*` columns last."""
     seen: list[str] = []
     for run in runs:
         for name, values in run.columns.items():
             if name not in NOT_CURVES and name not in seen and not np.isnan(values).all():
                 seen.append(name)
-    first = [c for c in ("episodic_return", "episodic_length", "sps") if c in seen]
+    first = [c for c in LEADING_PANELS if c in seen]
     rest = [c for c in seen if c not in first and not c.startswith("info/")]
     return first + rest + [c for c in seen if c.startswith("info/")]
 
 
+def unused_diagnostic(runs: Sequence[RunCurves], column: str) -> bool:
+    """A diagnostic that every run's config turns off (`AlgorithmSpec.unused_metrics`), such as ppo's symmetry
+    loss without sym.coef, which it logs as 0."""
+    return all(column in unused_metrics(r.config) for r in runs)
+
+
 def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -> list[str]:
     """The requested columns, each a name or a glob such as `info/*` (checked), or by default every available
-    column except the env's info/* terms."""
+    column except the env's info/* terms and the diagnostics that the runs do not use."""
     import fnmatch
 
     available = available_metrics(runs)
     if not requested:
-        return [c for c in available if not c.startswith("info/")]
+        return [c for c in available if not c.startswith("info/") and not unused_diagnostic(runs, c)]
     chosen: list[str] = []
     missing = []
     for pattern in requested:
@@ -322,8 +381,11 @@ def draw(
     smooth: int = 1,
     seed: int = 0,
     columns: int = 3,
+    board: Scoreboard | None = None,
 ) -> Figure:
-    """A matplotlib Figure with one panel per metric and one line (mean) plus band (95% CI) per group."""
+    """A matplotlib Figure with one panel per metric and one line (mean) plus band per group (the range of its runs
+    below MIN_RUNS_FOR_CI runs, a 95% bootstrap CI from there on), and below them the statistics of `board` when
+    some group has several runs."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import EngFormatter
@@ -333,10 +395,22 @@ def draw(
     columns = max(1, min(columns, len(metrics)))
     rows = math.ceil(len(metrics) / columns)
     # One panel alone is widened so that the legend and its caption fit without being cut at the edges.
-    width = max(5.0 * columns, 7.5)
-    fig = Figure(figsize=(width, 3.4 * rows + 1.0), layout="constrained")
+    with_statistics = board is not None and any(len(c.scores) > 1 for c in board.cells)
+    # The statistics row needs the width of three panels, and a line per row of intervals.
+    width = max(5.0 * columns, 15.0 if with_statistics else 7.5)
+    statistics_height = 1.2 + 0.3 * max(len(board.cells), len(board.comparisons), 6) if board else 0.0
+    height = 3.4 * rows + 1.0 + (statistics_height if with_statistics else 0.0)
+    fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)  # headless: no pyplot, no display, no global backend switch
-    axes = fig.subplots(rows, columns, squeeze=False).ravel()
+    curves: Any = fig
+    if with_statistics:
+        assert board is not None
+        from canter.use.score_plot import draw_scoreboard
+
+        parts: Any = fig.subfigures(2, 1, height_ratios=[3.4 * rows, statistics_height])
+        curves = parts[0]
+        draw_scoreboard(parts[1], board)
+    axes = curves.subplots(rows, columns, squeeze=False).ravel()
     colors = [f"C{i % 10}" for i in range(len(groups))]
     for ax, metric in zip(axes, metrics):
         title, unit = panel_labels(metric)
@@ -345,7 +419,7 @@ def draw(
             if band is None:
                 continue
             ax.plot(band.x, band.mean, color=color, linewidth=1.6)
-            if band.runs > 1:
+            if band.kind != SINGLE:
                 ax.fill_between(band.x, band.low, band.high, color=color, alpha=0.22, linewidth=0)
         ax.set_title(title, fontsize=11)
         ax.set_ylabel(unit, fontsize=9)
@@ -358,12 +432,22 @@ def draw(
     from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=c, linewidth=2.5) for c in colors]
-    names = [f"{g.label} ({len(g.runs)} run{'s' if len(g.runs) > 1 else ''})" for g in groups]
+    names = [
+        f"{g.label} ({len(g.runs)} run{'s' if len(g.runs) > 1 else ''}), {BAND_NAMES[band_kind(g)]}" for g in groups
+    ]
     smoothing = f"moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
-    band_note = (
-        f"; shaded: {CONFIDENCE:.0%} bootstrap CI of the mean over seeds"
-        if any(len(g.runs) > 1 for g in groups)
-        else ""
+    kinds = {band_kind(g) for g in groups}
+    band_note = "".join(
+        note
+        for kind, note in (
+            (RANGE, f"; band 'range' (groups of fewer than {MIN_RUNS_FOR_CI} runs): min to max of the runs"),
+            (
+                BOOTSTRAP,
+                f"; band '{CONFIDENCE:.0%} CI' (groups of {MIN_RUNS_FOR_CI} runs or more): percentile "
+                f"bootstrap CI of the mean, {BOOTSTRAP_SAMPLES:,} resamples",
+            ),
+        )
+        if kind in kinds
     )
     envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
     import textwrap
@@ -382,6 +466,42 @@ def draw(
     return fig
 
 
+def band_kind(group: Experiment) -> str:
+    """The band a group's curves get from its number of runs (a panel where fewer of them logged may get less)."""
+    return SINGLE if len(group.runs) == 1 else RANGE if len(group.runs) < MIN_RUNS_FOR_CI else BOOTSTRAP
+
+
+def final_score(run: RunCurves) -> tuple[float, str] | None:
+    """(a run's score, what it is): its final deterministic evaluation (eval.json, as `canter bench` writes it),
+    else the last evaluation during training (`eval/return_mean`), else its recent training return."""
+    found = run_score(run.run_dir)
+    evaluations = run.columns.get("eval/return_mean")
+    if (found is None or found[1] != EVAL_SOURCE) and evaluations is not None and not np.isnan(evaluations).all():
+        return float(evaluations[~np.isnan(evaluations)][-1]), LAST_EVAL_SOURCE
+    return found
+
+
+def scoreboard_of(
+    groups: Sequence[Experiment], scores: dict[Path, tuple[float, str]] | None = None, seed: int = 0
+) -> Scoreboard | None:
+    """The statistics of the groups' final scores: `scores` by run folder where given, else each run's
+    `final_score`. Groups whose labels differ only in the env are one method. None unless some group has two or
+    more scored runs: a single run has no interval."""
+    methods = method_labels([g.runs[0].config for g in groups])
+    rows, sources = [], []
+    for group, method in zip(groups, methods):
+        for run in group.runs:
+            found = scores.get(run.run_dir) if scores is not None else final_score(run)
+            if found is None:
+                continue
+            rows.append(RunScore(method, run.config.env.id, run.config.run.algo, found[0], run.run_dir.name))
+            sources.append(found[1])
+    cells = [(r.method, r.env_id) for r in rows]
+    if all(cells.count(cell) < 2 for cell in cells):
+        return None
+    return build_scoreboard(rows, "; ".join(dict.fromkeys(sources)), seed=seed)
+
+
 def render(
     run_dirs: Sequence[str | Path],
     fmt: str = "png",
@@ -389,11 +509,27 @@ def render(
     x_axis: str = "steps",
     smooth: int = 1,
     seed: int = 0,
+    scores: dict[Path, tuple[float, str]] | None = None,
 ) -> bytes:
-    """Read runs, group them, draw the chosen panels; the image file's bytes."""
+    """Read runs, group them, draw the chosen panels and the statistics of their final scores (`scores` by run
+    folder where given, else each run's `final_score`); the image file's bytes."""
+    return render_with_scoreboard(run_dirs, fmt, metrics, x_axis, smooth, seed, scores)[0]
+
+
+def render_with_scoreboard(
+    run_dirs: Sequence[str | Path],
+    fmt: str = "png",
+    metrics: Sequence[str] | None = None,
+    x_axis: str = "steps",
+    smooth: int = 1,
+    seed: int = 0,
+    scores: dict[Path, tuple[float, str]] | None = None,
+) -> tuple[bytes, Scoreboard | None]:
+    """`render`, and the scoreboard it drew."""
     runs = [load_run(r) for r in run_dirs]
     groups = experiments_of(runs)
-    fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed)
+    board = scoreboard_of(groups, scores, seed)
+    fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed, board=board)
     buffer = io.BytesIO()
     fig.savefig(buffer, format=fmt, dpi=110)
-    return buffer.getvalue()
+    return buffer.getvalue(), board

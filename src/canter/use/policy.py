@@ -13,16 +13,33 @@ from canter.training.restore import PolicyFacts, load_state
 
 
 class Policy:
-    """Applies the saved observation normalization (frozen), the actor, and action clipping."""
+    """Applies the saved observation normalization (frozen), the actor, and action clipping.
 
-    def __init__(self, config: Config, facts: PolicyFacts, params: Any, obs_stats: Any, source: Path) -> None:
+    `checkpoint` says which checkpoint it came from (`last`, `best` or the file); `selection` is the evaluation
+    during training that chose a best checkpoint (its header's `evaluation`), None for any other."""
+
+    def __init__(
+        self,
+        config: Config,
+        facts: PolicyFacts,
+        params: Any,
+        obs_stats: Any,
+        source: Path,
+        checkpoint: str = "last",
+        selection: dict[str, Any] | None = None,
+    ) -> None:
         import jax
 
         from canter.algos import get_algorithm
 
         self.config, self.facts, self.params, self.obs_stats, self.source = config, facts, params, obs_stats, source
+        self.checkpoint, self.selection = checkpoint, selection
         self._act = jax.jit(get_algorithm(config.run.algo).make_act(config, facts), static_argnums=(4,))
         self._key = jax.random.key(0)
+
+    @property
+    def chosen_by_evaluation(self) -> bool:
+        return self.selection is not None
 
     @property
     def obs_dim(self) -> int:
@@ -52,12 +69,21 @@ class Policy:
         return action[0] if single else action
 
 
-def load(run_dir: str | Path, checkpoint_file: str | Path | None = None) -> Policy:
-    """Load the newest checkpoint of a run folder (or the given checkpoint file) as a `Policy`."""
+def load(run_dir: str | Path, checkpoint: str | Path = "last") -> Policy:
+    """Load a checkpoint of a run folder as a `Policy`: `last` (the newest), `best` (the best evaluated during
+    training) or a checkpoint file."""
     import jax
 
     from canter.algos import get_algorithm
 
-    config, facts, state, _ = load_state(Path(run_dir), None if checkpoint_file is None else Path(checkpoint_file))
+    config, facts, state, header = load_state(Path(run_dir), checkpoint)
     params = get_algorithm(config.run.algo).policy_params(state)
-    return Policy(config, facts, jax.device_put(params), jax.device_put(state.obs_stats), Path(run_dir))
+    return Policy(
+        config,
+        facts,
+        jax.device_put(params),
+        jax.device_put(state.obs_stats),
+        Path(run_dir),
+        str(checkpoint),
+        header.get("evaluation"),
+    )

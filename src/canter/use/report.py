@@ -23,6 +23,8 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
 from canter.training import checkpoint
+from canter.use.plot import MIN_RUNS_FOR_CI
+from canter.use.scoreboard import Scoreboard
 
 VIDEO_TYPES = {".mp4": "video/mp4", ".webm": "video/webm"}
 IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
@@ -53,12 +55,12 @@ def _natural_key(path: Path) -> list:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
-def run_facts(run_dir: str | Path) -> RunFacts:
-    """What the report needs from a run folder; a one-line error when it has no checkpoint."""
+def run_facts(run_dir: str | Path, which: str = checkpoint.LAST) -> RunFacts:
+    """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names."""
     from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
-    checkpoint.latest(run_dir)  # refuses folders without a checkpoint before any work is done
+    checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
     config = read_config(run_dir)
     try:
         summary = json.loads((run_dir / "summary.json").read_text())
@@ -78,14 +80,14 @@ def run_facts(run_dir: str | Path) -> RunFacts:
     return RunFacts(run_dir, config, summary, robustness, videos)
 
 
-def evaluate_runs(run_dirs: Sequence[Path], episodes: int, seed: int) -> list[EvalRow]:
-    """Deterministic evaluation of each run's newest checkpoint with frozen normalizer statistics."""
+def evaluate_runs(run_dirs: Sequence[Path], episodes: int, seed: int, which: str = checkpoint.LAST) -> list[EvalRow]:
+    """Deterministic evaluation of a checkpoint of each run (`which`) with frozen normalizer statistics."""
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
     rows = []
     for run_dir in run_dirs:
-        policy = load(run_dir)
+        policy = load(run_dir, which)
         result = evaluate(policy, episodes=episodes, deterministic=True, seed=seed)
         rows.append(
             EvalRow(
@@ -306,6 +308,8 @@ def render_html(
     curves_png: bytes,
     smooth: int,
     recorded: dict[Path, tuple[Path, list[float]]] | None = None,
+    which: str = checkpoint.LAST,
+    board: Scoreboard | None = None,
 ) -> str:
     from canter import __version__
 
@@ -316,17 +320,21 @@ def render_html(
         evaluation = "<p class='note'>Not evaluated (--episodes 0).</p>"
     else:
         evaluation = (
-            f"<p class='note'>{episodes} deterministic episodes per run on fresh envs, normalizer "
-            f"statistics frozen; ± is the standard deviation over episodes.</p>" + eval_section(facts, eval_rows)
+            f"<p class='note'>{_e(_checkpoint_note(which))}: {episodes} deterministic episodes per run on fresh "
+            f"envs, normalizer statistics frozen; ± is the standard deviation over episodes.</p>"
+            + eval_section(facts, eval_rows)
         )
     smoothing = f"trailing moving average over {smooth} logged rows" if smooth > 1 else "unsmoothed"
     sections = [
         ("Runs", runs_section(facts)),
         ("Evaluation", evaluation),
+        ("Statistics", statistics_section(board)),
         (
             "Learning curves",
-            f"<p class='note'>Runs that differ only in seed are averaged; shaded: 95% bootstrap "
-            f"confidence band of the mean; {smoothing}.</p>"
+            f"<p class='note'>Runs that differ only in seed are averaged; shaded: the range (min to max) of "
+            f"the runs for groups of fewer than {MIN_RUNS_FOR_CI} runs, the 95% bootstrap confidence band of the mean "
+            f"for groups of {MIN_RUNS_FOR_CI} or more (the legend names each group's band and its n); {smoothing}. "
+            f"Below the curves: the statistics of the final scores, as in the Statistics section.</p>"
             f"<img alt='learning curves' src='{data_uri(curves_png, 'image/png')}'>",
         ),
         (
@@ -348,25 +356,58 @@ def render_html(
     )
 
 
+def statistics_section(board: Scoreboard | None) -> str:
+    """The scoreboard's tables: aggregates with their intervals, profiles and probabilities of improvement."""
+    if board is None:
+        return (
+            "<p class='note'>No statistics: they need a group of two or more runs with a score (an evaluation, or "
+            "a finished training).</p>"
+        )
+    parts = []
+    for table in board.tables():
+        parts.append(f"<h3>{_e(table.title)}</h3><p class='note'>{_e(table.note)}</p>")
+        parts.append(_table(table.header, table.rows, numeric_from=len(table.header)))
+    note = board.normalizer_note()
+    return "\n".join(parts + ([f"<p class='note'>{_e(note)}</p>"] if note else []))
+
+
+def _checkpoint_note(which: str) -> str:
+    if which == checkpoint.BEST:
+        return (
+            "Best checkpoints (checkpoints/best.npz), on held-out env seeds apart from the evaluations during "
+            "training that chose them"
+        )
+    return "Newest checkpoints" if which == checkpoint.LAST else f"Checkpoint {Path(which).name}"
+
+
 def build_report(
-    run_dirs: Sequence[str | Path], episodes: int = 10, seed: int = 0, smooth: int = 1, video: bool = False
+    run_dirs: Sequence[str | Path],
+    episodes: int = 10,
+    seed: int = 0,
+    smooth: int = 1,
+    video: bool = False,
+    which: str = checkpoint.LAST,
 ) -> str:
-    """The report page. With `video`, one deterministic episode of each run is rendered for it (canter.use.video)
-    rather than embedding the newest file of the run's videos/ folder."""
-    from canter.use.plot import render
+    """The report page, evaluating the checkpoint `which` names (`last`, `best` or a file). With `video`, one
+    deterministic episode of each run is rendered for it (canter.use.video) rather than embedding the newest file
+    of the run's videos/ folder."""
+    from canter.use.plot import render_with_scoreboard
 
     if episodes < 0:
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
-    facts = [run_facts(r) for r in run_dirs]
-    curves = render([f.run_dir for f in facts], fmt="png", smooth=smooth, seed=seed)
-    rows = evaluate_runs([f.run_dir for f in facts], episodes, seed) if episodes else None
+    facts = [run_facts(r, which) for r in run_dirs]
+    rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
+    # The statistics use this report's evaluation where there is one, else each run's own final score.
+    source = f"this report's evaluation ({_checkpoint_note(which).lower()}, {episodes} deterministic episodes)"
+    scores = {f.run_dir: (r.return_mean, source) for f, r in zip(facts, rows)} if rows else None
+    curves, board = render_with_scoreboard([f.run_dir for f in facts], "png", smooth=smooth, seed=seed, scores=scores)
     if not video:
-        return render_html(facts, rows, episodes, curves, smooth)
+        return render_html(facts, rows, episodes, curves, smooth, which=which, board=board)
     from canter.use.video import record_video
 
     with tempfile.TemporaryDirectory(prefix="canter-report-") as folder:
         recorded = {}
         for i, f in enumerate(facts):
             path = Path(folder) / f"run{i + 1}.mp4"
-            recorded[f.run_dir] = (path, record_video(f.run_dir, path, episodes=1, seed=seed))
-        return render_html(facts, rows, episodes, curves, smooth, recorded)
+            recorded[f.run_dir] = (path, record_video(f.run_dir, path, episodes=1, seed=seed, checkpoint=which))
+        return render_html(facts, rows, episodes, curves, smooth, recorded, which, board)

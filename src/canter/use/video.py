@@ -275,22 +275,24 @@ def record_video(
     fps: int = DEFAULT_FPS,
     camera: str | None = None,
     seed: int = 0,
-    checkpoint_file: str | Path | None = None,
+    checkpoint: str | Path = "last",
     max_steps: int = 0,
 ) -> list[float]:
-    """Render `episodes` deterministic episodes of a run's newest checkpoint (or `checkpoint_file`) to an MP4 or
+    """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
     GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`."""
+    from canter.training.checkpoint import resolve
+
     out = Path(out_path)
     check_video_args(out, episodes, width, height, fps)
     if not _headless_in_this_process():
-        return _record_in_subprocess(
-            run_dir, out, episodes, width, height, fps, camera, seed, checkpoint_file, max_steps
-        )
+        # Resolved here, so that a run without the checkpoint asked for fails with its own message.
+        path = resolve(Path(run_dir), checkpoint).absolute()
+        return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
     from canter.envs.registry import dm_control_task
     from canter.use.policy import load
 
     configure_gl()
-    policy = load(run_dir, checkpoint_file)
+    policy = load(run_dir, checkpoint)
     task = dm_control_task(policy.facts.env_id)
     player = (
         _DMControlPlayer(*task, width, height, camera)
@@ -320,7 +322,7 @@ def _record_in_subprocess(
     fps: int,
     camera: str | None,
     seed: int,
-    checkpoint_file: Any,
+    checkpoint: Path,
     max_steps: int,
 ) -> list[float]:
     request = dict(
@@ -333,7 +335,7 @@ def _record_in_subprocess(
         camera=camera,
         seed=seed,
         max_steps=max_steps,
-        checkpoint_file=None if checkpoint_file is None else str(checkpoint_file),
+        checkpoint=str(checkpoint),
     )
     with quiet_fork():
         done = subprocess.run(

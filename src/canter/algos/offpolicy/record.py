@@ -11,7 +11,7 @@ import numpy as np
 from canter.algos.offpolicy.iteration import init_train_state, make_iteration
 from canter.algos.offpolicy.learner import LOOP_METRICS, OffPolicyLearner
 from canter.algos.offpolicy.sections import OffPolicyConfig
-from canter.algos.protocol import Algorithm, ExportedActor
+from canter.algos.protocol import Algorithm, ExportedActor, export_mlp_actor
 from canter.config.schema import Config
 from canter.errors import CanterError
 
@@ -74,24 +74,8 @@ def _export_tanh_actor(config: Config, section: OffPolicyConfig, state: Any, spe
     """Every off-policy actor is a tanh-squashed MLP whose first `act_dim` outputs are the deterministic action."""
     import jax
 
-    from canter.core.normalize import EPSILON
-
-    actor = jax.device_get(state.learner.actor)
-    stats = jax.device_get(state.obs_stats)
-    return ExportedActor(
-        weights=[np.asarray(layer["w"], np.float32) for layer in actor],
-        biases=[np.asarray(layer["b"], np.float32) for layer in actor],
-        activation=section.activation,
-        squash=True,
-        normalize=config.env.normalize_obs,
-        obs_mean=np.asarray(stats.mean, np.float32),
-        obs_var=np.asarray(stats.var, np.float32),
-        obs_eps=EPSILON,
-        clip_obs=config.env.clip_obs,
-        action_low=np.asarray(spec.action_low, np.float32),
-        action_high=np.asarray(spec.action_high, np.float32),
-        output_slice=spec.act_dim,
-    )
+    actor, stats = jax.device_get((state.learner.actor, state.obs_stats))
+    return export_mlp_actor(config, actor, stats, spec, section.activation, squash=True)
 
 
 def _validate_bounded_actions(name: str, spec: Any) -> None:

@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from canter.algos import Algorithm, ExportedActor
+from canter.algos.protocol import export_mlp_actor
 from canter.config.schema import Config
 
 PPO_METRICS = (
@@ -68,24 +67,8 @@ def gaussian_policy_params(state: Any) -> Any:
 def export_gaussian_actor(config: Config, state: Any, spec: Any) -> ExportedActor:
     import jax
 
-    actor = jax.device_get(state.params["actor"])
-    stats = jax.device_get(state.obs_stats)
-    from canter.core.normalize import EPSILON
-
-    return ExportedActor(
-        weights=[np.asarray(layer["w"], np.float32) for layer in actor],
-        biases=[np.asarray(layer["b"], np.float32) for layer in actor],
-        activation=config.net.activation,
-        squash=False,
-        normalize=config.env.normalize_obs,
-        obs_mean=np.asarray(stats.mean, np.float32),
-        obs_var=np.asarray(stats.var, np.float32),
-        obs_eps=EPSILON,
-        clip_obs=config.env.clip_obs,
-        action_low=np.asarray(spec.action_low, np.float32),
-        action_high=np.asarray(spec.action_high, np.float32),
-        output_slice=spec.act_dim,
-    )
+    actor, stats = jax.device_get((state.params["actor"], state.obs_stats))
+    return export_mlp_actor(config, actor, stats, spec, config.net.activation, squash=False)
 
 
 def validate_continuous(config: Config, spec: Any) -> None:

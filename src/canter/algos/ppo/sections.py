@@ -142,6 +142,15 @@ PPO_LABELS = {
 }
 
 
+def unused_metrics(config: Config) -> tuple[str, ...]:
+    """The symmetry loss without sym.coef, and the KL penalty's β with the clipped objective."""
+    return tuple(
+        name
+        for name, unused in (("sym_loss", config.sym.coef == 0), ("kl_beta", config.ppo.objective != "kl_penalty"))
+        if unused
+    )
+
+
 PACKAGE = "canter.algos.ppo"
 
 register_section("net", NetConfig, check_net)
@@ -161,6 +170,7 @@ PPO = AlgorithmSpec(
     plot_labels=PPO_LABELS,
     rollout_batch=rollout_batch,
     batch_divisors=("ppo.minibatch_size",),
+    unused_metrics=unused_metrics,
 )
 RPO = AlgorithmSpec(
     name="rpo",
@@ -174,6 +184,7 @@ RPO = AlgorithmSpec(
     plot_labels=PPO_LABELS,
     rollout_batch=rollout_batch,
     batch_divisors=("ppo.minibatch_size",),
+    unused_metrics=unused_metrics,
 )
 register_algorithm(PPO)
 register_algorithm(RPO)

@@ -111,9 +111,11 @@ class EnvPoolVecEnv:
         return tuple(handles), self._merge(outs, jnp)
 
     def host_step(self, action: np.ndarray) -> StepOutput:
+        # Every pool gets its actions before any result is awaited, so the pools step at once, as in `jax_step`.
         action = np.asarray(action, self._action_dtype)
-        outs = [p.step(action[part]) for p, part in zip(self._pools, self._slices)]
-        return self._merge(outs, np)
+        for pool, part in zip(self._pools, self._slices):
+            pool.send(action[part])
+        return self._merge([pool.recv(reset=False, return_info=True) for pool in self._pools], np)
 
     def _merge(self, outs: list, xp: Any) -> StepOutput:
         cat = xp.concatenate

@@ -1,0 +1,156 @@
+"""The evaluation protocol of `canter eval`, which training also runs every `run.eval_every` env steps.
+
+An evaluation plays exactly `episodes` full-length episodes on fresh envs, with the observation normalizer frozen
+at the evaluated state's statistics. The envs' seeds come from (seed, purpose) (`canter.core.seeding`), a stream
+apart from the training envs'. Each env plays a fixed quota of episodes, so short episodes are not
+over-represented.
+
+An evaluation during training is the deterministic `canter eval --episodes K --seed 0` of the train state at that
+step (`DURING_TRAINING_SEED`): the same eval envs at every evaluation and in every run, so evaluations compare
+across steps, seeds and trials, and any of them can be repeated from a checkpoint of that step.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from canter.core.seeding import EVAL, env_seeds
+from canter.errors import CanterError
+
+MAX_EVAL_ENVS = 32
+DURING_TRAINING_SEED = 0
+# metrics.csv columns of a run with run.eval_every > 0, empty in rows without an evaluation.
+EVAL_COLUMNS = ("eval/return_mean", "eval/return_std", "eval/length_mean", "eval/episodes")
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    returns: np.ndarray
+    lengths: np.ndarray
+    wall_seconds: float
+
+    @property
+    def mean(self) -> float:
+        return float(self.returns.mean())
+
+    @property
+    def std(self) -> float:
+        return float(self.returns.std())
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "episodes": int(self.returns.size),
+            "return_mean": self.mean,
+            "return_std": self.std,
+            "length_mean": float(self.lengths.mean()),
+            "length_std": float(self.lengths.std()),
+            "eval_seconds": self.wall_seconds,
+            "returns": [float(r) for r in self.returns],
+            "lengths": [int(n) for n in self.lengths],
+        }
+
+    def columns(self) -> dict[str, float]:
+        """The values of EVAL_COLUMNS."""
+        values = (self.mean, self.std, float(self.lengths.mean()), int(self.returns.size))
+        return dict(zip(EVAL_COLUMNS, values))
+
+
+def run_episodes(
+    act: Callable[[np.ndarray], np.ndarray],
+    env_id: str,
+    backend: str,
+    episodes: int,
+    seed: int,
+    purpose: int = EVAL,
+    sizes: tuple[int, int] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+) -> EvalResult:
+    """Play exactly `episodes` episodes with `act(obs_batch) -> actions`. `sizes` (obs_dim, act_dim) are checked
+    against the env; `env_kwargs` go to the env backend."""
+    from canter.envs.registry import make_vec_env
+
+    num_envs = min(episodes, MAX_EVAL_ENVS)
+    quota = np.full(num_envs, episodes // num_envs)
+    quota[: episodes % num_envs] += 1
+    started = time.perf_counter()
+    env = make_vec_env(env_id, backend, num_envs, env_seeds(seed, num_envs, purpose), **(env_kwargs or {}))
+    try:
+        if sizes is not None and (env.spec.obs_dim, env.spec.act_dim) != sizes:
+            raise CanterError(
+                f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
+                f"policy expects {sizes[0]}/{sizes[1]}; pick a matching --env"
+            )
+        obs = env.reset()
+        done_count = np.zeros(num_envs, int)
+        running_return = np.zeros(num_envs)
+        running_length = np.zeros(num_envs, int)
+        prev_done = np.zeros(num_envs, bool)
+        returns: list[float] = []
+        lengths: list[int] = []
+        while (done_count < quota).any():
+            out = env.host_step(act(obs))
+            valid = ~prev_done
+            running_return += out.reward * valid
+            running_length += valid
+            done = (out.terminated | out.truncated) & valid
+            for i in np.flatnonzero(done):
+                if done_count[i] < quota[i]:
+                    returns.append(float(running_return[i]))
+                    lengths.append(int(running_length[i]))
+                done_count[i] += 1
+            running_return[done] = 0.0
+            running_length[done] = 0
+            prev_done = done
+            obs = out.obs
+    finally:
+        env.close()
+    return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started)
+
+
+class TrainingEvaluation:
+    """Evaluation during training for one run: when it is due, the evaluation itself, and the best score so far.
+
+    Due at the first iteration boundary at or past every multiple of `run.eval_every`, and at the end of the step
+    budget; a run stopped early (signal, max_minutes, stop_at_return) ends without one."""
+
+    def __init__(self, config: Any, spec: Any, start_step: int, best_return: float | None) -> None:
+        import jax
+
+        from canter.algos import get_algorithm
+
+        self.every = config.run.eval_every
+        self.episodes = config.run.eval_episodes
+        self.total_steps = config.run.total_steps
+        self.env_id, self.backend = spec.id, spec.backend
+        self.next_step = (start_step // self.every + 1) * self.every
+        self.best_return = -math.inf if best_return is None else best_return
+        algorithm = get_algorithm(config.run.algo)
+        self._policy_params = algorithm.policy_params
+        self._act = jax.jit(algorithm.make_act(config, spec), static_argnums=(4,))
+        self._key = jax.random.key(0)
+
+    def due(self, step: int) -> bool:
+        return step >= self.next_step or step >= self.total_steps
+
+    def evaluate(self, train_state: Any, step: int) -> EvalResult:
+        """The deterministic evaluation of `train_state` (its policy and frozen normalizer statistics)."""
+        self.next_step = (step // self.every + 1) * self.every
+        params, obs_stats = self._policy_params(train_state), train_state.obs_stats
+
+        def act(obs: np.ndarray) -> np.ndarray:
+            return np.asarray(self._act(params, obs_stats, np.asarray(obs, np.float32), self._key, True))
+
+        return run_episodes(act, self.env_id, self.backend, self.episodes, DURING_TRAINING_SEED)
+
+    def improves(self, result: EvalResult) -> bool:
+        """Whether `result` beats every earlier evaluation of the run (which then becomes the best)."""
+        if result.mean > self.best_return:
+            self.best_return = result.mean
+            return True
+        return False

@@ -1,0 +1,91 @@
+"""Draw a `canter.use.scoreboard.Scoreboard` into a matplotlib (sub)figure, in the style of rliable's plots: one
+axis per aggregate (IQM, mean, median, optimality gap) with a row per method and its 95% interval, the
+performance profiles, and the probability of improvement of every pair of methods."""
+
+from __future__ import annotations
+
+import textwrap
+from typing import Any
+
+from canter.use.scoreboard import Scoreboard
+from canter.use.statistics import CONFIDENCE, Aggregates, Interval
+
+NORMALIZED = "normalized score"
+AGGREGATES = (("iqm", "IQM"), ("mean", "Mean"), ("median", "Median"), ("optimality_gap", "Optimality gap"))
+
+
+def _rows(board: Scoreboard) -> tuple[list[str], list[Aggregates], str]:
+    """(row labels, their aggregates, the x-axis label): methods on normalized scores when the board spans several
+    envs and has them, else one row per env and method on returns."""
+    if len(board.envs) > 1 and board.methods:
+        labels = [f"{m.method} (n={m.normalized.runs}×{m.normalized.tasks} envs)" for m in board.methods]
+        return labels, [m.normalized for m in board.methods], NORMALIZED
+    labels = [
+        f"{c.method} (n={c.returns.runs})" if len(board.envs) == 1 else f"{c.method}, {c.env_id} (n={c.returns.runs})"
+        for c in board.cells
+    ]
+    return labels, [c.returns for c in board.cells], "final return"
+
+
+def _interval_row(ax: Any, y: int, interval: Interval, color: str) -> None:
+    ax.plot([interval.low, interval.high], [y, y], color=color, linewidth=6, alpha=0.45, solid_capstyle="butt")
+    ax.plot([interval.estimate], [y], marker="|", color="black", markersize=12)
+
+
+def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
+    """Fill `fig` (a Figure or SubFigure) with the board's aggregates, profiles and comparisons."""
+    labels, found, unit = _rows(board)
+    extra = int(bool(board.profiles)) + int(bool(board.comparisons))
+    axes = fig.subplots(1, len(AGGREGATES) + extra, squeeze=False)[0]
+    colors = [f"C{i % 10}" for i in range(len(labels))]
+    for i, (ax, (key, title)) in enumerate(zip(axes, AGGREGATES)):
+        for y, (aggregates, color) in enumerate(zip(found, colors)):
+            interval = getattr(aggregates, key)
+            if interval is not None:
+                _interval_row(ax, y, interval, color)
+            else:  # an optimality gap needs a reference return
+                ax.text(0.5, y, "no published reference", transform=ax.get_yaxis_transform(), ha="center", fontsize=7)
+        ax.set_yticks(range(len(labels)), labels if i == 0 else [""] * len(labels), fontsize=8)
+        ax.set_ylim(len(labels) - 0.5, -0.5)
+        ax.set_title(title, fontsize=10)
+        if i == 0 or key == "optimality_gap":
+            ax.set_xlabel(f"{unit} below reference" if key == "optimality_gap" else unit, fontsize=8)
+        ax.tick_params(axis="x", labelsize=7)
+        ax.grid(True, axis="x", alpha=0.3)
+    next_axis = len(AGGREGATES)
+    if board.profiles:
+        ax = axes[next_axis]
+        next_axis += 1
+        for i, (name, profile) in enumerate(board.profiles.items()):
+            ax.plot(profile.taus, profile.fraction, color=f"C{i % 10}", linewidth=1.5, label=name)
+            ax.fill_between(profile.taus, profile.low, profile.high, color=f"C{i % 10}", alpha=0.2, linewidth=0)
+        ax.set_title("Performance profile", fontsize=10)
+        ax.set_xlabel("normalized score τ", fontsize=8)
+        ax.set_ylabel("fraction of runs > τ", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, frameon=False, loc="lower left")
+    if board.comparisons:
+        ax = axes[next_axis]
+        pairs = [f"P({c.x} > {c.y})" for c in board.comparisons]
+        for y, comparison in enumerate(board.comparisons):
+            _interval_row(ax, y, comparison.probability, "C7")
+        ax.axvline(0.5, color="black", linewidth=0.8, linestyle=":")
+        ax.set_xlim(-0.03, 1.03)
+        ax.set_yticks(range(len(pairs)), pairs, fontsize=8)
+        ax.set_ylim(len(pairs) - 0.5, -0.5)
+        ax.set_title("Probability of improvement", fontsize=10)
+        ax.set_xlabel("probability, per env, averaged", fontsize=8)
+        ax.tick_params(axis="x", labelsize=7)
+        ax.grid(True, axis="x", alpha=0.3)
+    caption = (
+        f"Final scores: {board.source}. Bars: {CONFIDENCE:.0%} stratified-bootstrap CIs (rliable, "
+        f"{board.reps:,} resamples); ticks: point estimates; n: runs per env."
+    )
+    references = sorted({f"{c.normalizer.source} {c.algo}" for c in board.cells if c.normalizer})
+    if unit == NORMALIZED or board.profiles:
+        caption += (
+            " Normalized score: 0 = uniformly random actions (measured by canter), 1 = the published 1M-step return "
+            f"of the same algorithm ({', '.join(references)})."
+        )
+    fig.suptitle(textwrap.fill(caption, width=int(fig.get_figure(root=True).get_figwidth() * 14)), fontsize=9)

@@ -1,0 +1,323 @@
+"""The statistics that bench, plot and report give about final scores, built from one score per run with
+`canter.use.statistics` (rliable) and the normalizers of `canter.use.reference_scores`:
+
+- per env and method (a method: an algorithm with its settings; runs of one method on one env are its seeds):
+  IQM, mean, median and optimality gap of the runs' returns, each with a 95% stratified-bootstrap interval. The
+  optimality gap is the mean shortfall below the published reference (threshold: the reference return), in return units;
+- per method across envs: the same four on normalized scores (threshold 1), over the envs that have a normalizer;
+- performance profiles of the normalized scores, and the probability of improvement P(X > Y) between every two
+  methods over the envs both ran (it compares returns within each env, so it needs no normalizer).
+
+Every table is also a list of rows (`tables()`), so that markdown, HTML and JSON say the same thing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.use import statistics
+from canter.use.reference_scores import Normalizer, normalizer_for, random_command
+from canter.use.statistics import Aggregates, Interval, Profile
+
+# Thresholds of the performance profile, in normalized score.
+PROFILE_TAUS = tuple(round(0.05 * i, 2) for i in range(41))  # 0 to 2
+SHOWN_TAUS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
+EVAL_SOURCE = "final deterministic evaluation (eval.json: mean return over its episodes)"
+LAST_EVAL_SOURCE = "last evaluation during training (metrics.csv: eval/return_mean)"
+TRAINING_SOURCE = "training return (summary.json: mean of the last 20 training episodes)"
+
+
+@dataclass(frozen=True)
+class RunScore:
+    method: str  # label of the algorithm and settings
+    env_id: str
+    algo: str
+    score: float
+    run: str  # the run's name, for the JSON
+
+
+@dataclass(frozen=True)
+class CellStats:
+    """One method on one env: the returns of its runs."""
+
+    method: str
+    env_id: str
+    algo: str
+    scores: tuple[float, ...]
+    returns: Aggregates  # optimality gap below the reference return, when there is one
+    normalizer: Normalizer | None
+
+
+@dataclass(frozen=True)
+class MethodStats:
+    """One method across the envs with a normalizer: normalized scores [runs, envs]."""
+
+    method: str
+    envs: tuple[str, ...]
+    normalized: Aggregates
+    without_normalizer: tuple[str, ...]
+    dropped_runs: int  # runs beyond the fewest any env has, left out to make a matrix
+
+
+@dataclass(frozen=True)
+class Comparison:
+    x: str
+    y: str
+    envs: tuple[str, ...]
+    probability: Interval
+
+
+@dataclass(frozen=True)
+class Table:
+    title: str
+    note: str
+    header: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+
+
+@dataclass(frozen=True)
+class Scoreboard:
+    source: str  # what a run's score is
+    cells: tuple[CellStats, ...]
+    methods: tuple[MethodStats, ...]
+    profiles: dict[str, Profile] = field(default_factory=dict)
+    comparisons: tuple[Comparison, ...] = ()
+    reps: int = statistics.REPS
+    seed: int = 0
+
+    @property
+    def envs(self) -> list[str]:
+        return list(dict.fromkeys(c.env_id for c in self.cells))
+
+    def interval_note(self) -> str:
+        return (
+            f"Intervals: {statistics.CONFIDENCE:.0%} stratified-bootstrap confidence intervals (rliable "
+            f"get_interval_estimates, percentile method, {self.reps:,} resamples of the runs within each env, "
+            f"seed {self.seed}). n: runs per cell."
+        )
+
+    def tables(self) -> list[Table]:
+        tables = [
+            Table(
+                "Final return per env",
+                f"Score of a run: {self.source}. IQM: mean of the middle 50% of runs. Optimality gap: mean shortfall "
+                "of the runs below the reference (the published 1M-step return of the same algorithm), in return "
+                "units. " + self.interval_note(),
+                ("env", "method", "n", "IQM", "mean", "median", "optimality gap", "reference"),
+                tuple(
+                    (
+                        c.env_id,
+                        c.method,
+                        str(c.returns.runs),
+                        c.returns.iqm.show(),
+                        c.returns.mean.show(),
+                        c.returns.median.show(),
+                        c.returns.optimality_gap.show() if c.returns.optimality_gap else "–",
+                        f"{c.normalizer.reference:,.1f} ({c.normalizer.source})" if c.normalizer else "none published",
+                    )
+                    for c in self.cells
+                ),
+            )
+        ]
+        if self.methods:
+            tables.append(
+                Table(
+                    "Across envs, normalized",
+                    "Normalized score = (return − random) / (reference − random): 0 is uniformly random actions "
+                    "(measured by canter), 1 the published 1M-step return of the same algorithm (Tianshou where it "
+                    "has one, else CleanRL). Mean and median are of the per-env means; IQM and optimality gap "
+                    "(γ = 1) pool every run.",
+                    ("method", "envs", "n per env", "IQM", "mean", "median", "optimality gap"),
+                    tuple(
+                        (
+                            m.method,
+                            ", ".join(m.envs)
+                            + (f" (no normalizer: {', '.join(m.without_normalizer)})" if m.without_normalizer else ""),
+                            str(m.normalized.runs) + (f" ({m.dropped_runs} more left out)" if m.dropped_runs else ""),
+                            m.normalized.iqm.show(2),
+                            m.normalized.mean.show(2),
+                            m.normalized.median.show(2),
+                            m.normalized.optimality_gap.show(2) if m.normalized.optimality_gap else "–",
+                        )
+                        for m in self.methods
+                    ),
+                )
+            )
+        if self.profiles:
+            shown = [t for t in SHOWN_TAUS if t in PROFILE_TAUS]
+            tables.append(
+                Table(
+                    "Performance profile",
+                    "Fraction of runs (over the envs of the row above) whose normalized score exceeds τ, with its "
+                    "interval (rliable create_performance_profile).",
+                    ("method",) + tuple(f"τ = {t:g}" for t in shown),
+                    tuple(
+                        (name,)
+                        + tuple(
+                            f"{p.fraction[i]:.2f} [{p.low[i]:.2f}, {p.high[i]:.2f}]"
+                            for i in (PROFILE_TAUS.index(t) for t in shown)
+                        )
+                        for name, p in self.profiles.items()
+                    ),
+                )
+            )
+        if self.comparisons:
+            tables.append(
+                Table(
+                    "Probability of improvement",
+                    "P(X > Y): the probability that a run of X returns more than a run of Y on the same env (ties "
+                    "count half), averaged over the envs both ran; its interval resamples the runs of X and Y "
+                    "independently (rliable probability_of_improvement). A method with unequal numbers of runs per "
+                    "env takes as many runs per env as its smallest env has.",
+                    ("X", "Y", "envs", "P(X > Y)"),
+                    tuple((c.x, c.y, ", ".join(c.envs), c.probability.show(2)) for c in self.comparisons),
+                )
+            )
+        return tables
+
+    def normalizer_note(self) -> str:
+        used = {(c.env_id, c.algo): c.normalizer for c in self.cells if c.normalizer}
+        if not used:
+            return ""
+        return (
+            "Normalizers: "
+            + "; ".join(n.describe() for n in used.values())
+            + f". Random returns measured with `{random_command()}`."
+        )
+
+    def markdown(self) -> str:
+        parts = []
+        for table in self.tables():
+            lines = [f"### {table.title}", "", table.note, "", "| " + " | ".join(table.header) + " |"]
+            lines.append("|" + "---|" * len(table.header))
+            lines += ["| " + " | ".join(row) + " |" for row in table.rows]
+            parts.append("\n".join(lines))
+        note = self.normalizer_note()
+        return "\n\n".join(parts + ([note] if note else [])) + "\n"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "score": self.source,
+            "confidence": statistics.CONFIDENCE,
+            "bootstrap": {"method": "stratified, percentile", "reps": self.reps, "seed": self.seed},
+            "cells": [
+                {
+                    "env": c.env_id,
+                    "method": c.method,
+                    "algo": c.algo,
+                    "scores": list(c.scores),
+                    "return": c.returns.as_dict(),
+                    "normalizer": c.normalizer.as_dict() if c.normalizer else None,
+                }
+                for c in self.cells
+            ],
+            "across_envs": [
+                {
+                    "method": m.method,
+                    "envs": list(m.envs),
+                    "without_normalizer": list(m.without_normalizer),
+                    "dropped_runs": m.dropped_runs,
+                    "normalized": m.normalized.as_dict(),
+                }
+                for m in self.methods
+            ],
+            "performance_profiles": {name: p.as_dict() for name, p in self.profiles.items()},
+            "probability_of_improvement": [
+                {"x": c.x, "y": c.y, "envs": list(c.envs), "probability": c.probability.as_dict()}
+                for c in self.comparisons
+            ],
+            "random_command": random_command(),
+        }
+
+    def json(self) -> str:
+        return json.dumps(self.as_dict(), indent=2) + "\n"
+
+
+def _normalized_matrix(cells: Sequence[CellStats]) -> tuple[np.ndarray, int]:
+    """[runs, envs] of normalized scores, runs matched by position; the runs beyond the fewest are left out."""
+    runs = min(len(c.scores) for c in cells)
+    columns = []
+    for c in cells:
+        assert c.normalizer is not None
+        columns.append(statistics.normalized(c.scores[:runs], c.normalizer.random, c.normalizer.reference))
+    return np.stack(columns, axis=1), sum(len(c.scores) - runs for c in cells)
+
+
+def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int = statistics.REPS, seed: int = 0) -> Scoreboard:
+    """All the statistics of the runs' scores. Cells and methods keep the order in which they first appear."""
+    grouped: dict[tuple[str, str], list[RunScore]] = {}
+    for s in scores:
+        grouped.setdefault((s.method, s.env_id), []).append(s)
+    cells = []
+    for (method, env_id), members in grouped.items():
+        algo = members[0].algo
+        normalizer = normalizer_for(algo, env_id)
+        values = np.array([[m.score] for m in members])
+        gamma = normalizer.reference if normalizer else None
+        cells.append(
+            CellStats(
+                method,
+                env_id,
+                algo,
+                tuple(float(v) for v in values[:, 0]),
+                statistics.aggregates(values, gamma, reps, seed),
+                normalizer,
+            )
+        )
+    method_names = list(dict.fromkeys(c.method for c in cells))
+    methods, matrices = [], {}
+    for name in method_names:
+        own = [c for c in cells if c.method == name]
+        normalizable = [c for c in own if c.normalizer]
+        if not normalizable:
+            continue
+        matrix, dropped = _normalized_matrix(normalizable)
+        matrices[name] = matrix
+        methods.append(
+            MethodStats(
+                name,
+                tuple(c.env_id for c in normalizable),
+                statistics.aggregates(matrix, 1.0, reps, seed),
+                tuple(c.env_id for c in own if not c.normalizer),
+                dropped,
+            )
+        )
+    profiles = statistics.performance_profiles(matrices, PROFILE_TAUS, reps, seed) if matrices else {}
+    comparisons = []
+    for x, y in itertools.combinations(method_names, 2):
+        by_env_x = {c.env_id: c for c in cells if c.method == x}
+        by_env_y = {c.env_id: c for c in cells if c.method == y}
+        common = [e for e in by_env_x if e in by_env_y]
+        if not common:
+            continue
+        # P(X > Y) takes a matrix per method: X and Y may differ in runs, but each needs as many runs per env.
+        px = _runs_by_env([by_env_x[e].scores for e in common])
+        py = _runs_by_env([by_env_y[e].scores for e in common])
+        comparisons.append(Comparison(x, y, tuple(common), statistics.probability_of_improvement(px, py, reps, seed)))
+    return Scoreboard(source, tuple(cells), tuple(methods), profiles, tuple(comparisons), reps, seed)
+
+
+def _runs_by_env(columns: Sequence[tuple[float, ...]]) -> np.ndarray:
+    """[runs, envs] from each env's runs; with unequal counts, the first runs up to the fewest."""
+    runs = min(len(c) for c in columns)
+    return np.array([list(c[:runs]) for c in columns]).T
+
+
+def run_score(run_dir: Path) -> tuple[float, str] | None:
+    """(a finished run's score, what it is): its final deterministic evaluation where `canter bench` wrote one,
+    else the mean training return of its last episodes; None for a run without either."""
+    for name, key, source in (("eval.json", "mean", EVAL_SOURCE), ("summary.json", "recent_return", TRAINING_SOURCE)):
+        try:
+            value = json.loads((run_dir / name).read_text()).get(key)
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(value, int | float) and np.isfinite(value):
+            return float(value), source
+    return None

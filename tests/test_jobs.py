@@ -1,0 +1,50 @@
+"""A bench run's eval.json: the final deterministic evaluation, with every episode's return and length."""
+
+import json
+import shutil
+
+import pytest
+
+import canter.use.evaluate
+from canter.orchestrate.jobs import write_final_eval
+from canter.training import checkpoint
+
+pytestmark = pytest.mark.slow  # tiny_run trains
+
+
+@pytest.fixture
+def run_copy(tiny_run, tmp_path):
+    run = tmp_path / tiny_run.run_dir.name
+    shutil.copytree(tiny_run.run_dir, run)
+    return run
+
+
+def test_eval_json_holds_every_episodes_return_and_length(run_copy):
+    from canter.use.evaluate import evaluate
+    from canter.use.policy import load
+
+    written = write_final_eval(run_copy, 3)
+    stored = json.loads((run_copy / "eval.json").read_text())
+    assert stored == written
+    again = evaluate(load(run_copy), episodes=3, deterministic=True, seed=0)
+    assert stored["returns"] == pytest.approx(list(again.returns))
+    assert stored["lengths"] == [int(n) for n in again.lengths] == [200, 200, 200]  # Pendulum's time limit
+    assert stored["mean"] == pytest.approx(again.mean) and stored["std"] == pytest.approx(again.std)
+    assert stored["checkpoint"] == checkpoint.latest(run_copy).name and stored["episodes"] == 3
+
+
+def test_a_cached_evaluation_is_kept_unless_it_lacks_lengths(run_copy, monkeypatch):
+    first = write_final_eval(run_copy, 2)
+
+    def no_second_evaluation(*args, **kwargs):
+        raise AssertionError("evaluated again")
+
+    monkeypatch.setattr(canter.use.evaluate, "evaluate", no_second_evaluation)
+    assert write_final_eval(run_copy, 2) == first
+    monkeypatch.undo()
+
+    # An eval.json written before lengths were kept, for the same checkpoint, is evaluated again.
+    old = {key: first[key] for key in ("checkpoint", "episodes", "mean", "std", "returns")}
+    (run_copy / "eval.json").write_text(json.dumps(old))
+    assert write_final_eval(run_copy, 2) == first
+    assert json.loads((run_copy / "eval.json").read_text())["lengths"] == first["lengths"]
