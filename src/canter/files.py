@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import tempfile
 from collections.abc import Callable
@@ -10,20 +12,64 @@ from typing import BinaryIO
 
 from canter.errors import CanterError
 
+# A full disk or quota, where freeing space is the fix; the other write errors need a writable path or device.
+_NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+class WriteError(CanterError):
+    """A file could not be written (a full disk, no permission, a read-only or failing device). The message names
+    the path, the reason and a fix; `resumable` gives the same error with another last step."""
+
+    def __init__(self, path: str | Path, exc: OSError, then: str = "run the command again") -> None:
+        self.path, self.exc, self.then = Path(path), exc, then
+        super().__init__(f"cannot write {path}: {exc.strerror or exc}; {self.fix(then)}")
+
+    @property
+    def no_space(self) -> bool:
+        return self.exc.errno in _NO_SPACE
+
+    def fix(self, then: str) -> str:
+        folder = self.path.parent
+        if self.no_space:
+            return f"free space in {folder}, then {then}"
+        return f"make {folder} writable (or pick another path), then {then}"
+
+    def resumable(self, then: str) -> WriteError:
+        return WriteError(self.path, self.exc, then)
+
+
+def is_write_error(exc: BaseException) -> bool:
+    """An OSError that a write can raise because of the disk or its permissions, not because of a bug."""
+    return isinstance(exc, OSError) and exc.errno in _NO_SPACE | {
+        errno.EACCES,
+        errno.EPERM,
+        errno.EROFS,
+        errno.EIO,
+    }
+
 
 def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None:
-    """Call writer(file_object) on a temp file next to `path`, then rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    """Call writer(file_object) on a temp file next to `path`, then rename it into place. A write error leaves
+    no temp file and raises `WriteError`; `path` keeps its old content."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
+        raise
     try:
         with os.fdopen(fd, "wb") as f:
             writer(f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if is_write_error(exc):
+            assert isinstance(exc, OSError)
+            raise WriteError(path, exc) from None
         raise
 
 
@@ -31,7 +77,7 @@ def write_output(path: str | Path, data: bytes) -> None:
     """Write a user-named output atomically, with a one-line error when the path is not writable."""
     try:
         atomic_write_bytes(Path(path), lambda f: f.write(data))
-    except OSError as exc:
+    except OSError as exc:  # not a write error (a folder where the file should be, ...): still the path's fault
         raise CanterError(f"cannot write {path}: {exc.strerror or exc}; pick a writable path") from None
 
 
@@ -44,4 +90,39 @@ def check_writable(path: str | Path) -> None:
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
         raise CanterError(f"cannot write {path}: {exc.strerror or exc}; pick a writable path") from None
+
+
+class AppendFile:
+    """A file that grows by whole records (a metrics.csv line, a TensorBoard event): each `append` is written in
+    full or cut back off, so a write error leaves the file as it was before it, and raises `WriteError`."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        except OSError as exc:
+            if is_write_error(exc):
+                raise WriteError(self.path, exc) from None
+            raise
+
+    def append(self, data: bytes) -> None:
+        assert self._fd is not None, f"{self.path} is closed"
+        size = os.fstat(self._fd).st_size
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[os.write(self._fd, view) :]
+        except OSError as exc:
+            with contextlib.suppress(OSError):  # else readers skip the half record (training.logger.read_rows)
+                os.ftruncate(self._fd, size)
+            if is_write_error(exc):
+                raise WriteError(self.path, exc) from None
+            raise
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None

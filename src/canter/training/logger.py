@@ -12,15 +12,21 @@ metrics.csv has one row per iteration. Columns:
 - `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
 - with `run.eval_every` > 0, `eval/return_mean`, `eval/return_std`, `eval/length_mean`, `eval/episodes`: the
   evaluation during training after this iteration (`canter.training.evaluation`), empty in rows without one.
+
+A row is appended as one whole line or not at all (`canter.files.AppendFile`). A file from a process killed in
+the middle of a line (an older canter, or a disk that failed during the write) can end in a half-written line;
+readers skip it (`read_rows`), and the next logger cuts it off.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
 from typing import Any
 
+from canter.files import AppendFile, atomic_write_bytes
 from canter.training.evaluation import EVAL_COLUMNS
 
 BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
@@ -31,12 +37,19 @@ def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...], evalu
     return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys] + evaluation
 
 
-def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+def _whole_lines(path: Path) -> bytes:
+    """A file's bytes up to its last newline: a half-written last line is left out."""
+    data = path.read_bytes()
+    return data[: data.rfind(b"\n") + 1]
+
+
+def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """The header and the rows of a metrics.csv (none for a missing file), without a half-written last line."""
+    path = Path(path)
     if not path.is_file():
         return [], []
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
+    reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8", errors="replace"), newline=""))
+    return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
 
 
 def _number(text: str | None) -> float:
@@ -81,7 +94,7 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
 def totals_until(path: Path, step: int) -> dict[str, float]:
     """Wall seconds, training seconds and episodes of a run up to its checkpoint at `step`. A resume reads these
     from the checkpoint; this rebuilds them from metrics.csv for a format-1 checkpoint that does not hold them."""
-    _, rows = _rows(Path(path))
+    _, rows = read_rows(Path(path))
     history = [totals for _, totals in run_history(rows) if totals["global_step"] <= step]
     last = history[-1] if history else {"wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
     return {
@@ -106,29 +119,38 @@ class MetricsLogger:
     ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
         self.columns = columns_for(metric_names, info_keys, evaluates)
+        self._cut_half_written_line()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
         exists = self.path.is_file() and self.path.stat().st_size > 0
-        self._file = open(self.path, "a", newline="")  # noqa: SIM115  (held open until close())
-        self._writer = csv.DictWriter(self._file, fieldnames=self.columns, extrasaction="ignore")
+        self._file = AppendFile(self.path)  # held open until close()
         if not exists:
-            self._writer.writeheader()
+            self._file.append(self._line(dict(zip(self.columns, self.columns))))
         self._tb = None
         if tensorboard:
-            from tensorboardX import SummaryWriter
+            from canter.training.tensorboard import EventFile
 
             purge = None if resume_step is None else resume_step + 1
-            self._tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=purge)
+            self._tb = EventFile(Path(run_dir) / "tb", purge_step=purge)
+
+    def _line(self, row: dict[str, Any]) -> bytes:
+        text = io.StringIO(newline="")
+        csv.DictWriter(text, fieldnames=self.columns, extrasaction="ignore").writerow(row)
+        return text.getvalue().encode()
+
+    def _cut_half_written_line(self) -> None:
+        if not self.path.is_file():
+            return
+        whole = len(_whole_lines(self.path))
+        if whole < self.path.stat().st_size:
+            with open(self.path, "r+b") as f:
+                f.truncate(whole)
 
     def _drop_rows_after(self, step: int) -> None:
-        header, rows = _rows(self.path)
+        header, rows = read_rows(self.path)
         kept = [row for row, totals in run_history(rows) if totals["global_step"] <= step]
         if not header or kept == rows:
             return
-
-        import io
-
-        from canter.files import atomic_write_bytes
 
         def write(f: Any) -> None:
             text = io.StringIO(newline="")
@@ -141,10 +163,9 @@ class MetricsLogger:
 
     def log(self, row: dict[str, Any]) -> None:
         clean = {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
-        self._writer.writerow(clean)
-        self._file.flush()
+        self._file.append(self._line(clean))
         if self._tb is not None:
-            step = int(row["global_step"])
+            scalars = {}
             for key, value in row.items():
                 if key in ("global_step", "iteration") or value is None:
                     continue
@@ -159,7 +180,8 @@ class MetricsLogger:
                         else f"losses/{key}"
                     )
                 )
-                self._tb.add_scalar(tag, value, step)
+                scalars[tag] = value
+            self._tb.add_scalars(int(row["global_step"]), scalars)
 
     def close(self) -> None:
         self._file.close()

@@ -188,6 +188,11 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
                 run_folder.migrate(out)
                 run_folder.write_config(out, config)
         return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
+    except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
+        error = run_folder.training_write_error(exc, outs)
+        if error is None:
+            raise
+        raise error from None
     finally:
         env.close()
 

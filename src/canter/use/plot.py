@@ -27,7 +27,6 @@ Drawing uses matplotlib's object API with the Agg canvas, so no global backend i
 
 from __future__ import annotations
 
-import csv
 import io
 import math
 import warnings
@@ -42,7 +41,7 @@ from canter.config.algorithms import all_plot_labels, unused_metrics
 from canter.config.experiment import differing_keys, experiment_key, flat_config
 from canter.config.schema import Config
 from canter.errors import CanterError
-from canter.training.logger import run_history
+from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import read_config
 from canter.use.scoreboard import EVAL_SOURCE, LAST_EVAL_SOURCE, RunScore, Scoreboard, build_scoreboard, run_score
 
@@ -112,10 +111,7 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        header = list(reader.fieldnames or [])
-        rows = [row for row in reader if any(row.values())]
+    header, rows = read_rows(path)  # a half-written last line is left out
     if not header or not rows:
         raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
     if "global_step" in header and "iteration" in header:

@@ -1,0 +1,198 @@
+"""Faults lose nothing: a full or read-only disk gives one line and keeps the run resumable, and readers skip a
+half-written last line of metrics.csv.
+
+The disk tests write to a real, small tmpfs mounted in a private mount namespace (`unshare -m`, which needs root or
+user namespaces); where that is not allowed they skip.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from canter.training import checkpoint
+from canter.training.logger import MetricsLogger, read_rows, totals_until
+from conftest import TINY
+
+RUN_SETS = TINY + [
+    "env.num_envs=4",
+    "ppo.n_steps=256",
+    "ppo.minibatch_size=256",
+    "ppo.epochs=2",
+    "run.checkpoint_every=1024",
+    "run.tensorboard=true",
+]
+CANTER = f"{sys.executable} -m canter.cli"
+
+
+def _namespace_script(script: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run a shell script in a mount namespace of its own, where it may mount a tmpfs that vanishes with it."""
+    probe = subprocess.run(
+        ["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"], capture_output=True, text=True
+    )
+    if probe.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here (unshare -m: {probe.stderr.strip()}); needs root")
+    return subprocess.run(
+        ["unshare", "-m", "sh", "-c", "set -e\n" + script], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def _one_line_error(stderr: str) -> str:
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("canter: error: "), stderr
+    return lines[0]
+
+
+def _whole_csv(path: Path) -> list[dict[str, str]]:
+    text = path.read_text()
+    assert text.endswith("\n"), f"{path} ends in a half-written line"
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert all(None not in row and all(v is not None for v in row.values()) for row in rows)
+    return rows
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_during_training_stops_with_one_line_and_the_run_resumes(tmp_path):
+    """96 KiB hold the run's small files and two checkpoints (7 pages each) but not a third: the third periodic
+    checkpoint fails with ENOSPC. Growing the tmpfs is the "free space" of the fix; the resume then finishes."""
+    disk, saved = tmp_path / "disk", tmp_path / "saved"
+    disk.mkdir()
+    sets = " ".join(f"--set {s}" for s in RUN_SETS)
+    result = _namespace_script(
+        f"""
+        mount -t tmpfs -o size=96k tmpfs {disk}
+        cd {tmp_path}
+        rc=0; {CANTER} train Pendulum-v1 --total-steps 4096 {sets} --out-dir {disk} --quiet 2> fail.err || rc=$?
+        echo $rc > fail.rc
+        cp -a {disk} {saved}
+        mount -o remount,size=10m {disk}
+        run=$(ls -d {disk}/*)
+        rc=0; {CANTER} train --resume $run --quiet > resume.out 2> resume.err || rc=$?
+        echo $rc > resume.rc
+        cp -a $run {tmp_path}/resumed
+        """
+    )
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "fail.rc").read_text().strip() == "2"
+    line = _one_line_error((tmp_path / "fail.err").read_text())
+    run = next(saved.iterdir())
+    assert "No space left on device" in line and f"free space in {disk}" in line
+    assert f"`canter train --resume {disk / run.name}`" in line
+    kept = checkpoint.list_checkpoints(run)
+    assert kept, "the scenario needs a checkpoint written before the disk filled"
+    for path in kept:
+        checkpoint.read(path)  # whole and passing its hash
+    assert not [p for p in run.rglob("*") if p.name.endswith(".tmp")], "no partial file remains"
+    _whole_csv(run / "metrics.csv")
+
+    assert (tmp_path / "resume.rc").read_text().strip() == "0", (tmp_path / "resume.err").read_text()
+    resumed = tmp_path / "resumed"
+    rows = _whole_csv(resumed / "metrics.csv")
+    steps = [int(r["global_step"]) for r in rows]
+    assert steps == sorted(set(steps)) and steps[-1] >= 4096
+    assert (resumed / "summary.json").is_file()
+
+
+@pytest.mark.slow
+def test_metrics_and_tensorboard_keep_whole_records_when_the_disk_fills(tmp_path):
+    """Rows go to a 16 KiB tmpfs until a write fails: the error names metrics.csv or the event file, and both keep
+    only whole records (the CSV parses to the rows logged before it; TensorBoard reads every event)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    program = f"""
+import sys
+from pathlib import Path
+from canter.errors import CanterError
+from canter.training.logger import MetricsLogger
+logger = MetricsLogger(Path("{disk}"), ("policy_loss",), (), tensorboard=True)
+logged = 0
+try:
+    for i in range(1, 100000):
+        logger.log(dict(global_step=i * 100, iteration=i, wall_time=0.5 * i, sps=1.0, episodes=1,
+                        episodic_return=-1.0 * i, episodic_length=200.0, policy_loss=0.125))
+        logged = i
+except CanterError as exc:
+    print(exc, file=sys.stderr)
+logger.close()
+print(logged)
+"""
+    (tmp_path / "fill.py").write_text(program)
+    result = _namespace_script(
+        f"mount -t tmpfs -o size=16k tmpfs {disk}\n{sys.executable} {tmp_path / 'fill.py'}\n"
+        f"cp -a {disk} {tmp_path / 'saved'}"
+    )
+    assert result.returncode == 0, result.stderr
+    error = result.stderr.strip()
+    assert error.startswith("cannot write ") and "No space left on device" in error, error
+    assert "metrics.csv" in error or "tfevents" in error
+    logged = int(result.stdout.strip())
+    saved = tmp_path / "saved"
+    rows = _whole_csv(saved / "metrics.csv")
+    # A row whose TensorBoard events did not fit stays in metrics.csv; a resume drops it with the lost work.
+    assert logged <= len(rows) <= logged + 1 and [int(r["iteration"]) for r in rows] == list(range(1, len(rows) + 1))
+    (events,) = saved.glob("tb/events.out.tfevents.*")
+    returns = [(step, value) for tag, step, value in _event_records(events) if tag == "charts/episodic_return"]
+    assert len(returns) == logged and all(value == -step / 100 for step, value in returns)
+
+
+def _event_records(path: Path) -> list[tuple[str, int, float]]:
+    """(tag, step, value) of every scalar of an event file, checking that each record is whole (both CRCs)."""
+    import struct
+
+    from tensorboardX.proto import event_pb2
+    from tensorboardX.record_writer import masked_crc32c
+
+    data, offset, found = path.read_bytes(), 0, []
+    while offset < len(data):
+        head = data[offset : offset + 8]
+        (length,) = struct.unpack("<Q", head)
+        assert struct.unpack("<I", data[offset + 8 : offset + 12])[0] == masked_crc32c(head)
+        body = data[offset + 12 : offset + 12 + length]
+        assert struct.unpack("<I", data[offset + 12 + length : offset + 16 + length])[0] == masked_crc32c(body)
+        event = event_pb2.Event.FromString(body)
+        found += [(v.tag, event.step, v.simple_value) for v in event.summary.value]
+        offset += 16 + length
+    return found
+
+
+@pytest.mark.slow
+def test_export_to_a_read_only_disk_is_one_line(tmp_path):
+    disk, run = tmp_path / "disk", Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+    disk.mkdir()
+    result = _namespace_script(
+        f"mount -t tmpfs -o size=1m,ro tmpfs {disk}\n"
+        f"rc=0; {CANTER} export {run} --out {disk / 'policy.onnx'} 2> {tmp_path / 'err'} || rc=$?\n"
+        f"echo $rc > {tmp_path / 'rc'}; ls -A {disk} > {tmp_path / 'left'}"
+    )
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "rc").read_text().strip() == "2"
+    line = _one_line_error((tmp_path / "err").read_text())
+    assert f"cannot write {disk / 'policy.onnx'}: Read-only file system" in line
+    assert (tmp_path / "left").read_text() == ""
+
+
+def test_readers_skip_a_half_written_last_line_and_the_next_logger_cuts_it(tmp_path):
+    metrics = tmp_path / "metrics.csv"
+    metrics.write_text(
+        "global_step,iteration,wall_time,sps,episodes,episodic_return,episodic_length\n"
+        "100,1,1.0,100.0,1,-5.0,100\n"
+        "200,2,2.0,100.0,2,-4.0,100\n"
+        "30"  # a process killed while writing the third row
+    )
+    header, rows = read_rows(metrics)
+    assert header[0] == "global_step" and [r["global_step"] for r in rows] == ["100", "200"]
+    assert totals_until(metrics, 10_000) == {"wall_seconds": 2.0, "train_seconds": 2.0, "episodes": 3}
+
+    from canter.use.plot import read_metrics
+
+    assert list(read_metrics(metrics)["global_step"]) == [100.0, 200.0]
+
+    logger = MetricsLogger(tmp_path, (), (), tensorboard=False, resume_step=200)
+    logger.log(dict(global_step=300, iteration=3, wall_time=3.0, sps=100.0, episodes=1, episodic_return=-3.0))
+    logger.close()
+    assert [r["global_step"] for r in _whole_csv(metrics)] == ["100", "200", "300"]
