@@ -196,3 +196,24 @@ def test_readers_skip_a_half_written_last_line_and_the_next_logger_cuts_it(tmp_p
     logger.log(dict(global_step=300, iteration=3, wall_time=3.0, sps=100.0, episodes=1, episodic_return=-3.0))
     logger.close()
     assert [r["global_step"] for r in _whole_csv(metrics)] == ["100", "200", "300"]
+
+
+@pytest.mark.slow
+def test_a_video_that_does_not_fit_is_one_line_and_leaves_no_file(tmp_path):
+    """ffmpeg reports a failed write only on its stderr; the video is checked before it is renamed into place."""
+    disk, run = tmp_path / "disk", Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+    disk.mkdir()
+    script = f"mount -t tmpfs -o size=8k tmpfs {disk}\n"
+    for name in ("a.mp4", "a.gif"):
+        script += (
+            f"rc=0; {CANTER} video {run} --episodes 2 --out {disk / name} 2> {tmp_path / name}.err || rc=$?\n"
+            f"echo $rc > {tmp_path / name}.rc\n"
+        )
+    result = _namespace_script(script + f"ls -A {disk} > {tmp_path / 'left'}")
+    assert result.returncode == 0, result.stderr
+    for name in ("a.mp4", "a.gif"):
+        assert (tmp_path / f"{name}.rc").read_text().strip() == "2"
+        errors = [line for line in (tmp_path / f"{name}.err").read_text().splitlines() if "canter: error" in line]
+        assert errors == [_one_line_error("\n".join(errors))]
+        assert f"cannot write {disk / name}" in errors[0] and f"free space in {disk}" in errors[0]
+    assert (tmp_path / "left").read_text() == ""

@@ -54,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from canter.use.evaluate import check_eval_env
     from canter.use.policy import load
 
     if args.episodes < 1:
@@ -77,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
     check_one_run_for_a_file(args.checkpoint, args.runs)
     policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
+    for policy in policies:  # before any sweep is set up or any env is built
+        check_eval_env(policy.facts, args.env, args.backend, varied=spec is not None)
     seed = args.seed if args.seed is not None else 0
     if spec is not None:
         return _vary(args, spec, policies, seed)

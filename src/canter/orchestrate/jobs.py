@@ -185,27 +185,32 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
     policies."""
     from canter.config.serialize import from_toml_text
     from canter.training.loop import resume_seeds, train_seeds
+    from canter.training.run_lock import LOCK_FILE, RunLocks
 
     config = from_toml_text(spec.config_toml, "job spec")
     total = config.run.total_steps
     fresh: list[int] = []
     partial: list[Path] = []
-    for seed, folder in sorted(spec.run_dirs.items()):
-        run_dir = Path(folder)
-        status = run_status(run_dir, total)
-        if status == "partial":
-            partial.append(run_dir)
-        elif status == "new":
-            if run_dir.exists():  # started but died before its first checkpoint: nothing to keep
-                shutil.rmtree(run_dir)
-            fresh.append(seed)
-    if partial:  # each resumes from its own newest checkpoint, together in one program
-        resume_seeds(partial, total, quiet=quiet)
-    if fresh:
-        train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
-    if spec.eval_episodes:
+    with RunLocks() as locks:  # another job on the same cell is refused before it changes anything
         for folder in spec.run_dirs.values():
-            write_final_eval(Path(folder), spec.eval_episodes)
+            locks.take(Path(folder))
+        for seed, folder in sorted(spec.run_dirs.items()):
+            run_dir = Path(folder)
+            status = run_status(run_dir, total)
+            if status == "partial":
+                partial.append(run_dir)
+            elif status == "new":
+                for item in run_dir.iterdir():  # started but died before its first checkpoint: nothing to keep
+                    if item.name != LOCK_FILE:
+                        shutil.rmtree(item) if item.is_dir() else item.unlink()
+                fresh.append(seed)
+        if partial:  # each resumes from its own newest checkpoint, together in one program
+            resume_seeds(partial, total, quiet=quiet)
+        if fresh:
+            train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
+        if spec.eval_episodes:
+            for folder in spec.run_dirs.values():
+                write_final_eval(Path(folder), spec.eval_episodes)
 
 
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,13 +59,45 @@ def describe_url(url: str) -> tuple[str, str]:
     return driver, host
 
 
+def _reason(exc: BaseException) -> str:
+    lines = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+# Any constant names the lock; pg_advisory_lock's key is a bigint. This one is "canter" in ASCII.
+_SCHEMA_LOCK_KEY = 0x63616E746572
+SCHEMA_TRIES = 5
+
+
+@contextlib.contextmanager
+def _schema_lock(engine: Any, driver: str) -> Iterator[None]:
+    """Workers started at the same moment on an empty database would all create Optuna's tables and all but one
+    fail on PostgreSQL's catalog ("duplicate key value violates unique constraint pg_type_typname_nsp_index").
+    On PostgreSQL they take turns under an advisory lock, held by this session until it closes."""
+    if not driver.startswith("postgresql"):
+        yield
+        return
+    import sqlalchemy
+
+    with engine.connect() as connection:
+        connection.execute(sqlalchemy.text("SELECT pg_advisory_lock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+        try:
+            yield
+        finally:
+            connection.execute(sqlalchemy.text("SELECT pg_advisory_unlock(:key)"), {"key": _SCHEMA_LOCK_KEY})
+
+
 def open_storage(settings: StorageSettings) -> Any:
-    """An RDBStorage with heartbeats and failed-trial retry, or a one-line error naming the host and driver."""
+    """An RDBStorage with heartbeats and failed-trial retry, or a one-line error naming the host and driver that
+    says "cannot connect" only when the connection failed. Any number of workers may open an empty database at
+    once: its tables are created once (`_schema_lock`), and a clash on another database is retried."""
     import optuna
+    import sqlalchemy
     import sqlalchemy.exc
 
     quiet_optuna()
-    driver, host = describe_url(normalize_url(settings.url))
+    url = normalize_url(settings.url)
+    driver, host = describe_url(url)
     if driver.startswith("sqlite"):
         engine_kwargs: dict[str, Any] = {"connect_args": {"timeout": 120}}
     elif driver.startswith("postgresql"):
@@ -73,15 +105,8 @@ def open_storage(settings: StorageSettings) -> Any:
     else:
         engine_kwargs = {"pool_pre_ping": True}
     try:
-        return optuna.storages.RDBStorage(
-            normalize_url(settings.url),
-            engine_kwargs=engine_kwargs,
-            heartbeat_interval=settings.heartbeat_seconds,
-            grace_period=settings.grace_seconds,
-            heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
-                max_retry=settings.max_retry
-            ),
-        )
+        engine = sqlalchemy.create_engine(url, **engine_kwargs)
+        engine.connect().close()
     except (ImportError, ModuleNotFoundError):
         hint = (
             "pip install 'canter[distributed]'"
@@ -92,10 +117,31 @@ def open_storage(settings: StorageSettings) -> Any:
             f"cannot connect to the {driver} storage at {host}: its database driver is not installed; {hint}"
         ) from None
     except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
-        reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
-        raise CanterError(
-            f"cannot connect to the {driver} storage at {host}: {reason[0] if reason else type(exc).__name__}"
-        ) from None
+        raise CanterError(f"cannot connect to the {driver} storage at {host}: {_reason(exc)}") from None
+    try:
+        attempt = 0
+        while True:
+            try:
+                with _schema_lock(engine, driver):
+                    return optuna.storages.RDBStorage(
+                        url,
+                        engine_kwargs=engine_kwargs,
+                        heartbeat_interval=settings.heartbeat_seconds,
+                        grace_period=settings.grace_seconds,
+                        heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
+                            max_retry=settings.max_retry
+                        ),
+                    )
+            except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
+                attempt += 1
+                if attempt == SCHEMA_TRIES:
+                    raise CanterError(
+                        f"the {driver} storage at {host} is reachable, but opening Optuna's tables failed "
+                        f"{SCHEMA_TRIES} times: {_reason(exc)}; check the database and its user's rights"
+                    ) from None
+                time.sleep(0.2 * 2**attempt)  # another worker may be creating the tables
+    finally:
+        engine.dispose()
 
 
 def quiet_optuna() -> None:

@@ -23,7 +23,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
-from canter.training import checkpoint, run_folder
+from canter.training import checkpoint, run_folder, run_lock
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
@@ -128,7 +128,15 @@ def resume_seeds(
 
 
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
-    """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap."""
+    """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap. Each run
+    folder's writer lock (`canter.training.run_lock`) is held throughout."""
+    with run_lock.RunLocks() as locks:
+        return _train_locked(configs, resumes, run_dirs, quiet, locks)
+
+
+def _train_locked(
+    configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
+) -> list[RunResult]:
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import make_vec_env
@@ -163,6 +171,7 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
         states.append(state)
         outs.append(out)
         start_steps.append(start_step)
+        locks.take(out)  # before anything is written to it
 
     config = configs[0]
     try:

@@ -10,15 +10,40 @@ import numpy as np
 from canter.core.seeding import EVAL, HELD_OUT
 from canter.errors import CanterError
 from canter.training.evaluation import EvalResult, run_episodes
+from canter.training.restore import PolicyFacts
 from canter.use.policy import Policy
 
-__all__ = ["EvalResult", "evaluate", "seed_stream"]
+__all__ = ["EvalResult", "check_eval_env", "evaluate", "seed_stream"]
 
 
 def seed_stream(policy: Policy) -> str:
     """`held-out` for a checkpoint chosen on evaluations during training (best.npz), whose score on the episodes
     that chose it would be biased upward; `eval` otherwise."""
     return "held-out" if policy.chosen_by_evaluation else "eval"
+
+
+def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, varied: bool = False) -> None:
+    """A policy trained on a backend whose envs observe in their own way (Brax) reads no other backend's
+    observations, so it evaluates on the env and backend it trained on only: a one-line error otherwise."""
+    from canter.envs.registry import get_backend
+
+    trained_on = get_backend(facts.backend)
+    if not trained_on.own_observations:
+        return
+    asked = [
+        flag
+        for flag, elsewhere in (
+            (f"--env {env_id}", env_id not in (None, facts.env_id)),
+            (f"--backend {backend}", backend not in (None, trained_on.name)),
+            ("--vary", varied),
+        )
+        if elsewhere
+    ]
+    if asked:
+        raise CanterError(
+            f"{trained_on.label} observations differ from Gymnasium's, so {trained_on.name} runs evaluate on the "
+            f"{trained_on.name} backend only, on the env they trained on ({facts.env_id}); drop {' and '.join(asked)}"
+        )
 
 
 def evaluate(
@@ -41,6 +66,7 @@ def evaluate(
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
+    check_eval_env(policy.facts, env_id, backend, varied=prepare_env is not None)
     env_id = env_id or policy.facts.env_id
     backend = backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
     extra: dict[str, Any] = {}

@@ -209,6 +209,26 @@ def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------------ writing
 
 
+class _GifWriter:
+    """GIF frames held in memory (Pillow holds them until the end anyway) and encoded at close in one write, so
+    that a failed write raises there, once, rather than again from a finalizer."""
+
+    def __init__(self, path: Path, fps: int) -> None:
+        self.path, self.fps = path, fps
+        self.frames: list[np.ndarray] = []
+
+    def append_data(self, frame: np.ndarray) -> None:
+        self.frames.append(frame)
+
+    def close(self) -> None:
+        import imageio.v3 as iio
+
+        frames, self.frames = self.frames, []
+        if frames:
+            data = iio.imwrite("<bytes>", np.stack(frames), extension=".gif", duration=1000.0 / self.fps, loop=0)
+            self.path.write_bytes(data)
+
+
 class _AtomicVideo:
     """Frames go to a temp file beside the output, renamed into place only once the video is complete."""
 
@@ -223,8 +243,9 @@ class _AtomicVideo:
         except OSError as exc:
             raise CanterError(f"cannot write {out}: {exc.strerror or exc}; pick a writable path") from None
         self.out, self.tmp, self.frames = out, Path(name), 0
+        self.writer: Any
         if suffix == ".gif":
-            self.writer = imageio.get_writer(self.tmp, mode="I", duration=1000.0 / fps, loop=0)
+            self.writer = _GifWriter(self.tmp, fps)
         else:
             self.writer = imageio.get_writer(
                 self.tmp,
@@ -235,15 +256,36 @@ class _AtomicVideo:
                 pixelformat="yuv420p",
                 macro_block_size=1,
                 quality=7,
-                ffmpeg_log_level="error",
+                ffmpeg_log_level="fatal",  # a failed write is reported by commit() as one line
             )
 
     def append(self, frame: np.ndarray) -> None:
-        self.writer.append_data(np.ascontiguousarray(frame[..., :3], dtype=np.uint8))
+        try:
+            self.writer.append_data(np.ascontiguousarray(frame[..., :3], dtype=np.uint8))
+        except OSError as exc:  # the encoder died, or (GIF) the write failed
+            raise self._write_error(exc) from None
         self.frames += 1
 
+    def _write_error(self, exc: OSError | None) -> CanterError:
+        from canter.files import WriteError, is_write_error
+
+        if exc is not None and is_write_error(exc):
+            return WriteError(self.out, exc)
+        # ffmpeg reports a failed write (a full disk) only on its stderr and exit status, which imageio drops.
+        return CanterError(
+            f"cannot write {self.out}: the video encoder could not finish the file (is {self.out.parent} full?); "
+            f"free space in {self.out.parent}, then run the command again"
+        )
+
     def commit(self) -> None:
-        self.writer.close()
+        try:
+            self.writer.close()
+            if self.tmp.suffix.endswith(".mp4"):
+                import imageio_ffmpeg
+
+                imageio_ffmpeg.count_frames_and_secs(str(self.tmp))  # fails on a file ffmpeg could not finish
+        except (OSError, RuntimeError) as exc:
+            raise self._write_error(exc if isinstance(exc, OSError) else None) from None
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temp file, not the video

@@ -1,0 +1,170 @@
+"""One writer per run folder.
+
+Every process that writes to a run folder (`canter train`, `--resume`, a bench or tune job) holds an exclusive
+`flock` on RUN/.writer.lock for as long as it writes; a second writer is refused with one line that names the
+holder, whose pid, host, start time and command the file records. The operating system releases a flock when its
+process dies, however it dies, so a lock left by a killed process is simply taken over. Where the filesystem has
+no flock, the recorded pid decides: a holder on this host that is no longer alive is taken over.
+
+Readers (eval, plot, report, export, video) never take the lock: a run folder's files are written whole
+(checkpoints atomically, metrics.csv a whole line at a time), so a reader sees a consistent folder at any moment.
+
+Locks are re-entrant within a process: a bench job holds its folders while it trains and evaluates them, and the
+trainer it calls takes them again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import os
+import socket
+import sys
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from canter.errors import CanterError
+from canter.files import WriteError, is_write_error
+
+LOCK_FILE = ".writer.lock"
+
+
+@dataclass
+class _Held:
+    fd: int  # the open lock file, whose flock this process holds
+    created: Path | None  # the folder, where this process created it
+    holds: int = 1
+
+
+# resolved run folder -> this process's hold on it: one flock per folder per process
+_HELD: dict[Path, _Held] = {}
+
+
+def _holder_text() -> bytes:
+    record = {
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "started": datetime.now().isoformat(timespec="seconds"),
+        "command": " ".join(["canter", *sys.argv[1:]]) if sys.argv else "canter",
+    }
+    return json.dumps(record).encode()
+
+
+def read_holder(run_dir: Path) -> dict[str, Any]:
+    """What the lock file records of the process that last took it ({} when there is none or it is unreadable)."""
+    try:
+        found = json.loads((Path(run_dir) / LOCK_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return found if isinstance(found, dict) else {}
+
+
+def _alive_here(holder: dict[str, Any]) -> bool:
+    """Whether the recorded holder is a live process on this host (one on another host counts as alive)."""
+    if holder.get("host") != socket.gethostname():
+        return bool(holder)
+    if holder.get("pid") == os.getpid():  # this process, which released it
+        return False
+    try:
+        os.kill(int(holder["pid"]), 0)
+    except (KeyError, ValueError, TypeError, ProcessLookupError):
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _refusal(run_dir: Path, holder: dict[str, Any]) -> CanterError:
+    who = "another process"
+    if holder:
+        who = f"process {holder.get('pid')} on {holder.get('host')}"
+        who += f" (since {holder.get('started')}: {holder.get('command')})"
+    return CanterError(
+        f"{run_dir} is being written by {who}; one process writes a run folder at a time: wait for it to "
+        f"finish or stop it, then run the command again"
+    )
+
+
+def _flock(fd: int) -> bool | None:
+    """Take the flock: True, False when another process holds it, None where the filesystem has no flock."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError as exc:
+        if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
+            return None
+        raise
+    return True
+
+
+def acquire(run_dir: Path) -> None:
+    """Hold the run folder's writer lock, or raise a one-line CanterError naming the process that holds it. A
+    folder that does not exist yet is created, and removed again at `release` if nothing but the lock was written
+    to it. Each `acquire` is matched by a `release`."""
+    run_dir = Path(run_dir)
+    key = run_dir.resolve()
+    if key in _HELD:
+        _HELD[key].holds += 1
+        return
+    path = run_dir / LOCK_FILE
+    created = not run_dir.exists()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
+        raise
+    try:
+        locked = _flock(fd)
+        holder = read_holder(run_dir)
+        if locked is False or (locked is None and _alive_here(holder)):
+            raise _refusal(run_dir, holder)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, _holder_text(), 0)
+    except BaseException as exc:
+        os.close(fd)
+        if is_write_error(exc):
+            assert isinstance(exc, OSError)
+            raise WriteError(path, exc) from None
+        raise
+    _HELD[key] = _Held(fd, run_dir if created else None)
+
+
+def release(run_dir: Path) -> None:
+    key = Path(run_dir).resolve()
+    held = _HELD.get(key)
+    if held is None:
+        return
+    held.holds -= 1
+    if held.holds:
+        return
+    del _HELD[key]
+    if held.created is not None and [p.name for p in held.created.iterdir()] == [LOCK_FILE]:
+        # A run that failed before writing anything leaves no folder behind.
+        (held.created / LOCK_FILE).unlink()
+        with contextlib.suppress(OSError):
+            held.created.rmdir()
+    os.close(held.fd)  # releases the flock; the file stays, so every writer locks the same file
+
+
+class RunLocks(contextlib.AbstractContextManager["RunLocks"]):
+    """The writer locks of several run folders, all released on exit."""
+
+    def __init__(self) -> None:
+        self._held: list[Path] = []
+
+    def take(self, run_dir: Path) -> None:
+        acquire(run_dir)
+        self._held.append(Path(run_dir))
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        for run_dir in reversed(self._held):
+            release(run_dir)
+        self._held.clear()

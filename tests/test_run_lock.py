@@ -1,0 +1,96 @@
+"""One writer per run folder: a second writer is refused naming the holder, a killed holder's lock is taken over,
+and readers never need the lock."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.errors import CanterError
+from canter.training import run_lock
+
+FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+
+
+def _wait_for_holder(run_dir: Path, pid: int, proc: subprocess.Popen, seconds: float = 120) -> None:
+    deadline = time.monotonic() + seconds
+    while run_lock.read_holder(run_dir).get("pid") != pid:
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else "the holder exited"
+        assert time.monotonic() < deadline, "the holder never took the lock"
+        time.sleep(0.05)
+
+
+def _hold_in_child(run_dir: Path) -> subprocess.Popen:
+    program = f"from canter.training import run_lock; run_lock.acquire({str(run_dir)!r}); import time; time.sleep(600)"
+    proc = subprocess.Popen([sys.executable, "-c", program], stderr=subprocess.PIPE, text=True)
+    _wait_for_holder(run_dir, proc.pid, proc)
+    return proc
+
+
+def test_the_lock_is_reentrant_and_a_folder_left_empty_is_removed(tmp_path):
+    run = tmp_path / "run"
+    with run_lock.RunLocks() as locks:
+        locks.take(run)
+        locks.take(run)  # a job holds its folder, and the trainer it calls takes it again
+        assert run_lock.read_holder(run)["pid"] == os.getpid()
+    assert not run.exists(), "a run that wrote nothing leaves no folder"
+    with run_lock.RunLocks() as locks:
+        locks.take(run)
+        (run / "config.toml").write_text("")
+    assert sorted(p.name for p in run.iterdir()) == [run_lock.LOCK_FILE, "config.toml"]
+    run_lock.acquire(run)  # released: this process takes it again
+    run_lock.release(run)
+
+
+@pytest.mark.slow
+def test_a_second_writer_is_refused_and_a_killed_holder_is_taken_over(tmp_path):
+    run = tmp_path / "run"
+    holder = _hold_in_child(run)
+    try:
+        with pytest.raises(CanterError, match=rf"{run} is being written by process {holder.pid} on "):
+            run_lock.acquire(run)
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    run_lock.acquire(run)  # the OS released the dead process's lock
+    assert run_lock.read_holder(run)["pid"] == os.getpid()
+    run_lock.release(run)
+
+
+@pytest.mark.slow
+def test_a_second_resume_is_refused_with_one_line_while_readers_go_on(tmp_path, capsys):
+    """The issue's case: two `canter train --resume RUN` at once. The second is refused naming the first; export
+    and eval read the folder meanwhile."""
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    first = subprocess.Popen(
+        [sys.executable, "-m", "canter.cli", "train", "--resume", str(run), "--total-steps", "10000000", "--quiet"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _wait_for_holder(run, first.pid, first)
+        rows_before = (run / "metrics.csv").read_text()
+        assert main(["train", "--resume", str(run), "--total-steps", "20000000", "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"is being written by process {first.pid} on " in err
+        assert "--resume" in err, "the message names the command that holds the folder"
+        assert (run / "metrics.csv").read_text().startswith(rows_before.split("\n", 1)[0])
+
+        assert main(["export", str(run), "--out", str(tmp_path / "policy.onnx")]) == 0
+        assert main(["eval", str(run), "--episodes", "1", "--json", str(tmp_path / "eval.json")]) == 0
+        assert json.loads((tmp_path / "eval.json").read_text())["runs"]
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.wait(120)
+    # Stopped while training (a checkpoint and exit 0) or still setting up (SIGTERM's default action).
+    assert first.returncode in (0, -signal.SIGTERM), first.stderr.read() if first.stderr else ""

@@ -1,0 +1,93 @@
+"""The Optuna storage under faults, with the real PostgreSQL server of tests/pg_server.py: workers that start at
+the same moment on an empty database all join, and "cannot connect" means the connection failed."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from canter.errors import CanterError
+from canter.orchestrate.study import StorageSettings, open_storage
+from pg_server import postgres_url  # noqa: F401  (session fixture)
+
+pytestmark = pytest.mark.slow
+
+# A tune worker and a bench worker open their study exactly as `canter tune` and `canter bench --storage` do,
+# once the file `go` exists, so that they all reach the empty database at the same moment.
+WORKER = """
+import sys, time
+from pathlib import Path
+from types import SimpleNamespace
+kind, url, go = sys.argv[1], sys.argv[2], Path(sys.argv[3])
+from canter.orchestrate.study import open_storage
+if kind == "tune":
+    from canter.orchestrate.tune import TuneSettings, make_study
+    settings = TuneSettings("InvertedPendulum-v4", storage_url=url, study_name="tuned")
+    open_study = lambda: make_study(settings, open_storage(settings.storage))
+else:
+    from canter.orchestrate.bench import BenchSettings, _open_grid_study
+    settings = BenchSettings(("ppo",), ("InvertedPendulum-v4",), (0,), 512, storage_url=url, study_name="benched")
+    jobs = [SimpleNamespace(name="a"), SimpleNamespace(name="b")]
+    open_study = lambda: _open_grid_study(jobs, settings, Path("x"))[1]
+while not go.exists():
+    time.sleep(0.01)
+study = open_study()
+print(study.study_name, study._study_id)
+"""
+
+
+def _new_database(server_url: str, name: str) -> str:
+    import psycopg2
+
+    connection = psycopg2.connect(server_url)
+    connection.autocommit = True
+    with connection.cursor() as cursor:
+        cursor.execute(f"DROP DATABASE IF EXISTS {name}")
+        cursor.execute(f"CREATE DATABASE {name}")
+    connection.close()
+    return server_url.rsplit("/", 1)[0] + f"/{name}"
+
+
+def test_eight_tune_and_bench_workers_started_at_once_on_an_empty_database_all_join(
+    tmp_path,
+    postgres_url,  # noqa: F811
+):
+    url = _new_database(postgres_url, "empty_at_start")
+    go = tmp_path / "go"
+    workers = [
+        subprocess.Popen(
+            [sys.executable, "-c", WORKER, kind, url, str(go)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for kind in ["tune", "bench"] * 4
+    ]
+    time.sleep(8)  # every worker has imported what it needs and waits for `go`
+    go.touch()
+    outputs = [worker.communicate(timeout=120) for worker in workers]
+    for worker, (_, err) in zip(workers, outputs):
+        assert worker.returncode == 0, err
+    studies = {tuple(out.split()) for out, _ in outputs}
+    assert len(studies) == 2 and {name for name, _ in studies} == {"tuned", "benched"}
+
+
+def test_cannot_connect_only_when_the_connection_fails(postgres_url):  # noqa: F811
+    host_port = postgres_url.split("@", 1)[1].rsplit("/", 1)[0]
+    port = int(host_port.rsplit(":", 1)[1])
+    closed = postgres_url.replace(f":{port}/", f":{port + 1 if port < 65535 else port - 1}/")
+    with pytest.raises(CanterError, match=r"^cannot connect to the postgresql\+psycopg2 storage at .*refused"):
+        open_storage(StorageSettings(closed))
+    with pytest.raises(CanterError, match=r'^cannot connect to .*database "no_such_db" does not exist'):
+        open_storage(StorageSettings(postgres_url.rsplit("/", 1)[0] + "/no_such_db"))
+    storage = open_storage(StorageSettings(_new_database(postgres_url, "opened_twice")))
+    assert open_storage(StorageSettings(storage.url)).get_all_studies() == []
+
+
+def test_a_sqlite_folder_that_does_not_exist_cannot_connect(tmp_path):
+    with pytest.raises(CanterError, match=r"^cannot connect to the sqlite storage at .*missing"):
+        open_storage(StorageSettings(f"sqlite:///{tmp_path / 'missing' / 'study.db'}"))
+    assert not (tmp_path / "missing").exists()
