@@ -93,9 +93,6 @@ class Backend(Protocol):
     # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
     # on it and on the env it trained on only.
     own_observations: bool = False
-    # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
-    # on it and on the env it trained on only.
-    own_observations: bool = False
 
     def available(self) -> bool:
         """Whether its env library imports on this machine."""
