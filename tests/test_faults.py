@@ -79,7 +79,10 @@ def test_a_disk_that_fills_during_training_stops_with_one_line_and_the_run_resum
     )
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "fail.rc").read_text().strip() == "2"
-    line = _one_line_error((tmp_path / "fail.err").read_text())
+    warning, error = (tmp_path / "fail.err").read_text().splitlines()
+    # Warned at the start: 96 KiB cannot hold keep_checkpoints + 1 checkpoints of this run.
+    assert warning.startswith("canter: warning: a checkpoint of this run takes ") and "free space" in warning
+    line = _one_line_error(error)
     run = next(saved.iterdir())
     assert "No space left on device" in line and f"free space in {disk}" in line
     assert f"`canter train --resume {disk / run.name}`" in line
@@ -217,3 +220,19 @@ def test_a_video_that_does_not_fit_is_one_line_and_leaves_no_file(tmp_path):
         assert errors == [_one_line_error("\n".join(errors))]
         assert f"cannot write {disk / name}" in errors[0] and f"free space in {disk}" in errors[0]
     assert (tmp_path / "left").read_text() == ""
+
+
+@pytest.mark.parametrize("algo", ["ppo", "td3", "sac"])
+def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo):
+    """The warning's estimate: a checkpoint file is the state's bytes plus a header of less than HEADER_BYTES."""
+    from canter.training.disk_room import HEADER_BYTES, state_bytes
+    from canter.training.restore import load_state
+
+    run = Path(__file__).parent / "fixtures" / "runs-v1" / algo
+    _, facts, state, _ = load_state(run)
+    size = checkpoint.latest(run).stat().st_size
+    assert state_bytes(state) - HEADER_BYTES <= size <= state_bytes(state)
+    if algo != "ppo":  # the replay buffer: 4 * (2 * obs_dim + act_dim + 2) bytes per transition of its capacity
+        buffer = state.buffer.data
+        per_transition = 4 * (2 * facts.obs_dim + facts.act_dim + 2)
+        assert sum(leaf.nbytes for leaf in buffer) == per_transition * buffer.reward.shape[0]

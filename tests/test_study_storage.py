@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -32,6 +31,7 @@ else:
     settings = BenchSettings(("ppo",), ("InvertedPendulum-v4",), (0,), 512, storage_url=url, study_name="benched")
     jobs = [SimpleNamespace(name="a"), SimpleNamespace(name="b")]
     open_study = lambda: _open_grid_study(jobs, settings, Path("x"))[1]
+print("ready", flush=True)
 while not go.exists():
     time.sleep(0.01)
 study = open_study()
@@ -66,7 +66,8 @@ def test_eight_tune_and_bench_workers_started_at_once_on_an_empty_database_all_j
         )
         for kind in ["tune", "bench"] * 4
     ]
-    time.sleep(8)  # every worker has imported what it needs and waits for `go`
+    for worker in workers:  # every worker has imported what it needs and waits for `go`
+        assert worker.stdout is not None and worker.stdout.readline() == "ready\n"
     go.touch()
     outputs = [worker.communicate(timeout=120) for worker in workers]
     for worker, (_, err) in zip(workers, outputs):

@@ -23,7 +23,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
-from canter.training import checkpoint, run_folder, run_lock
+from canter.training import checkpoint, disk_room, run_folder, run_lock
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
@@ -196,6 +196,7 @@ def _train_locked(
             else:
                 run_folder.migrate(out)
                 run_folder.write_config(out, config)
+            disk_room.warn_if_checkpoints_will_not_fit(out, states[i], config)
         return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
         error = run_folder.training_write_error(exc, outs)

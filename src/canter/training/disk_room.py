@@ -1,0 +1,63 @@
+"""Checkpoint size, known before the first checkpoint.
+
+A checkpoint holds the whole train state uncompressed, so its size is the state's bytes: small for on-policy
+algorithms, and for off-policy ones mostly the replay buffer, 4 * (2 * obs_dim + act_dim + 2) bytes per
+transition of `buffer_size` whether filled or not (docs/algorithms-offpolicy.md has a table per env). A run keeps
+`run.keep_checkpoints` of them and writes the next before it deletes the oldest, plus best.npz when it evaluates
+during training and a snapshot while a video renders. Training warns in one line when the run folder's disk has
+less free space than that, rather than failing at the first checkpoint, possibly hours in.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from canter.config.schema import Config
+
+HEADER_BYTES = 64 * 1024  # the JSON header (config, env facts) and the zip structure, generously
+
+
+def state_bytes(state: Any) -> int:
+    """Bytes of a checkpoint of `state`, uncompressed."""
+    import jax
+
+    return sum(int(getattr(leaf, "nbytes", 0)) for leaf in jax.tree_util.tree_leaves(state)) + HEADER_BYTES
+
+
+def checkpoints_at_once(config: Config, existing: int) -> int:
+    """How many more checkpoint-sized files the run will hold at its fullest than it holds now."""
+    run = config.run
+    at_once = run.keep_checkpoints + 1 + (1 if run.eval_every else 0) + (1 if run.video_every else 0)
+    return max(at_once - existing, 1)
+
+
+def human_bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if n < 1000:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} TB"
+
+
+def warn_if_checkpoints_will_not_fit(run_dir: Path, state: Any, config: Config) -> bool:
+    """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did."""
+    existing = len(list((Path(run_dir) / "checkpoints").glob("*.npz")))
+    one = state_bytes(state)
+    needed = one * checkpoints_at_once(config, existing)
+    free = shutil.disk_usage(run_dir).free
+    if free >= needed:
+        return False
+    how = "lower run.keep_checkpoints"
+    if hasattr(getattr(config, config.run.algo, None), "buffer_size"):  # an off-policy algorithm's section
+        how += f" or {config.run.algo}.buffer_size"
+    if not config.run.compress_checkpoints:
+        how += ", or set run.compress_checkpoints=true"
+    print(
+        f"canter: warning: a checkpoint of this run takes {human_bytes(one)} and it needs room for "
+        f"{human_bytes(needed)} of them, but {run_dir} has {human_bytes(free)} free; free space, {how}",
+        file=sys.stderr,
+    )
+    return True
