@@ -27,6 +27,19 @@ def _bin_dir() -> Path | None:
     return Path(initdb).parent if initdb else None
 
 
+# How to stop and start the session's server again (`stop_server`, `start_server`), set by the fixture.
+_CONTROL: dict[str, list[str]] = {}
+
+
+def stop_server() -> None:
+    """Stop the running server at once, as a crash or a restart would (its data stays)."""
+    subprocess.run(_CONTROL["stop"], check=True, capture_output=True, timeout=60)
+
+
+def start_server() -> None:
+    subprocess.run(_CONTROL["start"], check=True, capture_output=True, timeout=120)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -54,19 +67,11 @@ def postgres_url():
         return subprocess.run(as_user + [str(a) for a in args], check=True, capture_output=True, timeout=120)
 
     run(bin_dir / "initdb", "-D", data, "-A", "trust", "-U", "postgres", "--no-sync", "-E", "UTF8")
-    run(
-        bin_dir / "pg_ctl",
-        "-D",
-        data,
-        "-l",
-        log,
-        "-w",
-        "-t",
-        "60",
-        "-o",
-        f"-p {port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=50",
-        "start",
-    )
+    options = f"-p {port} -k {folder} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=50"
+    pg_ctl = [*as_user, str(bin_dir / "pg_ctl"), "-D", str(data)]
+    _CONTROL["start"] = [*pg_ctl, "-l", str(log), "-w", "-t", "60", "-o", options, "start"]
+    _CONTROL["stop"] = [*pg_ctl, "-m", "fast", "-w", "stop"]
+    start_server()
     try:
         yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
     finally:

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import pytest
 
+import pg_server
 from canter.errors import CanterError
 from canter.orchestrate.study import StorageSettings, open_storage
 from pg_server import postgres_url  # noqa: F401  (session fixture)
@@ -92,3 +94,54 @@ def test_a_sqlite_folder_that_does_not_exist_cannot_connect(tmp_path):
     with pytest.raises(CanterError, match=r"^cannot connect to the sqlite storage at .*missing"):
         open_storage(StorageSettings(f"sqlite:///{tmp_path / 'missing' / 'study.db'}"))
     assert not (tmp_path / "missing").exists()
+
+
+def test_workers_wait_out_a_database_restart_and_no_trial_is_lost_or_counted_twice(postgres_url):  # noqa: F811
+    """The server stops while a trial runs. A worker that waits long enough records the trial once the server is
+    back; one whose patience runs out stops with one line, leaving its trial running, which the next worker fails by
+    heartbeat and retries with the same parameters."""
+    import threading
+
+    import optuna
+    from optuna.trial import TrialState
+
+    from canter.orchestrate.study import Outcome, run_worker
+
+    url = _new_database(postgres_url, "outage")
+    settings = StorageSettings(url, heartbeat_seconds=1, grace_seconds=3)
+    storage = open_storage(settings)
+    study = optuna.create_study(storage=storage, study_name="outage", direction="maximize")
+    plan = {1: "restart", 4: "stay down"}  # trial number -> what happens to the server while it runs
+
+    def run_trial(trial):
+        x = trial.suggest_float("x", 0.0, 1.0)
+        what = plan.pop(trial.number, None)
+        if what is not None:
+            pg_server.stop_server()
+            if what == "restart":
+                threading.Timer(3.0, pg_server.start_server).start()
+        return Outcome("complete", value=x)
+
+    def work(target, outage_seconds):
+        run_worker(
+            study, storage, target, run_trial, heartbeat_seconds=1, poll_seconds=0.1, outage_seconds=outage_seconds
+        )
+
+    work(4, outage_seconds=60)  # waits out the restart during trial 1
+    started = time.monotonic()
+    with pytest.raises(CanterError) as stopped:
+        work(8, outage_seconds=2)  # gives up while the server is down after trial 4
+    assert 2 <= time.monotonic() - started < 30
+    message = str(stopped.value)
+    assert message.startswith("lost the postgresql+psycopg2 storage at ") and "\n" not in message
+    assert "run the same command again" in message
+    pg_server.start_server()
+    work(8, outage_seconds=60)
+
+    trials = study.get_trials(deepcopy=False)
+    complete = [t for t in trials if t.state == TrialState.COMPLETE]
+    assert len(complete) == 8 and len({t.params["x"] for t in complete}) == 8  # none recorded twice
+    assert [t.number for t in trials if t.state == TrialState.FAIL] == [4]
+    retry = [t for t in complete if optuna.storages.RetryHeartbeatStaleTrialCallback.retried_trial_number(t) == 4]
+    assert len(retry) == 1 and retry[0].params == trials[4].params
+    assert not [t for t in trials if t.state in (TrialState.RUNNING, TrialState.WAITING)]

@@ -13,16 +13,21 @@ FAILED with the reason `surplus`, so the number of finished trials ends exactly 
 from __future__ import annotations
 
 import contextlib
+import functools
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from canter.errors import CanterError
 
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
+# How long a worker waits for a storage that went away (a restarted server, a full disk) before it stops.
+OUTAGE_SECONDS = 300.0
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -155,6 +160,42 @@ def quiet_optuna() -> None:
     warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
 
 
+# ----------------------------------------------------------------------------------------------- storage outages
+
+
+def _lost_storage(exc: BaseException) -> bool:
+    """Whether an exception means the database went away (Optuna wraps SQLAlchemy's errors of a commit)."""
+    import optuna
+    import sqlalchemy.exc
+
+    gone = (sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError, sqlalchemy.exc.DisconnectionError)
+    if isinstance(exc, optuna.exceptions.StorageInternalError):
+        return isinstance(exc.__cause__, gone)
+    return isinstance(exc, gone)
+
+
+def retrying(call: Callable[[], T], url: str, what: str, patience: float = OUTAGE_SECONDS) -> T:
+    """`call()`, retried with backoff while the storage at `url` is away, for up to `patience` seconds; then a
+    one-line CanterError. Trials already told are in the database and stay there."""
+    started, delay = time.monotonic(), 0.5
+    while True:
+        try:
+            return call()
+        except Exception as exc:
+            if not _lost_storage(exc):
+                raise
+            waited = time.monotonic() - started
+            if waited >= patience:
+                driver, host = describe_url(normalize_url(url))
+                raise CanterError(
+                    f"lost the {driver} storage at {host} for {waited:.0f} s while {what}: "
+                    f"{_reason(exc.__cause__ or exc)}; the finished trials are kept there: run the same command "
+                    f"again once it is back (a trial left running is failed and retried)"
+                ) from None
+            time.sleep(min(delay, patience - waited))
+            delay = min(2 * delay, 30.0)
+
+
 # ------------------------------------------------------------------------------------------------------- the loop
 
 
@@ -215,17 +256,24 @@ def run_worker(
     poll_seconds: float = 1.0,
     deadline: float | None = None,
     ask_new: bool = True,
+    outage_seconds: float = OUTAGE_SECONDS,
 ) -> None:
     """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes).
     With `ask_new=False` only queued (WAITING) trials are run, and the worker returns once none is queued or
-    running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial."""
+    running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial.
+
+    Every storage call waits out an outage of up to `outage_seconds` (`retrying`). A trial that ran through one is
+    told when the storage is back; if another worker failed it meanwhile (its heartbeat went stale), that worker
+    retries it and this outcome is dropped, so no trial counts twice."""
     import optuna
     from optuna.trial import TrialState
 
+    def call(what: str, fn: Callable[[], T]) -> T:
+        return retrying(fn, storage.url, what, outage_seconds)
+
     states = {"complete": TrialState.COMPLETE, "pruned": TrialState.PRUNED, "fail": TrialState.FAIL}
     while True:
-        optuna.storages.fail_stale_trials(study)
-        n = counts(study)
+        n = call("reading the study", lambda: (optuna.storages.fail_stale_trials(study), counts(study))[1])
         finished = n["COMPLETE"] + n["PRUNED"]
         if finished >= target or (deadline is not None and time.time() >= deadline):
             return
@@ -240,10 +288,9 @@ def run_worker(
             if not ask_new or finished + n["RUNNING"] >= target:
                 time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
                 continue
-        trial = study.ask()
-        if _surplus(study, trial.number, target):
-            trial.set_user_attr(FAIL_REASON, SURPLUS)
-            study.tell(trial, state=TrialState.FAIL)
+        trial = call("asking for a trial", study.ask)
+        if call("reading the study", functools.partial(_surplus, study, trial.number, target)):
+            _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
             continue
         try:
             with _Heartbeat(storage, trial, heartbeat_seconds):
@@ -251,12 +298,31 @@ def run_worker(
         except Exception as exc:  # the trial fails with the reason; the study goes on
             outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
         except BaseException:
-            trial.set_user_attr(FAIL_REASON, "interrupted")
-            study.tell(trial, state=TrialState.FAIL)
+            with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
+                trial.set_user_attr(FAIL_REASON, "interrupted")
+                study.tell(trial, state=TrialState.FAIL, skip_if_finished=True)
             raise
+        _tell(study, trial, outcome, states[outcome.state], call)
+
+
+def _tell(study: Any, trial: Any, outcome: Outcome, state: Any, call: Callable[[str, Callable[[], Any]], Any]) -> None:
+    """Record a trial's outcome once: a retried tell whose first try got through, or a trial that another worker
+    failed by heartbeat during an outage, is left as the storage has it."""
+    import optuna
+    from optuna.trial import TrialState
+
+    def record() -> None:
         if outcome.reason:
             trial.set_user_attr(FAIL_REASON if outcome.state == "fail" else "note", outcome.reason)
-        if outcome.state == "complete":
-            study.tell(trial, outcome.value)
-        else:
-            study.tell(trial, state=states[outcome.state])
+        values = outcome.value if state == TrialState.COMPLETE else None
+        study.tell(trial, values, state=state, skip_if_finished=True)
+
+    with contextlib.suppress(optuna.exceptions.UpdateFinishedTrialError):  # finished already: see below
+        call(f"recording trial {trial.number}", record)
+    stored = call("reading the study", lambda: study._storage.get_trial(trial._trial_id).state)
+    if stored != state:
+        print(
+            f"canter: note: trial {trial.number} was marked {stored.name} while the storage was away; "
+            f"its {state.name.lower()} outcome is dropped and the trial is retried",
+            file=sys.stderr,
+        )

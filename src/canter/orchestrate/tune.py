@@ -19,6 +19,7 @@ postgresql://...`, where any number of machines run the same command).
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import math
 import os
@@ -42,6 +43,7 @@ from canter.orchestrate.study import (
     counts,
     open_storage,
     quiet_optuna,
+    retrying,
     run_worker,
 )
 
@@ -213,9 +215,13 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
         config = trial_config(base, values, trial_dir, settings)
     except CanterError as exc:
         return Outcome("fail", reason=f"invalid sample: {exc}")
-    trial.set_user_attr(PRESET_ATTR, config_file_toml(config))
-    trial.set_user_attr("trial_dir", str(trial_dir.resolve()))
-    trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
+    url = settings.storage.url
+    for attr, text in (
+        (PRESET_ATTR, config_file_toml(config)),
+        ("trial_dir", str(trial_dir.resolve())),
+        ("worker", f"{socket.gethostname()}:{os.getpid()}"),
+    ):
+        retrying(functools.partial(trial.set_user_attr, attr, text), url, "recording a trial")
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
     from canter.config.serialize import to_toml
 
@@ -231,8 +237,8 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 value = float(np.mean([f[index] for f in found]))
                 reported[index] = value
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
-                trial.report(value, step)
-                if index < settings.evaluations and trial.should_prune():
+                retrying(functools.partial(trial.report, value, step), url, "reporting an evaluation")
+                if index < settings.evaluations and retrying(trial.should_prune, url, "asking the pruner"):
                     stop_job(proc)
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
             if code is not None:
