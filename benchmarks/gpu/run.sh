@@ -1,0 +1,136 @@
+#!/usr/bin/env bash
+# One part of canter's GPU benchmarks (issue 26), sized to finish within 5 minutes on one H100, compile included:
+#
+#   bash benchmarks/gpu/run.sh smoke       # install check: jax.devices() and 1 PPO iteration of Hopper-v5 on mjx
+#   bash benchmarks/gpu/run.sh ppo-brax    # Brax's own PPO vs canter ppo --preset brax on Brax's ant and humanoid
+#   bash benchmarks/gpu/run.sh ppo-brax ant   # one env of it
+#   bash benchmarks/gpu/run.sh humanoid    # Humanoid-v5 on mjx for 4 minutes, evaluated during training: time to 6000
+#   bash benchmarks/gpu/run.sh seeds       # Hopper-v5 on mjx, 5 vmapped seeds vs 1 seed, the same steps
+#   bash benchmarks/gpu/run.sh offpolicy   # td3 and sac on HalfCheetah-v5 on mjx, many envs
+#
+# The GPU machine cannot reach a registry: the wheels it lacks come in .whl/ (benchmarks/gpu/wheels.sh downloads
+# them here) and are installed into /tmp/site at the start. Everything the part prints goes to $OUT/PART.log, and
+# its figures, with the device's name, to $OUT/PART.md, for benchmarks/gpu/results.md. OUT defaults to
+# benchmarks/gpu/out. Run folders stay in $OUT/runs without their checkpoints (which hold every env's state).
+#
+# CANTER_GPU_SMOKE=1 shrinks every part to a few envs and steps, to check the script on a CPU (minutes, not figures).
+# The sizes below can be changed through the environment variables they read.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+part=${1:-}
+shift || true
+case "$part" in
+smoke | ppo-brax | humanoid | seeds | offpolicy) ;;
+*)
+    echo "usage: bash benchmarks/gpu/run.sh smoke|ppo-brax|humanoid|seeds|offpolicy" >&2
+    exit 2
+    ;;
+esac
+PY=${PYTHON:-python3}
+SMOKE=${CANTER_GPU_SMOKE:-0}
+OUT=${OUT:-benchmarks/gpu/out}
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+RUNS=$OUT/runs
+exec > >(tee -a "$OUT/$part.log") 2>&1
+
+if compgen -G ".whl/*.whl" >/dev/null && [ "${CANTER_GPU_INSTALL:-1}" = 1 ]; then
+    "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    export PYTHONPATH=/tmp/site:$PWD/src
+else
+    export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH}
+fi
+export PYTHONUNBUFFERED=1
+
+echo "== $part ($(date -u +%FT%TZ), CANTER_GPU_SMOKE=$SMOKE)"
+"$PY" - <<'EOF' | tee "$OUT/device.txt"
+import jax
+print(f"{jax.devices()[0].device_kind} (JAX {jax.__version__}, {jax.default_backend()})")
+EOF
+command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+
+# Settings of this part, recorded in PART.md.
+settings() { printf '%s\n' "$@" >>"$OUT/$part.settings"; }
+: >"$OUT/$part.settings"
+# canter train with what every run here shares: no TensorBoard, one checkpoint at the end, no progress bar.
+train() {
+    local label=$1
+    shift
+    settings "canter train $*"
+    "$PY" -m canter.cli train "$@" --out-dir "$RUNS/$label" --quiet \
+        --set run.tensorboard=false --set run.checkpoint_every=0
+}
+small() { [ "$SMOKE" = 1 ] && echo "$1" || echo "$2"; }
+
+case "$part" in
+smoke)
+    "$PY" -c "import canter, jax; print('canter imports; devices:', jax.devices())"
+    # One iteration: 64 envs x 128 steps (the fast preset's ppo.n_steps).
+    train smoke Hopper-v5 --backend mjx --seed 0 --set env.num_envs="$(small 4 64)" \
+        --set ppo.n_steps="$(small 8 128)" --set ppo.minibatch_size="$(small 16 512)" \
+        --total-steps "$(small 32 8192)"
+    ;;
+ppo-brax)
+    # Brax's published settings for both trainers (benchmarks/gpu/brax_ppo.py, src/canter/presets/brax.toml), the
+    # same env steps (Brax rounds its num_timesteps up to whole epochs; canter trains the steps Brax trained), one
+    # evaluation at the end of each.
+    envs=("$@")
+    [ ${#envs[@]} -gt 0 ] || envs=(ant humanoid)
+    for env in "${envs[@]}"; do
+        case "$env" in
+        ant) timesteps=${BRAX_ANT_STEPS:-10000000} ;;
+        humanoid) timesteps=${BRAX_HUMANOID_STEPS:-5000000} ;;
+        *) echo "run.sh ppo-brax: no published settings for $env; use ant or humanoid" >&2 && exit 2 ;;
+        esac
+        smoke_flag=()
+        [ "$SMOKE" = 1 ] && smoke_flag=(--smoke) && timesteps=80
+        settings "python benchmarks/gpu/brax_ppo.py $env --timesteps $timesteps --num-evals 1 ${smoke_flag[*]}"
+        "$PY" benchmarks/gpu/brax_ppo.py "$env" --timesteps "$timesteps" --num-evals 1 "${smoke_flag[@]}" \
+            --out "$OUT/brax_$env.json"
+        steps=$("$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['steps'])" "$OUT/brax_$env.json")
+        shrink=()
+        if [ "$SMOKE" = 1 ]; then
+            shrink=(--set env.num_envs=8 --set ppo.n_steps=10 --set ppo.minibatch_size=40)
+        fi
+        train "ppo-brax-$env" "$env" --backend brax --preset brax --seed 1 --total-steps "$steps" \
+            --eval-every "$steps" --eval-episodes "$(small 4 128)" "${shrink[@]}"
+    done
+    ;;
+humanoid)
+    # Brax's humanoid PPO settings (the brax preset's humanoid table) on Gymnasium's Humanoid-v5 ported to MJX.
+    num_envs=${HUMANOID_ENVS:-2048}
+    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3}"
+    [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
+    train humanoid Humanoid-v5 --backend mjx --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
+        --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \
+        --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-10000000}")" --eval-episodes "$(small 2 16)"
+    ;;
+seeds)
+    # The same run as one seed and as 5 vmapped seeds: the same envs per seed and steps per seed.
+    num_envs=$(small 4 "${SEEDS_ENVS:-256}")
+    steps=$(small 64 "${SEEDS_STEPS:-2000000}")
+    minibatch=$(small 16 4096)
+    for label in one five; do
+        seed_flag=(--seed 0)
+        [ $label = five ] && seed_flag=(--seeds 0,1,2,3,4)
+        train "seeds-$label" Hopper-v5 --backend mjx "${seed_flag[@]}" --set env.num_envs="$num_envs" \
+            --set ppo.n_steps="$(small 8 128)" --set ppo.minibatch_size="$minibatch" --total-steps "$steps"
+    done
+    ;;
+offpolicy)
+    # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each.
+    num_envs=$(small 4 "${OFFPOLICY_ENVS:-1024}")
+    for algo in td3 sac; do
+        train "offpolicy-$algo" HalfCheetah-v5 --backend mjx --algo "$algo" --seed 0 \
+            --set env.num_envs="$num_envs" --set "$algo.batch_size=$(small 32 "${OFFPOLICY_BATCH:-8192}")" \
+            --set "$algo.gradient_steps=$(small 1 "${OFFPOLICY_UPDATES:-4}")" \
+            --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 10))")" \
+            --set "$algo.steps_per_call=$(small 8 "$((num_envs * 50))")" \
+            --max-minutes "$(small 2 2)" --total-steps "$(small 48 1000000000)" \
+            --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-5000000}")" --eval-episodes "$(small 2 10)"
+    done
+    ;;
+esac
+
+find "$RUNS" -type d -name checkpoints -prune -exec rm -rf {} + 2>/dev/null || true
+"$PY" benchmarks/gpu/summarize.py "$part" "$OUT"

@@ -1,0 +1,176 @@
+"""The figures of one part of run.sh as a markdown block, from the run folders and Brax records it left in OUT.
+
+    python benchmarks/gpu/summarize.py PART OUT     # prints the block and writes OUT/PART.md
+
+Reads only files (summary.json, metrics.csv, config.toml, brax_*.json): it imports neither canter nor JAX, so it
+also summarises a part that was cut off, from whatever it had written.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+import tomllib
+from pathlib import Path
+
+# Humanoid-v5's goal (issue 26): a deterministic-eval return of 6000 (standing still for 1000 steps earns 5000).
+HUMANOID_GOAL = 6000.0
+# The CPU tables' 1M-step HalfCheetah-v5 scores that the off-policy part aims at.
+HALFCHEETAH_GOALS = {"td3": 10_108.0, "sac": 11_651.0}
+
+
+def runs(folder: Path) -> list[Path]:
+    return sorted(p.parent for p in folder.glob("*/summary.json")) if folder.is_dir() else []
+
+
+def run_facts(run_dir: Path) -> dict:
+    summary = json.loads((run_dir / "summary.json").read_text())
+    config = tomllib.loads((run_dir / "config.toml").read_text())
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    evals = [
+        (int(r["global_step"]), float(r["wall_time"]), float(r["eval/return_mean"]))
+        for r in rows
+        if r.get("eval/return_mean")
+    ]
+    return dict(
+        run=run_dir.name,
+        algo=config["run"]["algo"],
+        seed=config["run"]["seed"],
+        num_envs=config["env"]["num_envs"],
+        steps=summary["global_step"],
+        wall=summary["wall_seconds"],
+        compile=summary["compile_seconds"],
+        sps=summary["sps"],
+        train_return=summary["recent_return"],
+        stop=summary["stop_reason"],
+        evals=evals,
+        final_eval=evals[-1][2] if evals else None,
+    )
+
+
+def time_to(evals: list[tuple[int, float, float]], goal: float) -> str:
+    hit = next(((step, wall) for step, wall, score in evals if score >= goal), None)
+    return f"{hit[1]:.0f} s ({hit[0]:,} steps)" if hit else "not reached"
+
+
+def fmt(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:,.{digits}f}"
+
+
+def device_name(out: Path) -> str:
+    path = out / "device.txt"
+    return path.read_text().strip() if path.exists() else "unknown device"
+
+
+def ppo_brax(out: Path) -> list[str]:
+    lines = [
+        "| env | trainer | steps | wall (s) | steps/s, whole run | steps/s, training | final eval return | "
+        "train return (last 20) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for env in ("ant", "humanoid"):
+        record_path = out / f"brax_{env}.json"
+        if record_path.exists():
+            b = json.loads(record_path.read_text())
+            lines.append(
+                f"| {env} | Brax PPO | {b['steps']:,} | {fmt(b['wall_seconds'])} | {fmt(b['steps_per_second'], 0)} | "
+                f"{fmt(b['training_sps'], 0)} | {fmt(b['final_eval_return'])} (stochastic, {b['eval_episodes']} eps) "
+                f"| - |"
+            )
+        for run in runs(out / "runs" / f"ppo-brax-{env}"):
+            c = run_facts(run)
+            lines.append(
+                f"| {env} | canter ppo --preset brax | {c['steps']:,} | {fmt(c['wall'])} | "
+                f"{fmt(c['steps'] / c['wall'], 0)} | {fmt(c['sps'], 0)} | {fmt(c['final_eval'])} (deterministic) "
+                f"| {fmt(c['train_return'])} |"
+            )
+    lines.append("")
+    lines.append(
+        "Whole run: env steps / wall time, compile and evaluation included. Training: Brax's `training/sps` of its "
+        "last epoch; canter's SPS with the compile left out."
+    )
+    return lines
+
+
+def humanoid(out: Path) -> list[str]:
+    lines = [
+        "| run | envs | steps | wall (s) | compile (s) | SPS | best eval return | time to 6000 | stopped |",
+        "|---|---:|---:|---:|---:|---:|---:|---|---|",
+    ]
+    for run in runs(out / "runs" / "humanoid"):
+        c = run_facts(run)
+        best = max((score for _, _, score in c["evals"]), default=None)
+        lines.append(
+            f"| {c['run']} | {c['num_envs']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | "
+            f"{fmt(c['sps'], 0)} | {fmt(best)} | {time_to(c['evals'], HUMANOID_GOAL)} | {c['stop']} |"
+        )
+    return lines
+
+
+def seeds(out: Path) -> list[str]:
+    lines = [
+        "| program | runs | envs per seed | steps per seed | wall (s) | compile (s) | wall less compile (s) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    walls = {}
+    for label in ("one", "five"):
+        found = [run_facts(r) for r in runs(out / "runs" / f"seeds-{label}")]
+        if not found:
+            continue
+        c = found[0]
+        walls[label] = (c["wall"], c["wall"] - c["compile"])
+        lines.append(
+            f"| {label} seed{'s' if label == 'five' else ''} | {len(found)} | {c['num_envs']} | {c['steps']:,} | "
+            f"{fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['wall'] - c['compile'])} |"
+        )
+    if len(walls) == 2:
+        whole = walls["five"][0] / walls["one"][0]
+        running = walls["five"][1] / walls["one"][1]
+        lines.append("")
+        lines.append(f"Wall time of 5 vmapped seeds / 1 seed: {whole:.2f}x (compile left out: {running:.2f}x).")
+    return lines
+
+
+def offpolicy(out: Path) -> list[str]:
+    lines = [
+        "| algo | envs | steps | wall (s) | compile (s) | SPS | final eval return | CPU 1M-step score | time to it |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for algo, goal in HALFCHEETAH_GOALS.items():
+        for run in runs(out / "runs" / f"offpolicy-{algo}"):
+            c = run_facts(run)
+            lines.append(
+                f"| {algo} | {c['num_envs']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | "
+                f"{fmt(c['sps'], 0)} | {fmt(c['final_eval'])} | {goal:,.0f} | {time_to(c['evals'], goal)} |"
+            )
+    return lines
+
+
+def smoke(out: Path) -> list[str]:
+    lines = ["| run | steps | wall (s) | compile (s) | SPS |", "|---|---:|---:|---:|---:|"]
+    for run in runs(out / "runs" / "smoke"):
+        c = run_facts(run)
+        lines.append(f"| {c['run']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['sps'], 0)} |")
+    return lines
+
+
+PARTS = {"ppo-brax": ppo_brax, "humanoid": humanoid, "seeds": seeds, "offpolicy": offpolicy, "smoke": smoke}
+
+
+def main() -> None:
+    part, out = sys.argv[1], Path(sys.argv[2])
+    settings = out / f"{part}.settings"
+    block = [f"### {part} on {device_name(out)}", ""]
+    if settings.exists():
+        block += ["Settings:", "", "```", settings.read_text().strip(), "```", ""]
+    block += PARTS[part](out)
+    block += ["", f"Raw log: `{part}.log`."]
+    text = "\n".join(block) + "\n"
+    (out / f"{part}.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Download, here, the wheels that the GPU machine lacks, into .whl/ at the repository root; run.sh installs them there
+# with --no-index --no-deps. That machine has Python 3.12 with JAX 0.11.2 for CUDA 13, flax, optax, chex, orbax, rich,
+# matplotlib, imageio, numpy, scipy, pandas and onnx, and cannot reach a registry, so every other module that canter
+# (mjx and brax backends) and Brax's own PPO import comes from here. The folder travels with the device command
+# (`carry: [".whl"]`, 64 MiB at most), so it must stay under ~55 MiB.
+#
+#   bash benchmarks/gpu/wheels.sh          # then: du -sh .whl
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+mkdir -p .whl
+# Keep the wheels out of git (a local exclude, not .gitignore: they are a per-machine download).
+exclude=.git/info/exclude
+mkdir -p "$(dirname "$exclude")"
+grep -qxF "/.whl/" "$exclude" 2>/dev/null || echo "/.whl/" >>"$exclude"
+
+# name==version: canter's pins where it has them (pyproject.toml), else the versions tested with them here.
+WHEELS=(
+    mujoco==3.6.0 mujoco-mjx==3.6.0 glfw==2.11.0   # MJX physics; mujoco imports glfw
+    brax==0.14.2 jaxopt==0.8.5 ml_collections==1.1.0 trimesh==5.2.0   # Brax's envs and PPO
+    gymnasium==1.4.0 farama-notifications==0.0.6 cloudpickle==3.1.3   # the mjx backend reads Gymnasium's XML
+    tensorboardX==2.6.5   # canter's logger
+)
+
+PLATFORMS=(manylinux_2_28_x86_64 manylinux_2_27_x86_64 manylinux_2_17_x86_64 manylinux2014_x86_64 manylinux1_x86_64)
+python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    "${PLATFORMS[@]/#/--platform=}" -d .whl "${WHEELS[@]}"
+
+ls -1 .whl
+du -sh .whl
+total=$(du -sm .whl | cut -f1)
+if [ "$total" -gt 55 ]; then
+    echo "wheels.sh: .whl holds ${total} MiB, over the 55 MiB that fit beside the tree in one device command" >&2
+    exit 1
+fi
