@@ -9,6 +9,10 @@ no flock, the recorded pid decides: a holder on this host that is no longer aliv
 Readers (eval, plot, report, export, video) never take the lock: a run folder's files are written whole
 (checkpoints atomically, metrics.csv a whole line at a time), so a reader sees a consistent folder at any moment.
 
+Taking the lock also removes what a killed writer left half-written: the temp files of atomic writes
+(`.NAME.*.tmp`, `.NAME.*.tmp.mp4`) and video snapshots (`videos/.snapshot_*.npz`). No other process writes the
+folder then, so none of them is being written.
+
 Locks are re-entrant within a process: a bench job holds its folders while it trains and evaluates them, and the
 trainer it calls takes them again.
 """
@@ -128,6 +132,7 @@ def acquire(run_dir: Path) -> None:
             raise _refusal(run_dir, holder)
         os.ftruncate(fd, 0)
         os.pwrite(fd, _holder_text(), 0)
+        _remove_half_written(run_dir)
     except BaseException as exc:
         os.close(fd)
         if is_write_error(exc):
@@ -135,6 +140,15 @@ def acquire(run_dir: Path) -> None:
             raise WriteError(path, exc) from None
         raise
     _HELD[key] = _Held(fd, run_dir if created else None)
+
+
+HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp.*", "videos/.snapshot_*.npz")
+
+
+def _remove_half_written(run_dir: Path) -> None:
+    for pattern in HALF_WRITTEN:
+        for path in run_dir.glob(pattern):
+            path.unlink(missing_ok=True)
 
 
 def release(run_dir: Path) -> None:
