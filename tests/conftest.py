@@ -100,3 +100,16 @@ def tiny_run_seed1(tiny_run, tmp_path_factory):
     out = tmp_path_factory.mktemp("shared_runs_seed1")
     config = apply_overrides(read_config(tiny_run.run_dir), {"run.seed": 1, "run.out_dir": str(out)}, "test")
     return _train_inside(out, config)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--run-heavy", action="store_true", help="also run the tests marked heavy")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--run-heavy"):
+        return
+    skip = pytest.mark.skip(reason="heavy: run with --run-heavy")
+    for item in items:
+        if "heavy" in item.keywords:
+            item.add_marker(skip)

@@ -90,6 +90,9 @@ class Backend(Protocol):
     # Builds one Gymnasium-API env object at a time (`make_single`, and `on_make(env)` in `make`): robustness sweeps
     # edit its MuJoCo model through env.unwrapped.model, and videos render it.
     single_envs: bool = False
+    # Its step is JAX (`canter.envs.functional`): it runs in float32 on the GPU where one exists, `auto` never picks
+    # it, and its env state is checkpointed, so runs resume exactly.
+    jax_native: bool = False
     # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
     # on it and on the env it trained on only.
     own_observations: bool = False

@@ -17,10 +17,13 @@ if TYPE_CHECKING:
 
 AUTO = "auto"
 
-# name -> package. The order is `auto`'s: it takes the first backend that has the id.
+# name -> package. The order is `auto`'s: it takes the first backend that has the id, among those that step C MuJoCo
+# on the host (a JAX-native backend is always asked for by name).
 _BACKENDS = {
     "envpool": "canter.envs.envpool",
     "gymnasium": "canter.envs.gymnasium",
+    "mjx": "canter.envs.mjx",
+    "brax": "canter.envs.brax",
 }
 
 
@@ -40,7 +43,7 @@ def describe_backend_choices() -> str:
 
 def backend_doc() -> str:
     """The reference text of env.backend: what `auto` picks, then the accepted names."""
-    labels = [get_backend(name).label for name in _BACKENDS]
+    labels = [backend.label for backend in _auto_backends()]
     order = ", else ".join([f"{label} where it has the id" for label in labels[:-1]] + labels[-1:])
     return f"`{AUTO}` ({order}), {_or([f'`{name}`' for name in _BACKENDS])}."
 
@@ -76,15 +79,20 @@ def resolve_backend(env_id: str, backend: str) -> str:
     if ":" in env_id:
         return _resolve_custom(env_id, backend)
     if backend == AUTO:
-        for candidate in backends():
+        for candidate in _auto_backends():
             if env_id in candidate.supported_ids():
                 return candidate.name
-        raise _unknown(env_id, known_ids(), "canter")
+        raise _unknown(env_id, sorted({i for b in _auto_backends() for i in b.supported_ids()}), "canter")
     chosen = get_backend(backend)
     if not chosen.available():
         others = [other.name for other in backends() if other is not chosen and other.available()] or [AUTO]
         raise CanterError(f"{chosen.label} is not installed on this platform; use --backend {_or(others)}")
     ids = chosen.supported_ids()
+    if env_id not in ids and chosen.jax_native:
+        raise CanterError(
+            f"{env_id} has no {chosen.label} version; --backend {chosen.name} runs {_or(sorted(ids))}, or drop "
+            f"--backend to run {env_id} on the CPU"
+        )
     if env_id not in ids:
         raise _unknown(env_id, sorted(ids), chosen.label)
     return chosen.name
@@ -93,6 +101,10 @@ def resolve_backend(env_id: str, backend: str) -> str:
 def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
     """`shards` applies to backends with pools (0: one single-threaded pool per core); kwargs go to the env."""
     return get_backend(resolve_backend(env_id, backend)).make(env_id, num_envs, seeds, shards, **kwargs)
+
+
+def _auto_backends() -> list[Backend]:
+    return [backend for backend in backends() if not backend.jax_native]
 
 
 def _resolve_custom(env_id: str, backend: str) -> str:

@@ -28,6 +28,7 @@ from canter.files import atomic_write_bytes
 FORMAT_VERSION = 1
 _NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"
+ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 
 
@@ -47,12 +48,21 @@ def _digest(arrays: dict[str, np.ndarray], header: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
-def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False) -> None:
+def _named_arrays(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
+    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(tree))[0]
+    return {prefix + _path_name(p): np.asarray(v) for p, v in leaves}
+
+
+def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False, env_carry: Any = None) -> None:
     """Write a checkpoint; `compress` deflates the arrays (slower to write, much smaller for a part-filled replay
-    buffer). Both forms are read the same way."""
-    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(state))[0]
-    arrays = {_path_name(p): np.asarray(v) for p, v in leaves}
-    header = dict(header, format_version=FORMAT_VERSION, leaves=[_path_name(p) for p, _ in leaves])
+    buffer). Both forms are read the same way. `env_carry`, where the env state is a pytree (JAX-native backends),
+    holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them."""
+    arrays = _named_arrays(state)
+    header = dict(header, format_version=FORMAT_VERSION, leaves=list(arrays))
+    if env_carry is not None:
+        carry = _named_arrays(env_carry, ENV_CARRY)
+        arrays.update(carry)
+        header["env_carry_leaves"] = list(carry)
     header["sha256"] = _digest(arrays, header)
     payload = {f"leaf:{k}": v for k, v in arrays.items()}
     payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
@@ -96,12 +106,13 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return arrays, header
 
 
-def restore(template: Any, arrays: dict[str, np.ndarray], source: Path) -> Any:
-    """Fill a template pytree (same structure) with the saved arrays, checking names, shapes and dtypes."""
+def restore(template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: str = "") -> Any:
+    """Fill a template pytree (same structure) with the saved arrays named `prefix` + its leaf paths, checking
+    names, shapes and dtypes."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
     restored = []
     for p, leaf in leaves:
-        name = _path_name(p)
+        name = prefix + _path_name(p)
         if name not in arrays:
             raise CanterError(f"checkpoint {source} does not match this config (missing '{name}')")
         value = arrays[name]
@@ -112,6 +123,15 @@ def restore(template: Any, arrays: dict[str, np.ndarray], source: Path) -> Any:
             )
         restored.append(value)
     return jax.tree_util.tree_unflatten(treedef, restored)
+
+
+def restore_env_carry(fresh: Any, path: Path) -> Any:
+    """The episodes in flight saved in checkpoint `path`, in the structure of `fresh` (a new env's carry); `fresh`
+    itself when the checkpoint holds none (it was written by a backend that restarts its episodes)."""
+    arrays, header = read(path)
+    if not header.get("env_carry_leaves"):
+        return fresh
+    return restore(fresh, arrays, path, ENV_CARRY)
 
 
 def checkpoint_dir(run_dir: Path) -> Path:

@@ -23,7 +23,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
-from canter.training import checkpoint, disk_room, run_folder, run_lock
+from canter.training import checkpoint, device_memory, disk_room, run_folder, run_lock
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
@@ -139,27 +139,31 @@ def _train_locked(
 ) -> list[RunResult]:
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
-    from canter.envs import make_vec_env
+    from canter.envs import make_vec_env, resolve_backend
 
-    setup_jax()
+    setup_jax(resolve_backend(configs[0].env.id, configs[0].env.backend))
     for config in configs:
         validate(config)
     started = time.perf_counter()
 
     states, outs, start_steps, seeds, earlier = [], [], [], [], []
+    resumed_from: list[Path | None] = []
     for config, resume, run_dir in zip(configs, resumes, run_dirs):
         state = None
         if resume is not None:
             from canter.training.restore import load_state
 
             out = Path(resume)
-            _, _, state, header = load_state(out)
+            latest = checkpoint.latest(out)
+            resumed_from.append(latest)
+            _, _, state, header = load_state(out, latest)
             start_step = int(header["global_step"])
             earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
         else:
             start_step = 0
             out = Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config)
             earlier.append(None)
+            resumed_from.append(None)
         if start_step >= config.run.total_steps:
             raise CanterError(
                 f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
@@ -197,7 +201,8 @@ def _train_locked(
                 run_folder.migrate(out)
                 run_folder.write_config(out, config)
             disk_room.warn_if_checkpoints_will_not_fit(out, states[i], config)
-        return _loop(configs, env, spec, states, outs, start_steps, earlier, quiet, started)
+        carry = _initial_carry(env, spec, resumed_from)
+        return _loop(configs, env, spec, states, carry, outs, start_steps, earlier, quiet, started)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
         error = run_folder.training_write_error(exc, outs)
         if error is None:
@@ -205,6 +210,27 @@ def _train_locked(
         raise error from None
     finally:
         env.close()
+
+
+def _initial_carry(env: Any, spec: Any, resumed_from: list[Path | None]) -> Any:
+    """The env loop's first carry: fresh episodes, or for a backend whose env state is a pytree, the episodes in
+    flight that each resumed seed's checkpoint holds. Seeds of a group are stacked on a leading axis."""
+    from canter.envs.episodes import init_env_carry
+    from canter.training import seedgroup
+
+    group = len(resumed_from)
+    first_obs = seedgroup.split_first_obs(env.reset(), group)
+    if getattr(env, "vmappable", False):
+        handles = seedgroup.split_env_state(env.initial_state(), group)
+    else:
+        handles = [env.initial_state()] * group
+    carries = [init_env_carry(handle, obs, spec.info_keys) for handle, obs in zip(handles, first_obs)]
+    if getattr(env, "resumes_exactly", False):
+        carries = [
+            checkpoint.restore_env_carry(fresh, path) if path is not None else fresh
+            for fresh, path in zip(carries, resumed_from)
+        ]
+    return carries[0] if group == 1 else seedgroup.stack(carries)
 
 
 class _SeedRun:
@@ -271,12 +297,14 @@ class _SeedRun:
             totals=self.totals(started),
         )
 
-    def save(self, train_state: Any, step: int, started: float) -> None:
+    def save(self, train_state: Any, step: int, started: float, env_carry: Any = None) -> None:
+        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None)."""
         checkpoint.save(
             checkpoint.checkpoint_path(self.out, step),
             train_state,
             self._header(step, started),
             compress=self.config.run.compress_checkpoints,
+            env_carry=env_carry,
         )
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
@@ -340,9 +368,11 @@ class _SeedRun:
             return "stop_at_return"
         return None
 
-    def finish(self, train_state: Any, reason: str, compile_seconds: float, started: float) -> None:
+    def finish(
+        self, train_state: Any, reason: str, compile_seconds: float, started: float, env_carry: Any = None
+    ) -> None:
         self.stop_reason = reason
-        self.save(train_state, self.global_step, started)
+        self.save(train_state, self.global_step, started, env_carry)
         self.close()
         self.result = RunResult(
             run_dir=self.out,
@@ -363,10 +393,10 @@ class _SeedRun:
             self.videos.close()
             self.closed = True
 
-    def fail(self, last_good_state: Any, started: float) -> None:
+    def fail(self, last_good_state: Any, started: float, env_carry: Any = None) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
         self.stop_reason = "non_finite"
-        self.save(last_good_state, self.global_step, started)
+        self.save(last_good_state, self.global_step, started, env_carry)
         self.close()
         self.error = (
             f"non-finite observation, reward or parameter during the iteration after step "
@@ -379,6 +409,7 @@ def _loop(
     env: Any,
     spec: Any,
     states: list[Any],
+    carry: Any,
     outs: list[Path],
     start_steps: list[int],
     earlier: list[dict[str, float] | None],
@@ -392,7 +423,6 @@ def _loop(
     import jax.numpy as jnp
 
     from canter.algos import get_algorithm
-    from canter.envs.episodes import init_env_carry
 
     config = configs[0]
     group = len(configs)
@@ -402,22 +432,20 @@ def _loop(
     pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
     if group == 1:
         state = states[0]
-        carry = init_env_carry(env.initial_state(), env.reset(), spec.info_keys)
         iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
         pick = lambda tree, i: tree  # noqa: E731
     else:
         from canter.training import seedgroup
 
         state = seedgroup.stack(states)
-        handle = env.initial_state()
-        carry = seedgroup.stack(
-            [init_env_carry(handle, obs, spec.info_keys) for obs in seedgroup.split_first_obs(env.reset(), group)]
-        )
-        iteration = jax.jit(
-            jax.vmap(algorithm.make_iteration(config, spec, seedgroup.group_step(env.jax_step, group))),
-            donate_argnums=donate,
-        )
+        # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
+        env_step = env.jax_step if getattr(env, "vmappable", False) else seedgroup.group_step(env.jax_step, group)
+        iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
         pick = seedgroup.unstack
+    keeps_carry = getattr(env, "resumes_exactly", False)
+
+    def env_carry(tree: Any, i: int) -> Any:
+        return pick(tree, i) if keeps_carry else None
 
     if algorithm.donate_state:
         state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
@@ -431,7 +459,14 @@ def _loop(
         for c, out, start, before in zip(configs, outs, start_steps, earlier)
     ]
     compile_start = time.perf_counter()
-    compiled = iteration.lower(state, carry, fractions(runs)).compile()
+    envs = config.env.num_envs
+    try:
+        compiled = iteration.lower(state, carry, fractions(runs)).compile()
+    except Exception as exc:
+        if device_memory.is_out_of_memory(exc):
+            raise device_memory.too_many_envs(envs) from None
+        raise
+    device_memory.check_fits(compiled, envs)
     compile_seconds = time.perf_counter() - compile_start
 
     label = f"{spec.id} {config.run.algo}" + (f" x{group} seeds" if group > 1 else "")
@@ -441,7 +476,12 @@ def _loop(
         with _StopFlag() as stop:
             while any(run.stop_reason is None for run in runs):
                 t0 = time.perf_counter()
-                new_state, carry, metrics = compiled(state, carry, fractions(runs))
+                try:
+                    new_state, new_carry, metrics = compiled(state, carry, fractions(runs))
+                except Exception as exc:
+                    if device_memory.is_out_of_memory(exc):
+                        raise device_memory.too_many_envs(envs) from None
+                    raise
                 metrics = jax.device_get(metrics)
                 iterations = np.asarray(jax.device_get(new_state.iteration))
                 elapsed = time.perf_counter() - t0
@@ -452,7 +492,7 @@ def _loop(
                     seed_metrics = pick(metrics, i)
                     if not bool(seed_metrics["finite"]):
                         # A donated state is gone; such an algorithm returns the last good state itself.
-                        run.fail(pick(new_state if algorithm.donate_state else state, i), started)
+                        run.fail(pick(new_state if algorithm.donate_state else state, i), started, env_carry(carry, i))
                         continue
                     row = run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
                     if run.evaluation_due():
@@ -460,7 +500,7 @@ def _loop(
                     run.logger.log(row)
                     steps += int(seed_metrics["steps"])
                     if run.checkpoint_due():
-                        run.save(pick(new_state, i), run.global_step, started)
+                        run.save(pick(new_state, i), run.global_step, started, env_carry(new_carry, i))
                         every = run.config.run.checkpoint_every
                         run.next_checkpoint = (run.global_step // every + 1) * every
 
@@ -470,7 +510,7 @@ def _loop(
                         checkpoint.save(path, pick(group_state, i), dict(run.header_base, global_step=run.global_step))
 
                     run.videos.maybe_record(run.global_step, save_snapshot)
-                state = new_state
+                state, carry = new_state, new_carry
 
                 group_reason = None
                 if deadline is not None and time.perf_counter() >= deadline:
@@ -484,7 +524,7 @@ def _loop(
                     if reason is None and run.global_step >= total:
                         reason = "budget"
                     if reason is not None:
-                        run.finish(pick(state, i), reason, compile_seconds, started)
+                        run.finish(pick(state, i), reason, compile_seconds, started, env_carry(carry, i))
                 active = [run for run in runs if run.stop_reason is None] or runs
                 recents = [run.recent_mean for run in runs if run.recent_mean is not None]
                 progress.update(

@@ -10,7 +10,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 
 
 @dataclass(frozen=True)
@@ -32,12 +32,14 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
 
-    setup_jax()
     run_dir = Path(run_dir)
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(header["config"], str(path))
+    if not isinstance(which, Path) and which in (checkpoint.LAST, checkpoint.BEST):  # one of the folder's own
+        run_folder.check_own_checkpoint(run_dir, config, path)
     env = header["env"]
+    setup_jax(env["backend"])
     facts = PolicyFacts(
         env_id=env["id"],
         backend=env["backend"],

@@ -68,3 +68,9 @@ def unstack(tree: Any, index: int) -> Any:
 def split_first_obs(first_obs: np.ndarray, group_size: int) -> list[np.ndarray]:
     """The group env's first observations [S * N, D] as one [N, D] block per seed."""
     return list(np.asarray(first_obs).reshape((group_size, -1) + np.shape(first_obs)[1:]))
+
+
+def split_env_state(env_state: Any, group_size: int) -> list[Any]:
+    """The state of a vmappable group env (every leaf [S * N, ...]) as one [N, ...] state per seed."""
+    split = jax.tree.map(lambda x: x.reshape((group_size, x.shape[0] // group_size) + x.shape[1:]), env_state)
+    return [unstack(split, i) for i in range(group_size)]

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 
 from canter.algos.offpolicy.learner import OffPolicyLearner
 from canter.config.schema import Config
+from canter.core.counters import count_dtype
 from canter.core.normalize import (
     RunningStats,
     init_stats,
@@ -62,8 +63,8 @@ def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, ac
         return_stats=init_stats(()),
         key=jax.random.key_data(key),
         iteration=jnp.zeros((), jnp.int32),
-        global_step=jnp.zeros((), jnp.int64),
-        vector_steps=jnp.zeros((), jnp.int64),
+        global_step=jnp.zeros((), count_dtype()),
+        vector_steps=jnp.zeros((), count_dtype()),
     )
 
 
@@ -151,7 +152,7 @@ def make_iteration(
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
         ou_state = next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None]
-        global_step = global_step + valid.sum().astype(jnp.int64)
+        global_step = global_step + valid.sum().astype(count_dtype())
         vector_steps = vector_steps + 1
 
         do_train = healthy & (global_step >= cfg.learning_starts) & (vector_steps % cfg.train_freq == 0)
@@ -238,7 +239,7 @@ def make_iteration(
         small_old = {k: v for k, v in state._asdict().items() if k != "buffer"}
         kept = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), small_new, small_old)
         new_state = OffPolicyState(buffer=buffer, **kept)
-        steps = records["valid"].sum().astype(jnp.int64)
+        steps = records["valid"].sum().astype(count_dtype())
         metrics = {k: jnp.where(counts[k] > 0, sums[k] / jnp.maximum(counts[k], 1.0), jnp.nan) for k in names}
         metrics.update(
             gradient_steps=counts["critic_loss"],

@@ -13,6 +13,7 @@ from canter.algos.onpolicy_rollout import collect, estimate_advantages
 from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
 from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config.schema import Config
+from canter.core.counters import count_dtype
 from canter.core.networks import Params, init_params
 from canter.core.normalize import RunningStats, init_stats
 from canter.envs.base import EnvSpec
@@ -42,7 +43,7 @@ def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
         return_stats=init_stats(()),
         key=jax.random.key_data(key),
         iteration=jnp.zeros((), jnp.int32),
-        global_step=jnp.zeros((), jnp.int64),
+        global_step=jnp.zeros((), count_dtype()),
         kl_beta=(
             jnp.asarray(config.ppo.kl_penalty_beta, jnp.float32) if config.ppo.objective == "kl_penalty" else None
         ),
@@ -100,7 +101,7 @@ def make_iteration(
             if variant.kl_penalty
             else None
         )
-        steps = tr.valid.sum().astype(jnp.int64)
+        steps = tr.valid.sum().astype(count_dtype())
         finite = (
             jnp.all(jnp.isfinite(tr.obs))
             & jnp.all(jnp.isfinite(tr.reward))

@@ -24,6 +24,7 @@ from canter.algos.trpo.natural import (
     fisher_vector_product,
 )
 from canter.config.schema import Config
+from canter.core.counters import count_dtype
 from canter.core.networks import (
     Params,
     gaussian_entropy,
@@ -63,7 +64,7 @@ def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
         return_stats=init_stats(()),
         key=jax.random.key_data(key),
         iteration=jnp.zeros((), jnp.int32),
-        global_step=jnp.zeros((), jnp.int64),
+        global_step=jnp.zeros((), count_dtype()),
     )
 
 
@@ -201,7 +202,7 @@ def make_iteration(
         )
         params = dict(policy, critic=critic)
 
-        steps = tr.valid.sum().astype(jnp.int64)
+        steps = tr.valid.sum().astype(count_dtype())
         finite = (
             jnp.all(jnp.isfinite(tr.obs))
             & jnp.all(jnp.isfinite(tr.reward))

@@ -1,0 +1,154 @@
+"""Vectorized envs whose physics is itself JAX (MJX, Brax), behind the `VecEnv` protocol.
+
+A backend of this kind defines ONE env as two pure functions (`FunctionalEnv`): `reset(key) -> (physics, obs)` and
+`step(physics, action) -> (physics, obs, reward, terminated, info)`. `FunctionalVecEnv` vmaps them over the envs
+and adds what every canter backend shares: the step limit (truncation), and EnvPool's episode semantics
+(`canter.envs.base`): the step after a done is an autoreset step that ignores its action and returns the fresh reset
+observation, reward 0 and both flags false.
+
+Unlike EnvPool's handle, the whole env state (`FunctionalState`) is a pytree of arrays with the envs on the leading
+axis. So it can be checkpointed, and a resumed run continues its episodes in flight exactly (`resumes_exactly`); and
+several seeds' envs train under a plain `jax.vmap` (`vmappable`), each seed holding its own slice.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from canter.envs.base import EnvSpec, StepOutput
+
+
+@dataclass(frozen=True)
+class FunctionalEnv:
+    """One env as pure JAX functions of a single env (no batch axis).
+
+    `step` must return a float32 observation [obs_dim], a float32 reward, a bool `terminated` and a dict of float32
+    scalars with exactly `info_keys`."""
+
+    obs_dim: int
+    act_dim: int
+    action_low: tuple[float, ...]
+    action_high: tuple[float, ...]
+    max_episode_steps: int | None
+    info_keys: tuple[str, ...]
+    reset: Callable[[jax.Array], tuple[Any, jnp.ndarray]]
+    step: Callable[[Any, jnp.ndarray], tuple[Any, jnp.ndarray, jnp.ndarray, jnp.ndarray, dict]]
+
+
+class FunctionalState(NamedTuple):
+    """The state of N envs: every leaf has the envs on its leading axis."""
+
+    physics: Any  # the backend's own pytree (mjx.Data, a Brax State)
+    key: jax.Array  # [N, 2] uint32: each env's stream of reset noise
+    elapsed: jnp.ndarray  # [N] int32 steps of the episode in flight
+    needs_reset: jnp.ndarray  # [N] bool: the previous step ended an episode, so this step is an autoreset
+
+
+def initial_keys(seeds: list[int]) -> jax.Array:
+    """One raw PRNG key per env, from its env seed (`canter.core.seeding`)."""
+    return jnp.stack([jax.random.PRNGKey(int(seed)) for seed in seeds])
+
+
+def vector_reset(env: FunctionalEnv, keys: jax.Array) -> tuple[FunctionalState, jnp.ndarray]:
+    """Reset every env with its own key: the first state and observations [N, obs_dim]."""
+    keys, reset_keys = _split(keys)
+    physics, obs = jax.vmap(env.reset)(reset_keys)
+    n = keys.shape[0]
+    return FunctionalState(physics, keys, jnp.zeros((n,), jnp.int32), jnp.zeros((n,), bool)), obs
+
+
+def vector_step(env: FunctionalEnv, state: FunctionalState, action: jnp.ndarray) -> tuple[FunctionalState, StepOutput]:
+    """Step N envs with EnvPool's episode semantics: envs flagged `needs_reset` reset instead of stepping."""
+    physics, obs, reward, terminated, info = jax.vmap(env.step)(state.physics, action.astype(jnp.float32))
+    elapsed = state.elapsed + 1
+    limit = env.max_episode_steps
+    truncated = (elapsed >= limit) & ~terminated if limit else jnp.zeros_like(terminated)
+
+    keys, reset_keys = _split(state.key)
+    reset_physics, reset_obs = jax.vmap(env.reset)(reset_keys)
+    resetting = state.needs_reset
+
+    def pick(fresh: jnp.ndarray, stepped: jnp.ndarray) -> jnp.ndarray:
+        mask = resetting.reshape(resetting.shape + (1,) * (stepped.ndim - 1))
+        return jnp.where(mask, fresh, stepped)
+
+    zeros = jnp.zeros_like(reward)
+    out = StepOutput(
+        pick(reset_obs, obs).astype(jnp.float32),
+        jnp.where(resetting, zeros, reward).astype(jnp.float32),
+        terminated & ~resetting,
+        truncated & ~resetting,
+        {k: jnp.where(resetting, zeros, v).astype(jnp.float32) for k, v in info.items()},
+    )
+    new_state = FunctionalState(
+        jax.tree.map(pick, reset_physics, physics),
+        jnp.where(resetting[:, None], keys, state.key),
+        jnp.where(resetting, 0, elapsed),
+        out.terminated | out.truncated,
+    )
+    return new_state, out
+
+
+def _split(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+    pairs = jax.vmap(jax.random.split)(keys)
+    return pairs[:, 0], pairs[:, 1]
+
+
+class FunctionalVecEnv:
+    """`num_envs` copies of a `FunctionalEnv`. The jitted program steps them with `jax_step`; evaluation loops step
+    them from numpy with `host_step`, which keeps its own state."""
+
+    vmappable = True
+    resumes_exactly = True
+
+    def __init__(self, env: FunctionalEnv, env_id: str, backend: str, num_envs: int, seeds: list[int]) -> None:
+        if len(seeds) != num_envs:
+            raise ValueError(f"{num_envs} envs need {num_envs} seeds, got {len(seeds)}")
+        self.env = env
+        self.spec = EnvSpec(
+            id=env_id,
+            backend=backend,
+            num_envs=num_envs,
+            obs_dim=env.obs_dim,
+            act_dim=env.act_dim,
+            action_low=env.action_low,
+            action_high=env.action_high,
+            max_episode_steps=env.max_episode_steps,
+            info_keys=env.info_keys,
+        )
+        self._state, self._first_obs = _jitted(env).reset(initial_keys(seeds))
+
+    def reset(self) -> np.ndarray:
+        return np.asarray(self._first_obs)
+
+    def initial_state(self) -> FunctionalState:
+        return self._state
+
+    def jax_step(self, state: FunctionalState, action: jnp.ndarray) -> tuple[FunctionalState, StepOutput]:
+        return vector_step(self.env, state, action)
+
+    def host_step(self, action: np.ndarray) -> StepOutput:
+        self._state, out = _jitted(self.env).step(self._state, jnp.asarray(action, jnp.float32))
+        return jax.tree.map(np.asarray, out)
+
+    def close(self) -> None:
+        pass
+
+
+class _Jitted(NamedTuple):
+    reset: Callable[..., Any]
+    step: Callable[..., Any]
+
+
+@functools.cache
+def _jitted(env: FunctionalEnv) -> _Jitted:
+    """One jitted reset and step per env definition, so the envs that evaluations during training build again and
+    again reuse one compiled program (per batch size) instead of compiling each time."""
+    return _Jitted(jax.jit(functools.partial(vector_reset, env)), jax.jit(functools.partial(vector_step, env)))

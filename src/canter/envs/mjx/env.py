@@ -1,0 +1,118 @@
+"""One ported task as a `FunctionalEnv`: Gymnasium's XML loaded by C MuJoCo, moved to MJX, stepped `frame_skip`
+times per action."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from canter.envs.functional import FunctionalEnv
+from canter.envs.mjx.tasks import NORMAL, TASKS, Task
+
+
+def assets_dir() -> Path:
+    import gymnasium.envs.mujoco
+
+    return Path(gymnasium.envs.mujoco.__file__).parent / "assets"
+
+
+def load_model(task: Task, env_id: str) -> Any:
+    """The task's MjModel, with the one change MJX needs: it has no PGS solver, so a model that asks for PGS
+    (Humanoid, HumanoidStandup) solves its constraints with Newton instead, and says so once."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(assets_dir() / task.xml))
+    if model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
+        model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+        print(
+            f"canter: {env_id} on mjx solves contacts with Newton: MJX has no PGS solver, which its XML asks for, "
+            f"so its physics differ slightly from CPU MuJoCo's",
+            file=sys.stderr,
+        )
+    return model
+
+
+def _same_types(new: Any, old: Any) -> Any:
+    # With 64-bit types on, MJX's step returns a few int32 index fields of its Data as int64.
+    return jax.tree.map(lambda a, b: a.astype(b.dtype), new, old)
+
+
+class MjxTaskEnv:
+    """One env of a ported task: pure functions of an `mjx.Data`."""
+
+    def __init__(self, env_id: str) -> None:
+        from mujoco import mjx
+
+        self.task = task = TASKS[env_id]
+        self.mj_model = load_model(task, env_id)
+        self.model = mjx.put_model(self.mj_model)
+        self.dt = float(self.mj_model.opt.timestep) * task.frame_skip
+        self._template = mjx.make_data(self.model)
+
+    def from_state(self, qpos: jnp.ndarray, qvel: jnp.ndarray) -> tuple[Any, jnp.ndarray]:
+        """The env set to (qpos, qvel) as Gymnasium's `set_state` does, and its observation. `mj_forward` there
+        gives the observation and the next step's starting position body frames and com quantities; the step itself
+        recomputes everything else."""
+        from mujoco import mjx
+
+        model, dtype = self.model, self.model.qpos0.dtype
+        qpos = jnp.asarray(qpos, dtype)
+        data = self._template.replace(qpos=qpos, qvel=jnp.asarray(qvel, dtype))
+        data = mjx.com_vel(model, mjx.com_pos(model, mjx.kinematics(model, data)))
+        # MJX's kinematics writes free joints' quaternions back normalized; C MuJoCo leaves qpos as it was set, and
+        # Gymnasium's first observation shows it so (its reset noise denormalizes them).
+        data = data.replace(qpos=qpos)
+        return data, self.task.observe(model, data).astype(jnp.float32)
+
+    def reset(self, key: jax.Array) -> tuple[Any, jnp.ndarray]:
+        """Gymnasium's reset noise around the model's initial pose."""
+        model, scale = self.model, self.task.reset_noise_scale
+        pos_key, vel_key = jax.random.split(key)
+        dtype = model.qpos0.dtype
+        qpos = model.qpos0 + jax.random.uniform(pos_key, (model.nq,), dtype, -scale, scale)
+        if self.task.velocity_noise == NORMAL:
+            qvel = scale * jax.random.normal(vel_key, (model.nv,), dtype)
+        else:
+            qvel = jax.random.uniform(vel_key, (model.nv,), dtype, -scale, scale)
+        return self.from_state(qpos, qvel)
+
+    def step(self, data: Any, action: jnp.ndarray) -> tuple[Any, jnp.ndarray, jnp.ndarray, jnp.ndarray, dict]:
+        from mujoco import mjx
+
+        model, task = self.model, self.task
+        action = action.astype(data.ctrl.dtype)
+        before = task.progress(model, data)
+        data = data.replace(ctrl=action)
+        data = jax.lax.fori_loop(0, task.frame_skip, lambda _, d: _same_types(mjx.step(model, d), d), data)
+        if task.contact_forces:
+            data = mjx.rne_postconstraint(model, data)
+        velocity = (task.progress(model, data) - before) / self.dt
+        reward, terminated, info = task.reward(model, data, action, velocity, self.dt)
+        obs = task.observe(model, data).astype(jnp.float32)
+        info = {k: jnp.asarray(info[k], jnp.float32) for k in task.info_keys}
+        return data, obs, jnp.asarray(reward, jnp.float32), jnp.asarray(terminated, bool), info
+
+    def functional(self) -> FunctionalEnv:
+        low, high = self.mj_model.actuator_ctrlrange.T
+        return FunctionalEnv(
+            obs_dim=int(jax.eval_shape(self.reset, jax.random.PRNGKey(0))[1].shape[0]),
+            act_dim=int(self.mj_model.nu),
+            action_low=tuple(float(x) for x in low),
+            action_high=tuple(float(x) for x in high),
+            max_episode_steps=self.task.max_episode_steps,
+            info_keys=self.task.info_keys,
+            reset=self.reset,
+            step=self.step,
+        )
+
+
+@functools.cache
+def functional_env(env_id: str) -> FunctionalEnv:
+    """The task's env, built once per process: every env made for it (training, each evaluation) shares its model
+    and compiled programs."""
+    return MjxTaskEnv(env_id).functional()

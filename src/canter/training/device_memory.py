@@ -1,0 +1,55 @@
+"""Whether a compiled training program fits the accelerator's memory, and a one-line error when it does not.
+
+The largest arrays of a JAX-native run grow with env.num_envs (the envs' physics state, the rollout), so that is the
+setting the error names. Where the device reports its memory (GPUs do; the CPU does not), the check runs after the
+compile and before any training; an allocation that still fails later gets the same message."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from canter.errors import CanterError
+
+GIB = 1024**3
+
+
+def required_bytes(compiled: Any) -> int | None:
+    """Arguments, outputs and scratch of a compiled program, or None where XLA does not say."""
+    try:
+        analysis = compiled.memory_analysis()
+    except Exception:  # not every backend implements it
+        return None
+    if analysis is None:
+        return None
+    sizes = ("argument_size_in_bytes", "output_size_in_bytes", "temp_size_in_bytes")
+    aliased = int(getattr(analysis, "alias_size_in_bytes", 0) or 0)
+    return sum(int(getattr(analysis, name, 0) or 0) for name in sizes) - aliased
+
+
+def free_bytes() -> int | None:
+    """Free memory of the default device, or None where it reports none (the CPU)."""
+    import jax
+
+    stats = jax.devices()[0].memory_stats()
+    if not stats or "bytes_limit" not in stats:
+        return None
+    return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+
+
+def too_many_envs(num_envs: int, need: int | None = None, free: int | None = None) -> CanterError:
+    amounts = f" needs about {need / GIB:.1f} GiB, {free / GIB:.1f} GiB free;" if need and free else ";"
+    return CanterError(
+        f"env.num_envs={num_envs} does not fit in the device's memory{amounts} lower it, "
+        f"e.g. --set env.num_envs={max(num_envs // 2, 1)}"
+    )
+
+
+def check_fits(compiled: Any, num_envs: int) -> None:
+    need, free = required_bytes(compiled), free_bytes()
+    if need is not None and free is not None and need > free:
+        raise too_many_envs(num_envs, need, free)
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    text = str(exc)
+    return "RESOURCE_EXHAUSTED" in text or "Out of memory" in text or "out of memory" in text
