@@ -236,3 +236,44 @@ def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo):
         buffer = state.buffer.data
         per_transition = 4 * (2 * facts.obs_dim + facts.act_dim + 2)
         assert sum(leaf.nbytes for leaf in buffer) == per_transition * buffer.reward.shape[0]
+
+
+def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped_with_a_notice(tmp_path, capsys):
+    import shutil
+
+    from canter.cli.main import main
+
+    fixtures = Path(__file__).parent / "fixtures" / "runs-v1"
+
+    def folder(name):
+        run = tmp_path / name
+        shutil.copytree(fixtures / "ppo", run)
+        return run
+
+    def one_line(argv, expected):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("canter: error: ") and expected in err, err
+
+    empty = folder("empty_config")
+    (empty / "config.toml").write_text("")
+    one_line(["train", "--resume", str(empty), "--total-steps", "5000"], "config.toml is empty")
+    one_line(["plot", str(empty), "--out", str(tmp_path / "a.png")], "config.toml is empty")
+
+    foreign = folder("foreign")
+    shutil.copy(checkpoint.latest(fixtures / "rpo"), checkpoint.checkpoint_path(foreign, 10**6))
+    one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "is not a checkpoint of")
+
+    corrupt = folder("corrupt")
+    newest = checkpoint.latest(corrupt)
+    newest.write_bytes(newest.read_bytes()[:1000])
+    one_line(["export", str(corrupt), "--out", str(tmp_path / "c.onnx")], "move it out of its folder")
+
+    truncated = folder("truncated_metrics")
+    (truncated / "metrics.csv").write_text("global_step,iter")
+    one_line(["plot", str(truncated), "--out", str(tmp_path / "d.png")], "metrics.csv has no logged rows")
+
+    unknown = folder("unknown_file")
+    (unknown / "checkpoints" / "notes.txt").write_text("mine")
+    assert main(["export", str(unknown), "--out", str(tmp_path / "e.onnx")]) == 0
+    assert capsys.readouterr().err.count("canter: note: skipping ") == 1

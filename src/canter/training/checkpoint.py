@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import sys
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,8 @@ _NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
+# The fix for a damaged checkpoint: `last` is the newest file, so without it the one before is used.
+_EARLIER = "move it out of its folder to use the checkpoint before it, or pass --checkpoint FILE"
 
 
 def _path_name(path: tuple) -> str:
@@ -90,9 +93,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
             header = json.loads(bytes(data["header"]).decode())
             arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(
-            f"checkpoint {path} is corrupt or truncated; resume from an earlier checkpoint in {path.parent}"
-        ) from None
+        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_EARLIER}") from None
     version = header.get("format_version")
     if version != FORMAT_VERSION:
         raise CanterError(
@@ -101,7 +102,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         )
     expected = header.pop("sha256", None)
     if expected != _digest(arrays, header):
-        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); resume from an earlier checkpoint")
+        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); {_EARLIER}")
     header["sha256"] = expected
     return arrays, header
 
@@ -154,11 +155,28 @@ def latest(run_dir: Path) -> Path:
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
     found = list_checkpoints(run_dir)
+    _note_foreign_files(run_dir)
     if not found:
         raise CanterError(
             f"no checkpoint in {run_dir}; train first, or pass the run folder that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
+
+
+_NOTED: set[Path] = set()
+
+
+def _note_foreign_files(run_dir: Path) -> None:
+    """A file in checkpoints/ that canter does not write is skipped, with a one-line notice (once per process)."""
+    folder = checkpoint_dir(run_dir)
+    if not folder.is_dir():
+        return
+    for path in sorted(folder.iterdir()):
+        hidden = path.name.startswith(".")  # a temp file of a write, removed by the next writer
+        if hidden or _NAME.match(path.name) or path.name == BEST_FILE or path in _NOTED:
+            continue
+        _NOTED.add(path)
+        print(f"canter: note: skipping {path}: not a checkpoint name canter writes (ckpt_<step>.npz)", file=sys.stderr)
 
 
 def best_path(run_dir: Path) -> Path:

@@ -36,7 +36,7 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(header["config"], str(path))
-    if not isinstance(which, Path) and which in (checkpoint.LAST, checkpoint.BEST):  # one of the folder's own
+    if path.resolve().parent == checkpoint.checkpoint_dir(run_dir).resolve():  # one of the folder's own
         run_folder.check_own_checkpoint(run_dir, config, path)
     env = header["env"]
     setup_jax(env["backend"])

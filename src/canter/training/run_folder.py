@@ -118,7 +118,33 @@ def read_config(run_dir: Path) -> Config:
     if not path.is_file():
         raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
     run_format(run_dir)
-    return from_toml_text(path.read_text(), str(path))
+    text = path.read_text(errors="replace")
+    if not text.strip():
+        raise CanterError(
+            f"{path} is empty: the run folder is damaged; restore config.toml from a copy (eval and export still "
+            f"work: each checkpoint holds the config)"
+        )
+    return from_toml_text(text, str(path))
+
+
+def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
+    """A checkpoint found in a run folder's checkpoints/ was written by that run: the same experiment and seed
+    (the step budget may differ, a resume extends it). A checkpoint copied in from another run is refused."""
+    from canter.config.experiment import differing_keys
+
+    try:
+        own = read_config(run_dir)
+    except CanterError:
+        return  # nothing to compare with; what needs config.toml refuses such a folder itself
+    keys = differing_keys([own, checkpoint_config])
+    if own.run.seed != checkpoint_config.run.seed:
+        keys.append("run.seed")
+    if keys:
+        shown = ", ".join(keys[:3]) + (f" and {len(keys) - 3} more" if len(keys) > 3 else "")
+        raise CanterError(
+            f"{path} is not a checkpoint of {run_dir}: its config differs from {run_dir / CONFIG_FILE} in "
+            f"{shown}; move it out of {path.parent}"
+        )
 
 
 def write_config(run_dir: Path, config: Config) -> None:
