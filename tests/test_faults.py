@@ -206,10 +206,10 @@ def test_a_video_that_does_not_fit_is_one_line_and_leaves_no_file(tmp_path):
     """ffmpeg reports a failed write only on its stderr; the video is checked before it is renamed into place."""
     disk, run = tmp_path / "disk", Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
     disk.mkdir()
-    script = f"mount -t tmpfs -o size=8k tmpfs {disk}\n"
+    script = f"mount -t tmpfs -o size=4k tmpfs {disk}\n"
     for name in ("a.mp4", "a.gif"):
         script += (
-            f"rc=0; {CANTER} video {run} --episodes 2 --out {disk / name} 2> {tmp_path / name}.err || rc=$?\n"
+            f"rc=0; {CANTER} video {run} --episodes 1 --out {disk / name} 2> {tmp_path / name}.err || rc=$?\n"
             f"echo $rc > {tmp_path / name}.rc\n"
         )
     result = _namespace_script(script + f"ls -A {disk} > {tmp_path / 'left'}")

@@ -115,7 +115,7 @@ def test_sigkill_during_checkpoint_and_metrics_writes_loses_nothing(tmp_path):
             zygote.stdin.write("fork\n")
             zygote.stdin.flush()
             pid = int(zygote.stdout.readline())
-            time.sleep(rng.uniform(0.05, 0.4))
+            time.sleep(rng.uniform(0.03, 0.25))
             os.kill(pid, signal.SIGKILL)
             zygote.stdin.write(f"reap {pid}\n")
             zygote.stdin.flush()
