@@ -21,8 +21,10 @@ class MjxBackend(Backend):
     jax_native = True
 
     def available(self) -> bool:
+        from canter.envs.mjx.library import import_mjx
+
         try:
-            from mujoco import mjx  # noqa: F401
+            import_mjx()
         except Exception:
             return False
         return True

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from canter.envs.functional import FunctionalEnv
+from canter.envs.mjx.library import import_mjx
 from canter.envs.mjx.tasks import NORMAL, TASKS, Task
 
 
@@ -46,7 +47,7 @@ class MjxTaskEnv:
     """One env of a ported task: pure functions of an `mjx.Data`."""
 
     def __init__(self, env_id: str) -> None:
-        from mujoco import mjx
+        mjx = import_mjx()
 
         self.task = task = TASKS[env_id]
         self.mj_model = load_model(task, env_id)
@@ -58,7 +59,7 @@ class MjxTaskEnv:
         """The env set to (qpos, qvel) as Gymnasium's `set_state` does, and its observation. `mj_forward` there
         gives the observation and the next step's starting position body frames and com quantities; the step itself
         recomputes everything else."""
-        from mujoco import mjx
+        mjx = import_mjx()
 
         model, dtype = self.model, self.model.qpos0.dtype
         qpos = jnp.asarray(qpos, dtype)
@@ -82,7 +83,7 @@ class MjxTaskEnv:
         return self.from_state(qpos, qvel)
 
     def step(self, data: Any, action: jnp.ndarray) -> tuple[Any, jnp.ndarray, jnp.ndarray, jnp.ndarray, dict]:
-        from mujoco import mjx
+        mjx = import_mjx()
 
         model, task = self.model, self.task
         action = action.astype(data.ctrl.dtype)
