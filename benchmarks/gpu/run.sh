@@ -35,7 +35,11 @@ RUNS=$OUT/runs
 exec > >(tee -a "$OUT/$part.log") 2>&1
 
 if compgen -G ".whl/*.whl" >/dev/null && [ "${CANTER_GPU_INSTALL:-1}" = 1 ]; then
-    "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    if "$PY" -m pip --version >/dev/null 2>&1; then
+        "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    else # a wheel is a zip of its files: without pip, unpacking it installs it as --target would
+        for wheel in .whl/*.whl; do "$PY" -m zipfile -e "$wheel" /tmp/site; done
+    fi
     export PYTHONPATH=/tmp/site:$PWD/src
 else
     export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH}
