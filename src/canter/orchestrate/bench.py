@@ -537,19 +537,23 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
 def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
     import optuna
 
-    from canter.orchestrate.study import StorageSettings, open_storage
+    from canter.orchestrate.study import StorageSettings, open_storage, retrying
 
     assert settings.storage_url is not None, "only a bench with --storage runs through a study"
     storage = open_storage(
         StorageSettings(settings.storage_url, settings.heartbeat_seconds, 3 * settings.heartbeat_seconds)
     )
     sampler = optuna.samplers.GridSampler({"cell": [j.name for j in jobs]})
-    study = optuna.create_study(
-        storage=storage,
-        study_name=settings.study_name or bench_dir.name,
-        direction="maximize",
-        sampler=sampler,
-        load_if_exists=True,
+    study = retrying(
+        lambda: optuna.create_study(
+            storage=storage,
+            study_name=settings.study_name or bench_dir.name,
+            direction="maximize",
+            sampler=sampler,
+            load_if_exists=True,
+        ),
+        settings.storage_url,
+        "opening the study",
     )
     return storage, study
 
@@ -578,7 +582,7 @@ def run_distributed(
     finished (by any worker) and the failure reasons of the cells with a failed job."""
     from optuna.trial import TrialState
 
-    from canter.orchestrate.study import run_worker
+    from canter.orchestrate.study import retrying, run_worker
 
     jobs = make_jobs(cells, settings.seeds)
     storage, study = _open_grid_study(jobs, settings, bench_dir)
@@ -604,7 +608,7 @@ def run_distributed(
     elif run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
         raise CanterError("a bench worker failed; its error is printed above")
     done, failed = {}, {}
-    for t in study.get_trials(deepcopy=False):
+    for t in retrying(lambda: study.get_trials(deepcopy=False), storage.url, "reading the results"):
         name = t.params.get("cell")
         if t.state == TrialState.COMPLETE and name in by_name and "records" in t.user_attrs:
             done[name] = t.user_attrs["records"]

@@ -294,8 +294,9 @@ def worker(settings: TuneSettings, job: int = 0) -> None:
     """One worker: run trials until the study has its number of finished trials."""
     config, space = check_settings(settings)
     storage = open_storage(settings.storage)
-    study = make_study(settings, storage, job)
-    deadline = _study_deadline(study, settings)
+    url = settings.storage.url
+    study = retrying(functools.partial(make_study, settings, storage, job), url, "opening the study")
+    deadline = retrying(functools.partial(_study_deadline, study, settings), url, "reading the study")
     run_worker(
         study,
         storage,
@@ -333,7 +334,7 @@ def tune(settings: TuneSettings) -> Any:
             raise CanterError(
                 f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); their error is printed above"
             )
-    write_results(study, settings)
+    retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
     return study
 
 
