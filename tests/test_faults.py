@@ -8,15 +8,19 @@ user namespaces); where that is not allowed they skip.
 from __future__ import annotations
 
 import csv
+import errno
 import io
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from canter.files import WriteError
 from canter.training import checkpoint
 from canter.training.logger import MetricsLogger, read_rows, totals_until
+from canter.training.run_folder import training_write_error
 from conftest import TINY
 
 RUN_SETS = TINY + [
@@ -277,3 +281,23 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     (unknown / "checkpoints" / "notes.txt").write_text("mine")
     assert main(["export", str(unknown), "--out", str(tmp_path / "e.onnx")]) == 0
     assert capsys.readouterr().err.count("canter: note: skipping ") == 1
+
+
+def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path):
+    run = tmp_path / "run"
+    full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    error = training_write_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(run / "metrics.csv")), [run])
+    assert error is not None and str(error) == (
+        f"cannot write {run / 'metrics.csv'}: No space left on device; free space in {run}, then train again "
+        f"(no checkpoint was written to resume from)"
+    )
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "ckpt_000000001000.npz").write_bytes(b"")
+    error = training_write_error(full, [run])
+    assert error is not None and str(error).endswith(f"then `canter train --resume {run}`")
+    error = training_write_error(WriteError(run / "summary.json", full), [run])
+    assert error is not None and "training finished and its last checkpoint is saved" in str(error)
+    read_only = OSError(errno.EROFS, os.strerror(errno.EROFS), str(run / "tb" / "events"))
+    error = training_write_error(read_only, [run])
+    assert error is not None and f"make {run / 'tb'} writable (or pick another path)" in str(error)
+    assert training_write_error(ValueError("a bug"), [run]) is None

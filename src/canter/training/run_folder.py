@@ -31,6 +31,7 @@ from canter.training import provenance
 
 RUN_FORMAT = 2
 CONFIG_FILE = "config.toml"
+SUMMARY_FILE = "summary.json"
 VERSIONS_FILE = "versions.json"
 
 
@@ -186,6 +187,8 @@ def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError
         error = WriteError(exc.filename or run_dirs[0], exc)
     else:
         return None
+    if error.path.name == SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
+        return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
     if all(list_checkpoints(d) for d in run_dirs):
         return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
     return error.resumable("train again (no checkpoint was written to resume from)")
