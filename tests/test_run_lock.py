@@ -83,7 +83,7 @@ def test_a_second_resume_is_refused_with_one_line_while_readers_go_on(tmp_path, 
         assert main(["train", "--resume", str(run), "--total-steps", "20000000", "--quiet"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"is being written by process {first.pid} on " in err
-        assert "--resume" in err, "the message names the command that holds the folder"
+        assert ": canter train --resume " in err, "the message names the command that holds the folder"
         assert (run / "metrics.csv").read_text().startswith(rows_before.split("\n", 1)[0])
 
         assert main(["export", str(run), "--out", str(tmp_path / "policy.onnx")]) == 0

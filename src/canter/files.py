@@ -14,6 +14,7 @@ from canter.errors import CanterError
 
 # A full disk or quota, where freeing space is the fix; the other write errors need a writable path or device.
 _NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+_WRITE_ERRORS = _NO_SPACE | {errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO}
 
 
 class WriteError(CanterError):
@@ -21,7 +22,7 @@ class WriteError(CanterError):
     the path, the reason and a fix; `resumable` gives the same error with another last step."""
 
     def __init__(self, path: str | Path, exc: OSError, then: str = "run the command again") -> None:
-        self.path, self.exc, self.then = Path(path), exc, then
+        self.path, self.exc = Path(path), exc
         super().__init__(f"cannot write {path}: {exc.strerror or exc}; {self.fix(then)}")
 
     @property
@@ -40,12 +41,7 @@ class WriteError(CanterError):
 
 def is_write_error(exc: BaseException) -> bool:
     """An OSError that a write can raise because of the disk or its permissions, not because of a bug."""
-    return isinstance(exc, OSError) and exc.errno in _NO_SPACE | {
-        errno.EACCES,
-        errno.EPERM,
-        errno.EROFS,
-        errno.EIO,
-    }
+    return isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS
 
 
 def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None:

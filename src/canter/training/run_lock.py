@@ -49,12 +49,22 @@ class _Held:
 _HELD: dict[Path, _Held] = {}
 
 
+def _command() -> str:
+    """This process's command line, as the user would recognise it (`canter train ...`, a job's `jobs.py SPEC`)."""
+    if not sys.argv or not sys.argv[0]:
+        return "python"
+    program = Path(sys.argv[0]).name
+    if program in ("canter", "__main__.py"):  # the entry point, or python -m canter.cli
+        program = "canter"
+    return " ".join([program, *sys.argv[1:]])
+
+
 def _holder_text() -> bytes:
     record = {
         "pid": os.getpid(),
         "host": socket.gethostname(),
         "started": datetime.now().isoformat(timespec="seconds"),
-        "command": " ".join(["canter", *sys.argv[1:]]) if sys.argv else "canter",
+        "command": _command(),
     }
     return json.dumps(record).encode()
 
