@@ -111,26 +111,31 @@ def test_a_real_brax_env_steps_as_brax_with_envpool_episode_semantics():
     out = jax.tree.map(np.asarray, out)
     assert out.obs.shape == (steps, 2, 4) and out.obs.dtype == np.float32 and out.reward.dtype == np.float32
 
-    # Brax's own env, from the same reset keys, with the same actions.
+    # Brax's own env, from the same reset keys, with the same actions, in one compiled program.
     brax_env = load_env("inverted_pendulum")
-    reset_keys = jax.vmap(jax.random.split)(initial_keys([3, 4]))[:, 1]
-    brax_state = jax.vmap(brax_env.reset)(reset_keys)
-    assert np.array_equal(np.asarray(brax_state.obs), vec.reset())
-    brax_step = jax.jit(jax.vmap(brax_env.step))
-    brax_obs, brax_reward, brax_done = [], [], []
-    for _ in range(limit):
-        brax_state = brax_step(brax_state, actions)
-        brax_obs.append(np.asarray(brax_state.obs))
-        brax_reward.append(np.asarray(brax_state.reward))
-        brax_done.append(np.asarray(brax_state.done) > 0.5)
 
-    fell = int(np.argmax(np.array(brax_done)[:, 0]))
-    assert brax_done[fell][0] and 0 < fell < limit - 2, "env 0 must fall well before the limit"
-    assert not np.array(brax_done)[:, 1].any(), "env 1 must stay up until the limit"
+    @jax.jit
+    def brax_run(keys):
+        first = jax.vmap(brax_env.reset)(keys)
+
+        def body(state, _):
+            state = jax.vmap(brax_env.step)(state, actions)
+            return state, (state.obs, state.reward, state.done > 0.5)
+
+        return first.obs, jax.lax.scan(body, first, None, length=limit)[1]
+
+    first_obs, (brax_obs, brax_reward, brax_done) = jax.tree.map(
+        np.asarray, brax_run(jax.vmap(jax.random.split)(initial_keys([3, 4]))[:, 1])
+    )
+    assert np.array_equal(first_obs, vec.reset())
+
+    fell = int(np.argmax(brax_done[:, 0]))
+    assert brax_done[fell, 0] and 0 < fell < limit - 2, "env 0 must fall well before the limit"
+    assert not brax_done[:, 1].any(), "env 1 must stay up until the limit"
     for env_index, last in [(0, fell), (1, limit - 1)]:
         for t in range(last + 1):
-            np.testing.assert_allclose(out.obs[t, env_index], brax_obs[t][env_index], rtol=1e-5, atol=1e-6)
-            np.testing.assert_allclose(out.reward[t, env_index], brax_reward[t][env_index], rtol=1e-5, atol=1e-6)
+            np.testing.assert_allclose(out.obs[t, env_index], brax_obs[t, env_index], rtol=1e-5, atol=1e-6)
+            np.testing.assert_allclose(out.reward[t, env_index], brax_reward[t, env_index], rtol=1e-5, atol=1e-6)
         ended = out.terminated[: last + 1, env_index] | out.truncated[: last + 1, env_index]
         assert ended.tolist() == [False] * last + [True]
         assert out.terminated[last, env_index] == (env_index == 0)
@@ -139,3 +144,5 @@ def test_a_real_brax_env_steps_as_brax_with_envpool_episode_semantics():
         assert out.reward[last + 1, env_index] == 0.0
         assert not out.terminated[last + 1, env_index] and not out.truncated[last + 1, env_index]
         assert np.abs(out.obs[last + 1, env_index]).max() < 0.02 < np.abs(out.obs[last, env_index]).max()
+        # Then the new episode steps: InvertedPendulum's reward is 1 per step alive.
+        assert out.reward[last + 2, env_index] == 1.0 and not out.terminated[last + 2, env_index]
