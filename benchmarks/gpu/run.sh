@@ -65,12 +65,15 @@ train() {
         --set run.tensorboard=false --set run.checkpoint_every=0
 }
 small() { [ "$SMOKE" = 1 ] && echo "$1" || echo "$2"; }
+# MJX_SETS: --set flags for every mjx run, e.g. the solver settings
+# MJX_SETS="--set env.solver_iterations=4 --set env.solver_ls_iterations=8" (docs/gpu.md).
+read -r -a mjx_sets <<<"${MJX_SETS:-}"
 
 case "$part" in
 smoke)
     "$PY" -c "import canter, jax; print('canter imports; devices:', jax.devices())"
     # One iteration: 64 envs x 128 steps (the fast preset's ppo.n_steps).
-    train smoke Hopper-v5 --backend mjx --seed 0 --set env.num_envs="$(small 4 64)" \
+    train smoke Hopper-v5 --backend mjx "${mjx_sets[@]}" --seed 0 --set env.num_envs="$(small 4 64)" \
         --set ppo.n_steps="$(small 8 128)" --set ppo.minibatch_size="$(small 16 512)" \
         --total-steps "$(small 32 8192)"
     ;;
@@ -105,7 +108,7 @@ humanoid)
     num_envs=${HUMANOID_ENVS:-2048}
     read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3}"
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
-    train humanoid Humanoid-v5 --backend mjx --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
+    train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \
         --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-10000000}")" --eval-episodes "$(small 2 16)"
     ;;
@@ -117,7 +120,7 @@ seeds)
     for label in one five; do
         seed_flag=(--seed 0)
         [ $label = five ] && seed_flag=(--seeds 0,1,2,3,4)
-        train "seeds-$label" Hopper-v5 --backend mjx "${seed_flag[@]}" --set env.num_envs="$num_envs" \
+        train "seeds-$label" Hopper-v5 --backend mjx "${mjx_sets[@]}" "${seed_flag[@]}" --set env.num_envs="$num_envs" \
             --set ppo.n_steps="$(small 8 128)" --set ppo.minibatch_size="$minibatch" --total-steps "$steps"
     done
     ;;
@@ -125,7 +128,7 @@ offpolicy)
     # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each.
     num_envs=$(small 4 "${OFFPOLICY_ENVS:-1024}")
     for algo in td3 sac; do
-        train "offpolicy-$algo" HalfCheetah-v5 --backend mjx --algo "$algo" --seed 0 \
+        train "offpolicy-$algo" HalfCheetah-v5 --backend mjx "${mjx_sets[@]}" --algo "$algo" --seed 0 \
             --set env.num_envs="$num_envs" --set "$algo.batch_size=$(small 32 "${OFFPOLICY_BATCH:-8192}")" \
             --set "$algo.gradient_steps=$(small 1 "${OFFPOLICY_UPDATES:-4}")" \
             --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 10))")" \

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Several parts of run.sh in one device call, each under its own time limit, packed for the trip back: the device
+# returns at most 8 files, 2 folders down, so everything goes into $OUT/session.tgz (logs, figures, run folders without
+# checkpoints) and the figures also into $OUT/session.md.
+#
+#   bash benchmarks/gpu/session.sh ppo-brax=ant:240 seeds:150      # PART[=ARG]:SECONDS ...
+#
+# A part that reaches its limit gets SIGTERM, which canter train answers by checkpointing and stopping cleanly; its
+# figures are then summarized from what it wrote.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+final=${OUT:-benchmarks/gpu/out}
+mkdir -p "$final"
+work=$(mktemp -d /tmp/canter-gpu.XXXX)
+if compgen -G ".whl/*.whl" >/dev/null; then
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    export PYTHONPATH=/tmp/site:$PWD/src
+fi
+export CANTER_GPU_INSTALL=0 PYTHONUNBUFFERED=1
+for item in "$@"; do
+    spec=${item%:*}
+    limit=${item##*:}
+    part=${spec%%=*}
+    arg=()
+    [ "$spec" != "$part" ] && arg=("${spec#*=}")
+    echo "== $part ${arg[*]} (limit ${limit} s, $(date -u +%T))"
+    OUT=$work timeout --kill-after=30 "$limit" bash benchmarks/gpu/run.sh "$part" "${arg[@]}"
+    status=$?
+    echo "== $part exit $status ($(date -u +%T))"
+    if [ $status -ne 0 ]; then
+        find "$work/runs" -type d -name checkpoints -prune -exec rm -rf {} + 2>/dev/null
+        python3 benchmarks/gpu/summarize.py "$part" "$work" || true
+    fi
+    # Packed after every part, so a call cut short still brings back the parts that finished.
+    cat "$work"/*.md >"$final/session.md" 2>/dev/null
+    tar czf "$final/session.tgz" -C "$work" .
+done
+ls -la "$final"
