@@ -11,8 +11,10 @@ Equivalence is measured two ways, with uniform random actions:
   InvertedPendulum and Hopper, which stay close (measured on this machine in float32 over 200 steps: relative
   error 2.6e-7 and 3.3e-6; Walker2d 4.7e-8 in float64).
 
-Tolerances are relative to 1 + |value|: 1e-4 on observations, rewards and info, 1e-3 for Humanoid and
-HumanoidStandup, whose contact forces (cfrc_ext, up to thousands) go through a Newton solve in float32. MJX compiles
+Tolerances are relative to 1 + |value|: 1e-4 on observations, rewards and info; about 5x the float32 error measured
+on this machine (benchmarks/mjx_equivalence/results.md) for HalfCheetah (9.6e-5), Humanoid (5.0e-4) and
+HumanoidStandup (2.2e-3), whose observations hold contact forces (cfrc_ext, up to thousands) from a Newton solve.
+Ant-v5 is not equivalent yet (its contacts differ; docs/gpu.md) and is left out. MJX compiles
 take about 25 s per task on this CPU, so `make test` runs InvertedPendulum and Hopper only; `pytest --run-heavy -m
 heavy tests/test_mjx_backend.py` runs every task.
 """
@@ -35,8 +37,8 @@ from conftest import TINY
 pytestmark = pytest.mark.slow
 
 TESTED = ("InvertedPendulum-v5", "Hopper-v5")
-OTHERS = ("HalfCheetah-v5", "Walker2d-v5")
-LOOSE = {"Humanoid-v5": 1e-3, "HumanoidStandup-v5": 1e-3}
+OTHERS = ("HalfCheetah-v5", "Walker2d-v5", "Humanoid-v5", "HumanoidStandup-v5")  # Ant-v5 differs: docs/gpu.md
+LOOSE = {"HalfCheetah-v5": 5e-4, "Humanoid-v5": 2e-3, "HumanoidStandup-v5": 1e-2}
 
 
 @pytest.fixture(autouse=True)
@@ -228,3 +230,17 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path):
     on_cpu = evaluate(policy, episodes=8, seed=0, backend="gymnasium")
     assert on_mjx.mean >= 900, on_mjx.returns
     assert on_cpu.mean >= 900, on_cpu.returns
+
+
+def test_solver_settings_reach_the_mjx_model_and_nothing_else():
+    from canter.envs.mjx.env import MjxTaskEnv
+
+    env = MjxTaskEnv("Hopper-v5", solver_iterations=4, solver_ls_iterations=6)
+    assert (env.mj_model.opt.iterations, env.mj_model.opt.ls_iterations) == (4, 6)
+    assert MjxTaskEnv("Hopper-v5").mj_model.opt.iterations == 100  # 0 keeps the XML's
+    config = build_config("Hopper-v5", sets=["env.backend=mjx", "env.solver_iterations=4"])
+    assert config.env.solver_iterations == 4
+    with pytest.raises(CanterError, match=r"env.solver_iterations applies to the mjx backend only; add --backend mjx"):
+        build_config("Hopper-v5", sets=["env.solver_iterations=4"])
+    with pytest.raises(CanterError, match=r"env.solver_ls_iterations must be >= 0"):
+        build_config("Hopper-v5", sets=["env.backend=mjx", "env.solver_ls_iterations=-1"])

@@ -7,10 +7,13 @@
   chaotic under random actions (errors there are not the port's).
 
 Usage: python benchmarks/mjx_equivalence/measure.py [STEPS] [ENV ...] > benchmarks/mjx_equivalence/results.md
+CANTER_SOLVER=ITERATIONS,LS_ITERATIONS measures the ports with env.solver_iterations and env.solver_ls_iterations
+set (C MuJoCo keeps the XML's).
 """
 
 from __future__ import annotations
 
+import os
 import platform
 import subprocess
 import sys
@@ -32,8 +35,8 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b) / (1.0 + np.abs(b))))
 
 
-def each_step(env_id: str, steps: int) -> dict[str, float]:
-    ported = MjxTaskEnv(env_id)
+def each_step(env_id: str, steps: int, iterations: int = 0, ls_iterations: int = 0) -> dict[str, float]:
+    ported = MjxTaskEnv(env_id, iterations, ls_iterations)
     reference = gym.make(env_id)
     model, data = reference.unwrapped.model, reference.unwrapped.data
     model.opt.solver = ported.mj_model.opt.solver
@@ -75,6 +78,7 @@ def chaos(env_id: str, steps: int) -> float:
 
 def main() -> None:
     steps = int(sys.argv[1]) if len(sys.argv) > 1 else 200
+    iterations, ls_iterations = (int(x) for x in os.environ.get("CANTER_SOLVER", "0,0").split(","))
     envs = sys.argv[2:] or list(TASKS)
     setup_jax("mjx")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
@@ -86,7 +90,7 @@ def main() -> None:
     print("| task | obs | reward | info | flag mismatches | terminations | C vs C moved 1e-9 (free-running) |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for env_id in envs:
-        r = each_step(env_id, steps)
+        r = each_step(env_id, steps, iterations, ls_iterations)
         print(
             f"| {env_id} | {r['obs']:.1e} | {r['reward']:.1e} | {r['info']:.1e} | {r['flag_mismatches']} | "
             f"{r['terminations']} | {chaos(env_id, steps):.1e} |",

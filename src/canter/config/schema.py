@@ -29,6 +29,16 @@ class EnvConfig:
         default=0,
         role=OUTPUT,
     )
+    solver_iterations: int = setting(
+        "JAX-native MuJoCo only (mjx): constraint-solver iterations per physics step instead of the XML's own "
+        "(0: the XML's, 100 or 50). Fewer are much faster on a GPU and change the physics slightly.",
+        default=0,
+    )
+    solver_ls_iterations: int = setting(
+        "JAX-native MuJoCo only (mjx): line-search iterations per solver iteration instead of the XML's own "
+        "(0: the XML's, 50). MJX runs all of them for every env, so they dominate a step's cost on a GPU.",
+        default=0,
+    )
     normalize_obs: bool = setting("Running observation normalization (stats saved with the policy).", default=True)
     clip_obs: float = setting("Clip normalized observations to +-clip_obs.", default=10.0)
     normalize_reward: bool = setting("Divide rewards by the running std of the discounted return.", default=True)

@@ -4,6 +4,7 @@ checks its algorithm declares across the keys it reads. Each failure is a one-li
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from canter.config.algorithms import algorithm_spec
 from canter.config.schema import Config, check_section, section_names
@@ -21,6 +22,20 @@ def need_positive(key: str, value: float) -> None:
     need(math.isfinite(value) and value > 0, f"{key} must be > 0, got {value}")
 
 
+def _check_solver(env: Any) -> None:
+    from canter.envs.registry import get_backend, solver_backends
+
+    for key in ("solver_iterations", "solver_ls_iterations"):
+        value = getattr(env, key)
+        need(value >= 0, f"env.{key} must be >= 0 (0: the model's own), got {value}")
+        takes = env.backend != "auto" and get_backend(env.backend).solver_options
+        need(
+            value == 0 or takes,
+            f"env.{key} applies to the {' and '.join(solver_backends())} backend only; add --backend "
+            f"{solver_backends()[0]} or drop env.{key}",
+        )
+
+
 def validate(config: Config) -> None:
     from canter.envs.registry import backend_names
 
@@ -36,6 +51,7 @@ def validate(config: Config) -> None:
         0 <= env.envpool_shards <= env.num_envs,
         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}",
     )
+    _check_solver(env)
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
     spec = algorithm_spec(run.algo)

@@ -103,6 +103,20 @@ def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], sha
     return get_backend(resolve_backend(env_id, backend)).make(env_id, num_envs, seeds, shards, **kwargs)
 
 
+def solver_backends() -> list[str]:
+    """The backends that take env.solver_iterations and env.solver_ls_iterations."""
+    return [backend.name for backend in backends() if backend.solver_options]
+
+
+def env_options(env: Any, backend: str) -> dict[str, int]:
+    """What an env section asks of the backend that steps it, as `make`'s keyword arguments: the solver settings
+    where the backend takes them and they are set (0 leaves the model's own)."""
+    if backend == AUTO or not get_backend(backend).solver_options:
+        return {}
+    options = {"solver_iterations": env.solver_iterations, "solver_ls_iterations": env.solver_ls_iterations}
+    return {key: value for key, value in options.items() if value}
+
+
 def _auto_backends() -> list[Backend]:
     return [backend for backend in backends() if not backend.jax_native]
 

@@ -127,7 +127,10 @@ class TrainingEvaluation:
         self.every = config.run.eval_every
         self.episodes = config.run.eval_episodes
         self.total_steps = config.run.total_steps
+        from canter.envs.registry import env_options
+
         self.env_id, self.backend = spec.id, spec.backend
+        self.env_options = env_options(config.env, spec.backend)
         self.next_step = (start_step // self.every + 1) * self.every
         self.best_return = -math.inf if best_return is None else best_return
         algorithm = get_algorithm(config.run.algo)
@@ -146,7 +149,9 @@ class TrainingEvaluation:
         def act(obs: np.ndarray) -> np.ndarray:
             return np.asarray(self._act(params, obs_stats, np.asarray(obs, np.float32), self._key, True))
 
-        return run_episodes(act, self.env_id, self.backend, self.episodes, DURING_TRAINING_SEED)
+        return run_episodes(
+            act, self.env_id, self.backend, self.episodes, DURING_TRAINING_SEED, env_kwargs=self.env_options
+        )
 
     def improves(self, result: EvalResult) -> bool:
         """Whether `result` beats every earlier evaluation of the run (which then becomes the best)."""

@@ -140,8 +140,10 @@ def _train_locked(
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import make_vec_env, resolve_backend
+    from canter.envs.registry import env_options
 
-    setup_jax(resolve_backend(configs[0].env.id, configs[0].env.backend))
+    backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
+    setup_jax(backend)
     for config in configs:
         validate(config)
     started = time.perf_counter()
@@ -180,7 +182,12 @@ def _train_locked(
     config = configs[0]
     try:
         env = make_vec_env(
-            config.env.id, config.env.backend, config.env.num_envs * len(configs), seeds, config.env.envpool_shards
+            config.env.id,
+            backend,
+            config.env.num_envs * len(configs),
+            seeds,
+            config.env.envpool_shards,
+            **env_options(config.env, backend),
         )
     except DiscreteActionsError as exc:
         raise CanterError(

@@ -62,14 +62,15 @@ def evaluate(
 
     `prepare_env(env)` is called on every Gymnasium env right after it is made and before its first reset (the
     robustness sweeps edit the MuJoCo model there); it forces the backend that builds single envs (Gymnasium)."""
-    from canter.envs.registry import single_env_backend
+    from canter.envs.registry import env_options, single_env_backend
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
     check_eval_env(policy.facts, env_id, backend, varied=prepare_env is not None)
     env_id = env_id or policy.facts.env_id
     backend = backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
-    extra: dict[str, Any] = {}
+    # The physics the policy trained on, where the backend takes the same settings (mjx's solver iterations).
+    extra: dict[str, Any] = env_options(policy.config.env, backend) if env_id == policy.facts.env_id else {}
     if prepare_env is not None:
         backend, extra = single_env_backend().name, {"on_make": prepare_env}
     first_call = [not deterministic]

@@ -19,6 +19,7 @@ class MjxBackend(Backend):
     name = NAME
     label = "MJX"
     jax_native = True
+    solver_options = True
 
     def available(self) -> bool:
         from canter.envs.mjx.library import import_mjx
@@ -41,9 +42,10 @@ class MjxBackend(Backend):
         from canter.envs.functional import FunctionalVecEnv
         from canter.envs.mjx.env import functional_env
 
-        if kwargs:
-            raise CanterError(f"the mjx backend takes no env options, got {', '.join(sorted(kwargs))}")
-        return FunctionalVecEnv(functional_env(env_id), env_id, NAME, num_envs, seeds)
+        unknown = set(kwargs) - {"solver_iterations", "solver_ls_iterations"}
+        if unknown:
+            raise CanterError(f"the mjx backend takes no env option {', '.join(sorted(unknown))}")
+        return FunctionalVecEnv(functional_env(env_id, **kwargs), env_id, NAME, num_envs, seeds)
 
 
 BACKEND = MjxBackend()

@@ -46,11 +46,16 @@ def _same_types(new: Any, old: Any) -> Any:
 class MjxTaskEnv:
     """One env of a ported task: pure functions of an `mjx.Data`."""
 
-    def __init__(self, env_id: str) -> None:
+    def __init__(self, env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0) -> None:
+        """Nonzero solver settings replace the XML's (env.solver_iterations, env.solver_ls_iterations)."""
         mjx = import_mjx()
 
         self.task = task = TASKS[env_id]
         self.mj_model = load_model(task, env_id)
+        if solver_iterations:
+            self.mj_model.opt.iterations = solver_iterations
+        if solver_ls_iterations:
+            self.mj_model.opt.ls_iterations = solver_ls_iterations
         self.model = mjx.put_model(self.mj_model)
         self.dt = float(self.mj_model.opt.timestep) * task.frame_skip
         self._template = mjx.make_data(self.model)
@@ -113,7 +118,7 @@ class MjxTaskEnv:
 
 
 @functools.cache
-def functional_env(env_id: str) -> FunctionalEnv:
-    """The task's env, built once per process: every env made for it (training, each evaluation) shares its model
-    and compiled programs."""
-    return MjxTaskEnv(env_id).functional()
+def functional_env(env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0) -> FunctionalEnv:
+    """The task's env, built once per process and solver setting: every env made for it (training, each evaluation)
+    shares its model and compiled programs."""
+    return MjxTaskEnv(env_id, solver_iterations, solver_ls_iterations).functional()
