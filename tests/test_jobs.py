@@ -48,3 +48,14 @@ def test_a_cached_evaluation_is_kept_unless_it_lacks_lengths(run_copy, monkeypat
     (run_copy / "eval.json").write_text(json.dumps(old))
     assert write_final_eval(run_copy, 2) == first
     assert json.loads((run_copy / "eval.json").read_text())["lengths"] == first["lengths"]
+
+
+def test_concurrent_jobs_share_a_gpus_memory(monkeypatch):
+    from canter.orchestrate.jobs import gpu_memory_env, job_layout
+
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    assert gpu_memory_env(1) == {}  # one job keeps JAX's default
+    assert gpu_memory_env(4) == {"XLA_PYTHON_CLIENT_MEM_FRACTION": "0.225"}
+    assert all(slot["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.450" for slot in job_layout(2))
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
+    assert gpu_memory_env(4) == {}  # the user's own setting wins

@@ -244,3 +244,31 @@ def test_solver_settings_reach_the_mjx_model_and_nothing_else():
         build_config("Hopper-v5", sets=["env.solver_iterations=4"])
     with pytest.raises(CanterError, match=r"env.solver_ls_iterations must be >= 0"):
         build_config("Hopper-v5", sets=["env.backend=mjx", "env.solver_ls_iterations=-1"])
+
+
+def test_evaluation_in_one_program_plays_the_host_loops_episodes():
+    """A JAX env plays an evaluation's episodes inside one jitted program (`play_episodes`); it keeps the host loop's
+    bookkeeping: the same episodes, returns and lengths, each env its quota."""
+    import functools
+
+    from canter.algos import get_algorithm
+    from canter.training.evaluation import TracedAct, deterministic_act, run_episodes
+
+    config = build_config("InvertedPendulum-v5", sets=[*TINY, "env.backend=mjx"])
+    env = _pendulum(1, [0])
+    algorithm = get_algorithm("ppo")
+    state = algorithm.init_state(config, env.spec)
+    pure = algorithm.make_act(config, env.spec)
+    key = jax.random.key(0)
+    args = (algorithm.policy_params(state), state.obs_stats, key)
+    act = jax.jit(pure, static_argnums=(4,))
+
+    def host_act(obs):
+        return np.asarray(act(args[0], args[1], jnp.asarray(obs, jnp.float32), key, True))
+
+    host = run_episodes(host_act, "InvertedPendulum-v5", "mjx", 40, seed=3)
+    traced = TracedAct(functools.partial(deterministic_act, pure), args)
+    jitted = run_episodes(host_act, "InvertedPendulum-v5", "mjx", 40, seed=3, traced_act=traced)
+    assert jitted.returns.size == host.returns.size == 40  # 32 envs, 8 of them play 2 episodes
+    np.testing.assert_allclose(np.sort(jitted.returns), np.sort(host.returns), rtol=1e-5)
+    np.testing.assert_array_equal(np.sort(jitted.lengths), np.sort(host.lengths))

@@ -139,8 +139,79 @@ class FunctionalVecEnv:
         self._state, out = _jitted(self.env).step(self._state, jnp.asarray(action, jnp.float32))
         return jax.tree.map(np.asarray, out)
 
+    def play_episodes(self, act: Callable[[Any, jnp.ndarray], jnp.ndarray], args: Any, quota: np.ndarray) -> tuple:
+        """Env i plays quota[i] whole episodes, all in one jitted program, with `act(args, obs) -> action` (a pure JAX
+        function; `args` holds its arrays). Returns each env's episode returns and lengths in order, as lists.
+        Stepping from the host costs a device call per step; this costs one per evaluation."""
+        quota = np.asarray(quota, np.int32)
+        play = _jitted_play(self.env, act, int(quota.max()))
+        returns, lengths = jax.device_get(play(args, self._state, jnp.asarray(self._first_obs), jnp.asarray(quota)))
+        kept = [(i, j) for i in range(len(quota)) for j in range(quota[i])]
+        return [float(returns[i, j]) for i, j in kept], [int(lengths[i, j]) for i, j in kept]
+
     def close(self) -> None:
         pass
+
+
+class _Playing(NamedTuple):
+    state: FunctionalState
+    obs: jnp.ndarray
+    prev_done: jnp.ndarray  # [N]: the next step is an autoreset step
+    running_return: jnp.ndarray  # [N]
+    running_length: jnp.ndarray  # [N]
+    finished: jnp.ndarray  # [N] episodes finished so far
+    returns: jnp.ndarray  # [N, Q]
+    lengths: jnp.ndarray  # [N, Q]
+
+
+@functools.cache
+def _jitted_play(env: FunctionalEnv, act: Callable[..., Any], max_quota: int) -> Callable[..., Any]:
+    """The episode loop of `play_episodes`, compiled once per env, policy function and largest quota. The
+    bookkeeping is the host loop's (`canter.training.evaluation.run_episodes`): an autoreset step counts for
+    nothing, and an env's episodes beyond its quota are played but not kept."""
+
+    def play(args: Any, state: FunctionalState, obs: jnp.ndarray, quota: jnp.ndarray) -> tuple:
+        n = obs.shape[0]
+        rows = jnp.arange(n)
+
+        def more(c: _Playing) -> jnp.ndarray:
+            return jnp.any(c.finished < quota)
+
+        def step(c: _Playing) -> _Playing:
+            state, out = vector_step(env, c.state, act(args, c.obs))
+            valid = ~c.prev_done
+            running_return = c.running_return + out.reward * valid
+            running_length = c.running_length + valid.astype(jnp.int32)
+            done = (out.terminated | out.truncated) & valid
+            keep = done & (c.finished < quota)
+            slot = jnp.minimum(c.finished, max_quota - 1)
+            returns = c.returns.at[rows, slot].set(jnp.where(keep, running_return, c.returns[rows, slot]))
+            lengths = c.lengths.at[rows, slot].set(jnp.where(keep, running_length, c.lengths[rows, slot]))
+            return _Playing(
+                state,
+                out.obs,
+                done,
+                jnp.where(done, 0.0, running_return),
+                jnp.where(done, 0, running_length),
+                c.finished + done.astype(jnp.int32),
+                returns,
+                lengths,
+            )
+
+        start = _Playing(
+            state,
+            obs,
+            jnp.zeros((n,), bool),
+            jnp.zeros((n,), jnp.float32),
+            jnp.zeros((n,), jnp.int32),
+            jnp.zeros((n,), jnp.int32),
+            jnp.zeros((n, max_quota), jnp.float32),
+            jnp.zeros((n, max_quota), jnp.int32),
+        )
+        end = jax.lax.while_loop(more, step, start)
+        return end.returns, end.lengths
+
+    return jax.jit(play)
 
 
 class _Jitted(NamedTuple):

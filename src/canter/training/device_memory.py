@@ -37,7 +37,7 @@ def free_bytes() -> int | None:
 
 
 def too_many_envs(num_envs: int, need: int | None = None, free: int | None = None) -> CanterError:
-    amounts = f" needs about {need / GIB:.1f} GiB, {free / GIB:.1f} GiB free;" if need and free else ";"
+    amounts = f" (needs about {need / GIB:.1f} GiB, {free / GIB:.1f} GiB free);" if need and free else ";"
     return CanterError(
         f"env.num_envs={num_envs} does not fit in the device's memory{amounts} lower it, "
         f"e.g. --set env.num_envs={max(num_envs // 2, 1)}"

@@ -12,6 +12,7 @@ across steps, seeds and trials, and any of them can be repeated from a checkpoin
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -61,6 +62,23 @@ class EvalResult:
         return dict(zip(EVAL_COLUMNS, values))
 
 
+@dataclass(frozen=True)
+class TracedAct:
+    """A deterministic policy as a pure JAX function `fn(args, obs) -> action`, for envs that play whole episodes
+    inside one jitted program. `fn` must be the same object from one evaluation to the next (it keys the compiled
+    program); the changing arrays (parameters, normalizer statistics) go in `args`."""
+
+    fn: Callable[[Any, Any], Any]
+    args: Any
+
+
+def deterministic_act(act: Callable[..., Any], args: Any, obs: Any) -> Any:
+    """`act(params, obs_stats, obs, key, deterministic)` of `Algorithm.make_act`, with args = (params, obs_stats,
+    key), acting deterministically."""
+    params, obs_stats, key = args
+    return act(params, obs_stats, obs, key, True)
+
+
 def run_episodes(
     act: Callable[[np.ndarray], np.ndarray],
     env_id: str,
@@ -70,9 +88,11 @@ def run_episodes(
     purpose: int = EVAL,
     sizes: tuple[int, int] | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    traced_act: TracedAct | None = None,
 ) -> EvalResult:
     """Play exactly `episodes` episodes with `act(obs_batch) -> actions`. `sizes` (obs_dim, act_dim) are checked
-    against the env; `env_kwargs` go to the env backend."""
+    against the env; `env_kwargs` go to the env backend. Where the env is JAX (`play_episodes`) and `traced_act`
+    gives the same policy as a pure function, the episodes run in one jitted program instead of from the host."""
     from canter.envs.registry import make_vec_env
 
     num_envs = min(episodes, MAX_EVAL_ENVS)
@@ -86,6 +106,9 @@ def run_episodes(
                 f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
                 f"policy expects {sizes[0]}/{sizes[1]}; pick a matching --env"
             )
+        if traced_act is not None and hasattr(env, "play_episodes"):
+            played = env.play_episodes(traced_act.fn, traced_act.args, quota)
+            return EvalResult(np.asarray(played[0]), np.asarray(played[1]), time.perf_counter() - started)
         obs = env.reset()
         done_count = np.zeros(num_envs, int)
         running_return = np.zeros(num_envs)
@@ -135,7 +158,9 @@ class TrainingEvaluation:
         self.best_return = -math.inf if best_return is None else best_return
         algorithm = get_algorithm(config.run.algo)
         self._policy_params = algorithm.policy_params
-        self._act = jax.jit(algorithm.make_act(config, spec), static_argnums=(4,))
+        pure_act = algorithm.make_act(config, spec)
+        self._act = jax.jit(pure_act, static_argnums=(4,))
+        self._traced = functools.partial(deterministic_act, pure_act)
         self._key = jax.random.key(0)
 
     def due(self, step: int) -> bool:
@@ -150,7 +175,13 @@ class TrainingEvaluation:
             return np.asarray(self._act(params, obs_stats, np.asarray(obs, np.float32), self._key, True))
 
         return run_episodes(
-            act, self.env_id, self.backend, self.episodes, DURING_TRAINING_SEED, env_kwargs=self.env_options
+            act,
+            self.env_id,
+            self.backend,
+            self.episodes,
+            DURING_TRAINING_SEED,
+            env_kwargs=self.env_options,
+            traced_act=TracedAct(self._traced, (params, obs_stats, self._key)),
         )
 
     def improves(self, result: EvalResult) -> bool:

@@ -227,7 +227,7 @@ def _initial_carry(env: Any, spec: Any, resumed_from: list[Path | None]) -> Any:
 
     group = len(resumed_from)
     first_obs = seedgroup.split_first_obs(env.reset(), group)
-    if getattr(env, "vmappable", False):
+    if group > 1 and getattr(env, "vmappable", False):
         handles = seedgroup.split_env_state(env.initial_state(), group)
     else:
         handles = [env.initial_state()] * group

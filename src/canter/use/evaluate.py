@@ -82,4 +82,6 @@ def evaluate(
         return policy(obs, deterministic=deterministic)
 
     purpose = HELD_OUT if policy.chosen_by_evaluation else EVAL
-    return run_episodes(act, env_id, backend, episodes, seed, purpose, (policy.obs_dim, policy.act_dim), extra)
+    traced = policy.traced() if deterministic and prepare_env is None else None
+    sizes = (policy.obs_dim, policy.act_dim)
+    return run_episodes(act, env_id, backend, episodes, seed, purpose, sizes, extra, traced_act=traced)

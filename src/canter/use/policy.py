@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.errors import CanterError
+from canter.training.evaluation import TracedAct, deterministic_act
 from canter.training.restore import PolicyFacts, load_state
 
 
@@ -34,8 +36,14 @@ class Policy:
 
         self.config, self.facts, self.params, self.obs_stats, self.source = config, facts, params, obs_stats, source
         self.checkpoint, self.selection = checkpoint, selection
-        self._act = jax.jit(get_algorithm(config.run.algo).make_act(config, facts), static_argnums=(4,))
+        pure_act = get_algorithm(config.run.algo).make_act(config, facts)
+        self._act = jax.jit(pure_act, static_argnums=(4,))
         self._key = jax.random.key(0)
+        self._traced = functools.partial(deterministic_act, pure_act)
+
+    def traced(self) -> TracedAct:
+        """The deterministic policy as a pure JAX function, for envs that play whole episodes in one program."""
+        return TracedAct(self._traced, (self.params, self.obs_stats, self._key))
 
     @property
     def chosen_by_evaluation(self) -> bool:

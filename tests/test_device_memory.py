@@ -1,0 +1,48 @@
+"""Whether a compiled training program fits the device: the estimate from XLA's memory analysis, the one-line error
+that names env.num_envs, and recognising XLA's out-of-memory errors."""
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from canter.errors import CanterError
+from canter.training import device_memory
+
+
+def test_a_real_compiled_program_reports_what_it_needs():
+    compiled = jax.jit(lambda x: (x @ x.T).sum()).lower(jnp.ones((256, 128), jnp.float32)).compile()
+    need = device_memory.required_bytes(compiled)
+    assert need is not None and need >= 256 * 128 * 4  # at least its argument
+
+
+class _Analysis:
+    argument_size_in_bytes = 3 * 2**30
+    output_size_in_bytes = 1 * 2**30
+    temp_size_in_bytes = 2 * 2**30
+    alias_size_in_bytes = 1 * 2**30
+
+
+class _Compiled:
+    def memory_analysis(self):
+        return _Analysis()
+
+
+def test_a_program_larger_than_the_free_memory_is_refused_before_training(monkeypatch):
+    assert device_memory.required_bytes(_Compiled()) == 5 * 2**30  # aliased buffers count once
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: 4 * 2**30)
+    with pytest.raises(CanterError) as error:
+        device_memory.check_fits(_Compiled(), 4096)
+    assert str(error.value) == (
+        "env.num_envs=4096 does not fit in the device's memory (needs about 5.0 GiB, 4.0 GiB free); lower it, "
+        "e.g. --set env.num_envs=2048"
+    )
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: 6 * 2**30)
+    device_memory.check_fits(_Compiled(), 4096)  # fits
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
+    device_memory.check_fits(_Compiled(), 4096)  # the CPU reports no memory: nothing to check
+
+
+def test_xla_out_of_memory_errors_are_recognised():
+    assert device_memory.is_out_of_memory(RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 1.2GiB"))
+    assert not device_memory.is_out_of_memory(RuntimeError("INVALID_ARGUMENT: shapes differ"))
+    assert "lower it, e.g. --set env.num_envs=1" in str(device_memory.too_many_envs(1))
