@@ -23,7 +23,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
-from canter.training import checkpoint, device_memory, disk_room, run_folder, run_lock
+from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
@@ -140,7 +140,7 @@ def _train_locked(
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import make_vec_env, resolve_backend
-    from canter.envs.registry import env_options
+    from canter.envs.registry import env_options, get_backend
 
     backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
     setup_jax(backend)
@@ -180,15 +180,13 @@ def _train_locked(
         locks.take(out)  # before anything is written to it
 
     config = configs[0]
+    options = env_options(config.env, backend)
     try:
-        env = make_vec_env(
-            config.env.id,
-            backend,
-            config.env.num_envs * len(configs),
-            seeds,
-            config.env.envpool_shards,
-            **env_options(config.env, backend),
-        )
+        if not get_backend(backend).jax_native:  # JAX envs are checked on the compiled program instead
+            host_memory.check_envs_fit(
+                lambda n: make_vec_env(config.env.id, backend, n, seeds[:n], **options), len(seeds)
+            )
+        env = make_vec_env(config.env.id, backend, len(seeds), seeds, config.env.envpool_shards, **options)
     except DiscreteActionsError as exc:
         raise CanterError(
             f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "

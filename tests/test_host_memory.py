@@ -1,0 +1,32 @@
+"""Too many envs for the machine's memory: refused in one line before they are created, from the measured memory of
+a few real envs."""
+
+import pytest
+
+from canter.cli.main import main
+from canter.envs.registry import make_vec_env
+from canter.training import host_memory
+
+
+def test_the_memory_of_a_real_env_is_measured():
+    per_env = host_memory.bytes_per_env(lambda n: make_vec_env("Hopper-v5", "envpool", n, list(range(n))))
+    assert per_env is not None and 10_000 < per_env < 50 * 2**20  # MuJoCo's Hopper: about a megabyte
+
+
+def test_the_refusal_names_the_setting_and_a_count_that_fits():
+    assert host_memory.refusal(1000, 2**20, 2 * 2**30) is None
+    error = host_memory.refusal(200_000, 2**20, 10 * 2**30)
+    assert str(error) == (
+        "env.num_envs=200000 needs about 195.3 GiB of memory for its envs (1.00 MiB each, measured), but 10.0 GiB "
+        "are available; lower it, e.g. --set env.num_envs=9216"
+    )
+
+
+def test_two_hundred_thousand_hoppers_are_refused_before_they_exist(tmp_path, capsys):
+    if host_memory.available_bytes() is None or host_memory.available_bytes() > 2**40:
+        pytest.skip("the machine reports no available memory, or more than 200000 Hoppers need")
+    code = main(["train", "Hopper-v5", "--set", "env.num_envs=200000", "--out-dir", str(tmp_path), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith("canter: error: env.num_envs=200000 needs about") and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
