@@ -30,12 +30,12 @@ class EnvConfig:
         role=OUTPUT,
     )
     solver_iterations: int = setting(
-        "JAX-native MuJoCo only (mjx): constraint-solver iterations per physics step instead of the XML's own "
+        "JAX-native MuJoCo backends only: constraint-solver iterations per physics step instead of the XML's own "
         "(0: the XML's, 100 or 50). Fewer are much faster on a GPU and change the physics slightly.",
         default=0,
     )
     solver_ls_iterations: int = setting(
-        "JAX-native MuJoCo only (mjx): line-search iterations per solver iteration instead of the XML's own "
+        "JAX-native MuJoCo backends only: line-search iterations per solver iteration instead of the XML's own "
         "(0: the XML's, 50). MJX runs all of them for every env, so they dominate a step's cost on a GPU.",
         default=0,
     )

@@ -14,6 +14,7 @@ and both flags false.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
 
@@ -69,6 +70,15 @@ IGNORED_INFO_KEYS = frozenset(
         "terminal_observation",
     }
 )
+
+
+def loads(load: Callable[[], object]) -> bool:
+    """Whether `load()`, the import of a backend's env library, succeeds on this machine (`Backend.available`)."""
+    try:
+        load()
+    except Exception:
+        return False
+    return True
 
 
 def is_summed_info(key: str) -> bool:

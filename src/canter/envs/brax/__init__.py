@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from canter.envs.base import Backend, VecEnv
+from canter.envs.base import Backend, VecEnv, loads
 from canter.errors import CanterError
 
 NAME = "brax"
@@ -25,11 +25,7 @@ class BraxBackend(Backend):
     def available(self) -> bool:
         from canter.envs.brax.env import brax_envs
 
-        try:
-            brax_envs()
-        except Exception:
-            return False
-        return True
+        return loads(brax_envs)
 
     def supported_ids(self) -> list[str]:
         if not self.available():

@@ -7,10 +7,11 @@ exception), and a crash no handler can catch must not be reachable from the CLI.
 
 from __future__ import annotations
 
+import importlib
 import re
 from typing import Any
 
-from canter.envs.base import Backend, VecEnv
+from canter.envs.base import Backend, VecEnv, loads
 from canter.errors import CanterError
 
 NAME = "envpool"
@@ -32,11 +33,7 @@ class EnvPoolBackend(Backend):
     label = "EnvPool"
 
     def available(self) -> bool:
-        try:
-            import envpool  # noqa: F401
-        except Exception:
-            return False
-        return True
+        return loads(lambda: importlib.import_module("envpool"))
 
     def supported_ids(self) -> list[str]:
         if not self.available():

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from canter.envs.base import Backend, VecEnv
+from canter.envs.base import Backend, VecEnv, loads
 from canter.errors import CanterError
 
 NAME = "gymnasium"
@@ -22,11 +22,7 @@ class GymnasiumBackend(Backend):
     single_envs = True
 
     def available(self) -> bool:
-        try:
-            import gymnasium  # noqa: F401
-        except Exception:
-            return False
-        return True
+        return loads(lambda: importlib.import_module("gymnasium"))
 
     def supported_ids(self) -> list[str]:
         if not self.available():

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from canter.envs.base import Backend, VecEnv
+from canter.envs.base import Backend, VecEnv, loads
 from canter.errors import CanterError
 
 NAME = "mjx"
@@ -24,11 +24,7 @@ class MjxBackend(Backend):
     def available(self) -> bool:
         from canter.envs.mjx.library import import_mjx
 
-        try:
-            import_mjx()
-        except Exception:
-            return False
-        return True
+        return loads(import_mjx)
 
     def supported_ids(self) -> list[str]:
         if not self.available():
