@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from canter.cli.args import seeds_arg, steps_arg
 from canter.errors import CanterError
@@ -14,6 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
     from canter.config.presets import preset_names
     from canter.envs.registry import backend_choices
+    from canter.training.trackers import tracker_names
 
     t = sub.add_parser(
         "train",
@@ -72,12 +74,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="continue a run from its newest checkpoint; several run folders that differ only in "
         "run.seed resume together as one group",
     )
+    t.add_argument(
+        "--track",
+        action="append",
+        choices=tracker_names(),
+        default=[],
+        help="also log to this experiment tracker (repeatable; extras canter[wandb], canter[mlflow]); a resume "
+        "continues the tracker runs recorded in RUN/trackers.json",
+    )
+    t.add_argument("--mlflow-uri", default=None, metavar="URI", help="MLflow tracking store for --track mlflow")
     t.add_argument("--seed", type=int, default=None, help="run seed")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from canter.training.trackers import TrackSpec, resume_spec, tracking
+
+    spec = (
+        resume_spec(args.track, args.mlflow_uri, [Path(d) for d in args.resume])
+        if args.resume
+        else TrackSpec(tuple(dict.fromkeys(args.track)), args.mlflow_uri)
+    )
+    if args.mlflow_uri and "mlflow" not in spec.names:
+        raise CanterError("--mlflow-uri sets the store of --track mlflow; also pass --track mlflow")
+    with tracking(spec):
+        results = _train(args)
+    _report(results)
+    return 0
+
+
+def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
     from canter.training.loop import resume_config, resume_seeds, train, train_seeds
@@ -155,6 +182,10 @@ def run(args: argparse.Namespace) -> int:
             results = train_seeds(config, args.seeds, quiet=args.quiet)
         else:
             results = [train(config, quiet=args.quiet)]
+    return results
+
+
+def _report(results: list[Any]) -> None:
     for result in results:
         recent = "n/a" if result.recent_return is None else f"{result.recent_return:.1f}"
         print(f"run: {result.run_dir}")
@@ -163,4 +194,3 @@ def run(args: argparse.Namespace) -> int:
             f"| wall {result.wall_seconds:.1f} s | return (last 20 episodes) {recent} | "
             f"stopped: {result.stop_reason}"
         )
-    return 0

@@ -23,7 +23,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
-from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
+from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
@@ -278,6 +278,7 @@ class _SeedRun:
             else None
         )
         self.videos = TrainingVideos(out, config.run.video_every, start_step)
+        self.trackers = trackers.open_for_run(config, out, resumed=start_step > 0)  # `canter train --track`
         self.closed = False
         self.stop_reason: str | None = None  # set once the seed is done; the group may still run
         self.error: str | None = None
@@ -391,12 +392,15 @@ class _SeedRun:
         )
         summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
         atomic_write_bytes(self.out / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+        self.trackers.finish(self.out, summary)
 
     def close(self) -> None:
         if not self.closed:
             self.logger.close()
             self.videos.close()
             self.closed = True
+        if self.stop_reason is None or self.error is not None:  # failed or interrupted: `finish` ends them itself
+            self.trackers.close()
 
     def fail(self, last_good_state: Any, started: float, env_carry: Any = None) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
@@ -503,6 +507,7 @@ def _loop(
                     if run.evaluation_due():
                         row.update(run.evaluate(pick(new_state, i), started))
                     run.logger.log(row)
+                    run.trackers.log(row)
                     steps += int(seed_metrics["steps"])
                     if run.checkpoint_due():
                         run.save(pick(new_state, i), run.global_step, started, env_carry(new_carry, i))

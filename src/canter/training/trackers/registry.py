@@ -1,0 +1,25 @@
+"""Tracker names for `canter train --track NAME`."""
+
+from __future__ import annotations
+
+from canter.errors import CanterError
+from canter.training.trackers.base import Tracker
+from canter.training.trackers.mlflow_tracker import MlflowTracker
+from canter.training.trackers.wandb_tracker import WandbTracker
+
+TRACKERS: dict[str, Tracker] = {"wandb": WandbTracker(), "mlflow": MlflowTracker()}
+
+
+def tracker_names() -> list[str]:
+    return sorted(TRACKERS)
+
+
+def get_tracker(name: str) -> Tracker:
+    if name not in TRACKERS:
+        raise CanterError(f"unknown tracker {name!r}; choose from {', '.join(tracker_names())}")
+    return TRACKERS[name]
+
+
+def register_tracker(name: str, tracker: Tracker) -> None:
+    """Add a tracker backend (a plugin, or a test's)."""
+    TRACKERS[name] = tracker

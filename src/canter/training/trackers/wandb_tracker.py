@@ -1,0 +1,67 @@
+"""Weights & Biases: one W&B run per seed, the seeds of an experiment in one W&B group (extra `canter[wandb]`).
+
+The W&B project is `canter` unless WANDB_PROJECT says otherwise; WANDB_MODE=offline keeps everything local."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from canter.errors import CanterError
+from canter.training.trackers.base import RunContext, TrackSpec
+
+
+def _wandb() -> Any:
+    try:
+        import wandb
+    except ImportError:
+        raise CanterError("--track wandb needs the W&B client; install canter[wandb]") from None
+    return wandb
+
+
+class WandbTracker:
+    def check(self, spec: TrackSpec) -> None:
+        _wandb()
+
+    def start(self, context: RunContext, run_id: str | None) -> _WandbRun:
+        wandb = _wandb()
+        # The system monitor and the console capture cost seconds at start and add nothing canter does not log.
+        settings = wandb.Settings(silent=True, console="off", x_disable_stats=True, x_disable_meta=True)
+        try:
+            run = wandb.init(
+                project=os.environ.get("WANDB_PROJECT", "canter"),
+                group=context.group,
+                name=context.out.name,
+                config=context.config,
+                id=run_id,
+                resume="must" if run_id else None,
+                reinit="create_new",  # the seeds of a group each have their own run in this process
+                settings=settings,
+            )
+        except Exception as exc:
+            raise CanterError(f"--track wandb could not start a W&B run: {_first_line(exc)}") from None
+        return _WandbRun(run)
+
+
+class _WandbRun:
+    def __init__(self, run: Any) -> None:
+        self._run = run
+        self.run_id: str = run.id
+
+    def log(self, values: dict[str, float], step: int) -> None:
+        self._run.log(values, step=step)
+
+    def finish(self, out: Path, summary: dict[str, Any]) -> None:
+        self._run.summary.update({f"summary/{k}": v for k, v in summary.items()})
+        for name in ("summary.json", "config.toml"):
+            self._run.save(str(out / name), base_path=str(out), policy="now")
+        self._run.finish()
+
+    def close(self) -> None:
+        self._run.finish(exit_code=1)
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__

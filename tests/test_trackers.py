@@ -1,0 +1,244 @@
+"""`canter train --track wandb/mlflow` with the real libraries and no network: W&B offline (its run files read
+back), MLflow against a SQLite store (read back with MlflowClient)."""
+
+import json
+import math
+import struct
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.config.build import build_config
+from canter.training.logger import read_rows
+from canter.training.loop import train
+from canter.training.trackers import TrackSpec, register_tracker, tracking
+from canter.training.trackers.registry import TRACKERS
+
+TINY_PPO = [
+    "--quiet",
+    "--backend",
+    "envpool",
+    "--total-steps",
+    "2048",
+    "--eval-every",
+    "1000",
+    "--eval-episodes",
+    "2",
+] + [
+    x
+    for s in ("net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4", "ppo.n_steps=128", "ppo.epochs=2")
+    for x in ("--set", s)
+]
+
+
+def _offline_wandb(monkeypatch, folder: Path) -> None:
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_DIR", str(folder))
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    monkeypatch.setenv("WANDB_PROJECT", "canter-test")
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """Two seeds of one experiment, tracked by W&B (offline) and MLflow (SQLite)."""
+    root = tmp_path_factory.mktemp("tracked")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _offline_wandb(monkeypatch, root)
+        monkeypatch.chdir(root)  # MLflow's artifacts go to ./mlruns
+        uri = f"sqlite:///{root / 'mlflow.db'}"
+        argv = ["train", "InvertedPendulum-v4", "--seeds", "0,1", "--out-dir", str(root / "runs")]
+        assert main(argv + ["--track", "wandb", "--track", "mlflow", "--mlflow-uri", uri] + TINY_PPO) == 0
+    runs = sorted((root / "runs").iterdir())
+    assert len(runs) == 2
+    return root, uri, runs
+
+
+def _rows(run: Path) -> list[dict]:
+    return read_rows(run / "metrics.csv")[1]
+
+
+def _same(a: float, b: float) -> bool:
+    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------------------ MLflow
+
+
+def _mlflow_run(uri: str, run: Path):
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    ids = json.loads((run / "trackers.json").read_text())
+    return client, client.get_run(ids["mlflow"]["run_id"])
+
+
+@pytest.mark.slow
+def test_mlflow_gets_every_column_by_step_and_one_parent_per_experiment(tracked):
+    _, uri, runs = tracked
+    parents = set()
+    for run in runs:
+        client, tracked_run = _mlflow_run(uri, run)
+        assert tracked_run.info.status == "FINISHED"
+        assert tracked_run.data.params["run.seed"] in ("0", "1")
+        parents.add(tracked_run.data.tags["mlflow.parentRunId"])
+        rows = _rows(run)
+        assert any(not math.isnan(float(r.get("eval/return_mean") or "nan")) for r in rows)
+        for column in rows[0]:
+            if column == "global_step":
+                continue
+            expected = {int(r["global_step"]): float(r[column]) for r in rows if r[column] not in ("", None)}
+            expected = {k: v for k, v in expected.items() if not math.isnan(v)}
+            history = {m.step: m.value for m in client.get_metric_history(tracked_run.info.run_id, column)}
+            assert history.keys() == expected.keys(), column
+            assert all(_same(history[k], v) for k, v in expected.items()), column
+        summary = json.loads((run / "summary.json").read_text())
+        assert tracked_run.data.metrics["summary/global_step"] == summary["global_step"]
+        assert {a.path for a in client.list_artifacts(tracked_run.info.run_id)} == {"summary.json", "config.toml"}
+    assert len(parents) == 1
+    parent = client.get_run(parents.pop())
+    assert parent.data.tags["canter.group"] == parent.info.run_name
+
+
+# ------------------------------------------------------------------------------------------------------ W&B
+
+
+def _wandb_records(path: Path):
+    """The records of an offline run's .wandb file: a 7-byte header, then LevelDB-log blocks of 32 KiB, whose
+    chunks (7-byte header: CRC, length, type FULL=1/FIRST=2/MIDDLE=3/LAST=4) carry protobuf Records."""
+    from wandb.proto import wandb_internal_pb2
+
+    data, pos, pending = path.read_bytes(), 7, b""
+    while pos + 7 <= len(data):
+        if 32768 - pos % 32768 < 7:  # a block's tail too short for a header is padding
+            pos += 32768 - pos % 32768
+            continue
+        _, length, kind = struct.unpack("<IHB", data[pos : pos + 7])
+        pending += data[pos + 7 : pos + 7 + length]
+        pos += 7 + length
+        if kind in (1, 4):
+            record = wandb_internal_pb2.Record()
+            record.ParseFromString(pending)
+            pending = b""
+            yield record
+
+
+def _wandb_run(root: Path, run_id: str) -> tuple[str, list[dict], set[str]]:
+    """Group, history rows and saved files of the offline W&B runs with this id (a resume adds a folder)."""
+    group, history, files = "", [], set()
+    for folder in sorted((root / "wandb").glob(f"offline-run-*-{run_id}")):
+        files |= {p.name for p in (folder / "files").iterdir()}
+        for record in _wandb_records(folder / f"run-{run_id}.wandb"):
+            kind = record.WhichOneof("record_type")
+            if kind == "run":
+                group = record.run.run_group
+            elif kind == "history":
+                history.append(
+                    {item.key or "/".join(item.nested_key): json.loads(item.value_json) for item in record.history.item}
+                )
+    return group, history, files
+
+
+@pytest.mark.slow
+def test_wandb_offline_gets_every_column_by_step_and_one_group_per_experiment(tracked):
+    root, _, runs = tracked
+    groups = set()
+    for run in runs:
+        ids = json.loads((run / "trackers.json").read_text())
+        group, history, files = _wandb_run(root, ids["wandb"]["run_id"])
+        groups.add(group)
+        assert {"summary.json", "config.toml"} <= files
+        rows = _rows(run)
+        assert [h["_step"] for h in history] == [int(r["global_step"]) for r in rows]
+        for logged, row in zip(history, rows):
+            for column, value in row.items():
+                if column != "global_step" and value not in ("", None) and not math.isnan(float(value)):
+                    assert _same(logged[column], float(value)), column
+    assert len(groups) == 1 and groups.pop().startswith("InvertedPendulum-v4-ppo-")
+
+
+@pytest.mark.slow
+def test_resume_continues_the_same_tracker_runs(tracked, monkeypatch):
+    root, uri, runs = tracked
+    _offline_wandb(monkeypatch, root)
+    monkeypatch.chdir(root)
+    run = runs[0]
+    before = json.loads((run / "trackers.json").read_text())
+    steps_before = int(_rows(run)[-1]["global_step"])
+    # no --track: a resume continues the trackers recorded in the run folder
+    assert main(["train", "--resume", str(run), "--total-steps", "4096", "--quiet"]) == 0
+    assert json.loads((run / "trackers.json").read_text()) == before
+    client, tracked_run = _mlflow_run(uri, run)
+    steps = [m.step for m in client.get_metric_history(tracked_run.info.run_id, "sps")]
+    assert steps == [int(r["global_step"]) for r in _rows(run)] and steps[-1] > steps_before
+    assert tracked_run.info.status == "FINISHED"
+    _, history, _ = _wandb_run(root, before["wandb"]["run_id"])
+    assert [h["_step"] for h in history] == steps
+
+
+# ------------------------------------------------------------------------------------------------------ failures
+
+
+def test_a_tracker_that_cannot_start_is_one_line_before_training(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    argv = ["train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs")] + TINY_PPO
+    assert main(argv + ["--track", "mlflow", "--mlflow-uri", "nope://nowhere"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("canter: error: --mlflow-uri nope://nowhere cannot be opened") and "\n" not in err
+    monkeypatch.setitem(__import__("sys").modules, "wandb", None)  # as if canter[wandb] were not installed
+    assert main(argv + ["--track", "wandb"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "canter: error: --track wandb needs the W&B client; install canter[wandb]"
+    assert not (tmp_path / "runs").exists()
+
+
+class _FailsOnSecondRow:
+    """A real tracker backend whose store breaks after the first row."""
+
+    def __init__(self) -> None:
+        self.rows = 0
+
+    def check(self, spec):
+        pass
+
+    def start(self, context, run_id):
+        return self
+
+    run_id = "flaky-1"
+
+    def log(self, values, step):
+        self.rows += 1
+        if self.rows >= 2:
+            raise ConnectionError("the tracking server went away\nsecond line")
+
+    def finish(self, out, summary):
+        raise AssertionError("a dropped tracker is not finished")
+
+    def close(self):
+        raise AssertionError("a dropped tracker is not closed")
+
+
+@pytest.mark.slow
+def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, capsys):
+    flaky = _FailsOnSecondRow()
+    register_tracker("flaky", flaky)
+    try:
+        config = build_config(
+            "InvertedPendulum-v4",
+            preset="fast",
+            sets=["env.backend=envpool", "net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4"]
+            + ["ppo.n_steps=128", "ppo.epochs=2", f"run.out_dir={tmp_path}"],
+            total_steps=2048,
+        )
+        with tracking(TrackSpec(("flaky",))):
+            result = train(config)
+    finally:
+        TRACKERS.pop("flaky")
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "tracker flaky" in line]
+    assert warnings == [
+        "canter: warning: tracker flaky failed while logging (the tracking server went away); training goes on "
+        "without it, the run folder has everything"
+    ]
+    assert flaky.rows == 2
+    assert result.stop_reason == "budget" and (result.run_dir / "summary.json").is_file()
+    assert int(_rows(result.run_dir)[-1]["global_step"]) == result.global_step >= 2048
