@@ -101,7 +101,8 @@ def test_every_port_matches_gymnasium_from_the_same_state(env_id):
     _each_step_from_the_same_state(env_id)
 
 
-@pytest.mark.parametrize("env_id", TESTED)
+# Hopper free-running (21 s) is heavy: its per-step check above runs in `make test`.
+@pytest.mark.parametrize("env_id", ["InvertedPendulum-v5", pytest.param("Hopper-v5", marks=pytest.mark.heavy)])
 def test_free_running_stays_with_gymnasium_for_200_steps(env_id):
     ported, reference = _pair(env_id)
     data = reference.unwrapped.data
@@ -125,10 +126,10 @@ def test_reset_noise_is_gymnasiums_distribution():
     from canter.envs.mjx.env import MjxTaskEnv
 
     env = MjxTaskEnv("Hopper-v5")
-    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 2000))
+    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 500))
     noise = np.asarray(states.qpos) - np.asarray(env.mj_model.qpos0)
     assert np.all(np.abs(noise) <= 5e-3 + 1e-7)
-    assert abs(noise.std() - 5e-3 / np.sqrt(3)) < 1e-4  # U(-0.005, 0.005)
+    assert abs(noise.std() - 5e-3 / np.sqrt(3)) < 1.5e-4  # U(-0.005, 0.005): std 2.9e-3, 3000 draws
 
 
 def _pendulum(num_envs, seeds, limit=None):

@@ -22,10 +22,15 @@ def setup_jax(backend: str | None = None) -> None:
     each call's backend, since JAX keys its compiled programs on it."""
     import jax
 
+    from canter.envs.functional import x64_enabled
     from canter.envs.registry import get_backend
 
     global _platform_chosen, _cpu_notice_given
     native = backend is not None and backend != "auto" and get_backend(backend).jax_native
+    if _platform_chosen and x64_enabled() == native:
+        # Switching precision in a process that has traced programs: JAX's staging caches can hold a nested
+        # program traced in the other precision (MJX's integrators do), so they start over.
+        jax.clear_caches()
     jax.config.update("jax_enable_x64", not native)
     if not _platform_chosen:
         if not native and not os.environ.get("JAX_PLATFORMS"):

@@ -51,6 +51,12 @@ class FunctionalState(NamedTuple):
     needs_reset: jnp.ndarray  # [N] bool: the previous step ended an episode, so this step is an autoreset
 
 
+def x64_enabled() -> bool:
+    """Whether JAX has 64-bit types on (`canter.core.runtime.setup_jax` sets it per backend): a JAX env built in one
+    precision must not be reused in the other."""
+    return bool(jax.dtypes.canonicalize_dtype(jnp.float64) == jnp.float64)
+
+
 def initial_keys(seeds: list[int]) -> jax.Array:
     """One raw PRNG key per env, from its env seed (`canter.core.seeding`), in one call: a key per call would be a
     device dispatch per env, seconds for thousands of envs on a GPU."""

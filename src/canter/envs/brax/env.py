@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from canter.envs.functional import FunctionalEnv
+from canter.envs.functional import FunctionalEnv, x64_enabled
 
 # The physics pipeline canter runs Brax's envs on: MJX, the one Brax's current speed figures use.
 PIPELINE = "mjx"
@@ -49,6 +49,13 @@ def load_env(env_id: str) -> Any:
 
 
 def functional_env(env_id: str) -> FunctionalEnv:
+    """`env_id`, built once per process and precision: every env made for it (training, each evaluation) shares
+    its model and compiled programs."""
+    return _functional_env(env_id, x64_enabled())
+
+
+@functools.cache
+def _functional_env(env_id: str, x64: bool) -> FunctionalEnv:
     """`env_id` as pure functions of one Brax `State`.
 
     - observation: `state.obs` as float32; reward: `state.reward`; terminated: `state.done` (Brax's envs end

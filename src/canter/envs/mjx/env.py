@@ -11,7 +11,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from canter.envs.functional import FunctionalEnv
+from canter.envs.functional import FunctionalEnv, x64_enabled
 from canter.envs.mjx.library import import_mjx
 from canter.envs.mjx.tasks import NORMAL, TASKS, Task
 
@@ -117,8 +117,12 @@ class MjxTaskEnv:
         )
 
 
-@functools.cache
 def functional_env(env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0) -> FunctionalEnv:
-    """The task's env, built once per process and solver setting: every env made for it (training, each evaluation)
-    shares its model and compiled programs."""
+    """The task's env, built once per process, solver setting and precision: every env made for it (training, each
+    evaluation) shares its model and compiled programs."""
+    return _functional_env(env_id, solver_iterations, solver_ls_iterations, x64_enabled())
+
+
+@functools.cache
+def _functional_env(env_id: str, solver_iterations: int, solver_ls_iterations: int, x64: bool) -> FunctionalEnv:
     return MjxTaskEnv(env_id, solver_iterations, solver_ls_iterations).functional()
