@@ -46,3 +46,16 @@ def test_xla_out_of_memory_errors_are_recognised():
     assert device_memory.is_out_of_memory(RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 1.2GiB"))
     assert not device_memory.is_out_of_memory(RuntimeError("INVALID_ARGUMENT: shapes differ"))
     assert "lower it, e.g. --set env.num_envs=1" in str(device_memory.too_many_envs(1))
+
+
+def test_the_compile_cache_folder_follows_the_environment(monkeypatch, tmp_path):
+    from canter.core import runtime
+
+    monkeypatch.delenv(runtime.COMPILE_CACHE_ENV, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert runtime.compile_cache_dir() == str(tmp_path / "canter" / "xla")
+    monkeypatch.setenv(runtime.COMPILE_CACHE_ENV, str(tmp_path / "mine"))
+    assert runtime.compile_cache_dir() == str(tmp_path / "mine")
+    for off in ("0", "off", "no", "false"):
+        monkeypatch.setenv(runtime.COMPILE_CACHE_ENV, off)
+        assert runtime.compile_cache_dir() is None

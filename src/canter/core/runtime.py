@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Any
 
 _platform_chosen = False
 _cpu_notice_given = False
+
+# A folder for compiled programs, or off (0, false, no); default: $XDG_CACHE_HOME/canter/xla (~/.cache/canter/xla).
+COMPILE_CACHE_ENV = "CANTER_COMPILE_CACHE"
+COMPILE_CACHE_LIMIT = 4 * 1024**3  # bytes; the least recently used programs go beyond it
 
 
 def setup_jax(backend: str | None = None) -> None:
@@ -35,7 +40,41 @@ def setup_jax(backend: str | None = None) -> None:
     if not _platform_chosen:
         if not native and not os.environ.get("JAX_PLATFORMS"):
             jax.config.update("jax_platforms", "cpu")
+        if native:
+            use_compile_cache(jax)
         _platform_chosen = True
     if native and jax.default_backend() == "cpu" and not _cpu_notice_given:
         print(f"canter: no GPU found, so {backend} steps its physics on the CPU (correct, but slow)", file=sys.stderr)
         _cpu_notice_given = True
+
+
+def compile_cache_dir() -> str | None:
+    """Where compiled programs are kept across processes, or None when the cache is off."""
+    setting = os.environ.get(COMPILE_CACHE_ENV, "").strip()
+    if setting.lower() in ("0", "off", "false", "no"):
+        return None
+    if setting:
+        return setting
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "canter", "xla")
+
+
+def use_compile_cache(jax: Any) -> None:
+    """Keep the compiled programs of JAX-native runs across processes: a resume, a rerun, and bench seeds or trials
+    that share a program compile it again otherwise (an MJX iteration: 42 s on this CPU, up to two minutes on a
+    GPU; from the cache, 5 s). Programs that compile in under a second are not kept. EnvPool runs are left out:
+    their programs embed the pools' addresses, which differ in every process, so they would never be found again.
+    JAX's own JAX_COMPILATION_CACHE_DIR, where set, wins; an unusable folder leaves the cache off."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return
+    folder = compile_cache_dir()
+    if folder is None:
+        return
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError:
+        return
+    if not os.access(folder, os.W_OK):
+        return
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_compilation_cache_max_size", COMPILE_CACHE_LIMIT)
