@@ -21,6 +21,8 @@ heavy tests/test_mjx_backend.py` runs every task.
 
 import csv
 import dataclasses
+import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -231,6 +233,13 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path):
     on_cpu = evaluate(policy, episodes=8, seed=0, backend="gymnasium")
     assert on_mjx.mean >= 900, on_mjx.returns
     assert on_cpu.mean >= 900, on_cpu.returns
+    # The user's commands: evaluated on EnvPool's C MuJoCo, and rendered through the CPU backends.
+    from canter.cli.main import main
+
+    assert main(["eval", str(result.run_dir), "--backend", "envpool", "--episodes", "2", "--json", "e.json"]) == 0
+    assert json.loads(Path("e.json").read_text())["runs"][0]["return_mean"] >= 900
+    assert main(["video", str(result.run_dir), "--episodes", "1", "--out", "v.mp4"]) == 0
+    assert Path("v.mp4").stat().st_size > 0
 
 
 def test_solver_settings_reach_the_mjx_model_and_nothing_else():
