@@ -79,8 +79,13 @@ def vector_step(env: FunctionalEnv, state: FunctionalState, action: jnp.ndarray)
     truncated = (elapsed >= limit) & ~terminated if limit else jnp.zeros_like(terminated)
 
     keys, reset_keys = _split(state.key)
-    reset_physics, reset_obs = jax.vmap(env.reset)(reset_keys)
     resetting = state.needs_reset
+    # Most steps reset no env: skip the resets then (a batch-level cond; under a seed group's vmap it computes both).
+    reset_physics, reset_obs = jax.lax.cond(
+        jnp.any(resetting),
+        lambda: jax.vmap(env.reset)(reset_keys),
+        lambda: (state.physics, jnp.zeros_like(obs)),
+    )
 
     def pick(fresh: jnp.ndarray, stepped: jnp.ndarray) -> jnp.ndarray:
         mask = resetting.reshape(resetting.shape + (1,) * (stepped.ndim - 1))
