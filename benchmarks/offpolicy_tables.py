@@ -15,23 +15,18 @@ says so), and rewrites each archive's own bench files (results.md, results.csv a
 from __future__ import annotations
 
 import argparse
-import json
-import re
 import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-from canter.orchestrate.bench import (
-    combine_records,
-    plot_env,
-    published_for,
-    seed_record,
-)
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # archive.py, when loaded from elsewhere (the tests)
+from archive import ROOT, finished_runs, read_text, replace_between, sync
+
+from canter.orchestrate.bench import combine_records, plot_env, published_for
 from canter.orchestrate.bench import results_table as bench_table
 
-ROOT = Path(__file__).resolve().parent.parent
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"
 # preset name -> archive of runs made with it ("" is the default preset, whose runs are in ARCHIVE).
 VARIANTS = {"": ARCHIVE, "tianshou": ROOT / "benchmarks" / "results" / "sac-tianshou"}
@@ -57,23 +52,6 @@ NO_LENGTHS_NOTE = (
 
 def label(algo: str, variant: str) -> str:
     return f"{algo}, preset {variant}" if variant else algo
-
-
-def finished_runs(archive: Path) -> dict[tuple[str, str], list[dict]]:
-    """(algo, env) -> one record per finished seed, sorted by seed."""
-    found: dict[tuple[str, str], list[dict]] = {}
-    for folder in sorted(archive.iterdir()):
-        match = re.fullmatch(r"(.+)__(td3|ddpg|sac)__s(\d+)", folder.name)
-        if not match or not (folder / "eval.json").is_file() or not (folder / "summary.json").is_file():
-            continue
-        summary = json.loads((folder / "summary.json").read_text())
-        if summary.get("global_step", 0) < BUDGET:
-            continue
-        seed = int(match[3])
-        record = seed_record(folder, seed)
-        record.update(evaluation=json.loads((folder / "eval.json").read_text()), summary=summary, folder=folder)
-        found.setdefault((match[2], match[1]), []).append(record)
-    return {key: sorted(rows, key=lambda r: r["seed"]) for key, rows in found.items()}
 
 
 def cells(found: dict[str, dict]):
@@ -174,23 +152,13 @@ def bench_files(runs: dict[tuple[str, str], list[dict]]) -> dict[str, str]:
     return {"results.md": markdown, "results.csv": table_csv}
 
 
-def replace_between(text: str, markers: tuple[str, str], block: str) -> str:
-    """Put `block` between the start and the end marker, a blank line before the end marker."""
-    begin, end = markers
-    start = text.index(begin) + len(begin)
-    return text[:start] + block + "\n\n" + text[text.index(end, start) :]
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only check that the tables match the archive")
     args = parser.parse_args()
-    found = {variant: finished_runs(archive) for variant, archive in VARIANTS.items()}
-    stale = []
-    # Bytes, not text: results.csv has \r\n line ends, which text mode would translate.
-    read = lambda path: path.read_bytes().decode() if path.is_file() else ""  # noqa: E731
+    found = {variant: finished_runs(archive, ALGOS, BUDGET) for variant, archive in VARIANTS.items()}
     wanted = {
-        path: replace_between(read(path), markers, table)
+        path: replace_between(read_text(path), markers, table)
         for path, markers, table in (
             (ROOT / "benchmarks" / "results" / "README.md", RESULTS_MARKERS, results_table(found)),
             (ROOT / "README.md", README_MARKERS, readme_table(found)),
@@ -198,23 +166,14 @@ def main() -> int:
     }
     for variant, archive in VARIANTS.items():
         wanted.update({archive / name: content for name, content in bench_files(found[variant]).items()})
-    for path, new in wanted.items():
-        if new != read(path):
-            stale.append(path.relative_to(ROOT))
-            if not args.check:
-                path.write_bytes(new.encode())
-    if not args.check:
-        for variant, archive in VARIANTS.items():
-            for env in ENVS:
-                folders = [r["folder"] for algo in ALGOS for r in found[variant].get((algo, env), [])]
-                if folders:
-                    plot_env(folders, archive / f"plot_{env}.png")
-    if args.check and stale:
-        print(
-            f"stale off-policy tables in {', '.join(map(str, stale))}; run python benchmarks/offpolicy_tables.py",
-            file=sys.stderr,
-        )
-        return 1
+    if args.check:
+        return sync(wanted, True, "benchmarks/offpolicy_tables.py")
+    sync(wanted, False, "benchmarks/offpolicy_tables.py")
+    for variant, archive in VARIANTS.items():
+        for env in ENVS:
+            folders = [r["folder"] for algo in ALGOS for r in found[variant].get((algo, env), [])]
+            if folders:
+                plot_env(folders, archive / f"plot_{env}.png")
     return 0
 
 

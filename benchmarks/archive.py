@@ -1,0 +1,62 @@
+"""What the table scripts share: reading an archive of finished bench runs, and rewriting (or checking) the files
+and marked blocks that are generated from it.
+
+An archive holds one folder per finished run, named as `canter bench` names them (`<env>__<algo>__s<seed>`), with
+the run's config.toml, eval.json, metrics.csv, summary.json and versions.json, and no checkpoints."""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from canter.orchestrate.bench import seed_record
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def finished_runs(archive: Path, algos: Iterable[str], budget: int) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    """(algo, env) -> one record per run that trained `budget` steps and was evaluated, sorted by seed. A record is
+    the bench's `seed_record` with the run's `evaluation` (eval.json), `summary` and `folder` added."""
+    pattern = re.compile(rf"(.+)__({'|'.join(map(re.escape, algos))})__s(\d+)")
+    found: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for folder in sorted(archive.iterdir()):
+        match = pattern.fullmatch(folder.name)
+        if not match or not (folder / "eval.json").is_file() or not (folder / "summary.json").is_file():
+            continue
+        summary = json.loads((folder / "summary.json").read_text())
+        if summary.get("global_step", 0) < budget:
+            continue
+        record = seed_record(folder, int(match[3]))
+        record.update(evaluation=json.loads((folder / "eval.json").read_text()), summary=summary, folder=folder)
+        found.setdefault((match[2], match[1]), []).append(record)
+    return {key: sorted(rows, key=lambda r: r["seed"]) for key, rows in found.items()}
+
+
+def replace_between(text: str, markers: tuple[str, str], block: str) -> str:
+    """Put `block` between the start and the end marker, a blank line before the end marker."""
+    begin, end = markers
+    start = text.index(begin) + len(begin)
+    return text[:start] + block + "\n\n" + text[text.index(end, start) :]
+
+
+def read_text(path: Path) -> str:
+    # Bytes, not text: results.csv has \r\n line ends, which text mode would translate.
+    return path.read_bytes().decode() if path.is_file() else ""
+
+
+def sync(wanted: dict[Path, str], check: bool, script: str) -> int:
+    """Write every file whose generated content differs; with `check`, only name them and return 1."""
+    stale = [path for path, content in wanted.items() if content != read_text(path)]
+    if check:
+        if stale:
+            names = ", ".join(str(p.relative_to(ROOT)) for p in stale)
+            print(f"stale tables in {names}; run python {script}", file=sys.stderr)
+            return 1
+        return 0
+    for path in stale:
+        path.write_bytes(wanted[path].encode())
+    return 0

@@ -1,0 +1,84 @@
+"""Whole-process timed `canter train` runs for the report pages, each archived beside its page.
+
+A run is one `canter train` process, timed from outside (interpreter start, imports, compile, training and the final
+checkpoint), then evaluated by `canter eval` in a process of its own (deterministic, 10 episodes, every episode's
+return and length). Its files are copied into `<page>/runs/<name>/`: config.toml, metrics.csv, summary.json,
+versions.json, eval.json, train.log and timing.json (the command, its wall seconds, and the 1-minute load average
+before it, which says whether other work shared the cores). A run whose archive is complete is not trained again,
+so a page's script can be rerun to fill in what is missing."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+RUN_FILES = ("config.toml", "metrics.csv", "summary.json", "versions.json")
+EVAL_EPISODES = 10
+
+
+def canter_command() -> list[str]:
+    beside = Path(sys.executable).parent / "canter"
+    return [str(beside)] if beside.exists() else [sys.executable, "-m", "canter.cli.main"]
+
+
+def archived(page: Path, name: str) -> dict[str, Any] | None:
+    """The archived run's timing.json, eval.json and summary.json, or None if it is not complete."""
+    folder = page / "runs" / name
+    files = ("timing.json", "eval.json", "summary.json")
+    if not all((folder / f).is_file() for f in files):
+        return None
+    return {f.removesuffix(".json"): json.loads((folder / f).read_text()) for f in files} | {"folder": folder}
+
+
+def timed_train(page: Path, name: str, train_args: list[str], work: Path) -> dict[str, Any]:
+    """Train (unless archived already), evaluate and archive one run; returns `archived(page, name)`."""
+    found = archived(page, name)
+    if found:
+        print(f"{name}: archived already", flush=True)
+        return found
+    out = work / name
+    if out.exists():
+        shutil.rmtree(out)  # a run stopped halfway has an unusable time: start it again
+    out.mkdir(parents=True)
+    command = [*canter_command(), "train", *train_args, "--quiet", "--out-dir", str(out)]
+    load = os.getloadavg()[0]
+    print(f"{name}: $ {' '.join(command[1:])}", flush=True)
+    start = time.perf_counter()
+    with open(out / "train.log", "wb") as log:
+        code = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+    wall = time.perf_counter() - start
+    if code != 0:
+        raise SystemExit(f"{name}: canter train exited {code}; see {out / 'train.log'}")
+    [run_dir] = [d for d in out.iterdir() if d.is_dir()]
+    evaluation = out / "eval.json"
+    subprocess.run(
+        [*canter_command(), "eval", str(run_dir), "--episodes", str(EVAL_EPISODES), "--json", str(evaluation)],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
+    [row] = json.loads(evaluation.read_text())["runs"]
+    folder = page / "runs" / name
+    folder.mkdir(parents=True, exist_ok=True)
+    for f in RUN_FILES:
+        shutil.copyfile(run_dir / f, folder / f)
+    shutil.copyfile(out / "train.log", folder / "train.log")
+    keep = ("episodes", "return_mean", "return_std", "returns", "lengths", "checkpoint", "global_step", "deterministic")
+    (folder / "eval.json").write_text(json.dumps({k: row[k] for k in keep if k in row}, indent=2) + "\n")
+    timing = {
+        "command": ["canter", *command[len(canter_command()) :]],
+        "wall_seconds": round(wall, 1),
+        "load_average_before": round(load, 2),
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    (folder / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
+    print(f"{name}: {wall:.0f} s, eval {row['return_mean']:.0f}", flush=True)
+    found = archived(page, name)
+    assert found is not None
+    return found
