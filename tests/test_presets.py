@@ -100,6 +100,10 @@ def test_seed_presets_hold_the_seeds_numbers():
     walker = build_config("BipedalWalker-v3", preset="report002-bipedalwalker-ppo")
     assert (walker.ppo.n_steps, walker.ppo.minibatch_size, walker.ppo.epochs, walker.env.num_envs) == (512, 32, 5, 4)
     assert (walker.ppo.gamma, walker.ppo.gae_lambda, walker.run.stop_at_return) == (0.99, 0.99, 300.0)
+    dmc = build_config("WalkerWalk-v1", preset="report004-walker")
+    assert (dmc.ppo.n_steps, dmc.ppo.minibatch_size, dmc.ppo.epochs, dmc.env.num_envs) == (1000, 1000, 80, 1)
+    assert (dmc.ppo.lr, dmc.ppo.critic_lr, dmc.ppo.target_kl, dmc.run.total_steps) == (3e-4, 1e-3, 0.015, 750_000)
+    assert dmc.net.activation == "tanh" and not dmc.env.normalize_obs and not dmc.ppo.anneal_lr
 
 
 @pytest.mark.parametrize("preset", ["fast", "cleanrl"])
