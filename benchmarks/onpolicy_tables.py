@@ -1,16 +1,19 @@
 """Rebuild the on-policy score table of README.md and benchmarks/results/README.md from the archived runs.
 
-The runs are those of one `canter bench` on seeds that no preset was tuned on, chosen before the runs (SEEDS):
+The runs are those of two `canter bench` commands on seeds that no preset was tuned on, chosen before the runs
+(SEEDS):
 
     canter bench --algos ppo,rpo,trpo --envs HalfCheetah-v5,Hopper-v5,Walker2d-v5 --seeds 100,101,102,103,104 \\
         --total-steps 1e6 --out runs/onpolicy-1m-heldout
+    canter bench --algos ppo --envs Ant-v5,Humanoid-v5 --seeds 100,101,102,103,104 --total-steps 1e6 \\
+        --out runs/reports-ppo-1m
 
 Each finished run is archived as benchmarks/results/onpolicy-1m-heldout/<env>__<algo>__s<seed>/ (config.toml,
 eval.json, metrics.csv, summary.json, versions.json; no checkpoints). This script copies them there from the
 bench folder (`--collect`), writes the two tables between their marker comments, and the archive's own bench files
 (results.md with its rliable statistics, results.csv, statistics.json and one curve per env):
 
-    python benchmarks/onpolicy_tables.py --collect runs/onpolicy-1m-heldout   # archive the finished runs, then write
+    python benchmarks/onpolicy_tables.py --collect runs/onpolicy-1m-heldout runs/reports-ppo-1m   # archive, then write
     python benchmarks/onpolicy_tables.py            # rewrite the tables and bench files from the archive
     python benchmarks/onpolicy_tables.py --check    # exit 1 if any of them differs from what the archive gives
 """
@@ -34,7 +37,7 @@ from canter.orchestrate.bench import combine_records, plot_env, published_for, r
 
 ARCHIVE = ROOT / "benchmarks" / "results" / "onpolicy-1m-heldout"
 ALGOS = ("ppo", "rpo", "trpo")
-ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5")
 BUDGET = 1_000_000
 SEEDS = (100, 101, 102, 103, 104)  # chosen before the runs; no preset was tuned on them (README, "Tuning seeds")
 RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
@@ -140,10 +143,12 @@ def bench_files(found: dict[tuple[str, str], list[dict[str, Any]]]) -> dict[Path
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only check that the tables match the archive")
-    parser.add_argument("--collect", type=Path, metavar="BENCH_DIR", help="archive the finished runs of this bench")
+    parser.add_argument(
+        "--collect", type=Path, nargs="+", metavar="BENCH_DIR", help="archive the finished runs of these benches"
+    )
     args = parser.parse_args()
-    if args.collect:
-        print(f"archived {len(collect(args.collect))} runs into {ARCHIVE.relative_to(ROOT)}")
+    for bench_dir in args.collect or []:
+        print(f"archived {len(collect(bench_dir))} runs of {bench_dir} into {ARCHIVE.relative_to(ROOT)}")
     found = finished_runs(ARCHIVE, ALGOS, BUDGET)
     wanted = {
         path: replace_between(read_text(path), markers, table)
