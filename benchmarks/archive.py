@@ -23,7 +23,7 @@ def finished_runs(archive: Path, algos: Iterable[str], budget: int) -> dict[tupl
     the bench's `seed_record` with the run's `evaluation` (eval.json), `summary` and `folder` added."""
     pattern = re.compile(rf"(.+)__({'|'.join(map(re.escape, algos))})__s(\d+)")
     found: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for folder in sorted(archive.iterdir()):
+    for folder in sorted(archive.iterdir()) if archive.is_dir() else []:
         match = pattern.fullmatch(folder.name)
         if not match or not (folder / "eval.json").is_file() or not (folder / "summary.json").is_file():
             continue

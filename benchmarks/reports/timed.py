@@ -82,3 +82,18 @@ def timed_train(page: Path, name: str, train_args: list[str], work: Path) -> dic
     found = archived(page, name)
     assert found is not None
     return found
+
+
+def plot_and_film(page: Path, name: str, work: Path) -> None:
+    """The archived run's training curve (`canter plot`, from the archive) and one episode's video (`canter video`,
+    from the trained run's checkpoint), as <page>/<name>.png and .mp4, unless they exist."""
+    [run_dir] = [d for d in (work / name).iterdir() if d.is_dir()] if (work / name).is_dir() else [None]
+    for suffix, command in (
+        (".png", ["plot", str(page / "runs" / name), "--out"]),
+        (".mp4", ["video", str(run_dir), "--episodes", "1", "--out"]),
+    ):
+        out = page / f"{name}{suffix}"
+        if not out.is_file():
+            if run_dir is None:
+                raise SystemExit(f"{name}: its run folder under {work} is gone; train it again to film it")
+            subprocess.run([*canter_command(), *command, str(out)], check=True, stdout=subprocess.DEVNULL)

@@ -12,7 +12,6 @@ at 1M steps. Each gets its training curve (`canter plot`), a 10-episode determin
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT, read_text, replace_between, sync  # noqa: E402
-from timed import archived, canter_command, timed_train  # noqa: E402
+from timed import archived, plot_and_film, timed_train  # noqa: E402
 
 ENV = "WalkerWalk-v1"
 SEED = 100
@@ -36,19 +35,8 @@ PUBLISHED = "CleanRL at 8M steps: PPO 306, RPO 787"
 
 def train(work: Path) -> None:
     for name, (_, args) in RUNS.items():
-        run = timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *args], work)
-        for suffix, command in (
-            (".png", ["plot", str(run["folder"]), "--out"]),
-            (".mp4", ["video", str(_run_dir(work, name)), "--episodes", "1", "--out"]),
-        ):
-            out = PAGE / f"{name}{suffix}"
-            if not out.is_file():
-                subprocess.run([*canter_command(), *command, str(out)], check=True, stdout=subprocess.DEVNULL)
-
-
-def _run_dir(work: Path, name: str) -> Path:
-    [run_dir] = [d for d in (work / name).iterdir() if d.is_dir()]
-    return run_dir
+        timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *args], work)
+        plot_and_film(PAGE, name, work)
 
 
 def _row(name: str, who: str, run: dict[str, Any] | None) -> str:
@@ -69,8 +57,8 @@ def table() -> str:
     lines = [
         "| who | steps | wall time | training return (last 20 episodes) | eval (10 episodes, deterministic) | see |",
         "|---|---:|---:|---:|---:|---|",
-        "| report (its own PPO after Spinning Up's, dm_control) | 750,000 | not given | its curve only, no figure in the text "
-        "| not given | |",
+        "| report (its own PPO after Spinning Up's, dm_control) | 750,000 | not given "
+        "| its curve only, no figure in the text | not given | |",
     ]
     lines += [_row(name, who, archived(PAGE, name)) for name, (who, _) in RUNS.items()]
     return "\n".join(lines) + f"\n\nPublished: {PUBLISHED}."

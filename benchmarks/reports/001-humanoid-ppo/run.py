@@ -1,0 +1,103 @@
+"""Report 001 (Humanoid with PPO) redone with canter.
+
+    python benchmarks/reports/001-humanoid-ppo/run.py [NAME ...]   # train the named long runs (all if none) not yet
+                                                                   # archived, plot and film them, write the table
+    python benchmarks/reports/001-humanoid-ppo/run.py --write      # only rewrite the page's table
+    python benchmarks/reports/001-humanoid-ppo/run.py --check      # exit 1 if the table is not the archive's
+
+The 1M-step row over 5 seeds is the Humanoid-v5 cell of the on-policy bench on held-out seeds
+(benchmarks/results/onpolicy-1m-heldout, written by benchmarks/onpolicy_tables.py). The long runs are trained here,
+one whole process each, seed 100 (chosen before the runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PAGE = Path(__file__).resolve().parent
+sys.path.insert(0, str(PAGE.parent))  # timed.py
+sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
+from archive import ROOT, finished_runs, read_text, replace_between, sync  # noqa: E402
+from timed import archived, plot_and_film, timed_train  # noqa: E402
+
+ENV = "Humanoid-v5"
+SEED = 100
+HELDOUT = ROOT / "benchmarks" / "results" / "onpolicy-1m-heldout"
+LONG_RUNS = {  # name -> (who, canter train arguments)
+    f"{ENV}__fast__10M__s{SEED}": (
+        "canter default preset, 10M steps, evaluated every 1M",
+        ["--preset", "fast", "--total-steps", "1e7", "--eval-every", "1000000"],
+    ),
+    f"{ENV}__cleanrl__20M__s{SEED}": (
+        "canter `--preset cleanrl` (the settings of Baselines' ppo2 that the report ran), 20M steps",
+        ["--preset", "cleanrl", "--total-steps", "2e7", "--eval-every", "2000000"],
+    ),
+}
+MARKERS = ("<!-- report001-table -->\n", "<!-- /report001-table -->")
+PUBLISHED = "PPO at 1M steps: Tianshou 787 ± 194 (v3, 10 seeds, best average during training), CleanRL 716 ± 49 (v4)"
+
+
+def _heldout_row() -> str:
+    rows = finished_runs(HELDOUT, ("ppo",), 1_000_000).get(("ppo", ENV), [])
+    who = "canter default preset, 1M steps, seeds 100-104"
+    if not rows:
+        return f"| {who} | not run yet | | | |"
+    returns = [r["eval_mean"] for r in rows]
+    wall = max(r["wall_seconds"] for r in rows) / 60
+    per_seed = ", ".join(f"{v:,.0f}" for v in returns)
+    return (
+        f"| {who} | {len(rows)} × 1,000,000 | {wall:.1f} min (the 5 seeds together) | "
+        f"**{np.mean(returns):,.0f}** ± {np.std(returns):,.0f} ({per_seed}) | |"
+    )
+
+
+def _long_row(name: str, who: str, run: dict[str, Any] | None) -> str:
+    if run is None:
+        return f"| {who} | not run yet | | | |"
+    wall = run["timing"]["wall_seconds"] / 60
+    load = run["timing"]["load_average_before"]
+    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
+    evaluation = f"{run['eval']['return_mean']:,.0f} ± {run['eval']['return_std']:,.0f}"
+    return (
+        f"| {who} | {run['summary']['global_step']:,} | {wall:.1f} min{busy} | {evaluation} | "
+        f"[curve]({name}.png), [video]({name}.mp4) |"
+    )
+
+
+def table() -> str:
+    lines = [
+        "| who | steps | wall time | eval return (10 episodes per seed, deterministic) | see |",
+        "|---|---:|---:|---:|---|",
+        "| report: Baselines ppo2, Humanoid-v2 | 20,000,000 | not given | its curve only (no figure in the text) | |",
+        _heldout_row(),
+    ]
+    lines += [_long_row(name, who, archived(PAGE, name)) for name, (who, _) in LONG_RUNS.items()]
+    return "\n".join(lines) + f"\n\nPublished: {PUBLISHED}."
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help=f"long runs to train (default all): {', '.join(LONG_RUNS)}")
+    parser.add_argument("--check", action="store_true", help="only check that the page's table is the archive's")
+    parser.add_argument("--write", action="store_true", help="only rewrite the page's table")
+    parser.add_argument("--work", type=Path, default=ROOT / "runs" / "report001", help="run folders while training")
+    args = parser.parse_args()
+    unknown = sorted(set(args.names) - set(LONG_RUNS))
+    if unknown:
+        parser.error(f"no long run named {', '.join(unknown)}; the runs are {', '.join(LONG_RUNS)}")
+    if not (args.check or args.write):
+        for name in args.names or LONG_RUNS:
+            timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], args.work)
+            plot_and_film(PAGE, name, args.work)
+    page = PAGE / "README.md"
+    wanted = {page: replace_between(read_text(page), MARKERS, table())}
+    return sync(wanted, args.check, "benchmarks/reports/001-humanoid-ppo/run.py --write")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
