@@ -12,7 +12,8 @@ Rows, all with the same config (`--preset`, default `fast`, and `--set`) and the
   group       canter train ENV --seeds S0,S1,...            (every seed in one vmapped program)
   sequential  canter train ENV --seed S, one process after another
   concurrent  canter train ENV --seed S, all processes started at once on the same cores
-It prints a markdown table and appends it, as a dated section with the machine, to results.md.
+It prints a markdown table and appends it, as a dated section with the machine, to results.md, and keeps the runs'
+logs, run files and rows.json beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/, for speed_archive
+import speed_archive
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -39,10 +42,10 @@ TARGET = 3.0  # issue 5: five seeds together within 3x the wall time of one
 class Row:
     name: str
     seeds: list[int]
-    wall: float  # whole processes, from the first start to the last exit
+    process_wall: float  # whole processes, from the first start to the last exit
     cpu: float  # user + system seconds of those processes
     steps: int  # env steps over all seeds
-    train_sps: list[float]  # per seed, summary.json sps (compile excluded)
+    sps: list[float]  # per seed, summary.json sps (compile excluded)
     compile: list[float]  # per process, summary.json compile_seconds
     returns: list[float | None]
     load: float  # 1-minute load average before the row
@@ -112,6 +115,7 @@ def _run_processes(commands: list[list[str]], logs: list[Path], concurrent: bool
         for command in batch:
             log = next(log_iter)
             with open(log, "w") as out:  # the child keeps its own copy of the descriptor
+                print(f"$ {' '.join(command)}", file=out, flush=True)
                 procs.append((subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT), log))
         for proc, log in procs:
             if proc.wait() != 0:
@@ -164,106 +168,88 @@ def run_row(name: str, args: argparse.Namespace, out: Path) -> Row:
     )
 
 
-def _machine() -> str:
-    from canter.training.run_folder import cpu_name, versions
-
-    v = versions()
-    try:
-        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (ValueError, OSError):
-        mem = float("nan")
-    return (
-        f"{cpu_name()}, {os.cpu_count()} logical cores, {mem:.0f} GiB, {platform.platform()}, Python "
-        f"{platform.python_version()}; canter {v['canter']}, jax {v['jax']}, envpool {v['envpool']}, "
-        f"mujoco {v['mujoco']}"
-    )
-
-
-def _commit() -> str:
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "src"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        return sha + (" (src modified)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def section(rows: list[Row], args: argparse.Namespace, out: Path) -> str:
-    now = datetime.now(UTC)
-    n = len(args.seeds)
-    settings = f"preset {args.preset}" + "".join(f", --set {item}" for item in args.sets)
+def tables(content: dict) -> str:
+    """The section's table and the ratios below it, from its rows.json record alone."""
+    rows = [Row(**row) for row in content["rows"]]
     lines = [
-        f"## {now:%Y-%m-%d %H:%M} UTC — {args.env}, {settings}, {args.total_steps:,} steps per seed, seeds "
-        f"{','.join(map(str, args.seeds))}",
-        "",
-        f"- machine: {_machine()}",
-        f"- canter commit: {_commit()}",
-        "- 1-minute load average before each row: "
-        + ", ".join(f"{r.name} {r.load:.2f}" for r in rows)
-        + " (well above 0 means something else was using the cores and the numbers are not clean)",
-        f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}",
-        "",
-        "| row | seeds | processes | process wall (s) | CPU (s) | steps, all seeds | steps/s of wall, all seeds "
-        "| train SPS per seed (compile excluded) | compile per process (s) | wall / one seed |",
+        "| row | seeds | processes | process wall (s) | train SPS per seed (compile excluded) | CPU (s) "
+        "| steps, all seeds | steps/s of wall, all seeds | compile per process (s) | wall / one seed |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     one = next((r for r in rows if r.name == "one"), None)
     for r in rows:
         processes = 1 if r.name == "group" else len(r.seeds)
-        ratio = f"{r.wall / one.wall:.2f}×" if one else "—"
-        sps = ", ".join(f"{s:,.0f}" for s in r.train_sps)
+        ratio = f"{r.process_wall / one.process_wall:.2f}×" if one else "—"
+        sps = ", ".join(f"{s:,.0f}" for s in r.sps)
         compile_text = (
             ", ".join(f"{c:.1f}" for c in r.compile)
             if len(r.compile) <= 2
             else f"{min(r.compile):.1f}–{max(r.compile):.1f}"
         )
         lines.append(
-            f"| {r.name} | {len(r.seeds)} | {processes} | {r.wall:.1f} | {r.cpu:.1f} | {r.steps:,} | "
-            f"{r.steps / r.wall:,.0f} | {sps} | {compile_text} | {ratio} |"
+            f"| {r.name} | {len(r.seeds)} | {processes} | {r.process_wall:.1f} | {sps} | {r.cpu:.1f} | {r.steps:,} | "
+            f"{r.steps / r.process_wall:,.0f} | {compile_text} | {ratio} |"
         )
     lines.append("")
     by = {r.name: r for r in rows}
+    n = len(content["settings"]["seeds"])
     if one and "group" in by:
-        verdict = "meets" if by["group"].wall <= TARGET * one.wall else "misses"
+        verdict = "meets" if by["group"].process_wall <= TARGET * one.process_wall else "misses"
         lines.append(
-            f"- {n} seeds in one process took {by['group'].wall / one.wall:.2f}× the wall time of one seed "
-            f"(target ≤ {TARGET:.0f}×: {verdict} it) and {by['group'].cpu / one.cpu:.2f}× its CPU time."
+            f"- {n} seeds in one process took {by['group'].process_wall / one.process_wall:.2f}× the wall time of "
+            f"one seed (target ≤ {TARGET:.0f}×: {verdict} it) and {by['group'].cpu / one.cpu:.2f}× its CPU time."
         )
     for name in ("sequential", "concurrent"):
         if "group" in by and name in by:
             how = "one after another" if name == "sequential" else "at once"
             lines.append(
                 f"- against {n} separate processes run {how}: the group took "
-                f"{by['group'].wall / by[name].wall:.2f}× their wall time and "
+                f"{by['group'].process_wall / by[name].process_wall:.2f}× their wall time and "
                 f"{by['group'].cpu / by[name].cpu:.2f}× their CPU time."
             )
-    lines.append("")
+    return "\n".join(lines)
+
+
+HEAD = "# Several seeds in one process\n\nWritten by `benchmarks/multiseed/run.py`; each run appends a dated section.\n"
+
+
+def section(content: dict, m: dict, logs: str) -> str:
+    settings, v = content["settings"], content["settings"]["versions"]
+    started = datetime.fromisoformat(content["started"]).astimezone(UTC)
+    config = f"preset {settings['preset']}" + "".join(f", --set {item}" for item in settings["sets"])
+    lines = [
+        f"## {started:%Y-%m-%d %H:%M} UTC — {settings['env']}, {config}, {settings['total_steps']:,} steps per seed, "
+        f"seeds {','.join(map(str, settings['seeds']))}",
+        "",
+        f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}; "
+        f"canter {v['canter']}, jax {v['jax']}, envpool {v['envpool']}, mujoco {v['mujoco']}",
+        f"- canter commit: {content['commit']}",
+        "- 1-minute load average before each row: "
+        + ", ".join(f"{r['name']} {r['load']:.2f}" for r in content["rows"])
+        + " (well above 0 means something else was using the cores and the numbers are not clean)",
+        f"- logs and rows.json: {logs}",
+        "",
+        tables(content),
+        "",
+    ]
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
+    from canter.training.run_folder import versions
+
     args = parse_args(argv)
-    out = args.out_dir or ROOT / "benchmarks" / "runs" / f"multiseed-{datetime.now():%Y%m%d-%H%M%S}"
+    started = datetime.now().astimezone()
+    out = (args.out_dir or ROOT / "benchmarks" / "runs" / f"multiseed-{started:%Y%m%d-%H%M%S}").resolve()
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in (r for r in ROWS if r in args.only):
         print(f"running {name} ...", flush=True)
         rows.append(run_row(name, args, out))
-        print(f"  wall {rows[-1].wall:.1f} s, CPU {rows[-1].cpu:.1f} s", flush=True)
-    text = section(rows, args, out)
-    print(text)
-    if not args.no_write:
-        if not args.results.exists():
-            args.results.write_text(
-                "# Several seeds in one process\n\nWritten by `benchmarks/multiseed/run.py`; "
-                "each run appends a dated section.\n\n"
-            )
-        with open(args.results, "a") as f:
-            f.write(text)
+        print(f"  wall {rows[-1].process_wall:.1f} s, CPU {rows[-1].cpu:.1f} s", flush=True)
+    settings = {k: getattr(args, k) for k in ("env", "preset", "sets", "total_steps", "seeds", "only")}
+    content = speed_archive.record("multiseed", started, settings | {"versions": versions()}, [asdict(r) for r in rows])
+    speed_archive.publish(content, out, None if args.no_write else args.results, HEAD, section)
     return 0
 
 

@@ -9,7 +9,12 @@ Each tool runs as its own whole process, one after another (never side by side: 
   canter-cleanrl  canter train HalfCheetah-v4 --preset cleanrl ...   then  canter eval RUN --episodes 10
   canter-fast     canter train HalfCheetah-v4 --preset fast ...      then  canter eval RUN --episodes 10
   sb3             benchmarks/.sb3-venv/bin/python sb3_ppo.py ...     (trains, then evaluates itself)
-It prints a markdown table and appends it, as a dated section with the machine and versions, to results.md.
+It prints a markdown table and appends it, as a dated section with the machine and versions, to results.md, and
+keeps the runs' raw files and rows.json beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
+
+The README's headline table (between its `<!-- bench-headline -->` markers) is rendered from such an archive:
+
+    .venv/bin/python benchmarks/ppo_speed/run.py --headline benchmarks/ppo_speed/logs/<stamp> [--check]
 """
 
 from __future__ import annotations
@@ -17,15 +22,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import re
 import shutil
 import subprocess
 import sys
+import textwrap
 import time
 from dataclasses import dataclass, field
 from datetime import datetime
 from importlib import metadata
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/, for speed_archive
+import speed_archive
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -97,7 +106,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out-dir", default=None, help="where run folders and logs go (default benchmarks/runs/<stamp>)")
     p.add_argument("--results", default=str(HERE / "results.md"), help="markdown file to append the section to")
     p.add_argument("--no-write", action="store_true", help="print the table only; leave results.md alone")
+    p.add_argument(
+        "--headline",
+        type=Path,
+        metavar="LOGS_DIR",
+        help="run nothing; rewrite README.md's headline table from an archive (benchmarks/ppo_speed/logs/<stamp>)",
+    )
+    p.add_argument("--check", action="store_true", help="with --headline: exit 1 if README.md's table differs")
     args = p.parse_args(argv)
+    if args.check and not args.headline:
+        p.error("--check goes with --headline")
     tools = args.only or list(TOOLS)
     if args.skip_sb3:
         tools = [t for t in tools if t != "sb3"]
@@ -169,7 +187,7 @@ def run_canter(preset: str, seed: int, args: argparse.Namespace, out: Path) -> R
         row.error = f"expected one run folder with summary.json in {folder}, found {len(runs)}"
         return row
     run = runs[0]
-    row.run_dir = str(run)
+    row.run_dir = str(run.relative_to(out))  # the same inside the archive
     summary = json.loads((run / "summary.json").read_text())
     row.steps = int(summary["global_step"])
     row.wall = float(summary["wall_seconds"])
@@ -187,7 +205,7 @@ def run_canter(preset: str, seed: int, args: argparse.Namespace, out: Path) -> R
     row.eval_process_wall = wall
     if code != 0:
         return _fail(row, "canter eval", code, folder / "eval.log")
-    evaluated = json.loads(eval_json.read_text())[0]
+    evaluated = json.loads(eval_json.read_text())["runs"][0]
     row.eval_mean, row.eval_std = float(evaluated["return_mean"]), float(evaluated["return_std"])
     row.ok = True
     return row
@@ -209,7 +227,7 @@ def run_sb3(seed: int, args: argparse.Namespace, out: Path) -> Row:
         folder / "train.log",
     )
     row.process_wall = wall
-    row.run_dir = str(folder)
+    row.run_dir = str(folder.relative_to(out))
     if code != 0:
         return _fail(row, "sb3_ppo.py", code, folder / "train.log")
     result = _json_line(stdout)
@@ -242,43 +260,7 @@ def _json_line(stdout: str) -> dict | None:
     return json.loads(lines[-1]) if lines else None
 
 
-# ------------------------------------------------------------------------------------------ machine & versions
-
-
-def machine() -> dict[str, str]:
-    from canter.training.run_folder import cpu_name
-
-    cpu = cpu_name()
-    cores = os.cpu_count() or 0
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else cores
-    memory = ""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal"):
-                memory = f"{int(line.split()[1]) / 2**20:.0f} GiB"
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": f"{cores} logical ({usable} usable)",
-        "memory": memory,
-        "os": f"{platform.system()} {platform.release()}",
-        "python": platform.python_version(),
-    }
-
-
-def git_commit() -> str:
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", "src", "pyproject.toml"], cwd=ROOT, capture_output=True, text=True
-        ).stdout.strip()
-        return commit + (" (src modified)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+# -------------------------------------------------------------------------------------------------- versions
 
 
 def versions(rows: list[Row]) -> dict[str, str]:
@@ -384,30 +366,107 @@ def speedups(rows: list[Row]) -> list[str]:
     return out
 
 
-def section(rows: list[Row], args: argparse.Namespace, started: datetime, out: Path) -> str:
-    m = machine()
-    v = versions(rows)
-    smoke = args.total_steps < 1_000_000
+def rows_of(content: dict) -> list[Row]:
+    return [Row(**row) for row in content["rows"]]
+
+
+def tables(content: dict) -> str:
+    """The section's table and speed-ups, from its rows.json record alone."""
+    rows = rows_of(content)
+    extra = speedups(rows)
+    return table(rows) + ("\n\n" + "\n".join(extra) if extra else "")
+
+
+def section(content: dict, m: dict, logs: str) -> str:
+    settings, rows = content["settings"], rows_of(content)
+    started, seeds = datetime.fromisoformat(content["started"]), settings["seeds"]
     lines = [
-        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()} — {ENV_ID}, {args.total_steps:,} steps, "
-        f"seed{'s' if len(args.seeds) > 1 else ''} {','.join(map(str, args.seeds))}"
-        + (" (smoke run, not a benchmark)" if smoke else ""),
+        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()} — {ENV_ID}, {settings['total_steps']:,} steps, "
+        f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}"
+        + (" (smoke run, not a benchmark)" if settings["total_steps"] < 1_000_000 else ""),
         "",
         f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
-        f"- date: {started.isoformat(timespec='seconds')}",
+        f"- date: {content['started']}",
         "- 1-minute load average before each run: "
         + ", ".join(f"{r.tool} s{r.seed} {r.extra.get('load_before', 0):.2f}" for r in rows)
         + " (well above 0 means something else was using the cores and the numbers are not clean)",
-        f"- canter commit: {git_commit()}; SB3 torch threads: {args.sb3_threads}",
-        "- versions: " + ", ".join(f"{k} {val}" for k, val in v.items()),
-        f"- run folders and logs: {out.relative_to(ROOT) if out.is_relative_to(ROOT) else out}",
+        f"- canter commit: {content['commit']}; SB3 torch threads: {settings['sb3_threads']}",
+        "- versions: " + ", ".join(f"{k} {val}" for k, val in settings["versions"].items()),
+        f"- logs and rows.json: {logs}",
         "",
-        table(rows),
+        tables(content),
     ]
-    extra = speedups(rows)
-    if extra:
-        lines += [""] + extra
     return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------------------ README headline
+
+HEADLINE_MARKERS = ("<!-- bench-headline -->\n", "<!-- /bench-headline -->")
+HEADLINE_TOOLS = {  # the README's rows, in its order
+    "sb3": "Stable-Baselines3 {sb3} PPO, CleanRL settings",
+    "canter-cleanrl": "canter `--preset cleanrl` (same settings, 1 env)",
+    "canter-fast": "canter default `fast` preset (16 envs)",
+}
+
+
+def headline(content: dict, m: dict, logs: str) -> str:
+    """The README's headline block: per tool, SPS, its ratio to SB3's, process wall and eval return (each the mean
+    over seeds), with a caption that names the run, the machine and the archive `logs` it comes from."""
+    settings, rows = content["settings"], [r for r in rows_of(content) if r.ok]
+    seeds, steps = settings["seeds"], settings["total_steps"]
+    args = content["command"][1:]
+    how = "`make bench`" if not args else f"`benchmarks/ppo_speed/run.sh {' '.join(args)}`"
+    caption = (
+        f"{ENV_ID}, {f'{steps / 1e6:g}M' if steps % 100_000 == 0 else f'{steps:,}'} steps, "
+        f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}"
+        + (" (means over seeds)" if len(seeds) > 1 else "")
+        + f", {m['usable_cores']}-core {m['cpu']} with {m['gpu'] or 'no GPU'}, {content['started'][:10]}, "
+        f"each tool a whole process run one after another by {how} (full table: "
+        f"[benchmarks/ppo_speed/results.md](benchmarks/ppo_speed/results.md); raw logs: [{logs}]({logs})):"
+    )
+    lines = [
+        "| tool / preset | SPS (compile excluded) | vs SB3 | process wall | eval return (10 eps, deterministic) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    sb3_sps = _mean([r.sps for r in rows if r.tool == "sb3"])
+    for tool, label in HEADLINE_TOOLS.items():
+        group = [r for r in rows if r.tool == tool]
+        sps = _mean([r.sps for r in group])
+        if sps is None:
+            continue
+        ratio = "—" if not sb3_sps else "1.0x" if tool == "sb3" else f"**{sps / sb3_sps:.1f}x**"
+        wall, evaluation = _mean([r.process_wall for r in group]), _mean([r.eval_mean for r in group])
+        lines.append(
+            f"| {label.format(sb3=settings['versions'].get('stable-baselines3'))} | {sps:,.0f} | {ratio} | "
+            f"{_f(wall, '.0f')} s | {_f(evaluation, '.0f')} |"
+        )
+    wrapped = textwrap.fill(caption, width=116, break_long_words=False, break_on_hyphens=False)
+    return wrapped + "\n\n" + "\n".join(lines)
+
+
+def headline_logs(readme: str) -> Path | None:
+    """The archive the README's headline block names as its raw logs (None for a block that names none)."""
+    begin, end = HEADLINE_MARKERS
+    block = readme[readme.index(begin) : readme.index(end)]
+    found = re.search(r"raw\s+logs:\s+\[([^\]]+)\]", block)
+    return ROOT / found[1] if found else None
+
+
+def write_headline(folder: Path, check: bool, readme: Path = ROOT / "README.md") -> int:
+    """Render README.md's headline block from an archive folder; with `check`, exit 1 where it differs instead."""
+    from archive import replace_between  # benchmarks/archive.py; it imports canter, which a run does not need here
+
+    content, m = speed_archive.load(folder)
+    text = readme.read_text()
+    wanted = replace_between(text, HEADLINE_MARKERS, headline(content, m, speed_archive.shown(folder)))
+    if wanted == text:
+        return 0
+    if check:
+        print(f"{readme}'s headline table differs from {folder}; rewrite it with --headline {folder}", file=sys.stderr)
+        return 1
+    readme.write_text(wanted)
+    print(f"rewrote the headline table of {readme} from {folder}")
+    return 0
 
 
 RESULTS_HEAD = """# PPO speed: canter vs Stable-Baselines3 on HalfCheetah-v4
@@ -425,20 +484,13 @@ All tools run one after another, each as a whole process, on the same machine.
 """
 
 
-PLACEHOLDER = "_No section yet"  # a line starting so in results.md is dropped when the first section is appended
-
-
-def write_results(path: Path, text: str) -> None:
-    existing = path.read_text() if path.exists() else RESULTS_HEAD
-    existing = "\n".join(line for line in existing.splitlines() if not line.startswith(PLACEHOLDER))
-    path.write_text(existing.rstrip("\n") + "\n\n" + text)
-
-
 # ------------------------------------------------------------------------------------------------------ main
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.headline:
+        return write_headline(args.headline, args.check)
     started = datetime.now().astimezone()
     out = Path(args.out_dir) if args.out_dir else ROOT / "benchmarks" / "runs" / started.strftime("%Y%m%d-%H%M%S")
     out = out.resolve()
@@ -471,14 +523,16 @@ def main(argv: list[str] | None = None) -> int:
                 )
             rows.append(row)
 
-    text = section(rows, args, started, out)
-    print()
-    print(text)
-    (out / "results.md").write_text(text)
-    (out / "rows.json").write_text(json.dumps([r.__dict__ for r in rows], indent=2, default=str))
-    if not args.no_write:
-        write_results(Path(args.results), text)
-        print(f"appended to {args.results}")
+    settings = {
+        "total_steps": args.total_steps,
+        "seeds": args.seeds,
+        "tools": args.tools,
+        "sb3_threads": args.sb3_threads,
+        "versions": versions(rows),
+    }
+    content = speed_archive.record("ppo_speed", started, settings, [r.__dict__ for r in rows])
+    results = None if args.no_write else Path(args.results)
+    speed_archive.publish(content, out, results, RESULTS_HEAD, section)
     return 0 if all(r.ok for r in rows) else 1
 
 

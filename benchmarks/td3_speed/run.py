@@ -9,7 +9,8 @@ Run with canter's interpreter (the SB3 venv is the one benchmarks/ppo_speed/run.
 The tools run one after another, each as a whole process. Besides the overall SPS, each row gives the steady SPS
 over the steps after learning_starts (canter: from metrics.csv; SB3: from a callback), and the 1M-step time that
 rate implies: 25k warm-up steps at the measured warm-up rate plus 975k steps at the steady rate. The markdown
-table is printed and appended, as a dated section with the machine and versions, to results.md.
+table is printed and appended, as a dated section with the machine and versions, to results.md, and the runs' raw
+files and rows.json are kept beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
 """
 
 from __future__ import annotations
@@ -21,9 +22,12 @@ import json
 import os
 import resource
 import sys
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/, for speed_archive
+import speed_archive
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -32,7 +36,7 @@ FULL_STEPS, FULL_LEARNING_STARTS = 1_000_000, 25_000
 
 
 def _ppo_bench():
-    """benchmarks/ppo_speed/run.py, for its process runner, machine and commit helpers."""
+    """benchmarks/ppo_speed/run.py, for its process runner and argument parsers."""
     spec = importlib.util.spec_from_file_location("ppo_speed_run", HERE.parent / "ppo_speed" / "run.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up here
@@ -172,20 +176,11 @@ def _f(value, fmt=".1f"):
     return "—" if value is None else format(value, fmt)
 
 
-def section(rows: list[Row], args: argparse.Namespace, started: datetime) -> str:
-    m = ppo.machine()
+def tables(content: dict) -> str:
+    """The section's table, from its rows.json record alone."""
+    rows = [Row(**row) for row in content["rows"]]
     sb3 = next((r for r in rows if r.tool.startswith("SB3") and r.ok), None)
     lines = [
-        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()}: {ENV_ID}, {args.total_steps:,} steps, "
-        f"learning_starts {args.learning_starts:,}, seed {args.seed}"
-        + (" (short probe)" if args.total_steps < FULL_STEPS else ""),
-        "",
-        f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
-        f"- date: {started.isoformat(timespec='seconds')}; canter commit {ppo.git_commit()}",
-        "- 1-minute load average before each run: "
-        + ", ".join(f"{r.tool} {r.load_before:.2f}" for r in rows)
-        + " (above ~0.5 means other processes shared the 2 cores, and absolute numbers are pessimistic)",
-        "",
         "| tool | steps | process wall (s) | SPS (all) | warm-up SPS | steady SPS (after learning_starts) | "
         "projected 1M time (min) | compile (s) | process CPU time (s) | train return (last 20 eps) | "
         "steady SPS vs SB3 |",
@@ -201,6 +196,25 @@ def section(rows: list[Row], args: argparse.Namespace, started: datetime) -> str
             f"{_f(r.warmup_sps, ',.0f')} | {_f(r.steady_sps, ',.0f')} | {_f(r.projected_minutes())} | "
             f"{_f(r.compile)} | {_f(r.cpu_seconds)} | {_f(r.train_return)} | {ratio} |"
         )
+    return "\n".join(lines)
+
+
+def section(content: dict, m: dict, logs: str) -> str:
+    settings, started = content["settings"], datetime.fromisoformat(content["started"])
+    lines = [
+        f"## {started.strftime('%Y-%m-%d %H:%M %Z').strip()}: {ENV_ID}, {settings['total_steps']:,} steps, "
+        f"learning_starts {settings['learning_starts']:,}, seed {settings['seed']}"
+        + (" (short probe)" if settings["total_steps"] < FULL_STEPS else ""),
+        "",
+        f"- machine: {m['cpu']}, {m['cores']} cores, {m['memory']}, {m['os']}, Python {m['python']}",
+        f"- date: {content['started']}; canter commit {content['commit']}",
+        "- 1-minute load average before each run: "
+        + ", ".join(f"{r['tool']} {r['load_before']:.2f}" for r in content["rows"])
+        + " (above ~0.5 means other processes shared the 2 cores, and absolute numbers are pessimistic)",
+        f"- logs and rows.json: {logs}",
+        "",
+        tables(content),
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -231,12 +245,15 @@ def main(argv: list[str] | None = None) -> int:
         row.load_before = load
         row.cpu_seconds = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
         rows.append(row)
-    text = section(rows, args, started)
-    print(text)
-    if not args.no_write:
-        path = Path(args.results)
-        existing = path.read_text() if path.exists() else HEAD
-        path.write_text(existing.rstrip("\n") + "\n\n" + text)
+    settings = {
+        "total_steps": args.total_steps,
+        "learning_starts": args.learning_starts,
+        "seed": args.seed,
+        "only": args.only,
+        "sb3_threads": args.sb3_threads,
+    }
+    content = speed_archive.record("td3_speed", started, settings, [asdict(r) for r in rows])
+    speed_archive.publish(content, out, None if args.no_write else Path(args.results), HEAD, section)
     return 0 if all(r.ok for r in rows) else 1
 
 

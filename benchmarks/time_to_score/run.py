@@ -3,7 +3,8 @@ with --max-minutes 3 as a guard, then evaluate 10 deterministic episodes. Median
 
     .venv/bin/python benchmarks/time_to_score/run.py [--seeds 0,1,2] [--envs Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6]
 
-Appends a dated markdown section to benchmarks/time_to_score/results.md.
+Appends a dated markdown section to benchmarks/time_to_score/results.md, and keeps the runs' logs, run files and
+rows.json beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
 """
 
 from __future__ import annotations
@@ -18,79 +19,69 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from canter.training.run_folder import cpu_name
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/, for speed_archive
+import speed_archive
 
-ROOT = Path(__file__).resolve().parents[2]
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
 CANTER = str(Path(sys.executable).with_name("canter"))
 TARGETS = {"Hopper-v5": 2500.0, "HalfCheetah-v5": 5000.0}
+HEAD = "# Time to score, canter default preset\n"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser()
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description="canter's default preset against the clock")
     parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--envs", default="Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6")
-    parser.add_argument("--minutes", type=float, default=3.0)
-    parser.add_argument(
-        "--out-dir", default=str(ROOT / "benchmarks" / "runs" / ("tts-" + time.strftime("%Y%m%d-%H%M%S")))
-    )
-    parser.add_argument("--results", default=str(Path(__file__).with_name("results.md")))
-    args = parser.parse_args()
-    seeds = [int(s) for s in args.seeds.split(",")]
-    rows = []
-    for item in args.envs.split(","):
-        env, _, steps = item.partition(":")
-        for seed in seeds:
-            out = Path(args.out_dir) / f"{env}__s{seed}"
-            cmd = [
-                CANTER,
-                "train",
-                env,
-                "--seed",
-                str(seed),
-                "--total-steps",
-                steps,
-                "--max-minutes",
-                str(args.minutes),
-                "--quiet",
-                "--out-dir",
-                str(out),
-                "--set",
-                "run.tensorboard=false",
-            ]
-            start = time.perf_counter()
-            subprocess.run(cmd, check=True)
-            wall = time.perf_counter() - start
-            run = next(p for p in out.iterdir() if p.is_dir())
-            summary = json.loads((run / "summary.json").read_text())
-            eval_json = out / "eval.json"
-            subprocess.run(
-                [CANTER, "eval", str(run), "--episodes", "10", "--json", str(eval_json)],
-                check=True,
-                stdout=subprocess.DEVNULL,
-            )
-            score = json.loads(eval_json.read_text())[0]
-            rows.append(
-                {
-                    "env": env,
-                    "seed": seed,
-                    "steps": summary["global_step"],
-                    "process_wall": wall,
-                    "sps": summary["sps"],
-                    "compile": summary["compile_seconds"],
-                    "eval_mean": score["return_mean"],
-                    "eval_std": score["return_std"],
-                }
-            )
-            print(json.dumps(rows[-1]), flush=True)
+    parser.add_argument("--envs", default="Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6", help="comma list of ENV:STEPS")
+    parser.add_argument("--minutes", type=float, default=3.0, help="--max-minutes guard of each training run")
+    parser.add_argument("--out-dir", default=None, help="run folders and logs (default benchmarks/runs/tts-<stamp>)")
+    parser.add_argument("--results", default=str(HERE / "results.md"))
+    parser.add_argument("--no-write", action="store_true", help="print the section only; leave results.md alone")
+    return parser.parse_args(argv)
 
-    from importlib import metadata
 
-    command = " ".join([".venv/bin/python", "benchmarks/time_to_score/run.py"] + sys.argv[1:])
+def _timed(cmd: list[str], log: Path) -> float:
+    """Run one whole process with its output in `log`; its wall seconds. Fails loudly."""
+    start = time.perf_counter()
+    with open(log, "w") as out:
+        print(f"$ {' '.join(cmd)}", file=out, flush=True)
+        done = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    wall = time.perf_counter() - start
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} exited {done.returncode}; see {log}")
+    return wall
+
+
+def run_one(env: str, steps: str, seed: int, args: argparse.Namespace, out: Path) -> dict:
+    folder = out / f"{env}__s{seed}"
+    folder.mkdir(parents=True, exist_ok=True)
+    load = os.getloadavg()[0]
+    train = [CANTER, "train", env, "--seed", str(seed), "--total-steps", steps, "--max-minutes", str(args.minutes)]
+    train += ["--quiet", "--out-dir", str(folder), "--set", "run.tensorboard=false"]
+    wall = _timed(train, folder / "train.log")
+    run = next(p for p in folder.iterdir() if p.is_dir())
+    summary = json.loads((run / "summary.json").read_text())
+    eval_json = folder / "eval.json"
+    _timed([CANTER, "eval", str(run), "--episodes", "10", "--json", str(eval_json)], folder / "eval.log")
+    score = json.loads(eval_json.read_text())["runs"][0]
+    return {
+        "env": env,
+        "seed": seed,
+        "steps": summary["global_step"],
+        "process_wall": wall,
+        "sps": summary["sps"],
+        "compile": summary["compile_seconds"],
+        "eval_mean": score["return_mean"],
+        "eval_std": score["return_std"],
+        "load_before": load,
+        "run_dir": str(run.relative_to(out)),
+    }
+
+
+def tables(content: dict) -> str:
+    """The section's per-seed and per-env tables, from its rows.json record alone."""
+    rows = content["rows"]
     lines = [
-        f"\n## {datetime.now():%Y-%m-%d %H:%M} — {cpu_name()}, {os.cpu_count()} cores, no GPU",
-        f"canter {metadata.version('canter')}, jax {metadata.version('jax')}, envpool {metadata.version('envpool')}, "
-        f"mujoco {metadata.version('mujoco')}. Command: `{command}`",
-        "",
         "| env | seed | steps | process wall (s) | SPS (compile excluded) | compile (s) "
         "| eval return (10 eps, deterministic) |",
         "|---|---|---|---|---|---|---|",
@@ -100,20 +91,57 @@ def main() -> int:
             f"| {r['env']} | {r['seed']} | {r['steps']:,} | {r['process_wall']:.0f} | {r['sps']:,.0f} | "
             f"{r['compile']:.1f} | {r['eval_mean']:.0f} ± {r['eval_std']:.0f} |"
         )
-    lines += ["", "| env | median eval return over seeds | target | median process wall (s) |", "|---|---|---|---|"]
+    lines += [
+        "",
+        "| env | median eval return over seeds | target | median process wall (s) | median SPS (compile excluded) |",
+        "|---|---|---|---|---|",
+    ]
     for env in dict.fromkeys(r["env"] for r in rows):
         mine = [r for r in rows if r["env"] == env]
         med = statistics.median(r["eval_mean"] for r in mine)
         target = TARGETS.get(env)
         verdict = "" if target is None else (f"{target:.0f} ({'met' if med >= target else 'not met'})")
-        lines.append(f"| {env} | {med:.0f} | {verdict} | {statistics.median(r['process_wall'] for r in mine):.0f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    path = Path(args.results)
-    if not path.exists():
-        path.write_text("# Time to score, canter default preset\n")
-    with open(path, "a") as f:
-        f.write(text)
+        lines.append(
+            f"| {env} | {med:.0f} | {verdict} | {statistics.median(r['process_wall'] for r in mine):.0f} | "
+            f"{statistics.median(r['sps'] for r in mine):,.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def section(content: dict, m: dict, logs: str) -> str:
+    versions = content["settings"]["versions"]
+    command = " ".join([".venv/bin/python", "benchmarks/time_to_score/run.py", *content["command"][1:]])
+    lines = [
+        f"## {datetime.fromisoformat(content['started']):%Y-%m-%d %H:%M} — {m['cpu']}, {m['cores']} cores, "
+        f"{m['gpu'] or 'no GPU'}",
+        ", ".join(f"{name} {versions[name]}" for name in ("canter", "jax", "envpool", "mujoco"))
+        + f". Command: `{command}`",
+        "",
+        f"- canter commit: {content['commit']}; 1-minute load average before each run: "
+        + ", ".join(f"{r['env']} s{r['seed']} {r['load_before']:.2f}" for r in content["rows"]),
+        f"- logs and rows.json: {logs}",
+        "",
+        tables(content),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from canter.training.run_folder import versions
+
+    args = parse_args(argv)
+    started = datetime.now().astimezone()
+    out = Path(args.out_dir or ROOT / "benchmarks" / "runs" / f"tts-{started:%Y%m%d-%H%M%S}").resolve()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    rows = []
+    for item in args.envs.split(","):
+        env, _, steps = item.partition(":")
+        for seed in seeds:
+            rows.append(run_one(env, steps, seed, args, out))
+            print(json.dumps(rows[-1]), flush=True)
+    settings = {"seeds": seeds, "envs": args.envs, "minutes": args.minutes, "versions": versions()}
+    content = speed_archive.record("time_to_score", started, settings, rows)
+    speed_archive.publish(content, out, None if args.no_write else Path(args.results), HEAD, section)
     return 0
 
 
