@@ -1,11 +1,11 @@
 """Whole-process timed `canter train` runs for the report pages, each archived beside its page.
 
 A run is one `canter train` process, timed from outside (interpreter start, imports, compile, training and the final
-checkpoint), then evaluated by `canter eval` in a process of its own (deterministic, 10 episodes, every episode's
-return and length). Its files are copied into `<page>/runs/<name>/`: config.toml, metrics.csv, summary.json,
-versions.json, eval.json, train.log and timing.json (the command, its wall seconds, and the 1-minute load average
-before it, which says whether other work shared the cores). A run whose archive is complete is not trained again,
-so a page's script can be rerun to fill in what is missing."""
+checkpoint), then evaluated by `canter eval` in a process of its own (deterministic, 10 episodes unless the page
+asks for more, every episode's return and length). Its files are copied into `<page>/runs/<name>/`: config.toml,
+metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (the command, its wall seconds, and
+the 1-minute load average before it, which says whether other work shared the cores). A run whose archive is
+complete is not trained again, so a page's script can be rerun to fill in what is missing."""
 
 from __future__ import annotations
 
@@ -37,8 +37,11 @@ def archived(page: Path, name: str) -> dict[str, Any] | None:
     return {f.removesuffix(".json"): json.loads((folder / f).read_text()) for f in files} | {"folder": folder}
 
 
-def timed_train(page: Path, name: str, train_args: list[str], work: Path) -> dict[str, Any]:
-    """Train (unless archived already), evaluate and archive one run; returns `archived(page, name)`."""
+def timed_train(
+    page: Path, name: str, train_args: list[str], work: Path, episodes: int = EVAL_EPISODES
+) -> dict[str, Any]:
+    """Train (unless archived already), evaluate (`episodes` episodes) and archive one run; returns
+    `archived(page, name)`."""
     found = archived(page, name)
     if found:
         print(f"{name}: archived already", flush=True)
@@ -59,7 +62,7 @@ def timed_train(page: Path, name: str, train_args: list[str], work: Path) -> dic
     [run_dir] = [d for d in out.iterdir() if d.is_dir()]
     evaluation = out / "eval.json"
     subprocess.run(
-        [*canter_command(), "eval", str(run_dir), "--episodes", str(EVAL_EPISODES), "--json", str(evaluation)],
+        [*canter_command(), "eval", str(run_dir), "--episodes", str(episodes), "--json", str(evaluation)],
         check=True,
         stdout=subprocess.DEVNULL,
     )

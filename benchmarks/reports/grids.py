@@ -1,0 +1,141 @@
+"""`canter bench` grids for the report pages, each archived beside its page.
+
+A grid is one `canter bench` command. Its cells (their names, configs and checks) come from canter's own
+`make_cells`, so the page's command, the run folders it archives and the table's rows cannot disagree. Each finished
+run (trained to the budget and evaluated) is copied to `<page>/runs/<grid name>/<cell>__s<seed>/`: config.toml,
+eval.json, metrics.csv, summary.json and versions.json, no checkpoints. A grid whose runs are all archived is not
+run again; one that is partly archived is run whole, and the bench itself skips what its folder has finished."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from archive import ROOT
+from timed import canter_command
+
+from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
+from canter.orchestrate.jobs import read_json
+
+RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
+
+
+@dataclass(frozen=True)
+class Grid:
+    name: str  # the archive folder <page>/runs/<name>, and the bench's --out folder <work>/<name>
+    env: str
+    algos: tuple[str, ...]
+    preset: str
+    seeds: tuple[int, ...]
+    total_steps: int
+    axes: tuple[tuple[str, tuple[str, ...]], ...] = ()  # --grid KEY=V1,V2,...
+    sets: tuple[str, ...] = ()  # --set SECTION.KEY=VALUE
+
+    def args(self, out: str) -> list[str]:
+        args = ["bench", "--algos", ",".join(self.algos), "--envs", self.env, "--preset", self.preset]
+        args += ["--seeds", ",".join(map(str, self.seeds)), "--total-steps", steps_text(self.total_steps)]
+        for key, values in self.axes:
+            args += ["--grid", f"{key}={','.join(values)}"]
+        for item in self.sets:
+            args += ["--set", item]
+        return [*args, "--out", out]
+
+    def command(self, work: str) -> str:
+        return "canter " + " ".join(self.args(f"{work}/{self.name}"))
+
+    def cells(self) -> list[Cell]:
+        settings = BenchSettings(
+            algos=self.algos,
+            envs=(self.env,),
+            seeds=self.seeds,
+            total_steps=self.total_steps,
+            grid=self.axes,
+            preset=self.preset,
+            sets=self.sets,
+        )
+        return make_cells(settings)
+
+    def env_steps(self) -> int:
+        return len(self.cells()) * len(self.seeds) * self.total_steps
+
+
+def steps_text(steps: int) -> str:
+    """5000000 -> '5e6', as a person types it (canter reads both)."""
+    digits, zeros = str(steps).rstrip("0"), len(str(steps)) - len(str(steps).rstrip("0"))
+    return f"{digits}e{zeros}" if zeros >= 3 else str(steps)
+
+
+def label(cell: Cell, cells: list[Cell]) -> str:
+    """The cell's algorithm (when the grid has several) and grid values, or its algorithm alone."""
+    parts = [cell.algo] if len({c.algo for c in cells}) > 1 else []
+    return ", ".join(parts + [f"{key}={value}" for key, value in cell.values]) or cell.algo
+
+
+def finished(folder: Path, total_steps: int) -> bool:
+    summary = read_json(folder / "summary.json") or {}
+    return all((folder / f).is_file() for f in RUN_FILES) and summary.get("global_step", 0) >= total_steps
+
+
+def archived_runs(page: Path, grid: Grid, cell: Cell) -> list[dict[str, Any]]:
+    """One record per archived seed of the cell: canter bench's `seed_record` (final eval mean, wall seconds of
+    every session, SPS) with the run's eval.json and summary.json added."""
+    records = []
+    for seed in grid.seeds:
+        folder = cell.run_dir(page / "runs" / grid.name, seed)
+        if finished(folder, grid.total_steps):
+            record = seed_record(folder, seed)
+            record.update(evaluation=read_json(folder / "eval.json"), summary=read_json(folder / "summary.json"))
+            records.append(record)
+    return records
+
+
+def cell_result(page: Path, grid: Grid, cell: Cell) -> dict[str, Any] | None:
+    """canter bench's result row for the cell (eval mean ± std over seeds, wall minutes), with the per-seed records
+    under `runs` and the mean training return; None until every seed of the cell is archived."""
+    records = archived_runs(page, grid, cell)
+    if len(records) < len(grid.seeds):
+        return None
+    result = combine_records(cell, records)
+    result["runs"] = records
+    result["train_return"] = sum(r["summary"]["recent_return"] for r in records) / len(records)
+    return result
+
+
+def curves(page: Path, grid: Grid) -> Path:
+    """The bench's training curves (plot_<env>.png), archived with the runs."""
+    return page / "runs" / grid.name / f"plot_{grid.env}.png"
+
+
+def collect(page: Path, grid: Grid, work: Path) -> list[str]:
+    """Copy each finished run of the bench folder, and its curves, into the page's archive; returns the runs
+    copied."""
+    copied = []
+    for cell in grid.cells():
+        for seed in grid.seeds:
+            source = cell.run_dir(work / grid.name, seed)
+            if not finished(source, grid.total_steps):
+                continue
+            target = cell.run_dir(page / "runs" / grid.name, seed)
+            target.mkdir(parents=True, exist_ok=True)
+            for f in RUN_FILES:
+                shutil.copyfile(source / f, target / f)
+            copied.append(target.name)
+    plot = work / grid.name / curves(page, grid).name
+    if copied and plot.is_file():
+        shutil.copyfile(plot, curves(page, grid))
+    return copied
+
+
+def run_grid(page: Path, grid: Grid, work: Path) -> None:
+    """Run the grid's bench command (unless every run is archived), one job at a time, then archive its runs."""
+    cells = grid.cells()
+    if all(len(archived_runs(page, grid, cell)) == len(grid.seeds) for cell in cells):
+        print(f"{grid.name}: archived already", flush=True)
+        return
+    command = [*canter_command(), *grid.args(str(work / grid.name))]
+    print(f"{grid.name}: $ canter {' '.join(command[len(canter_command()) :])}", flush=True)
+    subprocess.run(command, check=True, cwd=ROOT)
+    print(f"{grid.name}: archived {len(collect(page, grid, work))} runs", flush=True)
