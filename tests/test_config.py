@@ -121,7 +121,8 @@ num_envs = 2
     assert preset_layer(table, "Walker2d-v5", "t") == {"env.num_envs": 16}
     # An algorithm's own table for a preset (its folder's presets.toml) lies over the preset file.
     assert preset_overrides("fast", "Hopper-v5", "ppo")["ppo.minibatch_size"] == 64
-    assert preset_overrides("fast", "Hopper-v5", "rpo")["ppo.minibatch_size"] == 512
+    assert preset_overrides("fast", "Hopper-v5", "trpo")["ppo.minibatch_size"] == 512
+    assert preset_overrides("fast", "Hopper-v5", "rpo")["rpo.alpha"] == 0.1
     assert preset_overrides("fast", "Ant-v5", "rpo")["rpo.alpha"] == 0.01
     assert preset_overrides("fast", "Hopper-v5", "td3")["env.num_envs"] == 1
     assert preset_overrides("fast", "Hopper-v5", "ppo")["env.num_envs"] == 16

@@ -110,7 +110,7 @@ def test_seed_presets_hold_the_seeds_numbers():
 def test_rpo_alpha_is_small_where_0_5_collapses(preset):
     for env_id in ("Ant-v4", "InvertedDoublePendulum-v4", "Reacher-v4", "Pusher-v4"):
         assert build_config(env_id, preset=preset, algo="rpo").rpo.alpha == 0.01
-    assert build_config("Hopper-v4", preset=preset, algo="rpo").rpo.alpha == 0.5
+    assert build_config("Hopper-v4", preset=preset, algo="rpo").rpo.alpha == {"fast": 0.1, "cleanrl": 0.5}[preset]
     assert build_config("Ant-v4", preset=preset, algo="ppo").rpo.alpha == 0.5  # only rpo's table
 
 
@@ -142,7 +142,7 @@ def test_humanoidstandup_mirror_groups_and_signs_match_the_model():
             assert model.actuator(right).gear[0] == model.actuator(left).gear[0]
 
 
-def test_fast_preset_uses_small_minibatches_for_ppo_on_hopper_and_walker2d_only():
+def test_fast_preset_uses_small_minibatches_for_ppo_and_rpo_on_hopper_and_walker2d_only():
     def picked(env_id, algo):
         config = build_config(env_id, algo=algo)
         return config.ppo.minibatch_size, config.net.log_std_init
@@ -151,8 +151,10 @@ def test_fast_preset_uses_small_minibatches_for_ppo_on_hopper_and_walker2d_only(
     assert picked("Hopper-v4", "ppo") == (64, -1.0)
     assert picked("Walker2d-v5", "ppo") == (64, 0.0)
     assert picked("HalfCheetah-v5", "ppo") == (512, -1.0)
-    assert picked("Hopper-v5", "rpo") == (512, -1.0)
-    assert picked("Walker2d-v5", "rpo") == (512, -1.0)
+    assert picked("Hopper-v5", "rpo") == (64, -1.0)
+    assert picked("Walker2d-v5", "rpo") == (64, 0.0)
+    assert picked("HalfCheetah-v5", "rpo") == (512, -1.0)
+    assert picked("Hopper-v5", "trpo")[1] == -1.0
 
 
 def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
