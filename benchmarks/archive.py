@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import sys
 from collections.abc import Iterable
 from pathlib import Path
@@ -16,6 +17,18 @@ from typing import Any
 from canter.orchestrate.bench import seed_record
 
 ROOT = Path(__file__).resolve().parent.parent
+# What an archive keeps of a bench run: everything behind its table row, and no checkpoints.
+RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
+
+
+def copy_run(source: Path, target: Path, files: tuple[str, ...] = RUN_FILES) -> bool:
+    """Copy a run's archived files from its run folder; False (and nothing copied) if one is missing."""
+    if not all((source / f).is_file() for f in files):
+        return False
+    target.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        shutil.copyfile(source / f, target / f)
+    return True
 
 
 def finished_runs(archive: Path, algos: Iterable[str], budget: int) -> dict[tuple[str, str], list[dict[str, Any]]]:

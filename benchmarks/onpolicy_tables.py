@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -31,7 +30,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # archive.py, when loaded from elsewhere (the tests)
-from archive import ROOT, finished_runs, read_text, replace_between, sync
+from archive import ROOT, copy_run, finished_runs, read_text, replace_between, sync
 
 from canter.orchestrate.bench import combine_records, plot_env, published_for, results_markdown
 
@@ -40,7 +39,6 @@ ALGOS = ("ppo", "rpo", "trpo")
 ENVS = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5")
 BUDGET = 1_000_000
 SEEDS = (100, 101, 102, 103, 104)  # chosen before the runs; no preset was tuned on them (README, "Tuning seeds")
-RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
 README_MARKERS = ("<!-- score-table -->\n", "<!-- /score-table -->")
 RESULTS_MARKERS = ("<!-- onpolicy-heldout-table -->\n", "<!-- /onpolicy-heldout-table -->")
 FULL_LENGTH = 1000  # the v5 tasks' time limit
@@ -53,13 +51,8 @@ def collect(bench_dir: Path) -> list[str]:
         for env in ENVS:
             for seed in SEEDS:
                 name = f"{env}__{algo}__s{seed}"
-                source = bench_dir / name
-                if not all((source / f).is_file() for f in RUN_FILES):
-                    continue
-                (ARCHIVE / name).mkdir(parents=True, exist_ok=True)
-                for f in RUN_FILES:
-                    shutil.copyfile(source / f, ARCHIVE / name / f)
-                copied.append(name)
+                if copy_run(bench_dir / name, ARCHIVE / name):
+                    copied.append(name)
     return copied
 
 

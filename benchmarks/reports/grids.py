@@ -14,13 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from archive import ROOT
+from archive import ROOT, RUN_FILES, copy_run
 from timed import canter_command
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json
-
-RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
 
 
 @dataclass(frozen=True)
@@ -119,9 +117,7 @@ def collect(page: Path, grid: Grid, work: Path) -> list[str]:
             if not finished(source, grid.total_steps):
                 continue
             target = cell.run_dir(page / "runs" / grid.name, seed)
-            target.mkdir(parents=True, exist_ok=True)
-            for f in RUN_FILES:
-                shutil.copyfile(source / f, target / f)
+            copy_run(source, target)
             copied.append(target.name)
     plot = work / grid.name / curves(page, grid).name
     if copied and plot.is_file():

@@ -18,8 +18,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from archive import RUN_FILES, copy_run
+
 ROOT = Path(__file__).resolve().parents[2]
-RUN_FILES = ("config.toml", "metrics.csv", "summary.json", "versions.json")
 EVAL_EPISODES = 10
 
 
@@ -69,8 +70,7 @@ def timed_train(
     [row] = json.loads(evaluation.read_text())["runs"]
     folder = page / "runs" / name
     folder.mkdir(parents=True, exist_ok=True)
-    for f in RUN_FILES:
-        shutil.copyfile(run_dir / f, folder / f)
+    copy_run(run_dir, folder, tuple(f for f in RUN_FILES if f != "eval.json"))  # eval.json: canter eval's, below
     shutil.copyfile(out / "train.log", folder / "train.log")
     keep = ("episodes", "return_mean", "return_std", "returns", "lengths", "checkpoint", "global_step", "deterministic")
     (folder / "eval.json").write_text(json.dumps({k: row[k] for k in keep if k in row}, indent=2) + "\n")
