@@ -17,13 +17,39 @@ def test_readme_names_the_two_commands():
     assert "make demo" in text and "make test" in text
 
 
+# Every table of README.md sits between the marker comments of a block that a script writes from archived files, and
+# the tests regenerate each block: the script named here (with --check), `make docs` for the config table.
+README_BLOCKS = {
+    "bench-headline": "benchmarks/ppo_speed/run.py",  # checked by tests/test_speed_archive.py
+    "score-table": "benchmarks/onpolicy_tables.py",
+    "offpolicy-readme-table": "benchmarks/offpolicy_tables.py",
+    "config-table": "src/canter/docs.py",
+}
+TABLE_SCRIPTS = ("benchmarks/offpolicy_tables.py", "benchmarks/onpolicy_tables.py")
+
+
+def test_every_readme_table_is_in_a_block_that_a_script_writes():
+    import re
+
+    block = None
+    for number, line in enumerate(README.read_text().splitlines(), 1):
+        marker = re.match(r"<!-- (/?)([a-z0-9-]+)(?::(begin|end))?", line)
+        if marker:
+            closing = marker[1] == "/" or marker[3] == "end"
+            block = None if closing else marker[2]
+        if line.startswith("|---"):
+            assert block in README_BLOCKS, f"README.md line {number}: a table outside the generated blocks"
+    for name, script in README_BLOCKS.items():
+        assert f"<!-- {name}" in (README.parent / script).read_text(), f"{script} does not write <!-- {name} -->"
+
+
 @pytest.mark.slow
-def test_offpolicy_tables_match_the_committed_runs():
+@pytest.mark.parametrize("script", TABLE_SCRIPTS)
+def test_tables_match_the_archived_runs(script):
     import subprocess
     import sys
 
-    script = README.parent / "benchmarks" / "offpolicy_tables.py"
-    done = subprocess.run([sys.executable, str(script), "--check"], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, str(README.parent / script), "--check"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
 
 
