@@ -3,6 +3,7 @@ resume after an interruption."""
 
 import csv
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -144,10 +145,14 @@ def read_rows(path: Path) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
+def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypatch):
+    from mlflow.tracking import MlflowClient
+
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+    mlflow_uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     out = tmp_path / "bench"
     argv = [
         "bench",
@@ -165,10 +170,26 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
         "2",
         "--out",
         str(out),
+        "--track",
+        "mlflow",
+        "--mlflow-uri",
+        mlflow_uri,
     ] + TINY
     code = main(argv)
     captured = capsys.readouterr()
     assert code == 0, captured.err
+    # --track: an MLflow run per seed, named as its folder; a cell's seeds are the children of one parent run.
+    client = MlflowClient(tracking_uri=mlflow_uri)
+
+    def tracked(run_dir: Path):
+        return client.get_run(json.loads((run_dir / "trackers.json").read_text())["mlflow"]["run_id"])
+
+    parents = {}
+    for run_dir in out.glob("*__s*"):
+        assert tracked(run_dir).info.run_name == run_dir.name and tracked(run_dir).info.status == "FINISHED"
+        parents.setdefault(run_dir.name.rsplit("__", 1)[0], set()).add(tracked(run_dir).data.tags["mlflow.parentRunId"])
+    assert len(parents) == 2 and all(len(p) == 1 for p in parents.values())
+    assert len(set.union(*parents.values())) == 2
     rows = read_rows(out / "results.csv")
     assert [r["ppo.ent_coef"] for r in rows] == ["0.0", "0.01"]
     for row in rows:
@@ -205,6 +226,7 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
         path.unlink()
     untouched = {p: p.stat().st_mtime_ns for p in out.glob("*__s*/summary.json")}
     rows_before = len(read_rows(cut / "metrics.csv"))
+    tracked_before, resumed_ms = tracked(cut).info.run_id, time.time() * 1000
     code = main(argv)
     captured = capsys.readouterr()
     assert code == 0, captured.err
@@ -216,6 +238,12 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys):
     # Continued from the first checkpoint: the rows after it were lost work, so they were dropped and redone.
     steps = [int(r["global_step"]) for r in read_rows(cut / "metrics.csv")]
     assert first in steps and steps == sorted(set(steps)) and steps[-1] >= 1024 and len(steps) == rows_before
+    # The resumed seed continued its MLflow run. It keeps the rows of the lost work too (a tracker cannot take rows
+    # back), and the redone rows may fall on other steps.
+    assert tracked(cut).info.run_id == tracked_before and tracked(cut).info.status == "FINISHED"
+    history = client.get_metric_history(tracked_before, "sps")
+    assert set(steps) <= {m.step for m in history}
+    assert {m.step for m in history if m.timestamp >= resumed_ms} == {s for s in steps if s > first}
     assert len(read_rows(out / "results.csv")) == 2
 
     # The same folder with other settings: its runs would pass for results of those settings, so it is refused.

@@ -242,3 +242,33 @@ def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, ca
     assert flaky.rows == 2
     assert result.stop_reason == "budget" and (result.run_dir / "summary.json").is_file()
     assert int(_rows(result.run_dir)[-1]["global_step"]) == result.global_step >= 2048
+
+
+# ------------------------------------------------------------------------------------------------ tune and bench
+
+
+def test_a_job_carries_its_trackers_and_an_older_job_file_still_loads():
+    from canter.orchestrate.jobs import JobSpec
+
+    track = TrackSpec(("mlflow", "wandb"), "sqlite:///m.db", "tune-S", "trial_00003", (("canter.trial", "3"),))
+    spec = JobSpec("[run]\n", {0: "/runs/s0", 1: "/runs/s1"}, 2, track)
+    assert JobSpec.from_json(spec.to_json()) == spec
+    older = json.loads(spec.to_json())
+    del older["track"]
+    assert JobSpec.from_json(json.dumps(older)) == JobSpec("[run]\n", {0: "/runs/s0", 1: "/runs/s1"}, 2)
+
+
+def test_tune_and_bench_check_their_trackers_before_anything_trains(tmp_path, monkeypatch, capsys):
+    from test_tune import tiny_args
+
+    monkeypatch.chdir(tmp_path)
+    tune = ["tune", "Pendulum-v1", "--trials", "1"] + tiny_args(tmp_path)
+    bench = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--out", str(tmp_path / "bench")]
+    for argv in (tune, bench):
+        assert main(argv + ["--track", "mlflow", "--mlflow-uri", "nope://nowhere"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("canter: error: --mlflow-uri nope://nowhere cannot be opened") and "\n" not in err
+        assert main(argv + ["--mlflow-uri", f"sqlite:///{tmp_path / 'm.db'}"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == "canter: error: --mlflow-uri sets the store of --track mlflow; also pass --track mlflow"
+    assert not (tmp_path / "tune").exists() and not (tmp_path / "bench").exists()

@@ -293,8 +293,11 @@ def test_trial_over_its_time_limit_fails_with_the_reason(tmp_path):
 
 
 @pytest.mark.slow
-def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys):
-    code = main(["tune", "Pendulum-v1", "--trials", "3", "--jobs", "2", "--heartbeat", "2"] + tiny_args(tmp_path))
+def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+    mlflow_uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    argv = ["tune", "Pendulum-v1", "--trials", "3", "--jobs", "2", "--heartbeat", "2"] + tiny_args(tmp_path)
+    code = main(argv + ["--track", "mlflow", "--mlflow-uri", mlflow_uri])
     out, err = capsys.readouterr()
     assert code == 0, err
     study_dir = tmp_path / "tune" / "Pendulum-v1__ppo"
@@ -303,6 +306,7 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys):
     assert len(complete) == 3
     assert len({t.user_attrs["worker"] for t in complete}) == 2  # two spawned processes shared the study
     assert "| trial | return |" in out and "3 complete" in out
+    _assert_trials_tracked_under_one_parent_run(complete, mlflow_uri)
 
     # The best preset trains as it is: it resolves to the best trial's trained config, bookkeeping aside.
     best = max(complete, key=lambda t: t.value)
@@ -411,6 +415,31 @@ def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  
     for t in by_state[optuna.trial.TrialState.FAIL]:
         assert t.number == victim_trial or t.user_attrs.get("fail_reason"), t
     assert f"{trials} complete" in (tmp_path / "b.log").read_text()
+
+
+def _assert_trials_tracked_under_one_parent_run(trials, mlflow_uri: str) -> None:
+    """`--track mlflow`: each trial's seed is an MLflow run named after the trial, and every trial of the study is a
+    child of one parent run named after the study (the jobs started at once, so each may have made one)."""
+    import json
+
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    parents = set()
+    for trial in trials:
+        run_dir = Path(trial.user_attrs["trial_dir"]) / "s0"
+        tracked = client.get_run(json.loads((run_dir / "trackers.json").read_text())["mlflow"]["run_id"])
+        assert tracked.info.run_name == f"trial_{trial.number:05d}-s0"
+        assert tracked.data.tags["canter.trial"] == str(trial.number) and tracked.info.status == "FINISHED"
+        assert float(tracked.data.params["ppo.lr"]) == trial.params["ppo.lr"]
+        parents.add(tracked.data.tags["mlflow.parentRunId"])
+        # The objective is the seed's evaluation at the end of the budget: the last one the tracker got.
+        evaluations = client.get_metric_history(tracked.info.run_id, "eval/return_mean")
+        assert max(evaluations, key=lambda m: m.step).value == pytest.approx(trial.value, rel=1e-6)
+    [parent_id] = parents
+    parent = client.get_run(parent_id)
+    assert parent.info.run_name == parent.data.tags["canter.group"] == "tune-Pendulum-v1__ppo"
+    assert len(client.search_runs([parent.info.experiment_id], "tags.`canter.parent` = 'true'")) == 1
 
 
 def test_a_space_over_keys_the_algorithm_ignores_is_refused(tmp_path):

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from canter.errors import CanterError
+
+if TYPE_CHECKING:
+    from canter.training.trackers import TrackSpec
 
 
 def steps_arg(text: str) -> int:
@@ -48,3 +54,29 @@ def check_one_run_for_a_file(checkpoint: str, runs: list[str]) -> None:
             f"--checkpoint {checkpoint} is one checkpoint file, but {len(runs)} run folders are given; "
             f"pass one run folder, or --checkpoint last or best"
         )
+
+
+def add_track_args(parser: argparse.ArgumentParser, runs: str) -> None:
+    """`--track NAME` (repeatable) and `--mlflow-uri URI`, with one meaning in train, tune and bench; `runs` says
+    which tracker runs the command makes."""
+    from canter.training.trackers import tracker_names
+
+    parser.add_argument(
+        "--track",
+        action="append",
+        choices=tracker_names(),
+        default=[],
+        help=f"also log to this experiment tracker (repeatable; extras canter[wandb], canter[mlflow]): {runs}",
+    )
+    parser.add_argument("--mlflow-uri", default=None, metavar="URI", help="MLflow tracking store for --track mlflow")
+
+
+def track_spec(args: argparse.Namespace, resumed: Sequence[Path] = ()) -> TrackSpec:
+    """The trackers of `--track` and `--mlflow-uri`; resuming run folders, also those they were tracked with."""
+    from canter.training.trackers import TrackSpec, resume_spec
+
+    names = tuple(dict.fromkeys(args.track))
+    spec = resume_spec(names, args.mlflow_uri, resumed) if resumed else TrackSpec(names, args.mlflow_uri)
+    if args.mlflow_uri and "mlflow" not in spec.names:
+        raise CanterError("--mlflow-uri sets the store of --track mlflow; also pass --track mlflow")
+    return spec

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import seeds_arg, steps_arg
+from canter.cli.args import add_track_args, seeds_arg, steps_arg, track_spec
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -61,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--study", default=None, metavar="NAME", help="study name with --storage (default: --out name)")
     b.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS", help="with --storage: heartbeat interval")
+    add_track_args(b, "one tracker run per seed, a cell's seeds in one group; a re-run continues those it resumes")
     b.set_defaults(func=run)
 
 
@@ -96,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         storage_url=args.storage,
         study_name=args.study,
         heartbeat_seconds=args.heartbeat,
+        track=track_spec(args),
     )
     bench(settings)
     return 0

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import seeds_arg, steps_arg
+from canter.cli.args import add_track_args, seeds_arg, steps_arg, track_spec
 from canter.errors import CanterError
 
 
@@ -15,7 +15,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
     from canter.config.presets import preset_names
     from canter.envs.registry import backend_choices
-    from canter.training.trackers import tracker_names
 
     t = sub.add_parser(
         "train",
@@ -74,31 +73,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="continue a run from its newest checkpoint; several run folders that differ only in "
         "run.seed resume together as one group",
     )
-    t.add_argument(
-        "--track",
-        action="append",
-        choices=tracker_names(),
-        default=[],
-        help="also log to this experiment tracker (repeatable; extras canter[wandb], canter[mlflow]); a resume "
-        "continues the tracker runs recorded in RUN/trackers.json",
-    )
-    t.add_argument("--mlflow-uri", default=None, metavar="URI", help="MLflow tracking store for --track mlflow")
+    add_track_args(t, "one tracker run per seed; a resume continues the tracker runs recorded in RUN/trackers.json")
     t.add_argument("--seed", type=int, default=None, help="run seed")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from canter.training.trackers import TrackSpec, resume_spec, tracking
+    from canter.training.trackers import tracking
 
-    spec = (
-        resume_spec(args.track, args.mlflow_uri, [Path(d) for d in args.resume])
-        if args.resume
-        else TrackSpec(tuple(dict.fromkeys(args.track)), args.mlflow_uri)
-    )
-    if args.mlflow_uri and "mlflow" not in spec.names:
-        raise CanterError("--mlflow-uri sets the store of --track mlflow; also pass --track mlflow")
-    with tracking(spec):
+    with tracking(track_spec(args, [Path(d) for d in args.resume or ()])):
         results = _train(args)
     _report(results)
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import steps_arg
+from canter.cli.args import add_track_args, steps_arg, track_spec
 from canter.errors import CanterError
 
 
@@ -55,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)",
     )
+    add_track_args(t, "one tracker run per seed of each trial, named trial_NNNNN-sSEED, every trial in one group")
     t.set_defaults(func=run)
 
 
@@ -97,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         heartbeat_seconds=args.heartbeat,
         grace_seconds=3 * args.heartbeat,
         sampler_seed=args.sampler_seed,
+        track=track_spec(args),
     )
     tune(settings)
     return 0

@@ -11,6 +11,9 @@ improvement), `results.csv`, `statistics.json` and a plot per env.
 
 With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
 enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
+
+With `--track`, each seed is a tracker run, the seeds of a cell in one group (`canter.training.trackers`); a job
+that resumes a seed continues its tracker runs.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import io
 import itertools
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +49,7 @@ from canter.orchestrate.jobs import (
     stop_job,
     warn_if_more_jobs_than_cores,
 )
+from canter.training.trackers import TrackSpec, check_trackers
 from canter.use.reference_scores import published_scores
 
 if TYPE_CHECKING:
@@ -74,6 +78,7 @@ class BenchSettings:
     study_name: str | None = None
     heartbeat_seconds: int = 60
     poll_seconds: float = 0.5
+    track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: a tracker run per seed, a group per cell
 
 
 @dataclass(frozen=True)
@@ -221,7 +226,10 @@ def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
     cell = job.cell
     config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
     return JobSpec(
-        to_toml(config), {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds}, settings.eval_episodes
+        to_toml(config),
+        {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
+        settings.eval_episodes,
+        settings.track,
     )
 
 
@@ -633,6 +641,7 @@ def bench(settings: BenchSettings) -> str:
     if settings.eval_episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {settings.eval_episodes}")
     cells = make_cells(settings)
+    check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any cell
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)
     check_existing_runs(cells, settings, bench_dir)

@@ -21,12 +21,13 @@ import signal
 import subprocess
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
+from canter.training.trackers.base import TrackSpec
 
 EVAL_FILE = "eval.json"
 SUMMARY_FILE = "summary.json"
@@ -120,6 +121,7 @@ class JobSpec:
     config_toml: str
     run_dirs: dict[int, str]  # seed -> run folder
     eval_episodes: int = 0  # 0: no final evaluation
+    track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: each seed's tracker runs
 
     def to_json(self) -> str:
         return json.dumps(
@@ -127,6 +129,7 @@ class JobSpec:
                 "config_toml": self.config_toml,
                 "run_dirs": {str(k): v for k, v in self.run_dirs.items()},
                 "eval_episodes": self.eval_episodes,
+                "track": self.track.to_dict(),
             }
         )
 
@@ -134,7 +137,10 @@ class JobSpec:
     def from_json(text: str) -> JobSpec:
         data = json.loads(text)
         return JobSpec(
-            data["config_toml"], {int(k): v for k, v in data["run_dirs"].items()}, int(data["eval_episodes"])
+            data["config_toml"],
+            {int(k): v for k, v in data["run_dirs"].items()},
+            int(data["eval_episodes"]),
+            TrackSpec.from_dict(data.get("track", {})),  # a job.json written before --track reached jobs has none
         )
 
 
@@ -191,11 +197,12 @@ def die_with_parent() -> None:
 
 
 def run_job(spec: JobSpec, quiet: bool = True) -> None:
-    """Skip finished seeds, resume stopped ones, train the rest (as one seed group), then evaluate the final
-    policies."""
+    """Skip finished seeds, resume stopped ones (and their tracker runs), train the rest (as one seed group), each seed
+    with its own tracker runs, then evaluate the final policies."""
     from canter.config.serialize import from_toml_text
     from canter.training.loop import resume_seeds, train_seeds
     from canter.training.run_lock import LOCK_FILE, RunLocks
+    from canter.training.trackers import tracking
 
     config = from_toml_text(spec.config_toml, "job spec")
     total = config.run.total_steps
@@ -214,10 +221,11 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                     if item.name != LOCK_FILE:
                         shutil.rmtree(item) if item.is_dir() else item.unlink()
                 fresh.append(seed)
-        if partial:  # each resumes from its own newest checkpoint, together in one program
-            resume_seeds(partial, total, quiet=quiet)
-        if fresh:
-            train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
+        with tracking(spec.track):
+            if partial:  # each resumes from its own newest checkpoint, together in one program
+                resume_seeds(partial, total, quiet=quiet)
+            if fresh:
+                train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
         if spec.eval_episodes:
             for folder in spec.run_dirs.values():
                 write_final_eval(Path(folder), spec.eval_episodes)

@@ -14,6 +14,9 @@ that of a single `canter train` of the same config, so the best trial's preset r
 Parallel `--jobs` are spawned worker processes, each pinned to its share of the cores with XLA's thread pools
 capped; the workers share the study through its storage (SQLite in the study folder by default, or `--storage
 postgresql://...`, where any number of machines run the same command).
+
+With `--track`, each seed of a trial is a tracker run named `trial_NNNNN-sSEED`, and every trial of the study is in one
+tracker group, `tune-STUDY` (`trial_track`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import math
 import os
 import socket
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +49,7 @@ from canter.orchestrate.study import (
     retrying,
     run_worker,
 )
+from canter.training.trackers import TrackSpec, check_trackers
 
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
@@ -77,6 +81,7 @@ class TuneSettings:
     grace_seconds: int = 180
     sampler_seed: int | None = None
     poll_seconds: float = 0.5
+    track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: see `trial_track`
 
     @property
     def name(self) -> str:
@@ -205,6 +210,18 @@ def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float
     return found
 
 
+def trial_track(settings: TuneSettings, number: int) -> TrackSpec:
+    """The trackers of a trial: its seeds' runs named after the trial, in the group of the whole study."""
+    if not settings.track.names:
+        return settings.track
+    return replace(
+        settings.track,
+        group=f"tune-{settings.name}",
+        run_prefix=f"trial_{number:05d}",
+        tags=(("canter.study", settings.name), ("canter.trial", str(number))),
+    )
+
+
 def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpace) -> Outcome:
     """Train and evaluate one trial. Works with an Optuna trial or an `optuna.trial.FixedTrial`."""
     from canter.training import checkpoint
@@ -225,7 +242,8 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
     from canter.config.serialize import to_toml
 
-    proc = start_job(JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}), trial_dir)
+    spec = JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}, track=trial_track(settings, trial.number))
+    proc = start_job(spec, trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
     reported: dict[int, float] = {}  # evaluation index -> mean return over seeds
     try:
@@ -321,6 +339,7 @@ def tune(settings: TuneSettings) -> Any:
     from canter.orchestrate.jobs import run_workers, warn_if_more_jobs_than_cores
 
     check_settings(settings)
+    check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     if settings.storage_url is None:
         settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts

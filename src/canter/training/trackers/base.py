@@ -9,20 +9,45 @@ from typing import Any, Protocol
 
 @dataclass(frozen=True)
 class TrackSpec:
-    """The trackers of a `canter train` (`--track`, repeatable) and where MLflow writes (`--mlflow-uri`)."""
+    """The trackers of a `canter train`, `tune` or `bench` (`--track`, repeatable), where MLflow writes
+    (`--mlflow-uri`), and, for a tune trial, what its runs are grouped and named by."""
 
     names: tuple[str, ...] = ()
     mlflow_uri: str | None = None
+    group: str | None = None  # the group of every run tracked with this spec; None: one group per experiment
+    run_prefix: str | None = None  # tracker runs are named PREFIX-FOLDER (trial_00003-s0); None: the folder name
+    tags: tuple[tuple[str, str], ...] = ()  # recorded with each run: MLflow tags, W&B config entries
+
+    def to_dict(self) -> dict[str, Any]:
+        """As JSON takes it (a job's job.json)."""
+        return {
+            "names": list(self.names),
+            "mlflow_uri": self.mlflow_uri,
+            "group": self.group,
+            "run_prefix": self.run_prefix,
+            "tags": [list(tag) for tag in self.tags],
+        }
+
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> TrackSpec:
+        return TrackSpec(
+            tuple(data.get("names", ())),
+            data.get("mlflow_uri"),
+            data.get("group"),
+            data.get("run_prefix"),
+            tuple((str(k), str(v)) for k, v in data.get("tags", ())),
+        )
 
 
 @dataclass(frozen=True)
 class RunContext:
-    """What a tracker run is started with: the seed's config (flat `section.key` settings), its run folder, and
-    the group its seeds share (one experiment)."""
+    """What a tracker run is started with: the seed's config (flat `section.key` settings), its run folder, the
+    group its seeds share (one experiment, or a tune study) and the run's name."""
 
     config: dict[str, Any]
     out: Path
     group: str
+    name: str
     spec: TrackSpec
 
 

@@ -21,7 +21,18 @@ PARENT_TAG = "canter.parent"
 MAX_PARAMS_PER_BATCH = 100  # MLflow's limit for one log_batch
 
 
+_CLIENTS: dict[tuple[str | None, str | None, str], Any] = {}
+
+
 def _client(spec: TrackSpec) -> Any:
+    """The client of the store, opened once per process: opening checks the store's schema, a second or more."""
+    key = (spec.mlflow_uri, os.environ.get("MLFLOW_TRACKING_URI"), os.getcwd())  # what picks the store
+    if key not in _CLIENTS:
+        _CLIENTS[key] = _open_client(spec)
+    return _CLIENTS[key]
+
+
+def _open_client(spec: TrackSpec) -> Any:
     try:
         from mlflow.tracking import MlflowClient
     except ImportError:
@@ -53,11 +64,12 @@ class MlflowTracker:
             experiment = _experiment_id(client)
             run = client.create_run(
                 experiment,
-                run_name=context.out.name,
+                run_name=context.name,
                 tags={
                     "mlflow.parentRunId": _parent_run_id(client, experiment, context.group),
                     GROUP_TAG: context.group,
                     "canter.run_dir": str(context.out.resolve()),
+                    **dict(context.spec.tags),
                 },
             )
             params = [Param(k, str(v)) for k, v in context.config.items()]
@@ -71,19 +83,42 @@ class MlflowTracker:
 def _experiment_id(client: Any) -> str:
     name = os.environ.get("MLFLOW_EXPERIMENT_NAME", "canter")
     experiment = client.get_experiment_by_name(name)
-    return str(experiment.experiment_id if experiment is not None else client.create_experiment(name))
+    if experiment is not None:
+        return str(experiment.experiment_id)
+    try:
+        return str(client.create_experiment(name))
+    except Exception:  # a job that started at the same time made it first
+        experiment = client.get_experiment_by_name(name)
+        if experiment is None:
+            raise
+        return str(experiment.experiment_id)
 
 
 def _parent_run_id(client: Any, experiment: str, group: str) -> str:
-    """The experiment's parent run, made by its first seed. A parent only groups: it is FINISHED at once."""
+    """The group's parent run, made by its first run. A parent only groups: it is FINISHED at once.
+
+    Jobs of a tune or bench that start together may each make one. The oldest is the parent: each looks again after
+    making its own, when every parent made before its own is visible, so all pick the same one, and a job whose
+    parent is not that one deletes it."""
+    found = _oldest_parent(client, experiment, group)
+    if found is not None:
+        return found
+    made = client.create_run(experiment, run_name=group, tags={PARENT_TAG: "true", GROUP_TAG: group}).info.run_id
+    client.set_terminated(made, "FINISHED")
+    oldest = _oldest_parent(client, experiment, group) or made
+    if oldest != made:
+        client.delete_run(made)
+    return str(oldest)
+
+
+def _oldest_parent(client: Any, experiment: str, group: str) -> str | None:
     found = client.search_runs(
-        [experiment], filter_string=f"tags.`{PARENT_TAG}` = 'true' and tags.`{GROUP_TAG}` = '{group}'", max_results=1
+        [experiment],
+        filter_string=f"tags.`{PARENT_TAG}` = 'true' and tags.`{GROUP_TAG}` = '{group}'",
+        order_by=["attributes.start_time ASC"],
+        max_results=50,
     )
-    if found:
-        return str(found[0].info.run_id)
-    parent = client.create_run(experiment, run_name=group, tags={PARENT_TAG: "true", GROUP_TAG: group})
-    client.set_terminated(parent.info.run_id, "FINISHED")
-    return str(parent.info.run_id)
+    return str(min(found, key=lambda r: (r.info.start_time, r.info.run_id)).info.run_id) if found else None
 
 
 class _MlflowRun:

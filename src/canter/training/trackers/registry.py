@@ -1,4 +1,4 @@
-"""Tracker names for `canter train --track NAME`."""
+"""Tracker names for `--track NAME` (`canter train`, `tune`, `bench`)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """Trackers during training: checked before it starts, one tracker run per seed, never able to stop a run.
 
-`canter train --track ...` enters `tracking(spec)`, which checks every tracker (a one-line CanterError before any
-env exists) and makes them the trackers of the runs trained inside it; `canter.training.loop` asks
+`canter train --track ...` enters `tracking(spec)`, which checks every tracker (`check_trackers`: a one-line
+CanterError before any env exists) and makes them the trackers of the runs trained inside it; `canter tune` and
+`canter bench` check them before their first job and each job trains inside `tracking`; `canter.training.loop` asks
 `open_for_run` for each seed's `SeedTrackers` (none outside `tracking`). The run folder stays the source of truth:
 a tracker that fails mid-run prints one warning line and is dropped, and the run goes on. Each seed's tracker run
 ids are kept in RUN/trackers.json, so that a resume continues the same tracker runs."""
@@ -15,6 +16,7 @@ import json
 import math
 import sys
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,13 +35,19 @@ _ACTIVE: contextvars.ContextVar[TrackSpec | None] = contextvars.ContextVar("cant
 @contextlib.contextmanager
 def tracking(spec: TrackSpec) -> Iterator[None]:
     """Train with these trackers inside the block. Every tracker is checked first."""
-    for name in spec.names:
-        get_tracker(name).check(spec)
+    check_trackers(spec)
     token = _ACTIVE.set(spec if spec.names else None)
     try:
         yield
     finally:
         _ACTIVE.reset(token)
+
+
+def check_trackers(spec: TrackSpec) -> None:
+    """A one-line CanterError if a tracker is unknown or cannot start (its library missing, a store that does not
+    open); nothing is created."""
+    for name in spec.names:
+        get_tracker(name).check(spec)
 
 
 def resume_spec(names: Sequence[str], mlflow_uri: str | None, run_dirs: Sequence[Path]) -> TrackSpec:
@@ -76,19 +84,26 @@ def open_for_run(config: Config, out: Path, resumed: bool) -> SeedTrackers:
     if spec is None:
         return SeedTrackers({})
     recorded = read_ids(out) if resumed else {}
-    context = RunContext(flat_config(config), out, group_name(config), spec)
+    name = f"{spec.run_prefix}-{out.name}" if spec.run_prefix else out.name
+    fresh = RunContext(flat_config(config), out, spec.group or group_name(config), name, spec)
+    contexts: dict[str, RunContext] = {}
     runs: dict[str, TrackerRun] = {}
     try:
-        for name in spec.names:
-            runs[name] = get_tracker(name).start(context, recorded.get(name, {}).get("run_id"))
+        for tracker in spec.names:
+            earlier = recorded.get(tracker, {})
+            # A continued tracker run keeps the group and name it was started with, whoever resumes it.
+            contexts[tracker] = replace(
+                fresh, group=earlier.get("group", fresh.group), name=earlier.get("name", fresh.name)
+            )
+            runs[tracker] = get_tracker(tracker).start(contexts[tracker], earlier.get("run_id"))
     except BaseException:
         SeedTrackers(runs).close()
         raise
     ids = dict(recorded)
-    for name, run in runs.items():
-        ids[name] = {"run_id": run.run_id, "group": context.group}
-        if name == "mlflow" and spec.mlflow_uri:
-            ids[name]["uri"] = spec.mlflow_uri
+    for tracker, run in runs.items():
+        ids[tracker] = {"run_id": run.run_id, "group": contexts[tracker].group, "name": contexts[tracker].name}
+        if tracker == "mlflow" and spec.mlflow_uri:
+            ids[tracker]["uri"] = spec.mlflow_uri
     atomic_write_bytes(out / TRACKERS_FILE, lambda f: f.write(json.dumps(ids, indent=2).encode()))
     return SeedTrackers(runs)
 

@@ -32,8 +32,8 @@ class WandbTracker:
             run = wandb.init(
                 project=os.environ.get("WANDB_PROJECT", "canter"),
                 group=context.group,
-                name=context.out.name,
-                config=context.config,
+                name=context.name,
+                config={**context.config, **dict(context.spec.tags)},
                 id=run_id,
                 resume="must" if run_id else None,
                 reinit="create_new",  # the seeds of a group each have their own run in this process
