@@ -148,10 +148,12 @@ def read_rows(path: Path) -> list[dict]:
 def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypatch):
     from mlflow.tracking import MlflowClient
 
+    import canter.use.statistics
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
     monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+    monkeypatch.setattr(canter.use.statistics, "REPS", 100)  # the table's and plot's statistics: the plumbing
     mlflow_uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     out = tmp_path / "bench"
     argv = [

@@ -2,6 +2,7 @@
 backend names are spelled only in the registry and the backends' own packages."""
 
 import ast
+import functools
 import re
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from canter.core.runtime import setup_jax
 from canter.envs import registry
 from canter.envs.registry import (
     backend_choices,
@@ -37,11 +39,22 @@ def _smoke_id(backend) -> str:
     return next((env_id for env_id in CHEAP_IDS if env_id in ids), sorted(ids)[0])
 
 
-# A JAX-native backend compiles its physics three times here (reset, host step, scan): slow on the CPU.
+@pytest.fixture
+def jax_as_a_run_sets_it(name):
+    """JAX in the precision a run on the backend has (float32 for a JAX-native one), then back as the rest of the
+    suite has it. The JAX-native envs then compile the programs that their own tests compile for 2 envs, which the
+    session's compile cache (conftest.py) keeps for them."""
+    setup_jax(name)
+    yield
+    setup_jax()
+
+
+# A JAX-native backend compiles its physics twice here (reset, host step): slow on the CPU.
 @pytest.mark.parametrize(
     "name",
     [pytest.param(name, marks=pytest.mark.slow) if get_backend(name).jax_native else name for name in backend_names()],
 )
+@pytest.mark.usefixtures("jax_as_a_run_sets_it")
 def test_every_backend_makes_resets_steps_and_closes(name):
     backend = get_backend(name)
     if not backend.available():
@@ -64,7 +77,11 @@ def test_every_backend_makes_resets_steps_and_closes(name):
 
             return jax.lax.scan(body, state, None, length=3)
 
-        _, out = jax.jit(run)(env.initial_state())
+        # A JAX-native env's host_step is its jax_step, compiled and run above: in a scan, what is new is that its
+        # state carries from step to step (the same types), which tracing checks without compiling the physics again.
+        # EnvPool's jax_step is a custom call of its own, so it is compiled and run.
+        scan = functools.partial(jax.eval_shape, run) if backend.jax_native else jax.jit(run)
+        _, out = scan(env.initial_state())
         assert out.obs.shape == (3, 2, spec.obs_dim) and out.terminated.dtype == jnp.bool_
     finally:
         env.close()

@@ -128,7 +128,7 @@ def test_reset_noise_is_gymnasiums_distribution():
     from canter.envs.mjx.env import MjxTaskEnv
 
     env = MjxTaskEnv("Hopper-v5")
-    states, _ = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 500))
+    states, _ = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 500))  # one compile, not per op
     noise = np.asarray(states.qpos) - np.asarray(env.mj_model.qpos0)
     assert np.all(np.abs(noise) <= 5e-3 + 1e-7)
     assert abs(noise.std() - 5e-3 / np.sqrt(3)) < 1.5e-4  # U(-0.005, 0.005): std 2.9e-3, 3000 draws
@@ -185,13 +185,29 @@ def test_an_env_without_a_port_lists_the_ported_ones():
     assert resolve_backend("Hopper-v5", "auto") != "mjx"  # `auto` never picks a JAX-native backend
 
 
+# The tests below share compiled programs through the session's compile cache (conftest.py), each compiled once:
+# - the training tests train with this config, so their runs compile one iteration program. The learning rate stays
+#   constant so that a stop and a resume (two budgets) follow the same schedule as one straight run;
+# - the evaluation tests play EVAL_EPISODES on 2 envs (one plays 3 episodes, the other 2) with a policy of this
+#   config's sizes: one evaluation program, and the host loop's reset and step of test_env_registry's mjx case.
 PENDULUM = TINY + [
-    "env.num_envs=8",
+    "env.num_envs=16",
+    "env.backend=mjx",
     "ppo.n_steps=64",
     "ppo.minibatch_size=128",
+    "ppo.anneal_lr=false",
     "net.hidden=32,32",
     "run.checkpoint_every=512",
 ]
+ITERATION = 16 * 64  # env steps: env.num_envs x ppo.n_steps
+TOTAL = 32 * ITERATION  # PPO balances InvertedPendulum by then (seeds 0-5 by 24 iterations on this CPU)
+EVAL_EPISODES = 5
+
+
+def _evaluate_on_two_envs(monkeypatch):
+    import canter.training.evaluation
+
+    monkeypatch.setattr(canter.training.evaluation, "MAX_EVAL_ENVS", 2)
 
 
 def _rows(run_dir):
@@ -207,29 +223,31 @@ def test_a_resumed_run_continues_its_episodes_exactly(tmp_path):
     from canter.training.restore import load_state
 
     def config(total, folder):
-        sets = PENDULUM + ["ppo.anneal_lr=false", "env.backend=mjx", f"run.out_dir={tmp_path / folder}"]
+        sets = PENDULUM + [f"run.out_dir={tmp_path / folder}"]
         return build_config("InvertedPendulum-v5", seed=0, total_steps=total, sets=sets)
 
-    straight = train(config(1024, "straight"))
-    first = train(config(512, "parts"))
-    resumed = train(config(1024, "parts"), resume=first.run_dir)
+    straight = train(config(2 * ITERATION, "straight"))
+    first = train(config(ITERATION, "parts"))
+    resumed = train(config(2 * ITERATION, "parts"), resume=first.run_dir)
     assert _rows(straight.run_dir) == _rows(resumed.run_dir)
     a, b = load_state(straight.run_dir)[2], load_state(resumed.run_dir)[2]
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_array_equal(x, y)
 
 
-def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path):
+def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypatch):
     """A policy trained on MJX physics, with its normalizer statistics, balances the same task stepped by C MuJoCo
     (the Gymnasium backend): the ports keep observations and actions identical, so policies move between backends."""
     from canter.training.loop import train
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
-    sets = PENDULUM + ["env.num_envs=16", "env.backend=mjx", f"run.out_dir={tmp_path}"]
-    result = train(build_config("InvertedPendulum-v5", seed=0, total_steps=40_000, sets=sets))
+    sets = PENDULUM + [f"run.out_dir={tmp_path}"]
+    result = train(build_config("InvertedPendulum-v5", seed=0, total_steps=TOTAL, sets=sets))
     policy = load(result.run_dir)
-    on_mjx = evaluate(policy, episodes=8, seed=0)
+    with monkeypatch.context() as patch:
+        _evaluate_on_two_envs(patch)
+        on_mjx = evaluate(policy, episodes=EVAL_EPISODES, seed=0)
     on_cpu = evaluate(policy, episodes=8, seed=0, backend="gymnasium")
     assert on_mjx.mean >= 900, on_mjx.returns
     assert on_cpu.mean >= 900, on_cpu.returns
@@ -238,7 +256,7 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path):
 
     assert main(["eval", str(result.run_dir), "--backend", "envpool", "--episodes", "2", "--json", "e.json"]) == 0
     assert json.loads(Path("e.json").read_text())["runs"][0]["return_mean"] >= 900
-    assert main(["video", str(result.run_dir), "--episodes", "1", "--out", "v.mp4"]) == 0
+    assert main(["video", str(result.run_dir), "--episodes", "1", "--max-steps", "100", "--out", "v.mp4"]) == 0
     assert Path("v.mp4").stat().st_size > 0
 
 
@@ -256,16 +274,18 @@ def test_solver_settings_reach_the_mjx_model_and_nothing_else():
         build_config("Hopper-v5", sets=["env.backend=mjx", "env.solver_ls_iterations=-1"])
 
 
-def test_evaluation_in_one_program_plays_the_host_loops_episodes():
+def test_evaluation_in_one_program_plays_the_host_loops_episodes(monkeypatch):
     """A JAX env plays an evaluation's episodes inside one jitted program (`play_episodes`); it keeps the host loop's
     bookkeeping: the same episodes, returns and lengths, each env its quota."""
     import functools
 
     from canter.algos import get_algorithm
+    from canter.envs.registry import make_vec_env
     from canter.training.evaluation import TracedAct, deterministic_act, run_episodes
 
-    config = build_config("InvertedPendulum-v5", sets=[*TINY, "env.backend=mjx"])
-    env = _pendulum(1, [0])
+    _evaluate_on_two_envs(monkeypatch)
+    config = build_config("InvertedPendulum-v5", sets=PENDULUM)
+    env = make_vec_env("InvertedPendulum-v5", "mjx", 2, [0, 1])
     algorithm = get_algorithm("ppo")
     state = algorithm.init_state(config, env.spec)
     pure = algorithm.make_act(config, env.spec)
@@ -276,9 +296,9 @@ def test_evaluation_in_one_program_plays_the_host_loops_episodes():
     def host_act(obs):
         return np.asarray(act(args[0], args[1], jnp.asarray(obs, jnp.float32), key, True))
 
-    host = run_episodes(host_act, "InvertedPendulum-v5", "mjx", 40, seed=3)
+    host = run_episodes(host_act, "InvertedPendulum-v5", "mjx", EVAL_EPISODES, seed=3)
     traced = TracedAct(functools.partial(deterministic_act, pure), args)
-    jitted = run_episodes(host_act, "InvertedPendulum-v5", "mjx", 40, seed=3, traced_act=traced)
-    assert jitted.returns.size == host.returns.size == 40  # 32 envs, 8 of them play 2 episodes
+    jitted = run_episodes(host_act, "InvertedPendulum-v5", "mjx", EVAL_EPISODES, seed=3, traced_act=traced)
+    assert jitted.returns.size == host.returns.size == EVAL_EPISODES
     np.testing.assert_allclose(np.sort(jitted.returns), np.sort(host.returns), rtol=1e-5)
     np.testing.assert_array_equal(np.sort(jitted.lengths), np.sort(host.lengths))

@@ -46,7 +46,11 @@ def test_fixtures_are_format_1_and_read_as_their_algorithms():
     assert group_by_experiment([read_config(FIXTURES / name) for name in GROUP]) == [[0, 1]]
 
 
-def test_v1_runs_evaluate_plot_report_and_export_without_being_written(v1_runs, tmp_path, capsys):
+def test_v1_runs_evaluate_plot_report_and_export_without_being_written(v1_runs, tmp_path, capsys, monkeypatch):
+    import canter.use.statistics
+
+    # The plot's statistics of 8 runs: few resamples, since what is checked here is that v1 runs are read.
+    monkeypatch.setattr(canter.use.statistics, "REPS", 100)
     before = _digest(v1_runs)
     runs = [str(v1_runs / name) for name in ALGORITHM_RUNS + GROUP]
     report_json = tmp_path / "eval.json"

@@ -250,8 +250,10 @@ def _normalized_matrix(cells: Sequence[CellStats]) -> tuple[np.ndarray, int]:
     return np.stack(columns, axis=1), sum(len(c.scores) - runs for c in cells)
 
 
-def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int = statistics.REPS, seed: int = 0) -> Scoreboard:
-    """All the statistics of the runs' scores. Cells and methods keep the order in which they first appear."""
+def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None = None, seed: int = 0) -> Scoreboard:
+    """All the statistics of the runs' scores, from `reps` bootstrap resamples (default `statistics.REPS`, read at
+    each call). Cells and methods keep the order in which they first appear."""
+    reps = reps or statistics.REPS
     grouped: dict[tuple[str, str], list[RunScore]] = {}
     for s in scores:
         grouped.setdefault((s.method, s.env_id), []).append(s)
