@@ -100,3 +100,10 @@ def plot_and_film(page: Path, name: str, work: Path) -> None:
             if run_dir is None:
                 raise SystemExit(f"{name}: its run folder under {work} is gone; train it again to film it")
             subprocess.run([*canter_command(), *command, str(out)], check=True, stdout=subprocess.DEVNULL)
+
+
+def wall_text(run: dict[str, Any]) -> str:
+    """An archived run's whole-process time in minutes, marked when other work shared the cores as it started."""
+    load = run["timing"]["load_average_before"]
+    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
+    return f"{run['timing']['wall_seconds'] / 60:.1f} min{busy}"

@@ -23,7 +23,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT, finished_runs, read_text, replace_between, sync  # noqa: E402
-from timed import archived, plot_and_film, timed_train  # noqa: E402
+from timed import archived, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "Humanoid-v5"
 SEED = 100
@@ -59,12 +59,9 @@ def _heldout_row() -> str:
 def _long_row(name: str, who: str, run: dict[str, Any] | None) -> str:
     if run is None:
         return f"| {who} | not run yet | | | |"
-    wall = run["timing"]["wall_seconds"] / 60
-    load = run["timing"]["load_average_before"]
-    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
     evaluation = f"{run['eval']['return_mean']:,.0f} ± {run['eval']['return_std']:,.0f}"
     return (
-        f"| {who} | {run['summary']['global_step']:,} | {wall:.1f} min{busy} | {evaluation} | "
+        f"| {who} | {run['summary']['global_step']:,} | {wall_text(run)} | {evaluation} | "
         f"[curve]({name}.png), [video]({name}.mp4) |"
     )
 

@@ -22,7 +22,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT, finished_runs, read_text, replace_between, sync  # noqa: E402
-from timed import archived, timed_train  # noqa: E402
+from timed import archived, timed_train, wall_text  # noqa: E402
 
 ENVS = ("HalfCheetah", "Hopper", "Walker2d")
 SEED = 100
@@ -56,11 +56,8 @@ def _hours(seconds: float) -> str:
 def _ppo_cell(run: dict[str, Any] | None) -> tuple[str, str]:
     if run is None:
         return "not run yet", "not run yet"
-    wall = f"{run['timing']['wall_seconds'] / 60:.1f} min"
-    load = run["timing"]["load_average_before"]
-    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
     reward = f"{run['summary']['recent_return']:,.0f} (eval {run['eval']['return_mean']:,.0f})"
-    return wall + busy, reward
+    return wall_text(run), reward
 
 
 def table() -> str:

@@ -20,7 +20,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT, read_text, replace_between, sync  # noqa: E402
-from timed import archived, plot_and_film, timed_train  # noqa: E402
+from timed import archived, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "WalkerWalk-v1"
 SEED = 100
@@ -43,12 +43,9 @@ def _row(name: str, who: str, run: dict[str, Any] | None) -> str:
     if run is None:
         return f"| {who} | not run yet | | | | |"
     steps = run["summary"]["global_step"]
-    wall = run["timing"]["wall_seconds"] / 60
-    load = run["timing"]["load_average_before"]
-    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
     evaluation = f"{run['eval']['return_mean']:,.0f} ± {run['eval']['return_std']:,.0f}"
     return (
-        f"| {who} | {steps:,} | {wall:.1f} min{busy} | {run['summary']['recent_return']:,.0f} | {evaluation} | "
+        f"| {who} | {steps:,} | {wall_text(run)} | {run['summary']['recent_return']:,.0f} | {evaluation} | "
         f"[curve]({name}.png), [video]({name}.mp4) |"
     )
 
