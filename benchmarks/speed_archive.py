@@ -17,6 +17,7 @@ import gzip
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 from collections.abc import Callable
@@ -161,3 +162,32 @@ def publish(content: dict, runs: Path, results: Path | None, head: str, render: 
         results.write_text(existing.rstrip("\n") + "\n\n" + text)
         print(f"appended to {results}; raw files and rows.json in {shown(dest)}")
     return text
+
+
+def block_logs(readme: str, markers: tuple[str, str]) -> Path | None:
+    """The archive a README block names as its raw logs (None for a block that names none)."""
+    begin, end = markers
+    block = readme[readme.index(begin) : readme.index(end)]
+    found = re.search(r"raw\s+logs:\s+\[([^\]]+)\]", block)
+    return ROOT / found[1] if found else None
+
+
+def write_block(folder: Path, markers: tuple[str, str], render: Render, check: bool, readme: Path, option: str) -> int:
+    """Render a README block from an archive folder (its text names the folder as `raw logs: [..](..)`); with
+    `check`, exit 1 where the README differs instead. `option` is the script's flag that rewrites it."""
+    from archive import replace_between  # benchmarks/archive.py; it imports canter, which a timed run does not need
+
+    content, machine_info = load(folder)
+    text = readme.read_text()
+    wanted = replace_between(text, markers, render(content, machine_info, shown(folder)))
+    if wanted == text:
+        return 0
+    if check:
+        print(
+            f"{readme}'s {markers[0].strip()} block differs from {folder}; rewrite it with {option} {folder}",
+            file=sys.stderr,
+        )
+        return 1
+    readme.write_text(wanted)
+    print(f"rewrote the {markers[0].strip()} block of {readme} from {folder}")
+    return 0

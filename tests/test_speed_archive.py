@@ -116,6 +116,10 @@ def test_the_readme_headline_is_rendered_from_an_archived_rows_json(tmp_path):
     prose = " ".join(text.split())
     assert "with no GPU, 2026-11-22, each tool a whole process run one after another by `make bench`" in prose
     assert f"raw logs: [{folder}]({folder})" in prose and ppo.headline_logs(text) == folder
+    local = _ppo_content(ppo) | {"command": ["run.py", "--sb3-python", "/home/me/sb3/bin/python", "--seeds", "0"]}
+    local_caption = " ".join(ppo.headline(local, MACHINE, "logs").split())
+    assert "by `benchmarks/ppo_speed/run.sh --seeds 0`" in local_caption, "paths on the machine that ran stay out"
+    assert ppo.settings_args(["--out-dir=/tmp/x", "--only", "sb3", "--canter", "c"]) == ["--only", "sb3"]
     in_repo = ppo.headline(_ppo_content(ppo), MACHINE, "benchmarks/ppo_speed/logs/20261122-030000")
     assert all(len(line) <= 120 for line in in_repo.splitlines())
     assert (
@@ -147,7 +151,10 @@ def _contents() -> dict[str, tuple]:
                 "td3", STARTED, {"total_steps": 30_000, "learning_starts": 5000, "seed": 0}, [asdict(td3_row)]
             ),
         ),
-        "time_to_score": (tts, speed_archive.record("tts", STARTED, {"versions": VERSIONS}, [tts_row])),
+        "time_to_score": (
+            tts,
+            speed_archive.record("tts", STARTED, {"versions": VERSIONS, "seeds": [0], "minutes": 3.0}, [tts_row]),
+        ),
         "multiseed": (
             multi,
             speed_archive.record(
@@ -182,7 +189,52 @@ def test_committed_archives_render_the_tables_beside_them():
         content, machine = speed_archive.load(rows_json.parent)
         section = module.section(content, machine, speed_archive.shown(rows_json.parent))
         assert section in (rows_json.parents[2] / "results.md").read_text(), f"results.md differs from {rows_json}"
+    readme = (ROOT / "README.md").read_text()
     ppo = _script("ppo_speed")
-    folder = ppo.headline_logs((ROOT / "README.md").read_text())
+    folder = ppo.headline_logs(readme)
     if folder is not None:
         assert ppo.write_headline(folder, check=True) == 0
+    for name in README_PARAGRAPHS:
+        module = _script(name)
+        folder = speed_archive.block_logs(readme, module.README_MARKERS)
+        assert folder is not None, f"README.md's {module.README_MARKERS[0].strip()} block names no archive"
+        assert module.main(["--readme", str(folder), "--check"]) == 0, name
+
+
+README_PARAGRAPHS = ("td3_speed", "time_to_score")  # the README paragraphs written with `run.py --readme LOGS`
+
+
+def test_readme_paragraphs_are_rendered_from_an_archive_and_checked(tmp_path):
+    contents = _contents()
+    td3, content = contents["td3_speed"]
+    sb3 = td3.Row("SB3 TD3", True, steps=30_000, process_wall=300.0, sps=100.0, steady_sps=104.8)
+    content = content | {"rows": [*content["rows"], asdict(sb3)], "command": ["run.py", "--total-steps", "30000"]}
+    contents["td3_speed"] = (td3, content)
+    for name in README_PARAGRAPHS:
+        module, content = contents[name]
+        folder = tmp_path / name / "logs" / "20261122-030000"
+        (tmp_path / name / "runs").mkdir(parents=True)
+        speed_archive.archive(tmp_path / name / "runs", folder, content, MACHINE)
+        readme = tmp_path / name / "README.md"
+        begin, end = module.README_MARKERS
+        readme.write_text(f"intro\n{begin}stale\n{end}\n")
+        write = speed_archive.write_block
+        assert write(folder, module.README_MARKERS, module.readme_text, True, readme, "--readme") == 1, name
+        assert write(folder, module.README_MARKERS, module.readme_text, False, readme, "--readme") == 0, name
+        assert write(folder, module.README_MARKERS, module.readme_text, True, readme, "--readme") == 0, name
+        assert speed_archive.block_logs(readme.read_text(), module.README_MARKERS) == folder, name
+    text = " ".join(td3.readme_text(contents["td3_speed"][1], MACHINE, "logs/x").split())
+    assert (
+        "by `benchmarks/td3_speed/run.py --total-steps 30000` (30,000 steps, learning_starts 5,000, a short probe;"
+        in text
+    )
+    assert "**262** against SB3's **105**, **2.5x**, and the whole processes took 120 s and 300 s." in text
+    # canter: 25k warm-up steps at 900 SPS and 975k at 262; SB3 (no warm-up rate): 975k at 104.8
+    assert "1M steps take about 62 minutes against SB3's 2.6 hours." in text
+    tts, content = contents["time_to_score"]
+    more = [content["rows"][0] | {"seed": 1, "eval_mean": 2000.0, "process_wall": 170.0}]
+    more.append(content["rows"][0] | {"seed": 2, "eval_mean": 2600.0, "process_wall": 150.0})
+    content = content | {"rows": content["rows"] + more, "settings": content["settings"] | {"seeds": [0, 1, 2]}}
+    text = " ".join(tts.readme_text(content, MACHINE, "logs/x").split())
+    assert "medians over seeds 0,1,2; raw logs: [logs/x](logs/x)): Hopper-v5 scored **2600** in 162 s" in text
+    assert "(target 2500: met)." in text

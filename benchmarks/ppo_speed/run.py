@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -409,12 +408,29 @@ HEADLINE_TOOLS = {  # the README's rows, in its order
 }
 
 
+# Options that name paths on the machine that ran, not settings of the run; a caption leaves them out.
+LOCAL_OPTIONS = frozenset({"--sb3-python", "--canter", "--out-dir", "--results"})
+
+
+def settings_args(args: list[str]) -> list[str]:
+    """`args` without LOCAL_OPTIONS and their values (given as `--option VALUE` or `--option=VALUE`)."""
+    kept, skip = [], False
+    for arg in args:
+        if skip:
+            skip = False
+        elif arg in LOCAL_OPTIONS:
+            skip = True
+        elif arg.split("=", 1)[0] not in LOCAL_OPTIONS:
+            kept.append(arg)
+    return kept
+
+
 def headline(content: dict, m: dict, logs: str) -> str:
     """The README's headline block: per tool, SPS, its ratio to SB3's, process wall and eval return (each the mean
     over seeds), with a caption that names the run, the machine and the archive `logs` it comes from."""
     settings, rows = content["settings"], [r for r in rows_of(content) if r.ok]
     seeds, steps = settings["seeds"], settings["total_steps"]
-    args = content["command"][1:]
+    args = settings_args(content["command"][1:])
     how = "`make bench`" if not args else f"`benchmarks/ppo_speed/run.sh {' '.join(args)}`"
     caption = (
         f"{ENV_ID}, {f'{steps / 1e6:g}M' if steps % 100_000 == 0 else f'{steps:,}'} steps, "
@@ -446,27 +462,12 @@ def headline(content: dict, m: dict, logs: str) -> str:
 
 def headline_logs(readme: str) -> Path | None:
     """The archive the README's headline block names as its raw logs (None for a block that names none)."""
-    begin, end = HEADLINE_MARKERS
-    block = readme[readme.index(begin) : readme.index(end)]
-    found = re.search(r"raw\s+logs:\s+\[([^\]]+)\]", block)
-    return ROOT / found[1] if found else None
+    return speed_archive.block_logs(readme, HEADLINE_MARKERS)
 
 
 def write_headline(folder: Path, check: bool, readme: Path = ROOT / "README.md") -> int:
     """Render README.md's headline block from an archive folder; with `check`, exit 1 where it differs instead."""
-    from archive import replace_between  # benchmarks/archive.py; it imports canter, which a run does not need here
-
-    content, m = speed_archive.load(folder)
-    text = readme.read_text()
-    wanted = replace_between(text, HEADLINE_MARKERS, headline(content, m, speed_archive.shown(folder)))
-    if wanted == text:
-        return 0
-    if check:
-        print(f"{readme}'s headline table differs from {folder}; rewrite it with --headline {folder}", file=sys.stderr)
-        return 1
-    readme.write_text(wanted)
-    print(f"rewrote the headline table of {readme} from {folder}")
-    return 0
+    return speed_archive.write_block(folder, HEADLINE_MARKERS, headline, check, readme, "--headline")
 
 
 RESULTS_HEAD = """# PPO speed: canter vs Stable-Baselines3 on HalfCheetah-v4

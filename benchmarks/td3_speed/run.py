@@ -22,6 +22,7 @@ import json
 import os
 import resource
 import sys
+import textwrap
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -82,7 +83,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out-dir", default=None)
     p.add_argument("--results", default=str(HERE / "results.md"))
     p.add_argument("--no-write", action="store_true")
+    p.add_argument(
+        "--readme",
+        type=Path,
+        metavar="LOGS_DIR",
+        help="run nothing; rewrite README.md's td3-speed paragraph from an archive (benchmarks/td3_speed/logs/<stamp>)",
+    )
+    p.add_argument("--check", action="store_true", help="with --readme: exit 1 if README.md's paragraph differs")
     args = p.parse_args(argv)
+    if args.check and not args.readme:
+        p.error("--check goes with --readme")
     if not 0 <= args.learning_starts < args.total_steps:
         p.error("--learning-starts must be in [0, --total-steps)")
     return args
@@ -218,6 +228,35 @@ def section(content: dict, m: dict, logs: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+README_MARKERS = ("<!-- td3-speed -->\n", "<!-- /td3-speed -->")
+
+
+def readme_text(content: dict, m: dict, logs: str) -> str:
+    """README.md's td3-speed paragraph: steady SPS of canter and SB3, their ratio, whole-process walls and the 1M-step
+    times those rates imply, with the run, machine and archive `logs` they come from."""
+    settings = content["settings"]
+    rows = [Row(**row) for row in content["rows"] if row["ok"]]
+    mine = next(r for r in rows if r.tool.startswith("canter"))
+    sb3 = next(r for r in rows if r.tool.startswith("SB3"))
+    args = ppo.settings_args(content["command"][1:])
+    probe = settings["total_steps"] < FULL_STEPS
+    mine_minutes, sb3_minutes = mine.projected_minutes(), sb3.projected_minutes()
+    assert mine.steady_sps and sb3.steady_sps and mine_minutes and sb3_minutes, "both rows have steady rates"
+    command = " ".join(["benchmarks/td3_speed/run.py", *args])
+    text = (
+        f"TD3 on {ENV_ID} (256-256, batch 256, one gradient step per env step), side by side with SB3's TD3, each a "
+        f"whole process run one after another by `{command}` ({settings['total_steps']:,} steps, learning_starts "
+        f"{settings['learning_starts']:,}{', a short probe' if probe else ''}; {m['usable_cores']}-core {m['cpu']} "
+        f"with {m['gpu'] or 'no GPU'}, {content['started'][:10]}, 1-minute load average before the runs "
+        f"{' and '.join(f'{r.load_before:.2f}' for r in rows)}; raw logs: [{logs}]({logs})): "
+        f"canter's steady SPS after learning_starts is **{mine.steady_sps:,.0f}** against SB3's "
+        f"**{sb3.steady_sps:,.0f}**, **{mine.steady_sps / sb3.steady_sps:.1f}x**, and the whole processes took "
+        f"{mine.process_wall:.0f} s and {sb3.process_wall:.0f} s. At those rates 1M steps take about "
+        f"{mine_minutes:.0f} minutes against SB3's {sb3_minutes / 60:.1f} hours."
+    )
+    return textwrap.fill(text, width=116, break_long_words=False, break_on_hyphens=False)
+
+
 HEAD = """# TD3 speed: canter vs Stable-Baselines3 on HalfCheetah-v4
 
 Written by `benchmarks/td3_speed/run.py`; each run appends a dated section. Both tools use 1 env, 256-256 relu
@@ -230,6 +269,10 @@ steady rate). Full benchmark: `.venv/bin/python benchmarks/td3_speed/run.py --to
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.readme:
+        return speed_archive.write_block(
+            args.readme, README_MARKERS, readme_text, args.check, ROOT / "README.md", "--readme"
+        )
     started = datetime.now().astimezone()
     out = Path(args.out_dir or ROOT / "benchmarks" / "runs" / f"td3-{started.strftime('%Y%m%d-%H%M%S')}").resolve()
     out.mkdir(parents=True, exist_ok=True)

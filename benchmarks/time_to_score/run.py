@@ -2,6 +2,7 @@
 with --max-minutes 3 as a guard, then evaluate 10 deterministic episodes. Median over seeds.
 
     .venv/bin/python benchmarks/time_to_score/run.py [--seeds 0,1,2] [--envs Hopper-v5:2.5e6,HalfCheetah-v5:3.5e6]
+    .venv/bin/python benchmarks/time_to_score/run.py --readme benchmarks/time_to_score/logs/<stamp> [--check]
 
 Appends a dated markdown section to benchmarks/time_to_score/results.md, and keeps the runs' logs, run files and
 rows.json beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
@@ -15,6 +16,7 @@ import os
 import statistics
 import subprocess
 import sys
+import textwrap
 import time
 from datetime import datetime
 from pathlib import Path
@@ -37,7 +39,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out-dir", default=None, help="run folders and logs (default benchmarks/runs/tts-<stamp>)")
     parser.add_argument("--results", default=str(HERE / "results.md"))
     parser.add_argument("--no-write", action="store_true", help="print the section only; leave results.md alone")
-    return parser.parse_args(argv)
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        metavar="LOGS_DIR",
+        help="run nothing; rewrite README.md's time-to-score sentence from an archive (logs/<stamp>)",
+    )
+    parser.add_argument("--check", action="store_true", help="with --readme: exit 1 if README.md's sentence differs")
+    args = parser.parse_args(argv)
+    if args.check and not args.readme:
+        parser.error("--check goes with --readme")
+    return args
 
 
 def _timed(cmd: list[str], log: Path) -> float:
@@ -126,10 +138,40 @@ def section(content: dict, m: dict, logs: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+README_MARKERS = ("<!-- time-to-score -->\n", "<!-- /time-to-score -->")
+
+
+def readme_text(content: dict, m: dict, logs: str) -> str:
+    """README.md's time-to-score sentence: per env, the median eval return over seeds and the median process wall,
+    against its target, with the run, machine and archive `logs` they come from."""
+    rows, settings = content["rows"], content["settings"]
+    scores = []
+    for env in dict.fromkeys(r["env"] for r in rows):
+        mine = [r for r in rows if r["env"] == env]
+        median, wall = (
+            statistics.median(r["eval_mean"] for r in mine),
+            statistics.median(r["process_wall"] for r in mine),
+        )
+        target = TARGETS.get(env)
+        verdict = "" if target is None else f" (target {target:.0f}: {'met' if median >= target else 'not met'})"
+        scores.append(f"{env} scored **{median:.0f}** in {wall:.0f} s{verdict}")
+    text = (
+        f"Time to score with the default preset, by `benchmarks/time_to_score/run.py` ({m['usable_cores']}-core "
+        f"{m['cpu']} with {m['gpu'] or 'no GPU'}, {content['started'][:10]}; each training run a whole process with "
+        f"a {settings['minutes']:g}-minute guard, then a 10-episode deterministic eval; medians over seeds "
+        f"{','.join(map(str, settings['seeds']))}; raw logs: [{logs}]({logs})): " + " and ".join(scores) + "."
+    )
+    return textwrap.fill(text, width=116, break_long_words=False, break_on_hyphens=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     from canter.training.run_folder import versions
 
     args = parse_args(argv)
+    if args.readme:
+        return speed_archive.write_block(
+            args.readme, README_MARKERS, readme_text, args.check, ROOT / "README.md", "--readme"
+        )
     started = datetime.now().astimezone()
     out = Path(args.out_dir or ROOT / "benchmarks" / "runs" / f"tts-{started:%Y%m%d-%H%M%S}").resolve()
     seeds = [int(s) for s in args.seeds.split(",")]
