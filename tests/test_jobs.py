@@ -59,3 +59,25 @@ def test_concurrent_jobs_share_a_gpus_memory(monkeypatch):
     assert all(slot["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.450" for slot in job_layout(2))
     monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
     assert gpu_memory_env(4) == {}  # the user's own setting wins
+
+
+@pytest.mark.parametrize(
+    ("summary", "target", "status"),
+    [
+        ({"global_step": 10_000, "stop_reason": "budget"}, None, "done"),
+        ({"global_step": 4_000, "stop_reason": "stop_at_return", "recent_return": 310.0}, 300.0, "done"),
+        ({"global_step": 4_000, "stop_reason": "stop_at_return", "recent_return": 310.0}, 400.0, "partial"),
+        ({"global_step": 4_000, "stop_reason": "stop_at_return", "recent_return": 310.0}, None, "partial"),
+        ({"global_step": 4_000, "stop_reason": "max_minutes", "recent_return": 310.0}, 300.0, "partial"),
+    ],
+)
+def test_a_run_stopped_at_its_target_return_counts_as_done(tmp_path, summary, target, status):
+    """A bench or tune job must not resume a seed that stopped because it reached the target it still has; one that
+    stopped on the clock, or whose target was raised since, goes on from its checkpoint."""
+    from canter.orchestrate.jobs import run_status
+
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "ckpt_000000004000.npz").write_bytes(b"")
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert run_status(tmp_path, 10_000, target) == status
+    assert run_status(tmp_path / "missing", 10_000, target) == "new"

@@ -9,16 +9,18 @@ complete is not trained again, so a page's script can be rerun to fill in what i
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from archive import RUN_FILES, copy_run
+from archive import RUN_FILES, copy_run, read_text, replace_between, sync
 
 ROOT = Path(__file__).resolve().parents[2]
 EVAL_EPISODES = 10
@@ -107,3 +109,26 @@ def wall_text(run: dict[str, Any]) -> str:
     load = run["timing"]["load_average_before"]
     busy = f" (load {load:.1f} before)" if load > 0.5 else ""
     return f"{run['timing']['wall_seconds'] / 60:.1f} min{busy}"
+
+
+Block = tuple[tuple[str, str], Callable[[], str]]  # a page's marker pair and what writes between them
+
+
+def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str, Callable[[], None]]) -> int:
+    """A report page's command line. Without options it runs its steps (a step skips what is archived already),
+    all of them or those named by --only, then writes the page's blocks from the archive; --write only writes them,
+    and --check exits 1 where the page differs from what its archive gives."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only check that the page's tables are the archive's")
+    parser.add_argument("--write", action="store_true", help="only rewrite the page's tables")
+    if len(steps) > 1:
+        parser.add_argument("--only", choices=list(steps), action="append", help="run only this step (repeatable)")
+    args = parser.parse_args()
+    if not (args.check or args.write):
+        for name in getattr(args, "only", None) or steps:
+            steps[name]()
+    path = page / "README.md"
+    text = read_text(path)
+    for markers, render in blocks:
+        text = replace_between(text, markers, render())
+    return sync({path: text}, args.check, f"{page.relative_to(ROOT)}/run.py --write")

@@ -13,17 +13,18 @@ humanoidstandup-5m) are the first results and are read from where they are archi
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
-from archive import ROOT, read_text, replace_between, sync  # noqa: E402
+from archive import ROOT  # noqa: E402
 from grids import Grid, cell_result, curves, label, run_grid  # noqa: E402
+from timed import page_main  # noqa: E402
 
 from canter.orchestrate.bench import seed_record  # noqa: E402
 
@@ -225,18 +226,9 @@ def results_text() -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only check that the page's tables are the archive's")
-    parser.add_argument("--write", action="store_true", help="only rewrite the page's tables")
-    parser.add_argument("--only", choices=sorted(GRIDS), action="append", help="run only this grid (repeatable)")
-    args = parser.parse_args()
-    if not (args.check or args.write):
-        for name in args.only or GRIDS:
-            run_grid(PAGE, GRIDS[name], ROOT / WORK)
-    page = PAGE / "README.md"
-    text = replace_between(read_text(page), MARKERS["commands"], commands_table())
-    text = replace_between(text, MARKERS["results"], results_text())
-    return sync({page: text}, args.check, f"{PAGE.relative_to(ROOT)}/run.py --write")
+    steps = {name: partial(run_grid, PAGE, grid, ROOT / WORK) for name, grid in GRIDS.items()}
+    blocks = [(MARKERS["commands"], commands_table), (MARKERS["results"], results_text)]
+    return page_main(__doc__ or "", PAGE, blocks, steps)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Report 001 (Humanoid with PPO) redone with canter.
 
-    python benchmarks/reports/001-humanoid-ppo/run.py [NAME ...]   # train the named long runs (all if none) not yet
-                                                                   # archived, plot and film them, write the table
+    python benchmarks/reports/001-humanoid-ppo/run.py [--only NAME]  # train the long runs (all, or those named) not
+                                                                     # yet archived, plot and film them, write the table
     python benchmarks/reports/001-humanoid-ppo/run.py --write      # only rewrite the page's table
     python benchmarks/reports/001-humanoid-ppo/run.py --check      # exit 1 if the table is not the archive's
 
@@ -12,8 +12,8 @@ one whole process each, seed 100 (chosen before the runs).
 
 from __future__ import annotations
 
-import argparse
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +22,13 @@ import numpy as np
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
-from archive import ROOT, finished_runs, read_text, replace_between, sync  # noqa: E402
-from timed import archived, plot_and_film, timed_train, wall_text  # noqa: E402
+from archive import ROOT, finished_runs  # noqa: E402
+from timed import archived, page_main, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "Humanoid-v5"
 SEED = 100
 HELDOUT = ROOT / "benchmarks" / "results" / "onpolicy-1m-heldout"
+WORK = ROOT / "runs" / "report001"  # run folders (with checkpoints) while training
 LONG_RUNS = {  # name -> (who, canter train arguments)
     f"{ENV}__fast__10M__s{SEED}": (
         "canter default preset, 10M steps, evaluated every 1M",
@@ -77,23 +78,14 @@ def table() -> str:
     return "\n".join(lines) + f"\n\nPublished: {PUBLISHED}."
 
 
+def train_long(name: str) -> None:
+    timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], WORK)
+    plot_and_film(PAGE, name, WORK)
+
+
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("names", nargs="*", help=f"long runs to train (default all): {', '.join(LONG_RUNS)}")
-    parser.add_argument("--check", action="store_true", help="only check that the page's table is the archive's")
-    parser.add_argument("--write", action="store_true", help="only rewrite the page's table")
-    parser.add_argument("--work", type=Path, default=ROOT / "runs" / "report001", help="run folders while training")
-    args = parser.parse_args()
-    unknown = sorted(set(args.names) - set(LONG_RUNS))
-    if unknown:
-        parser.error(f"no long run named {', '.join(unknown)}; the runs are {', '.join(LONG_RUNS)}")
-    if not (args.check or args.write):
-        for name in args.names or LONG_RUNS:
-            timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], args.work)
-            plot_and_film(PAGE, name, args.work)
-    page = PAGE / "README.md"
-    wanted = {page: replace_between(read_text(page), MARKERS, table())}
-    return sync(wanted, args.check, "benchmarks/reports/001-humanoid-ppo/run.py --write")
+    steps = {name: partial(train_long, name) for name in LONG_RUNS}
+    return page_main(__doc__ or "", PAGE, [(MARKERS, table)], steps)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ validates as `canter tune --space` would).
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import subprocess
@@ -31,9 +30,9 @@ from typing import Any
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
-from archive import ROOT, read_text, replace_between, sync  # noqa: E402
+from archive import ROOT  # noqa: E402
 from grids import Grid, cell_result, run_grid  # noqa: E402
-from timed import archived, canter_command, timed_train  # noqa: E402
+from timed import archived, canter_command, page_main, timed_train  # noqa: E402
 
 from canter.orchestrate.search_space import Param, load_space  # noqa: E402
 
@@ -381,24 +380,13 @@ def tune_text() -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only check that the page's tables are the archive's")
-    parser.add_argument("--write", action="store_true", help="only rewrite the page's tables")
-    parser.add_argument("--only", choices=list(STEPS), action="append", help="run only this step (repeatable)")
-    args = parser.parse_args()
-    if not (args.check or args.write):
-        for name in args.only or STEPS:
-            STEPS[name].run()
-    page = PAGE / "README.md"
-    text = read_text(page)
-    for key, block in (
-        ("commands", commands_table()),
-        ("hopper", hopper_text()),
-        ("walker", walker_text()),
-        ("tune", tune_text()),
-    ):
-        text = replace_between(text, MARKERS[key], block)
-    return sync({page: text}, args.check, f"{PAGE_PATH}/run.py --write")
+    blocks = [
+        (MARKERS["commands"], commands_table),
+        (MARKERS["hopper"], hopper_text),
+        (MARKERS["walker"], walker_text),
+        (MARKERS["tune"], tune_text),
+    ]
+    return page_main(__doc__ or "", PAGE, blocks, {name: step.run for name, step in STEPS.items()})
 
 
 if __name__ == "__main__":

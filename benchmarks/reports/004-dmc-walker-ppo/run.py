@@ -11,16 +11,16 @@ at 1M steps. Each gets its training curve (`canter plot`), a 10-episode determin
 
 from __future__ import annotations
 
-import argparse
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
-from archive import ROOT, read_text, replace_between, sync  # noqa: E402
-from timed import archived, plot_and_film, timed_train, wall_text  # noqa: E402
+from archive import ROOT  # noqa: E402
+from timed import archived, page_main, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "WalkerWalk-v1"
 SEED = 100
@@ -62,16 +62,7 @@ def table() -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only check that the page's table is the archive's")
-    parser.add_argument("--write", action="store_true", help="only rewrite the page's table")
-    parser.add_argument("--work", type=Path, default=ROOT / "runs" / "report004", help="run folders while training")
-    args = parser.parse_args()
-    if not (args.check or args.write):
-        train(args.work)
-    page = PAGE / "README.md"
-    wanted = {page: replace_between(read_text(page), MARKERS, table())}
-    return sync(wanted, args.check, "benchmarks/reports/004-dmc-walker-ppo/run.py --write")
+    return page_main(__doc__ or "", PAGE, [(MARKERS, table)], {"train": partial(train, ROOT / "runs" / "report004")})
 
 
 if __name__ == "__main__":

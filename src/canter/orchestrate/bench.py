@@ -238,7 +238,7 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
         run_dir = cell.run_dir(bench_dir, seed)
         evaluation = read_json(run_dir / EVAL_FILE)
         if (
-            run_status(run_dir, settings.total_steps) != "done"
+            run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done"
             or not evaluation
             or evaluation.get("episodes") != settings.eval_episodes
         ):

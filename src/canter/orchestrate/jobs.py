@@ -36,17 +36,25 @@ SUMMARY_FILE = "summary.json"
 # ------------------------------------------------------------------------------------------------ run folder status
 
 
-def run_status(run_dir: Path, total_steps: int) -> str:
-    """`done` (trained to total_steps), `partial` (stopped after a checkpoint) or `new` (nothing usable)."""
+def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = None) -> str:
+    """`done` (trained to total_steps, or stopped on reaching `stop_at_return`, the target it is run with now),
+    `partial` (stopped after a checkpoint) or `new` (nothing usable)."""
     from canter.training import checkpoint
 
-    summary = run_dir / SUMMARY_FILE
-    if summary.is_file():
-        try:
-            if int(json.loads(summary.read_text())["global_step"]) >= total_steps:
-                return "done"
-        except (ValueError, KeyError, json.JSONDecodeError):
-            pass
+    summary = read_json(run_dir / SUMMARY_FILE) or {}
+    try:
+        if int(summary["global_step"]) >= total_steps:
+            return "done"
+    except (ValueError, KeyError, TypeError):
+        pass
+    reached = summary.get("recent_return")
+    if (
+        summary.get("stop_reason") == "stop_at_return"
+        and stop_at_return is not None
+        and isinstance(reached, int | float)
+        and reached >= stop_at_return
+    ):
+        return "done"
     return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
 
 
@@ -213,7 +221,7 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
             locks.take(Path(folder))
         for seed, folder in sorted(spec.run_dirs.items()):
             run_dir = Path(folder)
-            status = run_status(run_dir, total)
+            status = run_status(run_dir, total, config.run.stop_at_return)
             if status == "partial":
                 partial.append(run_dir)
             elif status == "new":
