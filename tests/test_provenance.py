@@ -58,6 +58,18 @@ def test_a_clean_checkout_then_an_edited_one_then_one_with_a_new_file(checkout):
     _git(root, "checkout", "-q", "--", ".")
     (root / "src" / "canter" / "extra.py").write_text("")
     assert provenance.commit_of(root) == provenance.Commit(sha, dirty=True)
+    (root / "src" / "canter" / "extra.py").unlink()
+    (root / "pyproject.toml").write_text("[project]\nname = 'other'\n")
+    assert provenance.commit_of(root) == provenance.Commit(sha, dirty=True)
+
+
+def test_results_written_into_the_checkout_leave_it_clean(checkout):
+    """A benchmark appending to its results.md, or new logs beside it, changes no code."""
+    root, sha = checkout
+    (root / "README.md").write_text("new table\n")
+    (root / "benchmarks" / "logs").mkdir(parents=True)
+    (root / "benchmarks" / "logs" / "rows.json").write_text("{}")
+    assert provenance.commit_of(root) == provenance.Commit(sha, dirty=False)
 
 
 def test_versions_names_the_commit_of_the_packages_checkout_not_of_the_working_folder(

@@ -55,12 +55,18 @@ def _git(root: Path, *args: str) -> str:
     ).stdout
 
 
+# The files of a checkout that make up canter's code. Results written into the checkout (a benchmark's tables and
+# logs, a report page) change no run, so they leave the flag clean.
+CODE_PATHS = ("src", "pyproject.toml")
+
+
 def commit_of(root: Path) -> Commit | None:
-    """HEAD of the checkout at `root`, and whether its files differ from it (untracked files that git does not
-    ignore count: a new module changes the code as much as an edit does). None when git is missing or fails."""
+    """HEAD of the checkout at `root`, and whether its code (CODE_PATHS) differs from it (untracked files that git
+    does not ignore count: a new module changes the code as much as an edit does). None when git is missing or
+    fails."""
     try:
         sha = _git(root, "rev-parse", "HEAD").strip()
-        changes = _git(root, "status", "--porcelain")
+        changes = _git(root, "status", "--porcelain", "--", *CODE_PATHS)
     except (OSError, subprocess.SubprocessError):
         return None
     return Commit(sha, bool(changes.strip())) if sha else None
