@@ -13,6 +13,7 @@ Also the machine description and the commit that every speed section names.
 
 from __future__ import annotations
 
+import argparse
 import gzip
 import json
 import os
@@ -191,3 +192,15 @@ def write_block(folder: Path, markers: tuple[str, str], render: Render, check: b
     readme.write_text(wanted)
     print(f"rewrote the {markers[0].strip()} block of {readme} from {folder}")
     return 0
+
+
+def parse_with_readme_options(parser: argparse.ArgumentParser, argv: list[str] | None, flag: str, block: str):
+    """Parse `argv` after adding `flag LOGS_DIR` (run nothing; rewrite the README's `block` from that archive) and
+    `--check` (with `flag`: exit 1 where the README differs instead)."""
+    rewrite = f"run nothing; rewrite README.md's {block} from an archive (logs/<stamp>)"
+    parser.add_argument(flag, type=Path, metavar="LOGS_DIR", help=rewrite)
+    parser.add_argument("--check", action="store_true", help=f"with {flag}: exit 1 if README.md's {block} differs")
+    args = parser.parse_args(argv)
+    if args.check and not getattr(args, flag.lstrip("-").replace("-", "_")):
+        parser.error(f"--check goes with {flag}")
+    return args

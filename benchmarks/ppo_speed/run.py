@@ -105,16 +105,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out-dir", default=None, help="where run folders and logs go (default benchmarks/runs/<stamp>)")
     p.add_argument("--results", default=str(HERE / "results.md"), help="markdown file to append the section to")
     p.add_argument("--no-write", action="store_true", help="print the table only; leave results.md alone")
-    p.add_argument(
-        "--headline",
-        type=Path,
-        metavar="LOGS_DIR",
-        help="run nothing; rewrite README.md's headline table from an archive (benchmarks/ppo_speed/logs/<stamp>)",
-    )
-    p.add_argument("--check", action="store_true", help="with --headline: exit 1 if README.md's table differs")
-    args = p.parse_args(argv)
-    if args.check and not args.headline:
-        p.error("--check goes with --headline")
+    args = speed_archive.parse_with_readme_options(p, argv, "--headline", "headline table")
     tools = args.only or list(TOOLS)
     if args.skip_sb3:
         tools = [t for t in tools if t != "sb3"]

@@ -83,16 +83,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out-dir", default=None)
     p.add_argument("--results", default=str(HERE / "results.md"))
     p.add_argument("--no-write", action="store_true")
-    p.add_argument(
-        "--readme",
-        type=Path,
-        metavar="LOGS_DIR",
-        help="run nothing; rewrite README.md's td3-speed paragraph from an archive (benchmarks/td3_speed/logs/<stamp>)",
-    )
-    p.add_argument("--check", action="store_true", help="with --readme: exit 1 if README.md's paragraph differs")
-    args = p.parse_args(argv)
-    if args.check and not args.readme:
-        p.error("--check goes with --readme")
+    args = speed_archive.parse_with_readme_options(p, argv, "--readme", "TD3 paragraph")
     if not 0 <= args.learning_starts < args.total_steps:
         p.error("--learning-starts must be in [0, --total-steps)")
     return args

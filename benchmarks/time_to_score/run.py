@@ -39,17 +39,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out-dir", default=None, help="run folders and logs (default benchmarks/runs/tts-<stamp>)")
     parser.add_argument("--results", default=str(HERE / "results.md"))
     parser.add_argument("--no-write", action="store_true", help="print the section only; leave results.md alone")
-    parser.add_argument(
-        "--readme",
-        type=Path,
-        metavar="LOGS_DIR",
-        help="run nothing; rewrite README.md's time-to-score sentence from an archive (logs/<stamp>)",
-    )
-    parser.add_argument("--check", action="store_true", help="with --readme: exit 1 if README.md's sentence differs")
-    args = parser.parse_args(argv)
-    if args.check and not args.readme:
-        parser.error("--check goes with --readme")
-    return args
+    return speed_archive.parse_with_readme_options(parser, argv, "--readme", "time-to-score sentence")
 
 
 def _timed(cmd: list[str], log: Path) -> float:
