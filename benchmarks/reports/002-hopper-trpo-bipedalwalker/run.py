@@ -49,6 +49,11 @@ WALKER = "BipedalWalker-v3"
 WALKER_STEPS = "1e7"  # the report's budget: ten million env steps or a return of 300, whichever comes first
 WALKER_PRESETS = {"ppo": "report002-bipedalwalker-ppo", "ddpg": "report002-ddpg"}
 WALKER_EPISODES = 100  # the report's evaluation
+# PPO's first attempt, with canter's reward and observation normalization on (the report's SB3 has neither unless
+# VecNormalize is wrapped in, which it does not mention): archived under runs/<this>/ with its curves, and shown
+# beside the rerun without them.
+FIRST_ATTEMPT = "first-attempt-normalized"
+FIRST_CURVES = "curves_ppo_first_attempt.png"
 
 # The report's own search spaces and its runtime settings (table 3), cut from 50 trials to 10 (and from 10 random
 # startup trials to 5, from 4 jobs to 1): per trial the report's 1M steps and 20 evaluations of 5 episodes.
@@ -297,8 +302,8 @@ def _clock(seconds: float) -> str:
     return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
 
 
-def walker_row(algo: str, seed: int) -> str:
-    run = archived(PAGE, walker_name(algo, seed))
+def walker_row(algo: str, seed: int, folder: str = "") -> str:
+    run = archived(PAGE, folder + walker_name(algo, seed))
     if run is None:
         return f"| {algo} | {seed} | not run yet (`walker-{algo}`) | | | | |"
     summary, evaluation = run["summary"], run["eval"]
@@ -324,6 +329,15 @@ def walker_text() -> str:
     images = [f"![{algo} curves]({curves(algo).name})" for algo in WALKER_PRESETS if curves(algo).is_file()]
     if images:
         lines += ["", *images]
+    first = [walker_row("ppo", seed, FIRST_ATTEMPT + "/") for seed in SEEDS]
+    lines += [
+        "",
+        f"PPO's first attempt, with canter's observation and reward normalization on (archived in "
+        f"[`runs/{FIRST_ATTEMPT}/`](runs/{FIRST_ATTEMPT}/), curves in [{FIRST_CURVES}]({FIRST_CURVES})):",
+        "",
+        *lines[:2],
+        *first,
+    ]
     lines += [
         "",
         "The report's table 6, beside it (SB3, 4 envs, 3 seeds in parallel on an A40 node; evaluation over 100 "
