@@ -136,6 +136,9 @@ def test_stop_conditions(tmp_path):
     r = train(_config(total=100_000, extra=[f"run.out_dir={tmp_path}", "run.max_minutes=0.0001"]))
     assert r.stop_reason == "max_minutes" and r.global_step < 100_000
     assert any((r.run_dir / "checkpoints").iterdir())
+    # The budget spent in the iteration that passes the deadline: the run is complete, not stopped early.
+    r = train(_config(total=1, extra=[f"run.out_dir={tmp_path}", "run.max_minutes=0.0001"]))
+    assert r.stop_reason == "budget" and r.global_step >= 1
 
 
 def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):

@@ -5,7 +5,11 @@ checkpoint), then evaluated by `canter eval` in a process of its own (determinis
 asks for more, every episode's return and length). Its files are copied into `<page>/runs/<name>/`: config.toml,
 metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (the command, its wall seconds, and
 the 1-minute load average before it, which says whether other work shared the cores). A run whose archive is
-complete is not trained again, so a page's script can be rerun to fill in what is missing."""
+complete is not trained again, so a page's script can be rerun to fill in what is missing.
+
+A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops each after M
+minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall time is
+their sum, which counts each process's start and compile again."""
 
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,29 +45,86 @@ def archived(page: Path, name: str) -> dict[str, Any] | None:
     return {f.removesuffix(".json"): json.loads((folder / f).read_text()) for f in files} | {"folder": folder}
 
 
+@dataclass
+class Sessions:
+    """How long one page command may train: `--max-minutes` stops each `canter train` process after that long,
+    checkpointed, so that a run longer than a working session is carried on by the same command later."""
+
+    max_minutes: float | None = None
+
+
+SESSIONS = Sessions()
+SESSIONS_FILE = "sessions.json"  # beside the work folder's run: one entry per training process
+FINISHED = ("budget", "stop_at_return")  # summary.json stop reasons that end a run; others resume
+
+
+def _sessions(out: Path) -> list[dict[str, Any]]:
+    """The work folder's finished training processes, or [] where it holds none that can be carried on: no folder,
+    no run with a checkpoint yet, or a process that ended without its time recorded (killed), whose time is lost."""
+    path = out / SESSIONS_FILE
+    if not path.is_file() or not _run_dir(out) or not any((_run_dir(out) / "checkpoints").glob("*")):
+        return []
+    sessions = json.loads(path.read_text())
+    return sessions if all(entry["wall_seconds"] is not None for entry in sessions) else []
+
+
+def _run_dir(out: Path) -> Path | None:
+    dirs = [d for d in out.iterdir() if d.is_dir()] if out.is_dir() else []
+    return dirs[0] if len(dirs) == 1 else None
+
+
+def _write_sessions(out: Path, sessions: list[dict[str, Any]]) -> None:
+    (out / SESSIONS_FILE).write_text(json.dumps(sessions, indent=2) + "\n")
+
+
 def timed_train(
     page: Path, name: str, train_args: list[str], work: Path, episodes: int = EVAL_EPISODES
-) -> dict[str, Any]:
+) -> dict[str, Any] | None:
     """Train (unless archived already), evaluate (`episodes` episodes) and archive one run; returns
-    `archived(page, name)`."""
+    `archived(page, name)`, or None when the process stopped at `SESSIONS.max_minutes` before the run's end: the
+    same call carries it on from its checkpoint, and the archived wall time is the sum of its processes."""
     found = archived(page, name)
     if found:
         print(f"{name}: archived already", flush=True)
         return found
     out = work / name
-    if out.exists():
-        shutil.rmtree(out)  # a run stopped halfway has an unusable time: start it again
-    out.mkdir(parents=True)
-    command = [*canter_command(), "train", *train_args, "--quiet", "--out-dir", str(out)]
+    sessions = _sessions(out)
+    if sessions:
+        command = [*canter_command(), "train", "--resume", str(_run_dir(out)), "--quiet"]
+    else:
+        if out.exists():
+            shutil.rmtree(out)  # a run stopped without its time recorded has an unusable time: start it again
+        out.mkdir(parents=True)
+        limit = ["--max-minutes", f"{SESSIONS.max_minutes:g}"] if SESSIONS.max_minutes else []
+        command = [*canter_command(), "train", *train_args, *limit, "--quiet", "--out-dir", str(out)]
     load = os.getloadavg()[0]
-    print(f"{name}: $ {' '.join(command[1:])}", flush=True)
+    entry = {
+        "command": ["canter", *command[len(canter_command()) :]],
+        "wall_seconds": None,  # filled in when the process ends; None on the next call means it was killed
+        "load_average_before": round(load, 2),
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    _write_sessions(out, [*sessions, entry])
+    print(f"{name}: $ {' '.join(entry['command'][1:])}", flush=True)
     start = time.perf_counter()
-    with open(out / "train.log", "wb") as log:
+    with open(out / "train.log", "ab") as log:
         code = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
     wall = time.perf_counter() - start
     if code != 0:
         raise SystemExit(f"{name}: canter train exited {code}; see {out / 'train.log'}")
-    [run_dir] = [d for d in out.iterdir() if d.is_dir()]
+    sessions = [*sessions, entry | {"wall_seconds": round(wall, 1)}]
+    _write_sessions(out, sessions)
+    run_dir = _run_dir(out)
+    assert run_dir is not None
+    summary = json.loads((run_dir / "summary.json").read_text())
+    total = sum(e["wall_seconds"] for e in sessions)
+    if summary["stop_reason"] not in FINISHED:
+        print(
+            f"{name}: stopped ({summary['stop_reason']}) at step {summary['global_step']:,} after "
+            f"{len(sessions)} process(es), {total / 60:.0f} min in all; the same command carries it on",
+            flush=True,
+        )
+        return None
     evaluation = out / "eval.json"
     subprocess.run(
         [*canter_command(), "eval", str(run_dir), "--episodes", str(episodes), "--json", str(evaluation)],
@@ -77,13 +139,16 @@ def timed_train(
     keep = ("episodes", "return_mean", "return_std", "returns", "lengths", "checkpoint", "global_step", "deterministic")
     (folder / "eval.json").write_text(json.dumps({k: row[k] for k in keep if k in row}, indent=2) + "\n")
     timing = {
-        "command": ["canter", *command[len(canter_command()) :]],
-        "wall_seconds": round(wall, 1),
-        "load_average_before": round(load, 2),
-        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "command": sessions[0]["command"],
+        "wall_seconds": round(total, 1),
+        # The busiest start of its processes: wall_text marks the time as shared when this is high.
+        "load_average_before": max(e["load_average_before"] for e in sessions),
+        "date": sessions[-1]["date"],
     }
+    if len(sessions) > 1:
+        timing["sessions"] = sessions
     (folder / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
-    print(f"{name}: {wall:.0f} s, eval {row['return_mean']:.0f}", flush=True)
+    print(f"{name}: {total:.0f} s, eval {row['return_mean']:.0f}", flush=True)
     found = archived(page, name)
     assert found is not None
     return found
@@ -123,7 +188,13 @@ def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str,
     parser.add_argument("--write", action="store_true", help="only rewrite the page's tables")
     if len(steps) > 1:
         parser.add_argument("--only", choices=list(steps), action="append", help="run only this step (repeatable)")
+    parser.add_argument(
+        "--max-minutes",
+        type=float,
+        help="stop each training process after this long, checkpointed; the same command carries the run on",
+    )
     args = parser.parse_args()
+    SESSIONS.max_minutes = args.max_minutes
     if not (args.check or args.write):
         for name in getattr(args, "only", None) or steps:
             steps[name]()

@@ -2,6 +2,8 @@
 
     python benchmarks/reports/001-humanoid-ppo/run.py [--only NAME]  # train the long runs (all, or those named) not
                                                                      # yet archived, plot and film them, write the table
+    python benchmarks/reports/001-humanoid-ppo/run.py --max-minutes 120  # stop each training process after 2 h,
+                                                                          # checkpointed; the same command carries it on
     python benchmarks/reports/001-humanoid-ppo/run.py --write      # only rewrite the page's table
     python benchmarks/reports/001-humanoid-ppo/run.py --check      # exit 1 if the table is not the archive's
 
@@ -79,8 +81,8 @@ def table() -> str:
 
 
 def train_long(name: str) -> None:
-    timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], WORK)
-    plot_and_film(PAGE, name, WORK)
+    if timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], WORK):
+        plot_and_film(PAGE, name, WORK)
 
 
 def main() -> int:

@@ -188,9 +188,11 @@ def run_sweep() -> None:
 
 
 def run_walker(algo: str) -> None:
-    for seed in SEEDS:
-        timed_train(PAGE, walker_name(algo, seed), walker_train_args(algo, seed), ROOT / WORK, WALKER_EPISODES)
-    subprocess.run([*canter_command(), *curves_args(algo)], check=True, cwd=ROOT)
+    runs = [
+        timed_train(PAGE, walker_name(algo, s), walker_train_args(algo, s), ROOT / WORK, WALKER_EPISODES) for s in SEEDS
+    ]
+    if all(runs):
+        subprocess.run([*canter_command(), *curves_args(algo)], check=True, cwd=ROOT)
 
 
 def run_tune(algo: str) -> None:

@@ -530,9 +530,10 @@ def _loop(
                 for i, run in enumerate(runs):
                     if run.stop_reason is not None:
                         continue
-                    reason = run.own_stop_reason() or group_reason
-                    if reason is None and run.global_step >= total:
-                        reason = "budget"
+                    # A seed whose budget is spent is complete even when the deadline or a signal comes in the
+                    # same iteration: marked stopped early, a resume would find nothing left to train.
+                    budget = "budget" if run.global_step >= total else None
+                    reason = run.own_stop_reason() or budget or group_reason
                     if reason is not None:
                         run.finish(pick(state, i), reason, compile_seconds, started, env_carry(carry, i))
                 active = [run for run in runs if run.stop_reason is None] or runs
