@@ -1,9 +1,11 @@
-"""The report pages' timed runs carry on across working sessions: a process stopped by --max-minutes resumes from
-its checkpoint on the next call, and the archived wall time is the sum of its processes. Real `canter train`
-processes on InvertedPendulum-v4, 1024 steps in iterations of about 500."""
+"""The report pages' timed runs carry on across working sessions: a process stopped before its budget resumes from
+its checkpoint on the next call, and the archived wall time is the sum of its processes; a page's --max-minutes
+stops its processes as Ctrl-C does. Real `canter train` processes on InvertedPendulum-v4, 1024 steps in iterations
+of about 500."""
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -15,23 +17,17 @@ import timed
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4"]
 TINY += ["--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2"]
+# run.max_minutes under a second: each process stops after its first iteration, checkpointed (a resume keeps it).
 ARGS = ["InvertedPendulum-v4", "--algo", "ppo", "--seed", "0", "--total-steps", "1024", *TINY]
+ARGS += ["--set", "run.max_minutes=0.0001"]
 
 
-@pytest.fixture
-def session_limit(monkeypatch):
-    # Under a second: each process stops after its first iteration, checkpointed.
-    monkeypatch.setattr(timed.SESSIONS, "max_minutes", 0.0001)
-
-
-def test_a_run_stopped_by_its_session_limit_is_carried_on_and_its_processes_times_summed(
-    tmp_path, session_limit, capsys
-):
+def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_summed(tmp_path, capsys):
     page, work = tmp_path / "page", tmp_path / "work"
     assert timed.timed_train(page, "run", ARGS, work, episodes=1) is None
     out = work / "run"
     [first] = json.loads((out / timed.SESSIONS_FILE).read_text())
-    assert "--max-minutes" in first["command"] and first["wall_seconds"] > 0
+    assert first["command"][1:3] == ["train", "InvertedPendulum-v4"] and first["wall_seconds"] > 0
     assert "the same command carries it on" in capsys.readouterr().out
     assert timed.archived(page, "run") is None
 
@@ -59,3 +55,26 @@ def test_a_process_that_ended_without_its_time_recorded_is_not_carried_on(tmp_pa
     (out / timed.SESSIONS_FILE).write_text(json.dumps([entry, entry | {"wall_seconds": None}]))
     assert timed._sessions(out) == []  # killed: its time is lost, so the run starts again
     assert timed._sessions(tmp_path / "absent") == []
+
+
+SLEEPER = """
+import signal, sys, time
+signal.signal(signal.SIGINT, lambda *_: sys.exit(0))  # as canter train: checkpoint, then a clean exit
+time.sleep(60)
+"""
+
+
+def test_the_deadline_stops_a_process_as_ctrl_c_does(monkeypatch):
+    monkeypatch.setattr(timed.DEADLINE, "at", time.monotonic() + 1.0)
+    started = time.monotonic()
+    assert timed.run_to_deadline([sys.executable, "-c", SLEEPER]) == (0, True)
+    assert time.monotonic() - started < 30
+    monkeypatch.setattr(timed.DEADLINE, "at", None)
+    assert timed.run_to_deadline([sys.executable, "-c", "raise SystemExit(3)"]) == (3, False)
+
+
+def test_nothing_starts_past_the_deadline(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(timed.DEADLINE, "at", time.monotonic() - 1.0)
+    assert timed.timed_train(tmp_path / "page", "run", ARGS, tmp_path / "work") is None
+    assert not (tmp_path / "work").exists()
+    assert "past this command's --max-minutes; not started" in capsys.readouterr().out

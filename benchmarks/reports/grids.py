@@ -9,13 +9,12 @@ run again; one that is partly archived is run whole, and the bench itself skips 
 from __future__ import annotations
 
 import shutil
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from archive import ROOT, RUN_FILES, copy_run
-from timed import canter_command
+from timed import canter_command, out_of_time, run_to_deadline
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json
@@ -131,7 +130,13 @@ def run_grid(page: Path, grid: Grid, work: Path) -> None:
     if all(len(archived_runs(page, grid, cell)) == len(grid.seeds) for cell in cells):
         print(f"{grid.name}: archived already", flush=True)
         return
+    if out_of_time(grid.name):
+        return
     command = [*canter_command(), *grid.args(str(work / grid.name))]
     print(f"{grid.name}: $ canter {' '.join(command[len(canter_command()) :])}", flush=True)
-    subprocess.run(command, check=True, cwd=ROOT)
+    code, stopped = run_to_deadline(command, cwd=ROOT)
     print(f"{grid.name}: archived {len(collect(page, grid, work))} runs", flush=True)
+    if stopped:
+        print(f"{grid.name}: stopped at --max-minutes, checkpointed; the same command carries it on", flush=True)
+    elif code != 0:
+        raise SystemExit(f"{grid.name}: canter bench exited {code}")

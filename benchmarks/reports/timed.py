@@ -7,9 +7,9 @@ metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (
 the 1-minute load average before it, which says whether other work shared the cores). A run whose archive is
 complete is not trained again, so a page's script can be rerun to fill in what is missing.
 
-A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops each after M
-minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall time is
-their sum, which counts each process's start and compile again."""
+A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops its training
+after M minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall
+time is their sum, which counts each process's start and compile again."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -46,14 +47,45 @@ def archived(page: Path, name: str) -> dict[str, Any] | None:
 
 
 @dataclass
-class Sessions:
-    """How long one page command may train: `--max-minutes` stops each `canter train` process after that long,
-    checkpointed, so that a run longer than a working session is carried on by the same command later."""
+class Deadline:
+    """When a page command stops training (`--max-minutes`, as time.monotonic()), or None: each training process
+    still running then is stopped as Ctrl-C stops it, checkpointed, and the same command carries it on later. That
+    lets a page whose runs take longer than a working session be filled in over several."""
 
-    max_minutes: float | None = None
+    at: float | None = None
+
+    def seconds_left(self) -> float | None:
+        return None if self.at is None else self.at - time.monotonic()
 
 
-SESSIONS = Sessions()
+DEADLINE = Deadline()
+# A stopped process finishes its iteration and writes its checkpoint; give up on it after this long.
+STOP_GRACE_SECONDS = 600
+
+
+def run_to_deadline(command: list[str], **popen: Any) -> tuple[int, bool]:
+    """Run `command` to its end or to DEADLINE, where it gets SIGINT (canter train and canter bench then write their
+    checkpoints and return); its exit code, and whether the deadline stopped it."""
+    with subprocess.Popen(command, **popen) as proc:
+        try:
+            return proc.wait(timeout=DEADLINE.seconds_left()), False
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGINT)
+            try:
+                return proc.wait(timeout=STOP_GRACE_SECONDS), True
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                return proc.wait(), True
+
+
+def out_of_time(name: str) -> bool:
+    left = DEADLINE.seconds_left()
+    if left is not None and left <= 0:
+        print(f"{name}: past this command's --max-minutes; not started", flush=True)
+        return True
+    return False
+
+
 SESSIONS_FILE = "sessions.json"  # beside the work folder's run: one entry per training process
 FINISHED = ("budget", "stop_at_return")  # summary.json stop reasons that end a run; others resume
 
@@ -81,12 +113,14 @@ def timed_train(
     page: Path, name: str, train_args: list[str], work: Path, episodes: int = EVAL_EPISODES
 ) -> dict[str, Any] | None:
     """Train (unless archived already), evaluate (`episodes` episodes) and archive one run; returns
-    `archived(page, name)`, or None when the process stopped at `SESSIONS.max_minutes` before the run's end: the
-    same call carries it on from its checkpoint, and the archived wall time is the sum of its processes."""
+    `archived(page, name)`, or None when DEADLINE stopped the process before the run's end: the same call carries
+    it on from its checkpoint, and the archived wall time is the sum of its processes."""
     found = archived(page, name)
     if found:
         print(f"{name}: archived already", flush=True)
         return found
+    if out_of_time(name):
+        return None
     out = work / name
     sessions = _sessions(out)
     if sessions:
@@ -95,8 +129,7 @@ def timed_train(
         if out.exists():
             shutil.rmtree(out)  # a run stopped without its time recorded has an unusable time: start it again
         out.mkdir(parents=True)
-        limit = ["--max-minutes", f"{SESSIONS.max_minutes:g}"] if SESSIONS.max_minutes else []
-        command = [*canter_command(), "train", *train_args, *limit, "--quiet", "--out-dir", str(out)]
+        command = [*canter_command(), "train", *train_args, "--quiet", "--out-dir", str(out)]
     load = os.getloadavg()[0]
     entry = {
         "command": ["canter", *command[len(canter_command()) :]],
@@ -108,8 +141,11 @@ def timed_train(
     print(f"{name}: $ {' '.join(entry['command'][1:])}", flush=True)
     start = time.perf_counter()
     with open(out / "train.log", "ab") as log:
-        code = subprocess.run(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+        code, stopped = run_to_deadline(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     wall = time.perf_counter() - start
+    if code != 0 and stopped:
+        print(f"{name}: stopped at --max-minutes before its first checkpoint; the next call starts again", flush=True)
+        return None
     if code != 0:
         raise SystemExit(f"{name}: canter train exited {code}; see {out / 'train.log'}")
     sessions = [*sessions, entry | {"wall_seconds": round(wall, 1)}]
@@ -191,10 +227,11 @@ def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str,
     parser.add_argument(
         "--max-minutes",
         type=float,
-        help="stop each training process after this long, checkpointed; the same command carries the run on",
+        help="stop training after this long, checkpointed; the same command carries the runs on",
     )
     args = parser.parse_args()
-    SESSIONS.max_minutes = args.max_minutes
+    if args.max_minutes is not None:
+        DEADLINE.at = time.monotonic() + args.max_minutes * 60
     if not (args.check or args.write):
         for name in getattr(args, "only", None) or steps:
             steps[name]()

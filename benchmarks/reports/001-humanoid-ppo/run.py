@@ -2,8 +2,8 @@
 
     python benchmarks/reports/001-humanoid-ppo/run.py [--only NAME]  # train the long runs (all, or those named) not
                                                                      # yet archived, plot and film them, write the table
-    python benchmarks/reports/001-humanoid-ppo/run.py --max-minutes 120  # stop each training process after 2 h,
-                                                                          # checkpointed; the same command carries it on
+    python benchmarks/reports/001-humanoid-ppo/run.py --max-minutes 120  # stop training after 2 h, checkpointed;
+                                                                          # the same command carries it on
     python benchmarks/reports/001-humanoid-ppo/run.py --write      # only rewrite the page's table
     python benchmarks/reports/001-humanoid-ppo/run.py --check      # exit 1 if the table is not the archive's
 
