@@ -49,7 +49,7 @@ def archived(page: Path, name: str) -> dict[str, Any] | None:
 @dataclass
 class Deadline:
     """When a page command stops training (`--max-minutes`, as time.monotonic()), or None: each training process
-    still running then is stopped as Ctrl-C stops it, checkpointed, and the same command carries it on later. That
+    still running then gets SIGTERM and stops, checkpointed, and the same command carries it on later. That
     lets a page whose runs take longer than a working session be filled in over several."""
 
     at: float | None = None
@@ -64,13 +64,15 @@ STOP_GRACE_SECONDS = 600
 
 
 def run_to_deadline(command: list[str], **popen: Any) -> tuple[int, bool]:
-    """Run `command` to its end or to DEADLINE, where it gets SIGINT (canter train and canter bench then write their
-    checkpoints and return); its exit code, and whether the deadline stopped it."""
+    """Run `command` to its end or to DEADLINE, where it gets SIGTERM; its exit code, and whether the deadline stopped
+    it. canter train then writes its checkpoint at the end of the iteration and returns; canter bench ends at once,
+    and its jobs, which get SIGTERM as their parent dies, write theirs. SIGTERM rather than SIGINT, because a process
+    started in the background by a shell script ignores SIGINT."""
     with subprocess.Popen(command, **popen) as proc:
         try:
             return proc.wait(timeout=DEADLINE.seconds_left()), False
         except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signal.SIGTERM)
             try:
                 return proc.wait(timeout=STOP_GRACE_SECONDS), True
             except subprocess.TimeoutExpired:
