@@ -3,7 +3,8 @@
 A grid is one `canter bench` command. Its cells (their names, configs and checks) come from canter's own
 `make_cells`, so the page's command, the run folders it archives and the table's rows cannot disagree. Each finished
 run (trained to the budget and evaluated) is copied to `<page>/runs/<grid name>/<cell>__s<seed>/`: config.toml,
-eval.json, metrics.csv, summary.json and versions.json, no checkpoints. A grid whose runs are all archived is not
+eval.json, metrics.csv, summary.json and versions.json, no checkpoints; the bench's curves, results.md and
+statistics.json go beside them. A grid whose runs are all archived is not
 run again; one that is partly archived is run whole, and the bench itself skips what its folder has finished."""
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from timed import canter_command, out_of_time, run_to_deadline
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json
+
+
+BENCH_FILES = ("results.md", "statistics.json")
 
 
 @dataclass(frozen=True)
@@ -118,9 +122,11 @@ def collect(page: Path, grid: Grid, work: Path) -> list[str]:
             target = cell.run_dir(page / "runs" / grid.name, seed)
             copy_run(source, target)
             copied.append(target.name)
-    plot = work / grid.name / curves(page, grid).name
-    if copied and plot.is_file():
-        shutil.copyfile(plot, curves(page, grid))
+    if copied:
+        # The curves, and the bench's table and rliable statistics (IQM, mean, median with bootstrap intervals).
+        for name in (curves(page, grid).name, *BENCH_FILES):
+            if (work / grid.name / name).is_file():
+                shutil.copyfile(work / grid.name / name, page / "runs" / grid.name / name)
     return copied
 
 
