@@ -20,7 +20,6 @@ from timed import canter_command, out_of_time, run_to_deadline
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json
 
-
 BENCH_FILES = ("results.md", "statistics.json")
 
 
