@@ -95,8 +95,8 @@ FINISHED = ("budget", "stop_at_return")  # summary.json stop reasons that end a 
 def _sessions(out: Path) -> list[dict[str, Any]]:
     """The work folder's finished training processes, or [] where it holds none that can be carried on: no folder,
     no run with a checkpoint yet, or a process that ended without its time recorded (killed), whose time is lost."""
-    path = out / SESSIONS_FILE
-    if not path.is_file() or not _run_dir(out) or not any((_run_dir(out) / "checkpoints").glob("*")):
+    path, run_dir = out / SESSIONS_FILE, _run_dir(out)
+    if not path.is_file() or run_dir is None or not any((run_dir / "checkpoints").glob("*")):
         return []
     sessions = json.loads(path.read_text())
     return sessions if all(entry["wall_seconds"] is not None for entry in sessions) else []
@@ -195,7 +195,7 @@ def timed_train(
 def plot_and_film(page: Path, name: str, work: Path) -> None:
     """The archived run's training curve (`canter plot`, from the archive) and one episode's video (`canter video`,
     from the trained run's checkpoint), as <page>/<name>.png and .mp4, unless they exist."""
-    [run_dir] = [d for d in (work / name).iterdir() if d.is_dir()] if (work / name).is_dir() else [None]
+    run_dir = _run_dir(work / name)
     for suffix, command in (
         (".png", ["plot", str(page / "runs" / name), "--out"]),
         (".mp4", ["video", str(run_dir), "--episodes", "1", "--out"]),
