@@ -125,7 +125,7 @@ seeds)
     done
     ;;
 offpolicy)
-    # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each.
+    # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each by default.
     num_envs=$(small 4 "${OFFPOLICY_ENVS:-1024}")
     for algo in td3 sac; do
         train "offpolicy-$algo" HalfCheetah-v5 --backend mjx "${mjx_sets[@]}" --algo "$algo" --seed 0 \
@@ -133,7 +133,7 @@ offpolicy)
             --set "$algo.gradient_steps=$(small 1 "${OFFPOLICY_UPDATES:-4}")" \
             --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 10))")" \
             --set "$algo.steps_per_call=$(small 8 "$((num_envs * 50))")" \
-            --max-minutes "$(small 2 2)" --total-steps "$(small 48 1000000000)" \
+            --max-minutes "$(small 2 "${OFFPOLICY_MINUTES:-2}")" --total-steps "$(small 48 1000000000)" \
             --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-5000000}")" --eval-episodes "$(small 2 10)"
     done
     ;;
