@@ -125,16 +125,18 @@ seeds)
     done
     ;;
 offpolicy)
-    # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each by default.
-    num_envs=$(small 4 "${OFFPOLICY_ENVS:-1024}")
-    for algo in td3 sac; do
+    # Many envs, large batches and several updates per env step, as FastTD3 does; 2 minutes each by default. On an
+    # H100, 1024 envs with 4 updates per vector step made too few updates to learn in minutes; 256 with 16 did.
+    num_envs=$(small 4 "${OFFPOLICY_ENVS:-256}")
+    read -r -a algos <<<"${OFFPOLICY_ALGOS:-td3 sac}"
+    for algo in "${algos[@]}"; do
         train "offpolicy-$algo" HalfCheetah-v5 --backend mjx "${mjx_sets[@]}" --algo "$algo" --seed 0 \
-            --set env.num_envs="$num_envs" --set "$algo.batch_size=$(small 32 "${OFFPOLICY_BATCH:-8192}")" \
-            --set "$algo.gradient_steps=$(small 1 "${OFFPOLICY_UPDATES:-4}")" \
-            --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 10))")" \
-            --set "$algo.steps_per_call=$(small 8 "$((num_envs * 50))")" \
+            --set env.num_envs="$num_envs" --set "$algo.batch_size=$(small 32 "${OFFPOLICY_BATCH:-4096}")" \
+            --set "$algo.gradient_steps=$(small 1 "${OFFPOLICY_UPDATES:-16}")" \
+            --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 40))")" \
+            --set "$algo.steps_per_call=$(small 8 "$((num_envs * 100))")" \
             --max-minutes "$(small 2 "${OFFPOLICY_MINUTES:-2}")" --total-steps "$(small 48 1000000000)" \
-            --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-5000000}")" --eval-episodes "$(small 2 10)"
+            --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-500000}")" --eval-episodes "$(small 2 10)"
     done
     ;;
 esac
