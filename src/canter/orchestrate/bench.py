@@ -46,7 +46,7 @@ from canter.orchestrate.jobs import (
     run_status,
     run_workers,
     start_job,
-    stop_job,
+    stop_jobs,
     warn_if_more_jobs_than_cores,
 )
 from canter.training.trackers import TrackSpec, check_trackers
@@ -508,8 +508,7 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                     print(f"FAIL  {job.name}: {reason}", flush=True)
             time.sleep(settings.poll_seconds)
     finally:
-        for _, proc, _ in running.values():
-            stop_job(proc)
+        stop_jobs(proc for _, proc, _ in running.values())
     return failures
 
 
@@ -532,7 +531,7 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
     try:
         code = proc.wait()
     finally:
-        stop_job(proc)
+        stop_jobs([proc])
     if code != 0:
         return Outcome("fail", reason=failure_reason(folder, code))
     # The records travel with the trial, so any machine can build the table from the storage alone.

@@ -20,7 +20,8 @@ import shutil
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -178,12 +179,21 @@ def failure_reason(folder: Path, returncode: int) -> str:
     return f"training process failed ({how}): {last.strip()[:300]}"
 
 
-def stop_job(proc: subprocess.Popen, grace_seconds: float = 20.0) -> None:
-    """SIGTERM (the trainer saves a checkpoint and returns), then SIGKILL after the grace period."""
-    if proc.poll() is None:
+# A job told to stop finishes its iteration, or the evaluation under way, and writes its checkpoint; a long
+# HumanoidStandup evaluation on two cores outlasts 20 s, and a job killed then loses everything since its last one.
+STOP_GRACE_SECONDS = 180.0
+
+
+def stop_jobs(procs: Iterable[subprocess.Popen], grace_seconds: float = STOP_GRACE_SECONDS) -> None:
+    """SIGTERM to every job at once (the trainer saves a checkpoint and returns), then SIGKILL to those still running
+    after the grace period, which all of them share."""
+    running = [proc for proc in procs if proc.poll() is None]
+    for proc in running:
         proc.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + grace_seconds
+    for proc in running:
         try:
-            proc.wait(grace_seconds)
+            proc.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()

@@ -37,7 +37,7 @@ import numpy as np
 from canter.config.build import build_config
 from canter.config.schema import Config
 from canter.errors import CanterError
-from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_job
+from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
     FAIL_REASON,
@@ -257,12 +257,12 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 retrying(functools.partial(trial.report, value, step), url, "reporting an evaluation")
                 if index < settings.evaluations and retrying(trial.should_prune, url, "asking the pruner"):
-                    stop_job(proc)
+                    stop_jobs([proc])
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
             if code is not None:
                 break
             if deadline is not None and time.monotonic() > deadline:
-                stop_job(proc, grace_seconds=5)
+                stop_jobs([proc], grace_seconds=5)
                 done = max(reported, default=0) * settings.eval_interval
                 return Outcome(
                     "fail",
@@ -270,7 +270,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 )
             time.sleep(settings.poll_seconds)
     finally:
-        stop_job(proc)
+        stop_jobs([proc])
         for d in run_dirs.values():
             if d.is_dir():
                 checkpoint.prune(d, 1)
