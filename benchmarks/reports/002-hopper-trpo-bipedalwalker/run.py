@@ -32,7 +32,7 @@ sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
 from grids import Grid, cell_result, run_grid  # noqa: E402
-from timed import archived, canter_command, page_main, timed_train  # noqa: E402
+from timed import archived, canter_command, out_of_time, page_main, run_to_deadline, timed_train  # noqa: E402
 
 from canter.orchestrate.search_space import Param, load_space  # noqa: E402
 
@@ -199,8 +199,15 @@ def run_tune(algo: str) -> None:
     if all((tune_archive(algo) / f).is_file() for f in TUNE_FILES):
         print(f"tune-{algo}: archived already", flush=True)
         return
+    if out_of_time(f"tune-{algo}"):
+        return
     print(f"tune-{algo}: $ canter {' '.join(tune_args(algo))}", flush=True)
-    subprocess.run([*canter_command(), *tune_args(algo)], check=True, cwd=ROOT)
+    code, stopped = run_to_deadline([*canter_command(), *tune_args(algo)], cwd=ROOT)
+    if stopped:  # the study is kept in its SQLite file; the trial in flight is failed and asked again
+        print(f"tune-{algo}: stopped at --max-minutes; the same command carries the study on", flush=True)
+        return
+    if code != 0:
+        raise SystemExit(f"tune-{algo}: canter tune exited {code}")
     tune_archive(algo).mkdir(parents=True, exist_ok=True)
     for f in TUNE_FILES:
         shutil.copyfile(ROOT / WORK / f"{WALKER}__{algo}" / f, tune_archive(algo) / f)
