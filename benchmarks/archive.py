@@ -2,32 +2,48 @@
 and marked blocks that are generated from it.
 
 An archive holds one folder per finished run, named as `canter bench` names them (`<env>__<algo>__s<seed>`), with
-the run's config.toml, eval.json, metrics.csv, summary.json and versions.json, and no checkpoints."""
+the run's config.toml, eval.json, metrics.csv, summary.json and versions.json, and no checkpoints. A long metrics.csv
+is kept gzipped, as metrics.csv.gz, which canter's readers (plot, bench's tables) take as they take metrics.csv:
+archives are committed, and long runs' metrics make up most of their size."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import re
-import shutil
 import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from canter.orchestrate.bench import seed_record
+from canter.training.run_folder import METRICS_FILE
 
 ROOT = Path(__file__).resolve().parent.parent
 # What an archive keeps of a bench run: everything behind its table row, and no checkpoints.
 RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
 
 
+PACKED_METRICS_OVER = 200_000  # bytes of metrics.csv above which the archive keeps it gzipped (about 5x smaller)
+
+
+def has_run_files(folder: Path, files: tuple[str, ...] = RUN_FILES) -> bool:
+    """Whether an archived run holds each of `files` (metrics.csv plain or gzipped)."""
+    return all((folder / f).is_file() or (f == METRICS_FILE and (folder / f"{f}.gz").is_file()) for f in files)
+
+
 def copy_run(source: Path, target: Path, files: tuple[str, ...] = RUN_FILES) -> bool:
-    """Copy a run's archived files from its run folder; False (and nothing copied) if one is missing."""
+    """Copy a run's archived files from its run folder, a long metrics.csv gzipped; False (and nothing copied) if one
+    is missing."""
     if not all((source / f).is_file() for f in files):
         return False
     target.mkdir(parents=True, exist_ok=True)
     for f in files:
-        shutil.copyfile(source / f, target / f)
+        data = (source / f).read_bytes()
+        packed = f == METRICS_FILE and len(data) > PACKED_METRICS_OVER
+        kept, stale = (target / f"{f}.gz", target / f) if packed else (target / f, target / f"{f}.gz")
+        kept.write_bytes(gzip.compress(data, mtime=0) if packed else data)
+        stale.unlink(missing_ok=True)
     return True
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from archive import ROOT, RUN_FILES, copy_run
+from archive import ROOT, copy_run, has_run_files
 from timed import canter_command, out_of_time, run_to_deadline
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
@@ -76,7 +76,7 @@ def label(cell: Cell, cells: list[Cell]) -> str:
 
 def finished(folder: Path, total_steps: int) -> bool:
     summary = read_json(folder / "summary.json") or {}
-    return all((folder / f).is_file() for f in RUN_FILES) and summary.get("global_step", 0) >= total_steps
+    return has_run_files(folder) and summary.get("global_step", 0) >= total_steps
 
 
 def archived_runs(page: Path, grid: Grid, cell: Cell) -> list[dict[str, Any]]:

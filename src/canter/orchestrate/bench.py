@@ -283,13 +283,15 @@ def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
     Wall time and SPS cover every session of a resumed run. They are rebuilt from metrics.csv, because the
     summaries of runs trained before resumes carried totals over hold only the last session."""
     from canter.training.logger import totals_until
+    from canter.training.run_folder import metrics_file
 
     evaluation = read_json(run_dir / EVAL_FILE) or {}
     summary = read_json(run_dir / SUMMARY_FILE) or {}
     wall = float(summary["wall_seconds"]) if "wall_seconds" in summary else None
     sps = float(summary["sps"]) if "sps" in summary else None
-    if "global_step" in summary and (run_dir / "metrics.csv").is_file():
-        totals = totals_until(run_dir / "metrics.csv", int(summary["global_step"]))
+    metrics = metrics_file(run_dir)
+    if "global_step" in summary and metrics.is_file():
+        totals = totals_until(metrics, int(summary["global_step"]))
         if totals["train_seconds"] > 0:
             wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
     return {

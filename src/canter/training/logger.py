@@ -21,6 +21,7 @@ readers skip it (`read_rows`), and the next logger cuts it off.
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import math
 from pathlib import Path
@@ -38,13 +39,14 @@ def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...], evalu
 
 
 def _whole_lines(path: Path) -> bytes:
-    """A file's bytes up to its last newline: a half-written last line is left out."""
-    data = path.read_bytes()
+    """A file's bytes up to its last newline: a half-written last line is left out. A .gz file is read unpacked."""
+    data = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
     return data[: data.rfind(b"\n") + 1]
 
 
 def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    """The header and the rows of a metrics.csv (none for a missing file), without a half-written last line."""
+    """The header and the rows of a metrics.csv or an archived metrics.csv.gz (none for a missing file), without a
+    half-written last line."""
     path = Path(path)
     if not path.is_file():
         return [], []

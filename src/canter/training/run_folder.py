@@ -1,7 +1,8 @@
 """A run folder: its name, what it holds, its format version, and the one migration path from each older format.
 
 A run folder holds config.toml (what the run reads of its config), versions.json (the packages, code commit and
-machine that made it, and `run_format`), metrics.csv, summary.json, checkpoints/, and optionally tb/ and videos/.
+machine that made it, and `run_format`), metrics.csv, summary.json, checkpoints/, and optionally tb/ and videos/. An
+archived copy of a finished run may hold metrics.csv gzipped as metrics.csv.gz; every reader takes either.
 
 Formats:
 - 1: config.toml holds every config section, whether the algorithm reads it or not; versions.json has no
@@ -33,6 +34,14 @@ RUN_FORMAT = 2
 CONFIG_FILE = "config.toml"
 SUMMARY_FILE = "summary.json"
 VERSIONS_FILE = "versions.json"
+METRICS_FILE = "metrics.csv"
+
+
+def metrics_file(run_dir: Path) -> Path:
+    """The run's metrics.csv, or metrics.csv.gz where only an archived, gzipped copy is there."""
+    plain = Path(run_dir) / METRICS_FILE
+    packed = plain.with_name(METRICS_FILE + ".gz")
+    return packed if not plain.is_file() and packed.is_file() else plain
 
 
 def _safe(text: str) -> str:

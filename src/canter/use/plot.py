@@ -42,7 +42,7 @@ from canter.config.experiment import differing_keys, experiment_key, flat_config
 from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
-from canter.training.run_folder import read_config
+from canter.training.run_folder import metrics_file, read_config
 from canter.use.scoreboard import EVAL_SOURCE, LAST_EVAL_SOURCE, RunScore, Scoreboard, build_scoreboard, run_score
 
 if TYPE_CHECKING:
@@ -132,7 +132,7 @@ def load_run(run_dir: str | Path) -> RunCurves:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
-    columns = read_metrics(run_dir / "metrics.csv")
+    columns = read_metrics(metrics_file(run_dir))
     return RunCurves(run_dir, read_config(run_dir), columns)
 
 
