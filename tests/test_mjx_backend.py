@@ -274,6 +274,62 @@ def test_solver_settings_reach_the_mjx_model_and_nothing_else():
         build_config("Hopper-v5", sets=["env.backend=mjx", "env.solver_ls_iterations=-1"])
 
 
+def _contact_pairs(model, qpos) -> set[tuple[int, int]]:
+    """The geom pairs in contact after C MuJoCo's mj_forward at `qpos`."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    return {tuple(sorted(pair)) for pair in data.contact.geom[: data.ncon].tolist()}
+
+
+def test_floor_contacts_keep_the_floors_and_drop_the_rest():
+    """env.contacts=floor: in a pose where the humanoid lies on the floor with its limbs crossed, C MuJoCo finds the
+    same floor contacts with the changed model and no contact between body parts, which the XML's model has."""
+    import mujoco
+
+    from canter.envs.mjx.env import MjxTaskEnv, collide_with_floor_only, load_model
+    from canter.envs.mjx.tasks import TASKS
+
+    full = load_model(TASKS["Humanoid-v5"], "Humanoid-v5")
+    floor_only = load_model(TASKS["Humanoid-v5"], "Humanoid-v5")
+    collide_with_floor_only(floor_only)
+    qpos = full.qpos0.copy()
+    qpos[2] = 0.15  # the torso down on the floor
+    qpos[7:] = np.random.default_rng(0).uniform(-1.2, 1.2, full.nq - 7)  # limbs bent into each other
+    plane = {int(i) for i in np.flatnonzero(full.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)}
+    before, after = _contact_pairs(full, qpos), _contact_pairs(floor_only, qpos)
+    on_floor = {pair for pair in before if plane & set(pair)}
+    assert on_floor and before - on_floor  # the pose has both kinds, so the test can fail
+    assert after == on_floor
+
+    # Through the env: MJX sizes its contact arrays for the pairs that can collide.
+    from canter.envs.mjx.library import import_mjx
+
+    mjx = import_mjx()
+    envs = {contacts: MjxTaskEnv("Humanoid-v5", contacts=contacts) for contacts in ("all", "floor")}
+    assert envs["floor"].mj_model.geom_contype.tolist() == floor_only.geom_contype.tolist()
+    datas = {name: mjx.make_data(env.model) for name, env in envs.items()}
+    slots = {name: getattr(data, "_impl", data).contact.geom.shape[0] for name, data in datas.items()}
+    assert slots == {"all": 138, "floor": 29}  # the figures that env.contacts' help gives
+    with pytest.raises(CanterError, match=r"env.contacts=floor needs a model with a floor"):
+        MjxTaskEnv("InvertedPendulum-v5", contacts="floor")
+
+
+def test_contacts_setting_is_checked_and_reaches_the_mjx_env_only():
+    from canter.envs.registry import env_options
+
+    config = build_config("Humanoid-v5", sets=["env.backend=mjx", "env.contacts=floor"])
+    assert env_options(config.env, "mjx") == {"contacts": "floor"}
+    assert env_options(config.env, "envpool") == {}  # a CPU evaluation steps the XML's own model
+    assert env_options(build_config("Humanoid-v5", sets=["env.backend=mjx"]).env, "mjx") == {}
+    with pytest.raises(CanterError, match=r"env.contacts applies to the mjx backend only; add --backend mjx"):
+        build_config("Humanoid-v5", sets=["env.contacts=floor"])
+    with pytest.raises(CanterError, match=r"env.contacts must be all or floor, got 'none'"):
+        build_config("Humanoid-v5", sets=["env.backend=mjx", "env.contacts=none"])
+
+
 def test_evaluation_in_one_program_plays_the_host_loops_episodes(monkeypatch):
     """A JAX env plays an evaluation's episodes inside one jitted program (`play_episodes`); it keeps the host loop's
     bookkeeping: the same episodes, returns and lengths, each env its quota."""

@@ -22,18 +22,27 @@ def need_positive(key: str, value: float) -> None:
     need(math.isfinite(value) and value > 0, f"{key} must be > 0, got {value}")
 
 
+CONTACTS = ("all", "floor")
+
+
 def _check_solver(env: Any) -> None:
     from canter.envs.registry import get_backend, solver_backends
+
+    takes = env.backend != "auto" and get_backend(env.backend).solver_options
+
+    def only_there(key: str, default: bool) -> None:
+        need(
+            default or takes,
+            f"env.{key} applies to the {' and '.join(solver_backends())} backend only; add --backend "
+            f"{solver_backends()[0]} or drop env.{key}",
+        )
 
     for key in ("solver_iterations", "solver_ls_iterations"):
         value = getattr(env, key)
         need(value >= 0, f"env.{key} must be >= 0 (0: the model's own), got {value}")
-        takes = env.backend != "auto" and get_backend(env.backend).solver_options
-        need(
-            value == 0 or takes,
-            f"env.{key} applies to the {' and '.join(solver_backends())} backend only; add --backend "
-            f"{solver_backends()[0]} or drop env.{key}",
-        )
+        only_there(key, value == 0)
+    need(env.contacts in CONTACTS, f"env.contacts must be {' or '.join(CONTACTS)}, got '{env.contacts}'")
+    only_there("contacts", env.contacts == "all")
 
 
 def validate(config: Config) -> None:

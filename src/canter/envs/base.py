@@ -103,7 +103,7 @@ class Backend(Protocol):
     # Its step is JAX (`canter.envs.functional`): it runs in float32 on the GPU where one exists, `auto` never picks
     # it, and its env state is checkpointed, so runs resume exactly.
     jax_native: bool = False
-    # Takes env.solver_iterations and env.solver_ls_iterations (`make` gets them as keyword arguments).
+    # Takes env.solver_iterations, env.solver_ls_iterations and env.contacts (`make` gets them as keyword arguments).
     solver_options: bool = False
     # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
     # on it and on the env it trained on only.

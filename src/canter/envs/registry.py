@@ -104,17 +104,18 @@ def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], sha
 
 
 def solver_backends() -> list[str]:
-    """The backends that take env.solver_iterations and env.solver_ls_iterations."""
+    """The backends that take env.solver_iterations, env.solver_ls_iterations and env.contacts."""
     return [backend.name for backend in backends() if backend.solver_options]
 
 
-def env_options(env: Any, backend: str) -> dict[str, int]:
-    """What an env section asks of the backend that steps it, as `make`'s keyword arguments: the solver settings
-    where the backend takes them and they are set (0 leaves the model's own)."""
+def env_options(env: Any, backend: str) -> dict[str, Any]:
+    """What an env section asks of the backend that steps it, as `make`'s keyword arguments: the physics settings
+    where the backend takes them and they change the model (solver iterations 0 and contacts `all` leave its own)."""
     if backend == AUTO or not get_backend(backend).solver_options:
         return {}
     options = {"solver_iterations": env.solver_iterations, "solver_ls_iterations": env.solver_ls_iterations}
-    return {key: value for key, value in options.items() if value}
+    options = {key: value for key, value in options.items() if value}
+    return options | ({"contacts": env.contacts} if env.contacts != "all" else {})
 
 
 def _auto_backends() -> list[Backend]:

@@ -38,7 +38,7 @@ class MjxBackend(Backend):
         from canter.envs.functional import FunctionalVecEnv
         from canter.envs.mjx.env import functional_env
 
-        unknown = set(kwargs) - {"solver_iterations", "solver_ls_iterations"}
+        unknown = set(kwargs) - {"solver_iterations", "solver_ls_iterations", "contacts"}
         if unknown:
             raise CanterError(f"the mjx backend takes no env option {', '.join(sorted(unknown))}")
         return FunctionalVecEnv(functional_env(env_id, **kwargs), env_id, NAME, num_envs, seeds)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 from canter.envs.functional import FunctionalEnv, x64_enabled
 from canter.envs.mjx.library import import_mjx
 from canter.envs.mjx.tasks import NORMAL, TASKS, Task
+from canter.errors import CanterError
 
 
 def assets_dir() -> Path:
@@ -38,6 +39,21 @@ def load_model(task: Task, env_id: str) -> Any:
     return model
 
 
+def collide_with_floor_only(model: Any) -> None:
+    """Let the model's body geoms collide with the floor (its planes) and not with each other (env.contacts=floor),
+    as Brax's and MuJoCo Playground's models do. MuJoCo collides two geoms when either one's contype meets the
+    other's conaffinity, so the colliding body geoms get contype 0 and conaffinity 1 and the planes the opposite;
+    geoms that collided with nothing still do not."""
+    import mujoco
+
+    colliding = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+    if not (colliding & planes).any():
+        raise CanterError("env.contacts=floor needs a model with a floor (a plane geom); this one has none")
+    model.geom_contype[colliding] = planes[colliding].astype(model.geom_contype.dtype)
+    model.geom_conaffinity[colliding] = (~planes[colliding]).astype(model.geom_conaffinity.dtype)
+
+
 def _same_types(new: Any, old: Any) -> Any:
     # With 64-bit types on, MJX's step returns a few int32 index fields of its Data as int64.
     return jax.tree.map(lambda a, b: a.astype(b.dtype), new, old)
@@ -46,8 +62,11 @@ def _same_types(new: Any, old: Any) -> Any:
 class MjxTaskEnv:
     """One env of a ported task: pure functions of an `mjx.Data`."""
 
-    def __init__(self, env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0) -> None:
-        """Nonzero solver settings replace the XML's (env.solver_iterations, env.solver_ls_iterations)."""
+    def __init__(
+        self, env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0, contacts: str = "all"
+    ) -> None:
+        """Nonzero solver settings replace the XML's (env.solver_iterations, env.solver_ls_iterations), and
+        contacts `floor` keeps only the collisions with the floor (env.contacts)."""
         mjx = import_mjx()
 
         self.task = task = TASKS[env_id]
@@ -56,6 +75,8 @@ class MjxTaskEnv:
             self.mj_model.opt.iterations = solver_iterations
         if solver_ls_iterations:
             self.mj_model.opt.ls_iterations = solver_ls_iterations
+        if contacts == "floor":
+            collide_with_floor_only(self.mj_model)
         self.model = mjx.put_model(self.mj_model)
         self.dt = float(self.mj_model.opt.timestep) * task.frame_skip
         self._template = mjx.make_data(self.model)
@@ -117,12 +138,16 @@ class MjxTaskEnv:
         )
 
 
-def functional_env(env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0) -> FunctionalEnv:
-    """The task's env, built once per process, solver setting and precision: every env made for it (training, each
+def functional_env(
+    env_id: str, solver_iterations: int = 0, solver_ls_iterations: int = 0, contacts: str = "all"
+) -> FunctionalEnv:
+    """The task's env, built once per process, physics setting and precision: every env made for it (training, each
     evaluation) shares its model and compiled programs."""
-    return _functional_env(env_id, solver_iterations, solver_ls_iterations, x64_enabled())
+    return _functional_env(env_id, solver_iterations, solver_ls_iterations, contacts, x64_enabled())
 
 
 @functools.cache
-def _functional_env(env_id: str, solver_iterations: int, solver_ls_iterations: int, x64: bool) -> FunctionalEnv:
-    return MjxTaskEnv(env_id, solver_iterations, solver_ls_iterations).functional()
+def _functional_env(
+    env_id: str, solver_iterations: int, solver_ls_iterations: int, contacts: str, x64: bool
+) -> FunctionalEnv:
+    return MjxTaskEnv(env_id, solver_iterations, solver_ls_iterations, contacts).functional()
