@@ -110,7 +110,7 @@ humanoid)
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
     train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \
-        --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-10000000}")" --eval-episodes "$(small 2 16)"
+        --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-4000000}")" --eval-episodes "$(small 2 16)"
     ;;
 seeds)
     # The same run as one seed and as 5 vmapped seeds: the same envs per seed and steps per seed.

@@ -55,6 +55,11 @@ def time_to(evals: list[tuple[int, float, float]], goal: float) -> str:
     return f"{hit[1]:.0f} s ({hit[0]:,} steps)" if hit else "not reached"
 
 
+def evaluations(evals: list[tuple[int, float, float]]) -> str:
+    """Each evaluation as `step (wall): return`, e.g. `1.02M (123 s): 6,309`."""
+    return "; ".join(f"{step / 1e6:.2f}M ({wall:.0f} s): {score:,.0f}" for step, wall, score in evals) or "none"
+
+
 def fmt(value: float | None, digits: int = 1) -> str:
     return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:,.{digits}f}"
 
@@ -98,15 +103,15 @@ def ppo_brax(out: Path) -> list[str]:
 
 def humanoid(out: Path) -> list[str]:
     lines = [
-        "| run | envs | steps | wall (s) | compile (s) | SPS | best eval return | time to 6000 | stopped |",
-        "|---|---:|---:|---:|---:|---:|---:|---|---|",
+        "| run | envs | steps | wall (s) | compile (s) | SPS | evaluations: step (wall): return | time to 6000 "
+        "| stopped |",
+        "|---|---:|---:|---:|---:|---:|---|---|---|",
     ]
     for run in runs(out / "runs" / "humanoid"):
         c = run_facts(run)
-        best = max((score for _, _, score in c["evals"]), default=None)
         lines.append(
             f"| {c['run']} | {c['num_envs']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | "
-            f"{fmt(c['sps'], 0)} | {fmt(best)} | {time_to(c['evals'], HUMANOID_GOAL)} | {c['stop']} |"
+            f"{fmt(c['sps'], 0)} | {evaluations(c['evals'])} | {time_to(c['evals'], HUMANOID_GOAL)} | {c['stop']} |"
         )
     return lines
 
@@ -137,15 +142,18 @@ def seeds(out: Path) -> list[str]:
 
 def offpolicy(out: Path) -> list[str]:
     lines = [
-        "| algo | envs | steps | wall (s) | compile (s) | SPS | final eval return | CPU 1M-step score | time to it |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| algo | envs | batch | updates per vector step | steps | wall (s) | compile (s) | SPS | evaluations: step "
+        "(wall): return | CPU 1M-step score | time to it |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---|",
     ]
     for algo, goal in HALFCHEETAH_GOALS.items():
         for run in runs(out / "runs" / f"offpolicy-{algo}"):
             c = run_facts(run)
+            section = tomllib.loads((run / "config.toml").read_text())[algo]
             lines.append(
-                f"| {algo} | {c['num_envs']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | "
-                f"{fmt(c['sps'], 0)} | {fmt(c['final_eval'])} | {goal:,.0f} | {time_to(c['evals'], goal)} |"
+                f"| {algo} | {c['num_envs']} | {section['batch_size']} | {section['gradient_steps']} | "
+                f"{c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['sps'], 0)} | "
+                f"{evaluations(c['evals'])} | {goal:,.0f} | {time_to(c['evals'], goal)} |"
             )
     return lines
 
