@@ -41,7 +41,7 @@ class EnvConfig:
     )
     contacts: str = setting(
         "JAX-native MuJoCo backends only: `all` keeps the XML's collisions; `floor` lets body parts collide with the "
-        "floor and not with each other, as Brax's and MuJoCo Playground's models do: far fewer contacts to solve "
+        "floor and not with each other, as Brax and MuJoCo Playground limit their models' contacts: far fewer to solve "
         "(Humanoid: 29 instead of 138; 1.8x the physics steps/s on a 2-core CPU), slightly different physics.",
         default="all",
     )
