@@ -41,9 +41,9 @@ def load_model(task: Task, env_id: str) -> Any:
 
 def collide_with_floor_only(model: Any) -> None:
     """Let the model's body geoms collide with the floor (its planes) and not with each other (env.contacts=floor),
-    as Brax's and MuJoCo Playground's models do. MuJoCo collides two geoms when either one's contype meets the
-    other's conaffinity, so the colliding body geoms get contype 0 and conaffinity 1 and the planes the opposite;
-    geoms that collided with nothing still do not."""
+    as Brax and MuJoCo Playground limit their models' contacts. MuJoCo collides two geoms when either one's contype
+    meets the other's conaffinity, so the colliding body geoms get contype 0 and conaffinity 1 and the planes the
+    opposite; geoms that collided with nothing still do not."""
     import mujoco
 
     colliding = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
