@@ -270,10 +270,17 @@ def test_bad_input_is_one_line(tmp_path, capsys):
         (["eval", str(tmp_path / "a"), str(tmp_path / "b"), "--checkpoint", "x.npz"], "pass one run folder"),
         (["eval", str(tmp_path), "--checkpoint", str(tmp_path / "x.npz")], "checkpoint not found"),
         (["export", str(tmp_path / "none"), "--checkpoint", "best", "--out", "a.npz"], "run folder not found"),
+        (["train", "Pendulum-v1", "--set", "run.eval_backend=cpu"], "run.eval_backend must be empty (the run's own)"),
+        (["train", "ant", "--backend", "brax", "--set", "run.eval_backend=auto"], "brax runs evaluate on the brax"),
+        (
+            ["train", "Pendulum-v1", "--eval-every", "1000", "--set", "run.eval_backend=mjx", "--out-dir", "x"],
+            "run.eval_backend=mjx cannot play Pendulum-v1 (MJX has no such env)",
+        ),
     ]:
         code = main(argv)
         err = capsys.readouterr().err
         assert code == 2 and message in err and err.count("\n") == 1, (argv, err)
+    assert not Path("x").exists()  # a backend that cannot evaluate the env stops the run before its folder is made
 
 
 # --------------------------------------------------------------------------------------------------- the plot

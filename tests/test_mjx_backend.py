@@ -237,12 +237,15 @@ def test_a_resumed_run_continues_its_episodes_exactly(tmp_path):
 
 def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypatch):
     """A policy trained on MJX physics, with its normalizer statistics, balances the same task stepped by C MuJoCo
-    (the Gymnasium backend): the ports keep observations and actions identical, so policies move between backends."""
+    (the Gymnasium backend): the ports keep observations and actions identical, so policies move between backends.
+    Its evaluation during training, asked of C MuJoCo (run.eval_backend=auto), is `canter eval --backend envpool`."""
+    from canter.training import checkpoint
     from canter.training.loop import train
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
-    sets = PENDULUM + [f"run.out_dir={tmp_path}"]
+    sets = PENDULUM + [f"run.out_dir={tmp_path}", f"run.eval_every={TOTAL}", "run.eval_episodes=4"]
+    sets.append("run.eval_backend=auto")
     result = train(build_config("InvertedPendulum-v5", seed=0, total_steps=TOTAL, sets=sets))
     policy = load(result.run_dir)
     with monkeypatch.context() as patch:
@@ -254,8 +257,11 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypa
     # The user's commands: evaluated on EnvPool's C MuJoCo, and rendered through the CPU backends.
     from canter.cli.main import main
 
-    assert main(["eval", str(result.run_dir), "--backend", "envpool", "--episodes", "2", "--json", "e.json"]) == 0
-    assert json.loads(Path("e.json").read_text())["runs"][0]["return_mean"] >= 900
+    assert main(["eval", str(result.run_dir), "--backend", "envpool", "--episodes", "4", "--json", "e.json"]) == 0
+    on_envpool = json.loads(Path("e.json").read_text())["runs"][0]
+    assert on_envpool["return_mean"] >= 900
+    during = checkpoint.read_header(checkpoint.best_path(result.run_dir))["evaluation"]
+    assert during["backend"] == "envpool" and during["returns"] == on_envpool["returns"]
     assert main(["video", str(result.run_dir), "--episodes", "1", "--max-steps", "100", "--out", "v.mp4"]) == 0
     assert Path("v.mp4").stat().st_size > 0
 

@@ -68,6 +68,10 @@ small() { [ "$SMOKE" = 1 ] && echo "$1" || echo "$2"; }
 # MJX_SETS: --set flags for every mjx run, e.g. the solver settings
 # MJX_SETS="--set env.solver_iterations=4 --set env.solver_ls_iterations=8" (docs/gpu.md).
 read -r -a mjx_sets <<<"${MJX_SETS:-}"
+# EVAL_BACKEND: where the mjx parts' evaluations during training play. `auto` plays them on C MuJoCo on the host's
+# idle cores (EnvPool where installed, else Gymnasium), on the XML's own model: an MJX evaluation plays its 1000
+# steps one after another on the GPU, about 10 ms each on an H100. EVAL_BACKEND=mjx plays them there.
+eval_sets=(--set "run.eval_backend=${EVAL_BACKEND:-auto}")
 
 case "$part" in
 smoke)
@@ -110,7 +114,7 @@ humanoid)
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
     train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \
-        --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-4000000}")" --eval-episodes "$(small 2 16)"
+        --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-4000000}")" --eval-episodes "$(small 2 16)" "${eval_sets[@]}"
     ;;
 seeds)
     # The same run as one seed and as 5 vmapped seeds: the same envs per seed and steps per seed.
@@ -136,7 +140,7 @@ offpolicy)
             --set "$algo.buffer_size=$(small 1000 2000000)" --set "$algo.learning_starts=$(small 16 "$((num_envs * 40))")" \
             --set "$algo.steps_per_call=$(small 8 "$((num_envs * 100))")" \
             --max-minutes "$(small 2 "${OFFPOLICY_MINUTES:-2}")" --total-steps "$(small 48 1000000000)" \
-            --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-500000}")" --eval-episodes "$(small 2 10)"
+            --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-500000}")" --eval-episodes "$(small 2 10)" "${eval_sets[@]}"
     done
     ;;
 esac

@@ -46,8 +46,15 @@ def run_facts(run_dir: Path) -> dict:
         train_return=summary["recent_return"],
         stop=summary["stop_reason"],
         evals=evals,
+        eval_on=evaluated_on(config),
         final_eval=evals[-1][2] if evals else None,
     )
+
+
+def evaluated_on(config: dict) -> str:
+    """The physics of a run's evaluations during training: its own backend's, or run.eval_backend's."""
+    asked = config["run"].get("eval_backend", "")
+    return {"": config["env"]["backend"], "auto": "C MuJoCo"}.get(asked, asked)
 
 
 def time_to(evals: list[tuple[int, float, float]], goal: float) -> str:
@@ -55,9 +62,10 @@ def time_to(evals: list[tuple[int, float, float]], goal: float) -> str:
     return f"{hit[1]:.0f} s ({hit[0]:,} steps)" if hit else "not reached"
 
 
-def evaluations(evals: list[tuple[int, float, float]]) -> str:
-    """Each evaluation as `step (wall): return`, e.g. `1.02M (123 s): 6,309`."""
-    return "; ".join(f"{step / 1e6:.2f}M ({wall:.0f} s): {score:,.0f}" for step, wall, score in evals) or "none"
+def evaluations(facts: dict) -> str:
+    """Where the evaluations played, then each as `step (wall): return`: `on C MuJoCo: 1.02M (123 s): 6,309`."""
+    each = "; ".join(f"{step / 1e6:.2f}M ({wall:.0f} s): {score:,.0f}" for step, wall, score in facts["evals"])
+    return f"on {facts['eval_on']}: {each}" if each else "none"
 
 
 def fmt(value: float | None, digits: int = 1) -> str:
@@ -111,7 +119,7 @@ def humanoid(out: Path) -> list[str]:
         c = run_facts(run)
         lines.append(
             f"| {c['run']} | {c['num_envs']} | {c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | "
-            f"{fmt(c['sps'], 0)} | {evaluations(c['evals'])} | {time_to(c['evals'], HUMANOID_GOAL)} | {c['stop']} |"
+            f"{fmt(c['sps'], 0)} | {evaluations(c)} | {time_to(c['evals'], HUMANOID_GOAL)} | {c['stop']} |"
         )
     return lines
 
@@ -153,7 +161,7 @@ def offpolicy(out: Path) -> list[str]:
             lines.append(
                 f"| {algo} | {c['num_envs']} | {section['batch_size']} | {section['gradient_steps']} | "
                 f"{c['steps']:,} | {fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['sps'], 0)} | "
-                f"{evaluations(c['evals'])} | {goal:,.0f} | {time_to(c['evals'], goal)} |"
+                f"{evaluations(c)} | {goal:,.0f} | {time_to(c['evals'], goal)} |"
             )
     return lines
 

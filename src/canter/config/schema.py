@@ -89,6 +89,14 @@ class RunConfig:
         role=OUTPUT,
     )
     eval_episodes: int = setting("Episodes of each evaluation during training.", default=10, role=OUTPUT)
+    eval_backend: str = setting(
+        "Backend that plays the evaluations during training: empty for the run's own, else `auto` or a backend "
+        "name. `auto` plays an mjx run's evaluations on C MuJoCo from the host (EnvPool where installed, else "
+        "Gymnasium): the XML's own model, without env.solver_* or env.contacts, as `canter eval --backend` does; on "
+        "a GPU far quicker than MJX's 1000 sequential steps per episode.",
+        default="",
+        role=OUTPUT,
+    )
 
 
 # A section's own checks: `check(section, name)` raises CanterError for a value that makes no sense on its own.

@@ -45,6 +45,25 @@ def _check_solver(env: Any) -> None:
     only_there("contacts", env.contacts == "all")
 
 
+def _check_eval_backend(backend: str, eval_backend: str) -> None:
+    from canter.envs.registry import backend_choices, get_backend
+
+    choices = backend_choices()
+    need(
+        eval_backend in ("", *choices),
+        f"run.eval_backend must be empty (the run's own) or {', '.join(choices[:-1])} or {choices[-1]}, "
+        f"got '{eval_backend}'",
+    )
+    if eval_backend in ("", backend) or backend == "auto":
+        return
+    trained_on = get_backend(backend)
+    need(
+        not trained_on.own_observations,
+        f"{trained_on.label} observations differ from Gymnasium's, so {trained_on.name} runs evaluate on the "
+        f"{trained_on.name} backend only; drop run.eval_backend",
+    )
+
+
 def validate(config: Config) -> None:
     from canter.envs.registry import backend_names
 
@@ -73,5 +92,6 @@ def validate(config: Config) -> None:
     need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
     need(run.eval_every >= 0, f"run.eval_every must be >= 0, got {run.eval_every}")
     need(run.eval_episodes >= 1, f"run.eval_episodes must be >= 1, got {run.eval_episodes}")
+    _check_eval_backend(env.backend, run.eval_backend)
     if run.max_minutes is not None:
         need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")

@@ -6,8 +6,9 @@ apart from the training envs'. Each env plays a fixed quota of episodes, so shor
 over-represented.
 
 An evaluation during training is the deterministic `canter eval --episodes K --seed 0` of the train state at that
-step (`DURING_TRAINING_SEED`): the same eval envs at every evaluation and in every run, so evaluations compare
-across steps, seeds and trials, and any of them can be repeated from a checkpoint of that step.
+step (`DURING_TRAINING_SEED`), on run.eval_backend's backend where set (`--backend`): the same eval envs at every
+evaluation and in every run, so evaluations compare across steps, seeds and trials, and any of them can be repeated
+from a checkpoint of that step.
 """
 
 from __future__ import annotations
@@ -136,6 +137,23 @@ def run_episodes(
     return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started)
 
 
+def evaluation_backend(env_id: str, asked: str, own: str) -> str:
+    """The backend that plays a run's evaluations during training: `asked` (run.eval_backend) where set, else the
+    run's own; a one-line error when the asked backend cannot play env_id."""
+    from canter.envs.registry import AUTO, get_backend, resolve_backend
+
+    if not asked:
+        return own
+    backend = None if asked == AUTO or ":" in env_id else get_backend(asked)
+    if backend is not None and not (backend.available() and env_id in backend.supported_ids()):
+        why = "has no such env" if backend.available() else "is not installed"
+        raise CanterError(
+            f"run.eval_backend={asked} cannot play {env_id} ({backend.label} {why}); set it to auto, or leave it "
+            "empty for the run's own backend"
+        )
+    return resolve_backend(env_id, asked)
+
+
 class TrainingEvaluation:
     """Evaluation during training for one run: when it is due, the evaluation itself, and the best score so far.
 
@@ -152,8 +170,9 @@ class TrainingEvaluation:
         self.total_steps = config.run.total_steps
         from canter.envs.registry import env_options
 
-        self.env_id, self.backend = spec.id, spec.backend
-        self.env_options = env_options(config.env, spec.backend)
+        self.env_id = spec.id
+        self.backend = evaluation_backend(spec.id, config.run.eval_backend, spec.backend)
+        self.env_options = env_options(config.env, self.backend)
         self.next_step = (start_step // self.every + 1) * self.every
         self.best_return = -math.inf if best_return is None else best_return
         algorithm = get_algorithm(config.run.algo)

@@ -24,7 +24,7 @@ from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
-from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
+from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation, evaluation_backend
 from canter.training.logger import MetricsLogger, Progress, totals_until
 from canter.training.videos import TrainingVideos
 
@@ -146,6 +146,7 @@ def _train_locked(
     setup_jax(backend)
     for config in configs:
         validate(config)
+    evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a run folder is made
     started = time.perf_counter()
 
     states, outs, start_steps, seeds, earlier = [], [], [], [], []
@@ -323,7 +324,7 @@ class _SeedRun:
         assert self.evaluation is not None
         result = self.evaluation.evaluate(train_state, self.global_step)
         if self.evaluation.improves(result):
-            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
+            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED, backend=self.evaluation.backend)
             header = dict(self._header(self.global_step, started), evaluation=evaluation)
             checkpoint.save(
                 checkpoint.best_path(self.out), train_state, header, compress=self.config.run.compress_checkpoints
