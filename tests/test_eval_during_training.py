@@ -329,7 +329,7 @@ def test_plot_draws_the_evaluation_return(eval_run, tmp_path, capsys):
 
 
 def test_eval_result_columns_are_the_eval_columns():
-    result = EvalResult(np.array([1.0, 3.0]), np.array([10, 20]), 0.5)
+    result = EvalResult(np.array([1.0, 3.0]), np.array([10, 20]), 0.5, "envpool")
     assert result.columns() == {
         "eval/return_mean": 2.0,
         "eval/return_std": 1.0,
@@ -367,7 +367,7 @@ def test_eval_columns_go_to_tensorboard_only_where_there_is_an_evaluation(tmp_pa
             "global_step": 200,
             "iteration": 2,
             "policy_loss": 0.4,
-            **EvalResult(np.array([3.0]), np.array([7]), 0).columns(),
+            **EvalResult(np.array([3.0]), np.array([7]), 0, "envpool").columns(),
         }
     )
     logger.close()

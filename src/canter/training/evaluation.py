@@ -36,6 +36,7 @@ class EvalResult:
     returns: np.ndarray
     lengths: np.ndarray
     wall_seconds: float
+    backend: str  # the env backend that played the episodes
 
     @property
     def mean(self) -> float:
@@ -53,6 +54,7 @@ class EvalResult:
             "length_mean": float(self.lengths.mean()),
             "length_std": float(self.lengths.std()),
             "eval_seconds": self.wall_seconds,
+            "backend": self.backend,
             "returns": [float(r) for r in self.returns],
             "lengths": [int(n) for n in self.lengths],
         }
@@ -109,7 +111,8 @@ def run_episodes(
             )
         if traced_act is not None and hasattr(env, "play_episodes"):
             played = env.play_episodes(traced_act.fn, traced_act.args, quota)
-            return EvalResult(np.asarray(played[0]), np.asarray(played[1]), time.perf_counter() - started)
+            wall = time.perf_counter() - started
+            return EvalResult(np.asarray(played[0]), np.asarray(played[1]), wall, env.spec.backend)
         obs = env.reset()
         done_count = np.zeros(num_envs, int)
         running_return = np.zeros(num_envs)
@@ -134,7 +137,7 @@ def run_episodes(
             obs = out.obs
     finally:
         env.close()
-    return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started)
+    return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started, env.spec.backend)
 
 
 def evaluation_backend(env_id: str, asked: str, own: str) -> str:

@@ -324,7 +324,7 @@ class _SeedRun:
         assert self.evaluation is not None
         result = self.evaluation.evaluate(train_state, self.global_step)
         if self.evaluation.improves(result):
-            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED, backend=self.evaluation.backend)
+            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
             header = dict(self._header(self.global_step, started), evaluation=evaluation)
             checkpoint.save(
                 checkpoint.best_path(self.out), train_state, header, compress=self.config.run.compress_checkpoints
