@@ -108,8 +108,8 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
 
 
 def restore(template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: str = "") -> Any:
-    """Fill a template pytree (same structure) with the saved arrays named `prefix` + its leaf paths, checking
-    names, shapes and dtypes."""
+    """Fill a template pytree (same structure; arrays, or jax.ShapeDtypeStruct leaves) with the saved arrays named
+    `prefix` + its leaf paths, checking names, shapes and dtypes."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
     restored = []
     for p, leaf in leaves:
@@ -117,10 +117,10 @@ def restore(template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: 
         if name not in arrays:
             raise CanterError(f"checkpoint {source} does not match this config (missing '{name}')")
         value = arrays[name]
-        if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
+        if value.shape != leaf.shape or value.dtype != leaf.dtype:
             raise CanterError(
                 f"checkpoint {source} does not match this config ('{name}' has shape {value.shape}, "
-                f"expected {np.shape(leaf)})"
+                f"expected {leaf.shape})"
             )
         restored.append(value)
     return jax.tree_util.tree_unflatten(treedef, restored)

@@ -49,6 +49,10 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
         action_high=np.asarray(env["action_high"], np.float32),
         global_step=int(header["global_step"]),
     )
-    template = get_algorithm(config.run.algo).init_state(config, facts)
+    # Only the state's structure, shapes and dtypes: building a real one would compile and run its initializers
+    # (seconds, and a replay buffer's worth of memory) just to be overwritten.
+    import jax
+
+    template = jax.eval_shape(lambda: get_algorithm(config.run.algo).init_state(config, facts))
     state = checkpoint.restore(template, arrays, path)
     return config, facts, state, header
