@@ -52,13 +52,14 @@ GRIDS = {
     ),
 }
 
-# Steps per second for the wall-time estimates: the median of the per-iteration `sps` column of metrics.csv.
-# HumanoidStandup: the three archived 5M-step runs (1,287, 1,217 and 1,361; they shared the machine with other
-# work, as a bench here will). HalfCheetah with this preset has no archived run: two smoke runs of 12.8k steps on
-# 2026-11-26 gave 3,274 and 4,326 (load average 9-10; HumanoidStandup smoke runs beside them gave 830, 1,816 and
-# 1,342 against the long runs' 1,300, so expect +-50%). A grid's seeds train in one process; the estimate counts
-# them as one after another.
-SPS = {HS: 1300, HC: 3800}
+# Steps per second of one seed for the wall-time estimates: the median of the per-iteration `sps` column of
+# metrics.csv. HumanoidStandup: the three archived 5M-step runs, one seed per process (1,287, 1,217 and 1,361; they
+# shared the machine with other work, as a bench here will); a grid's seeds are counted one after another.
+# HalfCheetah: the archived hc-algo grid, its 3 seeds training together in one process (3,794 for ppo, 4,045 for
+# rpo, per seed), as fast per seed as one seed alone (smoke runs: 3,274 and 4,326): with this preset's single env
+# a step is overhead, which the seeds share.
+SPS = {HS: 1300, HC: 3900}
+SEEDS_TOGETHER = {HS: False, HC: True}  # whether SPS holds for each of a grid's seeds while they train together
 
 LABELS = {"hs-rpo-sym": "rpo + sym 0.02"}  # rows whose grid values do not say what they are
 
@@ -147,7 +148,8 @@ def _duration(seconds: float) -> str:
 
 
 def estimate_seconds(grid: Grid) -> float:
-    return grid.env_steps() / SPS[grid.env]
+    together = len(grid.seeds) if SEEDS_TOGETHER[grid.env] else 1
+    return grid.env_steps() / together / SPS[grid.env]
 
 
 def commands_table() -> str:
