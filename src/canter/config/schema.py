@@ -91,9 +91,9 @@ class RunConfig:
     eval_episodes: int = setting("Episodes of each evaluation during training.", default=10, role=OUTPUT)
     eval_backend: str = setting(
         "Backend that plays the evaluations during training: empty for the run's own, else `auto` or a backend "
-        "name. `auto` plays an mjx run's evaluations on C MuJoCo from the host (EnvPool where installed, else "
-        "Gymnasium): the XML's own model, without env.solver_* or env.contacts, as `canter eval --backend` does; on "
-        "a GPU far quicker than MJX's 1000 sequential steps per episode.",
+        "name. `auto` plays them on C MuJoCo from the host, as env.backend's `auto` would: for a run on a "
+        "JAX-native MuJoCo backend, the XML's own model without env.solver_* or env.contacts, as `canter eval "
+        "--backend` does, and on a GPU far quicker than an episode's 1000 simulated steps one after another.",
         default="",
         role=OUTPUT,
     )
