@@ -49,6 +49,30 @@ def test_aggregates_are_rliables_interval_estimates():
     assert single.iqm.low == single.iqm.high == single.iqm.estimate == 7.0
 
 
+def _score_matrices():
+    """Random matrices of many shapes, some with ties, some with a single run or task."""
+    rng = np.random.default_rng(7)
+    for runs, tasks in [(1, 1), (1, 3), (2, 1), (3, 2), (4, 5), (5, 3), (7, 1), (10, 4), (13, 6)]:
+        yield rng.normal(size=(runs, tasks)) * 1000
+        yield rng.integers(0, 4, size=(runs, tasks)).astype(float)  # many ties
+
+
+def test_each_statistic_equals_rliables_to_the_last_bit():
+    for scores in _score_matrices():
+        assert statistics.interquartile_mean(scores) == metrics.aggregate_iqm(scores)
+        assert statistics.task_mean(scores) == metrics.aggregate_mean(scores)
+        assert statistics.task_median(scores) == metrics.aggregate_median(scores)
+        for gamma in (0.0, 1.5, 1e4):
+            assert statistics.optimality_gap(scores, gamma) == metrics.aggregate_optimality_gap(scores, gamma)
+    matrices = list(_score_matrices())
+    for x in matrices:
+        for y in matrices:
+            if x.shape[1] == y.shape[1]:
+                assert statistics.improvement_probability(x, y) == metrics.probability_of_improvement(x, y)
+    same = matrices[5]
+    assert statistics.improvement_probability(same, same) == 0.5
+
+
 def test_the_same_seed_gives_the_same_interval_and_the_global_generator_is_left_alone():
     scores = np.random.default_rng(0).normal(size=(5, 3))
     np.random.seed(123)
