@@ -97,3 +97,28 @@ def test_resuming_old_style_rows_rewrites_them_as_one_history(tmp_path):
         ("600", 29.0),
         ("650", 35.0),
     ]
+
+
+def _significant_digits(text):
+    return len(text.lstrip("-").split("e")[0].replace(".", "").strip("0"))
+
+
+def test_float32_metrics_are_written_as_their_shortest_round_tripping_decimal(tiny_run):
+    import numpy as np
+
+    from canter.training.logger import logged
+
+    rng = np.random.default_rng(0)
+    for value in np.concatenate([rng.normal(size=200) * 10.0 ** rng.integers(-8, 8, size=200), [0.0, 1e-30]]):
+        single = np.float32(value)
+        assert np.float32(logged(single)) == single  # reads back as the same float32
+        # ... and is written with no more digits than numpy's shortest repr of the float32 takes
+        assert float(repr(logged(single))) == float(str(single))
+        assert _significant_digits(repr(logged(single))) == _significant_digits(str(single))
+    assert logged(np.float64(0.1) / 3) == 0.1 / 3  # a float64 keeps every digit
+    assert logged(np.int32(7)) == 7.0
+    # A real run's metrics.csv: every loss and return column holds such decimals (at most 9 significant digits).
+    rows = read_rows(tiny_run.run_dir / "metrics.csv")
+    for column in ("episodic_return", "policy_loss", "value_loss", "entropy", "approx_kl"):
+        for row in rows:
+            assert row[column] and _significant_digits(row[column]) <= 9, (column, row[column])

@@ -16,6 +16,9 @@ metrics.csv has one row per iteration. Columns:
 A row is appended as one whole line or not at all (`canter.files.AppendFile`). A file from a process killed in
 the middle of a line (an older canter, or a disk that failed during the write) can end in a half-written line;
 readers skip it (`read_rows`), and the next logger cuts it off.
+
+Values computed in float32 are written as the shortest decimal that reads back as the same float32 (`logged`):
+float64's repr of a float32 carries eight or nine more digits, all noise, which doubled the file.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from canter.files import AppendFile, atomic_write_bytes
 from canter.training.evaluation import EVAL_COLUMNS
 
@@ -36,6 +41,14 @@ BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "epi
 def columns_for(metric_names: tuple[str, ...], info_keys: tuple[str, ...], evaluates: bool = False) -> list[str]:
     evaluation = list(EVAL_COLUMNS) if evaluates else []
     return list(BASE_COLUMNS) + list(metric_names) + [f"info/{k}" for k in info_keys] + evaluation
+
+
+def logged(value: Any) -> float:
+    """A metric as a Python float for a metrics.csv row: a float32 one as its shortest round-tripping decimal."""
+    array = np.asarray(value)
+    if array.dtype == np.float32:
+        return float(str(array[()]))
+    return float(array)
 
 
 def _whole_lines(path: Path) -> bytes:

@@ -25,7 +25,7 @@ from canter.errors import CanterError, DiscreteActionsError
 from canter.files import atomic_write_bytes
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation, evaluation_backend
-from canter.training.logger import MetricsLogger, Progress, totals_until
+from canter.training.logger import MetricsLogger, Progress, logged, totals_until
 from canter.training.videos import TrainingVideos
 
 RECENT_EPISODES = 20
@@ -347,14 +347,14 @@ class _SeedRun:
             "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3),
             "sps": round(steps / elapsed, 1),
             "episodes": int(finished.sum()),
-            "episodic_return": float(returns.mean()) if returns.size else math.nan,
-            "episodic_length": float(lengths.mean()) if lengths.size else math.nan,
+            "episodic_return": logged(returns.mean()) if returns.size else math.nan,
+            "episodic_length": logged(lengths.mean()) if lengths.size else math.nan,
         }
         for key in self.metric_names:
-            row[key] = float(metrics[key])
+            row[key] = logged(metrics[key])
         for key, values in metrics["episode_info"].items():
             chosen = np.asarray(values)[finished]
-            row[f"info/{key}"] = float(chosen.mean()) if chosen.size else math.nan
+            row[f"info/{key}"] = logged(chosen.mean()) if chosen.size else math.nan
         return row
 
     def checkpoint_due(self) -> bool:
