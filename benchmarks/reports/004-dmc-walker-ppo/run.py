@@ -48,9 +48,9 @@ TUNING = (
         "tuning-cleanrl-256", ENV, ("ppo", "rpo"), "cleanrl", TUNING_SEEDS, TUNING_STEPS, sets=("net.hidden=256,256",)
     ),
     # Third round, after that pick tied CleanRL's RPO at 8M on CleanRL's own measure (training return 787 on seeds
-    # 103-105): smaller RPO shifts than the recipe's 0.5: that measure scores the sampled actions, and the recipe's
-    # policy entropy climbs throughout, which a smaller shift may curb. A cell whose training return here beats α 0.5's 784 (second round) goes to 8M on
-    # seeds 106-108.
+    # 103-105): smaller RPO shifts than the recipe's 0.5. That measure scores the sampled actions, and the recipe's
+    # policy entropy climbs throughout, which a smaller shift may curb. A cell whose training return here beats
+    # alpha 0.5's 784 (second round) goes to 8M on seeds 106-108.
     Grid(
         "tuning-cleanrl-256-alpha",
         ENV,
