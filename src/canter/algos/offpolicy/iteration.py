@@ -49,6 +49,22 @@ class OffPolicyState(NamedTuple):
     vector_steps: jnp.ndarray  # vector-env steps taken, for train_freq
 
 
+class EnvLoop(NamedTuple):
+    """What the scan over one call's env steps carries from each step to the next."""
+
+    learner_state: Any
+    buffer: ReplayBuffer
+    ou_state: jnp.ndarray
+    obs_stats: RunningStats
+    return_stats: RunningStats
+    carry: EnvCarry
+    global_step: jnp.ndarray
+    vector_steps: jnp.ndarray
+    healthy: jnp.ndarray  # False once anything non-finite has appeared in this call
+    sums: dict[str, jnp.ndarray]  # the update metrics summed over the call's gradient steps
+    counts: dict[str, jnp.ndarray]
+
+
 def vector_steps_per_call(config: Config, learner: OffPolicyLearner) -> int:
     return max(1, learner.cfg.steps_per_call // config.env.num_envs)
 
@@ -116,44 +132,32 @@ def make_iteration(
         counts = {k: jnp.sum(~jnp.isnan(diag[k])).astype(jnp.float32) for k in names}
         return learner_state, sums, counts
 
-    def env_loop_step(loop, step_key):
-        (
-            learner_state,
-            buffer,
-            ou_state,
-            obs_stats,
-            return_stats,
-            carry,
-            global_step,
-            vector_steps,
-            healthy,
-            sums,
-            counts,
-        ) = loop
+    def env_loop_step(loop: EnvLoop, step_key: jax.Array) -> tuple[EnvLoop, dict[str, Any]]:
+        carry, obs_stats, global_step = loop.carry, loop.obs_stats, loop.global_step
         random_key, explore_key, train_key = jax.random.split(step_key, 3)
         valid = ~carry.prev_done
         if env_cfg.normalize_obs:
             obs_stats = update_stats(obs_stats, carry.obs, valid)
         policy_obs = normalize(obs_stats, carry.obs, env_cfg.clip_obs) if env_cfg.normalize_obs else carry.obs
-        policy_action, next_ou = learner.explore(learner_state, policy_obs, ou_state, explore_key)
+        policy_action, next_ou = learner.explore(loop.learner_state, policy_obs, loop.ou_state, explore_key)
         random_action = jax.random.uniform(random_key, policy_action.shape, jnp.float32, -1.0, 1.0)
         action = jnp.where(global_step < cfg.learning_starts, random_action, policy_action)
         env_state, out = env_step(carry.env_state, center + half * action)
         next_carry, episodes = track_episodes(carry, env_state, out, cfg.gamma)
 
         step_finite = jnp.all(jnp.isfinite(out.obs)) & jnp.all(jnp.isfinite(out.reward))
-        healthy = healthy & step_finite
+        healthy = loop.healthy & step_finite
         # Once anything non-finite appears, nothing more is stored or learned in this call.
         buffer = insert(
-            buffer,
+            loop.buffer,
             Transitions(carry.obs, action, out.reward, out.obs, out.terminated.astype(jnp.float32)),
             valid & healthy,
         )
+        return_stats = loop.return_stats
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
-        ou_state = next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None]
         global_step = global_step + valid.sum().astype(count_dtype())
-        vector_steps = vector_steps + 1
+        vector_steps = loop.vector_steps + 1
 
         do_train = healthy & (global_step >= cfg.learning_starts) & (vector_steps % cfg.train_freq == 0)
 
@@ -164,10 +168,7 @@ def make_iteration(
             zeros = {k: jnp.float32(0.0) for k in names}
             return learner_state, zeros, zeros
 
-        learner_state, step_sums, step_counts = jax.lax.cond(do_train, run, skip, learner_state)
-        sums = {k: sums[k] + step_sums[k] for k in names}
-        counts = {k: counts[k] + step_counts[k] for k in names}
-
+        learner_state, step_sums, step_counts = jax.lax.cond(do_train, run, skip, loop.learner_state)
         record = dict(
             done=episodes.done,
             valid=valid,
@@ -175,75 +176,64 @@ def make_iteration(
             episode_length=episodes.episode_length,
             episode_info=episodes.episode_info,
         )
-        return (
-            learner_state,
-            buffer,
-            ou_state,
-            obs_stats,
-            return_stats,
-            next_carry,
-            global_step,
-            vector_steps,
-            healthy,
-            sums,
-            counts,
-        ), record
+        following = EnvLoop(
+            learner_state=learner_state,
+            buffer=buffer,
+            ou_state=next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None],
+            obs_stats=obs_stats,
+            return_stats=return_stats,
+            carry=next_carry,
+            global_step=global_step,
+            vector_steps=vector_steps,
+            healthy=healthy,
+            sums={k: loop.sums[k] + step_sums[k] for k in names},
+            counts={k: loop.counts[k] + step_counts[k] for k in names},
+        )
+        return following, record
 
     def iteration(
         state: OffPolicyState, carry: EnvCarry, lr_fraction: jnp.ndarray
     ) -> tuple[OffPolicyState, EnvCarry, dict[str, Any]]:
         key, loop_key = jax.random.split(jax.random.wrap_key_data(state.key))
         zeros = {k: jnp.float32(0.0) for k in names}
-        init = (
-            state.learner,
-            state.buffer,
-            state.ou_state,
-            state.obs_stats,
-            state.return_stats,
-            carry,
-            state.global_step,
-            state.vector_steps,
-            jnp.asarray(True),
-            zeros,
-            zeros,
+        start = EnvLoop(
+            learner_state=state.learner,
+            buffer=state.buffer,
+            ou_state=state.ou_state,
+            obs_stats=state.obs_stats,
+            return_stats=state.return_stats,
+            carry=carry,
+            global_step=state.global_step,
+            vector_steps=state.vector_steps,
+            healthy=jnp.asarray(True),
+            sums=zeros,
+            counts=zeros,
         )
-        final, records = jax.lax.scan(env_loop_step, init, jax.random.split(loop_key, num_steps))
-        (
-            learner_state,
-            buffer,
-            ou_state,
-            obs_stats,
-            return_stats,
-            carry,
-            global_step,
-            vector_steps,
-            healthy,
-            sums,
-            counts,
-        ) = final
-        finite = healthy & _all_finite(learner_state)
+        final, records = jax.lax.scan(env_loop_step, start, jax.random.split(loop_key, num_steps))
+        finite = final.healthy & _all_finite(final.learner_state)
         new_state = OffPolicyState(
-            learner_state,
-            buffer,
-            ou_state,
-            obs_stats,
-            return_stats,
+            final.learner_state,
+            final.buffer,
+            final.ou_state,
+            final.obs_stats,
+            final.return_stats,
             jax.random.key_data(key),
             state.iteration + 1,
-            global_step,
-            vector_steps,
+            final.global_step,
+            final.vector_steps,
         )
         # A non-finite call hands back the state it was given (its buffer keeps only the finite transitions it
         # stored), so the trainer can checkpoint the last good state although the input buffers were donated.
         small_new = {k: v for k, v in new_state._asdict().items() if k != "buffer"}
         small_old = {k: v for k, v in state._asdict().items() if k != "buffer"}
         kept = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), small_new, small_old)
-        new_state = OffPolicyState(buffer=buffer, **kept)
+        new_state = OffPolicyState(buffer=final.buffer, **kept)
         steps = records["valid"].sum().astype(count_dtype())
+        counts, sums = final.counts, final.sums
         metrics = {k: jnp.where(counts[k] > 0, sums[k] / jnp.maximum(counts[k], 1.0), jnp.nan) for k in names}
         metrics.update(
             gradient_steps=counts["critic_loss"],
-            buffer_size=buffer.size.astype(jnp.float32),
+            buffer_size=final.buffer.size.astype(jnp.float32),
             learning_rate=jnp.float32(cfg.actor_lr),
             steps=steps,
             finite=finite,
@@ -252,6 +242,6 @@ def make_iteration(
             episode_length=records["episode_length"],
             episode_info=records["episode_info"],
         )
-        return new_state, carry, metrics
+        return new_state, final.carry, metrics
 
     return iteration
