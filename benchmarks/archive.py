@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RUN_FILES = ("config.toml", "eval.json", "metrics.csv", "summary.json", "versions.json")
 
 
-PACKED_METRICS_OVER = 200_000  # bytes of metrics.csv above which the archive keeps it gzipped (about 5x smaller)
+PACKED_METRICS_OVER = 50_000  # bytes of metrics.csv above which the archive keeps it gzipped (2.5-5x smaller)
 
 
 def has_run_files(folder: Path, files: tuple[str, ...] = RUN_FILES) -> bool:
