@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from canter.algos.onpolicy_rollout import collect, estimate_advantages
+from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance
 from canter.algos.ppo.iteration import init_train_state, make_iteration
 from canter.config.build import build_config
 from canter.core.networks import value
@@ -91,3 +91,22 @@ def test_envpool_truncation_masking_and_step_count():
     np.testing.assert_array_equal(np.asarray(metrics["episode_length"])[finished], 200)
     assert float(new_state.obs_stats.count) == pytest.approx(400 + 1e-4)
     assert float(new_state.return_stats.count) == pytest.approx(400 + 1e-4)
+
+
+def test_explained_variance_against_numpy_over_the_valid_steps():
+    rng = np.random.default_rng(3)
+    target = rng.normal(size=(64, 4)).astype(np.float32)
+    predicted = (target + 0.5 * rng.normal(size=target.shape)).astype(np.float32)
+    mask = (rng.random(target.shape) < 0.7).astype(np.float32)
+    valid = mask.astype(bool)
+    expected = 1.0 - np.var(target[valid] - predicted[valid]) / np.var(target[valid])
+    found = float(explained_variance(jnp.asarray(predicted), jnp.asarray(target), jnp.asarray(mask)))
+    assert found == pytest.approx(expected, rel=1e-5)
+    # A perfect prediction explains everything, predicting the mean explains nothing, and a flat target gives NaN.
+    assert float(explained_variance(jnp.asarray(target), jnp.asarray(target), jnp.asarray(mask))) == 1.0
+    mean = np.full_like(target, target[valid].mean())
+    assert float(explained_variance(jnp.asarray(mean), jnp.asarray(target), jnp.asarray(mask))) == pytest.approx(
+        0.0, abs=1e-6
+    )
+    flat = jnp.ones_like(jnp.asarray(target))
+    assert np.isnan(float(explained_variance(flat, flat, jnp.asarray(mask))))

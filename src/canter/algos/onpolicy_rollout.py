@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from canter.config.schema import Config
+from canter.core.counters import count_dtype
 from canter.core.gae import compute_gae
 from canter.core.networks import (
     Params,
@@ -113,3 +114,34 @@ def estimate_advantages(
         config.ppo.gae_lambda,
     )
     return values, advantages, returns
+
+
+def rollout_report(tr: Transition, params: Params) -> dict[str, Any]:
+    """What every on-policy iteration reports of its rollout: the env steps it took (autoreset steps excluded),
+    whether the rollout and the updated parameters are all finite, and the episodes that finished in it."""
+    finite = (
+        jnp.all(jnp.isfinite(tr.obs))
+        & jnp.all(jnp.isfinite(tr.reward))
+        & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
+    )
+    return dict(
+        steps=tr.valid.sum().astype(count_dtype()),
+        finite=finite,
+        finished=tr.done,
+        episode_return=tr.episode_return,
+        episode_length=tr.episode_length,
+        episode_info=tr.episode_info,
+    )
+
+
+def explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
+    """1 - Var(target - predicted) / Var(target) over the entries where `mask` is 1 (the valid steps); NaN when the
+    target does not vary."""
+    count = jnp.maximum(mask.sum(), 1.0)
+
+    def var(x):
+        mean = (x * mask).sum() / count
+        return (jnp.square(x - mean) * mask).sum() / count
+
+    target_var = var(target)
+    return jnp.where(target_var > 0, 1.0 - var(target - predicted) / target_var, jnp.nan)

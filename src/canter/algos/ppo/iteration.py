@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from canter.algos.onpolicy_rollout import collect, estimate_advantages
+from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance, rollout_report
 from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
 from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config.schema import Config
@@ -48,17 +48,6 @@ def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
             jnp.asarray(config.ppo.kl_penalty_beta, jnp.float32) if config.ppo.objective == "kl_penalty" else None
         ),
     )
-
-
-def explained_variance(predicted: jnp.ndarray, target: jnp.ndarray, mask: jnp.ndarray) -> jnp.ndarray:
-    count = jnp.maximum(mask.sum(), 1.0)
-
-    def var(x):
-        mean = (x * mask).sum() / count
-        return (jnp.square(x - mean) * mask).sum() / count
-
-    target_var = var(target)
-    return jnp.where(target_var > 0, 1.0 - var(target - predicted) / target_var, jnp.nan)
 
 
 def make_iteration(
@@ -101,25 +90,15 @@ def make_iteration(
             if variant.kl_penalty
             else None
         )
-        steps = tr.valid.sum().astype(count_dtype())
-        finite = (
-            jnp.all(jnp.isfinite(tr.obs))
-            & jnp.all(jnp.isfinite(tr.reward))
-            & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
-        )
         metrics = dict(diagnostics)
         metrics.setdefault("sym_loss", jnp.float32(0.0))
         metrics.update(
             kl_beta=kl_beta if variant.kl_penalty else jnp.float32(jnp.nan),
             explained_variance=explained_variance(batch.values, batch.returns, batch.mask),
             learning_rate=jnp.asarray(actor_lr, jnp.float32),
-            steps=steps,
-            finite=finite,
-            finished=tr.done,
-            episode_return=tr.episode_return,
-            episode_length=tr.episode_length,
-            episode_info=tr.episode_info,
+            **rollout_report(tr, params),
         )
+        steps = metrics["steps"]
         new_state = TrainState(
             params,
             opt_state,

@@ -15,8 +15,7 @@ import jax.numpy as jnp
 import optax
 from jax.flatten_util import ravel_pytree
 
-from canter.algos.onpolicy_rollout import collect, estimate_advantages
-from canter.algos.ppo.iteration import explained_variance
+from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance, rollout_report
 from canter.algos.ppo.losses import gaussian_kl, masked_mean, normalize_advantages
 from canter.algos.trpo.natural import (
     backtracking_line_search,
@@ -202,23 +201,13 @@ def make_iteration(
         )
         params = dict(policy, critic=critic)
 
-        steps = tr.valid.sum().astype(count_dtype())
-        finite = (
-            jnp.all(jnp.isfinite(tr.obs))
-            & jnp.all(jnp.isfinite(tr.reward))
-            & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
-        )
         metrics = dict(diagnostics)
         metrics.update(
             value_loss=value_loss,
             explained_variance=explained_variance(flat(values[:-1]), flat(returns), mask),
-            steps=steps,
-            finite=finite,
-            finished=tr.done,
-            episode_return=tr.episode_return,
-            episode_length=tr.episode_length,
-            episode_info=tr.episode_info,
+            **rollout_report(tr, params),
         )
+        steps = metrics["steps"]
         new_state = TrainState(
             params,
             critic_opt_state,
