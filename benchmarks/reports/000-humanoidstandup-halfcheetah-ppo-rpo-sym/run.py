@@ -51,13 +51,14 @@ GRIDS = {
 }
 
 # Steps per second of one seed for the wall-time estimates: the median of the per-iteration `sps` column of
-# metrics.csv. HumanoidStandup: the three archived 5M-step runs, one seed per process (1,287, 1,217 and 1,361; they
-# shared the machine with other work, as a bench here will); a grid's seeds are counted one after another.
-# HalfCheetah: the archived hc-algo grid, its 3 seeds training together in one process (3,794 for ppo, 4,045 for
-# rpo, per seed), as fast per seed as one seed alone (smoke runs: 3,274 and 4,326): with this preset's single env
-# a step is overhead, which the seeds share.
-SPS = {HS: 1300, HC: 3900}
-SEEDS_TOGETHER = {HS: False, HC: True}  # whether SPS holds for each of a grid's seeds while they train together
+# metrics.csv, alone (one seed in its process) and together (each of a grid's 3 seeds training in one process).
+# HumanoidStandup alone: the three archived 5M-step runs of 2026-11-23 (1,287, 1,217 and 1,361); together: the
+# hs-ppo grid (530 per seed, so 1,590 for the three: 1.2x one seed alone). Both shared the machine with other work,
+# as a bench here will. HalfCheetah together: the archived hc-algo grid (3,794 for ppo, 4,045 for rpo, per seed), as
+# fast per seed as one seed alone (smoke runs: 3,274 and 4,326): with this preset's single env a step is overhead,
+# which the seeds share.
+SPS_ALONE = {HS: 1300, HC: 3900}
+SPS_TOGETHER = {HS: 530, HC: 3900}
 
 LABELS = {"hs-rpo-sym": "rpo + sym 0.02"}  # rows whose grid values do not say what they are
 # A row one grid shares with another that already runs its settings on its seed: grid -> (row, source grid, seed).
@@ -153,8 +154,9 @@ def _duration(seconds: float) -> str:
 
 
 def estimate_seconds(grid: Grid) -> float:
-    together = len(grid.seeds) if SEEDS_TOGETHER[grid.env] else 1
-    return grid.env_steps() / together / SPS[grid.env]
+    if len(grid.seeds) == 1:
+        return grid.env_steps() / SPS_ALONE[grid.env]
+    return grid.env_steps() / len(grid.seeds) / SPS_TOGETHER[grid.env]
 
 
 def commands_table() -> str:
