@@ -56,8 +56,8 @@ if TYPE_CHECKING:
     from canter.orchestrate.study import Outcome
     from canter.use.scoreboard import Scoreboard
 
-# Grid keys that have their own flag or belong to the bench itself.
-_AXIS_KEYS = {"run.algo": "--algos", "env.id": "--envs"}
+# Keys the bench sets itself, each from its own flag (run.algo and env.id as grid axes stand in for --algos and
+# --envs).
 _FORBIDDEN = {"run.seed": "--seeds", "run.total_steps": "--total-steps", "run.out_dir": "--out"}
 
 
