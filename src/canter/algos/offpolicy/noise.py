@@ -17,11 +17,6 @@ def ou_step(state: jnp.ndarray, key: jax.Array, theta: float, sigma: float, dt: 
     return state - theta * state * dt + sigma * math.sqrt(dt) * jax.random.normal(key, state.shape, jnp.float32)
 
 
-def ou_stationary_std(theta: float, sigma: float, dt: float) -> float:
-    """Std of the discrete process at equilibrium: var = sigma^2 dt / (1 - (1 - theta dt)^2)."""
-    return sigma * math.sqrt(dt / (1.0 - (1.0 - theta * dt) ** 2))
-
-
 def explore(
     kind: str, action: jnp.ndarray, ou_state: jnp.ndarray, key: jax.Array, std: float, theta: float, dt: float
 ) -> tuple[jnp.ndarray, jnp.ndarray]:
