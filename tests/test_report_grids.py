@@ -1,0 +1,72 @@
+"""A report page's bench grid survives the loss of its work folder: on a fresh machine the runs it archived go back
+into the bench folder and are skipped, the runs its deadline stopped carry on from the page's in-flight pack, and
+only what it never trained is trained. Real `canter bench` runs on InvertedPendulum-v4, a few hundred steps each."""
+
+import json
+import shutil
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "reports"))
+
+import grids
+
+TINY = ("net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4", "ppo.n_steps=128", "ppo.minibatch_size=256")
+TINY += ("ppo.epochs=1",)
+
+
+def grid(ent_coefs: tuple[str, ...]) -> grids.Grid:
+    return grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 512, (("ppo.ent_coef", ent_coefs),), TINY)
+
+
+def test_archived_runs_are_restored_and_skipped_and_the_rest_trained(tmp_path, capfd):
+    page, work = tmp_path / "page", tmp_path / "work"
+    first = grid(("0",))
+    grids.run_grid(page, first, work)
+    [cell] = first.cells()
+    archived = cell.run_dir(page / "runs" / "g", 0)
+    summary = json.loads((archived / "summary.json").read_text())
+    assert summary["global_step"] >= 512 and (archived / "eval.json").is_file()
+
+    shutil.rmtree(work)  # a fresh machine: the bench folder, checkpoints included, is gone
+    capfd.readouterr()
+    both = grid(("0", "0.01"))
+    grids.run_grid(page, both, work)
+    out = capfd.readouterr().out
+    assert "g: restored 1 archived runs" in out
+    assert f"skip {cell.name} (finished)" in out
+    assert not (cell.run_dir(work / "g", 0) / "checkpoints").exists()  # restored, not trained again
+    assert json.loads((archived / "summary.json").read_text()) == summary
+    assert all(len(grids.archived_runs(page, both, c)) == 1 for c in both.cells())
+    assert grids.restore(page, both, work) == []  # the bench folder has every run now
+
+
+def test_a_grid_stopped_before_its_budget_is_carried_on_from_its_pack_on_a_fresh_machine(tmp_path, capfd):
+    page, work = tmp_path / "page", tmp_path / "work"
+    # run.max_minutes under a second: each bench call trains one iteration (at most 512 steps), then stops.
+    stopping = grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 700, (), (*TINY, "run.max_minutes=1e-4"))
+    with pytest.raises(SystemExit, match="canter bench exited"):
+        grids.run_grid(page, stopping, work)
+    pack = grids.inflight(page, stopping)
+    with tarfile.open(pack) as tar:
+        names = set(tar.getnames())
+    run = "InvertedPendulum-v4__ppo__s0"
+    [packed] = [n for n in names if n.startswith(f"{run}/checkpoints/ckpt_")]
+    packed_step = int(packed.removesuffix(".npz").rpartition("_")[2])
+    assert 0 < packed_step < 700 and {f"{run}/config.toml", f"{run}/metrics.csv"} <= names
+    assert not any("/tb/" in n or n.endswith(".writer.lock") for n in names)
+
+    shutil.rmtree(work)  # a fresh clone: only the page's files are left
+    capfd.readouterr()
+    grids.run_grid(page, stopping, work)
+    assert "g: carrying on 1 runs" in capfd.readouterr().out
+    [cell] = stopping.cells()
+    [record] = grids.archived_runs(page, stopping, cell)
+    steps = [line.split(",")[0] for line in (cell.run_dir(page / "runs" / "g", 0) / "metrics.csv").read_text().split()]
+    # Resumed from the pack's checkpoint, not trained again from 0 (which would stop short of 700 once more).
+    assert steps[1] == str(packed_step) and int(steps[-1]) == record["summary"]["global_step"] >= 700
+    assert not pack.exists()  # finished: nothing is in flight
