@@ -70,3 +70,23 @@ def test_a_grid_stopped_before_its_budget_is_carried_on_from_its_pack_on_a_fresh
     # Resumed from the pack's checkpoint, not trained again from 0 (which would stop short of 700 once more).
     assert steps[1] == str(packed_step) and int(steps[-1]) == record["summary"]["global_step"] >= 700
     assert not pack.exists()  # finished: nothing is in flight
+
+
+def test_a_page_shows_the_interval_the_bench_archived_in_statistics_json():
+    page = Path(grids.ROOT) / "benchmarks" / "reports" / "000-humanoidstandup-halfcheetah-ppo-rpo-sym"
+    hs_ppo = grids.Grid(
+        "hs-ppo",
+        "HumanoidStandup-v4",
+        ("ppo",),
+        "report000-humanoidstandup",
+        (100, 101, 102),
+        5_000_000,
+        sets=("sym.coef=0",),
+    )
+    [cell] = hs_ppo.cells()
+    result = grids.cell_result(page, hs_ppo, cell)
+    [archived] = json.loads((page / "runs" / "hs-ppo" / "statistics.json").read_text())["cells"]
+    mean = archived["return"]["mean"]
+    assert result["mean_interval"].low == pytest.approx(mean["low"])
+    assert result["mean_interval"].high == pytest.approx(mean["high"])
+    assert grids.eval_text(result) == f"192,660 ± 25,478 [{mean['low']:,.0f}, {mean['high']:,.0f}]"

@@ -23,12 +23,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from archive import ROOT, copy_run, has_run_files
 from timed import canter_command, out_of_time, run_to_deadline
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json, run_status
 from canter.training import checkpoint
+from canter.use.statistics import Interval, aggregates
 
 BENCH_FILES = ("results.md", "statistics.json")
 
@@ -104,14 +106,30 @@ def archived_runs(page: Path, grid: Grid, cell: Cell) -> list[dict[str, Any]]:
 
 def cell_result(page: Path, grid: Grid, cell: Cell) -> dict[str, Any] | None:
     """canter bench's result row for the cell (eval mean ± std over seeds, wall minutes), with the per-seed records
-    under `runs` and the mean training return; None until every seed of the cell is archived."""
+    under `runs`, the mean training return and rliable's interval of the mean (`mean_interval`, None for one seed);
+    None until every seed of the cell is archived."""
     records = archived_runs(page, grid, cell)
     if len(records) < len(grid.seeds):
         return None
     result = combine_records(cell, records)
     result["runs"] = records
     result["train_return"] = sum(r["summary"]["recent_return"] for r in records) / len(records)
+    # The same interval as the bench's statistics.json, from the same function, seed and resamples.
+    scores = np.array([[r["eval_mean"]] for r in records])
+    result["mean_interval"] = aggregates(scores).mean if len(records) > 1 else None
     return result
+
+
+EVAL_HEADER = "eval (mean ± std over seeds [95% interval of the mean])"
+
+
+def eval_text(result: dict[str, Any]) -> str:
+    """A cell's final evaluation as the pages show it: '1,234 ± 56 [1,180, 1,290]', the bracket being rliable's
+    stratified-bootstrap 95% interval of the mean over seeds; one seed's mean alone."""
+    interval: Interval | None = result["mean_interval"]
+    if interval is None:
+        return f"{result['return_mean']:,.0f}"
+    return f"{result['return_mean']:,.0f} ± {result['return_std']:,.0f} [{interval.low:,.0f}, {interval.high:,.0f}]"
 
 
 def curves(page: Path, grid: Grid) -> Path:

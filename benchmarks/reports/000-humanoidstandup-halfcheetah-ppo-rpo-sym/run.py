@@ -23,7 +23,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
-from grids import Grid, archived_runs, cell_result, curves, label, run_grid  # noqa: E402
+from grids import EVAL_HEADER, Grid, archived_runs, cell_result, curves, eval_text, label, run_grid  # noqa: E402
 from timed import page_main  # noqa: E402
 
 from canter.orchestrate.bench import seed_record  # noqa: E402
@@ -208,9 +208,8 @@ def grid_rows(name: str) -> list[str]:
         if result is None:
             rows[text] = f"| {text} | {report} | {seeds} | not run yet (`{name}`) | | | |"
             continue
-        spread = f" ± {result['return_std']:,.0f}" if len(grid.seeds) > 1 else ""
         rows[text] = (
-            f"| {text} | {report} | {seeds} | {result['return_mean']:,.0f}{spread} | {_per_seed(result)} | "
+            f"| {text} | {report} | {seeds} | {eval_text(result)} | {_per_seed(result)} | "
             f"{result['train_return']:,.0f} | {result['wall_minutes']:.0f} min |"
         )
     if name in SHARED:
@@ -238,7 +237,7 @@ def seed0_rows() -> list[str]:
 
 def results_text() -> str:
     header = [
-        "| setting | report | seeds | canter eval (mean ± std over seeds) | per seed | canter train | wall |",
+        f"| setting | report | seeds | canter {EVAL_HEADER} | per seed | canter train | wall |",
         "|---|---|---|---:|---|---:|---:|",
     ]
     parts = []

@@ -31,7 +31,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
-from grids import Grid, cell_result, run_grid  # noqa: E402
+from grids import EVAL_HEADER, Grid, cell_result, eval_text, run_grid  # noqa: E402
 from timed import archived, canter_command, out_of_time, page_main, run_to_deadline, timed_train  # noqa: E402
 
 from canter.orchestrate.search_space import Param, load_space  # noqa: E402
@@ -268,7 +268,7 @@ def commands_table() -> str:
 
 def hopper_text() -> str:
     lines = [
-        "| who | seeds | eval return (mean ± std over seeds) | per seed | train return | wall |",
+        f"| who | seeds | {EVAL_HEADER} | per seed | train return | wall |",
         "|---|---|---:|---|---:|---:|",
         "| report: sb3-contrib TRPO, 1M steps, 3 models | | no number in the text (its Figure 1) | | | |",
     ]
@@ -280,8 +280,8 @@ def hopper_text() -> str:
     else:
         per_seed = ", ".join(f"{r['eval_mean']:,.0f}" for r in result["runs"])
         lines.append(
-            f"| canter trpo, `report002-hopper-trpo` | {seeds} | {result['return_mean']:,.0f} ± "
-            f"{result['return_std']:,.0f} | {per_seed} | {result['train_return']:,.0f} | "
+            f"| canter trpo, `report002-hopper-trpo` | {seeds} | {eval_text(result)} | {per_seed} | "
+            f"{result['train_return']:,.0f} | "
             f"{result['wall_minutes']:.0f} min |"
         )
     path = SWEEP.with_suffix(".json")

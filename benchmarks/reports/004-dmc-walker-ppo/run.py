@@ -24,7 +24,7 @@ PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
-from grids import Grid, cell_result, label, run_grid  # noqa: E402
+from grids import EVAL_HEADER, Grid, cell_result, eval_text, label, run_grid  # noqa: E402
 from timed import archived, page_main, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "WalkerWalk-v1"
@@ -143,7 +143,7 @@ def grids_table(grids: tuple[Grid, ...], step: str) -> str:
     """One row per cell of each grid (eval mean ± std over seeds, per seed, training return, wall), and the grids'
     commands."""
     lines = [
-        "| preset | cell | seeds | eval (mean ± std over seeds) | per seed | training return | wall | see |",
+        f"| preset | cell | seeds | {EVAL_HEADER} | per seed | training return | wall | see |",
         "|---|---|---|---:|---|---:|---:|---|",
     ]
     for grid in grids:
@@ -157,7 +157,7 @@ def grids_table(grids: tuple[Grid, ...], step: str) -> str:
                 continue
             per_seed = ", ".join(f"{r['eval_mean']:,.0f}" for r in result["runs"])
             lines.append(
-                f"{who} {result['return_mean']:,.0f} ± {result['return_std']:,.0f} | {per_seed} | "
+                f"{who} {eval_text(result)} | {per_seed} | "
                 f"{result['train_return']:,.0f} | {result['wall_minutes']:.0f} min | "
                 f"[curves](runs/{grid.name}/plot_{ENV}.png) |"
             )
