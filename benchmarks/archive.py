@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 import re
 import sys
-from collections.abc import Iterable
+import tarfile
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from canter.orchestrate.bench import seed_record
+from canter.training import checkpoint
 from canter.training.run_folder import METRICS_FILE
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -89,3 +92,57 @@ def sync(wanted: dict[Path, str], check: bool, script: str) -> int:
     for path in stale:
         path.write_bytes(wanted[path].encode())
     return 0
+
+
+# ------------------------------------------------------------------------------------------------ in-flight packs
+# Work folders (runs/) do not outlive the machine, so a page keeps what a stopped run needs to carry on in a file of
+# its own, committed with it: <page>/inflight/<name>.tar. A pack over this size is not kept (an off-policy run's
+# replay buffer, for one); such a run starts again on a fresh machine.
+PACK_LIMIT_BYTES = 25 * 2**20
+
+
+def inflight_pack(page: Path, name: str) -> Path:
+    return page / "inflight" / f"{name}.tar"
+
+
+def _kept(item: Path) -> bool:
+    """Whether a work folder's file goes into a pack: not TensorBoard files (metrics.csv repeats them), locks or
+    hidden files, and of a run's checkpoints only the newest and the best."""
+    if "tb" in item.parts or item.name.startswith("."):
+        return False
+    if item.parent.name != "checkpoints":
+        return True
+    return item.name == checkpoint.BEST_FILE or item == checkpoint.latest(item.parent.parent)
+
+
+def write_pack(path: Path, root: Path, members: Sequence[Path]) -> bool:
+    """Write `members` (files under `root`, and folders under it whole but for what `_kept` leaves out) to the tar
+    file `path`, named relative to `root`. A pack is whole or absent: it is written beside and renamed. False, and
+    no pack, when it would be over PACK_LIMIT_BYTES."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
+    with tarfile.open(partial, "w") as tar:
+        for member in members:
+            files = sorted(f for f in member.rglob("*") if f.is_file()) if member.is_dir() else [member]
+            for item in files:
+                if _kept(item):
+                    tar.add(item, arcname=str(item.relative_to(root)))
+    if partial.stat().st_size > PACK_LIMIT_BYTES:
+        partial.unlink()
+        path.unlink(missing_ok=True)
+        return False
+    os.replace(partial, path)
+    return True
+
+
+def read_pack(path: Path, root: Path) -> list[str]:
+    """Extract the pack's entries into `root` where `root` has nothing of that name (a fresh machine: what is there
+    is as new as the pack or newer); returns the top-level names extracted."""
+    if not path.is_file():
+        return []
+    with tarfile.open(path) as tar:
+        members = tar.getmembers()
+        names = sorted({Path(m.name).parts[0] for m in members})
+        fresh = [n for n in names if not (root / n).exists()]
+        tar.extractall(root, [m for m in members if Path(m.name).parts[0] in fresh], filter="data")
+    return fresh

@@ -13,7 +13,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "reports"))
 
+import archive
 import grids
+from archive import inflight_pack
 
 TINY = ("net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4", "ppo.n_steps=128", "ppo.minibatch_size=256")
 TINY += ("ppo.epochs=1",)
@@ -51,7 +53,7 @@ def test_a_grid_stopped_before_its_budget_is_carried_on_from_its_pack_on_a_fresh
     stopping = grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 700, (), (*TINY, "run.max_minutes=1e-4"))
     with pytest.raises(SystemExit, match="canter bench exited"):
         grids.run_grid(page, stopping, work)
-    pack = grids.inflight(page, stopping)
+    pack = inflight_pack(page, "g")
     with tarfile.open(pack) as tar:
         names = set(tar.getnames())
     run = "InvertedPendulum-v4__ppo__s0"
@@ -90,3 +92,27 @@ def test_a_page_shows_the_interval_the_bench_archived_in_statistics_json():
     assert result["mean_interval"].low == pytest.approx(mean["low"])
     assert result["mean_interval"].high == pytest.approx(mean["high"])
     assert grids.eval_text(result) == f"192,660 ± 25,478 [{mean['low']:,.0f}, {mean['high']:,.0f}]"
+
+
+def test_a_pack_keeps_the_newest_and_best_checkpoints_and_no_more_than_its_limit(tmp_path, monkeypatch):
+    run = tmp_path / "work" / "run"
+    for name in ("checkpoints/ckpt_000000000001.npz", "checkpoints/ckpt_000000000002.npz", "checkpoints/best.npz"):
+        (run / name).parent.mkdir(parents=True, exist_ok=True)
+        (run / name).write_bytes(b"x" * 600)
+    for name in ("config.toml", "tb/events", ".writer.lock"):
+        (run / name).parent.mkdir(parents=True, exist_ok=True)
+        (run / name).write_text(name)
+    pack = tmp_path / "page" / "inflight" / "run.tar"
+    assert archive.write_pack(pack, run.parent, [run])
+    with tarfile.open(pack) as tar:
+        names = sorted(tar.getnames())
+    assert names == ["run/checkpoints/best.npz", "run/checkpoints/ckpt_000000000002.npz", "run/config.toml"]
+
+    fresh = tmp_path / "fresh"
+    assert archive.read_pack(pack, fresh) == ["run"]
+    assert (fresh / "run" / "checkpoints" / "best.npz").read_bytes() == b"x" * 600
+    assert archive.read_pack(pack, fresh) == []  # what the folder has is kept
+
+    monkeypatch.setattr(archive, "PACK_LIMIT_BYTES", 1000)  # a tar of these files is over 1,000 bytes
+    assert not archive.write_pack(pack, run.parent, [run])
+    assert not pack.exists() and not pack.with_name("run.tar.partial").exists()

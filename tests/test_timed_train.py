@@ -1,9 +1,10 @@
 """The report pages' timed runs carry on across working sessions: a process stopped before its budget resumes from
-its checkpoint on the next call, and the archived wall time is the sum of its processes; a page's --max-minutes
-stops its processes with SIGTERM. Real `canter train` processes on InvertedPendulum-v4, 1024 steps in iterations
-of about 500."""
+its checkpoint on the next call, on a fresh clone too (from the page's in-flight pack), and the archived wall time is
+the sum of its processes; a page's --max-minutes stops its processes with SIGTERM. Real `canter train` processes on
+InvertedPendulum-v4, 1024 steps in iterations of about 500."""
 
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -14,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "reports"))
 
 import timed
+from archive import inflight_pack
 
 TINY = ["--set", "net.hidden=16,16", "--set", "run.tensorboard=false", "--set", "env.num_envs=4"]
 TINY += ["--set", "ppo.n_steps=128", "--set", "ppo.minibatch_size=256", "--set", "ppo.epochs=2"]
@@ -30,12 +32,15 @@ def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_s
     assert first["command"][1:3] == ["train", "InvertedPendulum-v4"] and first["wall_seconds"] > 0
     assert "the same command carries it on" in capsys.readouterr().out
     assert timed.archived(page, "run") is None
+    assert inflight_pack(page, "run").is_file()
+    shutil.rmtree(work)  # a fresh clone: the page's in-flight pack is all that is left of the run
 
     found = None
     for _ in range(6):  # each process gets at least one iteration in
         found = found or timed.timed_train(page, "run", ARGS, work, episodes=1)
     assert found is not None
     sessions = found["timing"]["sessions"]
+    assert sessions[0] == first  # the process before the fresh clone counts: carried on, not started again
     assert sessions[0]["command"][1:3] == ["train", "InvertedPendulum-v4"]
     assert len(sessions) >= 2 and all(s["command"][1:3] == ["train", "--resume"] for s in sessions[1:])
     assert found["timing"]["wall_seconds"] == pytest.approx(sum(s["wall_seconds"] for s in sessions), abs=0.2)
@@ -43,6 +48,7 @@ def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_s
     assert found["summary"]["global_step"] >= 1024 and found["summary"]["stop_reason"] == "budget"
     assert found["eval"]["episodes"] == 1
     assert timed.timed_train(page, "run", ARGS, work, episodes=1) == found  # archived: not trained again
+    assert not inflight_pack(page, "run").exists()
 
 
 def test_a_process_that_ended_without_its_time_recorded_is_not_carried_on(tmp_path):

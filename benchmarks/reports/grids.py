@@ -10,26 +10,23 @@ that folder lacks them (a fresh machine, whose work folders are gone), so the be
 carries on what its folder has checkpointed.
 
 A grid that the page's --max-minutes stops is kept in the page's folder as well: `<page>/inflight/<grid name>.tar`
-holds each unfinished run's folder with its newest checkpoint (and without its TensorBoard files, which metrics.csv
-repeats). It is committed with the page, so the same command carries the runs on from a fresh clone, and it is
-deleted when the grid's runs have all finished."""
+holds each unfinished run's folder with its newest checkpoint (archive.py's in-flight packs). It is committed with
+the page, so the same command carries the runs on from a fresh clone, and it is deleted when the grid's runs have
+all finished."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import tarfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from archive import ROOT, copy_run, has_run_files
+from archive import ROOT, copy_run, has_run_files, inflight_pack, read_pack, write_pack
 from timed import canter_command, out_of_time, run_to_deadline
 
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json, run_status
-from canter.training import checkpoint
 from canter.use.statistics import Interval, aggregates
 
 BENCH_FILES = ("results.md", "statistics.json")
@@ -171,22 +168,9 @@ def restore(page: Path, grid: Grid, work: Path) -> list[str]:
     return restored
 
 
-def inflight(page: Path, grid: Grid) -> Path:
-    return page / "inflight" / f"{grid.name}.tar"
-
-
-def _packed(item: Path, run_dir: Path, newest: Path) -> bool:
-    """Whether a run folder's file goes into the in-flight pack: the newest and the best checkpoint, and everything
-    else but older checkpoints, TensorBoard files and locks."""
-    top = item.relative_to(run_dir).parts[0]
-    if top == "checkpoints":
-        return item == newest or item.name == checkpoint.BEST_FILE
-    return top != "tb" and not item.name.startswith(".")
-
-
 def pack_inflight(page: Path, grid: Grid, work: Path) -> list[str]:
-    """Write the grid's in-flight pack from the bench folder's unfinished, checkpointed runs (or delete it when
-    there are none); returns the runs packed."""
+    """Write the grid's in-flight pack from the bench folder's unfinished, checkpointed runs, or delete it when there
+    are none or it would be too large; returns the runs packed."""
     runs = [
         cell.run_dir(work / grid.name, seed)
         for cell in grid.cells()
@@ -194,34 +178,14 @@ def pack_inflight(page: Path, grid: Grid, work: Path) -> list[str]:
         if run_status(cell.run_dir(work / grid.name, seed), grid.total_steps, cell.config.run.stop_at_return)
         == "partial"
     ]
-    path = inflight(page, grid)
+    path = inflight_pack(page, grid.name)
     if not runs:
         path.unlink(missing_ok=True)
         return []
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".partial")
-    with tarfile.open(partial, "w") as tar:
-        for run_dir in runs:
-            newest = checkpoint.latest(run_dir)
-            for item in sorted(run_dir.rglob("*")):
-                if item.is_file() and _packed(item, run_dir, newest):
-                    tar.add(item, arcname=str(item.relative_to(work / grid.name)))
-    os.replace(partial, path)  # a pack is whole or absent: a kill mid-write leaves the last one
-    return [r.name for r in runs]
-
-
-def unpack_inflight(page: Path, grid: Grid, work: Path) -> list[str]:
-    """Put the in-flight pack's runs into the bench folder where that folder has no run of its own (a fresh
-    machine); returns the runs unpacked. A run folder the bench already has is as new as the pack or newer."""
-    path = inflight(page, grid)
-    if not path.is_file():
+    if not write_pack(path, work / grid.name, runs):
+        print(f"{grid.name}: its runs are too large to keep; a fresh machine starts them again", flush=True)
         return []
-    with tarfile.open(path) as tar:
-        members = tar.getmembers()
-        names = sorted({Path(m.name).parts[0] for m in members})
-        fresh = [n for n in names if not (work / grid.name / n).exists()]
-        tar.extractall(work / grid.name, [m for m in members if Path(m.name).parts[0] in fresh], filter="data")
-    return fresh
+    return [r.name for r in runs]
 
 
 def run_grid(page: Path, grid: Grid, work: Path) -> None:
@@ -229,23 +193,23 @@ def run_grid(page: Path, grid: Grid, work: Path) -> None:
     cells = grid.cells()
     if all(len(archived_runs(page, grid, cell)) == len(grid.seeds) for cell in cells):
         print(f"{grid.name}: archived already", flush=True)
-        inflight(page, grid).unlink(missing_ok=True)
+        inflight_pack(page, grid.name).unlink(missing_ok=True)
         return
     if out_of_time(grid.name):
         return
     restored = restore(page, grid, work)
     if restored:
         print(f"{grid.name}: restored {len(restored)} archived runs into {work / grid.name}", flush=True)
-    unpacked = unpack_inflight(page, grid, work)
+    unpacked = read_pack(inflight_pack(page, grid.name), work / grid.name)
     if unpacked:
-        print(f"{grid.name}: carrying on {len(unpacked)} runs from {inflight(page, grid)}", flush=True)
+        print(f"{grid.name}: carrying on {len(unpacked)} runs from {inflight_pack(page, grid.name)}", flush=True)
     command = [*canter_command(), *grid.args(str(work / grid.name))]
     print(f"{grid.name}: $ canter {' '.join(command[len(canter_command()) :])}", flush=True)
     code, stopped = run_to_deadline(command, cwd=ROOT)
     print(f"{grid.name}: archived {len(collect(page, grid, work))} runs", flush=True)
     packed = pack_inflight(page, grid, work)
     if packed:
-        print(f"{grid.name}: {len(packed)} unfinished runs kept in {inflight(page, grid)}", flush=True)
+        print(f"{grid.name}: {len(packed)} unfinished runs kept in {inflight_pack(page, grid.name)}", flush=True)
     if stopped:
         print(f"{grid.name}: stopped at --max-minutes, checkpointed; the same command carries it on", flush=True)
     elif code != 0:

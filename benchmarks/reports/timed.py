@@ -9,7 +9,9 @@ complete is not trained again, so a page's script can be rerun to fill in what i
 
 A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops its training
 after M minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall
-time is their sum, which counts each process's start and compile again."""
+time is their sum, which counts each process's start and compile again. A stopped run's work folder (its newest
+checkpoint, sessions.json and train.log) is also kept in `<page>/inflight/<name>.tar`, committed with the page, so
+that a fresh clone carries it on too; it is deleted when the run is archived."""
 
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from archive import RUN_FILES, copy_run, read_text, replace_between, sync
+from archive import RUN_FILES, copy_run, inflight_pack, read_pack, read_text, replace_between, sync, write_pack
 
 ROOT = Path(__file__).resolve().parents[2]
 EVAL_EPISODES = 10
@@ -124,6 +126,8 @@ def timed_train(
     if out_of_time(name):
         return None
     out = work / name
+    if read_pack(inflight_pack(page, name), out):
+        print(f"{name}: carrying on from {inflight_pack(page, name)}", flush=True)
     sessions = _sessions(out)
     if sessions:
         command = [*canter_command(), "train", "--resume", str(_run_dir(out)), "--quiet"]
@@ -162,6 +166,8 @@ def timed_train(
             f"{len(sessions)} process(es), {total / 60:.0f} min in all; the same command carries it on",
             flush=True,
         )
+        if not write_pack(inflight_pack(page, name), out, [out / SESSIONS_FILE, out / "train.log", run_dir]):
+            print(f"{name}: too large to keep in {inflight_pack(page, name)}; a fresh machine starts it again")
         return None
     evaluation = out / "eval.json"
     subprocess.run(
@@ -187,6 +193,7 @@ def timed_train(
         timing["sessions"] = sessions
     (folder / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
     print(f"{name}: {total:.0f} s, eval {row['return_mean']:.0f}", flush=True)
+    inflight_pack(page, name).unlink(missing_ok=True)
     found = archived(page, name)
     assert found is not None
     return found
