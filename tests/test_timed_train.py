@@ -47,6 +47,8 @@ def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_s
     assert found["timing"]["command"] == sessions[0]["command"]
     assert found["summary"]["global_step"] >= 1024 and found["summary"]["stop_reason"] == "budget"
     assert found["eval"]["episodes"] == 1
+    assert not inflight_pack(page, "run").exists()
+    inflight_pack(page, "run").write_bytes(b"stale")  # e.g. committed from another clone before this one archived
     assert timed.timed_train(page, "run", ARGS, work, episodes=1) == found  # archived: not trained again
     assert not inflight_pack(page, "run").exists()
 

@@ -122,6 +122,7 @@ def timed_train(
     found = archived(page, name)
     if found:
         print(f"{name}: archived already", flush=True)
+        inflight_pack(page, name).unlink(missing_ok=True)  # a pack committed beside its archived run is stale
         return found
     if out_of_time(name):
         return None
@@ -167,7 +168,9 @@ def timed_train(
             flush=True,
         )
         if not write_pack(inflight_pack(page, name), out, [out / SESSIONS_FILE, out / "train.log", run_dir]):
-            print(f"{name}: too large to keep in {inflight_pack(page, name)}; a fresh machine starts it again")
+            print(
+                f"{name}: too large to keep in {inflight_pack(page, name)}; a fresh machine starts it again", flush=True
+            )
         return None
     evaluation = out / "eval.json"
     subprocess.run(
