@@ -1,10 +1,13 @@
 """The report pages' timed runs carry on across working sessions: a process stopped before its budget resumes from
 its checkpoint on the next call, on a fresh clone too (from the page's in-flight pack), and the archived wall time is
-the sum of its processes; a page's --max-minutes stops its processes with SIGTERM. Real `canter train` processes on
-InvertedPendulum-v4, 1024 steps in iterations of about 500."""
+the sum of its processes; a page's --max-minutes stops its processes with SIGTERM; two page commands share the runs
+(each claims the run it trains); the cores other work took while a run trained are recorded. Real `canter train`
+processes on InvertedPendulum-v4, 1024 steps in iterations of about 500."""
 
 import json
+import os
 import shutil
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -45,6 +48,8 @@ def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_s
     assert len(sessions) >= 2 and all(s["command"][1:3] == ["train", "--resume"] for s in sessions[1:])
     assert found["timing"]["wall_seconds"] == pytest.approx(sum(s["wall_seconds"] for s in sessions), abs=0.2)
     assert found["timing"]["command"] == sessions[0]["command"]
+    other = sum(s["other_cpu_seconds"] for s in sessions) / found["timing"]["wall_seconds"]
+    assert found["timing"]["other_cores"] == pytest.approx(other, abs=0.01)
     assert found["summary"]["global_step"] >= 1024 and found["summary"]["stop_reason"] == "budget"
     assert found["eval"]["episodes"] == 1
     assert not inflight_pack(page, "run").exists()
@@ -86,3 +91,51 @@ def test_nothing_starts_past_the_deadline(tmp_path, monkeypatch, capsys):
     assert timed.timed_train(tmp_path / "page", "run", ARGS, tmp_path / "work") is None
     assert not (tmp_path / "work").exists()
     assert "past this command's --max-minutes; not started" in capsys.readouterr().out
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_a_claim_is_held_by_a_live_process_and_taken_over_from_a_dead_one(tmp_path):
+    path = tmp_path / "work" / "run.claim"
+    assert timed.claim(path) and path.read_text() == str(os.getpid())
+    assert not timed.claim(path)  # held: by this live process
+    path.write_text(str(_dead_pid()))
+    assert timed.claim(path) and path.read_text() == str(os.getpid())
+    path.write_text("")  # created, its pid not yet written
+    assert not timed.claim(path)
+    old = time.time() - 2 * timed.CLAIM_WRITE_SECONDS
+    os.utime(path, (old, old))
+    assert timed.claim(path)
+
+
+def test_a_run_another_page_command_trains_is_skipped(tmp_path, capsys):
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "run.claim").write_text(str(os.getpid()))  # a live process holds it
+    assert timed.timed_train(tmp_path / "page", "run", ARGS, work) is None
+    assert "another process is training it" in capsys.readouterr().out
+    assert not (work / "run").exists() and (work / "run.claim").is_file()
+
+
+def test_other_work_is_the_machines_busy_time_less_the_childrens(monkeypatch):
+    machine, children = iter([100.0, 110.0]), iter([5.0, 8.0])
+    monkeypatch.setattr(timed, "_busy_cpu_seconds", lambda: next(machine))
+    monkeypatch.setattr(timed, "_children_cpu_seconds", lambda: next(children))
+    with timed.OtherWork() as other:
+        pass
+    assert other.cpu_seconds == 7.0
+
+
+def test_the_machines_busy_time_counts_a_childs_cpu_time():
+    # The two sources OtherWork subtracts agree in their units: a child's CPU seconds show in the machine's.
+    machine, children = timed._busy_cpu_seconds(), timed._children_cpu_seconds()
+    subprocess.run(
+        [sys.executable, "-c", "import time\nend = time.process_time() + 1.0\nwhile time.process_time() < end: pass"]
+    )
+    used = timed._children_cpu_seconds() - children
+    assert used >= 0.9
+    assert timed._busy_cpu_seconds() - machine >= 0.9 * used

@@ -3,9 +3,11 @@
 A run is one `canter train` process, timed from outside (interpreter start, imports, compile, training and the final
 checkpoint), then evaluated by `canter eval` in a process of its own (deterministic, 10 episodes unless the page
 asks for more, every episode's return and length). Its files are copied into `<page>/runs/<name>/`: config.toml,
-metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (the command, its wall seconds, and
-the 1-minute load average before it, which says whether other work shared the cores). A run whose archive is
-complete is not trained again, so a page's script can be rerun to fill in what is missing.
+metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (the command, its wall seconds, the
+1-minute load average before it and the cores other processes took while it trained, which say whether other work
+shared them). A run whose archive is complete is not trained again, so a page's script can be rerun to fill in what
+is missing. Two page commands on one machine share the work: each run is claimed by the process training it
+(`<name>.claim` beside its work folder), and the other command skips it and goes on to the next.
 
 A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops its training
 after M minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import signal
 import subprocess
@@ -113,12 +116,81 @@ def _write_sessions(out: Path, sessions: list[dict[str, Any]]) -> None:
     (out / SESSIONS_FILE).write_text(json.dumps(sessions, indent=2) + "\n")
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+CLAIM_WRITE_SECONDS = 60  # an empty claim older than this lost its process between creating and writing it
+
+
+def claim(path: Path) -> bool:
+    """Take `path` for this process (it holds the pid), or False where a live process holds it already. A claim
+    whose process is gone is taken over."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            text = path.read_text().strip() if path.is_file() else ""
+            if not text and time.time() - path.stat().st_mtime < CLAIM_WRITE_SECONDS:
+                return False  # its process is writing its pid
+            if text.isdigit() and _alive(int(text)):
+                return False
+            path.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as handle:
+            handle.write(str(os.getpid()))
+        return True
+    return False
+
+
+def _busy_cpu_seconds() -> float | None:
+    """CPU seconds the whole machine has spent busy since boot (all cores), or None without /proc/stat."""
+    try:
+        ticks = [int(t) for t in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    idle = ticks[3] + ticks[4]  # idle and iowait
+    return (sum(ticks) - idle) / os.sysconf("SC_CLK_TCK")
+
+
+def _children_cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+class OtherWork:
+    """The CPU seconds that processes other than this one's children used while the `with` block ran: the
+    machine's busy time (/proc/stat) less the children's (getrusage, once they have been waited for). Divided by
+    the wall time, the number of cores other work took from a timed run."""
+
+    def __init__(self) -> None:
+        self.cpu_seconds: float | None = None
+
+    def __enter__(self) -> OtherWork:
+        self._machine, self._children = _busy_cpu_seconds(), _children_cpu_seconds()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        machine = _busy_cpu_seconds()
+        if machine is not None and self._machine is not None:
+            children = _children_cpu_seconds() - self._children
+            self.cpu_seconds = max(0.0, machine - self._machine - children)
+
+
 def timed_train(
     page: Path, name: str, train_args: list[str], work: Path, episodes: int = EVAL_EPISODES
 ) -> dict[str, Any] | None:
     """Train (unless archived already), evaluate (`episodes` episodes) and archive one run; returns
-    `archived(page, name)`, or None when DEADLINE stopped the process before the run's end: the same call carries
-    it on from its checkpoint, and the archived wall time is the sum of its processes."""
+    `archived(page, name)`, or None when DEADLINE stopped the process before the run's end (the same call carries
+    it on from its checkpoint, and the archived wall time is the sum of its processes), or when another page command
+    is training it."""
     found = archived(page, name)
     if found:
         print(f"{name}: archived already", flush=True)
@@ -126,6 +198,17 @@ def timed_train(
         return found
     if out_of_time(name):
         return None
+    lock = work / f"{name}.claim"
+    if not claim(lock):
+        print(f"{name}: another process is training it ({lock}); skipped", flush=True)
+        return None
+    try:
+        return _train_claimed(page, name, train_args, work, episodes)
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _train_claimed(page: Path, name: str, train_args: list[str], work: Path, episodes: int) -> dict[str, Any] | None:
     out = work / name
     if read_pack(inflight_pack(page, name), out):
         print(f"{name}: carrying on from {inflight_pack(page, name)}", flush=True)
@@ -147,7 +230,7 @@ def timed_train(
     _write_sessions(out, [*sessions, entry])
     print(f"{name}: $ {' '.join(entry['command'][1:])}", flush=True)
     start = time.perf_counter()
-    with open(out / "train.log", "ab") as log:
+    with open(out / "train.log", "ab") as log, OtherWork() as other:
         code, stopped = run_to_deadline(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     wall = time.perf_counter() - start
     if code != 0 and stopped:
@@ -155,7 +238,10 @@ def timed_train(
         return None
     if code != 0:
         raise SystemExit(f"{name}: canter train exited {code}; see {out / 'train.log'}")
-    sessions = [*sessions, entry | {"wall_seconds": round(wall, 1)}]
+    entry |= {"wall_seconds": round(wall, 1)}
+    if other.cpu_seconds is not None:
+        entry["other_cpu_seconds"] = round(other.cpu_seconds, 1)
+    sessions = [*sessions, entry]
     _write_sessions(out, sessions)
     run_dir = _run_dir(out)
     assert run_dir is not None
@@ -188,10 +274,13 @@ def timed_train(
     timing = {
         "command": sessions[0]["command"],
         "wall_seconds": round(total, 1),
-        # The busiest start of its processes: wall_text marks the time as shared when this is high.
+        # The busiest start of its processes: wall_text marks the time as shared when this is high (runs timed
+        # before other_cores was measured).
         "load_average_before": max(e["load_average_before"] for e in sessions),
         "date": sessions[-1]["date"],
     }
+    if all("other_cpu_seconds" in e for e in sessions):
+        timing["other_cores"] = round(sum(e["other_cpu_seconds"] for e in sessions) / total, 2)
     if len(sessions) > 1:
         timing["sessions"] = sessions
     (folder / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
@@ -217,11 +306,24 @@ def plot_and_film(page: Path, name: str, work: Path) -> None:
             subprocess.run([*canter_command(), *command, str(out)], check=True, stdout=subprocess.DEVNULL)
 
 
+# Where other work shared the cores: other processes' mean use of the machine's cores while the run trained, or,
+# for runs timed before that was measured, the 1-minute load average as it started, which also counts a run that
+# had just ended (a page's previous seed, say).
+BUSY_OTHER_CORES, BUSY_LOAD_BEFORE = 0.2, 0.5
+
+
+def load_text(timing: dict[str, Any]) -> str:
+    """' (other work took X cores)' or ' (load X before)' where other work shared the cores, else ''."""
+    if "other_cores" in timing:
+        other = timing["other_cores"]
+        return f" (other work took {other:.1f} cores)" if other > BUSY_OTHER_CORES else ""
+    before = timing["load_average_before"]
+    return f" (load {before:.1f} before)" if before > BUSY_LOAD_BEFORE else ""
+
+
 def wall_text(run: dict[str, Any]) -> str:
-    """An archived run's whole-process time in minutes, marked when other work shared the cores as it started."""
-    load = run["timing"]["load_average_before"]
-    busy = f" (load {load:.1f} before)" if load > 0.5 else ""
-    return f"{run['timing']['wall_seconds'] / 60:.1f} min{busy}"
+    """An archived run's whole-process time in minutes, marked when other work shared the cores."""
+    return f"{run['timing']['wall_seconds'] / 60:.1f} min{load_text(run['timing'])}"
 
 
 Block = tuple[tuple[str, str], Callable[[], str]]  # a page's marker pair and what writes between them

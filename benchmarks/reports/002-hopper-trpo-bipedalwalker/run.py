@@ -32,7 +32,15 @@ sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
 from grids import EVAL_HEADER, Grid, cell_result, eval_text, run_grid  # noqa: E402
-from timed import archived, canter_command, out_of_time, page_main, run_to_deadline, timed_train  # noqa: E402
+from timed import (  # noqa: E402
+    archived,
+    canter_command,
+    load_text,
+    out_of_time,
+    page_main,
+    run_to_deadline,
+    timed_train,
+)
 
 from canter.orchestrate.search_space import Param, load_space  # noqa: E402
 
@@ -321,7 +329,8 @@ def walker_row(algo: str, seed: int, folder: str = "") -> str:
     stop = f"**300 reached** at {steps} steps" if reached else f"not reached in {steps} steps"
     lengths = evaluation["lengths"]
     return (
-        f"| {algo} | {seed} | {stop} | {_clock(run['timing']['wall_seconds'])} | {summary['recent_return']:,.1f} | "
+        f"| {algo} | {seed} | {stop} | {_clock(run['timing']['wall_seconds'])}{load_text(run['timing'])} | "
+        f"{summary['recent_return']:,.1f} | "
         f"{evaluation['return_mean']:,.1f} ({evaluation['return_std']:,.1f}) | {sum(lengths) / len(lengths):,.1f} |"
     )
 
@@ -348,6 +357,11 @@ def walker_text() -> str:
         *first,
     ]
     lines += [
+        "",
+        "Wall times are whole `canter train` processes on this page's 2-core machine. Where other work shared the "
+        "cores, the time says so: the cores other processes took while it trained (measured from the machine's and "
+        "the process's CPU time), or, for runs timed before that was measured, the 1-minute load average as it "
+        "started, which also counts the seed that had just ended before it.",
         "",
         "The report's table 6, beside it (SB3, 4 envs, 3 seeds in parallel on an A40 node; evaluation over 100 "
         "episodes with env seed 1; training time to the end of training):",
