@@ -7,6 +7,7 @@ processes on InvertedPendulum-v4, 1024 steps in iterations of about 500."""
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -84,6 +85,27 @@ def test_the_deadline_stops_a_process_with_sigterm(monkeypatch):
     assert time.monotonic() - started < 30
     monkeypatch.setattr(timed.DEADLINE, "at", None)
     assert timed.run_to_deadline([sys.executable, "-c", "raise SystemExit(3)"]) == (3, False)
+
+
+PAGE_COMMAND = f"""
+import sys
+sys.path[:0] = [{str(Path(timed.__file__).parent)!r}, {str(Path(timed.__file__).parents[1])!r}]
+import timed
+timed.stop_on_sigterm()
+print(timed.run_to_deadline([sys.executable, "-c", {SLEEPER!r}]), flush=True)
+print(timed.out_of_time("next"), flush=True)
+"""
+
+
+def test_sigterm_to_a_page_command_stops_its_training_process_as_its_deadline_would():
+    started = time.monotonic()
+    with subprocess.Popen([sys.executable, "-c", PAGE_COMMAND], stdout=subprocess.PIPE, text=True) as page:
+        time.sleep(2.0)  # the sleeper is running
+        page.send_signal(signal.SIGTERM)
+        out, _ = page.communicate(timeout=30)
+    assert page.returncode == 0 and time.monotonic() - started < 30
+    # The child stopped cleanly, by the deadline, and nothing new starts.
+    assert out.splitlines() == ["(0, True)", "next: past this command's --max-minutes; not started", "True"]
 
 
 def test_nothing_starts_past_the_deadline(tmp_path, monkeypatch, capsys):

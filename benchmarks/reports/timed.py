@@ -58,6 +58,7 @@ class Deadline:
     lets a page whose runs take longer than a working session be filled in over several."""
 
     at: float | None = None
+    waiting: bool = False  # run_to_deadline is waiting for its process, which SIGTERM may then interrupt
 
     def seconds_left(self) -> float | None:
         return None if self.at is None else self.at - time.monotonic()
@@ -68,6 +69,23 @@ DEADLINE = Deadline()
 STOP_GRACE_SECONDS = 600
 
 
+class StopRequested(Exception):
+    """SIGTERM reached the page command while it waited for a training process."""
+
+
+def _deadline_now(signum: int, frame: object) -> None:
+    DEADLINE.at = time.monotonic()
+    if DEADLINE.waiting:
+        raise StopRequested
+
+
+def stop_on_sigterm() -> None:
+    """Make SIGTERM to this process a deadline that has come: its training process stops, checkpointed, as at
+    --max-minutes, what finished is archived, and nothing new starts. Without it, the process would die and leave
+    its `canter train` or `canter bench` running on."""
+    signal.signal(signal.SIGTERM, _deadline_now)
+
+
 def run_to_deadline(command: list[str], **popen: Any) -> tuple[int, bool]:
     """Run `command` to its end or to DEADLINE, where it gets SIGTERM; its exit code, and whether the deadline stopped
     it. canter train then writes its checkpoint at the end of the iteration and returns; canter bench ends at once,
@@ -75,8 +93,12 @@ def run_to_deadline(command: list[str], **popen: Any) -> tuple[int, bool]:
     started in the background by a shell script ignores SIGINT."""
     with subprocess.Popen(command, **popen) as proc:
         try:
-            return proc.wait(timeout=DEADLINE.seconds_left()), False
-        except subprocess.TimeoutExpired:
+            DEADLINE.waiting = True
+            try:
+                return proc.wait(timeout=DEADLINE.seconds_left()), False
+            finally:
+                DEADLINE.waiting = False
+        except (subprocess.TimeoutExpired, StopRequested):
             proc.send_signal(signal.SIGTERM)
             try:
                 return proc.wait(timeout=STOP_GRACE_SECONDS), True
@@ -344,6 +366,7 @@ def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str,
         help="stop training after this long, checkpointed; the same command carries the runs on",
     )
     args = parser.parse_args()
+    stop_on_sigterm()
     if args.max_minutes is not None:
         DEADLINE.at = time.monotonic() + args.max_minutes * 60
     if not (args.check or args.write):
