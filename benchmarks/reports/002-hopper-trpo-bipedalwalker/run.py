@@ -27,6 +27,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
@@ -43,6 +45,7 @@ from timed import (  # noqa: E402
 )
 
 from canter.orchestrate.search_space import Param, load_space  # noqa: E402
+from canter.use.statistics import aggregates  # noqa: E402
 
 WORK = "runs/report002"  # bench, train and tune folders (with checkpoints), relative to the repository root
 SEEDS = (100, 101, 102)  # chosen before the runs
@@ -335,19 +338,33 @@ def walker_row(algo: str, seed: int, folder: str = "") -> str:
     )
 
 
+def walker_seeds_row(algo: str, folder: str = "") -> list[str]:
+    """The seeds together, once all are archived: eval mean ± std over seeds [rliable's 95% interval of the mean]."""
+    runs = [archived(PAGE, folder + walker_name(algo, seed)) for seed in SEEDS]
+    if not all(runs):
+        return []
+    evals = np.array([run["eval"]["return_mean"] for run in runs if run])
+    train = np.mean([run["summary"]["recent_return"] for run in runs if run])
+    result = {"return_mean": evals.mean(), "return_std": evals.std(), "mean_interval": aggregates(evals[:, None]).mean}
+    return [f"| {algo} | {len(runs)} seeds | | | {train:,.1f} | {eval_text(result)} | |"]
+
+
 def walker_text() -> str:
     lines = [
-        "| algo | seed | stop | wall time to the stop (H:MM:SS) | train return (last 20) | eval return, mean (std) "
-        "| eval steps |",
+        "| algo | seed | stop | wall time to the stop (H:MM:SS) | train return (last 20) | eval return, mean (std); "
+        "over seeds: mean ± std [95% interval of the mean] | eval steps |",
         "|---|---|---|---:|---:|---:|---:|",
     ]
     for algo in WALKER_PRESETS:
         for seed in SEEDS:
             lines.append(walker_row(algo, seed))
+        lines += walker_seeds_row(algo)
     images = [f"![{algo} curves]({curves(algo).name})" for algo in WALKER_PRESETS if curves(algo).is_file()]
     if images:
         lines += ["", *images]
-    first = [walker_row("ppo", seed, FIRST_ATTEMPT + "/") for seed in SEEDS]
+    first = [walker_row("ppo", seed, FIRST_ATTEMPT + "/") for seed in SEEDS] + walker_seeds_row(
+        "ppo", FIRST_ATTEMPT + "/"
+    )
     lines += [
         "",
         f"PPO's first attempt, with canter's observation and reward normalization on (archived in "
