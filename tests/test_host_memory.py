@@ -5,12 +5,27 @@ import pytest
 
 from canter.cli.main import main
 from canter.envs.registry import make_vec_env
+from canter.errors import CanterError
 from canter.training import host_memory
 
 
 def test_the_memory_of_a_real_env_is_measured():
     per_env = host_memory.bytes_per_env(lambda n: make_vec_env("Hopper-v5", "envpool", n, list(range(n))))
     assert per_env is not None and 10_000 < per_env < 50 * 2**20  # MuJoCo's Hopper: about a megabyte
+
+
+def test_the_check_measures_in_a_fresh_process_which_no_freed_envs_can_fool(monkeypatch):
+    # A process that made and closed envs reuses their freed memory for new ones, so measured in it, their resident
+    # size hardly grows: this is how 200,000 Hoppers once passed the check inside the test suite, and the
+    # out-of-memory killer ended it. Here that process's measure is zero outright; the check's is not.
+    monkeypatch.setattr(host_memory, "bytes_per_env", lambda make: 0.0)
+    if host_memory.available_bytes() is None or host_memory.available_bytes() > 2**40:
+        pytest.skip("the machine reports no available memory, or more than 200000 Hoppers need")
+    with pytest.raises(CanterError, match=r"env\.num_envs=200000 needs about"):
+        host_memory.check_envs_fit("Hopper-v5", "envpool", {}, 200_000)
+    apart = host_memory.bytes_per_env_apart("Hopper-v5", "envpool", {})
+    assert apart is not None and 200_000 < apart < 50 * 2**20
+    assert host_memory.bytes_per_env_apart("NoSuchEnv-v0", "envpool", {}) is None
 
 
 def test_the_refusal_names_the_setting_and_a_count_that_fits():

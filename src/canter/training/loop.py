@@ -184,9 +184,7 @@ def _train_locked(
     options = env_options(config.env, backend)
     try:
         if not get_backend(backend).jax_native:  # JAX envs are checked on the compiled program instead
-            host_memory.check_envs_fit(
-                lambda n: make_vec_env(config.env.id, backend, n, seeds[:n], **options), len(seeds)
-            )
+            host_memory.check_envs_fit(config.env.id, backend, options, len(seeds))
         env = make_vec_env(config.env.id, backend, len(seeds), seeds, config.env.envpool_shards, **options)
     except DiscreteActionsError as exc:
         raise CanterError(
