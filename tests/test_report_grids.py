@@ -4,8 +4,10 @@ only what it never trained is trained. Real `canter bench` runs on InvertedPendu
 
 import json
 import shutil
+import subprocess
 import sys
 import tarfile
+import time
 from pathlib import Path
 
 import pytest
@@ -116,3 +118,35 @@ def test_a_pack_keeps_the_newest_and_best_checkpoints_and_no_more_than_its_limit
     monkeypatch.setattr(archive, "PACK_LIMIT_BYTES", 1000)  # a tar of these files is over 1,000 bytes
     assert not archive.write_pack(pack, run.parent, [run])
     assert not pack.exists() and not pack.with_name("run.tar.partial").exists()
+
+
+HOLD_AND_WRITE = """
+import shutil, sys, time
+from pathlib import Path
+from canter.training import run_lock
+run, newer = Path(sys.argv[1]), sys.argv[2]
+run_lock.acquire(run)
+print("held", flush=True)
+time.sleep(2.0)  # a job that got SIGTERM as its bench ended, finishing its iteration
+[last] = sorted((run / "checkpoints").glob("ckpt_*.npz"))
+shutil.copyfile(last, run / "checkpoints" / newer)
+"""
+
+
+def test_the_pack_waits_for_jobs_still_writing_their_last_checkpoint(tmp_path):
+    page, work = tmp_path / "page", tmp_path / "work"
+    stopping = grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 700, (), (*TINY, "run.max_minutes=1e-4"))
+    with pytest.raises(SystemExit, match="canter bench exited"):
+        grids.run_grid(page, stopping, work)
+    [cell] = stopping.cells()
+    run = cell.run_dir(work / "g", 0)
+    newer = "ckpt_000000000699.npz"  # past the stopped run's step, short of its budget
+    with subprocess.Popen(
+        [sys.executable, "-c", HOLD_AND_WRITE, str(run), newer], stdout=subprocess.PIPE, text=True
+    ) as writer:
+        assert writer.stdout is not None and writer.stdout.readline().strip() == "held"
+        started = time.monotonic()
+        assert grids.pack_inflight(page, stopping, work) == [run.name]
+        assert time.monotonic() - started > 1.0  # it waited for the writer
+    with tarfile.open(inflight_pack(page, "g")) as tar:
+        assert f"{run.name}/checkpoints/{newer}" in tar.getnames()

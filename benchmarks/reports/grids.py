@@ -16,17 +16,22 @@ all finished."""
 
 from __future__ import annotations
 
+import contextlib
 import shutil
+import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from archive import ROOT, copy_run, has_run_files, inflight_pack, read_pack, write_pack
-from timed import canter_command, out_of_time, run_to_deadline
+from timed import STOP_GRACE_SECONDS, canter_command, out_of_time, run_to_deadline
 
+from canter.errors import CanterError
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json, run_status
+from canter.training import run_lock
 from canter.use.statistics import Interval, aggregates
 
 BENCH_FILES = ("results.md", "statistics.json")
@@ -168,9 +173,38 @@ def restore(page: Path, grid: Grid, work: Path) -> list[str]:
     return restored
 
 
+@contextlib.contextmanager
+def writers_done(folders: list[Path], grace: float = STOP_GRACE_SECONDS) -> Iterator[None]:
+    """Hold the writer lock of every existing run folder in `folders`, waiting up to `grace` seconds for processes
+    still writing them: a stopped `canter bench` ends at once, and its jobs write their last checkpoints after."""
+    end, taken = time.monotonic() + grace, []
+    try:
+        for folder in (f for f in folders if f.is_dir()):
+            while True:
+                try:
+                    run_lock.acquire(folder)
+                except CanterError:
+                    if time.monotonic() > end:
+                        raise SystemExit(f"{folder}: still written by another process after {grace:.0f} s") from None
+                    time.sleep(0.5)
+                    continue
+                taken.append(folder)
+                break
+        yield
+    finally:
+        for folder in taken:
+            run_lock.release(folder)
+
+
 def pack_inflight(page: Path, grid: Grid, work: Path) -> list[str]:
-    """Write the grid's in-flight pack from the bench folder's unfinished, checkpointed runs, or delete it when there
-    are none or it would be too large; returns the runs packed."""
+    """Write the grid's in-flight pack from the bench folder's unfinished, checkpointed runs (once their jobs have
+    stopped writing them), or delete it when there are none or it would be too large; returns the runs packed."""
+    folders = [cell.run_dir(work / grid.name, seed) for cell in grid.cells() for seed in grid.seeds]
+    with writers_done(folders):
+        return _pack(page, grid, work)
+
+
+def _pack(page: Path, grid: Grid, work: Path) -> list[str]:
     runs = [
         cell.run_dir(work / grid.name, seed)
         for cell in grid.cells()
