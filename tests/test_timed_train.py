@@ -5,7 +5,6 @@ the sum of its processes; a page's --max-minutes stops its processes with SIGTER
 processes on InvertedPendulum-v4, 1024 steps in iterations of about 500."""
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -115,32 +114,46 @@ def test_nothing_starts_past_the_deadline(tmp_path, monkeypatch, capsys):
     assert "past this command's --max-minutes; not started" in capsys.readouterr().out
 
 
-def _dead_pid() -> int:
-    proc = subprocess.Popen([sys.executable, "-c", "pass"])
-    proc.wait()
-    return proc.pid
+HOLD_LOCK = """
+import sys
+from canter.training import run_lock
+run_lock.acquire(sys.argv[1])
+print("held", flush=True)
+sys.stdin.read()
+"""
 
 
-def test_a_claim_is_held_by_a_live_process_and_taken_over_from_a_dead_one(tmp_path):
-    path = tmp_path / "work" / "run.claim"
-    assert timed.claim(path) and path.read_text() == str(os.getpid())
-    assert not timed.claim(path)  # held: by this live process
-    path.write_text(str(_dead_pid()))
-    assert timed.claim(path) and path.read_text() == str(os.getpid())
-    path.write_text("")  # created, its pid not yet written
-    assert not timed.claim(path)
-    old = time.time() - 2 * timed.CLAIM_WRITE_SECONDS
-    os.utime(path, (old, old))
-    assert timed.claim(path)
+def _holder(folder: Path) -> subprocess.Popen:
+    """Another process that holds `folder`'s writer lock until it is killed."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(folder)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_claim_is_refused_while_another_process_holds_it_and_taken_over_when_it_dies(tmp_path):
+    folder = timed.claim_dir(tmp_path / "work", "run")
+    holder = _holder(folder)
+    try:
+        assert not timed.claim(folder)
+    finally:
+        holder.kill()  # SIGKILL: the holder cannot release anything itself
+        holder.wait()
+    assert timed.claim(folder)
+    timed.run_lock.release(folder)
 
 
 def test_a_run_another_page_command_trains_is_skipped(tmp_path, capsys):
     work = tmp_path / "work"
-    work.mkdir()
-    (work / "run.claim").write_text(str(os.getpid()))  # a live process holds it
-    assert timed.timed_train(tmp_path / "page", "run", ARGS, work) is None
-    assert "another process is training it" in capsys.readouterr().out
-    assert not (work / "run").exists() and (work / "run.claim").is_file()
+    holder = _holder(timed.claim_dir(work, "run"))
+    try:
+        assert timed.timed_train(tmp_path / "page", "run", ARGS, work) is None
+    finally:
+        holder.kill()
+        holder.wait()
+    assert f"another process is training it ({holder.pid})" in capsys.readouterr().out
+    assert not (work / "run").exists()
 
 
 def test_other_work_is_the_machines_busy_time_less_the_childrens(monkeypatch):

@@ -7,7 +7,7 @@ metrics.csv, summary.json, versions.json, eval.json, train.log and timing.json (
 1-minute load average before it and the cores other processes took while it trained, which say whether other work
 shared them). A run whose archive is complete is not trained again, so a page's script can be rerun to fill in what
 is missing. Two page commands on one machine share the work: each run is claimed by the process training it
-(`<name>.claim` beside its work folder), and the other command skips it and goes on to the next.
+(the writer lock of `.claims/<name>` beside its work folder), and the other command skips it and goes on to the next.
 
 A run longer than a working session is trained in several processes: a page's `--max-minutes M` stops its training
 after M minutes, checkpointed, and the next call resumes it. Its timing.json then lists every process, and its wall
@@ -32,6 +32,9 @@ from pathlib import Path
 from typing import Any
 
 from archive import RUN_FILES, copy_run, inflight_pack, read_pack, read_text, replace_between, sync, write_pack
+
+from canter.errors import CanterError
+from canter.training import run_lock
 
 ROOT = Path(__file__).resolve().parents[2]
 EVAL_EPISODES = 10
@@ -138,38 +141,19 @@ def _write_sessions(out: Path, sessions: list[dict[str, Any]]) -> None:
     (out / SESSIONS_FILE).write_text(json.dumps(sessions, indent=2) + "\n")
 
 
-def _alive(pid: int) -> bool:
+def claim_dir(work: Path, name: str) -> Path:
+    """The folder whose writer lock the process training `name` holds."""
+    return work / ".claims" / name
+
+
+def claim(folder: Path) -> bool:
+    """Hold `folder`'s writer lock for this process, or False where another process holds it. The OS releases a
+    flock however its holder dies, so a claim whose process is gone is simply taken over."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        run_lock.acquire(folder)
+    except CanterError:
         return False
-    except PermissionError:
-        return True
     return True
-
-
-CLAIM_WRITE_SECONDS = 60  # an empty claim older than this lost its process between creating and writing it
-
-
-def claim(path: Path) -> bool:
-    """Take `path` for this process (it holds the pid), or False where a live process holds it already. A claim
-    whose process is gone is taken over."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for _ in range(2):
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            text = path.read_text().strip() if path.is_file() else ""
-            if not text and time.time() - path.stat().st_mtime < CLAIM_WRITE_SECONDS:
-                return False  # its process is writing its pid
-            if text.isdigit() and _alive(int(text)):
-                return False
-            path.unlink(missing_ok=True)
-            continue
-        with os.fdopen(fd, "w") as handle:
-            handle.write(str(os.getpid()))
-        return True
-    return False
 
 
 def _busy_cpu_seconds() -> float | None:
@@ -220,14 +204,14 @@ def timed_train(
         return found
     if out_of_time(name):
         return None
-    lock = work / f"{name}.claim"
+    lock = claim_dir(work, name)
     if not claim(lock):
-        print(f"{name}: another process is training it ({lock}); skipped", flush=True)
+        print(f"{name}: another process is training it ({run_lock.read_holder(lock).get('pid')}); skipped", flush=True)
         return None
     try:
         return _train_claimed(page, name, train_args, work, episodes)
     finally:
-        lock.unlink(missing_ok=True)
+        run_lock.release(lock)
 
 
 def _train_claimed(page: Path, name: str, train_args: list[str], work: Path, episodes: int) -> dict[str, Any] | None:

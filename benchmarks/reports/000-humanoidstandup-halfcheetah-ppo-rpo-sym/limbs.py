@@ -18,6 +18,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,9 +27,12 @@ import numpy as np
 
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
+sys.path.insert(0, str(PAGE.parent))  # grids.py
 from archive import ROOT  # noqa: E402
+from grids import Grid, finished  # noqa: E402
 
 from canter.algos.ppo.symmetry import effort_asymmetry, mirror_mismatch, parse_groups  # noqa: E402
+from canter.orchestrate.jobs import read_json  # noqa: E402
 
 if TYPE_CHECKING:
     from canter.use.policy import Policy
@@ -36,35 +41,46 @@ EPISODES = 5
 LIMBS = parse_groups("3:7=7:11,11:14=14:17", negate=(14, 15))  # the preset's groups: legs, arms
 ARCHIVE = PAGE / "runs" / "limbs.json"
 SEED0 = ROOT / "benchmarks" / "results" / "humanoidstandup-5m" / "run-folders"
+SEED0_STEPS = 5_000_000
 WORK = ROOT / "runs" / "report000"
-# label, seed, where the run folder is (the first match of the glob), in the order of the table
-RUNS = (
+
+
+@dataclass(frozen=True)
+class GridRun:
+    """One seed of one cell of a page grid, which `canter bench` trained in WORK / grid."""
+
+    grid: str
+    values: tuple[tuple[str, str], ...] = ()  # the cell's grid values, as Cell.values gives them
+
+
+# label, seed, where the run is (a folder of seed-0 runs holding one run folder, or a page grid's cell), in the
+# order of the table
+RUNS: tuple[tuple[str, int, Path | GridRun], ...] = (
     ("ppo", 0, SEED0 / "ppo"),
     ("rpo", 0, SEED0 / "rpo"),
     ("rpo + sym 0.02", 0, SEED0 / "rposym"),
-    ("ppo, ent_coef 0", 100, WORK / "hs-ent" / "*ent_coef=0.0__s100"),
-    ("ppo, ent_coef 0.01", 100, WORK / "hs-ent" / "*ent_coef=0.01__s100"),
-    ("rpo + sym 0", 100, WORK / "hs-sym" / "*sym.coef=0.0__s100"),
-    ("rpo + sym 0.01", 100, WORK / "hs-sym" / "*sym.coef=0.01__s100"),
-    ("rpo + sym 0.02", 100, WORK / "hs-rpo-sym" / "*__s100"),
-    ("rpo + sym 0.02", 101, WORK / "hs-rpo-sym" / "*__s101"),
-    ("rpo + sym 0.02", 102, WORK / "hs-rpo-sym" / "*__s102"),
-    ("rpo + sym 0.05", 100, WORK / "hs-sym" / "*sym.coef=0.05__s100"),
+    ("ppo, ent_coef 0", 100, GridRun("hs-ent", (("ppo.ent_coef", "0.0"),))),
+    ("ppo, ent_coef 0.01", 100, GridRun("hs-ent", (("ppo.ent_coef", "0.01"),))),
+    ("rpo + sym 0", 100, GridRun("hs-sym", (("sym.coef", "0.0"),))),
+    ("rpo + sym 0.01", 100, GridRun("hs-sym", (("sym.coef", "0.01"),))),
+    ("rpo + sym 0.02", 100, GridRun("hs-rpo-sym")),
+    ("rpo + sym 0.02", 101, GridRun("hs-rpo-sym")),
+    ("rpo + sym 0.02", 102, GridRun("hs-rpo-sym")),
+    ("rpo + sym 0.05", 100, GridRun("hs-sym", (("sym.coef", "0.05"),))),
 )
 
 
-def find_run(pattern: Path) -> Path | None:
-    """The finished run folder that `pattern` names (a folder holding one run, or a glob), or None."""
-    folders = sorted(pattern.parent.glob(pattern.name)) if "*" in pattern.name else [pattern]
-    runs = [f for f in folders if f.is_dir()]
-    runs = [r for f in runs for r in ([f] if (f / "summary.json").is_file() else f.iterdir()) if r.is_dir()]
-    finished = [r for r in runs if (r / "summary.json").is_file() and _finished(r)]
-    return finished[0] if finished else None
-
-
-def _finished(run: Path) -> bool:
-    summary = json.loads((run / "summary.json").read_text())
-    return bool(summary.get("stop_reason") == "budget")
+def run_folder(where: Path | GridRun, seed: int, grids: Mapping[str, Grid]) -> Path | None:
+    """The finished run folder that `where` names for `seed`, or None where it has not finished (or is not here)."""
+    if isinstance(where, Path):
+        folders = sorted(f for f in where.iterdir() if f.is_dir()) if where.is_dir() else []
+        # These predate the archive's eval.json, so their summary alone says they ran the whole budget.
+        summary = read_json(folders[0] / "summary.json") if len(folders) == 1 else None
+        return folders[0] if summary and summary.get("global_step", 0) >= SEED0_STEPS else None
+    grid = grids[where.grid]
+    (cell,) = [c for c in grid.cells() if c.values == where.values]
+    folder = cell.run_dir(WORK / grid.name, seed)
+    return folder if finished(folder, grid.total_steps) else None
 
 
 def measure(policy: Policy, episodes: int = EPISODES) -> dict[str, Any]:
@@ -118,18 +134,18 @@ def table() -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
+def main(grids: Mapping[str, Grid]) -> int:
     from canter.use.policy import load
 
     archive = json.loads(ARCHIVE.read_text()) if ARCHIVE.is_file() else []
     done = {(entry["label"], entry["seed"]) for entry in archive}
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    for text, seed, pattern in RUNS:
+    for text, seed, where in RUNS:
         if (text, seed) in done:
             continue
-        run = find_run(pattern)
+        run = run_folder(where, seed, grids)
         if run is None:
-            print(f"{text}, seed {seed}: no finished run at {pattern}; skipped", flush=True)
+            print(f"{text}, seed {seed}: no finished run ({where}); skipped", flush=True)
             continue
         policy = load(run, "last")
         step = json.loads((run / "summary.json").read_text())["global_step"]
@@ -142,4 +158,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from run import GRIDS  # the page's grids; run.py draws this file's table, so it is imported only here
+
+    sys.exit(main(GRIDS))
