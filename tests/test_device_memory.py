@@ -59,3 +59,48 @@ def test_the_compile_cache_folder_follows_the_environment(monkeypatch, tmp_path)
     for off in ("0", "off", "no", "false"):
         monkeypatch.setenv(runtime.COMPILE_CACHE_ENV, off)
         assert runtime.compile_cache_dir() is None
+
+
+CACHED_PROGRAM = """
+import sys
+import warnings
+
+if sys.argv[1] == "without-filelock":
+    sys.modules["filelock"] = None  # as if not installed: `import filelock` fails, find_spec gives None
+warnings.simplefilter("error")  # JAX's failed cache reads are warnings
+import jax
+import jax.numpy as jnp
+from jax import monitoring
+
+from canter.core import runtime
+
+hits = []
+monitoring.register_event_listener(lambda event, **_: hits.append(event) if event.endswith("cache_hits") else None)
+runtime.use_compile_cache(jax)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+jax.jit(lambda x: jnp.sin(x) * 3.0 + x.sum())(jnp.ones(7)).block_until_ready()
+print(len(hits))
+"""
+
+
+@pytest.mark.parametrize("filelock", ["with-filelock", "without-filelock"])
+def test_a_second_process_reads_the_compile_cache_with_or_without_filelock(filelock, tmp_path):
+    """The GPU machine installs canter with --no-deps and may lack filelock, without which JAX cannot bound the
+    cache: bounding it anyway made every read of a kept program fail, so each process compiled again."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, CANTER_COMPILE_CACHE=str(tmp_path / "xla"))
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+
+    def run() -> int:
+        done = subprocess.run(
+            [sys.executable, "-c", CACHED_PROGRAM, filelock], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        return int(done.stdout.split()[-1])
+
+    run()  # compiles and keeps the program
+    assert run() > 0  # found it

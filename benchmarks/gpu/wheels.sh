@@ -21,6 +21,7 @@ WHEELS=(
     brax==0.14.2 jaxopt==0.8.5 ml_collections==1.1.0 trimesh==5.2.0   # Brax's envs and PPO
     gymnasium==1.4.0 farama-notifications==0.0.6 cloudpickle==3.1.3   # the mjx backend reads Gymnasium's XML
     tensorboardX==2.6.5   # canter's logger
+    filelock==4.3.1   # JAX's bounded compilation cache (canter.core.runtime.use_compile_cache)
 )
 
 PLATFORMS=(manylinux_2_28_x86_64 manylinux_2_27_x86_64 manylinux_2_17_x86_64 manylinux2014_x86_64 manylinux1_x86_64)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from typing import Any
@@ -77,4 +78,7 @@ def use_compile_cache(jax: Any) -> None:
     if not os.access(folder, os.W_OK):
         return
     jax.config.update("jax_compilation_cache_dir", folder)
-    jax.config.update("jax_compilation_cache_max_size", COMPILE_CACHE_LIMIT)
+    # JAX bounds the cache only with filelock importable; set without it, every read of a kept program fails with a
+    # warning and each process compiles again. A `--no-deps` install without filelock keeps an unbounded cache.
+    if importlib.util.find_spec("filelock") is not None:
+        jax.config.update("jax_compilation_cache_max_size", COMPILE_CACHE_LIMIT)
