@@ -208,6 +208,7 @@ def _evaluate_on_two_envs(monkeypatch):
     import canter.training.evaluation
 
     monkeypatch.setattr(canter.training.evaluation, "MAX_EVAL_ENVS", 2)
+    monkeypatch.setattr(canter.training.evaluation, "MAX_JAX_EVAL_ENVS", 2)
 
 
 def _rows(run_dir):
@@ -364,3 +365,13 @@ def test_evaluation_in_one_program_plays_the_host_loops_episodes(monkeypatch):
     assert jitted.returns.size == host.returns.size == EVAL_EPISODES
     np.testing.assert_allclose(np.sort(jitted.returns), np.sort(host.returns), rtol=1e-5)
     np.testing.assert_array_equal(np.sort(jitted.lengths), np.sort(host.lengths))
+
+
+def test_a_jax_env_plays_every_evaluation_episode_on_its_own_env():
+    """Host-stepped backends share up to MAX_EVAL_ENVS envs between the episodes; a JAX-native one gives each
+    episode its own env, so the episodes play side by side instead of one after another."""
+    from canter.training.evaluation import MAX_EVAL_ENVS, eval_env_count
+
+    assert eval_env_count("InvertedPendulum-v5", "mjx", 128) == 128
+    assert eval_env_count("InvertedPendulum-v5", "gymnasium", 128) == MAX_EVAL_ENVS == 32
+    assert eval_env_count("InvertedPendulum-v5", "auto", 5) == 5

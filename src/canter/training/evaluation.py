@@ -25,7 +25,10 @@ import numpy as np
 from canter.core.seeding import EVAL, env_seeds
 from canter.errors import CanterError
 
-MAX_EVAL_ENVS = 32
+MAX_EVAL_ENVS = 32  # envs stepped from the host
+# JAX-native envs: one env per episode, so the program steps one episode's length, not several one after another
+# (on a GPU each step is a few ms of latency whatever the batch).
+MAX_JAX_EVAL_ENVS = 1024
 DURING_TRAINING_SEED = 0
 # metrics.csv columns of a run with run.eval_every > 0, empty in rows without an evaluation.
 EVAL_COLUMNS = ("eval/return_mean", "eval/return_std", "eval/length_mean", "eval/episodes")
@@ -82,6 +85,14 @@ def deterministic_act(act: Callable[..., Any], args: Any, obs: Any) -> Any:
     return act(params, obs_stats, obs, key, True)
 
 
+def eval_env_count(env_id: str, backend: str, episodes: int) -> int:
+    """How many envs play an evaluation of `episodes` episodes on `backend` (a name or auto)."""
+    from canter.envs.registry import get_backend, resolve_backend
+
+    cap = MAX_JAX_EVAL_ENVS if get_backend(resolve_backend(env_id, backend)).jax_native else MAX_EVAL_ENVS
+    return min(episodes, cap)
+
+
 def run_episodes(
     act: Callable[[np.ndarray], np.ndarray],
     env_id: str,
@@ -98,7 +109,7 @@ def run_episodes(
     gives the same policy as a pure function, the episodes run in one jitted program instead of from the host."""
     from canter.envs.registry import make_vec_env
 
-    num_envs = min(episodes, MAX_EVAL_ENVS)
+    num_envs = eval_env_count(env_id, backend, episodes)
     quota = np.full(num_envs, episodes // num_envs)
     quota[: episodes % num_envs] += 1
     started = time.perf_counter()
