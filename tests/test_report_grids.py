@@ -27,6 +27,7 @@ def grid(ent_coefs: tuple[str, ...]) -> grids.Grid:
     return grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 512, (("ppo.ent_coef", ent_coefs),), TINY)
 
 
+@pytest.mark.slow  # trains in child processes
 def test_archived_runs_are_restored_and_skipped_and_the_rest_trained(tmp_path, capfd):
     page, work = tmp_path / "page", tmp_path / "work"
     first = grid(("0",))
@@ -49,6 +50,7 @@ def test_archived_runs_are_restored_and_skipped_and_the_rest_trained(tmp_path, c
     assert grids.restore(page, both, work) == []  # the bench folder has every run now
 
 
+@pytest.mark.slow  # trains in child processes
 def test_a_grid_stopped_before_its_budget_is_carried_on_from_its_pack_on_a_fresh_machine(tmp_path, capfd):
     page, work = tmp_path / "page", tmp_path / "work"
     # run.max_minutes under a second: each bench call trains one iteration (at most 512 steps), then stops.
@@ -133,6 +135,7 @@ shutil.copyfile(last, run / "checkpoints" / newer)
 """
 
 
+@pytest.mark.slow  # trains in child processes
 def test_the_pack_waits_for_jobs_still_writing_their_last_checkpoint(tmp_path):
     page, work = tmp_path / "page", tmp_path / "work"
     stopping = grids.Grid("g", "InvertedPendulum-v4", ("ppo",), "fast", (0,), 700, (), (*TINY, "run.max_minutes=1e-4"))

@@ -27,6 +27,7 @@ ARGS = ["InvertedPendulum-v4", "--algo", "ppo", "--seed", "0", "--total-steps", 
 ARGS += ["--set", "run.max_minutes=0.0001"]
 
 
+@pytest.mark.slow  # trains in child processes
 def test_a_run_stopped_before_its_budget_is_carried_on_and_its_processes_times_summed(tmp_path, capsys):
     page, work = tmp_path / "page", tmp_path / "work"
     assert timed.timed_train(page, "run", ARGS, work, episodes=1) is None
