@@ -372,6 +372,6 @@ def test_a_jax_env_plays_every_evaluation_episode_on_its_own_env():
     episode its own env, so the episodes play side by side instead of one after another."""
     from canter.training.evaluation import MAX_EVAL_ENVS, eval_env_count
 
-    assert eval_env_count("InvertedPendulum-v5", "mjx", 128) == 128
-    assert eval_env_count("InvertedPendulum-v5", "gymnasium", 128) == MAX_EVAL_ENVS == 32
-    assert eval_env_count("InvertedPendulum-v5", "auto", 5) == 5
+    assert eval_env_count("mjx", 128) == 128
+    assert eval_env_count("gymnasium", 128) == MAX_EVAL_ENVS == 32
+    assert eval_env_count("envpool", 5) == 5

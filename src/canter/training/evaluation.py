@@ -85,12 +85,11 @@ def deterministic_act(act: Callable[..., Any], args: Any, obs: Any) -> Any:
     return act(params, obs_stats, obs, key, True)
 
 
-def eval_env_count(env_id: str, backend: str, episodes: int) -> int:
-    """How many envs play an evaluation of `episodes` episodes on `backend` (a name or auto)."""
-    from canter.envs.registry import get_backend, resolve_backend
+def eval_env_count(backend: str, episodes: int) -> int:
+    """How many envs play an evaluation of `episodes` episodes on `backend` (a resolved name, not auto)."""
+    from canter.envs.registry import get_backend
 
-    cap = MAX_JAX_EVAL_ENVS if get_backend(resolve_backend(env_id, backend)).jax_native else MAX_EVAL_ENVS
-    return min(episodes, cap)
+    return min(episodes, MAX_JAX_EVAL_ENVS if get_backend(backend).jax_native else MAX_EVAL_ENVS)
 
 
 def run_episodes(
@@ -107,9 +106,10 @@ def run_episodes(
     """Play exactly `episodes` episodes with `act(obs_batch) -> actions`. `sizes` (obs_dim, act_dim) are checked
     against the env; `env_kwargs` go to the env backend. Where the env is JAX (`play_episodes`) and `traced_act`
     gives the same policy as a pure function, the episodes run in one jitted program instead of from the host."""
-    from canter.envs.registry import make_vec_env
+    from canter.envs.registry import make_vec_env, resolve_backend
 
-    num_envs = eval_env_count(env_id, backend, episodes)
+    backend = resolve_backend(env_id, backend)
+    num_envs = eval_env_count(backend, episodes)
     quota = np.full(num_envs, episodes // num_envs)
     quota[: episodes % num_envs] += 1
     started = time.perf_counter()
