@@ -16,6 +16,7 @@ on seeds 109-111 at 500k steps (`--only offpolicy`).
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from functools import partial
 from pathlib import Path
@@ -26,7 +27,7 @@ sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 from archive import ROOT  # noqa: E402
 from grids import EVAL_HEADER, Grid, cell_result, eval_text, label, run_grid  # noqa: E402
-from timed import archived, page_main, plot_and_film, timed_train, wall_text  # noqa: E402
+from timed import archived, canter_command, page_main, plot_and_film, timed_train, wall_text  # noqa: E402
 
 ENV = "WalkerWalk-v1"
 SEED = 100
@@ -124,6 +125,26 @@ def run_grids(grids: tuple[Grid, ...]) -> None:
         run_grid(PAGE, grid, WORK)
 
 
+def film_first_seed(grid: Grid) -> None:
+    """One episode of the grid's first seed, filmed from its checkpoint in the bench folder (`canter video`), as
+    <page>/<env>__<algo>__s<seed>.mp4 once that seed is archived, unless the file exists."""
+    name = f"{ENV}__{grid.algos[0]}__s{grid.seeds[0]}"
+    out = PAGE / f"{name}.mp4"
+    if out.is_file() or not (PAGE / "runs" / grid.name / name).is_dir():
+        return
+    run_dir = WORK / grid.name / name
+    if not run_dir.is_dir():
+        raise SystemExit(f"{name}: its run folder {run_dir} is gone; train it again to film it")
+    command = [*canter_command(), "video", str(run_dir), "--episodes", "1", "--out", str(out)]
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+
+
+def run_offpolicy() -> None:
+    run_grids(OFFPOLICY)
+    for grid in OFFPOLICY:
+        film_first_seed(grid)
+
+
 def _row(name: str, who: str, run: dict[str, Any] | None) -> str:
     if run is None:
         return f"| {who} | not run yet | | | | |"
@@ -183,7 +204,7 @@ def main() -> int:
         "train": partial(train, WORK),
         "tuning": partial(run_grids, TUNING),
         "chosen": partial(run_grids, CHOSEN_GRIDS),
-        "offpolicy": partial(run_grids, OFFPOLICY),
+        "offpolicy": run_offpolicy,
     }
     return page_main(__doc__ or "", PAGE, blocks, steps)
 
