@@ -16,11 +16,18 @@ on seeds 109-111 at 500k steps (`--only offpolicy`).
 
 from __future__ import annotations
 
+import math
+import statistics
 import subprocess
 import sys
+from collections import deque
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
+
+from canter.training.logger import read_rows, run_history
+from canter.training.run_folder import metrics_file
 
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
@@ -108,6 +115,9 @@ CHOSEN_MARKERS = ("<!-- report004-chosen -->\n", "<!-- /report004-chosen -->")
 # budget, on seeds not seen before. The rule, set before it ran: it beats CleanRL's RPO if its mean training return
 # exceeds 787 by two standard errors of the difference (CleanRL's 126 over sqrt(10), and its own std over sqrt(3)).
 OFFPOLICY = (Grid("sac-500k", ENV, ("sac",), "fast", (109, 110, 111), 500_000),)
+# CleanRL's RPO on walker-walk at 8M steps: training return, mean and std over its seeds, and their number.
+CLEANRL_RPO = (787.0, 126.0, 10)
+RETURN_WINDOW = 20  # episodes in canter's training return
 OFFPOLICY_MARKERS = ("<!-- report004-offpolicy -->\n", "<!-- /report004-offpolicy -->")
 # CleanRL's PPO and RPO on dm_control walker-walk at 8M steps (docs/rl-algorithms/rpo.md, dm_control table: training
 # return, mean ± std over 10 seeds).
@@ -143,6 +153,71 @@ def run_offpolicy() -> None:
     run_grids(OFFPOLICY)
     for grid in OFFPOLICY:
         film_first_seed(grid)
+
+
+def bar_to_beat(returns: Sequence[float], published: tuple[float, float, int]) -> tuple[float, float]:
+    """(the mean of `returns`, the bar it must exceed to beat `published`): the published mean plus two standard
+    errors of the difference, from the published std over the root of its seed count and the returns' own sample
+    std over the root of theirs."""
+    mean, std, seeds = published
+    spread = statistics.stdev(returns) if len(returns) > 1 else 0.0
+    return statistics.fmean(returns), mean + 2 * math.sqrt(std**2 / seeds + spread**2 / len(returns))
+
+
+def first_crossing(
+    rows: Sequence[tuple[float, int, float, float]], bar: float, window: int = RETURN_WINDOW
+) -> tuple[float, float] | None:
+    """The first (env step, wall seconds) at which the mean return of the last `window` episodes reaches `bar`, from
+    rows of (env step, episodes ended in the row, their mean return, wall seconds); a row's episodes count at its
+    mean, which is exact where each row ends at most one episode (one env, 1000-step episodes, 1000-step rows)."""
+    recent: deque[float] = deque(maxlen=window)
+    for step, episodes, mean_return, wall in rows:
+        recent.extend([mean_return] * episodes)
+        if len(recent) == window and statistics.fmean(recent) >= bar:
+            return step, wall
+    return None
+
+
+def training_rows(run_dir: Path) -> list[tuple[float, int, float, float]]:
+    """(env step, episodes, mean return, wall seconds from the run's start over all its sessions) per metrics row
+    that ended an episode."""
+    _, rows = read_rows(metrics_file(run_dir))
+    return [
+        (float(row["global_step"]), int(float(row["episodes"])), float(row["episodic_return"]), totals["wall_seconds"])
+        for row, totals in run_history(rows)
+        if row.get("episodes") and float(row["episodes"]) > 0 and row.get("episodic_return")
+    ]
+
+
+def offpolicy_text() -> str:
+    """The off-policy table, then the rule's verdict against CleanRL's RPO and when each seed's training return
+    first reached 787."""
+    lines = [grids_table(OFFPOLICY, "offpolicy")]
+    target = CLEANRL_RPO[0]
+    for grid in OFFPOLICY:
+        cell = grid.cells()[0]
+        result = cell_result(PAGE, grid, cell)
+        if result is None:
+            continue
+        returns = [r["summary"]["recent_return"] for r in result["runs"]]
+        mean, bar = bar_to_beat(returns, CLEANRL_RPO)
+        verdict = "beats" if mean > bar else "does not beat"
+        crossings = []
+        for record in result["runs"]:
+            crossing = first_crossing(training_rows(cell.run_dir(PAGE / "runs" / grid.name, record["seed"])), target)
+            crossings.append(
+                f"seed {record['seed']} never"
+                if crossing is None
+                else f"seed {record['seed']} at {crossing[0]:,.0f} steps ({crossing[1] / 60:.0f} min)"
+            )
+        per_seed = ", ".join(f"{r:,.0f}" for r in returns)
+        lines.append(
+            f"By the rule, `{grid.algos[0]}`'s mean training return **{mean:,.0f}** ({per_seed}) against a bar "
+            f"of **{bar:,.0f}** ({target:.0f} plus two standard errors of the difference): it **{verdict}** "
+            f"CleanRL's RPO. The mean of the last {RETURN_WINDOW} training episodes first reached {target:.0f}: "
+            f"{'; '.join(crossings)}."
+        )
+    return "\n\n".join(lines)
 
 
 def _row(name: str, who: str, run: dict[str, Any] | None) -> str:
@@ -198,7 +273,7 @@ def main() -> int:
         (MARKERS, table),
         (TUNING_MARKERS, partial(grids_table, TUNING, "tuning")),
         (CHOSEN_MARKERS, partial(grids_table, CHOSEN_GRIDS, "chosen")),
-        (OFFPOLICY_MARKERS, partial(grids_table, OFFPOLICY, "offpolicy")),
+        (OFFPOLICY_MARKERS, offpolicy_text),
     ]
     steps = {
         "train": partial(train, WORK),
