@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.training.logger import read_rows, run_history
+from canter.training.loop import RECENT_EPISODES
 from canter.training.run_folder import metrics_file
 
 PAGE = Path(__file__).resolve().parent
@@ -117,7 +118,6 @@ CHOSEN_MARKERS = ("<!-- report004-chosen -->\n", "<!-- /report004-chosen -->")
 OFFPOLICY = (Grid("sac-500k", ENV, ("sac",), "fast", (109, 110, 111), 500_000),)
 # CleanRL's RPO on walker-walk at 8M steps: training return, mean and std over its seeds, and their number.
 CLEANRL_RPO = (787.0, 126.0, 10)
-RETURN_WINDOW = 20  # episodes in canter's training return
 OFFPOLICY_MARKERS = ("<!-- report004-offpolicy -->\n", "<!-- /report004-offpolicy -->")
 # CleanRL's PPO and RPO on dm_control walker-walk at 8M steps (docs/rl-algorithms/rpo.md, dm_control table: training
 # return, mean ± std over 10 seeds).
@@ -165,7 +165,7 @@ def bar_to_beat(returns: Sequence[float], published: tuple[float, float, int]) -
 
 
 def first_crossing(
-    rows: Sequence[tuple[float, int, float, float]], bar: float, window: int = RETURN_WINDOW
+    rows: Sequence[tuple[float, int, float, float]], bar: float, window: int = RECENT_EPISODES
 ) -> tuple[float, float] | None:
     """The first (env step, wall seconds) at which the mean return of the last `window` episodes reaches `bar`, from
     rows of (env step, episodes ended in the row, their mean return, wall seconds); a row's episodes count at its
@@ -214,7 +214,7 @@ def offpolicy_text() -> str:
         lines.append(
             f"By the rule, `{grid.algos[0]}`'s mean training return **{mean:,.0f}** ({per_seed}) against a bar "
             f"of **{bar:,.0f}** ({target:.0f} plus two standard errors of the difference): it **{verdict}** "
-            f"CleanRL's RPO. The mean of the last {RETURN_WINDOW} training episodes first reached {target:.0f}: "
+            f"CleanRL's RPO. The mean of the last {RECENT_EPISODES} training episodes first reached {target:.0f}: "
             f"{'; '.join(crossings)}."
         )
     return "\n\n".join(lines)
