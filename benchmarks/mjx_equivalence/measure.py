@@ -23,10 +23,10 @@ import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
 from canter.core.runtime import setup_jax
 from canter.envs.mjx.env import MjxTaskEnv
+from canter.envs.mjx.library import import_mjx
 from canter.envs.mjx.tasks import TASKS
 
 
@@ -36,6 +36,7 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def each_step(env_id: str, steps: int, iterations: int = 0, ls_iterations: int = 0) -> dict[str, float]:
+    mjx = import_mjx()
     ported = MjxTaskEnv(env_id, iterations, ls_iterations)
     reference = gym.make(env_id)
     model, data = reference.unwrapped.model, reference.unwrapped.data
@@ -82,7 +83,12 @@ def main() -> None:
     envs = sys.argv[2:] or list(TASKS)
     setup_jax("mjx")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    print(f"# MJX ports against Gymnasium v5 ({steps} steps, uniform random actions)\n")
+    solver = (
+        f"env.solver_iterations={iterations}, env.solver_ls_iterations={ls_iterations} (C MuJoCo: the XML's)"
+        if iterations or ls_iterations
+        else "the XML's solver settings on both"
+    )
+    print(f"# MJX ports against Gymnasium v5 ({steps} steps, uniform random actions; {solver})\n")
     print(
         f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}, commit {commit}, "
         f"JAX {jax.__version__} on {jax.default_backend()}, float32\n"
