@@ -6,9 +6,10 @@
 - the same for C MuJoCo against itself with qpos moved by 1e-9 and left to run, which shows how fast the task is
   chaotic under random actions (errors there are not the port's).
 
-Usage: python benchmarks/mjx_equivalence/measure.py [STEPS] [ENV ...] > benchmarks/mjx_equivalence/results.md
+Usage: python benchmarks/mjx_equivalence/measure.py [STEPS] [ENV ...]
 CANTER_SOLVER=ITERATIONS,LS_ITERATIONS measures the ports with env.solver_iterations and env.solver_ls_iterations
-set (C MuJoCo keeps the XML's).
+set (C MuJoCo keeps the XML's). results.md holds both tables:
+    { python measure.py; echo; CANTER_SOLVER=4,8 python measure.py; } > results.md
 """
 
 from __future__ import annotations

@@ -52,6 +52,12 @@ def _no_progress(model: Any, data: Any) -> jnp.ndarray:
     return jnp.zeros((1,), data.qpos.dtype)
 
 
+def _contact_wrenches(data: Any) -> jnp.ndarray:
+    """Each body's external contact wrench (MuJoCo's cfrc_ext), which MJX 3.6 keeps in its JAX implementation's
+    fields."""
+    return data._impl.cfrc_ext
+
+
 def _control_cost(weight: float, action: jnp.ndarray) -> jnp.ndarray:
     return weight * jnp.sum(jnp.square(action))
 
@@ -116,7 +122,7 @@ def _cheetah_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.nd
 
 
 def _ant_contact_forces(data: Any) -> jnp.ndarray:
-    return jnp.clip(data.cfrc_ext, -1.0, 1.0)
+    return jnp.clip(_contact_wrenches(data), -1.0, 1.0)
 
 
 def _ant_observe(model: Any, data: Any) -> jnp.ndarray:
@@ -153,10 +159,10 @@ def _humanoid_observe(model: Any, data: Any) -> jnp.ndarray:
         [
             data.qpos[2:],
             data.qvel,
-            data.cinert[1:].reshape(-1),
+            data._impl.cinert[1:].reshape(-1),  # MJX 3.6 keeps cinert, as cfrc_ext, in its implementation's fields
             data.cvel[1:].reshape(-1),
             data.qfrc_actuator[6:],
-            data.cfrc_ext[1:].reshape(-1),
+            _contact_wrenches(data)[1:].reshape(-1),
         ]
     )
 
@@ -166,7 +172,7 @@ def _humanoid_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.n
     forward = 1.25 * velocity[0]
     survive = 5.0 * is_healthy.astype(forward.dtype)
     ctrl = _control_cost(0.1, action)
-    contact = jnp.minimum(5e-7 * jnp.sum(jnp.square(data.cfrc_ext)), 10.0)
+    contact = jnp.minimum(5e-7 * jnp.sum(jnp.square(_contact_wrenches(data))), 10.0)
     info = {
         "x_position": data.qpos[0],
         "y_position": data.qpos[1],
@@ -184,7 +190,7 @@ def _humanoid_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.n
 def _standup_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.ndarray, dt: float) -> tuple:
     uph = data.qpos[2] / model.opt.timestep
     ctrl = _control_cost(0.1, action)
-    impact = jnp.minimum(0.5e-6 * jnp.sum(jnp.square(data.cfrc_ext)), 10.0)
+    impact = jnp.minimum(0.5e-6 * jnp.sum(jnp.square(_contact_wrenches(data))), 10.0)
     info = {
         "x_position": data.qpos[0],
         "y_position": data.qpos[1],
