@@ -29,6 +29,11 @@ STEEP_CAPSULE = """
 """
 
 
+@pytest.fixture(autouse=True)
+def _float64_jax():
+    setup_jax("gymnasium")  # float64, so that the only difference left to C MuJoCo is round-off, in any test order
+
+
 def _touching_capsule():
     model = mujoco.MjModel.from_xml_string(STEEP_CAPSULE)
     data = mujoco.MjData(model)
@@ -68,7 +73,6 @@ def test_an_upright_capsule_takes_the_world_x_axis_as_c_mujoco_does():
 def test_mjx_inside_the_block_collides_and_accelerates_as_c_mujoco():
     from canter.envs.mjx.library import import_mjx
 
-    setup_jax("gymnasium")  # float64, so that the only difference left to C MuJoCo is round-off
     mjx = import_mjx()
     model, data = _touching_capsule()
     mjx_model, state = mjx.put_model(model), mjx.put_data(model, data)

@@ -8,8 +8,9 @@
 
 Usage: python benchmarks/mjx_equivalence/measure.py [STEPS] [ENV ...]
 CANTER_SOLVER=ITERATIONS,LS_ITERATIONS measures the ports with env.solver_iterations and env.solver_ls_iterations
-set (C MuJoCo keeps the XML's). results.md holds both tables:
-    { python measure.py; echo; CANTER_SOLVER=4,8 python measure.py; } > results.md
+set (C MuJoCo keeps the XML's); CANTER_PRECISION=float64 steps MJX in float64 (the default is float32, as in
+training). results.md holds three tables:
+    { python measure.py; echo; CANTER_SOLVER=4,8 python measure.py; echo; CANTER_PRECISION=float64 python measure.py; }
 """
 
 from __future__ import annotations
@@ -83,6 +84,11 @@ def main() -> None:
     iterations, ls_iterations = (int(x) for x in os.environ.get("CANTER_SOLVER", "0,0").split(","))
     envs = sys.argv[2:] or list(TASKS)
     setup_jax("mjx")
+    precision = os.environ.get("CANTER_PRECISION", "float32")
+    if precision not in ("float32", "float64"):
+        sys.exit(f"CANTER_PRECISION={precision}: use float32 or float64")
+    # float64 physics separate the port's errors from float32 rounding (the observation is still returned as float32).
+    jax.config.update("jax_enable_x64", precision == "float64")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     solver = (
         f"env.solver_iterations={iterations}, env.solver_ls_iterations={ls_iterations} (C MuJoCo: the XML's)"
@@ -92,7 +98,7 @@ def main() -> None:
     print(f"# MJX ports against Gymnasium v5 ({steps} steps, uniform random actions; {solver})\n")
     print(
         f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}, commit {commit}, "
-        f"JAX {jax.__version__} on {jax.default_backend()}, float32\n"
+        f"JAX {jax.__version__} on {jax.default_backend()}, physics in {precision}\n"
     )
     print("| task | obs | reward | info | flag mismatches | terminations | C vs C moved 1e-9 (free-running) |")
     print("|---|---:|---:|---:|---:|---:|---:|")
