@@ -1,6 +1,7 @@
 """What the capsule contact frame does to a trained Ant policy: one run's checkpoint, evaluated with the same
-deterministic policy on C MuJoCo (EnvPool), on the mjx backend, and on the mjx backend with MJX's own capsule-plane
-collider put back (canter.envs.mjx.contact_frames explains the difference).
+deterministic policy on C MuJoCo (EnvPool), on the mjx backend, and on the mjx backend with MJX's own colliders put
+back (canter.envs.mjx.collisions explains the difference; Ant's XML has no spheres touching capsules, so for Ant
+only the capsule-plane frame differs).
 
 Usage: python benchmarks/mjx_equivalence/ant_policy.py RUN_DIR [EPISODES] > benchmarks/mjx_equivalence/ant_policy.md
 Each evaluation is a `canter eval` process; their JSON files are written next to the output as ant_policy-*.json
@@ -22,7 +23,7 @@ HERE = Path(__file__).resolve().parent
 # The mjx backend with canter's collider scoping replaced by a no-op, so MJX's own collider steps the contacts.
 MJX_OWN_COLLIDER = (
     "import contextlib, sys; import canter.envs.mjx.env as env; "
-    "env.c_mujoco_contact_frames = contextlib.nullcontext; "
+    "env.c_mujoco_collisions = contextlib.nullcontext; "
     "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
 )
 

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from canter.envs.functional import FunctionalEnv, x64_enabled
-from canter.envs.mjx.contact_frames import c_mujoco_contact_frames
+from canter.envs.mjx.collisions import c_mujoco_collisions
 from canter.envs.mjx.library import import_mjx
 from canter.envs.mjx.tasks import NORMAL, TASKS, Task
 from canter.errors import CanterError
@@ -116,7 +116,7 @@ class MjxTaskEnv:
         action = action.astype(data.ctrl.dtype)
         before = task.progress(model, data)
         data = data.replace(ctrl=action)
-        with c_mujoco_contact_frames():
+        with c_mujoco_collisions():
             data = jax.lax.fori_loop(0, task.frame_skip, lambda _, d: _same_types(mjx.step(model, d), d), data)
         if task.contact_forces:
             data = mjx.rne_postconstraint(model, data)
