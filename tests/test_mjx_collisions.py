@@ -3,8 +3,8 @@
 - Capsule on a plane: C MuJoCo takes the contact's first tangent from the capsule's axis projected on the plane; MJX
   3.6.0 falls back to a world axis when the capsule stands steeper than 60 degrees, which turned Ant's friction
   pyramid. A capsule at 75 degrees, touching a tilted plane within its margin, tells the two apart.
-- Sphere against a capsule: C MuJoCo clamps the sphere center's projection on the unit axis; MJX divides by the
-  squared segment length plus 1e-6. A short capsule (squared length 0.01) makes that 1e-4 of the point's position."""
+- Sphere against a capsule, and capsule against capsule: C MuJoCo finds the closest points exactly; MJX adds 1e-6 to
+  the denominators. Short capsules (squared length 0.01) make that 1e-4 of a point's position."""
 
 import jax
 import jax.numpy as jnp
@@ -13,10 +13,15 @@ import numpy as np
 import pytest
 
 from canter.core.runtime import setup_jax
-from canter.envs.mjx.collisions import c_mujoco_collisions, capsule_closest_point, plane_capsule_frame
+from canter.envs.mjx.collisions import (
+    c_mujoco_collisions,
+    capsule_closest_point,
+    capsules_closest_points,
+    plane_capsule_frame,
+)
 
 # A plane tilted about x and a free capsule 75 degrees from horizontal, lowered until its end touches the plane; high
-# above them, a free sphere pressed into a short free capsule, off its axis.
+# above them, a free sphere pressed into a short free capsule, off its axis, and two short capsules crossing.
 SCENE = """
 <mujoco>
   <option timestep="0.01"/>
@@ -34,6 +39,14 @@ SCENE = """
       <freejoint/>
       <geom type="sphere" size="0.05"/>
     </body>
+    <body name="rod1" pos="-2 0 2" euler="0 80 10">
+      <freejoint/>
+      <geom type="capsule" size="0.04 0.06"/>
+    </body>
+    <body name="rod2" pos="-2.03 0.02 2.06" euler="50 0 30">
+      <freejoint/>
+      <geom type="capsule" size="0.04 0.06"/>
+    </body>
   </worldbody>
 </mujoco>
 """
@@ -48,11 +61,11 @@ def _scene():
     model = mujoco.MjModel.from_xml_string(SCENE)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    assert data.ncon == 1  # the sphere in the short capsule
-    while data.ncon == 1:  # lower the steep capsule until its lower end is inside the plane's margin
+    assert data.ncon == 2  # the sphere in the short capsule, and the crossing capsules
+    while data.ncon == 2:  # lower the steep capsule until its lower end is inside the plane's margin
         data.qpos[2] -= 0.002
         mujoco.mj_forward(model, data)
-    assert data.ncon == 2
+    assert data.ncon == 3
     return model, data
 
 
@@ -85,17 +98,45 @@ def test_an_upright_capsule_takes_the_world_x_axis_as_c_mujoco_does():
 
 
 def test_the_closest_point_of_a_capsule_by_hand_and_by_search():
-    center, axis, half = jnp.array([1.0, 2.0, 3.0]), jnp.array([0.0, 0.6, 0.8]), jnp.asarray(0.5)
+    center, unit = jnp.array([1.0, 2.0, 3.0]), jnp.array([0.0, 0.6, 0.8])
+    axis = 0.5 * unit  # scaled by the half-length
     # Beside the segment: the foot of the perpendicular, 0.2 along the axis.
-    point = center + 0.2 * axis + jnp.array([1.0, 0.0, 0.0])
-    np.testing.assert_allclose(capsule_closest_point(center, axis, half, point), center + 0.2 * axis, atol=1e-12)
+    point = center + 0.2 * unit + jnp.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(capsule_closest_point(center, axis, point), center + 0.2 * unit, atol=1e-12)
     # Beyond an end: the end.
-    np.testing.assert_allclose(capsule_closest_point(center, axis, half, center + 3 * axis), center + 0.5 * axis)
+    np.testing.assert_allclose(capsule_closest_point(center, axis, center + 3 * unit), center + axis)
     # Anywhere: the closest of 200,001 points along the segment.
     point = np.array([1.3, 2.9, 2.1])
-    samples = np.asarray(center) + np.linspace(-0.5, 0.5, 200_001)[:, None] * np.asarray(axis)
+    samples = np.asarray(center) + np.linspace(-1, 1, 200_001)[:, None] * np.asarray(axis)
     nearest = samples[np.argmin(np.linalg.norm(samples - point, axis=1))]
-    np.testing.assert_allclose(capsule_closest_point(center, axis, half, jnp.asarray(point)), nearest, atol=1e-5)
+    np.testing.assert_allclose(capsule_closest_point(center, axis, jnp.asarray(point)), nearest, atol=1e-5)
+
+
+def test_the_closest_points_of_two_capsules_by_hand_and_by_search():
+    # Crossing at right angles, one above the other: the crossing points.
+    first, second = capsules_closest_points(
+        jnp.zeros(3), jnp.array([1.0, 0.0, 0.0]), jnp.array([0.2, 0.3, 1.0]), jnp.array([0.0, 2.0, 0.0])
+    )
+    np.testing.assert_allclose(first, [0.2, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(second, [0.2, 0, 1], atol=1e-12)
+    # Parallel and side by side: C MuJoCo's first contact, from the first capsule's +axis end.
+    first, second = capsules_closest_points(
+        jnp.zeros(3), jnp.array([0.0, 0.0, 0.5]), jnp.array([0.1, 0.0, 0.2]), jnp.array([0.0, 0.0, 0.5])
+    )
+    np.testing.assert_allclose(first, [0, 0, 0.5], atol=1e-12)
+    np.testing.assert_allclose(second, [0.1, 0, 0.5], atol=1e-12)
+    # Skewed, with the closest points at an end of each or inside: the closest pair of a 2,001 x 2,001 grid.
+    rng = np.random.default_rng(0)
+    grid = np.linspace(-1, 1, 2001)
+    for _ in range(5):
+        c1, a1, c2, a2 = rng.normal(size=(4, 3)) * [[0.3], [0.5], [0.3], [0.5]]
+        p1 = c1 + grid[:, None] * a1
+        p2 = c2 + grid[:, None] * a2
+        distances = np.linalg.norm(p1[:, None, :] - p2[None, :, :], axis=2)
+        i, j = np.unravel_index(np.argmin(distances), distances.shape)
+        first, second = capsules_closest_points(*(jnp.asarray(x) for x in (c1, a1, c2, a2)))
+        assert np.linalg.norm(np.asarray(first) - np.asarray(second)) <= distances[i, j] + 1e-12
+        np.testing.assert_allclose(np.linalg.norm(np.asarray(first) - np.asarray(second)), distances[i, j], atol=1e-5)
 
 
 @pytest.mark.slow

@@ -39,10 +39,34 @@ def plane_capsule_frame(normal: jax.Array, axis: jax.Array) -> jax.Array:
     return jnp.stack([normal, tangent, jnp.cross(normal, tangent)])
 
 
-def capsule_closest_point(center: jax.Array, axis: jax.Array, half_length: jax.Array, point: jax.Array) -> jax.Array:
-    """The point of a capsule's segment (its center, unit axis and half-length) closest to `point`."""
-    along = jnp.clip(jnp.dot(point - center, axis), -half_length, half_length)
+def capsule_closest_point(center: jax.Array, axis: jax.Array, point: jax.Array) -> jax.Array:
+    """The point of a capsule's segment (its center, and its axis scaled by the half-length) closest to `point`, as
+    C MuJoCo's `mjc_SphereCapsule` finds it."""
+    along = jnp.clip(jnp.dot(axis, point - center) / jnp.dot(axis, axis), -1, 1)
     return center + along * axis
+
+
+def capsules_closest_points(
+    center1: jax.Array, axis1: jax.Array, center2: jax.Array, axis2: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The closest points of two capsules' segments (centers, and axes scaled by the half-lengths), as C MuJoCo's
+    `mjraw_CapsuleCapsule` finds them: the lines' closest points, clipped to the first segment and then to the
+    second. For exactly parallel axes C MuJoCo makes up to two contacts; MJX has one slot per pair, which gets C's
+    first, from the first capsule's end at +axis."""
+    dif = center1 - center2
+    ma, mb, mc = jnp.dot(axis1, axis1), -jnp.dot(axis1, axis2), jnp.dot(axis2, axis2)
+    u, v = -jnp.dot(axis1, dif), jnp.dot(axis2, dif)
+    det = ma * mc - mb * mb
+    parallel = jnp.abs(det) < 1e-15  # mjMINVAL
+    det = jnp.where(parallel, 1, det)
+    x1, x2 = (mc * u - mb * v) / det, (ma * v - mb * u) / det
+    x2 = jnp.where(x1 > 1, (v - mb) / mc, jnp.where(x1 < -1, (v + mb) / mc, x2))
+    x1 = jnp.clip(x1, -1, 1)
+    x1 = jnp.where(x2 > 1, jnp.clip((u - mb) / ma, -1, 1), jnp.where(x2 < -1, jnp.clip((u + mb) / ma, -1, 1), x1))
+    x2 = jnp.clip(x2, -1, 1)
+    x1 = jnp.where(parallel, 1, x1)
+    x2 = jnp.where(parallel, jnp.clip((v - mb) / mc, -1, 1), x2)
+    return center1 + x1 * axis1, center2 + x2 * axis2
 
 
 def _colliders() -> dict[Any, Any]:
@@ -64,11 +88,23 @@ def _colliders() -> dict[Any, Any]:
 
     @collision_primitive.collider(ncon=1)  # type: ignore[untyped-decorator]
     def sphere_capsule(sphere: Any, capsule: Any) -> tuple[jax.Array, jax.Array, jax.Array]:
-        closest = capsule_closest_point(capsule.pos, capsule.mat[:, 2], capsule.size[1], sphere.pos)
+        closest = capsule_closest_point(capsule.pos, capsule.mat[:, 2] * capsule.size[1], sphere.pos)
         dist, pos, normal = collision_primitive._sphere_sphere(sphere.pos, sphere.size[0], closest, capsule.size[0])
         return dist, pos, math.make_frame(normal)
 
-    return {(GeomType.PLANE, GeomType.CAPSULE): plane_capsule, (GeomType.SPHERE, GeomType.CAPSULE): sphere_capsule}
+    @collision_primitive.collider(ncon=1)  # type: ignore[untyped-decorator]
+    def capsule_capsule(first: Any, second: Any) -> tuple[jax.Array, jax.Array, jax.Array]:
+        point1, point2 = capsules_closest_points(
+            first.pos, first.mat[:, 2] * first.size[1], second.pos, second.mat[:, 2] * second.size[1]
+        )
+        dist, pos, normal = collision_primitive._sphere_sphere(point1, first.size[0], point2, second.size[0])
+        return dist, pos, math.make_frame(normal)
+
+    return {
+        (GeomType.PLANE, GeomType.CAPSULE): plane_capsule,
+        (GeomType.SPHERE, GeomType.CAPSULE): sphere_capsule,
+        (GeomType.CAPSULE, GeomType.CAPSULE): capsule_capsule,
+    }
 
 
 @contextlib.contextmanager
