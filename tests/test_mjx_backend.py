@@ -12,8 +12,8 @@ Equivalence is measured two ways, with uniform random actions:
   error 2.6e-7 and 3.3e-6; Walker2d 4.7e-8 in float64).
 
 Tolerances are relative to 1 + |value|: 1e-4 on observations, rewards and info; about 5x the float32 error measured
-on this machine (benchmarks/mjx_equivalence/results.md) for HalfCheetah (9.6e-5), Humanoid (5.0e-4) and
-HumanoidStandup (2.2e-3) and Ant (5.2e-3), whose observations hold contact forces (cfrc_ext, up to thousands) from a
+on this machine (benchmarks/mjx_equivalence/results.md) for HalfCheetah (9.6e-5), Humanoid (5.0e-4),
+HumanoidStandup (2.8e-4) and Ant (5.2e-3), whose observations hold contact forces (cfrc_ext, up to thousands) from a
 Newton solve. MJX compiles
 take about 25 s per task on this CPU, so `make test` runs InvertedPendulum and Hopper only; `pytest --run-heavy -m
 heavy tests/test_mjx_backend.py` runs every task.
@@ -40,7 +40,7 @@ pytestmark = pytest.mark.slow
 
 TESTED = ("InvertedPendulum-v5", "Hopper-v5")
 OTHERS = ("HalfCheetah-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5", "HumanoidStandup-v5")
-LOOSE = {"HalfCheetah-v5": 5e-4, "Ant-v5": 3e-2, "Humanoid-v5": 2e-3, "HumanoidStandup-v5": 1e-2}
+LOOSE = {"HalfCheetah-v5": 5e-4, "Ant-v5": 3e-2, "Humanoid-v5": 2e-3, "HumanoidStandup-v5": 2e-3}
 
 
 @pytest.fixture(autouse=True)
