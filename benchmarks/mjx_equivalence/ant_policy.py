@@ -1,7 +1,8 @@
-"""What the capsule contact frame does to a trained Ant policy: one run's checkpoint, evaluated with the same
-deterministic policy on C MuJoCo (EnvPool), on the mjx backend, and on the mjx backend with MJX's own colliders put
-back (canter.envs.mjx.collisions explains the difference; Ant's XML has no spheres touching capsules, so for Ant
-only the capsule-plane frame differs).
+"""What the capsule contact frame and the GPU solver settings do to a trained Ant policy: one run's checkpoint,
+evaluated with the same deterministic policy on C MuJoCo (EnvPool), on the mjx backend, on the mjx backend with MJX's
+own colliders put back (canter.envs.mjx.collisions explains the difference; Ant's XML has no spheres touching
+capsules, so for Ant only the capsule-plane frame differs), and on the mjx backend with env.solver_iterations=4 and
+env.solver_ls_iterations=8, the settings of the GPU runs.
 
 Usage: python benchmarks/mjx_equivalence/ant_policy.py RUN_DIR [EPISODES] > benchmarks/mjx_equivalence/ant_policy.md
 Each evaluation is a `canter eval` process; their JSON files are written next to the output as ant_policy-*.json
@@ -9,6 +10,7 @@ Each evaluation is a `canter eval` process; their JSON files are written next to
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -27,39 +29,58 @@ MJX_OWN_COLLIDER = (
     "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
 )
 
-PHYSICS = {
-    "C MuJoCo (EnvPool)": ("envpool", None),
-    "mjx, C MuJoCo's capsule frame (canter)": ("mjx", None),
-    "mjx, MJX's own capsule frame": ("mjx", MJX_OWN_COLLIDER),
-}
+
+# The mjx backend with the GPU runs' solver settings in place of the run's own (the XML's), for every env it makes.
+MJX_SOLVER_4_8 = (
+    "import sys; import canter.envs.registry as registry; own = registry.env_options; "
+    "registry.env_options = lambda env, backend: {**own(env, backend), 'solver_iterations': 4, "
+    "'solver_ls_iterations': 8} if backend == 'mjx' else own(env, backend); "
+    "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+)
 
 
-def evaluate(run: str, episodes: int, backend: str, program: str | None, out: Path) -> dict:
-    args = ["eval", run, "--backend", backend, "--episodes", str(episodes), "--json", str(out)]
-    command = [sys.executable, "-c", program, *args] if program else [sys.executable, "-m", "canter.cli", *args]
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+@dataclasses.dataclass(frozen=True)
+class Physics:
+    label: str
+    backend: str
+    program: str | None = None  # a `python -c` program in place of canter's command line
+
+
+PHYSICS = (
+    Physics("C MuJoCo (EnvPool)", "envpool"),
+    Physics("mjx, C MuJoCo's capsule frame (canter)", "mjx"),
+    Physics("mjx, MJX's own capsule frame", "mjx", MJX_OWN_COLLIDER),
+    Physics("mjx, C MuJoCo's frame, env.solver_iterations=4, env.solver_ls_iterations=8", "mjx", MJX_SOLVER_4_8),
+)
+
+
+def evaluate(run: Path, episodes: int, physics: Physics, out: Path) -> dict:
+    args = ["eval", str(run), "--backend", physics.backend, "--episodes", str(episodes), "--json", str(out)]
+    program = ["-c", physics.program] if physics.program else ["-m", "canter.cli"]
+    subprocess.run([sys.executable, *program, *args], check=True, stdout=subprocess.DEVNULL)
     return json.loads(out.read_text())["runs"][0]
 
 
 def main() -> None:
-    run = sys.argv[1]
+    run = Path(sys.argv[1])
     episodes = int(sys.argv[2]) if len(sys.argv) > 2 else 50
     folder = Path(os.environ.get("CANTER_ANT_JSON", HERE))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    print("# A trained Ant-v5 policy on three physics\n")
+    print(f"# A trained Ant-v5 policy on {len(PHYSICS)} physics\n")
     print(
         f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}, commit {commit}; run "
-        f"`{Path(run).name}`, its last checkpoint, {episodes} deterministic episodes per row, evaluation seed 0\n"
+        f"`{run.name}`, its last checkpoint, {episodes} deterministic episodes per row, evaluation seed 0\n"
     )
     print("| physics | mean return | std | standard error | episodes that ran 1000 steps |")
     print("|---|---:|---:|---:|---:|")
-    for i, (label, (backend, program)) in enumerate(PHYSICS.items()):
-        row = evaluate(run, episodes, backend, program, folder / f"ant_policy-{i}.json")
+    for i, physics in enumerate(PHYSICS):
+        row = evaluate(run, episodes, physics, folder / f"ant_policy-{i}.json")
         returns, lengths = row["returns"], row["lengths"]
         mean = sum(returns) / len(returns)
         std = math.sqrt(sum((r - mean) ** 2 for r in returns) / (len(returns) - 1))
         full = sum(1 for n in lengths if n == 1000)
-        print(f"| {label} | {mean:.0f} | {std:.0f} | {std / math.sqrt(len(returns)):.0f} | {full} |", flush=True)
+        error = std / math.sqrt(len(returns))
+        print(f"| {physics.label} | {mean:.0f} | {std:.0f} | {error:.0f} | {full} |", flush=True)
 
 
 if __name__ == "__main__":
