@@ -14,9 +14,8 @@ Equivalence is measured two ways, with uniform random actions:
 Tolerances are relative to 1 + |value|: 1e-4 on observations, rewards and info; about 5x the float32 error measured
 on this machine (benchmarks/mjx_equivalence/results.md) for HalfCheetah (9.6e-5), Humanoid (5.0e-4),
 HumanoidStandup (2.8e-4) and Ant (5.2e-3), whose observations hold contact forces (cfrc_ext, up to thousands) from a
-Newton solve. MJX compiles
-take about 25 s per task on this CPU, so `make test` runs InvertedPendulum and Hopper only; `pytest --run-heavy -m
-heavy tests/test_mjx_backend.py` runs every task.
+Newton solve. MJX compiles take about 25 s per task on this CPU, so `make test` runs InvertedPendulum and Hopper
+only; `pytest --run-heavy -m heavy tests/test_mjx_backend.py` runs every task.
 """
 
 import csv

@@ -22,7 +22,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 
-# The mjx backend with canter's collider scoping replaced by a no-op, so MJX's own collider steps the contacts.
+# The mjx backend with canter's collision scoping replaced by a no-op, so MJX's own colliders step the contacts.
 MJX_OWN_COLLIDER = (
     "import contextlib, sys; import canter.envs.mjx.env as env; "
     "env.c_mujoco_collisions = contextlib.nullcontext; "

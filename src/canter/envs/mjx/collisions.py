@@ -1,4 +1,4 @@
-"""Two of MJX's collision functions, written as C MuJoCo computes them, used while MJX steps a ported task.
+"""Three of MJX's collision functions, written as C MuJoCo computes them, used while MJX steps a ported task.
 
 - **Capsule on a plane: the contact frame.** A frictional contact's force depends on the direction of its first
   tangent, because MuJoCo's default friction cone is a pyramid whose edges follow the tangents. C MuJoCo takes that
@@ -6,12 +6,12 @@
   then `mju_makeFrame`). MJX 3.6.0 does so only when the projection is at least 0.5 long, and otherwise uses a fixed
   world axis. Ant's lower legs stand steeper than 60 degrees, so on their first foot contact MJX's friction pyramid
   turned against C MuJoCo's, and Ant's accelerations parted from Gymnasium's by several percent.
-- **Sphere against a capsule: the closest point.** C MuJoCo projects the sphere's center on the capsule's unit
-  axis and clamps it to the half-length (`mjc_SphereCapsule`). MJX divides by the squared segment length plus 1e-6,
-  which moves the point, and the contact normal, by about 1e-6 over the squared length: 3e-5 on the normal of a
-  Humanoid foot touching its other leg.
+- **Sphere against a capsule, and capsule against capsule: the closest points.** C MuJoCo solves for them exactly
+  (`mjc_SphereCapsule`, `mjraw_CapsuleCapsule`). MJX adds 1e-6 to the denominators, which moves the points, and the
+  contact normal, by about 1e-6 over the squared segment length: 3e-5 on the normal of a Humanoid foot touching its
+  other leg.
 
-With both, every ported task matches C MuJoCo to round-off on every step in float64 (benchmarks/mjx_equivalence).
+With all three, every ported task matches C MuJoCo to round-off on every step in float64 (benchmarks/mjx_equivalence).
 The replacement is scoped: it holds while a ported task's step is traced, and MJX's own functions are back after
 it, so Brax's envs (the brax backend, and Brax's own trainer in the side-by-side benchmark) keep MJX's physics."""
 
@@ -109,7 +109,7 @@ def _colliders() -> dict[Any, Any]:
 
 @contextlib.contextmanager
 def c_mujoco_collisions() -> Iterator[None]:
-    """Within this block, MJX collides capsules with planes and spheres as C MuJoCo does (see the module's
+    """Within this block, MJX collides capsules with planes, spheres and capsules as C MuJoCo does (see the module's
     docstring). JAX reuses a jitted function's trace, so the block must hold while the step is traced."""
     import_mjx()
     from mujoco.mjx._src import collision_driver
