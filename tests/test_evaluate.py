@@ -110,3 +110,70 @@ def test_canter_evaluate_stays_the_function_after_the_module_is_imported():
     import canter.use.evaluate
 
     assert callable(canter.evaluate) and canter.evaluate.__module__ == "canter"
+
+
+def _mjx_policy(*sets):
+    """What eval_physics reads of a policy: its config and the env and backend it trained on."""
+    from types import SimpleNamespace
+
+    from canter.config.build import build_config
+
+    config = build_config("Hopper-v5", sets=["env.backend=mjx", *sets])
+    return SimpleNamespace(config=config, facts=SimpleNamespace(env_id="Hopper-v5", backend="mjx"))
+
+
+def test_eval_physics_are_the_runs_own_with_the_changes_over_them():
+    from canter.errors import CanterError
+    from canter.use.evaluate import eval_physics, parse_physics
+
+    policy = _mjx_policy("env.solver_iterations=4", "env.solver_ls_iterations=8")
+    assert eval_physics(policy, "Hopper-v5", "mjx", {}) == {"solver_iterations": 4, "solver_ls_iterations": 8}
+    changes = parse_physics({"env.solver_iterations": "0", "contacts": "floor"})
+    assert changes == {"solver_iterations": 0, "contacts": "floor"}
+    # 0 is the XML's own, so it leaves the make arguments; the run's line-search setting stays.
+    assert eval_physics(policy, "Hopper-v5", "mjx", changes) == {"solver_ls_iterations": 8, "contacts": "floor"}
+    # Another env starts from its model's own physics; a CPU backend steps the XML's own model.
+    assert eval_physics(policy, "Walker2d-v5", "mjx", {}) == {}
+    assert eval_physics(policy, "Walker2d-v5", "mjx", {"solver_iterations": 2}) == {"solver_iterations": 2}
+    assert eval_physics(policy, "Hopper-v5", "envpool", {}) == {}
+    for backend in ("envpool", "auto"):
+        with pytest.raises(CanterError, match=r"^env.solver_iterations applies to the mjx backend only; add --backend"):
+            eval_physics(policy, "Hopper-v5", backend, {"solver_iterations": 4})
+    with pytest.raises(CanterError, match=r"^env.contacts must be all or floor, got 'none'$"):
+        eval_physics(policy, "Hopper-v5", "mjx", parse_physics({"env.contacts": "none"}))
+    with pytest.raises(CanterError, match=r"^env.solver_iterations must be >= 0"):
+        eval_physics(policy, "Hopper-v5", "mjx", parse_physics({"env.solver_iterations": "-1"}))
+    with pytest.raises(CanterError, match=r"^env.solver_iterations: expected an integer, got 'four'$"):
+        parse_physics({"env.solver_iterations": "four"})
+
+
+@pytest.mark.parametrize(
+    ("sets", "message"),
+    [
+        (["env.num_envs=4"], "an evaluation takes the physics settings env.solver_iterations, "),
+        (["run.seed=1"], "got 'run.seed'; the rest is the run's own"),
+        (["solver_iterations"], "--set expects section.key=value"),
+    ],
+)
+def test_cli_eval_set_takes_physics_settings_only(sets, message, tmp_path, capsys):
+    """Refused before any run is read, so the folder need not exist."""
+    code = main(["eval", str(tmp_path / "no-run"), *[x for s in sets for x in ("--set", s)]])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_cli_eval_set_and_vary_are_two_commands(tmp_path, capsys):
+    argv = ["eval", str(tmp_path), "--vary", "gravity=0.5,1", "--set", "env.contacts=floor"]
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and "--vary sweeps the Gymnasium env, which takes no --set" in err, err
+
+
+@pytest.mark.slow
+def test_cli_eval_set_on_a_cpu_backend_names_the_backend_that_takes_it(tiny_run, capsys):
+    code = main(["eval", str(tiny_run.run_dir), "--set", "env.solver_iterations=4"])
+    out, err = capsys.readouterr()
+    assert code == 2 and not out, out
+    assert err.strip().endswith(
+        "env.solver_iterations applies to the mjx backend only; add --backend mjx or drop env.solver_iterations"
+    ), err

@@ -235,7 +235,7 @@ def test_a_resumed_run_continues_its_episodes_exactly(tmp_path):
         np.testing.assert_array_equal(x, y)
 
 
-def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypatch):
+def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypatch, capsys):
     """A policy trained on MJX physics, with its normalizer statistics, balances the same task stepped by C MuJoCo
     (the Gymnasium backend): the ports keep observations and actions identical, so policies move between backends.
     Its evaluation during training, asked of C MuJoCo (run.eval_backend=auto), is `canter eval --backend envpool`."""
@@ -251,6 +251,7 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypa
     with monkeypatch.context() as patch:
         _evaluate_on_two_envs(patch)
         on_mjx = evaluate(policy, episodes=EVAL_EPISODES, seed=0)
+        _eval_with_other_physics(patch, result.run_dir, capsys)
     on_cpu = evaluate(policy, episodes=8, seed=0, backend="gymnasium")
     assert on_mjx.mean >= 900, on_mjx.returns
     assert on_cpu.mean >= 900, on_cpu.returns
@@ -264,6 +265,30 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypa
     assert during["backend"] == "envpool" and during["returns"] == on_envpool["returns"]
     assert main(["video", str(result.run_dir), "--episodes", "1", "--max-steps", "100", "--out", "v.mp4"]) == 0
     assert Path("v.mp4").stat().st_size > 0
+
+
+def _eval_with_other_physics(monkeypatch, run_dir, capsys):
+    """`canter eval --set` makes the eval envs with the physics settings asked for, and records them."""
+    import canter.envs.mjx.env
+    from canter.cli.main import main
+
+    made = []
+    real = canter.envs.mjx.env.functional_env
+
+    def spy(env_id, **options):
+        made.append(options)
+        return real(env_id, **options)
+
+    monkeypatch.setattr(canter.envs.mjx.env, "functional_env", spy)
+    sets = ["--set", "env.solver_iterations=2", "--set", "env.solver_ls_iterations=3"]
+    assert main(["eval", str(run_dir), *sets, "--episodes", "2", "--json", "physics.json"]) == 0
+    assert made == [{"solver_iterations": 2, "solver_ls_iterations": 3}]
+    row = json.loads(Path("physics.json").read_text())["runs"][0]
+    assert row["backend"] == "mjx" and row["physics"] == made[0]
+    assert (
+        "physics: env.solver_iterations=2, env.solver_ls_iterations=3; the rest the model's own"
+        in capsys.readouterr().out
+    )
 
 
 def test_solver_settings_reach_the_mjx_model_and_nothing_else():

@@ -30,32 +30,29 @@ MJX_OWN_COLLIDER = (
 )
 
 
-# The mjx backend with the GPU runs' solver settings in place of the run's own (the XML's), for every env it makes.
-MJX_SOLVER_4_8 = (
-    "import sys; import canter.envs.registry as registry; own = registry.env_options; "
-    "registry.env_options = lambda env, backend: {**own(env, backend), 'solver_iterations': 4, "
-    "'solver_ls_iterations': 8} if backend == 'mjx' else own(env, backend); "
-    "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
-)
-
-
 @dataclasses.dataclass(frozen=True)
 class Physics:
     label: str
     backend: str
     program: str | None = None  # a `python -c` program in place of canter's command line
+    sets: tuple[str, ...] = ()  # `canter eval --set` physics settings
 
 
 PHYSICS = (
     Physics("C MuJoCo (EnvPool)", "envpool"),
     Physics("mjx, C MuJoCo's capsule frame (canter)", "mjx"),
     Physics("mjx, MJX's own capsule frame", "mjx", MJX_OWN_COLLIDER),
-    Physics("mjx, C MuJoCo's frame, env.solver_iterations=4, env.solver_ls_iterations=8", "mjx", MJX_SOLVER_4_8),
+    Physics(
+        "mjx, C MuJoCo's frame, env.solver_iterations=4, env.solver_ls_iterations=8",
+        "mjx",
+        sets=("env.solver_iterations=4", "env.solver_ls_iterations=8"),
+    ),
 )
 
 
 def evaluate(run: Path, episodes: int, physics: Physics, out: Path) -> dict:
     args = ["eval", str(run), "--backend", physics.backend, "--episodes", str(episodes), "--json", str(out)]
+    args += [arg for setting in physics.sets for arg in ("--set", setting)]
     program = ["-c", physics.program] if physics.program else ["-m", "canter.cli"]
     subprocess.run([sys.executable, *program, *args], check=True, stdout=subprocess.DEVNULL)
     return json.loads(out.read_text())["runs"][0]

@@ -8,7 +8,7 @@ actions = policy(observations)
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import canter.algos  # noqa: F401  (registers every algorithm's config sections and spec)
 from canter.config.build import build_config
@@ -16,7 +16,7 @@ from canter.config.schema import Config
 from canter.errors import CanterError
 
 if TYPE_CHECKING:  # imported lazily below, so that `import canter` stays light
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
     from pathlib import Path
 
     from canter.training.loop import RunResult
@@ -59,12 +59,22 @@ def evaluate(
     seed: int = 0,
     env_id: str | None = None,
     backend: str | None = None,
+    physics: Mapping[str, Any] | None = None,
 ) -> EvalResult:
     """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time). A
-    best checkpoint plays held-out env seeds, which the evaluations that chose it never played."""
+    best checkpoint plays held-out env seeds, which the evaluations that chose it never played. `physics` changes the
+    eval envs' physics settings on mjx, e.g. `{"solver_iterations": 4}` (default: the run's own)."""
     from canter.use.evaluate import evaluate as _evaluate
 
-    return _evaluate(policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, backend=backend)
+    return _evaluate(
+        policy,
+        episodes=episodes,
+        deterministic=deterministic,
+        seed=seed,
+        env_id=env_id,
+        backend=backend,
+        physics=physics,
+    )
 
 
 def __getattr__(name: str) -> type:

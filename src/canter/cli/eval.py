@@ -14,7 +14,7 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from canter.envs.registry import backend_choices
+    from canter.envs.registry import backend_choices, solver_backends
 
     e = sub.add_parser(
         "eval",
@@ -33,6 +33,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=backend_choices(),
         default=None,
         help="env backend (default: the run's own for its env, else auto)",
+    )
+    e.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="env.KEY=VALUE",
+        help=f"physics of the eval envs on {' and '.join(solver_backends())}: env.solver_iterations, "
+        "env.solver_ls_iterations or env.contacts (default: the run's own)",
     )
     e.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON")
     e.add_argument(
@@ -54,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from canter.use.evaluate import check_eval_env
+    from canter.config.overrides import parse_set_args
+    from canter.use.evaluate import check_eval_env, eval_physics, eval_target, parse_physics
     from canter.use.policy import load
 
     if args.episodes < 1:
@@ -76,17 +85,22 @@ def run(args: argparse.Namespace) -> int:
         spec = parse_spec(args.vary[0])
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
+    physics = parse_physics(parse_set_args(args.set))
+    if physics and spec is not None:
+        raise CanterError("--vary sweeps the Gymnasium env, which takes no --set; run the sweep and --set apart")
     check_one_run_for_a_file(args.checkpoint, args.runs)
     policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
     for policy in policies:  # before any sweep is set up or any env is built
         check_eval_env(policy.facts, args.env, args.backend, varied=spec is not None)
+        if physics:
+            eval_physics(policy, *eval_target(policy, args.env, args.backend), physics)
     seed = args.seed if args.seed is not None else 0
     if spec is not None:
         return _vary(args, spec, policies, seed)
-    return _evaluate(args, policies, seed)
+    return _evaluate(args, policies, seed, physics)
 
 
-def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
+def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict[str, Any]) -> int:
     from canter.config.experiment import group_by_experiment
     from canter.use.evaluate import evaluate, seed_stream
 
@@ -99,6 +113,7 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int) -> int:
             seed=seed,
             env_id=args.env,
             backend=args.backend,
+            physics=physics,
         )
         rows.append(
             dict(
@@ -168,8 +183,24 @@ def _print_table(rows: list[dict[str, Any]], groups: list[dict[str, Any]]) -> No
         )
     if groups:
         print("group rows: mean ± std across the runs' mean returns and lengths")
+    _print_physics(rows)
     if any(r["seed_stream"] == "held-out" for r in rows):
         print("best checkpoints played held-out env seeds, apart from the evaluations that chose them")
+
+
+def _physics_text(physics: dict[str, Any]) -> str:
+    return ", ".join(f"env.{key}={value}" for key, value in physics.items())
+
+
+def _print_physics(rows: list[dict[str, Any]]) -> None:
+    """Which rows played other physics than their model's own (a run's solver settings on mjx, or --set)."""
+    changed = [r for r in rows if r["physics"]]
+    texts = {_physics_text(r["physics"]) for r in changed}
+    if len(changed) == len(rows) and len(texts) == 1:
+        print(f"physics: {texts.pop()}; the rest the model's own")
+        return
+    for r in changed:
+        print(f"physics of {_short(r['run'], 56)}: {_physics_text(r['physics'])}; the rest the model's own")
 
 
 def _labels(policies: list) -> list[str]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from canter.config.fields import BUDGET, OUTPUT, SEED, setting
-from canter.envs.registry import AUTO, backend_doc
+from canter.envs.registry import AUTO, MODEL_OWN_PHYSICS, backend_doc
 from canter.errors import CanterError
 
 
@@ -32,18 +32,18 @@ class EnvConfig:
     solver_iterations: int = setting(
         "JAX-native MuJoCo backends only: constraint-solver iterations per physics step instead of the XML's own "
         "(0: the XML's, 100 or 50). Fewer are much faster on a GPU and change the physics slightly.",
-        default=0,
+        default=MODEL_OWN_PHYSICS["solver_iterations"],
     )
     solver_ls_iterations: int = setting(
         "JAX-native MuJoCo backends only: line-search iterations per solver iteration instead of the XML's own "
         "(0: the XML's, 50). MJX runs all of them for every env, so they dominate a step's cost on a GPU.",
-        default=0,
+        default=MODEL_OWN_PHYSICS["solver_ls_iterations"],
     )
     contacts: str = setting(
         "JAX-native MuJoCo backends only: `all` keeps the XML's collisions; `floor` lets body parts collide with the "
         "floor and not with each other, as Brax and MuJoCo Playground limit their models' contacts: far fewer to solve "
         "(Humanoid: 29 instead of 138; 1.8x the physics steps/s on a 2-core CPU), slightly different physics.",
-        default="all",
+        default=MODEL_OWN_PHYSICS["contacts"],
     )
     normalize_obs: bool = setting("Running observation normalization (stats saved with the policy).", default=True)
     clip_obs: float = setting("Clip normalized observations to +-clip_obs.", default=10.0)

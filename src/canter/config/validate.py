@@ -25,7 +25,9 @@ def need_positive(key: str, value: float) -> None:
 CONTACTS = ("all", "floor")
 
 
-def _check_solver(env: Any) -> None:
+def check_physics(env: Any) -> None:
+    """The env section's physics settings (env.solver_*, env.contacts): in range, and only on a backend that takes
+    them."""
     from canter.envs.registry import get_backend, solver_backends
 
     takes = env.backend != "auto" and get_backend(env.backend).solver_options
@@ -79,7 +81,7 @@ def validate(config: Config) -> None:
         0 <= env.envpool_shards <= env.num_envs,
         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}",
     )
-    _check_solver(env)
+    check_physics(env)
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
     spec = algorithm_spec(run.algo)

@@ -17,6 +17,10 @@ if TYPE_CHECKING:
 
 AUTO = "auto"
 
+# The env keys that change the physics of the backends with `solver_options`, each with the value that leaves the
+# model's own (the XML's solver iterations, all its collisions).
+MODEL_OWN_PHYSICS: dict[str, Any] = {"solver_iterations": 0, "solver_ls_iterations": 0, "contacts": "all"}
+
 # name -> package. The order is `auto`'s: it takes the first backend that has the id, among those that step C MuJoCo
 # on the host (a JAX-native backend is always asked for by name).
 _BACKENDS = {
@@ -113,9 +117,7 @@ def env_options(env: Any, backend: str) -> dict[str, Any]:
     where the backend takes them and they change the model (solver iterations 0 and contacts `all` leave its own)."""
     if backend == AUTO or not get_backend(backend).solver_options:
         return {}
-    options = {"solver_iterations": env.solver_iterations, "solver_ls_iterations": env.solver_ls_iterations}
-    options = {key: value for key, value in options.items() if value}
-    return options | ({"contacts": env.contacts} if env.contacts != "all" else {})
+    return {key: getattr(env, key) for key, own in MODEL_OWN_PHYSICS.items() if getattr(env, key) != own}
 
 
 def _auto_backends() -> list[Backend]:

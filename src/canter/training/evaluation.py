@@ -17,7 +17,7 @@ import functools
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,8 @@ class EvalResult:
     lengths: np.ndarray
     wall_seconds: float
     backend: str  # the env backend that played the episodes
+    # The physics settings the envs were made with apart from the model's own (env.solver_*, env.contacts).
+    physics: dict[str, Any] = field(default_factory=dict)
 
     @property
     def mean(self) -> float:
@@ -58,6 +60,7 @@ class EvalResult:
             "length_std": float(self.lengths.std()),
             "eval_seconds": self.wall_seconds,
             "backend": self.backend,
+            "physics": dict(self.physics),
             "returns": [float(r) for r in self.returns],
             "lengths": [int(n) for n in self.lengths],
         }
@@ -106,9 +109,10 @@ def run_episodes(
     """Play exactly `episodes` episodes with `act(obs_batch) -> actions`. `sizes` (obs_dim, act_dim) are checked
     against the env; `env_kwargs` go to the env backend. Where the env is JAX (`play_episodes`) and `traced_act`
     gives the same policy as a pure function, the episodes run in one jitted program instead of from the host."""
-    from canter.envs.registry import make_vec_env, resolve_backend
+    from canter.envs.registry import MODEL_OWN_PHYSICS, make_vec_env, resolve_backend
 
     backend = resolve_backend(env_id, backend)
+    physics = {key: value for key, value in (env_kwargs or {}).items() if key in MODEL_OWN_PHYSICS}
     num_envs = eval_env_count(backend, episodes)
     quota = np.full(num_envs, episodes // num_envs)
     quota[: episodes % num_envs] += 1
@@ -123,7 +127,7 @@ def run_episodes(
         if traced_act is not None and hasattr(env, "play_episodes"):
             played = env.play_episodes(traced_act.fn, traced_act.args, quota)
             wall = time.perf_counter() - started
-            return EvalResult(np.asarray(played[0]), np.asarray(played[1]), wall, env.spec.backend)
+            return EvalResult(np.asarray(played[0]), np.asarray(played[1]), wall, env.spec.backend, physics)
         obs = env.reset()
         done_count = np.zeros(num_envs, int)
         running_return = np.zeros(num_envs)
@@ -148,7 +152,8 @@ def run_episodes(
             obs = out.obs
     finally:
         env.close()
-    return EvalResult(np.asarray(returns), np.asarray(lengths), time.perf_counter() - started, env.spec.backend)
+    wall = time.perf_counter() - started
+    return EvalResult(np.asarray(returns), np.asarray(lengths), wall, env.spec.backend, physics)
 
 
 def evaluation_backend(env_id: str, asked: str, own: str) -> str:

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ from canter.training.evaluation import EvalResult, run_episodes
 from canter.training.restore import PolicyFacts
 from canter.use.policy import Policy
 
-__all__ = ["EvalResult", "check_eval_env", "evaluate", "seed_stream"]
+__all__ = ["EvalResult", "check_eval_env", "eval_physics", "eval_target", "evaluate", "parse_physics", "seed_stream"]
 
 
 def seed_stream(policy: Policy) -> str:
@@ -46,6 +47,45 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
         )
 
 
+def parse_physics(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """`{"solver_iterations": "4"}` (or `env.solver_iterations`, as `--set` spells it) as typed physics settings, or
+    a one-line error for a key that is not one of the env's physics settings or a value of the wrong type."""
+    from canter.config.values import coerce, field_types
+    from canter.envs.registry import MODEL_OWN_PHYSICS
+
+    types = field_types("env")
+    physics = {}
+    for key, value in settings.items():
+        name = key.removeprefix("env.")
+        if name not in MODEL_OWN_PHYSICS:
+            names = ", ".join(f"env.{known}" for known in MODEL_OWN_PHYSICS)
+            raise CanterError(
+                f"an evaluation takes the physics settings {names} only, got '{key}'; the rest is the run's own"
+            )
+        physics[name] = coerce(f"env.{name}", types[name], value)
+    return physics
+
+
+def eval_target(policy: Policy, env_id: str | None, backend: str | None) -> tuple[str, str]:
+    """The env and backend an evaluation plays: the ones asked for, else the run's own env, on the run's own backend
+    for its own env and on `auto` for another."""
+    env_id = env_id or policy.facts.env_id
+    return env_id, backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
+
+
+def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str, Any]) -> dict[str, Any]:
+    """The physics settings to make the eval envs with, as `make`'s keyword arguments: the run's own where the env is
+    its env and the backend takes them (mjx's solver iterations, contacts), with `changes` (typed, `parse_physics`)
+    over them. A change the backend cannot make is a one-line error, as it is in a config."""
+    from canter.config.schema import EnvConfig
+    from canter.config.validate import check_physics
+    from canter.envs.registry import env_options
+
+    check_physics(dataclasses.replace(EnvConfig(), backend=backend, **changes))
+    own = policy.config.env if env_id == policy.facts.env_id else EnvConfig()
+    return env_options(dataclasses.replace(own, **changes), backend)
+
+
 def evaluate(
     policy: Policy,
     episodes: int = 10,
@@ -54,6 +94,7 @@ def evaluate(
     env_id: str | None = None,
     backend: str | None = None,
     prepare_env: Callable[[Any], None] | None = None,
+    physics: Mapping[str, Any] | None = None,
 ) -> EvalResult:
     """Run exactly `episodes` episodes. Each env gets a fixed quota, so short episodes are not over-represented.
 
@@ -61,16 +102,20 @@ def evaluate(
     evaluations that chose it never played (`seed_stream`).
 
     `prepare_env(env)` is called on every Gymnasium env right after it is made and before its first reset (the
-    robustness sweeps edit the MuJoCo model there); it forces the backend that builds single envs (Gymnasium)."""
-    from canter.envs.registry import env_options, single_env_backend
+    robustness sweeps edit the MuJoCo model there); it forces the backend that builds single envs (Gymnasium).
+
+    `physics` changes the physics settings of the eval envs, e.g. `{"solver_iterations": 4}` (`parse_physics`);
+    without it they are the run's own on its env where the backend takes them, else the model's own."""
+    from canter.envs.registry import single_env_backend
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
     check_eval_env(policy.facts, env_id, backend, varied=prepare_env is not None)
-    env_id = env_id or policy.facts.env_id
-    backend = backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
-    # The physics the policy trained on, where the backend takes the same settings (mjx's solver iterations).
-    extra: dict[str, Any] = env_options(policy.config.env, backend) if env_id == policy.facts.env_id else {}
+    env_id, backend = eval_target(policy, env_id, backend)
+    changes = parse_physics(physics or {})
+    if prepare_env is not None and changes:
+        raise CanterError("a robustness sweep plays the Gymnasium env, which takes no physics settings; drop them")
+    extra: dict[str, Any] = eval_physics(policy, env_id, backend, changes)
     if prepare_env is not None:
         backend, extra = single_env_backend().name, {"on_make": prepare_env}
     first_call = [not deterministic]

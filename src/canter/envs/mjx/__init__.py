@@ -37,8 +37,9 @@ class MjxBackend(Backend):
         """`shards` does not apply: all envs step in one vmapped program."""
         from canter.envs.functional import FunctionalVecEnv
         from canter.envs.mjx.env import functional_env
+        from canter.envs.registry import MODEL_OWN_PHYSICS
 
-        unknown = set(kwargs) - {"solver_iterations", "solver_ls_iterations", "contacts"}
+        unknown = set(kwargs) - set(MODEL_OWN_PHYSICS)
         if unknown:
             raise CanterError(f"the mjx backend takes no env option {', '.join(sorted(unknown))}")
         return FunctionalVecEnv(functional_env(env_id, **kwargs), env_id, NAME, num_envs, seeds)
