@@ -123,6 +123,8 @@ def _mjx_policy(*sets):
 
 
 def test_eval_physics_are_the_runs_own_with_the_changes_over_them():
+    from types import SimpleNamespace
+
     from canter.errors import CanterError
     from canter.use.evaluate import eval_physics, parse_physics
 
@@ -145,6 +147,9 @@ def test_eval_physics_are_the_runs_own_with_the_changes_over_them():
         eval_physics(policy, "Hopper-v5", "mjx", parse_physics({"env.solver_iterations": "-1"}))
     with pytest.raises(CanterError, match=r"^env.solver_iterations: expected an integer, got 'four'$"):
         parse_physics({"env.solver_iterations": "four"})
+    brax_run = SimpleNamespace(config=None, facts=SimpleNamespace(env_id="ant", backend="brax"))
+    with pytest.raises(CanterError, match=r"^brax runs evaluate on the brax backend only, which takes no physics"):
+        eval_physics(brax_run, "ant", "brax", {"solver_iterations": 4})
 
 
 @pytest.mark.parametrize(

@@ -79,8 +79,14 @@ def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str
     over them. A change the backend cannot make is a one-line error, as it is in a config."""
     from canter.config.schema import EnvConfig
     from canter.config.validate import check_physics
-    from canter.envs.registry import env_options
+    from canter.envs.registry import env_options, get_backend
 
+    trained_on = get_backend(policy.facts.backend)
+    if changes and trained_on.own_observations and not trained_on.solver_options:
+        raise CanterError(
+            f"{trained_on.name} runs evaluate on the {trained_on.name} backend only, which takes no physics "
+            f"settings; drop --set"
+        )
     check_physics(dataclasses.replace(EnvConfig(), backend=backend, **changes))
     own = policy.config.env if env_id == policy.facts.env_id else EnvConfig()
     return env_options(dataclasses.replace(own, **changes), backend)
