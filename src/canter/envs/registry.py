@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import difflib
 import importlib
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from canter.errors import CanterError
@@ -19,7 +21,9 @@ AUTO = "auto"
 
 # The env keys that change the physics of the backends with `solver_options`, each with the value that leaves the
 # model's own (the XML's solver iterations, all its collisions).
-MODEL_OWN_PHYSICS: dict[str, Any] = {"solver_iterations": 0, "solver_ls_iterations": 0, "contacts": "all"}
+MODEL_OWN_PHYSICS: Mapping[str, Any] = MappingProxyType(
+    {"solver_iterations": 0, "solver_ls_iterations": 0, "contacts": "all"}
+)
 
 # name -> package. The order is `auto`'s: it takes the first backend that has the id, among those that step C MuJoCo
 # on the host (a JAX-native backend is always asked for by name).
