@@ -53,6 +53,7 @@ def main() -> None:
     cpu, gpu = metrics(cpu_dir), metrics(gpu_dir)
     gpu_env = gpu_config["env"]
     print("# Humanoid-v5 with the `humanoid` part's PPO settings: C MuJoCo against MJX, step for step\n")
+    print(f"Written by `python benchmarks/gpu/humanoid_cpu/compare.py {cpu_dir} {gpu_dir}`.\n")
     print(
         f"Seed {cpu_config['run']['seed']} both; PPO with the brax preset's humanoid table "
         f"({cpu_config['env']['num_envs']} envs, ppo.n_steps {cpu_config['ppo']['n_steps']}, "
@@ -89,6 +90,12 @@ def main() -> None:
         else f"did not reach {GOAL:,.0f} in {int(last['global_step']):,} env steps"
     )
     print(f"\nThe C MuJoCo run {verdict}.")
+    log = cpu_dir / "train.log"
+    if log.is_file():  # one line per process: a stop and its resume (EnvPool's episodes restart on resume)
+        print("\nIts processes, as each one ended:\n")
+        for line in log.read_text().splitlines():
+            if line.startswith("steps "):
+                print(f"- {line}")
 
 
 if __name__ == "__main__":
