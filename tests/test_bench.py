@@ -207,6 +207,10 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
     again = evaluate(load(run), episodes=2, deterministic=True, seed=0)
     assert json.loads((run / "eval.json").read_text())["returns"] == pytest.approx(list(again.returns))
     assert json.loads((run / "eval.json").read_text())["lengths"] == [int(n) for n in again.lengths]
+    assert {k: json.loads((run / "eval.json").read_text())[k] for k in ("backend", "physics")} == {
+        "backend": again.backend,
+        "physics": {},
+    }
     for folder in out.glob("*__s*"):  # every eval.json the bench writes holds each episode's return and length
         evaluation = json.loads((folder / "eval.json").read_text())
         assert len(evaluation["returns"]) == len(evaluation["lengths"]) == 2

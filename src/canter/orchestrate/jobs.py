@@ -270,6 +270,8 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
         "std": result.std,
         "returns": summary["returns"],
         "lengths": summary["lengths"],
+        "backend": summary["backend"],
+        "physics": summary["physics"],
     }
     atomic_write_bytes(path, lambda f: f.write(json.dumps(data, indent=2).encode()))
     return data
