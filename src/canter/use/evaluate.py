@@ -121,9 +121,10 @@ def evaluate(
     changes = parse_physics(physics or {})
     if prepare_env is not None and changes:
         raise CanterError("a robustness sweep plays the Gymnasium env, which takes no physics settings; drop them")
-    extra: dict[str, Any] = eval_physics(policy, env_id, backend, changes)
     if prepare_env is not None:
         backend, extra = single_env_backend().name, {"on_make": prepare_env}
+    else:
+        extra = eval_physics(policy, env_id, backend, changes)
     first_call = [not deterministic]
 
     def act(obs: np.ndarray) -> np.ndarray:
