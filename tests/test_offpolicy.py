@@ -103,6 +103,45 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         assert (ou[env] == 0).all() == bool(last_done[env])
 
 
+class _RewardSpy(TD3):
+    """TD3 whose update learns nothing and reports the ratio of the batch's rewards to the raw ones (the counter env's
+    reward equals its next observation's counter, which observation normalization, off here, would change)."""
+
+    update_metrics = ("critic_loss", "reward_ratio")
+
+    def update(self, state, batch, key):
+        ratio = jnp.mean(batch.reward / batch.next_obs[:, 0])
+        return state, {"critic_loss": jnp.float32(0.0), "reward_ratio": ratio}
+
+
+def test_the_learner_samples_rewards_times_the_fixed_reward_scale_while_the_buffer_keeps_them_raw():
+    config = build_config(
+        "Pendulum-v1",
+        algo="td3",
+        sets=[
+            "env.num_envs=2",
+            "env.normalize_obs=false",
+            "env.normalize_reward=false",
+            "env.reward_scale=0.1",
+            "td3.steps_per_call=20",
+            "td3.learning_starts=4",
+            "td3.buffer_size=64",
+            "td3.batch_size=4",
+            "td3.hidden=4",
+        ],
+    )
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    learner = _RewardSpy(config.td3)
+    state = init_train_state(config, learner, 2, 1)
+    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
+    state, _, metrics = jax.jit(make_iteration(config, learner, spec, counter_env_step))(state, carry, jnp.float32(1))
+    assert int(metrics["gradient_steps"]) > 0
+    assert float(metrics["reward_ratio"]) == pytest.approx(0.1, rel=1e-6)
+    size = int(state.buffer.size)
+    data = jax.device_get(state.buffer.data)
+    np.testing.assert_array_equal(data.reward[:size], data.next_obs[:size, 0])
+
+
 FIXTURE_RUNS = Path(__file__).parent / "fixtures" / "runs-v1"
 
 

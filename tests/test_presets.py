@@ -191,12 +191,14 @@ def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
 
 def test_brax_preset_holds_brax_published_ppo_settings():
     """Brax's training notebook: ant 4096 envs, batch 2048 x 32 minibatches x unroll 5, 4 updates, entropy 1e-2;
-    humanoid 2048 envs, batch 1024 x 32 x unroll 10, 8 updates, entropy 1e-3; both lr 3e-4, discount 0.97."""
-    published = {"ant": (4096, 2048, 5, 4, 1e-2), "humanoid": (2048, 1024, 10, 8, 1e-3)}
-    for env_id, (num_envs, batch_size, unroll_length, updates, entropy_cost) in published.items():
+    humanoid 2048 envs, batch 1024 x 32 x unroll 10, 8 updates, entropy 1e-3; both lr 3e-4, discount 0.97; reward
+    scaling ant 10, humanoid 0.1."""
+    published = {"ant": (4096, 2048, 5, 4, 1e-2, 10.0), "humanoid": (2048, 1024, 10, 8, 1e-3, 0.1)}
+    for env_id, (num_envs, batch_size, unroll_length, updates, entropy_cost, reward_scaling) in published.items():
         config = build_config(env_id, preset="brax", sets=["env.backend=brax"])
         ppo = config.ppo
         assert config.env.num_envs == num_envs and ppo.epochs == updates and ppo.ent_coef == entropy_cost
+        assert config.env.reward_scale == reward_scaling and not config.env.normalize_reward
         assert ppo.n_steps * num_envs == batch_size * 32 * unroll_length
         assert ppo.minibatch_size == batch_size * unroll_length
         assert (ppo.lr, ppo.gamma, ppo.gae_lambda, ppo.clip, ppo.anneal_lr) == (3e-4, 0.97, 0.95, 0.3, False)

@@ -14,7 +14,7 @@ from canter.envs.episodes import init_env_carry
 from test_gae import reference_gae
 
 
-def _setup(env_id, backend, num_envs, n_steps):
+def _setup(env_id, backend, num_envs, n_steps, sets=()):
     config = build_config(
         env_id,
         sets=[
@@ -23,6 +23,7 @@ def _setup(env_id, backend, num_envs, n_steps):
             f"ppo.n_steps={n_steps}",
             f"ppo.minibatch_size={n_steps}",
             "net.hidden=8",
+            *sets,
         ],
     )
     env = make_vec_env(config.env.id, config.env.backend, num_envs, list(range(num_envs)))
@@ -78,6 +79,19 @@ def test_estimate_advantages_bootstraps_from_the_last_observation_and_matches_a_
     )
     np.testing.assert_allclose(advantages, expected_adv, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(returns * tr.valid, expected_ret, rtol=1e-4, atol=1e-5)
+
+
+def test_a_fixed_reward_scale_reaches_the_learner_and_not_the_logged_returns():
+    """DictObs's reward at episode step t is t; with env.reward_scale=0.1 the learner sees 0.1 t."""
+    sets = ("env.normalize_reward=false", "env.reward_scale=0.1")
+    config, env, state, carry = _setup("canter_test_envs:DictObs-v0", "gymnasium", 2, 16, sets)
+    _, return_stats, _, tr, _ = _collect(config, env, state, carry)
+    valid = np.asarray(tr.valid)
+    step_reward = np.array([(t % 8) + 1 if (t % 8) != 7 else 0 for t in range(16)], np.float32)
+    np.testing.assert_allclose(np.asarray(tr.reward)[:, 0], 0.1 * step_reward, rtol=1e-6)
+    finished = np.asarray(tr.done)
+    np.testing.assert_array_equal(np.asarray(tr.episode_return)[finished], 28.0)
+    assert valid.sum() == 28 and float(return_stats.count) == pytest.approx(1e-4)
 
 
 def test_envpool_truncation_masking_and_step_count():

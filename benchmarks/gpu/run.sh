@@ -110,7 +110,7 @@ ppo-brax)
 humanoid)
     # Brax's humanoid PPO settings (the brax preset's humanoid table) on Gymnasium's Humanoid-v5 ported to MJX.
     num_envs=${HUMANOID_ENVS:-2048}
-    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3}"
+    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3 --set env.reward_scale=0.1}"
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
     train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \

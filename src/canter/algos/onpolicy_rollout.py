@@ -23,7 +23,7 @@ from canter.core.networks import (
     sample_action,
     value,
 )
-from canter.core.normalize import RunningStats, normalize, scale_reward, update_stats
+from canter.core.normalize import RunningStats, learning_reward, normalize, update_stats
 from canter.envs.base import StepOutput
 from canter.envs.episodes import EnvCarry, track_episodes
 
@@ -75,9 +75,13 @@ def collect(
         carry, episodes = track_episodes(carry, env_state, out, config.ppo.gamma)
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
-            learn_reward = scale_reward(return_stats, out.reward, env_cfg.clip_reward)
-        else:
-            learn_reward = out.reward
+        learn_reward = learning_reward(
+            out.reward,
+            return_stats,
+            normalize_reward=env_cfg.normalize_reward,
+            clip=env_cfg.clip_reward,
+            reward_scale=env_cfg.reward_scale,
+        )
         transition = Transition(
             obs,
             action,

@@ -49,6 +49,11 @@ class EnvConfig:
     clip_obs: float = setting("Clip normalized observations to +-clip_obs.", default=10.0)
     normalize_reward: bool = setting("Divide rewards by the running std of the discounted return.", default=True)
     clip_reward: float = setting("Clip scaled rewards to +-clip_reward.", default=10.0)
+    reward_scale: float = setting(
+        "Multiply the rewards the learner sees by this fixed factor, as Brax's reward_scaling does (returns are "
+        "logged unscaled); an alternative to env.normalize_reward, so it needs that off.",
+        default=1.0,
+    )
 
 
 @dataclass(frozen=True)

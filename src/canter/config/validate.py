@@ -84,6 +84,15 @@ def validate(config: Config) -> None:
     check_physics(env)
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
+    need(
+        math.isfinite(env.reward_scale) and env.reward_scale > 0,
+        f"env.reward_scale must be a positive number, got {env.reward_scale}",
+    )
+    need(
+        env.reward_scale == 1.0 or not env.normalize_reward,
+        f"env.reward_scale {env.reward_scale} and env.normalize_reward both set the rewards' scale; "
+        "set env.normalize_reward=false or env.reward_scale=1",
+    )
     spec = algorithm_spec(run.algo)
     for name in section_names():
         check_section(name, config.section(name))

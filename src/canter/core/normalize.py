@@ -48,3 +48,12 @@ def normalize(stats: RunningStats, x: jnp.ndarray, clip: float, eps: float = EPS
 def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: float = EPSILON) -> jnp.ndarray:
     """Divide by the std of the discounted return (no mean shift, which would change the optimal policy)."""
     return jnp.clip(reward / jnp.sqrt(stats.var + eps), -clip, clip)
+
+
+def learning_reward(
+    reward: jnp.ndarray, return_stats: RunningStats, *, normalize_reward: bool, clip: float, reward_scale: float
+) -> jnp.ndarray:
+    """The reward a learner trains on: scaled by the return's running std when normalizing, else by a fixed factor."""
+    if normalize_reward:
+        return scale_reward(return_stats, reward, clip)
+    return reward * reward_scale

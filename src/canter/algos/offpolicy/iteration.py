@@ -26,8 +26,8 @@ from canter.core.counters import count_dtype
 from canter.core.normalize import (
     RunningStats,
     init_stats,
+    learning_reward,
     normalize,
-    scale_reward,
     update_stats,
 )
 from canter.core.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
@@ -111,9 +111,14 @@ def make_iteration(
                 obs=normalize(obs_stats, batch.obs, env_cfg.clip_obs),
                 next_obs=normalize(obs_stats, batch.next_obs, env_cfg.clip_obs),
             )
-        if env_cfg.normalize_reward:
-            batch = batch._replace(reward=scale_reward(return_stats, batch.reward, env_cfg.clip_reward))
-        return batch
+        reward = learning_reward(
+            batch.reward,
+            return_stats,
+            normalize_reward=env_cfg.normalize_reward,
+            clip=env_cfg.clip_reward,
+            reward_scale=env_cfg.reward_scale,
+        )
+        return batch._replace(reward=reward)
 
     def train(learner_state, buffer, obs_stats, return_stats, key):
         """`gradient_steps` updates; returns the learner state and per-metric (sums, counts) over them."""
