@@ -1,5 +1,6 @@
 import numpy as np
 
+from canter.config.schema import EnvConfig
 from canter.core.normalize import init_stats, learning_reward, normalize, scale_reward, update_stats
 
 
@@ -34,12 +35,16 @@ def test_normalize_and_reward_scale_clip():
     np.testing.assert_allclose(np.asarray(scaled), [2.0 / np.sqrt(var + 1e-8), -10.0], rtol=1e-5)
 
 
+def _env(**settings):
+    return EnvConfig(id="Hopper-v5", **settings)
+
+
 def test_learning_reward_is_the_normalized_reward_or_the_raw_reward_times_a_fixed_scale():
     stats = update_stats(init_stats(()), np.array([0.0, 4.0], np.float32), np.ones(2, bool))
     reward = np.array([3.0, -2.0, 0.0], np.float32)
-    fixed = learning_reward(reward, stats, normalize_reward=False, clip=1.0, reward_scale=0.1)
+    fixed = learning_reward(reward, stats, _env(normalize_reward=False, clip_reward=1.0, reward_scale=0.1))
     np.testing.assert_allclose(np.asarray(fixed), [0.3, -0.2, 0.0], rtol=1e-6)
-    unscaled = learning_reward(reward, stats, normalize_reward=False, clip=1.0, reward_scale=1.0)
+    unscaled = learning_reward(reward, stats, _env(normalize_reward=False, clip_reward=1.0, reward_scale=1.0))
     np.testing.assert_array_equal(np.asarray(unscaled), reward)
-    normalized = learning_reward(reward, stats, normalize_reward=True, clip=1.0, reward_scale=1.0)
+    normalized = learning_reward(reward, stats, _env(normalize_reward=True, clip_reward=1.0, reward_scale=1.0))
     np.testing.assert_allclose(np.asarray(normalized), [1.0, -2.0 / 2.0, 0.0], rtol=1e-5)

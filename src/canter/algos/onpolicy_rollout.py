@@ -75,13 +75,7 @@ def collect(
         carry, episodes = track_episodes(carry, env_state, out, config.ppo.gamma)
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
-        learn_reward = learning_reward(
-            out.reward,
-            return_stats,
-            normalize_reward=env_cfg.normalize_reward,
-            clip=env_cfg.clip_reward,
-            reward_scale=env_cfg.reward_scale,
-        )
+        learn_reward = learning_reward(out.reward, return_stats, env_cfg)
         transition = Transition(
             obs,
             action,

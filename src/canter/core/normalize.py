@@ -6,9 +6,12 @@ steps contribute nothing.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax.numpy as jnp
+
+if TYPE_CHECKING:
+    from canter.config.schema import EnvConfig
 
 EPSILON = 1e-8  # added to variances before the square root
 
@@ -50,10 +53,9 @@ def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: flo
     return jnp.clip(reward / jnp.sqrt(stats.var + eps), -clip, clip)
 
 
-def learning_reward(
-    reward: jnp.ndarray, return_stats: RunningStats, *, normalize_reward: bool, clip: float, reward_scale: float
-) -> jnp.ndarray:
-    """The reward a learner trains on: scaled by the return's running std when normalizing, else by a fixed factor."""
-    if normalize_reward:
-        return scale_reward(return_stats, reward, clip)
-    return reward * reward_scale
+def learning_reward(reward: jnp.ndarray, return_stats: RunningStats, env: EnvConfig) -> jnp.ndarray:
+    """The reward a learner trains on: scaled by the return's running std when `env.normalize_reward`, else by the
+    fixed factor `env.reward_scale`."""
+    if env.normalize_reward:
+        return scale_reward(return_stats, reward, env.clip_reward)
+    return reward * env.reward_scale

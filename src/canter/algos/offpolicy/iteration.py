@@ -111,13 +111,7 @@ def make_iteration(
                 obs=normalize(obs_stats, batch.obs, env_cfg.clip_obs),
                 next_obs=normalize(obs_stats, batch.next_obs, env_cfg.clip_obs),
             )
-        reward = learning_reward(
-            batch.reward,
-            return_stats,
-            normalize_reward=env_cfg.normalize_reward,
-            clip=env_cfg.clip_reward,
-            reward_scale=env_cfg.reward_scale,
-        )
+        reward = learning_reward(batch.reward, return_stats, env_cfg)
         return batch._replace(reward=reward)
 
     def train(learner_state, buffer, obs_stats, return_stats, key):
