@@ -33,7 +33,8 @@ def config(run_dir: Path) -> dict:
 def device(run_dir: Path) -> str:
     versions = json.loads((run_dir / "versions.json").read_text())
     machine = versions["gpu"] or f"{versions['cpu']}, {versions['cpu_count']} cores"
-    return f"{machine}, JAX {versions['jax']}, commit {versions['canter_commit'][:7]}"
+    changes = " with uncommitted changes" if versions.get("canter_dirty") else ""
+    return f"{machine}, JAX {versions['jax']}, commit {versions['canter_commit'][:7]}{changes}"
 
 
 def fmt(value: str) -> str:

@@ -5,10 +5,10 @@
 # stops it with a checkpoint, and `canter train --resume RUN` carries it on. REWARD_SCALE is the table's reward
 # scaling, Brax's 0.1 by default; the run archived in run/ predates env.reward_scale and trained with REWARD_SCALE=1.
 #
-#   [REWARD_SCALE=0.1] bash benchmarks/gpu/humanoid_cpu/run.sh [OUT_DIR] [MINUTES]
+#   [REWARD_SCALE=0.1] bash benchmarks/gpu/humanoid_cpu/run.sh [OUT_DIR] [MINUTES] [--set KEY=VALUE ...]
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 exec "${PYTHON:-.venv/bin/python}" -m canter.cli train Humanoid-v5 --preset brax --seed 0 --set env.num_envs=2048 \
     --set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3 \
     --set env.reward_scale="${REWARD_SCALE:-0.1}" \
-    --total-steps 2e7 --eval-every 2e6 --eval-episodes 10 --max-minutes "${2:-95}" --out-dir "${1:-runs/humanoid-cpu}"
+    --total-steps 2e7 --eval-every 2e6 --eval-episodes 10 --max-minutes "${2:-95}" --out-dir "${1:-runs/humanoid-cpu}" "${@:3}"

@@ -1,0 +1,92 @@
+"""Humanoid-v5 runs of benchmarks/gpu/humanoid_cpu/run.sh with different settings, side by side: deterministic
+evaluations at the same env steps, training returns at the same iterations, and the steps each run needed for a
+given evaluation return.
+
+    python benchmarks/gpu/humanoid_cpu/recipes.py RUN RUN [RUN ...] > benchmarks/gpu/humanoid_cpu/recipes.md
+
+Each run is labelled by the settings in which the runs differ. Reads only the run folders' files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+from compare import GOAL, config, device, fmt, metrics
+
+from canter.config.build import build_config
+
+# Evaluation returns whose first crossing the table lists; the last is the goal.
+THRESHOLDS = (500.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0, GOAL)
+# Sections whose settings can tell the runs apart; run.* holds budgets and folders.
+LEARNING_SECTIONS = ("env", "net", "ppo")
+# Print a training-return row every this many iterations.
+TRAINING_ROW_EVERY = 4
+
+
+def learning_settings(run_dir: Path) -> dict[str, object]:
+    """The run's env, net and ppo settings; a key newer than the run gets its default, which the run trained with."""
+    settings = config(run_dir)
+    defaults = build_config(settings["env"]["id"])
+    found = {}
+    for name in LEARNING_SECTIONS:
+        section = {**dataclasses.asdict(defaults.section(name)), **settings[name]}
+        found.update({f"{name}.{key}": value for key, value in section.items()})
+    return found
+
+
+def labels(runs: list[Path]) -> list[str]:
+    settings = [learning_settings(run) for run in runs]
+    keys = sorted({key for s in settings for key in s})
+    differing = [key for key in keys if len({repr(s.get(key)) for s in settings}) > 1]
+    if not differing:
+        raise SystemExit("the runs' env, net and ppo settings are the same; nothing to compare")
+    return [", ".join(f"{key} {s.get(key)}" for key in differing) for s in settings]
+
+
+def first_crossing(evals: list[dict[str, str]], threshold: float) -> str:
+    for row in evals:
+        if float(row["eval/return_mean"]) >= threshold:
+            return f"{int(row['global_step']):,}"
+    return f"not in {int(evals[-1]['global_step']):,}" if evals else "no evaluation"
+
+
+def main() -> None:
+    runs = [Path(arg) for arg in sys.argv[1:]]
+    if len(runs) < 2:
+        raise SystemExit("usage: recipes.py RUN RUN [RUN ...]")
+    names = labels(runs)
+    rows = [metrics(run) for run in runs]
+    evals = [[row for row in run_rows if row.get("eval/return_mean")] for run_rows in rows]
+    print("# Humanoid-v5, the `humanoid` part's PPO settings, changed one at a time\n")
+    print(f"Written by `python benchmarks/gpu/humanoid_cpu/recipes.py {' '.join(str(run) for run in runs)}`.\n")
+    for label, run in zip(names, runs):
+        print(f"- **{label}**: `{run.name}` ({device(run)}).")
+    print(
+        "\nAll seed 0, C MuJoCo (EnvPool), the brax preset with its humanoid table and 2048 envs; 10 deterministic "
+        "evaluation episodes every 2M env steps.\n"
+    )
+    print("Deterministic evaluations (env steps: return):\n")
+    print("| evaluation | " + " | ".join(names) + " |")
+    print("|---:|" + "---:|" * len(runs))
+    for i in range(max(len(e) for e in evals)):
+        cells = [f"{int(e[i]['global_step']):,}: {fmt(e[i]['eval/return_mean'])}" if i < len(e) else "" for e in evals]
+        print(f"| {i + 1} | " + " | ".join(cells) + " |")
+    print("\nFirst evaluation at or above each return (env steps):\n")
+    print("| return | " + " | ".join(names) + " |")
+    print("|---:|" + "---:|" * len(runs))
+    for threshold in THRESHOLDS:
+        print(f"| {threshold:,.0f} | " + " | ".join(first_crossing(e, threshold) for e in evals) + " |")
+    print("\nTraining return (mean of the last 20 episodes) at the same iterations:\n")
+    print("| iteration | env steps (first run) | " + " | ".join(names) + " |")
+    print("|---:|---:|" + "---:|" * len(runs))
+    longest = max(len(r) for r in rows)
+    for i in range(TRAINING_ROW_EVERY - 1, longest, TRAINING_ROW_EVERY):
+        cells = [fmt(r[i]["episodic_return"]) if i < len(r) else "" for r in rows]
+        steps = f"{int(rows[0][i]['global_step']):,}" if i < len(rows[0]) else ""
+        print(f"| {i + 1} | {steps} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
