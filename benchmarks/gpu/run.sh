@@ -108,9 +108,12 @@ ppo-brax)
     done
     ;;
 humanoid)
-    # Brax's humanoid PPO settings (the brax preset's humanoid table) on Gymnasium's Humanoid-v5 ported to MJX.
+    # Brax's humanoid PPO settings (the brax preset's humanoid table) on Gymnasium's Humanoid-v5 ported to MJX, with
+    # Brax's exploration noise relative to the action range: std 1 on Brax's [-1, 1] is 0.4 on Humanoid-v5's
+    # [-0.4, 0.4] (net.log_std_init -0.916). On the CPU that halved the steps to an evaluation of 4,880
+    # (benchmarks/gpu/humanoid_cpu/recipes.md).
     num_envs=${HUMANOID_ENVS:-2048}
-    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3 --set env.reward_scale=0.1}"
+    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=160 --set ppo.minibatch_size=10240 --set ppo.epochs=8 --set ppo.ent_coef=1e-3 --set env.reward_scale=0.1 --set net.log_std_init=-0.916}"
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
     train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 4)" --total-steps "$(small 64 1000000000)" \
