@@ -56,6 +56,14 @@ def reference_transitions(vector_steps):
     return stored
 
 
+def run_counter_iteration(config, learner):
+    """One jitted iteration of `learner` on the two-env counter env, from fresh state."""
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    state = init_train_state(config, learner, 2, 1)
+    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
+    return jax.jit(make_iteration(config, learner, spec, counter_env_step))(state, carry, jnp.float32(1.0))
+
+
 def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_only():
     config = build_config(
         "Pendulum-v1",
@@ -70,12 +78,7 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
             "td3.noise=ou",
         ],
     )
-    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
-    learner = TD3(config.td3)
-    state = init_train_state(config, learner, 2, 1)
-    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
-    iteration = jax.jit(make_iteration(config, learner, spec, counter_env_step))
-    state, carry, metrics = iteration(state, carry, jnp.float32(1.0))
+    state, _, metrics = run_counter_iteration(config, TD3(config.td3))
 
     expected = reference_transitions(10)
     size = int(state.buffer.size)
@@ -130,11 +133,7 @@ def test_the_learner_samples_rewards_times_the_fixed_reward_scale_while_the_buff
             "td3.hidden=4",
         ],
     )
-    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
-    learner = _RewardSpy(config.td3)
-    state = init_train_state(config, learner, 2, 1)
-    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
-    state, _, metrics = jax.jit(make_iteration(config, learner, spec, counter_env_step))(state, carry, jnp.float32(1))
+    state, _, metrics = run_counter_iteration(config, _RewardSpy(config.td3))
     assert int(metrics["gradient_steps"]) > 0
     assert float(metrics["reward_ratio"]) == pytest.approx(0.1, rel=1e-6)
     size = int(state.buffer.size)
