@@ -52,20 +52,26 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
             "ppo.clip=0.1",
             "--set",
             "net.hidden=16,8",
+            "--max-minutes",
+            "1e-4",
         ]
         + FAST,
         capsys,
     )
     assert code == 0, err
+    assert "steps 512 |" in out and "stopped: max_minutes" in out, "the limit stops this process after one iteration"
     run = only_run(tmp_path)
     assert run.name.startswith("Pendulum-v1__ppo__cleanrl__s3__")
     assert "SPS" in out and "compile" in out
     text = (run / "config.toml").read_text()
     assert "clip = 0.1" in text and "hidden = [16, 16]" in text  # TINY's later --set wins over 16,8
 
-    code, out, err = run_cli(["train", "--resume", str(run), "--total-steps", "4096", "--quiet"], capsys)
+    # A resume may replace the saved minute limit, which would otherwise stop this process after one iteration too.
+    resume = ["train", "--resume", str(run), "--total-steps", "4096", "--max-minutes", "60", "--quiet"]
+    code, out, err = run_cli(resume, capsys)
     assert code == 0, err
     assert "steps 4," in out
+    assert "max_minutes = 60.0" in (run / "config.toml").read_text()
 
     code, out, err = run_cli(["eval", str(run), "--episodes", "3", "--json", str(tmp_path / "e.json")], capsys)
     assert code == 0, err
@@ -125,7 +131,7 @@ def _bad_inputs(tmp_path, run):
         (["train", "canter_test_envs:DiscreteObs-v0"], "Box or a Dict of Boxes"),
         (["train", "--resume", str(tmp_path / "missing")], "run folder not found"),
         (["train", "--resume", str(empty)], "no config.toml"),
-        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps and --quiet"),
+        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps, --max-minutes and --quiet"),
         (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
         (["eval", str(tmp_path / "missing")], "run folder not found"),
         (["eval", str(empty)], "no checkpoint"),

@@ -34,7 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="stop once the mean of the last 20 training episodes reaches this",
     )
-    t.add_argument("--max-minutes", type=float, default=None, help="stop cleanly, with a checkpoint, after M minutes")
+    t.add_argument(
+        "--max-minutes",
+        type=float,
+        default=None,
+        help="stop cleanly, with a checkpoint, after M minutes (with --resume: replaces the saved limit)",
+    )
     t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
     t.add_argument(
         "--video-every",
@@ -108,7 +113,6 @@ def _train(args: argparse.Namespace) -> list[Any]:
                 ("--seeds", args.seeds),
                 ("--backend", args.backend),
                 ("--stop-at-return", args.stop_at_return),
-                ("--max-minutes", args.max_minutes),
                 ("--out-dir", args.out_dir),
                 ("--video-every", args.video_every),
                 ("--eval-every", args.eval_every),
@@ -118,13 +122,15 @@ def _train(args: argparse.Namespace) -> list[Any]:
         ]
         if changed:
             raise CanterError(
-                f"--resume uses the saved config; only --total-steps and --quiet may be given "
+                f"--resume uses the saved config; only --total-steps, --max-minutes and --quiet may be given "
                 f"(got {', '.join(changed)})"
             )
         if len(args.resume) > 1:
-            results = resume_seeds([Path(d) for d in args.resume], args.total_steps, quiet=args.quiet)
+            results = resume_seeds(
+                [Path(d) for d in args.resume], args.total_steps, max_minutes=args.max_minutes, quiet=args.quiet
+            )
         else:
-            config = resume_config(Path(args.resume[0]), args.total_steps)
+            config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes)
             results = [train(config, resume=args.resume[0], quiet=args.quiet)]
     else:
         extra = {}

@@ -106,12 +106,16 @@ def train_seeds(
 
 
 def resume_seeds(
-    run_dirs: Sequence[str | Path], total_steps: int | None = None, *, quiet: bool = True
+    run_dirs: Sequence[str | Path],
+    total_steps: int | None = None,
+    *,
+    max_minutes: float | None = None,
+    quiet: bool = True,
 ) -> list[RunResult]:
     """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
     (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
     would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
-    configs = [resume_config(Path(d), total_steps) for d in run_dirs]
+    configs = [resume_config(Path(d), total_steps, max_minutes) for d in run_dirs]
     seeds = [c.run.seed for c in configs]
     if len(set(seeds)) != len(seeds):
         raise CanterError(
@@ -568,8 +572,9 @@ def _best_return(run_dir: Path) -> float | None:
     return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
 
 
-def resume_config(run_dir: Path, total_steps: int | None) -> Config:
-    """The saved config of a run, with only the step budget changed."""
+def resume_config(run_dir: Path, total_steps: int | None, max_minutes: float | None = None) -> Config:
+    """The saved config of a run, with only its budget changed: the step budget, and the wall-minute limit of the
+    resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run)."""
     from canter.training.run_folder import read_config
 
     if not Path(run_dir).is_dir():
@@ -577,4 +582,6 @@ def resume_config(run_dir: Path, total_steps: int | None) -> Config:
     config = read_config(Path(run_dir))
     if total_steps is not None:
         config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
+    if max_minutes is not None:
+        config = replace(config, run=replace(config.run, max_minutes=float(max_minutes)))
     return config
