@@ -21,8 +21,8 @@ from canter.config.build import build_config
 THRESHOLDS = (500.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0, GOAL)
 # Sections whose settings can tell the runs apart; run.* holds budgets and folders.
 LEARNING_SECTIONS = ("env", "net", "ppo")
-# Print a training-return row every this many iterations.
-TRAINING_ROW_EVERY = 4
+# Print a training-return row every this many env steps (runs whose iterations differ in length line up by steps).
+TRAINING_ROW_STEPS = 1_000_000
 
 
 def learning_settings(run_dir: Path) -> dict[str, object]:
@@ -52,6 +52,12 @@ def first_crossing(evals: list[dict[str, str]], threshold: float) -> str:
     return f"not in {int(evals[-1]['global_step']):,}" if evals else "no evaluation"
 
 
+def training_return_at(run_rows: list[dict[str, str]], step: int) -> str:
+    """The training return logged by the last iteration that ended at or before `step`."""
+    before = [row for row in run_rows if int(row["global_step"]) <= step]
+    return fmt(before[-1]["episodic_return"]) if before else ""
+
+
 def main() -> None:
     runs = [Path(arg) for arg in sys.argv[1:]]
     if len(runs) < 2:
@@ -78,14 +84,16 @@ def main() -> None:
     print("|---:|" + "---:|" * len(runs))
     for threshold in THRESHOLDS:
         print(f"| {threshold:,.0f} | " + " | ".join(first_crossing(e, threshold) for e in evals) + " |")
-    print("\nTraining return (mean of the last 20 episodes) at the same iterations:\n")
-    print("| iteration | env steps (first run) | " + " | ".join(names) + " |")
-    print("|---:|---:|" + "---:|" * len(runs))
-    longest = max(len(r) for r in rows)
-    for i in range(TRAINING_ROW_EVERY - 1, longest, TRAINING_ROW_EVERY):
-        cells = [fmt(r[i]["episodic_return"]) if i < len(r) else "" for r in rows]
-        steps = f"{int(rows[0][i]['global_step']):,}" if i < len(rows[0]) else ""
-        print(f"| {i + 1} | {steps} | " + " | ".join(cells) + " |")
+    print(
+        "\nTraining return (mean of the last 20 episodes) at each million env steps that a run reached, as logged by "
+        "its last iteration at or before that step:\n"
+    )
+    print("| env steps | " + " | ".join(names) + " |")
+    print("|---:|" + "---:|" * len(runs))
+    longest = max(int(r[-1]["global_step"]) for r in rows)
+    for step in range(TRAINING_ROW_STEPS, longest + 1, TRAINING_ROW_STEPS):
+        cells = [training_return_at(r, step) if int(r[-1]["global_step"]) >= step else "" for r in rows]
+        print(f"| {step:,} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
