@@ -83,7 +83,8 @@ def train(
     config: Config, *, resume: str | Path | None = None, quiet: bool = True, run_dir: str | Path | None = None
 ) -> RunResult:
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
-    differ in run.total_steps (the learning-rate schedule is stretched to the new total)."""
+    differ in its budget: run.total_steps (the learning-rate schedule is stretched to the new total) and
+    run.max_minutes."""
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
 
