@@ -203,3 +203,29 @@ def test_brax_preset_holds_brax_published_ppo_settings():
         assert ppo.minibatch_size == batch_size * unroll_length
         assert (ppo.lr, ppo.gamma, ppo.gae_lambda, ppo.clip, ppo.anneal_lr) == (3e-4, 0.97, 0.95, 0.3, False)
         assert config.net.hidden == (32,) * 4 and config.net.critic_hidden == (256,) * 5
+
+
+def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
+    """benchmarks/gpu/humanoid_cpu/recipes.md measured the recipe as the brax preset plus `--set` flags (its seed
+    0-2 runs); `--preset humanoid` gives exactly those settings on every key ppo reads, so those results hold for it."""
+    import dataclasses
+
+    from canter.errors import CanterError
+
+    flags = [
+        "env.num_envs=2048",
+        "ppo.n_steps=80",
+        "ppo.minibatch_size=5120",
+        "ppo.epochs=8",
+        "ppo.ent_coef=1e-3",
+        "env.reward_scale=0.1",
+        "net.log_std_init=-0.916",
+        "net.hidden=256,256,256",
+    ]
+    measured = build_config("Humanoid-v5", preset="brax", sets=flags)
+    shipped = build_config("Humanoid-v5", preset="humanoid")
+    for section in ("env", "net", "ppo"):
+        assert dataclasses.asdict(measured.section(section)) == dataclasses.asdict(shipped.section(section)), section
+    assert shipped.run.preset == "humanoid"
+    with pytest.raises(CanterError, match=r"preset humanoid holds settings for ppo only, not sac"):
+        build_config("Humanoid-v5", preset="humanoid", algo="sac")

@@ -108,17 +108,16 @@ ppo-brax)
     done
     ;;
 humanoid)
-    # Brax's humanoid PPO settings (the brax preset's humanoid table) on Gymnasium's Humanoid-v5 ported to MJX, with
-    # Brax's exploration noise relative to the action range: std 1 on Brax's [-1, 1] is 0.4 on Humanoid-v5's
-    # [-0.4, 0.4] (net.log_std_init -0.916), a policy of 256-256-256 rather than Brax's 32-32-32-32, and iterations
-    # half as long (80 steps per env, 32 minibatches of 5,120: twice the updates per env step, at the same compute
-    # per env step). On the CPU these cut the env steps to an evaluation of 6000 from about 20M to 12M, to 10M, then
-    # to 8M (benchmarks/gpu/humanoid_cpu/recipes.md). At about 30k env steps/s that is more than the default 4
-    # minutes: HUMANOID_MINUTES=8 runs it to the score, when the device time allows a part that long.
+    # The humanoid preset on Gymnasium's Humanoid-v5 ported to MJX: Brax's humanoid PPO settings with Brax's
+    # exploration noise relative to the action range (net.log_std_init -0.916), a 256-256-256 policy and
+    # half-length iterations. On the CPU these cut the env steps to an evaluation of 6000 from about 20M to 8M
+    # (benchmarks/gpu/humanoid_cpu/recipes.md). At about 30k env steps/s that is more than the default 4 minutes:
+    # HUMANOID_MINUTES=8 runs it to the score, when the device time allows a part that long. HUMANOID_SETS adds
+    # `--set` flags on top of the preset.
     num_envs=${HUMANOID_ENVS:-2048}
-    read -r -a extra <<<"${HUMANOID_SETS:---set ppo.n_steps=80 --set ppo.minibatch_size=5120 --set ppo.epochs=8 --set ppo.ent_coef=1e-3 --set env.reward_scale=0.1 --set net.log_std_init=-0.916 --set net.hidden=256,256,256}"
+    read -r -a extra <<<"${HUMANOID_SETS:-}"
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
-    train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset brax --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
+    train humanoid Humanoid-v5 --backend mjx "${mjx_sets[@]}" --preset humanoid --seed 0 --set env.num_envs="$num_envs" "${extra[@]}" \
         --max-minutes "$(small 3 "${HUMANOID_MINUTES:-4}")" --total-steps "$(small 64 1000000000)" \
         --eval-every "$(small 32 "${HUMANOID_EVAL_EVERY:-1000000}")" --eval-episodes "$(small 2 16)" "${eval_sets[@]}"
     ;;
