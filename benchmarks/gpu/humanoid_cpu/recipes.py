@@ -1,10 +1,10 @@
-"""Humanoid-v5 runs of benchmarks/gpu/humanoid_cpu/run.sh with different settings, side by side: deterministic
-evaluations at the same env steps, training returns at the same iterations, and the steps each run needed for a
-given evaluation return.
+"""Humanoid-v5 runs of benchmarks/gpu/humanoid_cpu/run.sh with different settings or seeds, side by side:
+deterministic evaluations at the same env steps, training returns at the same env steps, and the steps each run
+needed for a given evaluation return.
 
     python benchmarks/gpu/humanoid_cpu/recipes.py RUN RUN [RUN ...] > benchmarks/gpu/humanoid_cpu/recipes.md
 
-Each run is labelled by the settings in which the runs differ. Reads only the run folders' files.
+Each run is labelled by the settings (and the seed) in which the runs differ. Reads only the run folders' files.
 """
 
 from __future__ import annotations
@@ -19,17 +19,18 @@ from canter.config.build import build_config
 
 # Evaluation returns whose first crossing the table lists; the last is the goal.
 THRESHOLDS = (500.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0, GOAL)
-# Sections whose settings can tell the runs apart; run.* holds budgets and folders.
+# Sections whose settings can tell the runs apart; of run.*, which holds budgets and folders, only the seed.
 LEARNING_SECTIONS = ("env", "net", "ppo")
 # Print a training-return row every this many env steps (runs whose iterations differ in length line up by steps).
 TRAINING_ROW_STEPS = 1_000_000
 
 
 def learning_settings(run_dir: Path) -> dict[str, object]:
-    """The run's env, net and ppo settings; a key newer than the run gets its default, which the run trained with."""
+    """The run's seed and its env, net and ppo settings; a key newer than the run gets its default, which the run
+    trained with."""
     settings = config(run_dir)
     defaults = build_config(settings["env"]["id"])
-    found = {}
+    found: dict[str, object] = {"run.seed": settings["run"]["seed"]}
     for name in LEARNING_SECTIONS:
         section = {**dataclasses.asdict(defaults.section(name)), **settings[name]}
         found.update({f"{name}.{key}": value for key, value in section.items()})
@@ -41,7 +42,7 @@ def labels(runs: list[Path]) -> list[str]:
     keys = sorted({key for s in settings for key in s})
     differing = [key for key in keys if len({repr(s.get(key)) for s in settings}) > 1]
     if not differing:
-        raise SystemExit("the runs' env, net and ppo settings are the same; nothing to compare")
+        raise SystemExit("the runs' seeds and env, net and ppo settings are the same; nothing to compare")
     return [", ".join(f"{key} {s.get(key)}" for key in differing) for s in settings]
 
 
@@ -65,13 +66,15 @@ def main() -> None:
     names = labels(runs)
     rows = [metrics(run) for run in runs]
     evals = [[row for row in run_rows if row.get("eval/return_mean")] for run_rows in rows]
-    print("# Humanoid-v5, the `humanoid` part's PPO settings, changed one at a time\n")
+    print("# Humanoid-v5, the `humanoid` part's PPO settings: runs side by side\n")
     print(f"Written by `python benchmarks/gpu/humanoid_cpu/recipes.py {' '.join(str(run) for run in runs)}`.\n")
     for label, run in zip(names, runs):
         print(f"- **{label}**: `{run.name}` ({device(run)}).")
+    seeds = sorted({config(run)["run"]["seed"] for run in runs})
     print(
-        "\nAll seed 0, C MuJoCo (EnvPool), the brax preset with its humanoid table and 2048 envs; 10 deterministic "
-        "evaluation episodes every 2M env steps.\n"
+        f"\nSeed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}; C MuJoCo (EnvPool), 2048 envs, and "
+        "Brax's humanoid settings (the brax preset's humanoid table) but for the keys in the labels; 10 "
+        "deterministic evaluation episodes every 2M env steps.\n"
     )
     print("Deterministic evaluations (env steps: return):\n")
     print("| evaluation | " + " | ".join(names) + " |")
