@@ -1,6 +1,5 @@
 """Every shipped preset builds a valid config for its env, checked against the real env's spec."""
 
-import re
 from importlib import resources
 
 import pytest
@@ -9,6 +8,7 @@ from canter.algos import algorithm_names, get_algorithm
 from canter.config.build import build_config
 from canter.config.presets import (
     preset_algorithms,
+    preset_envs,
     preset_names,
     preset_overrides,
     shipped_preset_text,
@@ -27,9 +27,8 @@ GENERAL_ENVS = (
 )
 
 
-def preset_envs(name: str) -> tuple[str, ...]:
-    found = re.findall(r"^# env: (.+)$", shipped_preset_text(name), flags=re.MULTILINE)
-    return tuple(e.strip() for line in found for e in line.split(",")) or GENERAL_ENVS
+def envs_to_check(name: str) -> tuple[str, ...]:
+    return preset_envs(name) or GENERAL_ENVS
 
 
 _specs: dict[str, object] = {}
@@ -72,7 +71,7 @@ def test_preset_builds_a_valid_config_for_its_envs(name):
     assert resources.files("canter.presets").joinpath(f"{name}.toml").read_text().startswith("#"), (
         "a preset starts with a comment header that gives its source"
     )
-    for env_id in preset_envs(name):
+    for env_id in envs_to_check(name):
         declared = preset_algorithms(name)
         pinned = None if declared else preset_overrides(name, env_id).get("run.algo")
         algos = [pinned] if pinned else declared or algorithm_names()
@@ -229,3 +228,18 @@ def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
     assert shipped.run.preset == "humanoid"
     with pytest.raises(CanterError, match=r"preset humanoid holds settings for ppo only, not sac"):
         build_config("Humanoid-v5", preset="humanoid", algo="sac")
+
+
+def test_a_preset_made_for_other_envs_says_so_in_one_line(capsys):
+    build_config("Humanoid-v5", preset="humanoid")
+    build_config("Hopper-v5", preset="fast")
+    assert capsys.readouterr().err == ""
+    build_config("Ant-v5", preset="humanoid")
+    assert capsys.readouterr().err == (
+        "canter: note: preset humanoid was made for Humanoid-v5; its settings are untested on Ant-v5\n"
+    )
+    build_config("gymnasium:Walker2d-v4", preset="report002-hopper-trpo")
+    assert "preset report002-hopper-trpo was made for Hopper-v4; its settings are untested on Walker2d-v4" in (
+        capsys.readouterr().err
+    )
+    assert preset_envs("brax") == ("ant", "humanoid") and preset_envs("fast") == ()

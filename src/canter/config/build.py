@@ -11,7 +11,7 @@ from canter.config.overrides import (
     load_toml,
     parse_set_args,
 )
-from canter.config.presets import canonical_preset, preset_overrides
+from canter.config.presets import canonical_preset, note_other_env, preset_overrides
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
@@ -44,6 +44,7 @@ def build_config(
         first["run.algo"] = resolved_algo
     config = apply_overrides(config, first, "arguments")
     config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
+    note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))
     config = apply_overrides(config, set_data, "--set")
     if check_unread:

@@ -1,13 +1,15 @@
 """Presets: named TOML layers shipped in `canter/presets/`, each completed by the tables algorithms declare for it.
 
 A preset file holds plain sections and `[env_overrides."<glob>"]` tables (fnmatch on the env id without any
-`module:` prefix); its top-level `algos` list, when present, names the only algorithms it holds settings for. An
-algorithm adds its own table per preset (`AlgorithmSpec.preset_overrides`, same layout), applied after the file's.
+`module:` prefix); its top-level `algos` list, when present, names the only algorithms it holds settings for, and a
+`# env: ID, ID` line in its header the envs it was made for. An algorithm adds its own table per preset
+(`AlgorithmSpec.preset_overrides`, same layout), applied after the file's.
 """
 
 from __future__ import annotations
 
 import fnmatch
+import re
 import sys
 import tomllib
 from importlib import resources
@@ -45,6 +47,24 @@ def shipped_preset_text(name: str) -> str:
     if name not in preset_names():
         raise CanterError(f"unknown preset '{name}'; choose one of: {', '.join(preset_names())}")
     return resources.files("canter.presets").joinpath(f"{name}.toml").read_text()
+
+
+def preset_envs(name: str) -> tuple[str, ...]:
+    """The env ids a preset was made for (its header's `# env:` lines), or () for a general preset."""
+    found = re.findall(r"^# env: (.+)$", shipped_preset_text(name), flags=re.MULTILINE)
+    return tuple(env_id.strip() for line in found for env_id in line.split(","))
+
+
+def note_other_env(name: str, env_id: str) -> None:
+    """One line on stderr when a preset made for other envs is applied to this one: its numbers were chosen for
+    those envs (their action ranges, their budgets), and nothing checked them here."""
+    made_for = preset_envs(name)
+    base_id = env_id.split(":")[-1]
+    if made_for and base_id not in made_for:
+        print(
+            f"canter: note: preset {name} was made for {', '.join(made_for)}; its settings are untested on {base_id}",
+            file=sys.stderr,
+        )
 
 
 def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None]:
