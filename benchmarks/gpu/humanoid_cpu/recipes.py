@@ -72,8 +72,8 @@ def main() -> None:
         print(f"- **{label}**: `{run.name}` ({device(run)}).")
     seeds = sorted({config(run)["run"]["seed"] for run in runs})
     print(
-        f"\nSeed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}; C MuJoCo (EnvPool), 2048 envs, and "
-        "Brax's humanoid settings (the brax preset's humanoid table) but for the keys in the labels; 10 "
+        f"\nSeed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}; C MuJoCo (EnvPool), 2048 envs. The "
+        "labels give the settings in which the runs differ; each run's config.toml holds the rest. 10 "
         "deterministic evaluation episodes every 2M env steps.\n"
     )
     print("Deterministic evaluations (env steps: return):\n")
