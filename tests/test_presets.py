@@ -226,6 +226,7 @@ def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
     for section in ("env", "net", "ppo"):
         assert dataclasses.asdict(measured.section(section)) == dataclasses.asdict(shipped.section(section)), section
     assert shipped.run.preset == "humanoid" and shipped.run.total_steps == 10_000_000
+    assert shipped.run.eval_every == 1_000_000
     with pytest.raises(CanterError, match=r"preset humanoid holds settings for ppo only, not sac"):
         build_config("Humanoid-v5", preset="humanoid", algo="sac")
 
