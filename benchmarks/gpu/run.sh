@@ -110,10 +110,10 @@ ppo-brax)
 humanoid)
     # The humanoid preset on Gymnasium's Humanoid-v5 ported to MJX: Brax's humanoid PPO settings with Brax's
     # exploration noise relative to the action range (net.log_std_init -0.916), a 256-256-256 policy and
-    # half-length iterations. On the CPU these cut the env steps to an evaluation of 6000 from about 20M to 8M
-    # (benchmarks/gpu/humanoid_cpu/recipes.md). At about 30k env steps/s that is more than the default 4 minutes:
-    # HUMANOID_MINUTES=8 runs it to the score, when the device time allows a part that long. HUMANOID_SETS adds
-    # `--set` flags on top of the preset.
+    # half-length iterations. On the CPU these cut the env steps to an evaluation of 6000 from about 20M to 8M on
+    # seed 0, and four seeds of five got there by 8.1M (benchmarks/gpu/humanoid_cpu/recipes.md, seeds.md). At about
+    # 30k env steps/s that is more than the default 4 minutes: HUMANOID_MINUTES=8 runs it to the score, when the
+    # device time allows a part that long. HUMANOID_SETS adds `--set` flags on top of the preset.
     num_envs=${HUMANOID_ENVS:-2048}
     read -r -a extra <<<"${HUMANOID_SETS:-}"
     [ "$SMOKE" = 1 ] && num_envs=4 && extra=(--set ppo.n_steps=8 --set ppo.minibatch_size=16 --set ppo.epochs=1)
