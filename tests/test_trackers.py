@@ -272,3 +272,26 @@ def test_tune_and_bench_check_their_trackers_before_anything_trains(tmp_path, mo
         err = capsys.readouterr().err.strip()
         assert err == "canter: error: --mlflow-uri sets the store of --track mlflow; also pass --track mlflow"
     assert not (tmp_path / "tune").exists() and not (tmp_path / "bench").exists()
+
+
+def test_mlflow_jobs_making_parents_at_once_keep_the_oldest_even_if_it_shows_up_late(tmp_path, monkeypatch):
+    """Another job's parent, stamped before this job's own but visible only after it: after the settle, both jobs
+    pick it, and this job deletes its own."""
+    from mlflow.tracking import MlflowClient
+
+    from canter.training.trackers import mlflow_tracker
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    experiment = client.create_experiment("race")
+    tags = {mlflow_tracker.PARENT_TAG: "true", mlflow_tracker.GROUP_TAG: "g"}
+    other: list[str] = []
+
+    def other_job_commits_late(seconds):
+        assert seconds == mlflow_tracker.PARENT_SETTLE_S
+        other.append(client.create_run(experiment, start_time=1, run_name="g", tags=tags).info.run_id)
+
+    monkeypatch.setattr(mlflow_tracker.time, "sleep", other_job_commits_late)
+    chosen = mlflow_tracker._parent_run_id(client, experiment, "g")
+    assert chosen == other[0]
+    alive = client.search_runs([experiment], "tags.`canter.parent` = 'true'")
+    assert [run.info.run_id for run in alive] == other

@@ -19,6 +19,9 @@ from canter.training.trackers.base import RunContext, TrackSpec
 GROUP_TAG = "canter.group"
 PARENT_TAG = "canter.parent"
 MAX_PARAMS_PER_BATCH = 100  # MLflow's limit for one log_batch
+# A run's start time is stamped by the job that makes it, before the store has it: a parent stamped earlier than
+# another may become visible later. Waiting this long before the second look lets it show up.
+PARENT_SETTLE_S = 1.0
 
 
 _CLIENTS: dict[tuple[str | None, str | None, str], Any] = {}
@@ -97,14 +100,15 @@ def _experiment_id(client: Any) -> str:
 def _parent_run_id(client: Any, experiment: str, group: str) -> str:
     """The group's parent run, made by its first run. A parent only groups: it is FINISHED at once.
 
-    Jobs of a tune or bench that start together may each make one. The oldest is the parent: each looks again after
-    making its own, when every parent made before its own is visible, so all pick the same one, and a job whose
-    parent is not that one deletes it."""
+    Jobs of a tune or bench that start together may each make one. The oldest is the parent: each looks again
+    `PARENT_SETTLE_S` after making its own, when every parent stamped before its own is visible, so all pick the
+    same one, and a job whose parent is not that one deletes it."""
     found = _oldest_parent(client, experiment, group)
     if found is not None:
         return found
     made = client.create_run(experiment, run_name=group, tags={PARENT_TAG: "true", GROUP_TAG: group}).info.run_id
     client.set_terminated(made, "FINISHED")
+    time.sleep(PARENT_SETTLE_S)
     oldest = _oldest_parent(client, experiment, group) or made
     if oldest != made:
         client.delete_run(made)
