@@ -205,8 +205,8 @@ def test_brax_preset_holds_brax_published_ppo_settings():
 
 
 def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
-    """benchmarks/gpu/humanoid_cpu/recipes.md measured the recipe as the brax preset plus `--set` flags (its seed
-    0-2 runs); `--preset humanoid` gives exactly those settings on every key ppo reads, so those results hold for it."""
+    """Seeds 0 and 1 of benchmarks/gpu/humanoid_cpu/seeds.md trained the recipe as the brax preset plus `--set`
+    flags, seeds 2-4 as `--preset humanoid`: both give exactly the same settings on every key ppo reads."""
     import dataclasses
 
     from canter.errors import CanterError
