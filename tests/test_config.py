@@ -131,6 +131,37 @@ num_envs = 2
     assert preset_overrides("fast", "Hopper-v5", "ppo")["env.num_envs"] == 16
 
 
+def test_a_preset_that_extends_another_lays_its_keys_over_the_others(monkeypatch):
+    """`extends` puts the base preset's file and its algorithm tables first, then the preset's own file, and passes
+    on the base's `algos` unless the preset names its own; a loop of presets is refused in one line."""
+    from canter.config import presets
+    from canter.errors import CanterError
+
+    extra = {
+        "child": 'extends = "fast"\n[ppo]\nlr = 1e-4\nminibatch_size = 128\n',
+        "grandchild": 'extends = "child"\nalgos = ["ppo"]\n[env]\nnum_envs = 4\n',
+        "strict": 'algos = ["td3"]\n[env]\nnum_envs = 3\n',
+        "heir": 'extends = "strict"\n',
+        "loop-a": 'extends = "loop-b"\n',
+        "loop-b": 'extends = "loop-a"\n',
+    }
+    shipped = presets.shipped_preset_text
+    monkeypatch.setattr(presets, "shipped_preset_text", lambda name: extra.get(name) or shipped(name))
+
+    assert presets.preset_chain("grandchild") == ["fast", "child", "grandchild"]
+    child = presets.preset_overrides("child", "Hopper-v5", "ppo")
+    # The child's minibatch wins over fast's ppo table for Hopper; fast's env layer stays.
+    assert (child["ppo.minibatch_size"], child["ppo.lr"], child["env.num_envs"]) == (128, 1e-4, 16)
+    assert presets.preset_overrides("child", "Hopper-v5", "td3")["env.num_envs"] == 1
+    assert presets.preset_overrides("grandchild", "Hopper-v5", "ppo")["env.num_envs"] == 4
+    assert presets.preset_algorithms("child") is None and presets.preset_algorithms("grandchild") == ["ppo"]
+    assert presets.preset_algorithms("heir") == ["td3"]
+    with pytest.raises(CanterError, match="preset heir holds settings for td3 only, not ppo"):
+        presets.preset_overrides("heir", "Hopper-v5", "ppo")
+    with pytest.raises(CanterError, match=r"preset loop-a extends itself \(loop-a -> loop-b -> loop-a\)"):
+        presets.preset_overrides("loop-a", "Hopper-v5", "ppo")
+
+
 @pytest.mark.parametrize(
     "sets, message",
     [

@@ -3,7 +3,9 @@
 A preset file holds plain sections and `[env_overrides."<glob>"]` tables (fnmatch on the env id without any
 `module:` prefix); its top-level `algos` list, when present, names the only algorithms it holds settings for, and a
 `# env: ID, ID` line in its header the envs it was made for. An algorithm adds its own table per preset
-(`AlgorithmSpec.preset_overrides`, same layout), applied after the file's.
+(`AlgorithmSpec.preset_overrides`, same layout), applied after the file's. A top-level `extends = "<preset>"` lays the
+file over another preset (that preset's file and algorithm tables first), so a recipe built on another one states
+only its changes; it inherits the other's `algos` unless it names its own.
 """
 
 from __future__ import annotations
@@ -67,16 +69,32 @@ def note_other_env(name: str, env_id: str) -> None:
         )
 
 
-def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None]:
+def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None, str | None]:
     """A preset's tables, and apart from them the algorithms it declares it holds settings for (its top-level
-    `algos`, None for all)."""
+    `algos`, None for all) and the preset it extends (None for none)."""
     table = tomllib.loads(shipped_preset_text(name))
-    return table, table.pop("algos", None)
+    return table, table.pop("algos", None), table.pop("extends", None)
+
+
+def preset_chain(name: str) -> list[str]:
+    """The presets a preset is laid over, base first, ending with itself."""
+    chain = [name]
+    while (base := _read_preset(chain[0])[2]) is not None:
+        if base in chain:
+            loop = " -> ".join([*reversed(chain), base])
+            raise CanterError(f"preset {name} extends itself ({loop}); remove one of these `extends`")
+        chain.insert(0, base)
+    return chain
 
 
 def preset_algorithms(name: str) -> list[str] | None:
-    """The algorithms a preset declares it holds settings for (its top-level `algos`), or None for all."""
-    return _read_preset(name)[1]
+    """The algorithms a preset declares it holds settings for (its top-level `algos`, or the nearest preset's it
+    extends), or None for all."""
+    for link in reversed(preset_chain(name)):
+        declared = _read_preset(link)[1]
+        if declared is not None:
+            return declared
+    return None
 
 
 def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, Any]:
@@ -93,19 +111,21 @@ def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, A
 
 
 def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
-    """A preset's keys for this env and algorithm: the preset file's layer, then the algorithm's own table for
-    this preset. A preset whose top-level `algos` list names the algorithms it holds settings for refuses the
-    others, which would otherwise get the bare defaults under its name."""
-    table, supported = _read_preset(name)
+    """A preset's keys for this env and algorithm: for each preset in its chain, base first, that preset's file
+    layer, then the algorithm's own table for it. A preset whose `algos` list names the algorithms it holds
+    settings for refuses the others, which would otherwise get the bare defaults under its name."""
+    supported = preset_algorithms(name)
     if supported and algo not in supported:
         raise CanterError(
             f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
             f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset"
         )
-    flat = preset_layer(table, env_id, f"preset {name}")
-    own = algorithm_spec(algo).preset_overrides.get(name)
-    if own:
-        flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {name}"))
+    flat: dict[str, Any] = {}
+    for link in preset_chain(name):
+        flat.update(preset_layer(_read_preset(link)[0], env_id, f"preset {link}"))
+        own = algorithm_spec(algo).preset_overrides.get(link)
+        if own:
+            flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {link}"))
     return flat
 
 
