@@ -191,6 +191,14 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
         assert tracked(run_dir).info.run_name == run_dir.name and tracked(run_dir).info.status == "FINISHED"
         parents.setdefault(run_dir.name.rsplit("__", 1)[0], set()).add(tracked(run_dir).data.tags["mlflow.parentRunId"])
     assert len(parents) == 2 and all(len(p) == 1 for p in parents.values())
+    # The bench process made each cell's parent before its jobs started, under the group each seed's run records.
+    for job_file in (out / ".cells").glob("*/job.json"):
+        track = json.loads(job_file.read_text())["track"]
+        for run_dir in json.loads(job_file.read_text())["run_dirs"].values():
+            group = json.loads((Path(run_dir) / "trackers.json").read_text())["mlflow"]["group"]
+            assert [["mlflow", group, tracked(Path(run_dir)).data.tags["mlflow.parentRunId"]]] == [
+                run for run in track["group_runs"] if run[1] == group
+            ]
     assert len(set.union(*parents.values())) == 2
     rows = read_rows(out / "results.csv")
     assert [r["ppo.ent_coef"] for r in rows] == ["0.0", "0.01"]

@@ -201,6 +201,9 @@ class _FailsOnSecondRow:
     def check(self, spec):
         pass
 
+    def open_group(self, spec, group):
+        return None
+
     def start(self, context, run_id):
         return self
 
@@ -250,7 +253,8 @@ def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, ca
 def test_a_job_carries_its_trackers_and_an_older_job_file_still_loads():
     from canter.orchestrate.jobs import JobSpec
 
-    track = TrackSpec(("mlflow", "wandb"), "sqlite:///m.db", "tune-S", "trial_00003", (("canter.trial", "3"),))
+    tags, opened = (("canter.trial", "3"),), (("mlflow", "tune-S", "p1"),)
+    track = TrackSpec(("mlflow", "wandb"), "sqlite:///m.db", "tune-S", "trial_00003", tags, opened)
     spec = JobSpec("[run]\n", {0: "/runs/s0", 1: "/runs/s1"}, 2, track)
     assert JobSpec.from_json(spec.to_json()) == spec
     older = json.loads(spec.to_json())
@@ -295,3 +299,35 @@ def test_mlflow_jobs_making_parents_at_once_keep_the_oldest_even_if_it_shows_up_
     assert chosen == other[0]
     alive = client.search_runs([experiment], "tags.`canter.parent` = 'true'")
     assert [run.info.run_id for run in alive] == other
+
+
+def test_mlflow_parents_opened_before_the_jobs_are_the_ones_every_job_uses(tmp_path, monkeypatch):
+    """A tune or bench process opens each group's parent once (`open_groups`); its jobs then start their runs under
+    it and never make or look for one, so jobs that start together cannot split a group."""
+    from mlflow.tracking import MlflowClient
+
+    from canter.errors import CanterError
+    from canter.training.trackers import mlflow_tracker, open_groups
+    from canter.training.trackers.base import RunContext
+
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setattr(mlflow_tracker, "PARENT_SETTLE_S", 0.0)
+    spec = open_groups(TrackSpec(("mlflow",), uri), ["g", "g", "h"])
+    [(_, _, parent_g), (_, _, parent_h)] = spec.group_runs
+    assert [group for _, group, _ in spec.group_runs] == ["g", "h"]
+    assert open_groups(TrackSpec(("mlflow",), uri), ["g"]).group_run("mlflow", "g") == parent_g  # found, not made
+
+    def no_parent_in_jobs(*args):
+        raise AssertionError("a job made or looked for a parent run")
+
+    monkeypatch.setattr(mlflow_tracker, "_parent_run_id", no_parent_in_jobs)
+    tracker = mlflow_tracker.MlflowTracker()
+    children = [tracker.start(RunContext({}, tmp_path / name, "g", name, spec), None) for name in ("a", "b")]
+    client = MlflowClient(tracking_uri=uri)
+    assert {client.get_run(c.run_id).data.tags["mlflow.parentRunId"] for c in children} == {parent_g}
+    parents = client.search_runs([client.get_run(parent_g).info.experiment_id], "tags.`canter.parent` = 'true'")
+    assert sorted(run.info.run_id for run in parents) == sorted([parent_g, parent_h])
+    # A group the process did not open (a plain `canter train`) still finds or makes its own.
+    with pytest.raises(CanterError, match="could not start an MLflow run: a job made or looked for a parent run"):
+        tracker.start(RunContext({}, tmp_path / "c", "other", "c", spec), None)

@@ -437,6 +437,10 @@ def _assert_trials_tracked_under_one_parent_run(trials, mlflow_uri: str) -> None
         evaluations = client.get_metric_history(tracked.info.run_id, "eval/return_mean")
         assert max(evaluations, key=lambda m: m.step).value == pytest.approx(trial.value, rel=1e-6)
     [parent_id] = parents
+    # The tune process made it before its workers started, and handed it to every trial's job.
+    for trial in trials:
+        job = json.loads((Path(trial.user_attrs["trial_dir"]) / "job.json").read_text())
+        assert job["track"]["group_runs"] == [["mlflow", "tune-Pendulum-v1__ppo", parent_id]]
     parent = client.get_run(parent_id)
     assert parent.info.run_name == parent.data.tags["canter.group"] == "tune-Pendulum-v1__ppo"
     assert len(client.search_runs([parent.info.experiment_id], "tags.`canter.parent` = 'true'")) == 1

@@ -49,7 +49,7 @@ from canter.orchestrate.jobs import (
     stop_jobs,
     warn_if_more_jobs_than_cores,
 )
-from canter.training.trackers import TrackSpec, check_trackers
+from canter.training.trackers import TrackSpec, check_trackers, group_name, open_groups
 from canter.use.reference_scores import published_scores
 
 if TYPE_CHECKING:
@@ -646,6 +646,9 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     bench_dir.mkdir(parents=True, exist_ok=True)
     check_existing_runs(cells, settings, bench_dir)
+    # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.
+    unfinished = [c for c in cells if not seeds_finished(c, settings.seeds, settings, bench_dir)]
+    settings = replace(settings, track=open_groups(settings.track, [group_name(c.config) for c in unfinished]))
     warn_if_more_jobs_than_cores(settings.jobs)
     if settings.storage_url:
         results, failures = run_distributed(cells, settings, bench_dir)

@@ -49,7 +49,7 @@ from canter.orchestrate.study import (
     retrying,
     run_worker,
 )
-from canter.training.trackers import TrackSpec, check_trackers
+from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
@@ -210,13 +210,18 @@ def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float
     return found
 
 
+def study_group(settings: TuneSettings) -> str:
+    """The tracker group of every trial of the study."""
+    return f"tune-{settings.name}"
+
+
 def trial_track(settings: TuneSettings, number: int) -> TrackSpec:
     """The trackers of a trial: its seeds' runs named after the trial, in the group of the whole study."""
     if not settings.track.names:
         return settings.track
     return replace(
         settings.track,
-        group=f"tune-{settings.name}",
+        group=study_group(settings),
         run_prefix=f"trial_{number:05d}",
         tags=(("canter.study", settings.name), ("canter.trial", str(number))),
     )
@@ -344,6 +349,8 @@ def tune(settings: TuneSettings) -> Any:
         settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
     study = make_study(settings, storage)
+    # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
+    settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
     warn_if_more_jobs_than_cores(settings.jobs)
     if settings.jobs == 1:
         worker(settings)

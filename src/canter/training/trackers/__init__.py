@@ -3,14 +3,24 @@ folder stays the source of truth. See `canter.training.trackers.session`."""
 
 from canter.training.trackers.base import TrackSpec
 from canter.training.trackers.registry import get_tracker, register_tracker, tracker_names
-from canter.training.trackers.session import SeedTrackers, check_trackers, open_for_run, resume_spec, tracking
+from canter.training.trackers.session import (
+    SeedTrackers,
+    check_trackers,
+    group_name,
+    open_for_run,
+    open_groups,
+    resume_spec,
+    tracking,
+)
 
 __all__ = [
     "SeedTrackers",
     "TrackSpec",
     "check_trackers",
     "get_tracker",
+    "group_name",
     "open_for_run",
+    "open_groups",
     "register_tracker",
     "resume_spec",
     "tracker_names",

@@ -17,6 +17,13 @@ class TrackSpec:
     group: str | None = None  # the group of every run tracked with this spec; None: one group per experiment
     run_prefix: str | None = None  # tracker runs are named PREFIX-FOLDER (trial_00003-s0); None: the folder name
     tags: tuple[tuple[str, str], ...] = ()  # recorded with each run: MLflow tags, W&B config entries
+    # (tracker, group, id): each group's own record (MLflow's parent run), opened once by the tune or bench process
+    # before its jobs start, so that jobs starting together never each make one (`open_groups`)
+    group_runs: tuple[tuple[str, str, str], ...] = ()
+
+    def group_run(self, tracker: str, group: str) -> str | None:
+        """The id of the group's own record in this tracker, when the tune or bench process opened it."""
+        return next((run_id for name, g, run_id in self.group_runs if (name, g) == (tracker, group)), None)
 
     def to_dict(self) -> dict[str, Any]:
         """As JSON takes it (a job's job.json)."""
@@ -26,6 +33,7 @@ class TrackSpec:
             "group": self.group,
             "run_prefix": self.run_prefix,
             "tags": [list(tag) for tag in self.tags],
+            "group_runs": [list(run) for run in self.group_runs],
         }
 
     @staticmethod
@@ -36,6 +44,7 @@ class TrackSpec:
             data.get("group"),
             data.get("run_prefix"),
             tuple((str(k), str(v)) for k, v in data.get("tags", ())),
+            tuple((str(t), str(g), str(i)) for t, g, i in data.get("group_runs", ())),
         )
 
 
@@ -70,6 +79,10 @@ class Tracker(Protocol):
 
     def check(self, spec: TrackSpec) -> None:
         """Raise a one-line CanterError if it cannot start (library missing, bad store); nothing is created."""
+
+    def open_group(self, spec: TrackSpec, group: str) -> str | None:
+        """Make or find the group's own record (MLflow's parent run) and return its id, or None for a tracker whose
+        groups are only names. Called once per group by a tune or bench process before its jobs start."""
 
     def start(self, context: RunContext, run_id: str | None) -> TrackerRun:
         """Start the seed's tracker run, or continue `run_id` (a resume). Raises CanterError if it cannot."""

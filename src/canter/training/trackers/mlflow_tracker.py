@@ -56,6 +56,13 @@ class MlflowTracker:
     def check(self, spec: TrackSpec) -> None:
         _client(spec)
 
+    def open_group(self, spec: TrackSpec, group: str) -> str:
+        client = _client(spec)
+        try:
+            return _parent_run_id(client, _experiment_id(client), group)
+        except Exception as exc:
+            raise CanterError(f"--track mlflow could not make the parent run of {group}: {_first_line(exc)}") from None
+
     def start(self, context: RunContext, run_id: str | None) -> _MlflowRun:
         from mlflow.entities import Param
 
@@ -65,11 +72,13 @@ class MlflowTracker:
                 client.update_run(run_id, status="RUNNING")
                 return _MlflowRun(client, run_id)
             experiment = _experiment_id(client)
+            opened = context.spec.group_run("mlflow", context.group)
+            parent = opened or _parent_run_id(client, experiment, context.group)
             run = client.create_run(
                 experiment,
                 run_name=context.name,
                 tags={
-                    "mlflow.parentRunId": _parent_run_id(client, experiment, context.group),
+                    "mlflow.parentRunId": parent,
                     GROUP_TAG: context.group,
                     "canter.run_dir": str(context.out.resolve()),
                     **dict(context.spec.tags),
@@ -98,9 +107,11 @@ def _experiment_id(client: Any) -> str:
 
 
 def _parent_run_id(client: Any, experiment: str, group: str) -> str:
-    """The group's parent run, made by its first run. A parent only groups: it is FINISHED at once.
+    """The group's parent run, made by the tune or bench process before its jobs (`open_group`), or else by the
+    group's first run. A parent only groups: it is FINISHED at once.
 
-    Jobs of a tune or bench that start together may each make one. The oldest is the parent: each looks again
+    Processes that start together (tune workers sharing a study, `canter train` runs of one experiment) may each
+    make one. The oldest is the parent: each looks again
     `PARENT_SETTLE_S` after making its own, when every parent stamped before its own is visible, so all pick the
     same one, and a job whose parent is not that one deletes it."""
     found = _oldest_parent(client, experiment, group)

@@ -50,6 +50,18 @@ def check_trackers(spec: TrackSpec) -> None:
         get_tracker(name).check(spec)
 
 
+def open_groups(spec: TrackSpec, groups: Sequence[str]) -> TrackSpec:
+    """The spec with each group's own tracker records (MLflow's parent runs) made or found now, once, so that the jobs
+    of a tune or bench that start together share them instead of each making one."""
+    opened = [
+        (name, group, run_id)
+        for name in spec.names
+        for group in dict.fromkeys(groups)
+        if (run_id := get_tracker(name).open_group(spec, group)) is not None
+    ]
+    return replace(spec, group_runs=(*spec.group_runs, *opened))
+
+
 def resume_spec(names: Sequence[str], mlflow_uri: str | None, run_dirs: Sequence[Path]) -> TrackSpec:
     """The trackers of a resume: those given, and those the run folders were tracked with (and their MLflow
     store, unless another is given)."""

@@ -24,6 +24,9 @@ class WandbTracker:
     def check(self, spec: TrackSpec) -> None:
         _wandb()
 
+    def open_group(self, spec: TrackSpec, group: str) -> None:
+        """A W&B group is only a name each run carries."""
+
     def start(self, context: RunContext, run_id: str | None) -> _WandbRun:
         wandb = _wandb()
         # The system monitor and the console capture cost seconds at start and add nothing canter does not log.
