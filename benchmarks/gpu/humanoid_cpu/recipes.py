@@ -23,6 +23,9 @@ THRESHOLDS = (500.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0, GOAL)
 LEARNING_SECTIONS = ("env", "net", "ppo")
 # Print a training-return row every this many env steps (runs whose iterations differ in length line up by steps).
 TRAINING_ROW_STEPS = 1_000_000
+# An iteration whose approx_kl exceeds this moved the policy three times as far as these runs' median (about 0.1);
+# the table lists each one.
+KL_SPIKE = 0.3
 
 
 def learning_settings(run_dir: Path) -> dict[str, object]:
@@ -57,6 +60,17 @@ def training_return_at(run_rows: list[dict[str, str]], step: int) -> str:
     """The training return logged by the last iteration that ended at or before `step`."""
     before = [row for row in run_rows if int(row["global_step"]) <= step]
     return fmt(before[-1]["episodic_return"]) if before else ""
+
+
+def update_sizes(run_rows: list[dict[str, str]]) -> tuple[str, str, str]:
+    """The run's median approx_kl, its iterations above KL_SPIKE (env steps: approx_kl), and its largest one."""
+    kls = sorted(float(row["approx_kl"]) for row in run_rows)
+    spikes = [
+        f"{int(row['global_step']):,}: {float(row['approx_kl']):.2f}"
+        for row in run_rows
+        if float(row["approx_kl"]) > KL_SPIKE
+    ]
+    return f"{kls[len(kls) // 2]:.3f}", "; ".join(spikes) or "none", f"{kls[-1]:.2f}"
 
 
 def main() -> None:
@@ -97,6 +111,15 @@ def main() -> None:
     for step in range(TRAINING_ROW_STEPS, longest + 1, TRAINING_ROW_STEPS):
         cells = [training_return_at(r, step) if int(r[-1]["global_step"]) >= step else "" for r in rows]
         print(f"| {step:,} | " + " | ".join(cells) + " |")
+    print(
+        f"\nHow far each iteration moved the policy: approx_kl per iteration (its median, and each iteration above "
+        f"{KL_SPIKE}, env steps: approx_kl):\n"
+    )
+    print("| | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(runs))
+    sizes = [update_sizes(r) for r in rows]
+    for i, what in enumerate(("median", f"above {KL_SPIKE}", "largest")):
+        print(f"| {what} | " + " | ".join(size[i] for size in sizes) + " |")
 
 
 if __name__ == "__main__":
