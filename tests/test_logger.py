@@ -53,6 +53,32 @@ def test_a_resume_drops_rows_after_its_checkpoint(tmp_path):
     assert [r["global_step"] for r in read_rows(tmp_path / "metrics.csv")] == ["10", "20", "30"]
 
 
+def test_a_resume_whose_columns_differ_keeps_every_value_under_its_own_name(tmp_path):
+    """A run folder made by a canter that logged other diagnostics, resumed by this one: the file gets one header
+    that holds both sets, the old rows keep their values, and the new rows land under their own names."""
+    before = MetricsLogger(tmp_path, ("policy_loss", "old_metric"), (), tensorboard=False)
+    before.log(
+        dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 10, "iteration": 1, "policy_loss": 0.5, "old_metric": 7.0}
+    )
+    before.close()
+    after = MetricsLogger(tmp_path, ("policy_loss", "grad_norm"), (), tensorboard=False, resume_step=10)
+    after.log(
+        dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 20, "iteration": 2, "policy_loss": 0.25, "grad_norm": 3.0}
+    )
+    after.close()
+    with open(tmp_path / "metrics.csv") as f:
+        header = next(csv.reader(f))
+    assert header == [*BASE_COLUMNS, "policy_loss", "grad_norm", "old_metric"]
+    rows = read_rows(tmp_path / "metrics.csv")
+    assert [(r["global_step"], r["policy_loss"], r["old_metric"], r["grad_norm"]) for r in rows] == [
+        ("10", "0.5", "7.0", ""),
+        ("20", "0.25", "", "3.0"),
+    ]
+    again = MetricsLogger(tmp_path, ("policy_loss", "grad_norm"), (), tensorboard=False, resume_step=20)
+    again.close()
+    assert len(read_rows(tmp_path / "metrics.csv")) == 2
+
+
 def _old_style_rows(tmp_path):
     """Three sessions as older runs logged them, each restarting wall_time at 0: a SIGTERM after iteration 4
     (step 500), then a kill after iteration 6 that lost it; the resume from the checkpoint at iteration 5 redid

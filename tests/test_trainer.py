@@ -56,6 +56,8 @@ def test_run_folder_contents(tiny_run):
         "episodic_return",
         "approx_kl",
         "clip_frac",
+        "grad_norm",
+        "grad_norm_max",
         "explained_variance",
         "sps",
         "learning_rate",

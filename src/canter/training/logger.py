@@ -7,8 +7,8 @@ metrics.csv has one row per iteration. Columns:
 - `episodes`, `episodic_return`, `episodic_length`: episodes finished in this iteration and their mean raw return
   and length (empty when none finished).
 - then the algorithm's diagnostics, in the order of its `metric_names`. For ppo: `policy_loss`, `value_loss`,
-  `entropy`, `approx_kl`, `clip_frac`, `explained_variance`, `learning_rate`, `epochs_run`, averaged over the
-  iteration's minibatches.
+  `entropy`, `approx_kl`, `clip_frac`, `grad_norm`, `explained_variance`, `learning_rate`, `epochs_run`, averaged
+  over the iteration's minibatches, and `grad_norm_max`, the largest gradient norm among them.
 - `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
 - with `run.eval_every` > 0, `eval/return_mean`, `eval/return_std`, `eval/length_mean`, `eval/episodes`: the
   evaluation during training after this iteration (`canter.training.evaluation`), empty in rows without one.
@@ -65,6 +65,14 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
         return [], []
     reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8", errors="replace"), newline=""))
     return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
+
+
+def _header(path: Path) -> list[str]:
+    """A metrics.csv's column names, read from its first line only (none for a missing or empty file)."""
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8", errors="replace") as f:
+        return next(csv.reader(f), [])
 
 
 def _number(text: str | None) -> float:
@@ -137,6 +145,7 @@ class MetricsLogger:
         self._cut_half_written_line()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
+        self._widen_header()
         exists = self.path.is_file() and self.path.stat().st_size > 0
         self._file = AppendFile(self.path)  # held open until close()
         if not exists:
@@ -166,12 +175,25 @@ class MetricsLogger:
         kept = [row for row, totals in run_history(rows) if totals["global_step"] <= step]
         if not header or kept == rows:
             return
+        self._rewrite(header, kept)
 
+    def _widen_header(self) -> None:
+        """Give the file of a run made by another canter version one header that fits the rows this logger
+        appends: its own columns first, then any older ones it does not write, whose values stay in the earlier
+        rows and are left empty in new ones."""
+        header = _header(self.path)
+        if not header:
+            return
+        self.columns += [c for c in header if c not in self.columns]
+        if header != self.columns:
+            self._rewrite(self.columns, read_rows(self.path)[1])
+
+    def _rewrite(self, header: list[str], rows: list[dict[str, str]]) -> None:
         def write(f: Any) -> None:
             text = io.StringIO(newline="")
             writer = csv.DictWriter(text, fieldnames=header, extrasaction="ignore")
             writer.writeheader()
-            writer.writerows(kept)
+            writer.writerows(rows)
             f.write(text.getvalue().encode())
 
         atomic_write_bytes(self.path, write)

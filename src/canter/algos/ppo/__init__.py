@@ -15,6 +15,8 @@ PPO_METRICS = (
     "entropy",
     "approx_kl",
     "clip_frac",
+    "grad_norm",
+    "grad_norm_max",
     "explained_variance",
     "learning_rate",
     "epochs_run",

@@ -58,13 +58,15 @@ def ppo_update(
     """Run `epochs` passes of `num_minibatches` gradient steps; stop early on target KL if configured.
 
     `variant` selects the loss (ppo, rpo, kl_penalty, symmetric term); `kl_beta` is the current penalty weight.
-    The diagnostics include `policy_kl`, the exact mean KL(old || new) over the batch after the update."""
+    The diagnostics include `policy_kl`, the exact mean KL(old || new) over the batch after the update, and the
+    global norm of each step's gradient before `ppo.max_grad_norm` clips it: `grad_norm` (mean over the steps) and
+    `grad_norm_max` (the largest), which say how often and how hard the clip acts."""
     optimizer = make_optimizer(config)
     batch_size = batch.mask.shape[0]
     num_minibatches = batch_size // config.ppo.minibatch_size
     target_kl = config.ppo.target_kl
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
-    diag_names: tuple[str, ...] = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac")
+    diag_names: tuple[str, ...] = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "grad_norm")
     diag_names += ("sym_loss",) if variant.symmetric else ()
     zero_diag = {k: jnp.float32(0.0) for k in diag_names}
     old_mean, old_log_std = policy_dist(params, batch.obs, config.net)
@@ -76,12 +78,13 @@ def ppo_update(
         indices, loss_key = step
         minibatch = jax.tree_util.tree_map(lambda x: x[indices], batch)
         (_, diag), grads = grad_fn(params, minibatch, config.net, config.ppo, variant, loss_key, kl_beta)
+        diag = diag | {"grad_norm": optax.tree.norm(grads)}
         updates, opt_state = optimizer.update(grads, opt_state, params)
         params = optax.apply_updates(params, _apply_lrs(updates, actor_lr, critic_lr))
         return (params, opt_state), diag
 
     def epoch(carry, epoch_key):
-        params, opt_state, stopped, sums, count = carry
+        params, opt_state, stopped, sums, count, peak = carry
 
         def run(operand):
             params, opt_state = operand
@@ -100,14 +103,16 @@ def ppo_update(
         params, opt_state, diags = jax.lax.cond(stopped, skip, run, (params, opt_state))
         ran = 1.0 - stopped.astype(jnp.float32)
         sums = {k: sums[k] + ran * diags[k].mean() for k in sums}
+        peak = jnp.maximum(peak, ran * diags["grad_norm"].max())
         if target_kl is not None:
             stopped = stopped | (diags["approx_kl"][-1] > target_kl)
-        return (params, opt_state, stopped, sums, count + ran), None
+        return (params, opt_state, stopped, sums, count + ran, peak), None
 
     keys = jax.random.split(key, config.ppo.epochs)
-    init = (params, opt_state, jnp.asarray(False), zero_diag, jnp.float32(0.0))
-    (params, opt_state, _, sums, count), _ = jax.lax.scan(epoch, init, keys)
+    init = (params, opt_state, jnp.asarray(False), zero_diag, jnp.float32(0.0), jnp.float32(0.0))
+    (params, opt_state, _, sums, count, peak), _ = jax.lax.scan(epoch, init, keys)
     diagnostics = {k: v / jnp.maximum(count, 1.0) for k, v in sums.items()}
+    diagnostics["grad_norm_max"] = peak
     diagnostics["epochs_run"] = count
     new_mean, new_log_std = policy_dist(params, batch.obs, config.net)
     diagnostics["policy_kl"] = masked_mean(gaussian_kl(old_mean, old_log_std, new_mean, new_log_std), batch.mask)

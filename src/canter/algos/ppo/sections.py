@@ -133,6 +133,8 @@ PPO_LABELS = {
     "entropy": ("Policy entropy", "nats"),
     "approx_kl": ("Approx. KL (old ‖ new)", "nats"),
     "clip_frac": ("Clip fraction", "fraction of samples clipped"),
+    "grad_norm": ("Gradient norm before clipping (mean)", "global L2 norm, actor and critic"),
+    "grad_norm_max": ("Gradient norm before clipping (largest)", "global L2 norm, actor and critic"),
     "explained_variance": ("Explained variance", "1 − Var[R − V] / Var[R]"),
     "learning_rate": ("Learning rate", "Adam step size"),
     "epochs_run": ("Epochs run", "epochs per iteration"),
