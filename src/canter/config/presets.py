@@ -76,25 +76,34 @@ def _read_preset(name: str) -> tuple[dict[str, Any], list[str] | None, str | Non
     return table, table.pop("algos", None), table.pop("extends", None)
 
 
+def _read_chain(name: str) -> list[tuple[str, dict[str, Any], list[str] | None]]:
+    """Each preset of a chain once, base first, ending with `name`: its name, its tables and its `algos`."""
+    chain: list[tuple[str, dict[str, Any], list[str] | None]] = []
+    link: str | None = name
+    while link is not None:
+        names = [n for n, _, _ in reversed(chain)]
+        if link in names:
+            loop = " -> ".join([*names, link])
+            raise CanterError(f"preset {name} extends itself ({loop}); remove one of these `extends`")
+        table, algos, link_base = _read_preset(link)
+        chain.insert(0, (link, table, algos))
+        link = link_base
+    return chain
+
+
 def preset_chain(name: str) -> list[str]:
     """The presets a preset is laid over, base first, ending with itself."""
-    chain = [name]
-    while (base := _read_preset(chain[0])[2]) is not None:
-        if base in chain:
-            loop = " -> ".join([*reversed(chain), base])
-            raise CanterError(f"preset {name} extends itself ({loop}); remove one of these `extends`")
-        chain.insert(0, base)
-    return chain
+    return [link for link, _, _ in _read_chain(name)]
+
+
+def _nearest_algorithms(chain: list[tuple[str, dict[str, Any], list[str] | None]]) -> list[str] | None:
+    return next((algos for _, _, algos in reversed(chain) if algos is not None), None)
 
 
 def preset_algorithms(name: str) -> list[str] | None:
     """The algorithms a preset declares it holds settings for (its top-level `algos`, or the nearest preset's it
     extends), or None for all."""
-    for link in reversed(preset_chain(name)):
-        declared = _read_preset(link)[1]
-        if declared is not None:
-            return declared
-    return None
+    return _nearest_algorithms(_read_chain(name))
 
 
 def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, Any]:
@@ -114,15 +123,16 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
     """A preset's keys for this env and algorithm: for each preset in its chain, base first, that preset's file
     layer, then the algorithm's own table for it. A preset whose `algos` list names the algorithms it holds
     settings for refuses the others, which would otherwise get the bare defaults under its name."""
-    supported = preset_algorithms(name)
+    chain = _read_chain(name)
+    supported = _nearest_algorithms(chain)
     if supported and algo not in supported:
         raise CanterError(
             f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
             f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset"
         )
     flat: dict[str, Any] = {}
-    for link in preset_chain(name):
-        flat.update(preset_layer(_read_preset(link)[0], env_id, f"preset {link}"))
+    for link, table, _ in chain:
+        flat.update(preset_layer(table, env_id, f"preset {link}"))
         own = algorithm_spec(algo).preset_overrides.get(link)
         if own:
             flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {link}"))
