@@ -73,6 +73,15 @@ def update_sizes(run_rows: list[dict[str, str]]) -> tuple[str, str, str]:
     return f"{kls[len(kls) // 2]:.3f}", "; ".join(spikes) or "none", f"{kls[-1]:.2f}"
 
 
+def gradient_norms(run_rows: list[dict[str, str]]) -> tuple[str, str]:
+    """The median over iterations of each iteration's mean gradient norm before the clip, and the largest single
+    step's; runs made before canter logged them say so."""
+    if not run_rows or not run_rows[0].get("grad_norm"):
+        return "not logged", "not logged"
+    norms = sorted(float(row["grad_norm"]) for row in run_rows)
+    return f"{norms[len(norms) // 2]:.3g}", f"{max(float(row['grad_norm_max']) for row in run_rows):.3g}"
+
+
 def main() -> None:
     runs = [Path(arg) for arg in sys.argv[1:]]
     if len(runs) < 2:
@@ -120,6 +129,15 @@ def main() -> None:
     sizes = [update_sizes(r) for r in rows]
     for i, what in enumerate(("median", f"above {KL_SPIKE}", "largest")):
         print(f"| {what} | " + " | ".join(size[i] for size in sizes) + " |")
+    print(
+        "\nGradient norm (actor and critic together) before `ppo.max_grad_norm` clips it: the median over iterations "
+        "of each iteration's mean, and the largest of any step:\n"
+    )
+    print("| | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(runs))
+    gradients = [gradient_norms(r) for r in rows]
+    for i, what in enumerate(("median", "largest")):
+        print(f"| {what} | " + " | ".join(g[i] for g in gradients) + " |")
 
 
 if __name__ == "__main__":
