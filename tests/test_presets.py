@@ -205,8 +205,9 @@ def test_brax_preset_holds_brax_published_ppo_settings():
 
 
 def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
-    """Seeds 0 and 1 of benchmarks/gpu/humanoid_cpu/seeds.md trained the recipe as the brax preset plus `--set`
-    flags, seeds 2-4 as `--preset humanoid`: both give exactly the same settings on every key ppo reads."""
+    """The runs of benchmarks/gpu/humanoid_cpu/grad-norm.md trained the recipe as the brax preset plus the `--set`
+    flags below (through an earlier `--preset humanoid` and `--set ppo.max_grad_norm=0.5`): both give exactly the
+    same settings on every key ppo reads."""
     import dataclasses
 
     from canter.errors import CanterError
@@ -220,6 +221,7 @@ def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
         "env.reward_scale=0.1",
         "net.log_std_init=-0.916",
         "net.hidden=256,256,256",
+        "ppo.max_grad_norm=0.5",
     ]
     measured = build_config("Humanoid-v5", preset="brax", sets=flags)
     shipped = build_config("Humanoid-v5", preset="humanoid")
