@@ -62,15 +62,19 @@ def training_return_at(run_rows: list[dict[str, str]], step: int) -> str:
     return fmt(before[-1]["episodic_return"]) if before else ""
 
 
-def update_sizes(run_rows: list[dict[str, str]]) -> tuple[str, str, str]:
-    """The run's median approx_kl, its iterations above KL_SPIKE (env steps: approx_kl), and its largest one."""
+def update_sizes(run_rows: list[dict[str, str]]) -> tuple[str, str, str, str]:
+    """The run's median approx_kl, its iterations above KL_SPIKE (env steps: approx_kl, and that iteration's
+    clip_frac), its largest approx_kl, and its median clip_frac. approx_kl is a mean over samples, so one far-out
+    sample can raise it alone; clip_frac, the share of samples whose ratio left the clip range, tells such an
+    iteration from one that moved the policy on most states."""
     kls = sorted(float(row["approx_kl"]) for row in run_rows)
+    clips = sorted(float(row["clip_frac"]) for row in run_rows)
     spikes = [
-        f"{int(row['global_step']):,}: {float(row['approx_kl']):.2f}"
+        f"{int(row['global_step']):,}: {float(row['approx_kl']):.2f} ({float(row['clip_frac']):.2f})"
         for row in run_rows
         if float(row["approx_kl"]) > KL_SPIKE
     ]
-    return f"{kls[len(kls) // 2]:.3f}", "; ".join(spikes) or "none", f"{kls[-1]:.2f}"
+    return f"{kls[len(kls) // 2]:.3f}", "; ".join(spikes) or "none", f"{kls[-1]:.2f}", f"{clips[len(clips) // 2]:.2f}"
 
 
 def gradient_norms(run_rows: list[dict[str, str]]) -> tuple[str, str]:
@@ -121,13 +125,13 @@ def main() -> None:
         cells = [training_return_at(r, step) if int(r[-1]["global_step"]) >= step else "" for r in rows]
         print(f"| {step:,} | " + " | ".join(cells) + " |")
     print(
-        f"\nHow far each iteration moved the policy: approx_kl per iteration (its median, and each iteration above "
-        f"{KL_SPIKE}, env steps: approx_kl):\n"
+        f"\nHow far each iteration moved the policy: approx_kl per iteration (its median, each iteration above "
+        f"{KL_SPIKE} as env steps: approx_kl (clip_frac), and the largest), and the median clip_frac:\n"
     )
     print("| | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(runs))
     sizes = [update_sizes(r) for r in rows]
-    for i, what in enumerate(("median", f"above {KL_SPIKE}", "largest")):
+    for i, what in enumerate(("median", f"above {KL_SPIKE}", "largest", "median clip_frac")):
         print(f"| {what} | " + " | ".join(size[i] for size in sizes) + " |")
     print(
         "\nGradient norm (actor and critic together) before `ppo.max_grad_norm` clips it: the median over iterations "
