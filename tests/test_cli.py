@@ -131,7 +131,7 @@ def _bad_inputs(tmp_path, run):
         (["train", "canter_test_envs:DiscreteObs-v0"], "Box or a Dict of Boxes"),
         (["train", "--resume", str(tmp_path / "missing")], "run folder not found"),
         (["train", "--resume", str(empty)], "no config.toml"),
-        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps, --max-minutes and --quiet"),
+        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps, --max-minutes, --quiet, --track and"),
         (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
         (["eval", str(tmp_path / "missing")], "run folder not found"),
         (["eval", str(empty)], "no checkpoint"),

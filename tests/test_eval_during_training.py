@@ -265,7 +265,10 @@ def test_bad_input_is_one_line(tmp_path, capsys):
         (["train", "Pendulum-v1", "--set", "run.eval_every=-1"], "run.eval_every must be >= 0"),
         (["train", "Pendulum-v1", "--eval-every", "1000", "--eval-episodes", "0"], "run.eval_episodes must be >= 1"),
         (["train", "Pendulum-v1", "--eval-every", "0"], "expected a positive whole step count"),
-        (["train", "--resume", str(tmp_path), "--eval-every", "1000"], "only --total-steps, --max-minutes and --quiet"),
+        (
+            ["train", "--resume", str(tmp_path), "--eval-every", "1000"],
+            "only --total-steps, --max-minutes, --quiet, --track and",
+        ),
         (["bench", "--envs", "Pendulum-v1", "--eval-episodes", "2"], "bench --eval-episodes is now --episodes"),
         (["eval", str(tmp_path / "a"), str(tmp_path / "b"), "--checkpoint", "x.npz"], "pass one run folder"),
         (["eval", str(tmp_path), "--checkpoint", str(tmp_path / "x.npz")], "checkpoint not found"),

@@ -122,8 +122,8 @@ def _train(args: argparse.Namespace) -> list[Any]:
         ]
         if changed:
             raise CanterError(
-                f"--resume uses the saved config; only --total-steps, --max-minutes and --quiet may be given "
-                f"(got {', '.join(changed)})"
+                f"--resume uses the saved config; only --total-steps, --max-minutes, --quiet, --track and "
+                f"--mlflow-uri may be given (got {', '.join(changed)})"
             )
         if len(args.resume) > 1:
             results = resume_seeds(

@@ -30,19 +30,22 @@ class EnvConfig:
         role=OUTPUT,
     )
     solver_iterations: int = setting(
-        "JAX-native MuJoCo backends only: constraint-solver iterations per physics step instead of the XML's own "
-        "(0: the XML's, 100 or 50). Fewer are much faster on a GPU and change the physics slightly.",
+        "The MJX ports of the Gymnasium tasks only (not Brax's envs): constraint-solver iterations per physics step "
+        "instead of the XML's own (0: the XML's, 100 or 50). Fewer are much faster on a GPU and change the physics "
+        "slightly.",
         default=MODEL_OWN_PHYSICS["solver_iterations"],
     )
     solver_ls_iterations: int = setting(
-        "JAX-native MuJoCo backends only: line-search iterations per solver iteration instead of the XML's own "
-        "(0: the XML's, 50). MJX runs all of them for every env, so they dominate a step's cost on a GPU.",
+        "The MJX ports of the Gymnasium tasks only (not Brax's envs): line-search iterations per solver iteration "
+        "instead of the XML's own (0: the XML's, 50). MJX runs all of them for every env, so they dominate a step's "
+        "cost on a GPU.",
         default=MODEL_OWN_PHYSICS["solver_ls_iterations"],
     )
     contacts: str = setting(
-        "JAX-native MuJoCo backends only: `all` keeps the XML's collisions; `floor` lets body parts collide with the "
-        "floor and not with each other, as Brax and MuJoCo Playground limit their models' contacts: far fewer to solve "
-        "(Humanoid: 29 instead of 138; 1.8x the physics steps/s on a 2-core CPU), slightly different physics.",
+        "The MJX ports of the Gymnasium tasks only (not Brax's envs): `all` keeps the XML's collisions; `floor` lets "
+        "body parts collide with the floor and not with each other, as Brax and MuJoCo Playground limit their models' "
+        "contacts: far fewer to solve (Humanoid: 29 instead of 138; 1.8x the physics steps/s on a 2-core CPU), "
+        "slightly different physics.",
         default=MODEL_OWN_PHYSICS["contacts"],
     )
     normalize_obs: bool = setting("Running observation normalization (stats saved with the policy).", default=True)
