@@ -29,6 +29,19 @@ def _wait_for_holder(run_dir: Path, pid: int, proc: subprocess.Popen, seconds: f
         time.sleep(0.05)
 
 
+def _wait_for_training_past(run_dir: Path, step: int, proc: subprocess.Popen, seconds: float = 180) -> None:
+    """Until the holder has logged a row beyond `step`: by then it has cut metrics.csv back to its checkpoint and
+    rewritten an older header to its own columns, so what the file holds changes only by appended rows."""
+    deadline = time.monotonic() + seconds
+    while True:
+        last = (run_dir / "metrics.csv").read_text().strip().rsplit("\n", 1)[-1].split(",", 1)[0]
+        if last.isdigit() and int(last) > step:
+            return
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else "the holder exited"
+        assert time.monotonic() < deadline, f"the holder logged nothing beyond step {step}"
+        time.sleep(0.1)
+
+
 def _hold_in_child(run_dir: Path) -> subprocess.Popen:
     program = f"from canter.training import run_lock; run_lock.acquire({str(run_dir)!r}); import time; time.sleep(600)"
     proc = subprocess.Popen([sys.executable, "-c", program], stderr=subprocess.PIPE, text=True)
@@ -79,12 +92,14 @@ def test_a_second_resume_is_refused_with_one_line_while_readers_go_on(tmp_path, 
     )
     try:
         _wait_for_holder(run, first.pid, first)
+        fixture_rows = (FIXTURE / "metrics.csv").read_text().strip().split("\n")
+        _wait_for_training_past(run, int(fixture_rows[-1].split(",", 1)[0]), first)
         rows_before = (run / "metrics.csv").read_text()
         assert main(["train", "--resume", str(run), "--total-steps", "20000000", "--quiet"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"is being written by process {first.pid} on " in err
         assert ": canter train --resume " in err, "the message names the command that holds the folder"
-        assert (run / "metrics.csv").read_text().startswith(rows_before.split("\n", 1)[0])
+        assert (run / "metrics.csv").read_text().startswith(rows_before), "the refused resume left the rows alone"
 
         assert main(["export", str(run), "--out", str(tmp_path / "policy.onnx")]) == 0
         assert main(["eval", str(run), "--episodes", "1", "--json", str(tmp_path / "eval.json")]) == 0
