@@ -539,3 +539,24 @@ def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
     assert set(data["performance_profiles"]) == {"ppo", "trpo"}
     [comparison] = data["probability_of_improvement"]
     assert (comparison["x"], comparison["y"]) == ("ppo", "trpo") and data["bootstrap"]["reps"] == 100
+
+
+def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_minute_limit_it_is_given(tmp_path, monkeypatch):
+    """A cell stopped by run.max_minutes and run again with another limit resumes under the new one, as `canter
+    train --resume --max-minutes` does; the saved limit would stop it again at the same point."""
+    import shutil
+    from dataclasses import replace
+
+    from canter.config.serialize import to_toml
+    from canter.orchestrate.jobs import JobSpec, run_job
+    from canter.training import loop
+    from canter.training.run_folder import read_config
+
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    saved = read_config(run)
+    given = replace(saved, run=replace(saved.run, total_steps=10_000, max_minutes=30.0))
+    calls = []
+    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: calls.append((dirs, total, kw)))
+    run_job(JobSpec(to_toml(given), {saved.run.seed: str(run)}))
+    assert calls == [([run], 10_000, {"max_minutes": 30.0, "quiet": True})]

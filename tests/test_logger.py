@@ -3,6 +3,7 @@ import math
 
 import pytest
 
+from canter.errors import CanterError
 from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, totals_until
 
 
@@ -77,6 +78,25 @@ def test_a_resume_whose_columns_differ_keeps_every_value_under_its_own_name(tmp_
     again = MetricsLogger(tmp_path, ("policy_loss", "grad_norm"), (), tensorboard=False, resume_step=20)
     again.close()
     assert len(read_rows(tmp_path / "metrics.csv")) == 2
+
+
+def test_a_spreadsheets_byte_order_mark_keeps_the_rows_and_a_header_without_global_step_is_refused(tmp_path):
+    """A metrics.csv saved again by a spreadsheet starts with a byte-order mark: its rows stay through a resume
+    whose columns differ. A file whose first line names no global_step is refused, untouched."""
+    old = ",".join([*BASE_COLUMNS, "old_metric"])
+    first_row = ",".join(["10", "1", *["1.0"] * (len(BASE_COLUMNS) - 2), "7.0"])
+    (tmp_path / "metrics.csv").write_text("\ufeff" + old + "\n" + first_row + "\n", encoding="utf-8")
+    MetricsLogger(tmp_path, ("grad_norm",), (), tensorboard=False, resume_step=10).close()
+    rows = read_rows(tmp_path / "metrics.csv")
+    assert [(r["global_step"], r["old_metric"], r["grad_norm"]) for r in rows] == [("10", "7.0", "")]
+
+    headless = tmp_path / "headless"
+    headless.mkdir()
+    text = "step,iteration\n10,1\n"
+    (headless / "metrics.csv").write_text(text)
+    with pytest.raises(CanterError, match=r"metrics.csv has no global_step column in its first line"):
+        MetricsLogger(headless, ("grad_norm",), (), tensorboard=False, resume_step=10)
+    assert (headless / "metrics.csv").read_text() == text
 
 
 def _old_style_rows(tmp_path):

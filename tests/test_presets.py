@@ -233,6 +233,11 @@ def test_humanoid_preset_is_the_recipe_the_humanoid_runs_measured():
         build_config("Humanoid-v5", preset="humanoid", algo="sac")
 
 
+def test_the_humanoid_recipe_is_the_same_on_braxs_humanoid_env():
+    """The brax preset's table for Brax's own `humanoid` env must not reach through `extends` into the recipe."""
+    assert preset_overrides("humanoid", "humanoid") == preset_overrides("humanoid", "Humanoid-v5")
+
+
 def test_a_preset_made_for_other_envs_says_so_in_one_line(capsys):
     build_config("Humanoid-v5", preset="humanoid")
     build_config("Hopper-v5", preset="fast")

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.errors import CanterError
 from canter.files import AppendFile, atomic_write_bytes
 from canter.training.evaluation import EVAL_COLUMNS
 
@@ -63,7 +64,8 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     path = Path(path)
     if not path.is_file():
         return [], []
-    reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8", errors="replace"), newline=""))
+    # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
+    reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8-sig", errors="replace"), newline=""))
     return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
 
 
@@ -71,7 +73,7 @@ def _header(path: Path) -> list[str]:
     """A metrics.csv's column names, read from its first line only (none for a missing or empty file)."""
     if not path.is_file():
         return []
-    with open(path, newline="", encoding="utf-8", errors="replace") as f:
+    with open(path, newline="", encoding="utf-8-sig", errors="replace") as f:
         return next(csv.reader(f), [])
 
 
@@ -143,6 +145,7 @@ class MetricsLogger:
         self.path = Path(run_dir) / "metrics.csv"
         self.columns = columns_for(metric_names, info_keys, evaluates)
         self._cut_half_written_line()
+        self._check_header()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
         self._widen_header()
@@ -169,6 +172,16 @@ class MetricsLogger:
         if whole < self.path.stat().st_size:
             with open(self.path, "r+b") as f:
                 f.truncate(whole)
+
+    def _check_header(self) -> None:
+        """Rows are told apart by their global_step, so a file whose first line names no such column would lose
+        every row in a rewrite: refuse it, untouched."""
+        header = _header(self.path)
+        if header and "global_step" not in header:
+            raise CanterError(
+                f"{self.path} has no global_step column in its first line, so its rows cannot be kept; restore its "
+                f"header line (canter writes global_step first), or move the file away to start a new one"
+            )
 
     def _drop_rows_after(self, step: int) -> None:
         header, rows = read_rows(self.path)
