@@ -7,8 +7,9 @@ metrics.csv has one row per iteration. Columns:
 - `episodes`, `episodic_return`, `episodic_length`: episodes finished in this iteration and their mean raw return
   and length (empty when none finished).
 - then the algorithm's diagnostics, in the order of its `metric_names`. For ppo: `policy_loss`, `value_loss`,
-  `entropy`, `approx_kl`, `clip_frac`, `grad_norm`, `explained_variance`, `learning_rate`, `epochs_run`, averaged
-  over the iteration's minibatches, and `grad_norm_max`, the largest gradient norm among them.
+  `entropy`, `approx_kl`, `clip_frac`, `grad_norm`, `grad_norm_max`, `explained_variance`, `learning_rate`,
+  `epochs_run`, `policy_kl`, `kl_beta`, `sym_loss` (the losses, KL, clip fraction and `grad_norm` are means over
+  the iteration's minibatch steps; `grad_norm_max` is the largest step's norm).
 - `info/<key>`: per-episode reward terms the env reports (sums for reward/cost terms, per-step means otherwise).
 - with `run.eval_every` > 0, `eval/return_mean`, `eval/return_std`, `eval/length_mean`, `eval/episodes`: the
   evaluation during training after this iteration (`canter.training.evaluation`), empty in rows without one.
