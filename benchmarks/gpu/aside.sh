@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Keep the archived runs off the device machine: a device command carries the working tree (tracked and
-# untracked-not-ignored files) plus .whl/, 64 MiB in all, and the report and results archives alone are larger than
-# that. None of them is read there.
+# untracked-not-ignored files) plus .whl/, 64 MiB in all, and the report and results archives and the humanoid run
+# folders (best checkpoints) are each about that large or larger. None of them is read there.
 #
 #   bash benchmarks/gpu/aside.sh on       # before the device calls: the archives leave git's index, and
 #                                         # .git/info/exclude ignores them; the files stay where they are
@@ -12,7 +12,7 @@
 # would delete the archives.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-ARCHIVES=(benchmarks/reports benchmarks/results)
+ARCHIVES=(benchmarks/reports benchmarks/results benchmarks/gpu/humanoid_cpu)
 exclude=.git/info/exclude
 BEGIN="# from benchmarks/gpu/aside.sh on"
 END="# to here"

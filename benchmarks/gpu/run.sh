@@ -32,7 +32,15 @@ OUT=${OUT:-benchmarks/gpu/out}
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 RUNS=$OUT/runs
-exec > >(tee -a "$OUT/$part.log") 2>&1
+# session.sh's `timeout` sends SIGTERM to this whole process group. Without a trap bash would exit at once, and
+# timeout with it, while canter is still finishing its iteration, checkpointing and writing summary.json: the part
+# would be summarized and packed without them. With the trap bash waits for the running command, then stops; tee
+# ignores the signal, so the log keeps canter's last lines.
+trap 'echo "run.sh: stopped by SIGTERM"; exit 143' TERM
+exec > >(
+    trap '' TERM
+    exec tee -a "$OUT/$part.log"
+) 2>&1
 
 if compgen -G ".whl/*.whl" >/dev/null && [ "${CANTER_GPU_INSTALL:-1}" = 1 ]; then
     if "$PY" -m pip --version >/dev/null 2>&1; then
