@@ -17,6 +17,17 @@ _NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 _WRITE_ERRORS = _NO_SPACE | {errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO}
 
 
+def _process_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp makes its file readable by its owner only; a file renamed into place gets the mode a plain open() would
+# give it, so outputs are as readable as any other file the user writes.
+_FILE_MODE = 0o666 & ~_process_umask()
+
+
 class WriteError(CanterError):
     """A file could not be written (a full disk, no permission, a read-only or failing device). The message names
     the path, the reason and a fix; `resumable` gives the same error with another last step."""
@@ -58,6 +69,7 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
         with os.fdopen(fd, "wb") as f:
             writer(f)
             f.flush()
+            os.fchmod(f.fileno(), _FILE_MODE)
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException as exc:
@@ -79,6 +91,8 @@ def write_output(path: str | Path, data: bytes) -> None:
 
 def check_writable(path: str | Path) -> None:
     """Fail early, before any long computation, when an output path cannot be written (nothing is left behind)."""
+    if Path(path).is_dir():
+        raise CanterError(f"cannot write {path}: it is a folder; give a file name (inside it, or elsewhere)")
     folder = Path(path).parent
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,20 @@ def steps_arg(text: str) -> int:
     return int(value)
 
 
+SEED_LIMIT = 2**32  # numpy's and the envs' seeds are unsigned 32-bit
+
+
+def seed_arg(text: str) -> int:
+    """A whole number from 0 to 2**32 - 1."""
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number such as 0, got {text!r}") from None
+    if not 0 <= seed < SEED_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected a seed from 0 to {SEED_LIMIT - 1}, got {text!r}")
+    return seed
+
+
 def seeds_arg(text: str) -> tuple[int, ...]:
     """`0,1,2` -> (0, 1, 2): distinct whole numbers separated by commas."""
     try:

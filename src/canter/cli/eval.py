@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file
+from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file, seed_arg
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PATH.png",
         help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png in each run",
     )
-    e.add_argument("--seed", type=int, default=None, help="seed of the evaluation envs (default 0)")
+    e.add_argument("--seed", type=seed_arg, default=None, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)
 
 

@@ -48,6 +48,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr)
         return 2
+    except PermissionError as exc:  # reading a run folder's file this user may not read; writes are WriteErrors
+        print(f"canter: error: {exc.filename}: permission denied; give this user access to it", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
         return 130

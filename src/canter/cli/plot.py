@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from canter.cli.args import seed_arg
 from canter.files import check_writable, write_output
 
 
@@ -31,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="COL,COL",
         help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' (default: all but info/*)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap resampling")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the bootstrap resampling")
     p.set_defaults(func=run)
 
 

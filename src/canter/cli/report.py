@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file
+from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file, seed_arg
 from canter.files import check_writable, write_output
 
 
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_checkpoint_arg(p)
     p.add_argument("--out", default="report.html", help="output HTML file (default report.html)")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per run; 0 skips evaluation")
-    p.add_argument("--seed", type=int, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
     p.add_argument("--smooth", type=int, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
     p.add_argument(
         "--video",

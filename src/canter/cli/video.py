@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from canter.cli.args import add_checkpoint_arg
+from canter.cli.args import add_checkpoint_arg, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
     add_checkpoint_arg(v)
-    v.add_argument("--seed", type=int, default=None, help="env seed of the first episode (default 0)")
+    v.add_argument("--seed", type=seed_arg, default=None, help="env seed of the first episode (default 0)")
     v.set_defaults(func=run)
 
 

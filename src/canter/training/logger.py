@@ -55,7 +55,10 @@ def logged(value: Any) -> float:
 
 def _whole_lines(path: Path) -> bytes:
     """A file's bytes up to its last newline: a half-written last line is left out. A .gz file is read unpacked."""
-    data = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+    try:
+        data = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+    except (gzip.BadGzipFile, EOFError) as exc:
+        raise CanterError(f"{path} is not a whole gzip file ({exc}); restore it from a copy, or move it away") from None
     return data[: data.rfind(b"\n") + 1]
 
 
@@ -76,6 +79,12 @@ def _header(path: Path) -> list[str]:
         return []
     with open(path, newline="", encoding="utf-8-sig", errors="replace") as f:
         return next(csv.reader(f), [])
+
+
+def _count(text: str | None) -> int:
+    """A whole count from a cell; 0 for an empty or unreadable one."""
+    value = _number(text)
+    return int(value) if math.isfinite(value) else 0
 
 
 def _number(text: str | None) -> float:
@@ -111,7 +120,7 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
             "global_step": step,
             "wall_seconds": wall,
             "train_seconds": before["train_seconds"] + ((step - before["global_step"]) / sps if sps > 0 else 0.0),
-            "episodes": before["episodes"] + (int(_number(row["episodes"])) if row.get("episodes") else 0),
+            "episodes": before["episodes"] + _count(row.get("episodes")),
         }
         kept.append((dict(row, wall_time=f"{wall:.3f}"), totals))
     return kept

@@ -115,7 +115,14 @@ def _write_versions(run_dir: Path, data: dict[str, Any]) -> None:
 
 def run_format(run_dir: Path) -> int:
     """The folder's format version (1 when versions.json does not name one)."""
-    found = int(_read_versions(run_dir).get("run_format", 1))
+    value = _read_versions(run_dir).get("run_format", 1)
+    try:
+        found = int(value)
+    except (TypeError, ValueError):
+        raise CanterError(
+            f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number; restore it (1 for a "
+            f"folder without one)"
+        ) from None
     if found > RUN_FORMAT:
         raise CanterError(
             f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"

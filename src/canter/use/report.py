@@ -66,6 +66,8 @@ def run_facts(run_dir: str | Path, which: str = checkpoint.LAST) -> RunFacts:
         summary = json.loads((run_dir / "summary.json").read_text())
     except (OSError, ValueError):
         summary = {}  # still training, or stopped before the end: the table shows dashes
+    if not isinstance(summary, dict):
+        summary = {}  # not a summary canter wrote: shown as missing
     robustness = (
         tuple(sorted((run_dir / "robustness").rglob("*.png"), key=_natural_key))
         if (run_dir / "robustness").is_dir()

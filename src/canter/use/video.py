@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from canter.errors import CanterError
+from canter.files import check_writable
 from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
@@ -306,6 +307,7 @@ def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int
         raise CanterError(f"need --width and --height >= 16 and --fps >= 1, got {width}x{height} at {fps} fps")
     if out.suffix.lower() == ".mp4" and (width % 2 or height % 2):
         raise CanterError(f"MP4 (H.264, yuv420p) needs an even width and height, got {width}x{height}")
+    check_writable(out)  # before the rendering, which can take minutes
 
 
 def record_video(

@@ -1,0 +1,100 @@
+"""Run folders with damaged or unreadable files, and outputs that cannot go where asked: a one-line error and exit
+2, never a traceback; outputs as readable as any file the user writes."""
+
+from __future__ import annotations
+
+import gzip
+import os
+import shutil
+import stat
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.errors import CanterError
+from canter.files import check_writable, write_output
+from canter.training.logger import read_rows, run_history
+from canter.training.run_folder import run_format
+
+FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> Path:
+    folder = tmp_path / "run"
+    shutil.copytree(FIXTURE, folder)
+    return folder
+
+
+def _one_line_error(capsys, code: int) -> str:
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("canter: error: "), err
+    return err
+
+
+@pytest.mark.parametrize("command", ["plot", "report", "eval"])
+@pytest.mark.parametrize("seed", ["-1", "4294967296"])
+def test_a_seed_outside_32_bits_is_refused_before_any_work(run, tmp_path, capsys, command, seed):
+    out = {"plot": ["--out", str(tmp_path / "p.png")], "report": ["--out", str(tmp_path / "r.html")], "eval": []}
+    err = _one_line_error(capsys, main([command, str(run), str(run), f"--seed={seed}", *out[command]]))
+    assert f"argument --seed: expected a seed from 0 to 4294967295, got '{seed}'" in err
+
+
+def test_a_file_this_user_may_not_read_is_one_line(run, tmp_path, capsys, monkeypatch):
+    # Tests may run as root, which reads any file, so the refusal the OS would give is raised where it would be.
+    read_text = Path.read_text
+
+    def refused(path, *args, **kwargs):
+        if path.name == "config.toml":
+            raise PermissionError(13, "Permission denied", str(path))
+        return read_text(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "read_text", refused)
+    err = _one_line_error(capsys, main(["plot", str(run), "--out", str(tmp_path / "p.png")]))
+    assert f"{run / 'config.toml'}: permission denied; give this user access to it" in err
+
+
+def test_a_damaged_metrics_archive_is_one_line(run, tmp_path, capsys):
+    (run / "metrics.csv").unlink()
+    (run / "metrics.csv.gz").write_bytes(gzip.compress(b"global_step,iteration\n1,1\n")[:-6])
+    err = _one_line_error(capsys, main(["plot", str(run), "--out", str(tmp_path / "p.png")]))
+    assert "metrics.csv.gz is not a whole gzip file" in err and "restore it from a copy" in err
+
+
+def test_an_unreadable_episode_count_counts_as_none(run):
+    _, rows = read_rows(run / "metrics.csv")
+    rows[1]["episodes"] = "nan"
+    totals = [t["episodes"] for _, t in run_history(rows)]
+    plain = [int(r["episodes"]) if r["episodes"] not in ("", "nan") else 0 for r in rows]
+    assert totals == [sum(plain[: i + 1]) for i in range(len(rows))]
+
+
+@pytest.mark.parametrize("value", ['"x"', "null"])
+def test_a_run_format_that_is_not_a_number_is_one_line(run, value):
+    (run / "versions.json").write_text(f'{{"run_format": {value}}}')
+    with pytest.raises(CanterError, match=r"versions.json has run_format .* not a whole number; restore it"):
+        run_format(run)
+
+
+def test_a_summary_that_is_not_an_object_reads_as_missing(run):
+    from canter.use.report import run_facts
+
+    (run / "summary.json").write_text("null")
+    assert run_facts(run).summary == {}
+
+
+def test_an_output_path_that_is_a_folder_is_refused_before_the_work(tmp_path):
+    with pytest.raises(CanterError, match=r"it is a folder; give a file name"):
+        check_writable(tmp_path)
+
+
+def test_outputs_are_as_readable_as_a_plainly_written_file(tmp_path):
+    plain = tmp_path / "plain"
+    plain.write_bytes(b"x")
+    out = tmp_path / "out.json"
+    out.write_bytes(b"old")
+    out.chmod(0o444)
+    write_output(out, b"new")
+    assert out.read_bytes() == b"new"
+    assert stat.S_IMODE(os.stat(out).st_mode) == stat.S_IMODE(os.stat(plain).st_mode)
