@@ -69,7 +69,8 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
         with os.fdopen(fd, "wb") as f:
             writer(f)
             f.flush()
-            os.fchmod(f.fileno(), _FILE_MODE)
+            with contextlib.suppress(OSError):  # a file system without modes keeps its own
+                os.fchmod(f.fileno(), _FILE_MODE)
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException as exc:
