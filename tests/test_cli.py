@@ -78,7 +78,8 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
     rows = json.loads((tmp_path / "e.json").read_text())["runs"]
     assert rows[0]["episodes"] == 3 and len(rows[0]["returns"]) == 3 and rows[0]["deterministic"] is True
     assert "±" in out
-    code, out, err = run_cli(["eval", str(run), str(run), "--episodes", "2", "--stochastic", "--seed", "1"], capsys)
+    twin = shutil.copytree(run, tmp_path / "twin")  # a second run of the same config: a group of two
+    code, out, err = run_cli(["eval", str(run), str(twin), "--episodes", "2", "--stochastic", "--seed", "1"], capsys)
     assert code == 0, err
     assert "group:" in out
 

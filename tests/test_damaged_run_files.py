@@ -3,17 +3,19 @@
 
 from __future__ import annotations
 
+import errno
 import gzip
 import os
 import shutil
 import stat
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from canter.cli.main import main
 from canter.errors import CanterError
-from canter.files import check_writable, write_output
+from canter.files import WriteError, check_writable, write_output
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import run_format
 
@@ -53,6 +55,19 @@ def test_a_file_this_user_may_not_read_is_one_line(run, tmp_path, capsys, monkey
     monkeypatch.setattr(Path, "read_text", refused)
     err = _one_line_error(capsys, main(["plot", str(run), "--out", str(tmp_path / "p.png")]))
     assert f"{run / 'config.toml'}: permission denied; give this user access to it" in err
+
+
+def test_a_checkpoint_this_user_may_not_read_is_not_called_corrupt(run, capsys, monkeypatch):
+    load = np.load
+
+    def refused(path, *args, **kwargs):
+        if str(path).endswith(".npz"):
+            raise PermissionError(13, "Permission denied", str(path))
+        return load(path, *args, **kwargs)
+
+    monkeypatch.setattr(np, "load", refused)
+    err = _one_line_error(capsys, main(["eval", str(run), "--episodes", "1"]))
+    assert "permission denied; give this user access to it" in err and "corrupt" not in err
 
 
 def test_a_damaged_metrics_archive_is_one_line(run, tmp_path, capsys):
@@ -98,3 +113,22 @@ def test_outputs_are_as_readable_as_a_plainly_written_file(tmp_path):
     write_output(out, b"new")
     assert out.read_bytes() == b"new"
     assert stat.S_IMODE(os.stat(out).st_mode) == stat.S_IMODE(os.stat(plain).st_mode)
+
+
+def test_a_refused_write_into_missing_folders_names_the_folder_that_exists(tmp_path):
+    refused = PermissionError(errno.EACCES, "Permission denied")
+    error = WriteError(tmp_path / "new" / "deeper" / "out.json", refused)
+    assert f"make {tmp_path} writable (or pick another path)" in str(error)
+    assert str(WriteError(tmp_path / "out.json", refused)).endswith(
+        f"make {tmp_path} writable (or pick another path), then run the command again"
+    )
+
+
+@pytest.mark.parametrize("command", ["plot", "report", "eval"])
+def test_a_run_folder_given_twice_is_refused_rather_than_counted_as_two_seeds(run, tmp_path, capsys, command):
+    out = {"plot": ["--out", str(tmp_path / "p.png")], "report": ["--out", str(tmp_path / "r.html")], "eval": []}
+    again = run.parent / ".." / run.parent.name / run.name
+    err = _one_line_error(capsys, main([command, str(run), str(again), *out[command]]))
+    assert f"run folders '{run}' and '{again}', the same folder: each run counts once; drop the repeat" in err
+    err = _one_line_error(capsys, main([command, str(run), str(run), *out[command]]))
+    assert f"run folders '{run}' twice" in err

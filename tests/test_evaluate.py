@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+import shutil
 from dataclasses import replace
 
 import gymnasium as gym
@@ -86,7 +87,8 @@ def test_runs_that_differ_only_in_seed_form_a_group(tiny_run):
 @pytest.mark.slow
 def test_cli_group_row_and_json(tiny_run, tmp_path, capsys):
     run = str(tiny_run.run_dir)
-    code = main(["eval", run, run, "--episodes", "2", "--json", str(tmp_path / "e.json")])
+    twin = str(shutil.copytree(run, tmp_path / "twin"))  # a second run of the same config: a group of two
+    code = main(["eval", run, twin, "--episodes", "2", "--json", str(tmp_path / "e.json")])
     out, err = capsys.readouterr()
     assert code == 0, err
     report = json.loads((tmp_path / "e.json").read_text())

@@ -70,7 +70,7 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         algo="td3",
         sets=[
             "env.num_envs=2",
-            "td3.steps_per_call=20",
+            "td3.steps_per_call=18",
             "td3.learning_starts=1000000",
             "td3.buffer_size=64",
             "td3.batch_size=4",
@@ -80,7 +80,7 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
     )
     state, _, metrics = run_counter_iteration(config, TD3(config.td3))
 
-    expected = reference_transitions(10)
+    expected = reference_transitions(9)
     size = int(state.buffer.size)
     assert size == len(expected) == int(metrics["steps"]) == int(state.global_step)
     data = jax.device_get(state.buffer.data)
@@ -101,6 +101,7 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
     assert bool(metrics["finite"]) and int(metrics["gradient_steps"]) == 0
     # An env whose episode ended on the last step restarts its OU noise at zero; the other's keeps running.
     last_done = np.asarray(metrics["finished"])[-1]
+    assert last_done.tolist() == [False, True]  # 9 vector steps: env 1's second episode ends on the last one
     ou = np.asarray(state.ou_state)
     for env in range(2):
         assert (ou[env] == 0).all() == bool(last_done[env])
@@ -277,6 +278,28 @@ def test_non_finite_observation_keeps_the_last_good_state_despite_donation(tmp_p
     assert int(header["global_step"]) == int(state.global_step) < 300
     leaves = jax.tree_util.tree_leaves(state)
     assert all(np.isfinite(np.asarray(x)).all() for x in leaves if np.issubdtype(np.asarray(x).dtype, np.floating))
+
+
+class _PoisonsItsActor(TD3):
+    """TD3 whose every update leaves a NaN actor, as a diverged gradient step would."""
+
+    def update(self, state, batch, key):
+        new, diagnostics = super().update(state, batch, key)
+        return new._replace(actor=jax.tree_util.tree_map(lambda x: x * jnp.nan, new.actor)), diagnostics
+
+
+def test_a_non_finite_action_is_never_stored_even_where_the_env_returns_finite_values():
+    """The counter env ignores its action, as MuJoCo ignores a NaN control, so only the action shows the fault."""
+    config = build_config(
+        "Pendulum-v1",
+        algo="td3",
+        sets=["env.num_envs=2", "env.normalize_obs=false", "td3.steps_per_call=20", "td3.learning_starts=4"]
+        + ["td3.buffer_size=64", "td3.batch_size=4", "td3.hidden=4", "td3.noise=none"],
+    )
+    state, _, metrics = run_counter_iteration(config, _PoisonsItsActor(config.td3))
+    size = int(state.buffer.size)
+    assert not bool(metrics["finite"]) and 0 < size < 20
+    assert np.isfinite(np.asarray(state.buffer.data.action[:size])).all()
 
 
 @pytest.mark.parametrize(

@@ -10,10 +10,11 @@ import pytest
 
 from canter.cli.main import main
 from canter.config.build import build_config
+from canter.errors import CanterError
 from canter.training.logger import read_rows
 from canter.training.loop import train
 from canter.training.trackers import TrackSpec, register_tracker, tracking
-from canter.training.trackers.registry import TRACKERS
+from canter.training.trackers.registry import TRACKERS, tracker_names
 
 TINY_PPO = [
     "--quiet",
@@ -331,3 +332,16 @@ def test_mlflow_parents_opened_before_the_jobs_are_the_ones_every_job_uses(tmp_p
     # A group the process did not open (a plain `canter train`) still finds or makes its own.
     with pytest.raises(CanterError, match="could not start an MLflow run: a job made or looked for a parent run"):
         tracker.start(RunContext({}, tmp_path / "c", "other", "c", spec), None)
+
+
+def test_a_tracker_lacking_a_method_is_refused_when_registered_not_when_a_tune_first_calls_it():
+    class NoGroups:
+        def check(self, spec):
+            pass
+
+        def start(self, context, run_id):
+            raise AssertionError("never started")
+
+    with pytest.raises(CanterError, match=r"tracker 'partial' lacks open_group; a tracker implements every method"):
+        register_tracker("partial", NoGroups())
+    assert "partial" not in tracker_names()

@@ -1,6 +1,7 @@
 """Robustness sweeps: spec parsing, model edits checked against hand-computed values, and the CLI outputs."""
 
 import json
+import shutil
 
 import gymnasium as gym
 import mujoco
@@ -134,9 +135,10 @@ def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
     assert [p["scale"] for p in points] == [0.5, 1.5] and all(len(p["returns"]) == 2 for p in points)
     assert points[0]["return_mean"] == pytest.approx(np.mean(points[0]["returns"]))
     assert points[1]["value"] == pytest.approx(3 * points[0]["value"]) == pytest.approx(1.5 * report["original"])
-    # Two runs (here the same one twice) on one plot, written where --out says.
+    # Two runs (here one and its copy) on one plot, written where --out says.
+    twin = shutil.copytree(run, tmp_path / "twin")
     code = main(
-        ["eval", str(run), str(run), "--episodes", "1", "--vary", "gravity=0.9", "--out", str(tmp_path / "g.png")]
+        ["eval", str(run), str(twin), "--episodes", "1", "--vary", "gravity=0.9", "--out", str(tmp_path / "g.png")]
     )
     assert code == 0
     assert len(json.loads((tmp_path / "g.json").read_text())["runs"]) == 2

@@ -189,6 +189,7 @@ def test_bad_inputs(tiny_hopper_run, tmp_path, capsys):
         (["video", str(empty), "--out", str(out / "a.mp4")], "no checkpoint"),
         (["video", run, "--out", str(out / "a.avi")], "use .mp4 or .gif"),
         (["video", run, "--out", str(out / "a.mp4"), "--width", "33"], "even width and height"),
+        (["video", run, "--out", str(out / "a.mp4"), "--max-steps", "-1"], "--max-steps must be >= 0"),
         (["video", run, "--out", str(blocked / "a.mp4")] + small, "cannot write"),
         (["video", run, "--out", str(out / "a.mp4"), "--camera", "no_such_camera"] + small, "cameras: track"),
     ]:

@@ -25,7 +25,7 @@ def _process_umask() -> int:
 
 # mkstemp makes its file readable by its owner only; a file renamed into place gets the mode a plain open() would
 # give it, so outputs are as readable as any other file the user writes.
-_FILE_MODE = 0o666 & ~_process_umask()
+OUTPUT_FILE_MODE = 0o666 & ~_process_umask()
 
 
 class WriteError(CanterError):
@@ -41,13 +41,19 @@ class WriteError(CanterError):
         return self.exc.errno in _NO_SPACE
 
     def fix(self, then: str) -> str:
-        folder = self.path.parent
+        folder = _nearest_existing(self.path.parent)  # where a refused mkdir of missing folders failed
         if self.no_space:
             return f"free space in {folder}, then {then}"
         return f"make {folder} writable (or pick another path), then {then}"
 
     def resumable(self, then: str) -> WriteError:
         return WriteError(self.path, self.exc, then)
+
+
+def _nearest_existing(folder: Path) -> Path:
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
 
 
 def is_write_error(exc: BaseException) -> bool:
@@ -70,7 +76,7 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
             writer(f)
             f.flush()
             with contextlib.suppress(OSError):  # a file system without modes keeps its own
-                os.fchmod(f.fileno(), _FILE_MODE)
+                os.fchmod(f.fileno(), OUTPUT_FILE_MODE)
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException as exc:

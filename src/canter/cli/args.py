@@ -70,6 +70,17 @@ def check_one_run_for_a_file(checkpoint: str, runs: list[str]) -> None:
         )
 
 
+def check_distinct_runs(runs: Sequence[str]) -> None:
+    """Each run folder once: a repeated one would count as another seed in the means, intervals and tables."""
+    seen: dict[Path, str] = {}
+    for run in runs:
+        key = Path(run).resolve()
+        if key in seen:
+            same = f"{run!r} twice" if seen[key] == run else f"{seen[key]!r} and {run!r}, the same folder"
+            raise CanterError(f"run folders {same}: each run counts once; drop the repeat")
+        seen[key] = run
+
+
 def add_track_args(parser: argparse.ArgumentParser, runs: str) -> None:
     """`--track NAME` (repeatable) and `--mlflow-uri URI`, with one meaning in train, tune and bench; `runs` says
     which tracker runs the command makes."""

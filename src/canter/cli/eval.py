@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file, seed_arg
+from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -88,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     physics = parse_physics(parse_set_args(args.set))
     if physics and spec is not None:
         raise CanterError("--vary sweeps the Gymnasium env, which takes no --set; run the sweep and --set apart")
+    check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
     policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
     for policy in policies:  # before any sweep is set up or any env is built

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import seed_arg
+from canter.cli.args import check_distinct_runs, seed_arg
 from canter.files import check_writable, write_output
 
 
@@ -39,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.use.plot import figure_format, render
 
+    check_distinct_runs(args.runs)
     fmt = figure_format(args.out)
     check_writable(args.out)
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None

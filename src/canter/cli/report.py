@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_checkpoint_arg, check_one_run_for_a_file, seed_arg
+from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
 from canter.files import check_writable, write_output
 
 
@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.use.report import build_report
 
+    check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
     check_writable(args.out)  # before the evaluation, which can take minutes
     page = build_report(

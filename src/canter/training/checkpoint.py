@@ -79,6 +79,8 @@ def read_header(path: Path) -> dict[str, Any]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return json.loads(bytes(data["header"]).decode())
+    except PermissionError:
+        raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise CanterError(f"checkpoint {path} is corrupt or truncated; delete it or train again") from None
 
@@ -92,6 +94,8 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(bytes(data["header"]).decode())
             arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
+    except PermissionError:
+        raise
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise CanterError(f"checkpoint {path} is corrupt or truncated; {_EARLIER}") from None
     version = header.get("format_version")

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from canter.errors import CanterError
-from canter.files import check_writable
+from canter.files import OUTPUT_FILE_MODE, check_writable
 from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
@@ -287,9 +287,7 @@ class _AtomicVideo:
                 imageio_ffmpeg.count_frames_and_secs(str(self.tmp))  # fails on a file ffmpeg could not finish
         except (OSError, RuntimeError) as exc:
             raise self._write_error(exc if isinstance(exc, OSError) else None) from None
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp's 0600 is for the temp file, not the video
+        os.chmod(self.tmp, OUTPUT_FILE_MODE)  # mkstemp's 0600 is for the temp file, not the video
         os.replace(self.tmp, self.out)
 
     def abort(self) -> None:
@@ -298,11 +296,13 @@ class _AtomicVideo:
         self.tmp.unlink(missing_ok=True)
 
 
-def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int) -> None:
+def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int, max_steps: int = 0) -> None:
     if out.suffix.lower() not in (".mp4", ".gif"):
         raise CanterError(f"--out {out}: the video format comes from the name; use .mp4 or .gif")
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
+    if max_steps < 0:
+        raise CanterError(f"--max-steps must be >= 0 (0: whole episodes), got {max_steps}")
     if width < 16 or height < 16 or fps < 1:
         raise CanterError(f"need --width and --height >= 16 and --fps >= 1, got {width}x{height} at {fps} fps")
     if out.suffix.lower() == ".mp4" and (width % 2 or height % 2):
@@ -327,7 +327,7 @@ def record_video(
     from canter.training.checkpoint import resolve
 
     out = Path(out_path)
-    check_video_args(out, episodes, width, height, fps)
+    check_video_args(out, episodes, width, height, fps, max_steps)
     if not _headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()

@@ -144,7 +144,8 @@ def make_iteration(
         env_state, out = env_step(carry.env_state, center + half * action)
         next_carry, episodes = track_episodes(carry, env_state, out, cfg.gamma)
 
-        step_finite = jnp.all(jnp.isfinite(out.obs)) & jnp.all(jnp.isfinite(out.reward))
+        # The action too: an env that ignores a NaN control (MuJoCo zeroes it) would return finite obs and rewards.
+        step_finite = jnp.all(jnp.isfinite(out.obs)) & jnp.all(jnp.isfinite(out.reward)) & jnp.all(jnp.isfinite(action))
         healthy = loop.healthy & step_finite
         # Once anything non-finite appears, nothing more is stored or learned in this call.
         buffer = insert(
