@@ -306,6 +306,10 @@ def test_a_non_finite_action_is_never_stored_even_where_the_env_returns_finite_v
     "sets, message",
     [
         (["td3.buffer_size=100", "td3.batch_size=256"], "td3.buffer_size 100 is smaller than td3.batch_size 256"),
+        (
+            ["sac.buffer_size=8", "sac.batch_size=4", "env.num_envs=16"],
+            "sac.buffer_size 8 is smaller than env.num_envs 16, the rows one step inserts; raise sac.buffer_size",
+        ),
         (["sac.tau=1.5"], r"sac.tau must be in \(0, 1\]"),
         (["ddpg.tau=0"], r"ddpg.tau must be in \(0, 1\]"),
         (["ddpg.noise=pink"], "ddpg.noise must be gaussian, ou or none"),

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from canter.config.algorithms import AlgorithmSpec, register_algorithm
 from canter.config.fields import setting
 from canter.config.presets import algorithm_preset_tables
-from canter.config.schema import register_section
+from canter.config.schema import Config, register_section
 from canter.config.validate import ACTIVATIONS, need, need_positive
 
 
@@ -110,8 +110,16 @@ def check_sac(s: SACConfig, name: str) -> None:
         need(math.isfinite(s.target_entropy), f"{name}.target_entropy must be finite or none, got {s.target_entropy}")
 
 
-def _no_cross_checks(config: object) -> None:
-    """Each off-policy algorithm reads only its own section, whose checks run with every section's."""
+def _check_buffer_holds_one_step(config: Config) -> None:
+    """One vector step inserts num_envs rows at once; more than the buffer holds would write some slots twice in
+    one scatter, whose winner XLA leaves undefined on a GPU."""
+    name = config.run.algo
+    buffer_size, num_envs = config.section(name).buffer_size, config.env.num_envs
+    need(
+        buffer_size >= num_envs,
+        f"{name}.buffer_size {buffer_size} is smaller than env.num_envs {num_envs}, the rows one step inserts; "
+        f"raise {name}.buffer_size or lower env.num_envs",
+    )
 
 
 PACKAGE = "canter.algos.offpolicy"
@@ -133,7 +141,7 @@ def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> Algori
         summary=summary,
         runtime=f"{PACKAGE}.algorithms",
         reads=(name,),
-        validate=_no_cross_checks,
+        validate=_check_buffer_holds_one_step,
         on_policy=False,
         search_space=(PACKAGE, f"search_space_{name}.toml"),
         preset_overrides=algorithm_preset_tables(PACKAGE, name),
