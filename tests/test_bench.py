@@ -111,6 +111,11 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
         (["--seeds", "0,x"], "expected whole numbers separated by commas"),
         (["--seeds", "1,2,1"], "each seed may appear once"),
+        (["--seeds", "0,-1"], "expected seeds from 0 to 4294967295"),
+        (["--envs", "Hopper-v5,Hopper-v5"], "each name may appear once"),
+        (["--algos", "ppo,td3,ppo"], "each name may appear once"),
+        (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat must be >= 1 second, got 0"),
+        (["--storage", "postgresql://u@host:abc/db"], "is not a database URL; use sqlite:///path/study.db"),
     ],
 )
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
@@ -270,50 +275,78 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
     assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())
 
 
-@pytest.mark.slow
-def test_grid_through_an_optuna_storage(tmp_path, capsys):
-    """With --storage every cell is one enqueued trial of a GridSampler study; a re-run finds them all done."""
+def _stored_jobs(url: str, study: str) -> list[tuple[str, str]]:
     import optuna
 
-    url = f"sqlite:///{tmp_path / 'grid.db'}"
-    argv = [
-        "bench",
-        "--envs",
-        "InvertedPendulum-v4",
-        "--seeds",
-        "0",
-        "--total-steps",
-        "512",
-        "--grid",
-        "ppo.clip=0.1,0.2",
-        "--episodes",
-        "1",
-        "--storage",
-        url,
-        "--study",
-        "grid",
-        "--heartbeat",
-        "2",
-        "--out",
-        str(tmp_path / "bench"),
-    ] + TINY
-    assert main(argv) == 0, capsys.readouterr().err
-    study = optuna.load_study(study_name="grid", storage=url)
-    cells = sorted(t.params["cell"] for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE)
-    assert cells == ["InvertedPendulum-v4__ppo__ppo.clip=0.1", "InvertedPendulum-v4__ppo__ppo.clip=0.2"]
-    for t in study.trials:
-        [record] = t.user_attrs["records"]
-        evaluation = json.loads((tmp_path / "bench" / f"{t.params['cell']}__s0" / "eval.json").read_text())
-        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(record["eval_mean"])
-        assert record["seed"] == 0 and record["sps"] > 0
-    assert main(argv) == 0
-    assert len(optuna.load_study(study_name="grid", storage=url).trials) == 2  # nothing ran twice
-    assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
+    from canter.orchestrate.bench import trial_job
+
+    return sorted((t.state.name, trial_job(t)) for t in optuna.load_study(study_name=study, storage=url).trials)
 
 
 @pytest.mark.slow
-def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys):
+def test_grid_through_an_optuna_storage(tmp_path, capsys):
+    """With --storage every job is one queued trial; a re-run queues only what it adds: a cell, or a seed."""
+    import optuna
+
+    from canter.orchestrate.bench import trial_job
+
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+
+    def argv(clips: str, seeds: str = "0") -> list[str]:
+        return [
+            "bench",
+            "--envs",
+            "InvertedPendulum-v4",
+            "--seeds",
+            seeds,
+            "--total-steps",
+            "512",
+            "--grid",
+            f"ppo.clip={clips}",
+            "--episodes",
+            "1",
+            "--storage",
+            url,
+            "--study",
+            "grid",
+            "--heartbeat",
+            "2",
+            "--out",
+            str(tmp_path / "bench"),
+        ] + TINY
+
+    cell = "InvertedPendulum-v4__ppo__ppo.clip={}"
+    key = cell + "|seeds={}|steps=512|episodes=1"
+    assert main(argv("0.1")) == 0, capsys.readouterr().err  # a grid of one job (Optuna's GridSampler failed it)
+    assert main(argv("0.1,0.2")) == 0, capsys.readouterr().err  # a changed grid: only the new cell trains
+    assert _stored_jobs(url, "grid") == [("COMPLETE", key.format("0.1", "0")), ("COMPLETE", key.format("0.2", "0"))]
+    for t in optuna.load_study(study_name="grid", storage=url).trials:
+        [record] = t.user_attrs["records"]
+        folder = tmp_path / "bench" / f"{trial_job(t).partition('|')[0]}__s0"
+        evaluation = json.loads((folder / "eval.json").read_text())
+        assert t.value == pytest.approx(evaluation["mean"]) == pytest.approx(record["eval_mean"])
+        assert record["seed"] == 0 and record["sps"] > 0
+    assert main(argv("0.1,0.2")) == 0
+    assert len(_stored_jobs(url, "grid")) == 2  # nothing ran twice
+    assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
+
+    # Another seed: each cell's job is queued again with both seeds; seed 0's finished run is kept, seed 1 trains.
+    seed0 = (tmp_path / "bench" / f"{cell.format('0.1')}__s0" / "summary.json").stat().st_mtime_ns
+    assert main(argv("0.1,0.2", "0,1")) == 0, capsys.readouterr().err
+    assert [k for state, k in _stored_jobs(url, "grid") if "seeds=0,1" in k] == [
+        key.format("0.1", "0,1"),
+        key.format("0.2", "0,1"),
+    ]
+    assert (tmp_path / "bench" / f"{cell.format('0.1')}__s0" / "summary.json").stat().st_mtime_ns == seed0
+    assert {row["seeds"] for row in read_rows(tmp_path / "bench" / "results.csv")} == {"2"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("through_storage", [False, True])
+def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys, through_storage):
     out = tmp_path / "bench"
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+    storage = ["--storage", url, "--study", "cut", "--heartbeat", "2"] if through_storage else []
     argv = [
         "bench",
         "--envs",
@@ -329,12 +362,16 @@ def test_a_cell_stopped_before_its_budget_is_not_reported_done(tmp_path, capsys)
         "--set",
         "run.max_minutes=0.0001",
     ] + TINY
-    code = main(argv)
+    code = main(argv + storage)
     captured = capsys.readouterr()
     assert code != 0 and "Traceback" not in captured.err
-    assert "STOP  InvertedPendulum-v4__ppo: stopped before its budget" in captured.out
-    assert "done  InvertedPendulum-v4__ppo" not in captured.out
-    assert "re-run the same command" in captured.err
+    assert "cells failed (stopped before its budget" in captured.err and "re-run the same command" in captured.err
+    if through_storage:  # the trial failed, so a re-run queues the job again
+        assert _stored_jobs(url, "cut") == [("FAIL", "InvertedPendulum-v4__ppo|seeds=0|steps=4096|episodes=1")]
+    else:
+        assert "STOP  InvertedPendulum-v4__ppo: stopped before its budget" in captured.out
+        assert "done  InvertedPendulum-v4__ppo" not in captured.out
+    assert not (out / "results.csv").exists()
     summary = json.loads((out / "InvertedPendulum-v4__ppo__s0" / "summary.json").read_text())
     assert summary["stop_reason"] == "max_minutes" and summary["global_step"] < 4096
 
@@ -362,6 +399,8 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
     """Each td3 seed is its own trial; the cell's row combines both seeds' records, locally as from the storage."""
     import optuna
 
+    from canter.orchestrate.bench import trial_job
+
     out = tmp_path / "bench"
     url = f"sqlite:///{tmp_path / 'grid.db'}"
     argv = [
@@ -382,11 +421,14 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
     assert main(argv + ["--storage", url, "--study", "td3", "--heartbeat", "2"]) == 0, capsys.readouterr().err
     study = optuna.load_study(study_name="td3", storage=url)
     done = sorted(
-        (t.params["cell"], [r["seed"] for r in t.user_attrs["records"]])
+        (trial_job(t), [r["seed"] for r in t.user_attrs["records"]])
         for t in study.trials
         if t.state == optuna.trial.TrialState.COMPLETE
     )
-    assert done == [("Pendulum-v1__td3__s0", [0]), ("Pendulum-v1__td3__s1", [1])]
+    assert done == [
+        ("Pendulum-v1__td3__s0|seeds=0|steps=400|episodes=1", [0]),
+        ("Pendulum-v1__td3__s1|seeds=1|steps=400|episodes=1", [1]),
+    ]
     [stored] = read_rows(out / "results.csv")
     means = [json.loads((out / f"Pendulum-v1__td3__s{s}" / "eval.json").read_text())["mean"] for s in (0, 1)]
     assert stored["seeds"] == "2" and float(stored["return_mean"]) == pytest.approx(np.mean(means), abs=1e-3)

@@ -21,7 +21,6 @@ pytestmark = pytest.mark.slow
 WORKER = """
 import sys, time
 from pathlib import Path
-from types import SimpleNamespace
 kind, url, go = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 from canter.orchestrate.study import open_storage
 if kind == "tune":
@@ -31,8 +30,7 @@ if kind == "tune":
 else:
     from canter.orchestrate.bench import BenchSettings, _open_grid_study
     settings = BenchSettings(("ppo",), ("InvertedPendulum-v4",), (0,), 512, storage_url=url, study_name="benched")
-    jobs = [SimpleNamespace(name="a"), SimpleNamespace(name="b")]
-    open_study = lambda: _open_grid_study(jobs, settings, Path("x"))[1]
+    open_study = lambda: _open_grid_study(settings, Path("x"))[1]
 print("ready", flush=True)
 while not go.exists():
     time.sleep(0.01)
@@ -145,3 +143,27 @@ def test_workers_wait_out_a_database_restart_and_no_trial_is_lost_or_counted_twi
     retry = [t for t in complete if optuna.storages.RetryHeartbeatStaleTrialCallback.retried_trial_number(t) == 4]
     assert len(retry) == 1 and retry[0].params == trials[4].params
     assert not [t for t in trials if t.state in (TrialState.RUNNING, TrialState.WAITING)]
+
+
+def test_a_worker_gives_up_when_trials_keep_failing_after_some_finished(tmp_path):
+    """A resumed study whose trials now fail every time (an edited search space, say) stops with one line instead
+    of asking forever; the failures before the last finished trial do not count."""
+    import optuna
+
+    from canter.orchestrate.study import Outcome, run_worker
+
+    storage = open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}", heartbeat_seconds=1))
+    study = optuna.create_study(storage=storage, study_name="breaks", direction="maximize")
+
+    def run_trial(trial):
+        x = trial.suggest_float("x", 0.0, 1.0)
+        # trials 0 and 2 finish; 1 fails before progress, so it is forgiven; from 3 on all fail
+        return Outcome("complete", value=x) if trial.number in (0, 2) else Outcome("fail", reason="broken")
+
+    with pytest.raises(CanterError) as stopped:
+        run_worker(study, storage, 5, run_trial, heartbeat_seconds=1, poll_seconds=0.01, deadline=time.time() + 60)
+    assert str(stopped.value) == (
+        "study 'breaks': 10 trials failed in a row since the last of its 2 finished trials; "
+        "see the 'fail_reason' of the failed trials (canter tune prints them)"
+    )
+    assert len(study.trials) == 13

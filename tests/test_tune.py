@@ -160,6 +160,8 @@ def test_space_types_and_tuple_choices():
         ({"ppo": {"gamma": {"choices": [0.99, 1.5]}}}, "ppo.gamma = 1.5 is invalid"),
         ({"ppo": {"epochs": {"choices": [1.5]}}}, "expected an integer"),
         ({"ppo": {"lr": {"low": 1e-5}}}, "needs choices"),
+        ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 0.5}}}, "its step must be a whole number, got 0.5"),
+        ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 2.5}}}, "its step must be a whole number, got 2.5"),
         ({}, "empty"),
     ],
 )
@@ -199,6 +201,17 @@ def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):
 
     code = main(["tune", "Pendulum-v1", "--algo", "ppoo"])
     assert code == 2 and "unknown algorithm 'ppoo'" in capsys.readouterr().err
+
+    for argv, message in [
+        (["--sampler-seed", "-1"], "argument --sampler-seed: expected a seed from 0 to 4294967295"),
+        (["--sampler-seed", "4294967295", "--jobs", "2"], "--sampler-seed 4294967295 with 2 jobs passes 4294967295"),
+        (["--seed", "4294967295", "--seeds-per-trial", "2"], "--seed 4294967295 with 2 seeds per trial passes"),
+        (["--storage", "postgresql://u@host:abc/db"], "is not a database URL"),
+    ]:
+        code = main(["tune", "Pendulum-v1", "--out-dir", str(tmp_path / "t"), *argv])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and message in err and "Traceback" not in err, err
+    assert not (tmp_path / "t").exists()
 
 
 # ------------------------------------------------------------------------------------------------- the objective

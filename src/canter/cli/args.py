@@ -47,6 +47,8 @@ def seeds_arg(text: str) -> tuple[int, ...]:
         ) from None
     if len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"each seed may appear once, got {text!r}")
+    if not all(0 <= seed < SEED_LIMIT for seed in seeds):
+        raise argparse.ArgumentTypeError(f"expected seeds from 0 to {SEED_LIMIT - 1}, got {text!r}")
     return seeds
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_track_args, steps_arg, track_spec
+from canter.cli.args import SEED_LIMIT, add_track_args, seed_arg, steps_arg, track_spec
 from canter.errors import CanterError
 
 
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--jobs", type=int, default=1, help="parallel worker processes on this machine")
     t.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per trial (budget)")
     t.add_argument("--seeds-per-trial", type=int, default=1, help="average the objective over K seeds")
-    t.add_argument("--seed", type=int, default=0, help="first seed of every trial (seeds SEED..SEED+K-1)")
+    t.add_argument("--seed", type=seed_arg, default=0, help="first seed of every trial (seeds SEED..SEED+K-1)")
     t.add_argument("--startup-trials", type=int, default=10, help="random trials before TPE models the space")
     t.add_argument("--evaluations", type=int, default=20, help="evaluations during training per trial (for pruning)")
     t.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation during training")
@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument(
         "--sampler-seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)",
     )
@@ -74,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
         raise CanterError(f"--heartbeat must be >= 1 second, got {args.heartbeat}")
     if args.seeds_per_trial < 1:
         raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
+    if args.seed + args.seeds_per_trial > SEED_LIMIT:
+        raise CanterError(f"--seed {args.seed} with {args.seeds_per_trial} seeds per trial passes {SEED_LIMIT - 1}")
+    if args.sampler_seed is not None and args.sampler_seed + args.jobs > SEED_LIMIT:
+        raise CanterError(f"--sampler-seed {args.sampler_seed} with {args.jobs} jobs passes {SEED_LIMIT - 1}")
     from canter.orchestrate.tune import TuneSettings, tune
 
     settings = TuneSettings(

@@ -9,8 +9,9 @@ run's final policy is evaluated deterministically (`eval.json`), and the bench w
 the statistics of `canter.use.scoreboard`: aggregates with 95% bootstrap intervals, profiles, probabilities of
 improvement), `results.csv`, `statistics.json` and a plot per env.
 
-With `--storage`, the jobs are the trials of an Optuna study (a GridSampler over the job names, each job
-enqueued once), so workers on several machines share the grid the same way `canter tune` workers share a study.
+With `--storage`, the jobs are the trials of an Optuna study: each job is enqueued once, under a key that holds its
+name, seeds, step budget and evaluation episodes (`job_key`), so workers on several machines share the grid the way
+`canter tune` workers share a study, and a re-run with more seeds or steps queues what it adds.
 
 With `--track`, each seed is a tracker run, the seeds of a cell in one group (`canter.training.trackers`); a job
 that resumes a seed continues its tracker runs.
@@ -49,6 +50,7 @@ from canter.orchestrate.jobs import (
     stop_jobs,
     warn_if_more_jobs_than_cores,
 )
+from canter.orchestrate.study import describe_url, normalize_url
 from canter.training.trackers import TrackSpec, check_trackers, group_name, open_groups
 from canter.use.reference_scores import published_scores
 
@@ -234,13 +236,20 @@ def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
 
 
 def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
+    """Each seed trained to the budget, with its final evaluation of its newest checkpoint (one left from a smaller
+    budget, whose extension stopped before the evaluations, does not count)."""
+    from canter.training import checkpoint
+
     for seed in seeds:
         run_dir = cell.run_dir(bench_dir, seed)
-        evaluation = read_json(run_dir / EVAL_FILE)
+        if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
+            return False
+        evaluation = read_json(run_dir / EVAL_FILE) or {}
+        newest = checkpoint.list_checkpoints(run_dir)
         if (
-            run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done"
-            or not evaluation
-            or evaluation.get("episodes") != settings.eval_episodes
+            evaluation.get("episodes") != settings.eval_episodes
+            or not newest
+            or evaluation.get("checkpoint") != newest[-1].name
         ):
             return False
     return True
@@ -470,6 +479,9 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
 # ------------------------------------------------------------------------------------------------------- running
 
 
+STOPPED_EARLY = "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a re-run resumes it"
+
+
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
     """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
     pending = []
@@ -496,12 +508,8 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                 del running[slot]
                 if code == 0 and not seeds_finished(job.cell, job.seeds, settings, bench_dir):
                     # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
-                    reason = (
-                        "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a "
-                        "re-run resumes it"
-                    )
-                    failures.setdefault(job.cell.name, reason)
-                    print(f"STOP  {job.name}: {reason}", flush=True)
+                    failures.setdefault(job.cell.name, STOPPED_EARLY)
+                    print(f"STOP  {job.name}: {STOPPED_EARLY}", flush=True)
                 elif code == 0:
                     print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
                 else:
@@ -514,20 +522,38 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     return failures
 
 
+JOB_ATTR = "job"
+
+
+def job_key(job: Job, settings: BenchSettings) -> str:
+    """What a stored trial of the grid stands for: the job and the settings its records answer to, so that a re-run
+    with more seeds, another budget or another episode count queues the job again rather than reuse old records."""
+    seeds = ",".join(map(str, job.seeds))
+    return f"{job.name}|seeds={seeds}|steps={settings.total_steps}|episodes={settings.eval_episodes}"
+
+
+def trial_job(trial: Any) -> str | None:
+    return trial.user_attrs.get(JOB_ATTR)
+
+
 def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSettings, bench_dir: Path) -> Outcome:
     from optuna.trial import TrialState
 
     from canter.orchestrate.study import Outcome
 
-    name = trial.suggest_categorical("cell", list(jobs))
+    key = trial_job(trial)
+    if key is None:  # asked for when another worker had just taken the last queued job
+        return Outcome("fail", reason="surplus: no queued job was left for this trial")
+    if key not in jobs:
+        return Outcome("fail", reason=f"{key} is not in this worker's grid; run the same command on every worker")
     for other in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING)):
         if (
-            other.params.get("cell") == name
+            trial_job(other) == key
             and other.number != trial.number
             and (other.state == TrialState.COMPLETE or other.number < trial.number)
         ):
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
-    job = jobs[name]
+    job = jobs[key]
     folder = bench_dir / ".cells" / job.name
     proc = start_job(job_spec(job, settings, bench_dir), folder)
     try:
@@ -536,6 +562,9 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
         stop_jobs([proc])
     if code != 0:
         return Outcome("fail", reason=failure_reason(folder, code))
+    if not seeds_finished(job.cell, job.seeds, settings, bench_dir):
+        # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
+        return Outcome("fail", reason=STOPPED_EARLY)
     # The records travel with the trial, so any machine can build the table from the storage alone.
     records = [seed_record(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
     trial.set_user_attr("records", records)
@@ -543,7 +572,7 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
     return Outcome("complete", value=float(np.mean(evals)) if evals else math.nan)
 
 
-def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
+def _open_grid_study(settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
     import optuna
 
     from canter.orchestrate.study import StorageSettings, open_storage, retrying
@@ -552,13 +581,12 @@ def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) 
     storage = open_storage(
         StorageSettings(settings.storage_url, settings.heartbeat_seconds, 3 * settings.heartbeat_seconds)
     )
-    sampler = optuna.samplers.GridSampler({"cell": [j.name for j in jobs]})
     study = retrying(
         lambda: optuna.create_study(
             storage=storage,
             study_name=settings.study_name or bench_dir.name,
             direction="maximize",
-            sampler=sampler,
+            sampler=optuna.samplers.RandomSampler(),  # nothing is sampled: every trial is a queued job
             load_if_exists=True,
         ),
         settings.storage_url,
@@ -567,17 +595,20 @@ def _open_grid_study(jobs: list[Job], settings: BenchSettings, bench_dir: Path) 
     return storage, study
 
 
+def _jobs_by_key(cells: list[Cell], settings: BenchSettings) -> dict[str, Job]:
+    return {job_key(j, settings): j for j in make_jobs(cells, settings.seeds)}
+
+
 def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
     from canter.orchestrate.study import run_worker
 
-    jobs = make_jobs(cells, settings.seeds)
-    storage, study = _open_grid_study(jobs, settings, bench_dir)
-    by_name = {j.name: j for j in jobs}
+    by_key = _jobs_by_key(cells, settings)
+    storage, study = _open_grid_study(settings, bench_dir)
     run_worker(
         study,
         storage,
-        len(jobs),
-        lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
+        len(by_key),
+        lambda trial: _job_trial(study, trial, by_key, settings, bench_dir),
         heartbeat_seconds=settings.heartbeat_seconds,
         poll_seconds=settings.poll_seconds,
         ask_new=False,
@@ -585,53 +616,47 @@ def _grid_worker(cells: list[Cell], settings: BenchSettings, bench_dir: Path) ->
 
 
 def run_distributed(
-    cells: list[Cell], settings: BenchSettings, bench_dir: Path
+    cells: list[Cell], settings: BenchSettings, bench_dir: Path, storage: Any, study: Any
 ) -> tuple[list[dict[str, Any]], dict[str, str]]:
-    """Share the jobs with other workers through an Optuna study; returns the results of every cell whose jobs all
-    finished (by any worker) and the failure reasons of the cells with a failed job."""
+    """Share the jobs with other workers through the Optuna study (`_open_grid_study`); returns the results of every
+    cell whose jobs all finished (by any worker) and the failure reasons of the other cells."""
     from optuna.trial import TrialState
 
-    from canter.orchestrate.study import retrying, run_worker
+    from canter.orchestrate.study import FAIL_REASON, retrying
 
-    jobs = make_jobs(cells, settings.seeds)
-    storage, study = _open_grid_study(jobs, settings, bench_dir)
-    by_name = {j.name: j for j in jobs}
-    # Enqueue the jobs that no trial holds yet (a first run, or a job whose trial failed).
+    by_key = _jobs_by_key(cells, settings)
+    # Queue the jobs that no trial holds yet (a first run, a job whose trial failed, or one with new settings).
     held = {
-        t.params.get("cell")
+        trial_job(t)
         for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))
     }
-    for name in by_name:
-        if name not in held:
-            study.enqueue_trial({"cell": name})
+    for key in by_key:
+        if key not in held:
+            study.enqueue_trial({}, user_attrs={JOB_ATTR: key})
     if settings.jobs == 1:
-        run_worker(
-            study,
-            storage,
-            len(by_name),
-            lambda trial: _job_trial(study, trial, by_name, settings, bench_dir),
-            heartbeat_seconds=settings.heartbeat_seconds,
-            poll_seconds=settings.poll_seconds,
-            ask_new=False,
-        )
+        _grid_worker(cells, settings, bench_dir)
     elif run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
         raise CanterError("a bench worker failed; its error is printed above")
     done, failed = {}, {}
     for t in retrying(lambda: study.get_trials(deepcopy=False), storage.url, "reading the results"):
-        name = t.params.get("cell")
-        if t.state == TrialState.COMPLETE and name in by_name and "records" in t.user_attrs:
-            done[name] = t.user_attrs["records"]
-        elif t.state == TrialState.FAIL and name in by_name:
-            failed[name] = t.user_attrs.get("fail_reason", "worker died")
+        held_by = trial_job(t)
+        if held_by not in by_key:
+            continue
+        if t.state == TrialState.COMPLETE and "records" in t.user_attrs:
+            done[held_by] = t.user_attrs["records"]
+        elif t.state == TrialState.FAIL:
+            failed[held_by] = t.user_attrs.get(FAIL_REASON, "worker died")
     failures: dict[str, str] = {}
-    for name, reason in failed.items():
-        if name not in done:
-            failures.setdefault(by_name[name].cell.name, reason)
+    for key, reason in failed.items():
+        if key not in done:
+            failures.setdefault(by_key[key].cell.name, reason)
     results = []
     for cell in cells:
-        names = [j.name for j in jobs if j.cell is cell]
-        if all(n in done for n in names):
-            results.append(combine_records(cell, [r for n in names for r in done[n]]))
+        keys = [k for k, j in by_key.items() if j.cell is cell]
+        if all(k in done for k in keys):
+            results.append(combine_records(cell, [r for k in keys for r in done[k]]))
+        else:  # never silently missing from the table, whatever became of its trials
+            failures.setdefault(cell.name, "no worker finished it")
     return results, failures
 
 
@@ -644,14 +669,17 @@ def bench(settings: BenchSettings) -> str:
     cells = make_cells(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any cell
     bench_dir = Path(settings.out_dir)
-    bench_dir.mkdir(parents=True, exist_ok=True)
+    if settings.storage_url:
+        describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
+    bench_dir.mkdir(parents=True, exist_ok=True)  # first: a SQLite storage may live in it
+    opened = _open_grid_study(settings, bench_dir) if settings.storage_url else None
     check_existing_runs(cells, settings, bench_dir)
     # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.
     unfinished = [c for c in cells if not seeds_finished(c, settings.seeds, settings, bench_dir)]
     settings = replace(settings, track=open_groups(settings.track, [group_name(c.config) for c in unfinished]))
     warn_if_more_jobs_than_cores(settings.jobs)
-    if settings.storage_url:
-        results, failures = run_distributed(cells, settings, bench_dir)
+    if opened is not None:
+        results, failures = run_distributed(cells, settings, bench_dir, *opened)
     else:
         failures = run_local(cells, settings, bench_dir)
         results = [cell_result(c, settings, bench_dir) for c in cells if c.name not in failures]

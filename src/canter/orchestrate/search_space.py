@@ -181,9 +181,12 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     step = spec.get("step")
     if step is not None and (not isinstance(step, (int, float)) or step <= 0 or (log and step != 1)):
         raise CanterError(f"{source}: [{key}] step must be a positive number (and cannot combine with log)")
+    integer = isinstance(low, int)
+    if integer and step is not None and (isinstance(step, bool) or step != int(step)):
+        raise CanterError(f"{source}: [{key}] takes whole numbers, so its step must be a whole number, got {step}")
     for value in (low, high):
         _check_alone(key, value, source)
-    return Param(key, low=low, high=high, log=log, step=step, integer=isinstance(low, int))
+    return Param(key, low=low, high=high, log=log, step=step, integer=integer)
 
 
 def apply_sample(base: Config, values: dict[str, Any]) -> Config:

@@ -52,7 +52,7 @@ def describe_url(url: str) -> tuple[str, str]:
 
     try:
         parsed = make_url(url)
-    except ArgumentError:
+    except (ArgumentError, ValueError):  # ValueError: a port that is not a number
         raise CanterError(
             f"--storage {url!r} is not a database URL; use sqlite:///path/study.db or "
             f"postgresql://user:password@host:5432/dbname"
@@ -259,8 +259,12 @@ def run_worker(
     outage_seconds: float = OUTAGE_SECONDS,
 ) -> None:
     """Run trials until the study has `target` COMPLETE+PRUNED trials (or `deadline`, a time.time(), passes).
-    With `ask_new=False` only queued (WAITING) trials are run, and the worker returns once none is queued or
-    running: a queue of fixed work such as a bench grid, where a failed item is not retried by a new trial.
+    With `ask_new=False` only queued (WAITING) trials are run, whatever the study held before, and the worker
+    returns once none is queued or running: a queue of fixed work such as a bench grid, where a failed item is not
+    retried by a new trial, and `target` is not used.
+
+    A worker gives up with a one-line error once `max(10, 2 * target)` trials in a row have failed since the study
+    last finished one (a space or a command that cannot work, such as a space edited under a resumed study).
 
     Every storage call waits out an outage of up to `outage_seconds` (`retrying`). A trial that ran through one is
     told when the storage is back; if another worker failed it meanwhile (its heartbeat went stale), that worker
@@ -272,14 +276,20 @@ def run_worker(
         return retrying(fn, storage.url, what, outage_seconds)
 
     states = {"complete": TrialState.COMPLETE, "pruned": TrialState.PRUNED, "fail": TrialState.FAIL}
+    give_up = max(10, 2 * target)
+    progress: tuple[int, int] | None = None  # (finished, failed) when the finished count last grew
     while True:
         n = call("reading the study", lambda: (optuna.storages.fail_stale_trials(study), counts(study))[1])
         finished = n["COMPLETE"] + n["PRUNED"]
-        if finished >= target or (deadline is not None and time.time() >= deadline):
+        if (ask_new and finished >= target) or (deadline is not None and time.time() >= deadline):
             return
-        if n["FAIL"] >= max(10, 2 * target) and finished == 0:
+        if progress is None or finished > progress[0]:
+            # A study with nothing finished counts every failure; a resumed one, those since this worker started.
+            progress = (finished, n["FAIL"] if finished else 0)
+        if ask_new and n["FAIL"] - progress[1] >= give_up:
+            done = f"since the last of its {finished} finished trials" if finished else "and none finished"
             raise CanterError(
-                f"study '{study.study_name}': {n['FAIL']} trials failed and none finished; see the "
+                f"study '{study.study_name}': {n['FAIL'] - progress[1]} trials failed in a row {done}; see the "
                 f"'{FAIL_REASON}' of the failed trials (canter tune prints them)"
             )
         if n["WAITING"] == 0:
@@ -289,7 +299,7 @@ def run_worker(
                 time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
                 continue
         trial = call("asking for a trial", study.ask)
-        if call("reading the study", functools.partial(_surplus, study, trial.number, target)):
+        if ask_new and call("reading the study", functools.partial(_surplus, study, trial.number, target)):
             _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
             continue
         try:
