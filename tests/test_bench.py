@@ -4,6 +4,7 @@ resume after an interruption."""
 import csv
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -602,3 +603,22 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_minute_limit_it_is_giv
     monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: calls.append((dirs, total, kw)))
     run_job(JobSpec(to_toml(given), {saved.run.seed: str(run)}))
     assert calls == [([run], 10_000, {"max_minutes": 30.0, "quiet": True})]
+
+
+def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_path):
+    """An extended budget whose run was interrupted between its training and its final evaluation keeps the old
+    eval.json; the seed is not finished until the newest checkpoint is evaluated."""
+    from canter.orchestrate.bench import seeds_finished
+
+    settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 2000, eval_episodes=3)
+    [cell] = make_cells(settings)
+    run = cell.run_dir(tmp_path, 0)
+    (run / "checkpoints").mkdir(parents=True)
+    for step in (1000, 2000):
+        (run / "checkpoints" / f"ckpt_{step:012d}.npz").write_bytes(b"")
+    (run / "summary.json").write_text(json.dumps({"global_step": 2000}))
+    (run / "eval.json").write_text(json.dumps({"checkpoint": "ckpt_000000001000.npz", "episodes": 3, "mean": 1.0}))
+    assert not seeds_finished(cell, (0,), settings, tmp_path)
+    (run / "eval.json").write_text(json.dumps({"checkpoint": "ckpt_000000002000.npz", "episodes": 3, "mean": 1.0}))
+    assert seeds_finished(cell, (0,), settings, tmp_path)
+    assert not seeds_finished(cell, (0,), replace(settings, eval_episodes=10), tmp_path)
