@@ -3,6 +3,7 @@ resume after an interruption."""
 
 import csv
 import json
+import shutil
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -622,3 +623,5 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
     (run / "eval.json").write_text(json.dumps({"checkpoint": "ckpt_000000002000.npz", "episodes": 3, "mean": 1.0}))
     assert seeds_finished(cell, (0,), settings, tmp_path)
     assert not seeds_finished(cell, (0,), replace(settings, eval_episodes=10), tmp_path)
+    shutil.rmtree(run / "checkpoints")  # a run restored from a results archive keeps its evaluation only
+    assert seeds_finished(cell, (0,), settings, tmp_path)

@@ -11,6 +11,7 @@ import pytest
 
 from canter.cli.main import main
 from canter.config.build import build_config
+from canter.config.experiment import experiment_key
 from canter.config.overrides import apply_overrides
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
@@ -226,6 +227,9 @@ def test_unused_diagnostics_are_left_out_of_the_default_panels():
     penalty = with_diagnostics(**{"ppo.objective": "kl_penalty"})
     assert choose_metrics([penalty], None) == ["episodic_return", "kl_beta", "clip_frac"]
     assert choose_metrics([clipped, penalty], None) == ["episodic_return", "kl_beta", "clip_frac"]
+    # A run of an algorithm that never logs the column does not bring it back.
+    sac = load_run(Path(__file__).parent / "fixtures" / "runs-v1" / "sac")
+    assert "sym_loss" not in sac.columns and "sym_loss" not in choose_metrics([clipped, sac], None)
 
 
 def test_grouping_and_labels():
@@ -257,6 +261,18 @@ def test_grouping_and_labels():
     ]
     assert method_labels([fast, walker, cleanrl]) == ["preset=fast", "preset=fast", "preset=cleanrl"]
     assert method_labels([fast]) == ["algo=ppo, preset=fast"]
+    # A key changed on one env only is another method, though no other config on that env tells it apart; and the
+    # same config on two envs stays one method, though a changed key tells it apart from a third config on one env.
+    walker_clip = apply_overrides(walker, {"ppo.clip": 0.1}, "test")
+    assert method_labels([fast, walker_clip]) == ["ppo.clip=0.2", "ppo.clip=0.1"]
+    hopper_clip = apply_overrides(fast, {"ppo.clip": 0.1}, "test")
+    assert method_labels([fast, hopper_clip, walker]) == ["ppo.clip=0.2", "ppo.clip=0.1", "ppo.clip=0.2"]
+    # The values a preset gives each env (brax's per-env tables) are the preset's, not another method.
+    ant, humanoid = build_config("ant", preset="brax"), build_config("humanoid", preset="brax")
+    assert dict(experiment_key(ant))["ppo.n_steps"] != dict(experiment_key(humanoid))["ppo.n_steps"]
+    assert method_labels([ant, humanoid]) == ["algo=ppo, preset=brax"] * 2
+    shorter = apply_overrides(humanoid, {"ppo.n_steps": 80}, "test")  # ant's value, set on humanoid: a change
+    assert method_labels([ant, humanoid, shorter]) == ["ppo.n_steps=preset's per env"] * 2 + ["ppo.n_steps=80"]
     # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
     td3 = fast.replace(run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
     assert experiment_labels([fast, td3]) == ["algo=ppo", "algo=td3"]

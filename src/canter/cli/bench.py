@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run a benchmark grid; writes results.md/.csv and plots",
         description="Run every (algo, env, grid values) cell for every seed, each seed a run folder "
         "under --out with a deterministic name; re-running skips finished runs and "
-        "resumes interrupted ones. Writes results.md (with IQM, mean, median and optimality gap and their 95%% "
+        "resumes interrupted ones. Writes results.md (with IQM, mean, median and optimality gap and their 95% "
         "bootstrap intervals), results.csv, statistics.json and plot_ENV.png.",
     )
     b.add_argument("--algos", type=_names, default=None, help="comma-separated algorithms (default ppo)")

@@ -1,4 +1,5 @@
-"""`canter plot`: learning curves and training diagnostics of run folders, seeds grouped with a 95% CI band."""
+"""`canter plot`: learning curves and training diagnostics of run folders, the seeds of an experiment as one line
+with a band."""
 
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "plot",
         help="learning curves and diagnostics of run folders (PNG/SVG)",
-        description="Plot learning curves and diagnostics. Runs whose configs differ only in the "
-        "seed are drawn as one mean line with a 95%% bootstrap band; groups are "
-        "labelled by the config keys in which they differ.",
+        description="Plot learning curves and diagnostics. Runs whose configs differ only in the seed are drawn as "
+        "one mean line with a band: the range of the runs below 5 runs, a 95% bootstrap interval from 5 on; groups "
+        "are labelled by the config keys in which they differ.",
     )
     p.add_argument("runs", nargs="+", help="run folders")
     p.add_argument("--out", default="curves.png", help="output image; .png, .svg or .pdf (default curves.png)")

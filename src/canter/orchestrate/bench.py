@@ -237,7 +237,8 @@ def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
 
 def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
     """Each seed trained to the budget, with its final evaluation of its newest checkpoint (one left from a smaller
-    budget, whose extension stopped before the evaluations, does not count)."""
+    budget, whose extension stopped before the evaluations, does not count; a run restored from a results archive
+    keeps its evaluation and no checkpoint)."""
     from canter.training import checkpoint
 
     for seed in seeds:
@@ -245,11 +246,9 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
         if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
             return False
         evaluation = read_json(run_dir / EVAL_FILE) or {}
-        newest = checkpoint.list_checkpoints(run_dir)
-        if (
-            evaluation.get("episodes") != settings.eval_episodes
-            or not newest
-            or evaluation.get("checkpoint") != newest[-1].name
+        newest = checkpoint.list_checkpoints(run_dir)  # none in a run restored from a results archive
+        if evaluation.get("episodes") != settings.eval_episodes or (
+            newest and evaluation.get("checkpoint") != newest[-1].name
         ):
             return False
     return True

@@ -172,15 +172,54 @@ def experiment_labels(configs: Sequence[Config]) -> list[str]:
     ]
 
 
+def _preset_values(config: Config) -> dict[str, Any]:
+    """The keys the run's preset alone gives its env and algorithm; empty where that cannot be rebuilt (a preset
+    this canter does not ship)."""
+    from canter.config.overrides import apply_overrides
+    from canter.config.presets import preset_overrides
+
+    first = {"env.id": config.env.id, "run.algo": config.run.algo, "run.preset": config.run.preset}
+    try:
+        base = apply_overrides(Config(), first, "the run")
+        base = apply_overrides(base, preset_overrides(config.run.preset, config.env.id, config.run.algo), "preset")
+    except CanterError:
+        return {}
+    return flat_config(base)
+
+
+def method_key(config: Config) -> tuple[tuple[str, Any], ...]:
+    """What a run's method is on any env: its algorithm and preset, and the learning keys it sets apart from what
+    the preset gives its env (a preset may give each env its own values; those stay the same method)."""
+    base, missing = _preset_values(config), object()
+    changed = [(k, v) for k, v in experiment_key(config) if k != "env.id" and base.get(k, missing) != v]
+    return (("run.algo", config.run.algo), ("run.preset", config.run.preset), *changed)
+
+
+_PER_ENV = "preset's per env"
+
+
 def method_labels(configs: Sequence[Config]) -> list[str]:
-    """The label of each config without its env: configs whose labels differ only in the env are one method, whose
-    scores on several envs the statistics aggregate. A label left empty names the algorithm and preset."""
+    """One label per config, equal for the configs of one method (`method_key`), whose scores on several envs the
+    statistics aggregate. A label names the keys whose values tell the methods apart (the algorithm, the preset,
+    and the keys some method changed from its preset); a single method is labelled by its algorithm and preset."""
+    keys = [method_key(c) for c in configs]
+    methods = list(dict.fromkeys(keys))
+    if len(methods) == 1:
+        return [", ".join(_show(k, v) for k, v in keys[0][:2])] * len(configs)
     flats = [flat_config(c) for c in configs]
-    labels = []
-    for flat, keys in zip(flats, _label_keys(flats, configs)):
-        kept = [k for k in keys if k != "env.id"] or ["run.algo", "run.preset"]
-        labels.append(", ".join(_show(k, flat[k]) for k in kept))
-    return labels
+
+    def value(method: tuple, key: str) -> Any:
+        seen = list(dict.fromkeys(repr(f.get(key)) for f, k in zip(flats, keys) if k == method))
+        return next(f.get(key) for f, k in zip(flats, keys) if k == method) if len(seen) == 1 else _PER_ENV
+
+    names = list(dict.fromkeys(name for method in methods for name, _ in method))
+    values = {m: {name: value(m, name) for name in names} for m in methods}
+    telling = [name for name in names if len({repr(values[m][name]) for m in methods}) > 1]
+    labels = {m: ", ".join(_show(name, values[m][name]) for name in telling) for m in methods}
+    if len(set(labels.values())) < len(methods):  # values that coincide across envs: name the changes themselves
+        shared = set.intersection(*(set(m) for m in methods))
+        labels = {m: ", ".join(_show(k, v) for k, v in [i for i in m if i not in shared] or m[:2]) for m in methods}
+    return [labels[k] for k in keys]
 
 
 def experiments_of(runs: Sequence[RunCurves]) -> list[Experiment]:
@@ -322,9 +361,10 @@ def available_metrics(runs: Sequence[RunCurves]) -> list[str]:
 
 
 def unused_diagnostic(runs: Sequence[RunCurves], column: str) -> bool:
-    """A diagnostic that every run's config turns off (`AlgorithmSpec.unused_metrics`), such as ppo's symmetry
-    loss without sym.coef, which it logs as 0."""
-    return all(column in unused_metrics(r.config) for r in runs)
+    """A diagnostic that the config of every run logging it turns off (`AlgorithmSpec.unused_metrics`), such as
+    ppo's symmetry loss without sym.coef, which it logs as 0."""
+    logging = [r for r in runs if column in r.columns and not np.isnan(r.columns[column]).all()]
+    return all(column in unused_metrics(r.config) for r in logging)  # runs of algorithms without it do not count
 
 
 def choose_metrics(runs: Sequence[RunCurves], requested: Sequence[str] | None) -> list[str]:

@@ -19,6 +19,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 
+from canter.cli.args import seed_arg
 from canter.core.seeding import EVAL, env_seeds
 from canter.errors import CanterError
 
@@ -109,9 +110,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("envs", nargs="*", default=list(DEFAULT_ENVS), help="env ids (default: the published envs)")
     parser.add_argument("--episodes", type=int, default=100, help="episodes per env (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the actions and the env seeds")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the actions and the env seeds")
     parser.add_argument("--out", required=True, help="TOML file to write")
     args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
     from canter.files import write_output
 
     rows = []
