@@ -467,3 +467,36 @@ def test_a_space_over_keys_the_algorithm_ignores_is_refused(tmp_path):
         check_settings(settings)
     for algo in _registered_algorithms():  # the shipped spaces only vary what their algorithm reads
         check_settings(TuneSettings(env_id="Hopper-v5", total_steps=1000, algo=algo))
+
+
+def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders_is_refused(tmp_path):
+    from dataclasses import replace
+
+    from canter.orchestrate.tune import check_study_settings, study_settings
+
+    settings = tiny_settings(tmp_path)
+    wanted = study_settings(settings, *check_settings(settings))
+    trials = tmp_path / "trials"
+    study = optuna.create_study(direction="maximize", study_name="s")
+    check_study_settings(study, wanted, trials)  # a new study takes the settings
+    check_study_settings(study, wanted, trials)  # and is resumed with the same ones
+
+    longer = replace(settings, total_steps=2048)
+    with pytest.raises(CanterError) as refused:
+        check_study_settings(study, study_settings(longer, *check_settings(longer)), trials)
+    assert str(refused.value) == (
+        "study 's' was run with --total-steps 1024, but this command gives 2048; its trials would not compare: "
+        "use the same settings, or a new --study"
+    )
+    other_space = tmp_path / "other.toml"
+    other_space.write_text(TINY_SPACE.replace("1e-4", "1e-5"))
+    wider = replace(settings, space_file=str(other_space))
+    with pytest.raises(CanterError, match=r"was run with the search space's \[ppo.lr\] 0.0001 to"):
+        check_study_settings(study, study_settings(wider, *check_settings(wider)), trials)
+    with pytest.raises(CanterError, match=r"was run with the base config's ppo.clip 0.2, but this command gives 0.3"):
+        clip = replace(settings, sets=(*settings.sets, "ppo.clip=0.3"))
+        check_study_settings(study, study_settings(clip, *check_settings(clip)), trials)
+
+    (trials / "trial_00000").mkdir(parents=True)
+    with pytest.raises(CanterError, match=r"holds the trials of an earlier study that this database does not know"):
+        check_study_settings(optuna.create_study(direction="maximize"), wanted, trials)

@@ -339,16 +339,69 @@ def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
     return min(starts, default=time.time()) + settings.study_hours * 3600
 
 
+SETTINGS_ATTR = "canter_settings"
+
+
+def _param_text(param: Any) -> str:
+    if param.same_as is not None:
+        return f"same as {param.same_as}"
+    if param.choices is not None:
+        return f"choices {list(param.choices)}"
+    return (
+        f"{param.low} to {param.high}" + (", log" if param.log else "") + (f", step {param.step}" if param.step else "")
+    )
+
+
+def study_settings(settings: TuneSettings, base: Config, space: SearchSpace) -> dict[str, str]:
+    """What makes the trials of a study comparable: their budget, seeds and evaluations, the base config and the
+    search space. A resumed study is refused when these differ (`check_study_settings`)."""
+    from canter.config.experiment import experiment_key
+
+    found = {
+        "--total-steps": str(settings.total_steps),
+        "seeds (--seed, --seeds-per-trial)": ",".join(map(str, settings.seeds)),
+        "--evaluations": str(settings.evaluations),
+        "--eval-episodes": str(settings.eval_episodes),
+    }
+    found |= {f"the base config's {key}": repr(value) for key, value in experiment_key(base)}
+    found |= {f"the search space's [{p.key}]": _param_text(p) for p in space.params}
+    return found
+
+
+def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -> None:
+    """Refuse to resume a study with settings that make its trials incomparable, and a new study whose trial
+    folders would land on those of an earlier one (a deleted or another database under the same --out-dir)."""
+    stored = study.user_attrs.get(SETTINGS_ATTR)
+    if stored is None:
+        if study.trials == [] and trials_dir.is_dir() and any(trials_dir.iterdir()):
+            raise CanterError(
+                f"{trials_dir} holds the trials of an earlier study that this database does not know; move it "
+                f"away, or pick another --out-dir or --study"
+            )
+        study.set_user_attr(SETTINGS_ATTR, wanted)
+        return
+    missing = "(not set)"
+    for name in dict.fromkeys([*stored, *wanted]):
+        if stored.get(name, missing) != wanted.get(name, missing):
+            raise CanterError(
+                f"study '{study.study_name}' was run with {name} {stored.get(name, missing)}, but this command gives "
+                f"{wanted.get(name, missing)}; its trials would not compare: use the same settings, or a new --study"
+            )
+
+
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
     from canter.orchestrate.jobs import run_workers, warn_if_more_jobs_than_cores
 
-    check_settings(settings)
+    base, space = check_settings(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     if settings.storage_url is None:
         settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
     study = make_study(settings, storage)
+    wanted = study_settings(settings, base, space)
+    check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
+    retrying(check, settings.storage.url, "reading the study")
     # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
     settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
     warn_if_more_jobs_than_cores(settings.jobs)
