@@ -150,6 +150,17 @@ def test_random_returns_of_a_short_env(tmp_path):
     assert written["env"]["InvertedPendulum-v4"]["mean"] == pytest.approx(returns.mean(), abs=1e-4)
 
 
+@pytest.mark.parametrize("env_id", ["InvertedPendulum-v4", "InvertedPendulum-v5"])
+def test_a_shipped_random_score_is_measured_again_to_the_same_value(env_id):
+    """The file's own command, re-run for one short env per version: a wrong or swapped entry would show."""
+    from canter.use.random_score import random_returns
+
+    data = tomllib.loads(resources.files("canter.data").joinpath("random.toml").read_text())
+    entry = data["env"][env_id]
+    returns, _ = random_returns(env_id, episodes=entry["episodes"], seed=data["seed"])
+    assert returns.mean() == pytest.approx(entry["mean"], abs=1e-3)
+
+
 def hand_scores():
     rows = []
     for method, algo, hopper, walker in (
