@@ -107,6 +107,34 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         assert (ou[env] == 0).all() == bool(last_done[env])
 
 
+def test_an_autoreset_step_that_stores_nothing_makes_no_update():
+    """One env that terminates every 3 steps: of 8 vector steps, 2 are autoresets, so 6 transitions and 6 updates
+    at train_freq 1, as in the references, whose envs reset within the step."""
+
+    def one_env_step(state, action):
+        t, needs_reset = state
+        t = jnp.where(needs_reset, 0, t + 1)
+        terminated = ~needs_reset & (t >= 3)
+        obs = jnp.stack([t.astype(jnp.float32), jnp.zeros_like(t, jnp.float32)], axis=-1)
+        return (t, terminated), StepOutput(
+            obs, jnp.where(needs_reset, 0.0, 1.0), terminated, jnp.zeros_like(terminated), {}
+        )
+
+    config = build_config(
+        "Pendulum-v1",
+        algo="td3",
+        sets=["env.num_envs=1", "td3.steps_per_call=8", "td3.learning_starts=0", "td3.train_freq=1"]
+        + ["td3.gradient_steps=1", "td3.buffer_size=64", "td3.batch_size=2", "td3.hidden=4"],
+    )
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    learner = TD3(config.td3)
+    state = init_train_state(config, learner, 2, 1)
+    carry = init_env_carry((jnp.zeros(1, jnp.int32), jnp.zeros(1, bool)), jnp.zeros((1, 2)), ())
+    state, _, metrics = jax.jit(make_iteration(config, learner, spec, one_env_step))(state, carry, jnp.float32(1.0))
+    assert int(metrics["steps"]) == 6 and int(state.buffer.size) == 6
+    assert int(metrics["gradient_steps"]) == 6 and int(state.vector_steps) == 6
+
+
 class _RewardSpy(TD3):
     """TD3 whose update learns nothing and reports the ratio of the batch's rewards to the raw ones (the counter env's
     reward equals its next observation's counter, which observation normalization, off here, would change)."""

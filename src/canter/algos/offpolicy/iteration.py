@@ -157,9 +157,12 @@ def make_iteration(
         if env_cfg.normalize_reward:
             return_stats = update_stats(return_stats, episodes.discounted_return, valid)
         global_step = global_step + valid.sum().astype(count_dtype())
-        vector_steps = loop.vector_steps + 1
+        # An autoreset step in which no env stored a transition is not a step of the algorithm: counting it would
+        # make one more update per episode than the references (whose vector envs reset within the step) make.
+        stored = valid.any()
+        vector_steps = loop.vector_steps + stored.astype(loop.vector_steps.dtype)
 
-        do_train = healthy & (global_step >= cfg.learning_starts) & (vector_steps % cfg.train_freq == 0)
+        do_train = stored & healthy & (global_step >= cfg.learning_starts) & (vector_steps % cfg.train_freq == 0)
 
         def run(learner_state):
             return train(learner_state, buffer, obs_stats, return_stats, train_key)
