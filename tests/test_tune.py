@@ -28,6 +28,7 @@ from canter.orchestrate.tune import (
     TuneSettings,
     check_settings,
     evaluation_index,
+    logged_evaluations,
     run_trial,
 )
 from pg_server import postgres_url  # noqa: F401  (session fixture)
@@ -470,8 +471,6 @@ def test_a_space_over_keys_the_algorithm_ignores_is_refused(tmp_path):
 
 
 def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders_is_refused(tmp_path):
-    from dataclasses import replace
-
     from canter.orchestrate.tune import check_study_settings, study_settings
 
     settings = tiny_settings(tmp_path)
@@ -500,3 +499,44 @@ def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders
     (trials / "trial_00000").mkdir(parents=True)
     with pytest.raises(CanterError, match=r"holds the trials of an earlier study that this database does not know"):
         check_study_settings(optuna.create_study(direction="maximize"), wanted, trials)
+
+
+def test_a_trial_trains_its_whole_budget_whatever_the_base_config_stops_at(tmp_path):
+    from canter.orchestrate.tune import trial_config
+
+    settings = tiny_settings(tmp_path, sets=(*TINY_SETS, "run.stop_at_return=-100", "run.max_minutes=5"))
+    base, _space = check_settings(settings)
+    assert base.run.stop_at_return == -100
+    config = trial_config(base, {"ppo.lr": 1e-3}, tmp_path / "trial", settings)
+    assert config.run.stop_at_return is None and config.run.max_minutes is None
+
+
+@pytest.mark.slow
+def test_a_trial_stopped_by_a_signal_after_an_evaluation_fails_rather_than_completes(tmp_path, monkeypatch):
+    import threading
+
+    import canter.orchestrate.tune as tune_module
+
+    settings = tiny_settings(tmp_path, total_steps=1_000_000, evaluations=200)
+    base, space = check_settings(settings)
+    real_start = tune_module.start_job
+
+    def start_then_stop(spec, folder, *args):
+        proc = real_start(spec, folder, *args)
+        metrics = Path(folder) / "s0" / "metrics.csv"
+
+        def stop_after_first_evaluation():
+            while proc.poll() is None:
+                if metrics.is_file() and logged_evaluations(metrics.parent, settings):
+                    proc.send_signal(signal.SIGTERM)  # as a scheduler stopping the job would
+                    return
+                time.sleep(0.05)
+
+        threading.Thread(target=stop_after_first_evaluation, daemon=True).start()
+        return proc
+
+    monkeypatch.setattr(tune_module, "start_job", start_then_stop)
+    trial = optuna.trial.FixedTrial({"ppo.lr": 1e-3, "ppo.n_steps": 64, "ppo.ent_coef": 0.0})
+    outcome = run_trial(trial, settings, base, space)
+    assert outcome.state == "fail" and outcome.reason.startswith("stopped before its budget, after "), outcome
+    assert outcome.reason.endswith(" of 200 evaluations")

@@ -155,6 +155,7 @@ def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings
             eval_episodes=settings.eval_episodes,
             tensorboard=False,
             max_minutes=None,
+            stop_at_return=None,  # every trial trains its whole budget, so that their objectives compare
         ),
     )
 
@@ -286,7 +287,11 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
         return Outcome("fail", reason=reason)
     if not reported:
         return Outcome("fail", reason="training finished without an evaluation")
-    return Outcome("complete", value=reported[max(reported)])
+    if max(reported) < settings.evaluations:  # a signal stopped the training, which then exits cleanly
+        return Outcome(
+            "fail", reason=f"stopped before its budget, after {max(reported)} of {settings.evaluations} evaluations"
+        )
+    return Outcome("complete", value=reported[settings.evaluations])
 
 
 # ------------------------------------------------------------------------------------------------------ the study
