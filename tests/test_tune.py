@@ -540,3 +540,22 @@ def test_a_trial_stopped_by_a_signal_after_an_evaluation_fails_rather_than_compl
     outcome = run_trial(trial, settings, base, space)
     assert outcome.state == "fail" and outcome.reason.startswith("stopped before its budget, after "), outcome
     assert outcome.reason.endswith(" of 200 evaluations")
+
+
+@pytest.mark.slow
+def test_a_trial_whose_training_ended_before_its_evaluations_were_read_is_not_pruned(tmp_path, monkeypatch):
+    import canter.orchestrate.tune as tune_module
+
+    settings = tiny_settings(tmp_path)
+    base, space = check_settings(settings)
+    real_start = tune_module.start_job
+
+    def start_and_finish(spec, folder, *args):  # a worker that looks only after the training has ended
+        proc = real_start(spec, folder, *args)
+        proc.wait()
+        return proc
+
+    monkeypatch.setattr(tune_module, "start_job", start_and_finish)
+    study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
+    outcome = run_trial(study.ask(), settings, base, space)
+    assert outcome.state == "complete", outcome

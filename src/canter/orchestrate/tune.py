@@ -262,7 +262,9 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 reported[index] = value
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 retrying(functools.partial(trial.report, value, step), url, "reporting an evaluation")
-                if index < settings.evaluations and retrying(trial.should_prune, url, "asking the pruner"):
+                # Once the training has ended (code set), its evaluations are only read late: nothing is left to cut.
+                pruning = code is None and index < settings.evaluations
+                if pruning and retrying(trial.should_prune, url, "asking the pruner"):
                     stop_jobs([proc])
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
             if code is not None:
