@@ -133,6 +133,8 @@ def _bad_inputs(tmp_path, run):
         (["train", "--resume", str(tmp_path / "missing")], "run folder not found"),
         (["train", "--resume", str(empty)], "no config.toml"),
         (["train", "--resume", str(run), "--seed", "4"], "only --total-steps, --max-minutes, --quiet, --track and"),
+        (["train", "--resume", str(run), "--seed", "0"], "only --total-steps, --max-minutes, --quiet, --track and"),
+        (["train", "Hopper-v5", "--seed", "-1"], "argument --seed: expected a seed from 0 to 4294967295"),
         (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
         (["eval", str(tmp_path / "missing")], "run folder not found"),
         (["eval", str(empty)], "no checkpoint"),

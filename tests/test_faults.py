@@ -285,6 +285,7 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
 
 def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path):
     run = tmp_path / "run"
+    (run / "tb").mkdir(parents=True)  # a training run's folders exist when its writes fail
     full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
     error = training_write_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(run / "metrics.csv")), [run])
     assert error is not None and str(error) == (

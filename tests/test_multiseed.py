@@ -180,7 +180,7 @@ def test_every_seed_of_a_group_writes_a_valid_run_folder(hopper_group):
 
 
 @pytest.mark.slow
-def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path):
+def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path, capsys):
     grouped, _ = hopper_group
     folders = [tmp_path / f"s{i}" for i in range(2)]
     for result, folder in zip(grouped, folders):
@@ -193,6 +193,20 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path)
     assert [r.run_dir for r in resumed] == folders and all(r.global_step >= 3072 for r in resumed)
     assert resumed[1].global_step == alone.global_step
     _assert_same_curve(alone_copy, folders[1])
+
+    # A seed that already has the budget (it finished before a signal stopped the others) is left out, with a note.
+    train(resume_config(folders[0], 4096), resume=folders[0])
+    capsys.readouterr()
+    [only] = resume_seeds(folders, 4096)
+    assert only.run_dir == folders[1] and only.global_step >= 4096
+    assert (
+        f"canter: note: {folders[0]} already has its run.total_steps; the others resume without it"
+        in capsys.readouterr().err
+    )
+    with pytest.raises(
+        CanterError, match=r"s0 already has \d+ of run.total_steps=4096 steps; pass --total-steps larger"
+    ):
+        resume_seeds(folders, 4096)
 
     with pytest.raises(CanterError, match="repeated seeds"):
         resume_seeds([folders[0], folders[0]], 4096)

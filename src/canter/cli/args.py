@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from canter.core.seeding import SEED_LIMIT
 from canter.errors import CanterError
 
 if TYPE_CHECKING:
@@ -21,9 +22,6 @@ def steps_arg(text: str) -> int:
     if not value.is_integer() or value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive whole step count, got {text!r}")
     return int(value)
-
-
-SEED_LIMIT = 2**32  # numpy's and the envs' seeds are unsigned 32-bit
 
 
 def seed_arg(text: str) -> int:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_track_args, seeds_arg, steps_arg, track_spec
+from canter.cli.args import add_track_args, seed_arg, seeds_arg, steps_arg, track_spec
 from canter.errors import CanterError
 
 
@@ -79,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "run.seed resume together as one group",
     )
     add_track_args(t, "one tracker run per seed; a resume continues the tracker runs recorded in RUN/trackers.json")
-    t.add_argument("--seed", type=int, default=None, help="run seed")
+    t.add_argument("--seed", type=seed_arg, default=None, help="run seed")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
@@ -118,7 +118,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
                 ("--eval-every", args.eval_every),
                 ("--eval-episodes", args.eval_episodes),
             )
-            if value
+            if value is not None and value != []  # a flag given as 0 is still given
         ]
         if changed:
             raise CanterError(

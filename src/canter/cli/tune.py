@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import SEED_LIMIT, add_track_args, seed_arg, steps_arg, track_spec
+from canter.cli.args import add_track_args, seed_arg, steps_arg, track_spec
+from canter.core.seeding import SEED_LIMIT
 from canter.errors import CanterError
 
 

@@ -13,6 +13,8 @@ import numpy as np
 # on EVAL episodes (best.npz), whose score on those episodes would be biased upward.
 TRAIN, RESUME, EVAL, HELD_OUT = 0, 1, 2, 3
 
+SEED_LIMIT = 2**32  # run seeds are unsigned 32-bit, as numpy's are
+
 
 def env_seeds(run_seed: int, num_envs: int, purpose: int = TRAIN, salt: int = 0) -> list[int]:
     sequence = np.random.SeedSequence([int(run_seed) & 0xFFFFFFFF, purpose, int(salt) & 0xFFFFFFFFFFFF, 0x63616E74])

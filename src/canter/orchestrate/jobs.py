@@ -241,7 +241,13 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                 fresh.append(seed)
         with tracking(spec.track):
             if partial:  # each resumes from its own newest checkpoint, together in one program
-                resume_seeds(partial, total, max_minutes=config.run.max_minutes, quiet=quiet)
+                resume_seeds(
+                    partial,
+                    total,
+                    max_minutes=config.run.max_minutes,
+                    stop_at_return=config.run.stop_at_return,  # the target given now, or none
+                    quiet=quiet,
+                )
             if fresh:
                 train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
         if spec.eval_episodes:

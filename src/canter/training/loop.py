@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 import math
 import signal
+import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +68,12 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
+class Saved(Enum):
+    """A budget key left as the run folder saved it."""
+
+    KEEP = "keep"
+
+
 def _env_header(spec: Any) -> dict[str, Any]:
     return {
         "id": spec.id,
@@ -111,12 +119,15 @@ def resume_seeds(
     total_steps: int | None = None,
     *,
     max_minutes: float | None = None,
+    stop_at_return: float | None | Saved = Saved.KEEP,
     quiet: bool = True,
 ) -> list[RunResult]:
     """Resume several run folders together as one group. Their saved configs must be equal apart from run.seed
     (as the folders of one `train_seeds` group are); each continues from its own newest checkpoint exactly as it
-    would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`."""
-    configs = [resume_config(Path(d), total_steps, max_minutes) for d in run_dirs]
+    would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`. A folder that has
+    its budget already (a seed of the group that finished before a signal stopped the others) is left out with a
+    note; the results are those of the folders resumed."""
+    configs = [resume_config(Path(d), total_steps, max_minutes, stop_at_return) for d in run_dirs]
     seeds = [c.run.seed for c in configs]
     if len(set(seeds)) != len(seeds):
         raise CanterError(
@@ -129,7 +140,21 @@ def resume_seeds(
                 f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
                 f"folders with different configs one at a time"
             )
+    finished = [_has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
+    if len(run_dirs) > 1 and any(finished) and not all(finished):
+        for run_dir in (d for d, done in zip(run_dirs, finished) if done):
+            print(
+                f"canter: note: {run_dir} already has its run.total_steps; the others resume without it",
+                file=sys.stderr,
+            )
+        run_dirs = [d for d, done in zip(run_dirs, finished) if not done]
+        configs = [c for c, done in zip(configs, finished) if not done]
     return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
+
+
+def _has_its_budget(run_dir: Path, config: Config) -> bool:
+    newest = checkpoint.list_checkpoints(run_dir)
+    return bool(newest) and int(checkpoint.read_header(newest[-1]).get("global_step", 0)) >= config.run.total_steps
 
 
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
@@ -162,6 +187,7 @@ def _train_locked(
             from canter.training.restore import load_state
 
             out = Path(resume)
+            locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
             latest = checkpoint.latest(out)
             resumed_from.append(latest)
             _, _, state, header = load_state(out, latest)
@@ -174,7 +200,7 @@ def _train_locked(
             resumed_from.append(None)
         if start_step >= config.run.total_steps:
             raise CanterError(
-                f"the run already has {start_step} of run.total_steps={config.run.total_steps} "
+                f"{out} already has {start_step} of run.total_steps={config.run.total_steps} "
                 f"steps; pass --total-steps larger than {start_step} to extend it"
             )
         purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
@@ -183,7 +209,8 @@ def _train_locked(
         states.append(state)
         outs.append(out)
         start_steps.append(start_step)
-        locks.take(out)  # before anything is written to it
+        if resume is None:
+            locks.take(out)  # before anything is written to it
 
     config = configs[0]
     options = env_options(config.env, backend)
@@ -252,9 +279,10 @@ class _SeedRun:
         out: Path,
         start_step: int,
         metric_names: tuple[str, ...],
-        earlier: dict[str, float] | None,
+        earlier: dict[str, Any] | None,
     ) -> None:
-        """`earlier`: wall seconds, training seconds and episodes of the sessions before a resume."""
+        """`earlier`: wall seconds, training seconds, episodes and the recent episode returns of the sessions before
+        a resume."""
         self.config = config
         self.out = out
         self.metric_names = metric_names
@@ -263,7 +291,8 @@ class _SeedRun:
         earlier = earlier or {}
         self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
         self.episodes = int(earlier.get("episodes", 0))
-        self.recent: deque[float] = deque(maxlen=RECENT_EPISODES)
+        # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
+        self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
         self.run_seconds = float(earlier.get("train_seconds", 0.0))
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
@@ -292,11 +321,12 @@ class _SeedRun:
     def recent_mean(self) -> float | None:
         return float(np.mean(self.recent)) if self.recent else None
 
-    def totals(self, started: float) -> dict[str, float]:
+    def totals(self, started: float) -> dict[str, Any]:
         return {
             "wall_seconds": self.earlier_wall + time.perf_counter() - started,
             "train_seconds": self.run_seconds,
             "episodes": self.episodes,
+            "recent_returns": list(self.recent),
         }
 
     def _header(self, step: int, started: float) -> dict[str, Any]:
@@ -409,7 +439,10 @@ class _SeedRun:
     def fail(self, last_good_state: Any, started: float, env_carry: Any = None) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
         self.stop_reason = "non_finite"
-        self.save(last_good_state, self.global_step, started, env_carry)
+        # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
+        # (an off-policy buffer keeps the finite transitions of the failed call).
+        if not checkpoint.checkpoint_path(self.out, self.global_step).is_file():
+            self.save(last_good_state, self.global_step, started, env_carry)
         self.close()
         self.error = (
             f"non-finite observation, reward or parameter during the iteration after step "
@@ -425,7 +458,7 @@ def _loop(
     carry: Any,
     outs: list[Path],
     start_steps: list[int],
-    earlier: list[dict[str, float] | None],
+    earlier: list[dict[str, Any] | None],
     quiet: bool,
     started: float,
 ) -> list[RunResult]:
@@ -556,9 +589,10 @@ def _loop(
     if failed:
         if group == 1:
             raise CanterError(failed[0].error)
+        others = [run for run in runs if run.error is None]
+        tail = "; ".join(f"seed {run.config.run.seed} stopped: {run.stop_reason}" for run in others)
         raise CanterError(
-            "; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed)
-            + "; the other seeds finished normally"
+            "; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed) + (f"; {tail}" if tail else "")
         )
     results = [run.result for run in runs if run.result is not None]
     assert len(results) == len(runs), "a seed that did not fail has finished"
@@ -570,12 +604,24 @@ def _best_return(run_dir: Path) -> float | None:
     path = checkpoint.best_path(run_dir)
     if not path.is_file():
         return None
-    return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
+    try:
+        return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
+    except (KeyError, TypeError, ValueError):
+        raise CanterError(
+            f"{path} holds no evaluation score, so it is not a best checkpoint of this run; move it out of the "
+            f"folder, then resume"
+        ) from None
 
 
-def resume_config(run_dir: Path, total_steps: int | None, max_minutes: float | None = None) -> Config:
-    """The saved config of a run, with only its budget changed: the step budget, and the wall-minute limit of the
-    resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run)."""
+def resume_config(
+    run_dir: Path,
+    total_steps: int | None,
+    max_minutes: float | None = None,
+    stop_at_return: float | None | Saved = Saved.KEEP,
+) -> Config:
+    """The saved config of a run, with only its budget changed: the step budget, the wall-minute limit of the
+    resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run), and
+    the return target (a bench re-run gives its own; None: no target)."""
     from canter.training.run_folder import read_config
 
     if not Path(run_dir).is_dir():
@@ -585,4 +631,6 @@ def resume_config(run_dir: Path, total_steps: int | None, max_minutes: float | N
         config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
     if max_minutes is not None:
         config = replace(config, run=replace(config.run, max_minutes=float(max_minutes)))
+    if not isinstance(stop_at_return, Saved):
+        config = replace(config, run=replace(config.run, stop_at_return=stop_at_return))
     return config

@@ -19,8 +19,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 
-from canter.cli.args import seed_arg
-from canter.core.seeding import EVAL, env_seeds
+from canter.core.seeding import EVAL, SEED_LIMIT, env_seeds
 from canter.errors import CanterError
 
 MAX_ENVS = 32
@@ -110,11 +109,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("envs", nargs="*", default=list(DEFAULT_ENVS), help="env ids (default: the published envs)")
     parser.add_argument("--episodes", type=int, default=100, help="episodes per env (default 100)")
-    parser.add_argument("--seed", type=seed_arg, default=0, help="seed of the actions and the env seeds")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the actions and the env seeds")
     parser.add_argument("--out", required=True, help="TOML file to write")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if not 0 <= args.seed < SEED_LIMIT:
+        parser.error(f"--seed must be from 0 to {SEED_LIMIT - 1}, got {args.seed}")
     from canter.files import write_output
 
     rows = []

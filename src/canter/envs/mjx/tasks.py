@@ -3,8 +3,9 @@ reset noise and 1000-step limits as Gymnasium's defaults, written as pure JAX fu
 
 Each task is a `Task` record in `TASKS`. Its functions read an `mjx.Data` as Gymnasium reads `MjData` after
 `mj_step(nstep=frame_skip)` and `mj_rnePostConstraint`: positions and velocities are the final ones, while derived
-quantities (body frames, com inertia and velocity, actuator and contact forces) belong to the start of the last
-substep, as in C MuJoCo.
+quantities (body frames, com inertia and velocity, actuator and contact forces) are those the last substep computed
+on its way, as in C MuJoCo: the start of the substep with the Euler integrator (HalfCheetah), the last Runge-Kutta
+stage with RK4 (the others).
 """
 
 from __future__ import annotations

@@ -1,0 +1,75 @@
+"""What a resume carries over besides the learner's state: the recent episode returns that run.stop_at_return and
+summary.json's recent_return are computed from, the best checkpoint's score, and an exact checkpoint that a
+non-finite stop right after it must not overwrite."""
+
+from __future__ import annotations
+
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from canter.config.build import build_config
+from canter.errors import CanterError
+from canter.training import checkpoint
+from canter.training.loop import RECENT_EPISODES, resume_config, train
+from canter.training.restore import load_state
+from conftest import TINY
+
+# Pendulum's episodes are 200 steps and never end early: 4 envs finish about 2.5 episodes per 512-step iteration,
+# so 4096 steps hold the 20 that run.stop_at_return needs, and one more iteration does not.
+PENDULUM = TINY + ["env.num_envs=4", "ppo.n_steps=128", "ppo.minibatch_size=256", "ppo.epochs=1"]
+
+
+@pytest.mark.slow
+def test_a_resumed_run_stops_at_its_return_target_as_the_uncut_run_would(tmp_path):
+    config = build_config("Pendulum-v1", sets=PENDULUM + [f"run.out_dir={tmp_path}"], total_steps=4096)
+    first = train(config)
+    header = checkpoint.read_header(checkpoint.latest(first.run_dir))
+    recent = header["totals"]["recent_returns"]
+    assert len(recent) == RECENT_EPISODES and first.recent_return == pytest.approx(np.mean(recent))
+
+    # Every return passes this target, so the run stops after its first resumed iteration: its last 20 episodes
+    # came before the resume. Counting only the episodes after it, it would train on to about 8192 steps.
+    resumed = train(resume_config(first.run_dir, 8192, stop_at_return=-1e9), resume=first.run_dir)
+    assert resumed.stop_reason == "stop_at_return" and resumed.global_step <= first.global_step + 512
+
+
+@pytest.mark.slow
+def test_a_best_checkpoint_without_a_score_is_refused_in_one_line_on_resume(tmp_path):
+    config = build_config("Pendulum-v1", sets=PENDULUM + [f"run.out_dir={tmp_path}"], total_steps=1024)
+    run = train(config).run_dir
+    shutil.copy(checkpoint.latest(run), checkpoint.best_path(run))  # a checkpoint copied in by hand
+    evaluating = resume_config(run, 2048)
+    evaluating = evaluating.with_values("run", eval_every=512, eval_episodes=1)
+    with pytest.raises(CanterError, match=r"best.npz holds no evaluation score, so it is not a best checkpoint"):
+        train(evaluating, resume=run)
+
+
+@pytest.mark.slow
+def test_a_non_finite_stop_right_after_a_checkpoint_keeps_that_exact_checkpoint(tmp_path):
+    """td3 checkpoints after every call here; the call in which the observations turn NaN stores its finite
+    transitions before the NaN, so the state it hands back has more in its buffer than its step counter says."""
+    config = build_config(
+        "canter_test_envs:NaNAfter-v0",
+        algo="td3",
+        total_steps=50_000,
+        sets=[
+            "td3.hidden=8",
+            "td3.learning_starts=50",
+            "td3.steps_per_call=120",
+            "td3.batch_size=16",
+            "run.checkpoint_every=1",
+            "run.tensorboard=false",
+            f"run.out_dir={tmp_path}",
+        ],
+    )
+    with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
+        train(config)
+    run = next(tmp_path.iterdir())
+    _, _, state, header = load_state(run)
+    # Every stored transition is a counted step, as in the checkpoint written before the failed call.
+    assert int(state.buffer.size) == int(header["global_step"]) == int(state.global_step) < 300
+    leaves = jax.tree_util.tree_leaves(state)
+    assert all(np.isfinite(np.asarray(x)).all() for x in leaves if np.issubdtype(np.asarray(x).dtype, np.floating))
