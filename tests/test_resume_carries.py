@@ -1,12 +1,11 @@
 """What a resume carries over besides the learner's state: the recent episode returns that run.stop_at_return and
-summary.json's recent_return are computed from, the best checkpoint's score, and an exact checkpoint that a
-non-finite stop right after it must not overwrite."""
+summary.json's recent_return are computed from, and the best checkpoint's score. (A non-finite stop keeping the
+exact checkpoint before it: tests/test_offpolicy.py.)"""
 
 from __future__ import annotations
 
 import shutil
 
-import jax
 import numpy as np
 import pytest
 
@@ -14,7 +13,6 @@ from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training import checkpoint
 from canter.training.loop import RECENT_EPISODES, resume_config, train
-from canter.training.restore import load_state
 from conftest import TINY
 
 # Pendulum's episodes are 200 steps and never end early: 4 envs finish about 2.5 episodes per 512-step iteration,
@@ -45,31 +43,3 @@ def test_a_best_checkpoint_without_a_score_is_refused_in_one_line_on_resume(tmp_
     evaluating = evaluating.with_values("run", eval_every=512, eval_episodes=1)
     with pytest.raises(CanterError, match=r"best.npz holds no evaluation score, so it is not a best checkpoint"):
         train(evaluating, resume=run)
-
-
-@pytest.mark.slow
-def test_a_non_finite_stop_right_after_a_checkpoint_keeps_that_exact_checkpoint(tmp_path):
-    """td3 checkpoints after every call here; the call in which the observations turn NaN stores its finite
-    transitions before the NaN, so the state it hands back has more in its buffer than its step counter says."""
-    config = build_config(
-        "canter_test_envs:NaNAfter-v0",
-        algo="td3",
-        total_steps=50_000,
-        sets=[
-            "td3.hidden=8",
-            "td3.learning_starts=50",
-            "td3.steps_per_call=120",
-            "td3.batch_size=16",
-            "run.checkpoint_every=1",
-            "run.tensorboard=false",
-            f"run.out_dir={tmp_path}",
-        ],
-    )
-    with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
-        train(config)
-    run = next(tmp_path.iterdir())
-    _, _, state, header = load_state(run)
-    # Every stored transition is a counted step, as in the checkpoint written before the failed call.
-    assert int(state.buffer.size) == int(header["global_step"]) == int(state.global_step) < 300
-    leaves = jax.tree_util.tree_leaves(state)
-    assert all(np.isfinite(np.asarray(x)).all() for x in leaves if np.issubdtype(np.asarray(x).dtype, np.floating))
