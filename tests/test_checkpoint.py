@@ -63,6 +63,13 @@ def test_corrupt_truncated_and_foreign_checkpoints_are_one_line_errors(tmp_path)
         checkpoint.restore(init_train_state(build_config("Hopper-v5", sets=["net.hidden=4"]), 11, 3), arrays, path)
 
 
+def test_a_leaf_of_another_dtype_is_named_with_both_dtypes(tmp_path):
+    checkpoint.save(tmp_path / "c.npz", {"x": np.zeros(3, np.float64)}, {})
+    arrays, _ = checkpoint.read(tmp_path / "c.npz")
+    with pytest.raises(CanterError, match=r"'x' is float64 \(3,\), expected float32 \(3,\)"):
+        checkpoint.restore({"x": np.zeros(3, np.float32)}, arrays, tmp_path / "c.npz")
+
+
 def test_prune_keeps_newest(tmp_path):
     for step in (10, 20, 30, 40):
         checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})

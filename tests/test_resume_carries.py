@@ -43,3 +43,13 @@ def test_a_best_checkpoint_without_a_score_is_refused_in_one_line_on_resume(tmp_
     evaluating = evaluating.with_values("run", eval_every=512, eval_episodes=1)
     with pytest.raises(CanterError, match=r"best.npz holds no evaluation score, so it is not a best checkpoint"):
         train(evaluating, resume=run)
+
+
+@pytest.mark.slow
+def test_a_resume_with_a_config_that_differs_in_what_is_learned_is_refused(tmp_path):
+    config = build_config("Pendulum-v1", sets=PENDULUM + [f"run.out_dir={tmp_path}"], total_steps=512)
+    run = train(config).run_dir
+    other = resume_config(run, 1024).with_values("ppo", lr=1e-2)
+    with pytest.raises(CanterError, match=r"differs from the run's in ppo.lr; a resume may change only its budget"):
+        train(other, resume=run)
+    assert train(resume_config(run, 1024), resume=run).global_step >= 1024  # the budget alone may change

@@ -123,8 +123,8 @@ def restore(template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: 
         value = arrays[name]
         if value.shape != leaf.shape or value.dtype != leaf.dtype:
             raise CanterError(
-                f"checkpoint {source} does not match this config ('{name}' has shape {value.shape}, "
-                f"expected {leaf.shape})"
+                f"checkpoint {source} does not match this config ('{name}' is {value.dtype} {value.shape}, "
+                f"expected {leaf.dtype} {leaf.shape})"
             )
         restored.append(value)
     return jax.tree_util.tree_unflatten(treedef, restored)

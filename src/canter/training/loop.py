@@ -152,6 +152,21 @@ def resume_seeds(
     return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
 
 
+def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path) -> None:
+    """A resume continues the run it finds: a config that differs in what is learned (`canter.config.experiment`)
+    would train another experiment on its state."""
+    from canter.config.experiment import differing_keys
+
+    differing = [key for key in differing_keys([saved, config]) if key != "run.seed"]
+    if saved.run.seed != config.run.seed:
+        differing.insert(0, "run.seed")
+    if differing:
+        raise CanterError(
+            f"the config to resume {run_dir} with differs from the run's in {', '.join(differing)}; a resume may "
+            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return): use resume_config"
+        )
+
+
 def _has_its_budget(run_dir: Path, config: Config) -> bool:
     newest = checkpoint.list_checkpoints(run_dir)
     return bool(newest) and int(checkpoint.read_header(newest[-1]).get("global_step", 0)) >= config.run.total_steps
@@ -190,7 +205,8 @@ def _train_locked(
             locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
             latest = checkpoint.latest(out)
             resumed_from.append(latest)
-            _, _, state, header = load_state(out, latest)
+            saved, _, state, header = load_state(out, latest)
+            _check_only_the_budget_differs(saved, config, out)
             start_step = int(header["global_step"])
             earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
         else:
