@@ -585,9 +585,10 @@ def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
     assert (comparison["x"], comparison["y"]) == ("ppo", "trpo") and data["bootstrap"]["reps"] == 100
 
 
-def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_minute_limit_it_is_given(tmp_path, monkeypatch):
+def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp_path, monkeypatch):
     """A cell stopped by run.max_minutes and run again with another limit resumes under the new one, as `canter
-    train --resume --max-minutes` does; the saved limit would stop it again at the same point."""
+    train --resume --max-minutes` does; the saved limit would stop it again at the same point. The same for the
+    return target: a run stopped on reaching a lower one trains on toward the target given now."""
     import shutil
     from dataclasses import replace
 
@@ -599,11 +600,11 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_minute_limit_it_is_giv
     run = tmp_path / "run"
     shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
     saved = read_config(run)
-    given = replace(saved, run=replace(saved.run, total_steps=10_000, max_minutes=30.0))
+    given = replace(saved, run=replace(saved.run, total_steps=10_000, max_minutes=30.0, stop_at_return=500.0))
     calls = []
     monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: calls.append((dirs, total, kw)))
     run_job(JobSpec(to_toml(given), {saved.run.seed: str(run)}))
-    assert calls == [([run], 10_000, {"max_minutes": 30.0, "quiet": True})]
+    assert calls == [([run], 10_000, {"max_minutes": 30.0, "stop_at_return": 500.0, "quiet": True})]
 
 
 def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_path):

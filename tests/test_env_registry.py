@@ -186,3 +186,21 @@ hint = f"use --backend envpool for {shards}"
         "sample.py:9: 'gymnasium'",
         "sample.py:10: 'use --backend envpool for '",
     ]
+
+
+@pytest.mark.parametrize(
+    "env_id, backend, message",
+    [
+        ("ant", "auto", "'ant' is an env id of Brax; pass --backend brax"),
+        ("CarRacing-v3", "envpool", "EnvPool does not run CarRacing-v3; pass --backend gymnasium, or drop --backend"),
+        (":Hopper-v5", "auto", "custom env ':Hopper-v5' needs a module and an id, as in my_package.envs:MyEnv-v0"),
+        (".envs:Env-v0", "auto", "custom env '.envs:Env-v0' needs a module and an id"),
+        ("canter_test_envs:", "auto", "custom env 'canter_test_envs:' needs a module and an id"),
+    ],
+)
+def test_an_id_of_another_backend_or_a_malformed_custom_id_names_the_fix(env_id, backend, message):
+    if "brax" in message and not registry.get_backend("brax").available():
+        pytest.skip("brax is not installed")
+    with pytest.raises(CanterError) as refused:
+        resolve_backend(env_id, backend)
+    assert str(refused.value).startswith(message), str(refused.value)

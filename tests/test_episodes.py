@@ -127,3 +127,12 @@ def test_discounted_return_at_the_extremes(gamma):
     np.testing.assert_allclose(got.discounted_return, expected["discounted"], rtol=1e-6)
     if gamma == 1.0:
         np.testing.assert_array_equal(got.discounted_return, got.episode_return)
+
+
+def test_reward_terms_add_up_over_an_episode_and_other_info_is_averaged():
+    from canter.envs.base import is_summed_info
+
+    # InvertedDoublePendulum-v5's reward is reward_survive - distance_penalty - velocity_penalty.
+    summed = ["reward_survive", "reward_ctrl", "cost_contact", "distance_penalty", "velocity_penalty"]
+    averaged = ["x_velocity", "x_position", "z_distance_from_origin"]
+    assert [is_summed_info(k) for k in summed + averaged] == [True] * len(summed) + [False] * len(averaged)

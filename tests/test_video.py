@@ -88,13 +88,15 @@ def test_video_returns_match_a_gymnasium_loop(tiny_hopper_run):
 
 
 @pytest.mark.slow
-def test_dm_control_run_renders_through_dm_control(tmp_path):
+# FingerSpin: EnvPool's finger observation has two entries more than the task's; its finger moves slowly.
+@pytest.mark.parametrize("env_id, steps", [("WalkerWalk-v1", 6), ("FingerSpin-v1", 60)])
+def test_dm_control_run_renders_through_dm_control(tmp_path, env_id, steps):
     pytest.importorskip("dm_control")
     from canter.config.build import build_config
     from canter.training.loop import train
 
     config = build_config(
-        "WalkerWalk-v1",
+        env_id,
         total_steps=128,
         sets=TINY
         + [f"run.out_dir={tmp_path}", "env.num_envs=2", "ppo.n_steps=64", "ppo.minibatch_size=128", "ppo.epochs=1"],
@@ -102,9 +104,23 @@ def test_dm_control_run_renders_through_dm_control(tmp_path):
     run = train(config).run_dir
     assert dm_control_task("WalkerWalk-v1") == ("walker", "walk")
     assert dm_control_task("Hopper-v5") is None
-    returns = video.record_video(run, "walker.mp4", width=48, height=32, max_steps=6)
+    returns = video.record_video(run, "dmc.mp4", width=48, height=32, max_steps=steps)
     assert len(returns) == 1
-    assert_real_video(frames_of("walker.mp4"), 7, 48, 32)
+    assert_real_video(frames_of("dmc.mp4"), steps + 1, 48, 32)
+
+
+@pytest.mark.parametrize("env_id", ["FingerSpin-v1", "QuadrupedRun-v1", "FishUpright-v1"])
+def test_an_envpool_dm_control_task_observes_what_dm_controls_task_does(env_id):
+    """EnvPool declares one observation space per domain; a task keeps only its own entries, as dm_control's."""
+    suite = pytest.importorskip("dm_control.suite")
+    from canter.envs.registry import get_backend
+
+    env = get_backend("envpool").make(env_id, 1, [0])
+    task = suite.load(*dm_control_task(env_id))
+    own = task.reset().observation
+    assert env.spec.obs_dim == sum(np.asarray(v).size for v in own.values())
+    env.close()
+    task.close()
 
 
 def test_every_envpool_dm_control_id_maps_to_a_dm_control_task():

@@ -82,8 +82,9 @@ def loads(load: Callable[[], object]) -> bool:
 
 
 def is_summed_info(key: str) -> bool:
-    """Reward terms add up over an episode; other scalars (velocities, positions) are averaged per step."""
-    return "reward" in key or "cost" in key
+    """Reward terms (rewards, costs, penalties) add up over an episode; other scalars (velocities, positions) are
+    averaged per step."""
+    return any(term in key for term in ("reward", "cost", "penalty"))
 
 
 class Backend(Protocol):

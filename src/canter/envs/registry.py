@@ -90,7 +90,9 @@ def resolve_backend(env_id: str, backend: str) -> str:
         for candidate in _auto_backends():
             if env_id in candidate.supported_ids():
                 return candidate.name
-        raise _unknown(env_id, sorted({i for b in _auto_backends() for i in b.supported_ids()}), "canter")
+        raise _elsewhere(env_id) or _unknown(
+            env_id, sorted({i for b in _auto_backends() for i in b.supported_ids()}), "canter"
+        )
     chosen = get_backend(backend)
     if not chosen.available():
         others = [other.name for other in backends() if other is not chosen and other.available()] or [AUTO]
@@ -102,8 +104,21 @@ def resolve_backend(env_id: str, backend: str) -> str:
             f"--backend to run {env_id} on the CPU"
         )
     if env_id not in ids:
-        raise _unknown(env_id, sorted(ids), chosen.label)
+        raise _elsewhere(env_id, chosen) or _unknown(env_id, sorted(ids), chosen.label)
     return chosen.name
+
+
+def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None:
+    """The error for an id that another backend than the one chosen (or than `auto`'s) runs: it names that one."""
+    where = [b.name for b in backends() if b is not chosen and b.available() and env_id in b.supported_ids()]
+    if chosen is None:
+        where = [name for name in where if get_backend(name).jax_native]  # auto would have found the others
+    if not where:
+        return None
+    if chosen is None:
+        labels = _or([get_backend(name).label for name in where])
+        return CanterError(f"'{env_id}' is an env id of {labels}; pass --backend {_or(where)}")
+    return CanterError(f"{chosen.label} does not run {env_id}; pass --backend {_or(where)}, or drop --backend")
 
 
 def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:

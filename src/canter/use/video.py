@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.envs.dm_control_tasks import suite_task
 from canter.errors import CanterError
 from canter.files import OUTPUT_FILE_MODE, check_writable
 from canter.training.videos import child_env, quiet_fork
@@ -164,11 +165,11 @@ class _DMControlPlayer:
                 "rendering a DM Control run needs dm_control: pip install 'dm_control==1.0.38' (the "
                 "last release that works with the pinned mujoco 3.6.0)"
             ) from None
-        by_lower = {(d.lower(), t.lower()): (d, t) for d, t in suite.ALL_TASKS}  # EnvPool spells humanoid_CMU
-        if (domain, task.lower()) not in by_lower:
+        found = suite_task(suite, domain, task)
+        if found is None:
             raise CanterError(f"dm_control has no task {domain}/{task} to replay this run in")
         self._suite = suite
-        self._domain, self._task = by_lower[(domain, task.lower())]
+        self._domain, self._task = found
         self.width, self.height = width, height
         self.camera: int | str = int(camera) if camera is not None and camera.isdigit() else (camera or 0)
         self.env: Any = None  # dm_control's Environment of the current episode (dm_control has no type hints)

@@ -12,6 +12,7 @@ import re
 from typing import Any
 
 from canter.envs.base import Backend, VecEnv, loads
+from canter.envs.dm_control_tasks import observation_keys
 from canter.errors import CanterError
 
 NAME = "envpool"
@@ -52,8 +53,10 @@ class EnvPoolBackend(Backend):
 
         if not 0 <= shards <= num_envs:
             raise CanterError(f"env.envpool_shards {shards} cannot split {num_envs} envs; use 0 (auto) to {num_envs}")
+        task = self.dm_control_task(env_id)
+        keys = observation_keys(*task) if task else None  # a DM Control task's own observation, as dm_control's
         try:
-            return EnvPoolVecEnv(env_id, num_envs, seeds, shards=shards, **kwargs)
+            return EnvPoolVecEnv(env_id, num_envs, seeds, shards=shards, observation_keys=keys, **kwargs)
         except ValueError as exc:
             raise CanterError(f"{env_id}: {exc}; canter trains continuous-action envs") from None
 

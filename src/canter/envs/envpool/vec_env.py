@@ -29,7 +29,16 @@ class EnvPoolVecEnv:
     independent operations in the jitted program, so XLA's CPU runtime runs them concurrently: two cores step physics
     at once, while no pool ever uses the multi-threaded mode that crashed."""
 
-    def __init__(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        seeds: list[int],
+        shards: int = 0,
+        observation_keys: frozenset[str] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        """`observation_keys`: the entries of a Dict observation to keep (all when None)."""
         import envpool
         import gymnasium as gym
 
@@ -53,7 +62,8 @@ class EnvPoolVecEnv:
         if not isinstance(act_space, gym.spaces.Box):
             raise ValueError(f"{env_id} has discrete actions")
         if isinstance(obs_space, gym.spaces.Dict):
-            self._obs_keys: tuple[str, ...] | None = tuple(sorted(obs_space.spaces))
+            keep = observation_keys if observation_keys is not None else frozenset(obs_space.spaces)
+            self._obs_keys: tuple[str, ...] | None = tuple(sorted(k for k in obs_space.spaces if k in keep))
             obs_dim = sum(_entry_size(obs_space[k].shape) for k in self._obs_keys)
         else:
             self._obs_keys = None

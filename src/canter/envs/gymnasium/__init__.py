@@ -33,6 +33,11 @@ class GymnasiumBackend(Backend):
 
     def load_custom(self, env_id: str) -> None:
         module, _, name = env_id.partition(":")
+        if not module or module.startswith(".") or not name:
+            raise CanterError(
+                f"custom env '{env_id}' needs a module and an id, as in my_package.envs:MyEnv-v0 (an absolute "
+                f"module path)"
+            )
         try:
             importlib.import_module(module)
         except ImportError as exc:
