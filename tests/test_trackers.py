@@ -248,6 +248,58 @@ def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, ca
     assert int(_rows(result.run_dir)[-1]["global_step"]) == result.global_step >= 2048
 
 
+class _RecordsItsEnd:
+    """A tracker that records how each of its runs ended."""
+
+    def __init__(self) -> None:
+        self.ends: list[str] = []
+
+    def check(self, spec):
+        pass
+
+    def open_group(self, spec, group):
+        return None
+
+    def start(self, context, run_id):
+        return self
+
+    run_id = "recorded-1"
+
+    def log(self, values, step):
+        pass
+
+    def finish(self, out, summary):
+        self.ends.append("finished")
+
+    def close(self):
+        self.ends.append("closed")
+
+
+@pytest.mark.slow
+def test_a_run_that_fails_before_its_first_iteration_closes_its_tracker_runs(tmp_path, monkeypatch):
+    import canter.training.device_memory as device_memory
+
+    def too_big(compiled, envs):
+        raise CanterError(f"env.num_envs={envs} does not fit in the device's memory; lower env.num_envs")
+
+    monkeypatch.setattr(device_memory, "check_fits", too_big)
+    recorded = _RecordsItsEnd()
+    register_tracker("recorded", recorded)
+    try:
+        config = build_config(
+            "InvertedPendulum-v4",
+            preset="fast",
+            sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=2", "ppo.minibatch_size=128"]
+            + [f"run.out_dir={tmp_path}"],
+            total_steps=1024,
+        )
+        with tracking(TrackSpec(("recorded",))), pytest.raises(CanterError, match="does not fit"):
+            train(config)
+    finally:
+        TRACKERS.pop("recorded")
+    assert recorded.ends == ["closed"]
+
+
 # ------------------------------------------------------------------------------------------------ tune and bench
 
 

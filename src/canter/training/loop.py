@@ -516,20 +516,24 @@ def _loop(
         values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
         return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
 
-    runs = [
-        _SeedRun(c, spec, out, start, algorithm.metric_names, before)
-        for c, out, start, before in zip(configs, outs, start_steps, earlier)
-    ]
-    compile_start = time.perf_counter()
     envs = config.env.num_envs
-    try:
-        compiled = iteration.lower(state, carry, fractions(runs)).compile()
-    except Exception as exc:
-        if device_memory.is_out_of_memory(exc):
-            raise device_memory.too_many_envs(envs) from None
+    runs: list[_SeedRun] = []
+    try:  # a seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)
+        for c, out, start, before in zip(configs, outs, start_steps, earlier):
+            runs.append(_SeedRun(c, spec, out, start, algorithm.metric_names, before))
+        compile_start = time.perf_counter()
+        try:
+            compiled = iteration.lower(state, carry, fractions(runs)).compile()
+        except Exception as exc:
+            if device_memory.is_out_of_memory(exc):
+                raise device_memory.too_many_envs(envs) from None
+            raise
+        device_memory.check_fits(compiled, envs)
+        compile_seconds = time.perf_counter() - compile_start
+    except BaseException:
+        for run in runs:
+            run.close()
         raise
-    device_memory.check_fits(compiled, envs)
-    compile_seconds = time.perf_counter() - compile_start
 
     label = f"{spec.id} {config.run.algo}" + (f" x{group} seeds" if group > 1 else "")
     progress = Progress(total, min(start_steps), quiet, label)
