@@ -193,11 +193,10 @@ def test_a_tracker_that_cannot_start_is_one_line_before_training(tmp_path, monke
     assert not (tmp_path / "runs").exists()
 
 
-class _FailsOnSecondRow:
-    """A real tracker backend whose store breaks after the first row."""
+class _InMemoryTracker:
+    """A tracker backend that is its own single run: it accepts everything and keeps nothing."""
 
-    def __init__(self) -> None:
-        self.rows = 0
+    run_id = "in-memory-1"
 
     def check(self, spec):
         pass
@@ -208,7 +207,15 @@ class _FailsOnSecondRow:
     def start(self, context, run_id):
         return self
 
-    run_id = "flaky-1"
+    def log(self, values, step):
+        pass
+
+
+class _FailsOnSecondRow(_InMemoryTracker):
+    """A real tracker backend whose store breaks after the first row."""
+
+    def __init__(self) -> None:
+        self.rows = 0
 
     def log(self, values, step):
         self.rows += 1
@@ -248,25 +255,11 @@ def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, ca
     assert int(_rows(result.run_dir)[-1]["global_step"]) == result.global_step >= 2048
 
 
-class _RecordsItsEnd:
+class _RecordsItsEnd(_InMemoryTracker):
     """A tracker that records how each of its runs ended."""
 
     def __init__(self) -> None:
         self.ends: list[str] = []
-
-    def check(self, spec):
-        pass
-
-    def open_group(self, spec, group):
-        return None
-
-    def start(self, context, run_id):
-        return self
-
-    run_id = "recorded-1"
-
-    def log(self, values, step):
-        pass
 
     def finish(self, out, summary):
         self.ends.append("finished")
