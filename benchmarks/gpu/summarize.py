@@ -102,7 +102,8 @@ def ppo_brax(out: Path) -> list[str]:
     lines.append("")
     lines.append(
         "Whole run: env steps / wall time, compile and evaluation included. Training: Brax's `training/sps` of its "
-        "last epoch; canter's SPS with the compile left out. canter trains whole iterations until it has counted "
+        "last epoch (of two: the first compiles; with one epoch the figure includes Brax's compile), canter's SPS "
+        "with the compile left out. canter trains whole iterations until it has counted "
         "Brax's steps, and counts no autoreset step (Brax resets inside the step that ends an episode), so its "
         "count can pass Brax's by up to one iteration."
     )
