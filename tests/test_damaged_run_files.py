@@ -99,6 +99,31 @@ def test_a_summary_that_is_not_an_object_reads_as_missing(run):
     assert run_facts(run).summary == {}
 
 
+def test_summary_values_that_are_not_numbers_show_as_dashes(run):
+    from canter.use.report import run_facts, runs_section
+
+    (run / "summary.json").write_text('{"global_step": "x", "wall_seconds": null, "sps": "zzz", "stop_reason": 3}')
+    table = runs_section([run_facts(run)])
+    assert table.count("<td class='num'>–</td>") == 3 and "zzz" not in table
+
+
+@pytest.mark.parametrize("damage", ["smooth", "metrics"])
+def test_a_report_refuses_what_it_cannot_draw_before_it_evaluates(run, tmp_path, capsys, monkeypatch, damage):
+    import canter.use.report as report
+
+    def evaluated(*args, **kwargs):
+        raise AssertionError("the runs were evaluated before the refusal")
+
+    monkeypatch.setattr(report, "evaluate_runs", evaluated)
+    argv = ["report", str(run), "--out", str(tmp_path / "r.html")]
+    if damage == "smooth":
+        argv += ["--smooth", "0"]
+    else:
+        (run / "metrics.csv").unlink()
+    err = _one_line_error(capsys, main(argv))
+    assert ("--smooth must be >= 1 rows, got 0" if damage == "smooth" else "no metrics.csv in") in err
+
+
 def test_an_output_path_that_is_a_folder_is_refused_before_the_work(tmp_path):
     with pytest.raises(CanterError, match=r"it is a folder; give a file name"):
         check_writable(tmp_path)

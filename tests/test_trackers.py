@@ -3,6 +3,7 @@ back), MLflow against a SQLite store (read back with MlflowClient)."""
 
 import json
 import math
+import os
 import struct
 from pathlib import Path
 
@@ -186,6 +187,17 @@ def test_a_tracker_that_cannot_start_is_one_line_before_training(tmp_path, monke
     assert main(argv + ["--track", "mlflow", "--mlflow-uri", "nope://nowhere"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("canter: error: --mlflow-uri nope://nowhere cannot be opened") and "\n" not in err
+    # Online with no key anywhere (no WANDB_API_KEY, an empty netrc): refused before an env or folder is made.
+    for name in ("WANDB_MODE", "WANDB_API_KEY", "WANDB_IDENTITY_TOKEN_FILE", "WANDB_BASE_URL"):
+        monkeypatch.delenv(name, raising=False)
+    (tmp_path / "netrc").write_text("")
+    monkeypatch.setenv("NETRC", str(tmp_path / "netrc"))
+    assert main(argv + ["--track", "wandb"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "canter: error: --track wandb has no W&B API key here; run `wandb login` (or set WANDB_API_KEY), or set "
+        "WANDB_MODE=offline to keep the runs local"
+    )
     monkeypatch.setitem(__import__("sys").modules, "wandb", None)  # as if canter[wandb] were not installed
     assert main(argv + ["--track", "wandb"]) == 2
     err = capsys.readouterr().err.strip()
@@ -390,3 +402,26 @@ def test_a_tracker_lacking_a_method_is_refused_when_registered_not_when_a_tune_f
     with pytest.raises(CanterError, match=r"tracker 'partial' lacks open_group; a tracker implements every method"):
         register_tracker("partial", NoGroups())
     assert "partial" not in tracker_names()
+
+
+def test_mlflow_groups_with_a_quote_are_found_again_and_requests_give_up_in_seconds(tmp_path, monkeypatch):
+    from canter.training.trackers import mlflow_tracker, open_groups
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", raising=False)
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "60")  # a user's own setting stays
+    monkeypatch.setattr(mlflow_tracker, "PARENT_SETTLE_S", 0.0)
+    monkeypatch.setattr(mlflow_tracker, "_CLIENTS", {})
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    group = "tune-bob's"  # canter tune --study "bob's"
+    [(_, _, parent)] = open_groups(TrackSpec(("mlflow",), uri), [group]).group_runs
+    assert open_groups(TrackSpec(("mlflow",), uri), [group]).group_run("mlflow", group) == parent  # found, not made
+    assert os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] == "2" and os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] == "60"
+
+
+def test_a_trackers_file_whose_entries_are_not_objects_is_one_line_on_resume(tmp_path):
+    from canter.training.trackers.session import read_ids
+
+    (tmp_path / "trackers.json").write_text('{"mlflow": "x"}')
+    with pytest.raises(CanterError, match=r"trackers.json is not the JSON canter writes; delete it to resume"):
+        read_ids(tmp_path)

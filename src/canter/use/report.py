@@ -118,6 +118,11 @@ def _e(value: Any) -> str:
     return html.escape(str(value), quote=True)
 
 
+def _number(value: Any) -> float | None:
+    """A summary.json value that is a number, else None (a damaged or hand-edited file shows a dash)."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
 def _duration(seconds: float | None) -> str:
     if seconds is None:
         return "–"
@@ -187,10 +192,10 @@ def runs_section(facts: Sequence[RunFacts]) -> str:
                 f"{i + 1}. {f.run_dir.name}",
                 group,
                 f.config.run.seed,
-                f"{s['global_step']:,}" if "global_step" in s else "–",
-                _duration(s.get("wall_seconds")),
-                f"{s['sps']:,.0f}" if "sps" in s else "–",
-                s.get("stop_reason", "–"),
+                f"{step:,.0f}" if (step := _number(s.get("global_step"))) is not None else "–",
+                _duration(_number(s.get("wall_seconds"))),
+                f"{sps:,.0f}" if (sps := _number(s.get("sps"))) is not None else "–",
+                str(s.get("stop_reason", "–")),
             ]
         )
     return _table(
@@ -395,9 +400,15 @@ def build_report(
     of the run's videos/ folder."""
     from canter.use.plot import render_with_scoreboard
 
+    from canter.use.plot import load_run
+
     if episodes < 0:
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
+    if smooth < 1:
+        raise CanterError(f"--smooth must be >= 1 rows, got {smooth}")
     facts = [run_facts(r, which) for r in run_dirs]
+    for f in facts:  # a folder the curves cannot be read from fails now, not after minutes of evaluation
+        load_run(f.run_dir)
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
     # The statistics use this report's evaluation where there is one, else each run's own final score.
     source = f"this report's evaluation ({_checkpoint_note(which).lower()}, {episodes} deterministic episodes)"

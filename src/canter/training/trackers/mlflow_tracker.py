@@ -1,6 +1,7 @@
 """MLflow: one MLflow run per seed, the child of a parent run per experiment (extra `canter[mlflow]`).
 
-`--mlflow-uri` picks the tracking store (default: MLflow's own, MLFLOW_TRACKING_URI or ./mlruns); the MLflow
+`--mlflow-uri` picks the tracking store (default: MLflow's own, MLFLOW_TRACKING_URI or sqlite:///mlflow.db in the
+working folder); the MLflow
 experiment is `canter` unless MLFLOW_EXPERIMENT_NAME says otherwise. The client talks to the store directly, so
 the seeds of a group log side by side without MLflow's process-global active run."""
 
@@ -35,7 +36,15 @@ def _client(spec: TrackSpec) -> Any:
     return _CLIENTS[key]
 
 
+# MLflow retries a request to an unreachable server 7 times with backoff (about 4 minutes), and the training loop
+# logs synchronously: a store that went away would stall training that long before the tracker is dropped. These
+# bound it to a few seconds, unless the user set them.
+_RETRY_BOUNDS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_TIMEOUT": "20"}
+
+
 def _open_client(spec: TrackSpec) -> Any:
+    for name, value in _RETRY_BOUNDS.items():
+        os.environ.setdefault(name, value)
     try:
         from mlflow.tracking import MlflowClient
     except ImportError:
@@ -129,11 +138,19 @@ def _parent_run_id(client: Any, experiment: str, group: str) -> str:
 def _oldest_parent(client: Any, experiment: str, group: str) -> str | None:
     found = client.search_runs(
         [experiment],
-        filter_string=f"tags.`{PARENT_TAG}` = 'true' and tags.`{GROUP_TAG}` = '{group}'",
+        filter_string=f"tags.`{PARENT_TAG}` = 'true' and tags.`{GROUP_TAG}` = {_quoted(group)}",
         order_by=["attributes.start_time ASC"],
         max_results=50,
     )
     return str(min(found, key=lambda r: (r.info.start_time, r.info.run_id)).info.run_id) if found else None
+
+
+def _quoted(value: str) -> str:
+    """A string literal of MLflow's filter syntax, which has no escapes: a name with a single quote takes double ones
+    (a tune --study such as bob's)."""
+    if "'" in value and '"' in value:
+        raise CanterError(f"MLflow cannot search for the group {value!r}, which holds both kinds of quote; rename it")
+    return f'"{value}"' if "'" in value else f"'{value}'"
 
 
 class _MlflowRun:

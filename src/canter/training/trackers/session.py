@@ -85,7 +85,7 @@ def read_ids(run_dir: Path) -> dict[str, dict[str, Any]]:
         ids = json.loads(path.read_text())
     except ValueError:
         ids = None
-    if not isinstance(ids, dict):
+    if not isinstance(ids, dict) or not all(isinstance(entry, dict) for entry in ids.values()):
         raise CanterError(f"{path} is not the JSON canter writes; delete it to resume with new tracker runs")
     return ids
 

@@ -20,9 +20,33 @@ def _wandb() -> Any:
     return wandb
 
 
+_LOCAL_MODES = ("offline", "disabled", "dryrun")
+
+
+def _has_credentials() -> bool:
+    """Whether W&B has a key to go online with: WANDB_API_KEY, an identity token, or what `wandb login` saved in the
+    netrc file for the W&B host."""
+    import netrc
+    from urllib.parse import urlparse
+
+    if os.environ.get("WANDB_API_KEY") or os.environ.get("WANDB_IDENTITY_TOKEN_FILE"):
+        return True
+    host = urlparse(os.environ.get("WANDB_BASE_URL", "https://api.wandb.ai")).hostname or "api.wandb.ai"
+    try:
+        return netrc.netrc(os.environ.get("NETRC")).authenticators(host) is not None
+    except (OSError, netrc.NetrcParseError):
+        return False
+
+
 class WandbTracker:
     def check(self, spec: TrackSpec) -> None:
         _wandb()
+        # Online without a key, every seed's run would fail to start after its env and run folder were made.
+        if os.environ.get("WANDB_MODE", "online") not in _LOCAL_MODES and not _has_credentials():
+            raise CanterError(
+                "--track wandb has no W&B API key here; run `wandb login` (or set WANDB_API_KEY), or set "
+                "WANDB_MODE=offline to keep the runs local"
+            )
 
     def open_group(self, spec: TrackSpec, group: str) -> None:
         """A W&B group is only a name each run carries."""
