@@ -398,9 +398,7 @@ def build_report(
     """The report page, evaluating the checkpoint `which` names (`last`, `best` or a file). With `video`, one
     deterministic episode of each run is rendered for it (canter.use.video) rather than embedding the newest file
     of the run's videos/ folder."""
-    from canter.use.plot import render_with_scoreboard
-
-    from canter.use.plot import load_run
+    from canter.use.plot import load_run, render_with_scoreboard
 
     if episodes < 0:
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
