@@ -425,3 +425,30 @@ def test_a_trackers_file_whose_entries_are_not_objects_is_one_line_on_resume(tmp
     (tmp_path / "trackers.json").write_text('{"mlflow": "x"}')
     with pytest.raises(CanterError, match=r"trackers.json is not the JSON canter writes; delete it to resume"):
         read_ids(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_resume_from_another_folder_continues_the_mlflow_run_of_its_default_store(tmp_path, monkeypatch, capsys):
+    """MLflow's default store is a file under the working folder; trackers.json records it resolved, so a resume
+    started elsewhere finds the run rather than failing on a store that does not hold it."""
+    started, elsewhere = tmp_path / "started", tmp_path / "elsewhere"
+    started.mkdir()
+    elsewhere.mkdir()
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.chdir(started)
+    assert (
+        main(["train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs"), "--track", "mlflow"] + TINY_PPO) == 0
+    )
+    [run] = list((tmp_path / "runs").iterdir())
+    ids = json.loads((run / "trackers.json").read_text())
+    assert ids["mlflow"]["uri"] == f"sqlite:///{started / 'mlflow.db'}"
+    monkeypatch.chdir(elsewhere)
+    assert main(["train", "--resume", str(run), "--total-steps", "4096", "--quiet"]) == 0
+    assert json.loads((run / "trackers.json").read_text())["mlflow"]["run_id"] == ids["mlflow"]["run_id"]
+    assert not (elsewhere / "mlflow.db").exists()
+    # A recorded run the store no longer holds: one line, and the way to go on without it.
+    ids["mlflow"]["run_id"] = "0" * 32
+    (run / "trackers.json").write_text(json.dumps(ids))
+    assert main(["train", "--resume", str(run), "--total-steps", "8192", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.endswith(f"; to resume without it, delete {run / 'trackers.json'}"), err

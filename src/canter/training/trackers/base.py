@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -58,12 +58,18 @@ class RunContext:
     group: str
     name: str
     spec: TrackSpec
+    # On a resume, what RUN/trackers.json recorded for this tracker (its run id, and where the run lives: a
+    # TrackerRun's `place`), so that the run is found whatever folder or environment the resume starts from.
+    recorded: dict[str, Any] = field(default_factory=dict)
 
 
 class TrackerRun(Protocol):
     """One seed's run in a tracker. Any method may raise: the caller warns once and stops using it."""
 
     run_id: str
+    # Where the run lives, recorded in RUN/trackers.json beside its id (MLflow's resolved store URI, W&B's project
+    # and entity); a run without the attribute records none.
+    place: dict[str, str]
 
     def log(self, values: dict[str, float], step: int) -> None: ...
 

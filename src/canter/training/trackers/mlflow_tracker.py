@@ -157,6 +157,7 @@ class _MlflowRun:
     def __init__(self, client: Any, run_id: str) -> None:
         self._client = client
         self.run_id = run_id
+        self.place = {"uri": str(client.tracking_uri)}  # resolved: a default store is a path under the working folder
 
     def log(self, values: dict[str, float], step: int) -> None:
         from mlflow.entities import Metric

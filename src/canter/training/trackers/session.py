@@ -105,17 +105,21 @@ def open_for_run(config: Config, out: Path, resumed: bool) -> SeedTrackers:
             earlier = recorded.get(tracker, {})
             # A continued tracker run keeps the group and name it was started with, whoever resumes it.
             contexts[tracker] = replace(
-                fresh, group=earlier.get("group", fresh.group), name=earlier.get("name", fresh.name)
+                fresh, group=earlier.get("group", fresh.group), name=earlier.get("name", fresh.name), recorded=earlier
             )
-            runs[tracker] = get_tracker(tracker).start(contexts[tracker], earlier.get("run_id"))
+            try:
+                runs[tracker] = get_tracker(tracker).start(contexts[tracker], earlier.get("run_id"))
+            except CanterError as exc:
+                if "run_id" not in earlier:
+                    raise
+                raise CanterError(f"{exc}; to resume without it, delete {out / TRACKERS_FILE}") from None
     except BaseException:
         SeedTrackers(runs).close()
         raise
     ids = dict(recorded)
     for tracker, run in runs.items():
         ids[tracker] = {"run_id": run.run_id, "group": contexts[tracker].group, "name": contexts[tracker].name}
-        if tracker == "mlflow" and spec.mlflow_uri:
-            ids[tracker]["uri"] = spec.mlflow_uri
+        ids[tracker].update(getattr(run, "place", {}))
     atomic_write_bytes(out / TRACKERS_FILE, lambda f: f.write(json.dumps(ids, indent=2).encode()))
     return SeedTrackers(runs)
 

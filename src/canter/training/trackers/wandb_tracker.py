@@ -57,7 +57,8 @@ class WandbTracker:
         settings = wandb.Settings(silent=True, console="off", x_disable_stats=True, x_disable_meta=True)
         try:
             run = wandb.init(
-                project=os.environ.get("WANDB_PROJECT", "canter"),
+                project=context.recorded.get("project") or os.environ.get("WANDB_PROJECT", "canter"),
+                entity=context.recorded.get("entity") or None,
                 group=context.group,
                 name=context.name,
                 config={**context.config, **dict(context.spec.tags)},
@@ -75,6 +76,7 @@ class _WandbRun:
     def __init__(self, run: Any) -> None:
         self._run = run
         self.run_id: str = run.id
+        self.place = {key: str(value) for key in ("project", "entity") if (value := getattr(run, key, None))}
 
     def log(self, values: dict[str, float], step: int) -> None:
         self._run.log(values, step=step)
