@@ -248,7 +248,9 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
     untouched = {p: p.stat().st_mtime_ns for p in out.glob("*__s*/summary.json")}
     rows_before = len(read_rows(cut / "metrics.csv"))
     tracked_before, resumed_ms = tracked(cut).info.run_id, time.time() * 1000
-    code = main(argv)
+    # Re-run without --track: the resumed seed still continues the MLflow run its trackers.json records.
+    untracked = [a for a in argv if a not in ("--track", "mlflow", "--mlflow-uri", mlflow_uri)]
+    code = main(untracked)
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "skip InvertedPendulum-v4__ppo__ppo.ent_coef=0.01" in captured.out

@@ -22,7 +22,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -220,7 +220,7 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
     from canter.config.serialize import from_toml_text
     from canter.training.loop import resume_seeds, train_seeds
     from canter.training.run_lock import LOCK_FILE, RunLocks
-    from canter.training.trackers import tracking
+    from canter.training.trackers import resume_spec, tracking
 
     config = from_toml_text(spec.config_toml, "job spec")
     total = config.run.total_steps
@@ -241,13 +241,16 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                 fresh.append(seed)
         with tracking(spec.track):
             if partial:  # each resumes from its own newest checkpoint, together in one program
-                resume_seeds(
-                    partial,
-                    total,
-                    max_minutes=config.run.max_minutes,
-                    stop_at_return=config.run.stop_at_return,  # the target given now, or none
-                    quiet=quiet,
-                )
+                # ... and continues the tracker runs its trackers.json records, whether or not this re-run tracks
+                recorded = resume_spec(spec.track.names, spec.track.mlflow_uri, partial)
+                with tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)):
+                    resume_seeds(
+                        partial,
+                        total,
+                        max_minutes=config.run.max_minutes,
+                        stop_at_return=config.run.stop_at_return,  # the target given now, or none
+                        quiet=quiet,
+                    )
             if fresh:
                 train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
         if spec.eval_episodes:
