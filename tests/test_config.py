@@ -64,6 +64,8 @@ def test_toml_round_trip_preserves_everything():
         (["env.normalize_reward=false", "env.reward_scale=0"], "env.reward_scale must be a positive number, got 0"),
         (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a positive number"),
         (["env.reward_scale=0.1"], "set env.normalize_reward=false or env.reward_scale=1"),
+        (["run.stop_at_return=nan"], "run.stop_at_return must be a finite number, got nan"),
+        (["run.stop_at_return=inf"], "run.stop_at_return must be a finite number, got inf"),
         (["nosection"], "--set expects section.key=value"),
         (["bogus.key=1"], "unknown config key 'bogus.key'"),
     ],

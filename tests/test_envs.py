@@ -172,3 +172,13 @@ def test_shard_sizes_split_as_evenly_as_possible():
     for bad in (0, 6):
         with pytest.raises(ValueError, match="cannot split 5 envs"):
             shard_sizes(5, bad)
+
+
+def test_default_shards_follow_the_cores_this_process_may_use(monkeypatch):
+    from canter.envs.envpool import shards
+
+    monkeypatch.setattr(shards.os, "sched_getaffinity", lambda pid: {3}, raising=False)  # a job pinned to one core
+    monkeypatch.setattr(shards.os, "cpu_count", lambda: 16)
+    assert shards.default_shards(8) == 1
+    monkeypatch.setattr(shards.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    assert shards.default_shards(8) == 4 and shards.default_shards(2) == 2

@@ -25,7 +25,7 @@ class EnvConfig:
     num_envs: int = setting("Parallel environments stepped per rollout step.", default=1)
     envpool_shards: int = setting(
         "EnvPool only: split the envs over this many single-threaded pools that step "
-        "concurrently, as evenly as the count allows; 0 means one per CPU core.",
+        "concurrently, as evenly as the count allows; 0 means one per CPU core the process may use.",
         default=0,
         role=OUTPUT,
     )

@@ -106,3 +106,5 @@ def validate(config: Config) -> None:
     _check_eval_backend(env.backend, run.eval_backend)
     if run.max_minutes is not None:
         need(run.max_minutes > 0, f"run.max_minutes must be > 0, got {run.max_minutes}")
+    if run.stop_at_return is not None:
+        need(math.isfinite(run.stop_at_return), f"run.stop_at_return must be a finite number, got {run.stop_at_return}")

@@ -6,8 +6,10 @@ import os
 
 
 def default_shards(num_envs: int) -> int:
-    """One single-threaded pool per core (fewer when there are fewer envs than cores)."""
-    return max(1, min(os.cpu_count() or 1, num_envs))
+    """One single-threaded pool per core this process may run on (a bench or tune job is pinned to its share), fewer
+    when there are fewer envs than cores."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(cores, num_envs))
 
 
 def shard_sizes(num_envs: int, shards: int) -> list[int]:
