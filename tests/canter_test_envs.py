@@ -56,6 +56,23 @@ class DictObs(gym.Env):
         return obs, float(self.t), self.t >= 7, False, {"reward_step": float(self.t)}
 
 
+class RefusesOutOfBounds(gym.Env):
+    """Accepts only actions within its bounds, [1, 2], which exclude 0."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+    action_space = gym.spaces.Box(1.0, 2.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        if not self.action_space.contains(np.asarray(action, np.float32)):
+            raise ValueError(f"action {action} is outside [1, 2]")
+        return np.zeros(1, np.float32), 0.0, False, False, {"speed": 1.0}
+
+
 gym.register("NaNAfter-v0", entry_point=NaNAfter, max_episode_steps=50)
+gym.register("RefusesOutOfBounds-v0", entry_point=RefusesOutOfBounds, max_episode_steps=10)
 gym.register("DiscreteObs-v0", entry_point=DiscreteObs)
 gym.register("DictObs-v0", entry_point=DictObs, max_episode_steps=10)

@@ -182,3 +182,9 @@ def test_default_shards_follow_the_cores_this_process_may_use(monkeypatch):
     assert shards.default_shards(8) == 1
     monkeypatch.setattr(shards.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     assert shards.default_shards(8) == 4 and shards.default_shards(2) == 2
+
+
+def test_a_custom_env_whose_bounds_exclude_zero_is_probed_within_them():
+    env = make_vec_env("canter_test_envs:RefusesOutOfBounds-v0", "auto", 1, [0])
+    assert env.spec.info_keys == ("speed",)
+    env.close()

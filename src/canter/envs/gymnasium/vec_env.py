@@ -29,7 +29,8 @@ class GymnasiumVecEnv:
         # Probe one throwaway step on a separate env so the info keys are known before training starts.
         probe = make_single(env_id, **kwargs)
         probe.reset(seed=0)
-        _, _, _, _, probe_info = probe.step(probe.action_space.sample() * 0)
+        space = probe.action_space  # 0, or the bound nearest it: an env may refuse an action outside its bounds
+        _, _, _, _, probe_info = probe.step(np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype))
         probe.close()
         self._info_keys = tuple(
             sorted(
