@@ -73,6 +73,7 @@ class RefusesOutOfBounds(gym.Env):
 
 
 gym.register("NaNAfter-v0", entry_point=NaNAfter, max_episode_steps=50)
+gym.register("NaNAtOnce-v0", entry_point=NaNAfter, kwargs={"after": 5}, max_episode_steps=50)  # in the 1st iteration
 gym.register("RefusesOutOfBounds-v0", entry_point=RefusesOutOfBounds, max_episode_steps=10)
 gym.register("DiscreteObs-v0", entry_point=DiscreteObs)
 gym.register("DictObs-v0", entry_point=DictObs, max_episode_steps=10)

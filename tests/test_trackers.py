@@ -13,7 +13,7 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training.logger import read_rows
-from canter.training.loop import train
+from canter.training.loop import resume_config, train
 from canter.training.trackers import TrackSpec, register_tracker, tracking
 from canter.training.trackers.registry import TRACKERS, tracker_names
 
@@ -268,10 +268,15 @@ def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, ca
 
 
 class _RecordsItsEnd(_InMemoryTracker):
-    """A tracker that records how each of its runs ended."""
+    """A tracker that records how each of its runs started (the id it continues, or None) and ended."""
 
     def __init__(self) -> None:
         self.ends: list[str] = []
+        self.continued: list[str | None] = []
+
+    def start(self, context, run_id):
+        self.continued.append(run_id)
+        return self
 
     def finish(self, out, summary):
         self.ends.append("finished")
@@ -452,3 +457,26 @@ def test_a_resume_from_another_folder_continues_the_mlflow_run_of_its_default_st
     assert main(["train", "--resume", str(run), "--total-steps", "8192", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and err.endswith(f"; to resume without it, delete {run / 'trackers.json'}"), err
+
+
+@pytest.mark.slow
+def test_a_resume_from_a_checkpoint_at_step_0_continues_its_tracker_runs(tmp_path):
+    """A run whose first iteration was non-finite keeps a checkpoint at step 0; resuming it is still a resume."""
+    recorded = _RecordsItsEnd()
+    register_tracker("recorded", recorded)
+    try:
+        config = build_config(
+            "canter_test_envs:NaNAtOnce-v0",
+            sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=1", "ppo.n_steps=64", "ppo.minibatch_size=32"]
+            + [f"run.out_dir={tmp_path}"],
+            total_steps=1024,
+        )
+        with tracking(TrackSpec(("recorded",))):
+            with pytest.raises(CanterError, match="non-finite"):
+                train(config)
+            [run] = list(tmp_path.iterdir())
+            with pytest.raises(CanterError, match="non-finite"):
+                train(resume_config(run, 1024), resume=run)
+    finally:
+        TRACKERS.pop("recorded")
+    assert recorded.continued == [None, "in-memory-1"]

@@ -298,7 +298,8 @@ class _SeedRun:
         earlier: dict[str, Any] | None,
     ) -> None:
         """`earlier`: wall seconds, training seconds, episodes and the recent episode returns of the sessions before
-        a resume."""
+        a resume; None for a new run. (A resume may start at step 0: a run whose first iteration was non-finite.)"""
+        resumed = earlier is not None
         self.config = config
         self.out = out
         self.metric_names = metric_names
@@ -318,7 +319,7 @@ class _SeedRun:
             metric_names,
             spec.info_keys,
             config.run.tensorboard,
-            resume_step=start_step if start_step > 0 else None,
+            resume_step=start_step if resumed else None,
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
@@ -327,7 +328,7 @@ class _SeedRun:
             else None
         )
         self.videos = TrainingVideos(out, config.run.video_every, start_step)
-        self.trackers = trackers.open_for_run(config, out, resumed=start_step > 0)  # `canter train --track`
+        self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
         self.closed = False
         self.stop_reason: str | None = None  # set once the seed is done; the group may still run
         self.error: str | None = None
