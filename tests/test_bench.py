@@ -628,3 +628,29 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
     assert not seeds_finished(cell, (0,), replace(settings, eval_episodes=10), tmp_path)
     shutil.rmtree(run / "checkpoints")  # a run restored from a results archive keeps its evaluation only
     assert seeds_finished(cell, (0,), settings, tmp_path)
+
+
+def test_a_job_whose_evaluation_is_not_a_number_fails_with_its_reason(tmp_path, monkeypatch):
+    import optuna
+
+    import canter.orchestrate.bench as bench_module
+    from canter.orchestrate.bench import JOB_ATTR, _job_trial, job_key, make_jobs
+
+    settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 1000, eval_episodes=1)
+    [job] = make_jobs(make_cells(settings), settings.seeds)
+    run = job.cell.run_dir(tmp_path, 0)
+    run.mkdir(parents=True)
+    (run / "eval.json").write_text('{"mean": NaN, "episodes": 1}')  # as json.dumps writes a NaN
+
+    class Finished:
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(bench_module, "start_job", lambda spec, folder: Finished())
+    monkeypatch.setattr(bench_module, "stop_jobs", lambda procs: None)
+    monkeypatch.setattr(bench_module, "seeds_finished", lambda *args: True)
+    study = optuna.create_study(direction="maximize")
+    study.enqueue_trial({}, user_attrs={JOB_ATTR: job_key(job, settings)})
+    trial = study.ask()
+    outcome = _job_trial(study, trial, {job_key(job, settings): job}, settings, tmp_path)
+    assert outcome.state == "fail" and outcome.reason.startswith("a seed's eval.json has no finite mean return")

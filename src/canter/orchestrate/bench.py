@@ -567,8 +567,12 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
     # The records travel with the trial, so any machine can build the table from the storage alone.
     records = [seed_record(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
     trial.set_user_attr("records", records)
-    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
-    return Outcome("complete", value=float(np.mean(evals)) if evals else math.nan)
+    evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None and math.isfinite(r["eval_mean"])]
+    if len(evals) < len(records):  # Optuna would store a NaN value as a failure, with no reason
+        return Outcome(
+            "fail", reason="a seed's eval.json has no finite mean return; delete it and re-run to evaluate again"
+        )
+    return Outcome("complete", value=float(np.mean(evals)))
 
 
 def _open_grid_study(settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
