@@ -41,6 +41,23 @@ def test_precedence_defaults_preset_file_set_flags(tmp_path):
     assert config.env.num_envs == 1  # the preset beats the defaults
 
 
+def test_strings_with_quotes_backslashes_and_control_characters_survive_the_round_trip():
+    for folder in ['runs/"quoted"', "C:\\runs", "line\nbreak", "tab\there", "bell\x07", "ünïcode"]:
+        config = build_config("Hopper-v5", sets=[]).with_values("run", out_dir=folder)
+        assert from_toml_text(to_toml(config), "test").run.out_dir == folder
+
+
+def test_the_algorithm_asked_for_is_the_one_the_preset_and_the_checks_see():
+    """A report's preset names its algorithm; --algo overrides it, and the checks follow --algo, not the preset."""
+    assert build_config("HumanoidStandup-v4", preset="report000-humanoidstandup").run.algo == "rpo"
+    config = build_config("HumanoidStandup-v4", preset="report000-humanoidstandup", algo="ppo")
+    assert config.run.algo == "ppo" and config.run.preset == "report000-humanoidstandup"
+    with pytest.raises(CanterError, match=r"rpo.alpha has no effect on ppo"):  # checked against the preset's rpo before
+        build_config("HumanoidStandup-v4", preset="report000-humanoidstandup", algo="ppo", sets=["rpo.alpha=0.3"])
+    with pytest.raises(CanterError, match=r"preset report002-ddpg holds settings for ddpg only, not sac"):
+        build_config("BipedalWalker-v3", preset="report002-ddpg", algo="sac", sets=["sac.tau=0.01"])
+
+
 def test_toml_round_trip_preserves_everything():
     config = build_config("Walker2d-v5", sets=["ppo.critic_lr=1e-3", "run.stop_at_return=300", "net.hidden=8"])
     again = from_toml_text(to_toml(config), "test")
@@ -65,6 +82,9 @@ def test_toml_round_trip_preserves_everything():
         (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a positive number"),
         (["env.reward_scale=0.1"], "set env.normalize_reward=false or env.reward_scale=1"),
         (["run.stop_at_return=nan"], "run.stop_at_return must be a finite number, got nan"),
+        (["net.hidden=-64,-64"], "net.hidden: expected comma-separated integers, got '-64,-64'"),
+        (["run.seed=4294967296"], "run.seed must be from 0 to 4294967295, got 4294967296"),
+        (["run.seed=-1"], "run.seed must be from 0 to 4294967295, got -1"),
         (["run.stop_at_return=inf"], "run.stop_at_return must be a finite number, got inf"),
         (["nosection"], "--set expects section.key=value"),
         (["bogus.key=1"], "unknown config key 'bogus.key'"),

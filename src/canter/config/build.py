@@ -11,7 +11,7 @@ from canter.config.overrides import (
     load_toml,
     parse_set_args,
 )
-from canter.config.presets import canonical_preset, note_other_env, preset_overrides
+from canter.config.presets import canonical_preset, note_other_env, preset_algorithm, preset_overrides
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
@@ -38,7 +38,11 @@ def build_config(
     preset = canonical_preset(preset)
     config = Config()
     first: dict[str, Any] = {"env.id": resolved_id, "run.preset": preset}
-    resolved_algo = algo or set_data.get("run.algo") or file_data.get("run.algo")
+    # The algorithm comes first, so that the preset's algorithm tables, its `algos` check and the unread-key check
+    # all see the one that will train: --algo, then --set run.algo, the config file's, the preset's, the default.
+    resolved_algo = (
+        algo or set_data.get("run.algo") or file_data.get("run.algo") or preset_algorithm(preset, str(resolved_id))
+    )
     if resolved_algo:
         check_algorithm_name(str(resolved_algo))
         first["run.algo"] = resolved_algo
@@ -48,7 +52,7 @@ def build_config(
     config = apply_overrides(config, file_data, str(config_file))
     config = apply_overrides(config, set_data, "--set")
     if check_unread:
-        for key in set_data:
+        for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
             if not reads_key(config.run.algo, key):
                 raise CanterError(unread_key_error(config.run.algo, key))
     flags: dict[str, Any] = {}

@@ -119,6 +119,14 @@ def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, A
     return flat
 
 
+def preset_algorithm(name: str, env_id: str) -> str | None:
+    """The run.algo a preset's chain sets for this env (a report's preset names its algorithm), or None."""
+    algo = None
+    for link, table, _ in _read_chain(name):
+        algo = preset_layer(table, env_id, f"preset {link}").get("run.algo", algo)
+    return None if algo is None else str(algo)
+
+
 def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
     """A preset's keys for this env and algorithm: for each preset in its chain, base first, that preset's file
     layer, then the algorithm's own table for it. A preset whose `algos` list names the algorithms it holds
@@ -136,6 +144,7 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any
         own = algorithm_spec(algo).preset_overrides.get(link)
         if own:
             flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {link}"))
+    flat["run.algo"] = algo  # the algorithm asked for wins over the one a preset names
     return flat
 
 

@@ -8,6 +8,7 @@ from typing import Any
 
 from canter.config.algorithms import algorithm_spec
 from canter.config.schema import Config, check_section, section_names
+from canter.config.values import SEED_LIMIT
 from canter.errors import CanterError
 
 ACTIVATIONS = ("tanh", "relu", "elu")
@@ -98,6 +99,7 @@ def validate(config: Config) -> None:
         check_section(name, config.section(name))
     spec.validate(config)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
+    need(0 <= run.seed < SEED_LIMIT, f"run.seed must be from 0 to {SEED_LIMIT - 1}, got {run.seed}")
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
     need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import types
 import typing
 from dataclasses import fields
@@ -10,6 +11,8 @@ from typing import Any
 
 from canter.config.schema import section_type
 from canter.errors import CanterError
+
+SEED_LIMIT = 2**32  # run seeds are unsigned 32-bit, as numpy's and JAX's keys take them
 
 
 def field_types(section: str) -> dict[str, Any]:
@@ -43,11 +46,10 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
         return None
     if typing.get_origin(inner) is tuple:
         if isinstance(value, str):
-            parts = [p for p in value.replace("-", ",").split(",") if p.strip()] if value.strip() else []
-            try:
-                return tuple(int(p) for p in parts)
-            except ValueError:
-                raise bad from None
+            # "64,64" or "64-64" (the form a plot label and a tune choice take); a minus sign is not a separator
+            if not re.fullmatch(r"\s*(\d+(\s*[-,]\s*\d+)*)?\s*", value):
+                raise bad
+            return tuple(int(p) for p in re.split(r"[-,]", value) if p.strip())
         if isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
             return tuple(value)
         raise bad
@@ -90,6 +92,13 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
     raise bad
 
 
+def _escape_toml_char(match: re.Match[str]) -> str:
+    """A basic string's escape: backslash and quote as themselves, control characters (a folder name may hold one)
+    as \\uXXXX, which TOML refuses unescaped."""
+    char = match.group()
+    return "\\" + char if char in '\\"' else f"\\u{ord(char):04x}"
+
+
 def toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -104,6 +113,6 @@ def toml_value(value: Any) -> str:
     if isinstance(value, tuple):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, str):
-        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        escaped = re.sub(r'[\\"\x00-\x1f\x7f]', _escape_toml_char, value)
         return f'"{escaped}"'
     raise TypeError(value)

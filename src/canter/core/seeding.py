@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from canter.config.values import SEED_LIMIT
+
+__all__ = ["EVAL", "HELD_OUT", "RESUME", "SEED_LIMIT", "TRAIN", "env_seeds"]
+
 # Purposes keep streams apart: training envs, envs recreated on resume (mixed with the step), evaluation envs (of
 # `canter eval` and of evaluations during training), and held-out evaluation envs for a checkpoint that was chosen
 # on EVAL episodes (best.npz), whose score on those episodes would be biased upward.
 TRAIN, RESUME, EVAL, HELD_OUT = 0, 1, 2, 3
-
-SEED_LIMIT = 2**32  # run seeds are unsigned 32-bit, as numpy's are
 
 
 def env_seeds(run_seed: int, num_envs: int, purpose: int = TRAIN, salt: int = 0) -> list[int]:
