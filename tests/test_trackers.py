@@ -1,6 +1,7 @@
 """`canter train --track wandb/mlflow` with the real libraries and no network: W&B offline (its run files read
 back), MLflow against a SQLite store (read back with MlflowClient)."""
 
+import contextlib
 import json
 import math
 import os
@@ -205,6 +206,17 @@ def test_a_tracker_that_cannot_start_is_one_line_before_training(tmp_path, monke
     assert not (tmp_path / "runs").exists()
 
 
+@contextlib.contextmanager
+def _registered(name: str, tracker: object):
+    """The tracker under `name` inside the block, with `--track name` active, and gone after it."""
+    register_tracker(name, tracker)
+    try:
+        with tracking(TrackSpec((name,))):
+            yield
+    finally:
+        TRACKERS.pop(name)
+
+
 class _InMemoryTracker:
     """A tracker backend that is its own single run: it accepts everything and keeps nothing."""
 
@@ -244,19 +256,15 @@ class _FailsOnSecondRow(_InMemoryTracker):
 @pytest.mark.slow
 def test_a_tracker_failing_mid_run_warns_once_and_the_run_completes(tmp_path, capsys):
     flaky = _FailsOnSecondRow()
-    register_tracker("flaky", flaky)
-    try:
-        config = build_config(
-            "InvertedPendulum-v4",
-            preset="fast",
-            sets=["env.backend=envpool", "net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4"]
-            + ["ppo.n_steps=128", "ppo.epochs=2", f"run.out_dir={tmp_path}"],
-            total_steps=2048,
-        )
-        with tracking(TrackSpec(("flaky",))):
-            result = train(config)
-    finally:
-        TRACKERS.pop("flaky")
+    config = build_config(
+        "InvertedPendulum-v4",
+        preset="fast",
+        sets=["env.backend=envpool", "net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4"]
+        + ["ppo.n_steps=128", "ppo.epochs=2", f"run.out_dir={tmp_path}"],
+        total_steps=2048,
+    )
+    with _registered("flaky", flaky):
+        result = train(config)
     warnings = [line for line in capsys.readouterr().err.splitlines() if "tracker flaky" in line]
     assert warnings == [
         "canter: warning: tracker flaky failed while logging (the tracking server went away); training goes on "
@@ -294,19 +302,15 @@ def test_a_run_that_fails_before_its_first_iteration_closes_its_tracker_runs(tmp
 
     monkeypatch.setattr(device_memory, "check_fits", too_big)
     recorded = _RecordsItsEnd()
-    register_tracker("recorded", recorded)
-    try:
-        config = build_config(
-            "InvertedPendulum-v4",
-            preset="fast",
-            sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=2", "ppo.minibatch_size=128"]
-            + [f"run.out_dir={tmp_path}"],
-            total_steps=1024,
-        )
-        with tracking(TrackSpec(("recorded",))), pytest.raises(CanterError, match="does not fit"):
-            train(config)
-    finally:
-        TRACKERS.pop("recorded")
+    config = build_config(
+        "InvertedPendulum-v4",
+        preset="fast",
+        sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=2", "ppo.minibatch_size=128"]
+        + [f"run.out_dir={tmp_path}"],
+        total_steps=1024,
+    )
+    with _registered("recorded", recorded), pytest.raises(CanterError, match="does not fit"):
+        train(config)
     assert recorded.ends == ["closed"]
 
 
@@ -463,20 +467,16 @@ def test_a_resume_from_another_folder_continues_the_mlflow_run_of_its_default_st
 def test_a_resume_from_a_checkpoint_at_step_0_continues_its_tracker_runs(tmp_path):
     """A run whose first iteration was non-finite keeps a checkpoint at step 0; resuming it is still a resume."""
     recorded = _RecordsItsEnd()
-    register_tracker("recorded", recorded)
-    try:
-        config = build_config(
-            "canter_test_envs:NaNAtOnce-v0",
-            sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=1", "ppo.n_steps=64", "ppo.minibatch_size=32"]
-            + [f"run.out_dir={tmp_path}"],
-            total_steps=1024,
-        )
-        with tracking(TrackSpec(("recorded",))):
-            with pytest.raises(CanterError, match="non-finite"):
-                train(config)
-            [run] = list(tmp_path.iterdir())
-            with pytest.raises(CanterError, match="non-finite"):
-                train(resume_config(run, 1024), resume=run)
-    finally:
-        TRACKERS.pop("recorded")
+    config = build_config(
+        "canter_test_envs:NaNAtOnce-v0",
+        sets=["net.hidden=8", "run.tensorboard=false", "env.num_envs=1", "ppo.n_steps=64", "ppo.minibatch_size=32"]
+        + [f"run.out_dir={tmp_path}"],
+        total_steps=1024,
+    )
+    with _registered("recorded", recorded):
+        with pytest.raises(CanterError, match="non-finite"):
+            train(config)
+        [run] = list(tmp_path.iterdir())
+        with pytest.raises(CanterError, match="non-finite"):
+            train(resume_config(run, 1024), resume=run)
     assert recorded.continued == [None, "in-memory-1"]

@@ -323,7 +323,7 @@ class _SeedRun:
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
-            TrainingEvaluation(config, spec, start_step, _best_return(out) if start_step else None)
+            TrainingEvaluation(config, spec, start_step, _best_return(out) if resumed else None)
             if config.run.eval_every
             else None
         )
