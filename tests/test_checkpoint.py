@@ -70,6 +70,22 @@ def test_a_leaf_of_another_dtype_is_named_with_both_dtypes(tmp_path):
         checkpoint.restore({"x": np.zeros(3, np.float32)}, arrays, tmp_path / "c.npz")
 
 
+def test_left_out_fields_are_not_written_and_read_back_as_zeros(tmp_path):
+    state = {"buffer": {"obs": np.ones((1000, 5), np.float32), "size": np.int32(7)}, "policy": np.arange(3.0)}
+    path = tmp_path / "best.npz"
+    checkpoint.save(path, state, {}, leave_out=("buffer",))
+    arrays, header = checkpoint.read(path)
+    assert sorted(arrays) == ["policy"] and header["left_out"] == ["buffer/obs", "buffer/size"]
+    assert path.stat().st_size < 2000  # the 20 kB buffer is not in the file
+    back = checkpoint.restore(state, arrays, path, left_out=header["left_out"])
+    np.testing.assert_array_equal(back["policy"], state["policy"])
+    assert back["buffer"]["obs"].shape == (1000, 5) and not back["buffer"]["obs"].any()
+    assert back["buffer"]["size"].dtype == np.int32 and back["buffer"]["size"] == 0
+    # Without the header's list, a missing leaf is still a checkpoint of another config.
+    with pytest.raises(CanterError, match="missing 'buffer/obs'"):
+        checkpoint.restore(state, arrays, path)
+
+
 def test_prune_keeps_newest(tmp_path):
     for step in (10, 20, 30, 40):
         checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})

@@ -302,3 +302,27 @@ def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path
     error = training_write_error(read_only, [run])
     assert error is not None and f"make {run / 'tb'} writable (or pick another path)" in str(error)
     assert training_write_error(ValueError("a bug"), [run]) is None
+
+
+def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leave_out(tmp_path, monkeypatch, capsys):
+    from collections import namedtuple
+
+    import numpy as np
+
+    from canter.config.build import build_config
+    from canter.training import disk_room
+
+    State = namedtuple("State", "buffer policy")
+    state = State(np.zeros(250_000, np.float32), np.zeros(2_500, np.float32))
+    sets = ["run.keep_checkpoints=2", "run.eval_every=1000", "run.video_every=0"]
+    config = build_config("Pendulum-v1", algo="td3", sets=sets)
+    full, policy = disk_room.state_bytes(state), disk_room.state_bytes({"policy": state.policy})
+    needed = 3 * full + policy  # two kept, the next one written before the oldest goes, and best.npz
+    Usage = namedtuple("Usage", "total used free")
+    for free, warns in ((needed, False), (needed - 1, True)):
+        monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _, free=free: Usage(0, 0, free))
+        assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config, ("buffer",)) is warns
+    assert capsys.readouterr().err.count("canter: warning:") == 1
+    # A state whose best.npz holds everything needs room for four whole ones.
+    monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
+    assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)

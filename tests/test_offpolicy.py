@@ -19,6 +19,7 @@ from canter.config.build import build_config
 from canter.envs.base import StepOutput
 from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
+from canter.training import checkpoint
 from canter.training.loop import resume_config, train
 from canter.training.restore import load_state
 from canter.use.evaluate import evaluate
@@ -246,6 +247,28 @@ def test_learns_pendulum_and_loads_as_a_deterministic_policy(algo, learned):
     np.testing.assert_allclose(first, np.clip(low + (x + 1) / 2 * (high - low), low, high), rtol=1e-4, atol=1e-5)
     if algo == "sac":
         assert not np.allclose(policy(obs, deterministic=False, seed=1), first)
+
+
+def test_best_checkpoint_holds_the_policy_without_the_replay_buffer(tmp_path):
+    """best.npz is read only for its policy: it leaves the buffer out, and loads and acts as the full state of the
+    same step does."""
+    extra = ["run.eval_every=1000", "run.eval_episodes=1", "run.checkpoint_every=1000", "run.keep_checkpoints=10"]
+    extra.append("run.compress_checkpoints=false")
+    result = train(_config("td3", tmp_path, 2000, extra))
+    best = checkpoint.best_path(result.run_dir)
+    arrays, header = checkpoint.read(best)
+    assert header["left_out"] and all(name.startswith("buffer/") for name in header["left_out"])
+    assert not any(name.startswith("buffer/") for name in arrays)
+    full_path = checkpoint.checkpoint_path(result.run_dir, header["global_step"])
+    full, _ = checkpoint.read(full_path)
+    buffer_bytes = 20000 * (3 + 1 + 1 + 3 + 1) * 4  # obs, action, reward, next obs, terminated
+    assert best.stat().st_size + buffer_bytes <= full_path.stat().st_size
+    for name, value in arrays.items():
+        np.testing.assert_array_equal(value, full[name])
+    obs = np.random.default_rng(0).normal(size=(8, 3)).astype(np.float32)
+    np.testing.assert_array_equal(load(result.run_dir, checkpoint="best")(obs), load(result.run_dir, full_path)(obs))
+    # A resume reads the newest full checkpoint, never best.npz, and carries on.
+    assert train(resume_config(result.run_dir, 3000), resume=result.run_dir).global_step >= 3000
 
 
 @pytest.mark.slow

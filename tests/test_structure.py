@@ -128,3 +128,17 @@ def test_building_a_config_imports_neither_jax_nor_an_env_library():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_train_refuses_a_bad_config_before_it_imports_jax():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from canter.cli.main import main; "
+        "codes = [main(['train', 'Hopper-v5', '--algo', 'ppx']), main(['train', 'Hopper-v5', '--set', 'ppo.lr=x'])]; "
+        "print(codes, 'jax' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[2, 2] False"
+    assert "unknown algorithm 'ppx'" in done.stderr

@@ -106,6 +106,9 @@ def main() -> None:
                 wall=time.time() - started,
                 eval_return=float(metrics["eval/episode_reward"]),
                 training_sps=float(metrics.get("training/sps", float("nan"))),
+                # Brax's own clocks: its training epochs so far (the first includes its compile), and this evaluation.
+                training_walltime=float(metrics.get("training/walltime", float("nan"))),
+                eval_walltime=float(metrics.get("eval/walltime", float("nan"))),
             )
         )
         print(f"brax {args.env}: step {step:,} eval return {evals[-1]['eval_return']:.1f} at {evals[-1]['wall']:.1f} s")
@@ -118,8 +121,9 @@ def main() -> None:
         device=str(jax.devices()[0].device_kind),
         settings=settings,
         steps=steps,
-        wall_seconds=wall,
+        wall_seconds=wall,  # from before the imports of JAX and Brax to the end of training
         steps_per_second=steps / wall,
+        training_walltime=evals[-1]["training_walltime"],
         # Brax's own figure: env steps per second of its last training epoch (the first includes the compile).
         training_sps=evals[-1]["training_sps"],
         final_eval_return=evals[-1]["eval_return"],

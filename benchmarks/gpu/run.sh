@@ -7,11 +7,14 @@
 #   bash benchmarks/gpu/run.sh humanoid    # Humanoid-v5 on mjx for 4 minutes, evaluated during training: time to 6000
 #   bash benchmarks/gpu/run.sh seeds       # Hopper-v5 on mjx, 5 vmapped seeds vs 1 seed, the same steps
 #   bash benchmarks/gpu/run.sh offpolicy   # td3 and sac on HalfCheetah-v5 on mjx, many envs
+#   bash benchmarks/gpu/run.sh precision   # MJX against C MuJoCo on the GPU, its default matmul precision and full float32
 #
 # The GPU machine cannot reach a registry: the wheels it lacks come in .whl/ (benchmarks/gpu/wheels.sh downloads
 # them here) and are installed into /tmp/site at the start. Everything the part prints goes to $OUT/PART.log, and
 # its figures, with the device's name, to $OUT/PART.md, for benchmarks/gpu/results.md. OUT defaults to
-# benchmarks/gpu/out. Run folders stay in $OUT/runs without their checkpoints (which hold every env's state).
+# benchmarks/gpu/out. Run folders stay in $OUT/runs without their checkpoints (which hold every env's state); the
+# device brings back files at most two folders down, so on the device run the parts through session.sh, which packs
+# them.
 #
 # CANTER_GPU_SMOKE=1 shrinks every part to a few envs and steps, to check the script on a CPU (minutes, not figures).
 # The sizes below can be changed through the environment variables they read.
@@ -20,9 +23,9 @@ cd "$(dirname "$0")/../.."
 part=${1:-}
 shift || true
 case "$part" in
-smoke | ppo-brax | humanoid | seeds | offpolicy) ;;
+smoke | ppo-brax | humanoid | seeds | offpolicy | precision) ;;
 *)
-    echo "usage: bash benchmarks/gpu/run.sh smoke|ppo-brax|humanoid|seeds|offpolicy" >&2
+    echo "usage: bash benchmarks/gpu/run.sh smoke|ppo-brax|humanoid|seeds|offpolicy|precision" >&2
     exit 2
     ;;
 esac
@@ -59,23 +62,42 @@ echo "== $part ($(date -u +%FT%TZ), CANTER_GPU_SMOKE=$SMOKE)"
 import jax
 print(f"{jax.devices()[0].device_kind} (JAX {jax.__version__}, {jax.default_backend()})")
 EOF
-command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+# Where the CUDA plugin fails to start, JAX falls back to the CPU with a warning, and a part would spend its whole
+# limit there for figures that mean nothing.
+if [ "$SMOKE" != 1 ] && ! grep -q ", gpu)" "$OUT/device.txt"; then
+    echo "run.sh: JAX is not on a GPU ($(cat "$OUT/device.txt")); CANTER_GPU_SMOKE=1 runs the parts on a CPU" >&2
+    exit 1
+fi
+if command -v nvidia-smi >/dev/null; then
+    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
+fi
 
-# Settings of this part, recorded in PART.md.
+# Settings of this part, recorded in PART.md; a second run of the part in the same OUT adds its own.
 settings() { printf '%s\n' "$@" >>"$OUT/$part.settings"; }
-: >"$OUT/$part.settings"
+settings "# run.sh $part $* ($(date -u +%FT%TZ))"
+# Whole processes, timed from outside (interpreter start, imports, compile, training, evaluations): one JSON line
+# per process in $OUT/$part.times, for the like-for-like column of ppo-brax.
+timed() {
+    local label=$1 start status=0
+    shift
+    start=$(date +%s%N)
+    "$@" || status=$?
+    printf '{"label": "%s", "seconds": %s, "exit": %d}\n' "$label" \
+        "$(((($(date +%s%N) - start) / 1000000)))e-3" "$status" >>"$OUT/$part.times"
+    return $status
+}
 # canter train with what every run here shares: no TensorBoard, one checkpoint at the end, no progress bar.
 train() {
     local label=$1
     shift
     settings "canter train $*"
-    "$PY" -m canter.cli train "$@" --out-dir "$RUNS/$label" --quiet \
+    timed "$label" "$PY" -m canter.cli train "$@" --out-dir "$RUNS/$label" --quiet \
         --set run.tensorboard=false --set run.checkpoint_every=0
 }
 small() { [ "$SMOKE" = 1 ] && echo "$1" || echo "$2"; }
-# MJX_SETS: --set flags for every mjx run, e.g. the solver settings
-# MJX_SETS="--set env.solver_iterations=4 --set env.solver_ls_iterations=8" (docs/gpu.md).
-read -r -a mjx_sets <<<"${MJX_SETS:-}"
+# MJX_SETS: --set flags for every mjx run. Unset, the solver settings of every archived GPU figure (docs/gpu.md); with
+# the XML's own (MJX_SETS="") MJX steps Hopper about 15x slower there, and the parts are not sized for that.
+read -r -a mjx_sets <<<"${MJX_SETS-"--set env.solver_iterations=4 --set env.solver_ls_iterations=8"}"
 # EVAL_BACKEND: where the mjx parts' evaluations during training play. `auto` plays them on C MuJoCo on the host's
 # idle cores (EnvPool where installed, else Gymnasium), on the XML's own model: an MJX evaluation plays its 1000
 # steps one after another on the GPU, about 10 ms each on an H100. EVAL_BACKEND=mjx plays them there.
@@ -106,8 +128,8 @@ ppo-brax)
         # Three evaluations give Brax two training epochs; the first compiles, so the last epoch's training/sps is
         # its compile-free rate, the figure canter's SPS (its compile left out) compares with.
         settings "python benchmarks/gpu/brax_ppo.py $env --timesteps $timesteps --num-evals 3 ${smoke_flag[*]}"
-        "$PY" benchmarks/gpu/brax_ppo.py "$env" --timesteps "$timesteps" --num-evals 3 "${smoke_flag[@]}" \
-            --out "$OUT/brax_$env.json"
+        timed "brax-$env" "$PY" benchmarks/gpu/brax_ppo.py "$env" --timesteps "$timesteps" --num-evals 3 \
+            "${smoke_flag[@]}" --out "$OUT/brax_$env.json"
         steps=$("$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['steps'])" "$OUT/brax_$env.json")
         shrink=()
         if [ "$SMOKE" = 1 ]; then
@@ -133,8 +155,10 @@ humanoid)
     ;;
 seeds)
     # The same run as one seed and as 5 vmapped seeds: the same envs per seed and steps per seed.
-    num_envs=$(small 4 "${SEEDS_ENVS:-256}")
-    steps=$(small 64 "${SEEDS_STEPS:-2000000}")
+    # 1024 envs and 500k steps per seed, as on the H100 (results.md): about 90 s for one seed and 110 s for five,
+    # cold, so 240 s for the part covers both compiles.
+    num_envs=$(small 4 "${SEEDS_ENVS:-1024}")
+    steps=$(small 64 "${SEEDS_STEPS:-500000}")
     minibatch=$(small 16 4096)
     for label in one five; do
         seed_flag=(--seed 0)
@@ -156,6 +180,20 @@ offpolicy)
             --set "$algo.steps_per_call=$(small 8 "$((num_envs * 100))")" \
             --max-minutes "$(small 2 "${OFFPOLICY_MINUTES:-2}")" --total-steps "$(small 48 1000000000)" \
             --eval-every "$(small 32 "${OFFPOLICY_EVAL_EVERY:-500000}")" --eval-episodes "$(small 2 10)" "${eval_sets[@]}"
+    done
+    ;;
+precision)
+    # A GPU's default precision for float32 matrix products is TensorFloat-32 (10 bits of mantissa), and MJX's
+    # solver and Jacobians are matrix products, so the ports' accuracy measured on a CPU (benchmarks/mjx_equivalence)
+    # is measured again here: at the default and at full float32, with the solver settings the parts train with.
+    solver=${PRECISION_SOLVER:-4,8}
+    read -r -a precision_envs <<<"${PRECISION_ENVS:-Hopper-v5 Humanoid-v5}"
+    for precision in default highest; do
+        settings "JAX_DEFAULT_MATMUL_PRECISION=$precision CANTER_SOLVER=$solver python benchmarks/mjx_equivalence/measure.py"
+        JAX_DEFAULT_MATMUL_PRECISION=$precision CANTER_SOLVER=$solver timed "precision-$precision" \
+            "$PY" benchmarks/mjx_equivalence/measure.py "$(small 3 "${PRECISION_STEPS:-100}")" "${precision_envs[@]}" \
+            >"$OUT/precision-$precision.table"
+        cat "$OUT/precision-$precision.table"
     done
     ;;
 esac

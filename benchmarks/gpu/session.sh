@@ -11,9 +11,20 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 final=${OUT:-benchmarks/gpu/out}
 mkdir -p "$final"
+# Everything this call prints also goes straight to $OUT, so a call the device stops before its packing still
+# brings back its log.
+exec > >(
+    trap '' TERM
+    exec tee -a "$final/session.log"
+) 2>&1
 work=$(mktemp -d /tmp/canter-gpu.XXXX)
 if compgen -G ".whl/*.whl" >/dev/null; then
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    # A wheel that does not install would fail every part at its first import: stop before the parts.
+    if ! python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+        .whl/*.whl; then
+        echo "session.sh: the wheels in .whl/ did not install (above); run benchmarks/gpu/wheels.sh again here"
+        exit 1
+    fi
     export PYTHONPATH=/tmp/site:$PWD/src
 fi
 export CANTER_GPU_INSTALL=0 PYTHONUNBUFFERED=1

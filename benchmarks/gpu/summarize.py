@@ -77,35 +77,46 @@ def device_name(out: Path) -> str:
     return path.read_text().strip() if path.exists() else "unknown device"
 
 
+def process_seconds(out: Path, part: str) -> dict[str, float]:
+    """The whole-process times run.sh recorded for a part, by label (the last run of each)."""
+    path = out / f"{part}.times"
+    if not path.exists():
+        return {}
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return {r["label"]: float(r["seconds"]) for r in records if r["exit"] == 0}
+
+
 def ppo_brax(out: Path) -> list[str]:
     lines = [
-        "| env | trainer | steps | wall (s) | steps/s, whole run | steps/s, training | final eval return | "
-        "train return (last 20) |",
+        "| env | trainer | steps | whole process (s) | compile + training (s) | steps/s, training | "
+        "final eval return | train return (last 20) |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
+    processes = process_seconds(out, "ppo-brax")
     for env in ("ant", "humanoid"):
         record_path = out / f"brax_{env}.json"
         if record_path.exists():
             b = json.loads(record_path.read_text())
             lines.append(
-                f"| {env} | Brax PPO | {b['steps']:,} | {fmt(b['wall_seconds'])} | {fmt(b['steps_per_second'], 0)} | "
-                f"{fmt(b['training_sps'], 0)} | {fmt(b['final_eval_return'])} (stochastic, {b['eval_episodes']} eps) "
-                f"| - |"
+                f"| {env} | Brax PPO | {b['steps']:,} | {fmt(processes.get(f'brax-{env}'))} | "
+                f"{fmt(b.get('training_walltime'))} | {fmt(b['training_sps'], 0)} | "
+                f"{fmt(b['final_eval_return'])} (stochastic, {b['eval_episodes']} eps) | - |"
             )
         for run in runs(out / "runs" / f"ppo-brax-{env}"):
             c = run_facts(run)
             lines.append(
-                f"| {env} | canter ppo --preset brax | {c['steps']:,} | {fmt(c['wall'])} | "
-                f"{fmt(c['steps'] / c['wall'], 0)} | {fmt(c['sps'], 0)} | {fmt(c['final_eval'])} (deterministic) "
-                f"| {fmt(c['train_return'])} |"
+                f"| {env} | canter ppo --preset brax | {c['steps']:,} | {fmt(processes.get(f'ppo-brax-{env}'))} | "
+                f"{fmt(c['compile'] + c['steps'] / c['sps'])} | {fmt(c['sps'], 0)} | "
+                f"{fmt(c['final_eval'])} (deterministic) | {fmt(c['train_return'])} |"
             )
     lines.append("")
     lines.append(
-        "Whole run: env steps / wall time, compile and evaluation included. Training: Brax's `training/sps` of its "
-        "last epoch (of two: the first compiles; with one epoch the figure includes Brax's compile), canter's SPS "
-        "with the compile left out. canter trains whole iterations until it has counted "
-        "Brax's steps, and counts no autoreset step (Brax resets inside the step that ends an episode), so its "
-        "count can pass Brax's by up to one iteration."
+        "Whole process: timed from outside by run.sh, interpreter start, imports, compile, training and evaluations "
+        "(Brax evaluates three times, canter once at the end). Compile + training: Brax's `training/walltime` (its "
+        "training epochs, the first of which compiles), canter's compile plus its steps at its SPS. Training: "
+        "Brax's `training/sps` of its last epoch (of two: the first compiles), canter's SPS with the compile left "
+        "out. canter trains whole iterations until it has counted Brax's steps, and counts no autoreset step (Brax "
+        "resets inside the step that ends an episode), so its count can pass Brax's by up to one iteration."
     )
     return lines
 
@@ -175,7 +186,26 @@ def smoke(out: Path) -> list[str]:
     return lines
 
 
-PARTS = {"ppo-brax": ppo_brax, "humanoid": humanoid, "seeds": seeds, "offpolicy": offpolicy, "smoke": smoke}
+def precision(out: Path) -> list[str]:
+    """measure.py's tables at the GPU's default matmul precision and at full float32, with each one's time."""
+    lines: list[str] = []
+    processes = process_seconds(out, "precision")
+    for setting in ("default", "highest"):
+        table = out / f"precision-{setting}.table"
+        if table.exists():
+            lines += [f"JAX_DEFAULT_MATMUL_PRECISION={setting} ({fmt(processes.get(f'precision-{setting}'))} s):", ""]
+            lines += table.read_text().strip().splitlines()[2:] + [""]
+    return lines
+
+
+PARTS = {
+    "ppo-brax": ppo_brax,
+    "humanoid": humanoid,
+    "seeds": seeds,
+    "offpolicy": offpolicy,
+    "smoke": smoke,
+    "precision": precision,
+}
 
 
 def main() -> None:

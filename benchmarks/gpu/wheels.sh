@@ -10,6 +10,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 mkdir -p .whl
+# A wheel left from an earlier pin would be installed beside the new one, and pip refuses the pair.
+rm -f .whl/*.whl
 # Keep the wheels out of git (a local exclude, not .gitignore: they are a per-machine download).
 exclude=.git/info/exclude
 mkdir -p "$(dirname "$exclude")"

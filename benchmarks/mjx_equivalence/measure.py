@@ -9,7 +9,8 @@
 Usage: python benchmarks/mjx_equivalence/measure.py [STEPS] [ENV ...]
 CANTER_SOLVER=ITERATIONS,LS_ITERATIONS measures the ports with env.solver_iterations and env.solver_ls_iterations
 set (C MuJoCo keeps the XML's); CANTER_PRECISION=float64 steps MJX in float64 (the default is float32, as in
-training). results.md holds three tables:
+training); JAX_DEFAULT_MATMUL_PRECISION=highest keeps a GPU's matrix products in full float32 (its default is
+TensorFloat-32; benchmarks/gpu/run.sh precision measures both). results.md holds three tables:
     { python measure.py; echo; CANTER_SOLVER=4,8 python measure.py; echo; CANTER_PRECISION=float64 python measure.py; }
 """
 
@@ -98,7 +99,8 @@ def main() -> None:
     print(f"# MJX ports against Gymnasium v5 ({steps} steps, uniform random actions; {solver})\n")
     print(
         f"{platform.processor() or platform.machine()}, {time.strftime('%Y-%m-%d')}, commit {commit}, "
-        f"JAX {jax.__version__} on {jax.default_backend()}, physics in {precision}\n"
+        f"JAX {jax.__version__} on {jax.default_backend()}, physics in {precision}, matmul precision "
+        f"{jax.config.jax_default_matmul_precision or 'default'}\n"
     )
     print("| task | obs | reward | info | flag mismatches | terminations | C vs C moved 1e-9 (free-running) |")
     print("|---|---:|---:|---:|---:|---:|---:|")

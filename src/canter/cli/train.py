@@ -96,7 +96,6 @@ def run(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
-    from canter.training.loop import resume_config, resume_seeds, train, train_seeds
 
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
@@ -125,6 +124,9 @@ def _train(args: argparse.Namespace) -> list[Any]:
                 f"--resume uses the saved config; only --total-steps, --max-minutes, --quiet, --track and "
                 f"--mlflow-uri may be given (got {', '.join(changed)})"
             )
+        # The trainer imports JAX, so it comes after the checks that need only the config.
+        from canter.training.loop import resume_config, resume_seeds, train
+
         if len(args.resume) > 1:
             results = resume_seeds(
                 [Path(d) for d in args.resume], args.total_steps, max_minutes=args.max_minutes, quiet=args.quiet
@@ -162,6 +164,8 @@ def _train(args: argparse.Namespace) -> list[Any]:
             raise CanterError(
                 "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
             )
+        from canter.training.loop import train, train_seeds
+
         if args.seeds is not None:
             if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
                 print(

@@ -19,7 +19,10 @@ EPSILON = 1e-8  # added to variances before the square root
 class RunningStats(NamedTuple):
     mean: jnp.ndarray
     var: jnp.ndarray
-    # Shadows tuple.count, but the name is part of every checkpoint's leaf paths.
+    # Shadows tuple.count, but the name is part of every checkpoint's leaf paths. All three are float32, as the
+    # physics may be (Gymnasium and SB3 keep float64): past 2^24 merges of a batch (16.8M steps per env) adding a
+    # batch no longer moves the count, and the statistics go on as a moving average whose weight per batch stays at
+    # 2^-24. With one env over millions of steps, a mean near 1e3 that drifts by a few units lags it by about 2.
     count: jnp.ndarray  # type: ignore[assignment]
 
 

@@ -8,6 +8,8 @@ renamed, so a reader sees either the old file or the new one, never half of one.
 A run folder keeps its newest `run.keep_checkpoints` checkpoints as `checkpoints/ckpt_<step>.npz` and, when it
 evaluates during training, the best evaluated state as `checkpoints/best.npz`, whose header also records the
 evaluation (`evaluation`); pruning never touches it. `resolve` picks one of them by name: `last`, `best` or a file.
+best.npz, which is only read for its policy, may leave out fields that only further training reads (a replay
+buffer); its header lists those leaves (`left_out`), and reading it gives them back as zeros.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import json
 import re
 import sys
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,12 +59,25 @@ def _named_arrays(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
     return {prefix + _path_name(p): np.asarray(v) for p, v in leaves}
 
 
-def save(path: Path, state: Any, header: dict[str, Any], compress: bool = False, env_carry: Any = None) -> None:
+def save(
+    path: Path,
+    state: Any,
+    header: dict[str, Any],
+    compress: bool = False,
+    env_carry: Any = None,
+    leave_out: tuple[str, ...] = (),
+) -> None:
     """Write a checkpoint; `compress` deflates the arrays (slower to write, much smaller for a part-filled replay
     buffer). Both forms are read the same way. `env_carry`, where the env state is a pytree (JAX-native backends),
-    holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them."""
+    holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them.
+    `leave_out` names top-level fields of the state not to write (listed in the header's `left_out`)."""
     arrays = _named_arrays(state)
+    left_out = [name for name in arrays if name.split("/", 1)[0] in leave_out]
+    for name in left_out:
+        del arrays[name]
     header = dict(header, format_version=FORMAT_VERSION, leaves=list(arrays))
+    if left_out:
+        header["left_out"] = left_out
     if env_carry is not None:
         carry = _named_arrays(env_carry, ENV_CARRY)
         arrays.update(carry)
@@ -111,13 +127,19 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return arrays, header
 
 
-def restore(template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: str = "") -> Any:
+def restore(
+    template: Any, arrays: dict[str, np.ndarray], source: Path, prefix: str = "", left_out: Sequence[str] = ()
+) -> Any:
     """Fill a template pytree (same structure; arrays, or jax.ShapeDtypeStruct leaves) with the saved arrays named
-    `prefix` + its leaf paths, checking names, shapes and dtypes."""
+    `prefix` + its leaf paths, checking names, shapes and dtypes. Leaves the checkpoint left out (its header's
+    `left_out`, passed here) come back as zeros."""
     leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
     restored = []
     for p, leaf in leaves:
         name = prefix + _path_name(p)
+        if name not in arrays and name in left_out:
+            restored.append(np.zeros(leaf.shape, leaf.dtype))
+            continue
         if name not in arrays:
             raise CanterError(f"checkpoint {source} does not match this config (missing '{name}')")
         value = arrays[name]

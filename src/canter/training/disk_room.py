@@ -4,7 +4,8 @@ A checkpoint holds the whole train state uncompressed, so its size is the state'
 algorithms, and for off-policy ones mostly the replay buffer, 4 * (2 * obs_dim + act_dim + 2) bytes per
 transition of `buffer_size` whether filled or not (docs/algorithms-offpolicy.md has a table per env). A run keeps
 `run.keep_checkpoints` of them and writes the next before it deletes the oldest, plus best.npz when it evaluates
-during training and a snapshot while a video renders. Training warns in one line when the run folder's disk has
+during training and a snapshot while a video renders; those two hold the state without the fields its algorithm
+leaves out of them (the replay buffer). Training warns in one line when the run folder's disk has
 less free space than that, rather than failing at the first checkpoint, possibly hours in.
 """
 
@@ -27,11 +28,15 @@ def state_bytes(state: Any) -> int:
     return sum(int(getattr(leaf, "nbytes", 0)) for leaf in jax.tree_util.tree_leaves(state)) + HEADER_BYTES
 
 
+def policy_files(config: Config) -> int:
+    """best.npz and a video's snapshot: the files that hold the state less the fields its algorithm leaves out."""
+    return (1 if config.run.eval_every else 0) + (1 if config.run.video_every else 0)
+
+
 def checkpoints_at_once(config: Config, existing: int) -> int:
-    """How many more checkpoint-sized files the run will hold at its fullest than it holds now."""
-    run = config.run
-    at_once = run.keep_checkpoints + 1 + (1 if run.eval_every else 0) + (1 if run.video_every else 0)
-    return max(at_once - existing, 1)
+    """How many more full checkpoints the run will hold at its fullest than it holds now (`existing` counts every
+    .npz in its checkpoints folder, best.npz too, which errs toward a warning)."""
+    return max(config.run.keep_checkpoints + 1 - existing, 1)
 
 
 def human_bytes(n: float) -> str:
@@ -42,11 +47,15 @@ def human_bytes(n: float) -> str:
     return f"{n:.1f} TB"
 
 
-def warn_if_checkpoints_will_not_fit(run_dir: Path, state: Any, config: Config) -> bool:
-    """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did."""
+def warn_if_checkpoints_will_not_fit(
+    run_dir: Path, state: Any, config: Config, policy_leaves_out: tuple[str, ...] = ()
+) -> bool:
+    """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
+    `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
     existing = len(list((Path(run_dir) / "checkpoints").glob("*.npz")))
     one = state_bytes(state)
-    needed = one * checkpoints_at_once(config, existing)
+    policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
+    needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)
     free = shutil.disk_usage(run_dir).free
     if free >= needed:
         return False

@@ -252,7 +252,7 @@ def _train_locked(
             else:
                 run_folder.migrate(out)
                 run_folder.write_config(out, config)
-            disk_room.warn_if_checkpoints_will_not_fit(out, states[i], config)
+            disk_room.warn_if_checkpoints_will_not_fit(out, states[i], config, algorithm.policy_checkpoint_leaves_out)
         carry = _initial_carry(env, spec, resumed_from)
         return _loop(configs, env, spec, states, carry, outs, start_steps, earlier, quiet, started)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
@@ -371,13 +371,19 @@ class _SeedRun:
     def evaluate(self, train_state: Any, started: float) -> dict[str, float]:
         """Evaluate the state after this iteration; a new best score saves it as checkpoints/best.npz. Returns
         the eval/* columns of this iteration's row."""
+        from canter.algos import get_algorithm
+
         assert self.evaluation is not None
         result = self.evaluation.evaluate(train_state, self.global_step)
         if self.evaluation.improves(result):
             evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
             header = dict(self._header(self.global_step, started), evaluation=evaluation)
             checkpoint.save(
-                checkpoint.best_path(self.out), train_state, header, compress=self.config.run.compress_checkpoints
+                checkpoint.best_path(self.out),
+                train_state,
+                header,
+                compress=self.config.run.compress_checkpoints,
+                leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
             )
         return result.columns()
 
@@ -575,7 +581,12 @@ def _loop(
                     def save_snapshot(
                         path: Path, i: int = i, run: _SeedRun = run, group_state: Any = new_state
                     ) -> None:
-                        checkpoint.save(path, pick(group_state, i), dict(run.header_base, global_step=run.global_step))
+                        checkpoint.save(
+                            path,
+                            pick(group_state, i),
+                            dict(run.header_base, global_step=run.global_step),
+                            leave_out=algorithm.policy_checkpoint_leaves_out,
+                        )
 
                     run.videos.maybe_record(run.global_step, save_snapshot)
                 state, carry = new_state, new_carry

@@ -54,5 +54,5 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     import jax
 
     template = jax.eval_shape(lambda: get_algorithm(config.run.algo).init_state(config, facts))
-    state = checkpoint.restore(template, arrays, path)
+    state = checkpoint.restore(template, arrays, path, left_out=header.get("left_out", ()))
     return config, facts, state, header

@@ -46,6 +46,7 @@ def offpolicy_algorithm(
         export_actor=export_actor,
         validate=validate,
         donate_state=True,
+        policy_checkpoint_leaves_out=("buffer",),
     )
 
 

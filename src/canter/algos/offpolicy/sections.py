@@ -44,7 +44,9 @@ class OffPolicyConfig:
     ou_theta: float = setting("OU mean-reversion rate theta.", default=0.15)
     ou_dt: float = setting("OU time step dt.", default=0.01)
     steps_per_call: int = setting(
-        "Env steps per jitted call of the training loop (the logging/checkpoint unit).", default=1000
+        "Env steps per jitted call of the training loop (the logging/checkpoint unit): steps_per_call // num_envs "
+        "vector steps, autoreset steps included, so a metrics.csv row counts fewer where episodes end.",
+        default=1000,
     )
 
 
