@@ -609,6 +609,29 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp
     assert calls == [([run], 10_000, {"max_minutes": 30.0, "stop_at_return": 500.0, "quiet": True})]
 
 
+def test_a_bench_rerun_refuses_to_retrain_a_finished_run_kept_without_checkpoints(tmp_path):
+    """A results archive keeps a run's config, metrics, summary and evaluation without its checkpoints: a bench with
+    a larger budget cannot train it on, and must not delete it to start again."""
+    import shutil
+    from dataclasses import replace
+
+    from canter.config.serialize import to_toml
+    from canter.errors import CanterError
+    from canter.orchestrate.jobs import JobSpec, run_job
+    from canter.training.run_folder import read_config
+
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    shutil.rmtree(run / "checkpoints")
+    (run / "summary.json").write_text(json.dumps({"global_step": 4096, "stop_reason": "budget"}))
+    kept = sorted(p.name for p in run.iterdir())
+    saved = read_config(run)
+    given = replace(saved, run=replace(saved.run, total_steps=10_000))
+    with pytest.raises(CanterError, match="holds a finished run without its checkpoints"):
+        run_job(JobSpec(to_toml(given), {saved.run.seed: str(run)}))
+    assert sorted(p.name for p in run.iterdir() if p.name != ".writer.lock") == kept
+
+
 def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_path):
     """An extended budget whose run was interrupted between its training and its final evaluation keeps the old
     eval.json; the seed is not finished until the newest checkpoint is evaluated."""

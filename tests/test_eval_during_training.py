@@ -197,6 +197,8 @@ def test_seeds_of_a_group_evaluate_each_on_their_own(tmp_path):
 
 @pytest.mark.slow
 def test_eval_checkpoint_option_and_json(eval_run, tmp_path, capsys):
+    from canter.training.run_folder import read_config
+
     run = str(eval_run.run_dir)
     out = tmp_path / "eval.json"
     code = main(["eval", run, "--checkpoint", "best", "--episodes", "2", "--json", str(out)])
@@ -206,9 +208,10 @@ def test_eval_checkpoint_option_and_json(eval_run, tmp_path, capsys):
     assert row["checkpoint"] == "best" and row["seed_stream"] == "held-out"
     assert row["global_step"] == checkpoint.read_header(checkpoint.best_path(eval_run.run_dir))["global_step"]
     assert " best " in printed and "held-out env seeds" in printed
-    assert main(["eval", run, "--episodes", "2", "--json", str(out)]) == 0
+    assert row["eval_seed"] == 0 and row["seed"] == read_config(eval_run.run_dir).run.seed
+    assert main(["eval", run, "--episodes", "2", "--seed", "5", "--json", str(out)]) == 0
     row = json.loads(out.read_text())["runs"][0]
-    assert row["checkpoint"] == "last" and row["seed_stream"] == "eval"
+    assert row["checkpoint"] == "last" and row["seed_stream"] == "eval" and row["eval_seed"] == 5
     older = checkpoint.list_checkpoints(eval_run.run_dir)[0]
     assert main(["eval", run, "--checkpoint", str(older), "--episodes", "2", "--json", str(out)]) == 0
     row = json.loads(out.read_text())["runs"][0]

@@ -266,7 +266,7 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
 
     foreign = folder("foreign")
     shutil.copy(checkpoint.latest(fixtures / "rpo"), checkpoint.checkpoint_path(foreign, 10**6))
-    one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "is not a checkpoint of")
+    one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "if the checkpoint came from another run")
 
     corrupt = folder("corrupt")
     newest = checkpoint.latest(corrupt)
@@ -276,6 +276,15 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")
     one_line(["plot", str(truncated), "--out", str(tmp_path / "d.png")], "metrics.csv has no logged rows")
+
+    locked = folder("lock_is_a_folder")
+    (locked / ".writer.lock").mkdir()
+    one_line(["train", "--resume", str(locked), "--total-steps", "5000"], "where canter needs a file; move it out")
+    no_tb = folder("tb_is_a_file")
+    shutil.rmtree(no_tb / "tb", ignore_errors=True)
+    (no_tb / "tb").write_text("mine")
+    one_line(["train", "--resume", str(no_tb), "--total-steps", "5000"], "where canter needs a folder; move it out")
+    assert (no_tb / "tb").read_text() == "mine"
 
     unknown = folder("unknown_file")
     (unknown / "checkpoints" / "notes.txt").write_text("mine")

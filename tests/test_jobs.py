@@ -3,6 +3,7 @@
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 import canter.use.evaluate
@@ -81,3 +82,45 @@ def test_a_run_stopped_at_its_target_return_counts_as_done(tmp_path, summary, ta
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     assert run_status(tmp_path, 10_000, target) == status
     assert run_status(tmp_path / "missing", 10_000, target) == "new"
+
+
+def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_path):
+    """The final checkpoint saved and summary.json not (a full disk, a kill between the two writes): the bench
+    writes the summary from the checkpoint rather than failing on a run that has its budget. A run trained on past
+    the bench's budget since it finished is refused: the checkpoint at the budget is gone."""
+    from canter.config.build import build_config
+    from canter.config.serialize import to_toml
+    from canter.errors import CanterError
+    from canter.orchestrate.jobs import run_status
+    from canter.training.loop import summarize_ended_run
+
+    def saved(step, budget):
+        config = build_config("Hopper-v5", total_steps=budget)
+        totals = {"wall_seconds": 30.0, "train_seconds": 20.0, "episodes": 7, "recent_returns": [1.0, 3.0]}
+        header = {"global_step": step, "config": to_toml(config), "totals": totals | {"compile_seconds": 5.0}}
+        checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, header)
+
+    saved(1000, 2000)
+    assert run_status(tmp_path, 2000) == "partial"
+    saved(2000, 2000)
+    assert run_status(tmp_path, 2000) == "ended"
+    (tmp_path / "summary.json").write_text(json.dumps({"global_step": 1000, "stop_reason": "max_minutes"}))
+    assert run_status(tmp_path, 2000) == "ended"  # stopped once, resumed, and cut before its summary
+    result = summarize_ended_run(tmp_path)
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written == {
+        "run_dir": str(tmp_path),
+        "global_step": 2000,
+        "recent_return": 2.0,
+        "episodes": 7,
+        "wall_seconds": 30.0,
+        "compile_seconds": 5.0,
+        "sps": 100.0,
+        "stop_reason": "budget",
+    }
+    assert result.global_step == 2000 and run_status(tmp_path, 2000) == "done"
+
+    saved(5000, 40_000)  # resumed by hand toward another budget, and stopped
+    with pytest.raises(CanterError, match=r"trained on past this budget \(2,000 steps\) to step 5,000"):
+        run_status(tmp_path, 2000)
+    assert run_status(tmp_path, 40_000) == "partial"

@@ -54,6 +54,23 @@ def test_a_resume_drops_rows_after_its_checkpoint(tmp_path):
     assert [r["global_step"] for r in read_rows(tmp_path / "metrics.csv")] == ["10", "20", "30"]
 
 
+def test_a_resume_of_a_folder_archived_with_gzipped_metrics_continues_them(tmp_path):
+    import gzip
+
+    logger = MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False)
+    for iteration in (1, 2, 3):
+        logger.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 10 * iteration, "iteration": iteration})
+    logger.close()
+    plain = tmp_path / "metrics.csv"
+    (tmp_path / "metrics.csv.gz").write_bytes(gzip.compress(plain.read_bytes()))
+    plain.unlink()
+    again = MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=20)
+    again.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 30, "iteration": 3})
+    again.close()
+    assert [r["global_step"] for r in read_rows(plain)] == ["10", "20", "30"]
+    assert not (tmp_path / "metrics.csv.gz").exists()
+
+
 def test_a_resume_whose_columns_differ_keeps_every_value_under_its_own_name(tmp_path):
     """A run folder made by a canter that logged other diagnostics, resumed by this one: the file gets one header
     that holds both sets, the old rows keep their values, and the new rows land under their own names."""

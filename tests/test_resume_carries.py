@@ -53,3 +53,23 @@ def test_a_resume_with_a_config_that_differs_in_what_is_learned_is_refused(tmp_p
     with pytest.raises(CanterError, match=r"differs from the run's in ppo.lr; a resume may change only its budget"):
         train(other, resume=run)
     assert train(resume_config(run, 1024), resume=run).global_step >= 1024  # the budget alone may change
+
+
+@pytest.mark.slow
+def test_a_resume_on_another_backend_than_the_run_started_on_says_so(tmp_path, monkeypatch, capsys):
+    """env.backend = auto picks what the machine has: a run started on EnvPool and resumed where only Gymnasium
+    is installed goes on there (the same MuJoCo physics), with one line that says so."""
+    import canter.envs
+
+    config = build_config("Pendulum-v1", sets=PENDULUM + [f"run.out_dir={tmp_path}"], total_steps=512)
+    run = train(config).run_dir
+    assert checkpoint.read_header(checkpoint.latest(run))["env"]["backend"] == "envpool"
+    capsys.readouterr()
+    monkeypatch.setattr(canter.envs, "resolve_backend", lambda env_id, backend: "gymnasium")
+    assert train(resume_config(run, 1024), resume=run, quiet=True).global_step >= 1024
+    notes = [line for line in capsys.readouterr().err.splitlines() if "canter: note:" in line]
+    assert notes == [
+        f"canter: note: {run} was trained on envpool up to step 512; env.backend=auto picks gymnasium here, which "
+        f"steps it from now on (install envpool to keep one backend)"
+    ]
+    assert checkpoint.read_header(checkpoint.latest(run))["env"]["backend"] == "gymnasium"

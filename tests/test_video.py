@@ -160,6 +160,50 @@ def test_video_every_during_training(tmp_path):
     assert frames.shape[1:] == (video.DEFAULT_HEIGHT, video.DEFAULT_WIDTH, 3) and len(frames) == 201
 
 
+def test_a_resume_drops_the_videos_of_the_steps_it_trains_again(tmp_path):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    for step in (100, 200, 300):
+        (folder / f"step_{step:012d}.mp4").write_bytes(b"")
+    TrainingVideos(tmp_path, every=100, start_step=200, resumed=True).close()
+    assert sorted(p.name for p in folder.iterdir()) == ["step_000000000100.mp4", "step_000000000200.mp4"]
+    TrainingVideos(tmp_path, every=100, start_step=0).close()  # a new run's folder is its own
+    assert len(list(folder.iterdir())) == 2
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal is Linux's")
+def test_a_renderer_ends_with_its_trainer(tmp_path):
+    """Killed, a trainer leaves its run folder to the next resume: its renderer must not go on writing there."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    child = (
+        "import os, sys, time; from canter.use.video import _end_with; _end_with(int(sys.argv[1])); "
+        "print(os.getpid(), flush=True); time.sleep(120)"
+    )
+    parent = (
+        "import subprocess, sys, os, time; "
+        f"subprocess.Popen([sys.executable, '-c', {child!r}, str(os.getpid())], start_new_session=True); "
+        "time.sleep(120)"
+    )
+    trainer = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, text=True)
+    renderer = int(trainer.stdout.readline())
+    trainer.kill()
+    trainer.wait()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.kill(renderer, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(renderer, signal.SIGKILL)
+        pytest.fail("the renderer outlived its trainer")
+
+
 @pytest.mark.slow
 def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
     """The render subprocess dies (here: a checkpoint it cannot read); training finishes and warns."""

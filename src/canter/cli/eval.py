@@ -125,6 +125,7 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
                 deterministic=not args.stochastic,
                 checkpoint=policy.checkpoint,
                 seed_stream=seed_stream(policy),
+                eval_seed=seed,
                 global_step=policy.facts.global_step,
                 **result.summary(),
             )

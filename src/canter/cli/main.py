@@ -51,6 +51,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except PermissionError as exc:  # reading a run folder's file this user may not read; writes are WriteErrors
         print(f"canter: error: {exc.filename}: permission denied; give this user access to it", file=sys.stderr)
         return 2
+    except (IsADirectoryError, NotADirectoryError, FileExistsError) as exc:  # a hand-edited or damaged run folder
+        wanted = "a file" if isinstance(exc, IsADirectoryError) else "a folder"
+        print(
+            f"canter: error: {exc.filename}: {exc.strerror}, where canter needs {wanted}; move it out of the way",
+            file=sys.stderr,
+        )
+        return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
         return 130

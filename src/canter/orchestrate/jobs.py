@@ -39,10 +39,25 @@ SUMMARY_FILE = "summary.json"
 
 def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = None) -> str:
     """`done` (trained to total_steps, or stopped on reaching `stop_at_return`, the target it is run with now),
-    `partial` (stopped after a checkpoint) or `new` (nothing usable)."""
+    `ended` (its final checkpoint at this budget is saved, its summary.json is not), `partial` (stopped after a
+    checkpoint) or `new` (nothing usable). A run trained on past this budget since is refused: its checkpoint at
+    the budget may be gone, and evaluating a later one would report another budget's policy."""
     from canter.training import checkpoint
 
     summary = read_json(run_dir / SUMMARY_FILE) or {}
+    found = checkpoint.list_checkpoints(run_dir)
+    newest = checkpoint.step_of(found[-1]) if found else None
+    summarized = summary.get("global_step")
+    if newest is not None and (not isinstance(summarized, int) or newest > summarized):
+        # summary.json is missing, or older than the newest checkpoint (a resume since)
+        if newest >= total_steps:
+            if _budget(checkpoint.read_header(found[-1])) == total_steps:
+                return "ended"
+            raise CanterError(
+                f"{run_dir} was trained on past this budget ({total_steps:,} steps) to step {newest:,} after it "
+                f"finished; give --total-steps {newest} or more, or move the folder away to train it again"
+            )
+        return "partial"
     try:
         if int(summary["global_step"]) >= total_steps:
             return "done"
@@ -57,6 +72,16 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     ):
         return "done"
     return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
+
+
+def _budget(header: dict[str, Any]) -> int | None:
+    """run.total_steps of the config a checkpoint was written with."""
+    from canter.config.serialize import from_toml_text
+
+    try:
+        return from_toml_text(header["config"], "checkpoint header").run.total_steps
+    except (CanterError, KeyError):
+        return None
 
 
 def read_json(path: Path) -> dict[str, Any] | None:
@@ -218,7 +243,7 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
     """Skip finished seeds, resume stopped ones (and their tracker runs), train the rest (as one seed group), each seed
     with its own tracker runs, then evaluate the final policies."""
     from canter.config.serialize import from_toml_text
-    from canter.training.loop import resume_seeds, train_seeds
+    from canter.training.loop import resume_seeds, summarize_ended_run, train_seeds
     from canter.training.run_lock import LOCK_FILE, RunLocks
     from canter.training.trackers import resume_spec, tracking
 
@@ -234,7 +259,14 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
             status = run_status(run_dir, total, config.run.stop_at_return)
             if status == "partial":
                 partial.append(run_dir)
+            elif status == "ended":
+                summarize_ended_run(run_dir)
             elif status == "new":
+                if (run_dir / SUMMARY_FILE).is_file():
+                    raise CanterError(
+                        f"{run_dir} holds a finished run without its checkpoints (an archive?), which cannot be "
+                        f"trained on to {total:,} steps; move it away, or give the bench another --out"
+                    )
                 for item in run_dir.iterdir():  # started but died before its first checkpoint: nothing to keep
                     if item.name != LOCK_FILE:
                         shutil.rmtree(item) if item.is_dir() else item.unlink()

@@ -154,6 +154,7 @@ class MetricsLogger:
     ) -> None:
         self.path = Path(run_dir) / "metrics.csv"
         self.columns = columns_for(metric_names, info_keys, evaluates)
+        self._unpack_archived()
         self._cut_half_written_line()
         self._check_header()
         if resume_step is not None:
@@ -174,6 +175,16 @@ class MetricsLogger:
         text = io.StringIO(newline="")
         csv.DictWriter(text, fieldnames=self.columns, extrasaction="ignore").writerow(row)
         return text.getvalue().encode()
+
+    def _unpack_archived(self) -> None:
+        """A folder archived with metrics.csv.gz only continues that file: appending to a new metrics.csv would hide
+        its history from every reader, which take the plain file where both exist."""
+        packed = self.path.with_name(self.path.name + ".gz")
+        if self.path.exists() or not packed.is_file():
+            return
+        rows = gzip.decompress(packed.read_bytes())
+        atomic_write_bytes(self.path, lambda f: f.write(rows))
+        packed.unlink()
 
     def _cut_half_written_line(self) -> None:
         if not self.path.is_file():

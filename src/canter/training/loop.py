@@ -179,6 +179,43 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
         return _train_locked(configs, resumes, run_dirs, quiet, locks)
 
 
+def _write_summary(result: RunResult) -> dict[str, Any]:
+    summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
+    atomic_write_bytes(result.run_dir / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    return summary
+
+
+def summarize_ended_run(run_dir: Path) -> RunResult:
+    """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
+    between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
+    header = checkpoint.read_header(checkpoint.latest(run_dir))
+    totals = header.get("totals") or {}
+    recent = totals.get("recent_returns") or []
+    train_seconds = float(totals.get("train_seconds", 0.0))
+    result = RunResult(
+        run_dir=Path(run_dir),
+        global_step=int(header["global_step"]),
+        recent_return=float(np.mean(recent)) if recent else None,
+        episodes=int(totals.get("episodes", 0)),
+        wall_seconds=float(totals.get("wall_seconds", 0.0)),
+        compile_seconds=float(totals.get("compile_seconds", 0.0)),
+        sps=int(header["global_step"]) / train_seconds if train_seconds > 0 else 0.0,
+        stop_reason="budget",
+    )
+    _write_summary(result)
+    return result
+
+
+def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: int) -> None:
+    """`env.backend = auto` picks what this machine has, which can differ from what the run started on: say so."""
+    if recorded != backend:
+        print(
+            f"canter: note: {out} was trained on {recorded} up to step {start_step:,}; env.backend=auto picks "
+            f"{backend} here, which steps it from now on (install {recorded} to keep one backend)",
+            file=sys.stderr,
+        )
+
+
 def _train_locked(
     configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
 ) -> list[RunResult]:
@@ -208,6 +245,7 @@ def _train_locked(
             saved, _, state, header = load_state(out, latest)
             _check_only_the_budget_differs(saved, config, out)
             start_step = int(header["global_step"])
+            _note_a_changed_backend(out, header["env"]["backend"], backend, start_step)
             earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
         else:
             start_step = 0
@@ -311,6 +349,7 @@ class _SeedRun:
         # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
         self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
         self.run_seconds = float(earlier.get("train_seconds", 0.0))
+        self.compile_seconds = 0.0  # this session's, once compiled
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
@@ -327,7 +366,7 @@ class _SeedRun:
             if config.run.eval_every
             else None
         )
-        self.videos = TrainingVideos(out, config.run.video_every, start_step)
+        self.videos = TrainingVideos(out, config.run.video_every, start_step, resumed=resumed)
         self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
         self.closed = False
         self.stop_reason: str | None = None  # set once the seed is done; the group may still run
@@ -344,6 +383,7 @@ class _SeedRun:
             "train_seconds": self.run_seconds,
             "episodes": self.episodes,
             "recent_returns": list(self.recent),
+            "compile_seconds": self.compile_seconds,
         }
 
     def _header(self, step: int, started: float) -> dict[str, Any]:
@@ -447,9 +487,7 @@ class _SeedRun:
             sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
             stop_reason=reason,
         )
-        summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.result.__dict__.items()}
-        atomic_write_bytes(self.out / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
-        self.trackers.finish(self.out, summary)
+        self.trackers.finish(self.out, _write_summary(self.result))
 
     def close(self) -> None:
         if not self.closed:
@@ -537,6 +575,8 @@ def _loop(
             raise
         device_memory.check_fits(compiled, envs)
         compile_seconds = time.perf_counter() - compile_start
+        for run in runs:
+            run.compile_seconds = compile_seconds
     except BaseException:
         for run in runs:
             run.close()

@@ -159,8 +159,9 @@ def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -
     if keys:
         shown = ", ".join(keys[:3]) + (f" and {len(keys) - 3} more" if len(keys) > 3 else "")
         raise CanterError(
-            f"{path} is not a checkpoint of {run_dir}: its config differs from {run_dir / CONFIG_FILE} in "
-            f"{shown}; move it out of {path.parent}"
+            f"{path} does not match {run_dir / CONFIG_FILE} in {shown}: if config.toml was edited, put back what "
+            f"the checkpoint holds (`--resume` takes only --total-steps and --max-minutes); if the checkpoint came "
+            f"from another run, move it out of {path.parent}"
         )
 
 

@@ -41,12 +41,18 @@ class TrainingVideos:
 
     WAIT_SECONDS = 900
 
-    def __init__(self, run_dir: Path, every: int, start_step: int) -> None:
-        """every == 0 switches videos off."""
+    def __init__(self, run_dir: Path, every: int, start_step: int, resumed: bool = False) -> None:
+        """every == 0 switches videos off. A resumed run drops the videos of steps after its checkpoint, as the
+        logger drops their metrics: they showed training that was lost with the process, and are redone."""
         self.folder = Path(run_dir) / "videos"
         self.every = every
         self.next_step = (start_step // every + 1) * every if every else None
         self._job: tuple[subprocess.Popen, Path, int] | None = None
+        if resumed and self.folder.is_dir():
+            for video in self.folder.glob("step_*.mp4"):
+                step = video.stem.removeprefix("step_")
+                if step.isdigit() and int(step) > start_step:
+                    video.unlink()
 
     def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
         if self.next_step is None or step < self.next_step:
@@ -62,6 +68,7 @@ class TrainingVideos:
             checkpoint=str(snapshot),
             episodes=1,
             nice=10,
+            parent=os.getpid(),
         )
         with open(self.folder / "render.log", "a") as log, quiet_fork():
             process = subprocess.Popen(

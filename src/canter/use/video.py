@@ -396,10 +396,28 @@ def _record_in_subprocess(
     return json.loads(lines[-1])
 
 
+def _end_with(parent: int) -> None:
+    """A renderer of videos during training ends with its trainer: killed, the trainer leaves its run folder to the
+    next resume, which must not find an old renderer still writing into it (Linux; elsewhere it renders on)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    pr_set_pdeathsig = 1
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
+    if os.getppid() != parent:  # the trainer died before the request took hold
+        os._exit(1)
+
+
 def _main(argv: list[str]) -> int:
     """Entry point of the render subprocesses (`_record_in_subprocess`, `canter.training.videos`): one JSON request;
     prints the returns as JSON."""
     request = json.loads(argv[0])
+    parent = request.pop("parent", None)
+    if parent is not None:
+        _end_with(parent)
     nice = request.pop("nice", 0)
     if nice:
         os.nice(nice)
