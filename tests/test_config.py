@@ -79,7 +79,7 @@ def test_toml_round_trip_preserves_everything():
         (["ppo.minibatch_size=100"], "does not divide the batch"),
         (["ppo.gamma=1.5"], "ppo.gamma must be in (0, 1]"),
         (["env.normalize_reward=false", "env.reward_scale=0"], "env.reward_scale must be a positive number, got 0"),
-        (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a positive number"),
+        (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a finite number, got inf"),
         (["env.reward_scale=0.1"], "set env.normalize_reward=false or env.reward_scale=1"),
         (["run.stop_at_return=nan"], "run.stop_at_return must be a finite number, got nan"),
         (["net.hidden=-64,-64"], "net.hidden: expected comma-separated integers, got '-64,-64'"),

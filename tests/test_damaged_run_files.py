@@ -85,10 +85,10 @@ def test_an_unreadable_episode_count_counts_as_none(run):
     assert totals == [sum(plain[: i + 1]) for i in range(len(rows))]
 
 
-@pytest.mark.parametrize("value", ['"x"', "null"])
+@pytest.mark.parametrize("value", ['"x"', "null", "0", "-1"])
 def test_a_run_format_that_is_not_a_number_is_one_line(run, value):
     (run / "versions.json").write_text(f'{{"run_format": {value}}}')
-    with pytest.raises(CanterError, match=r"versions.json has run_format .* not a whole number; restore it"):
+    with pytest.raises(CanterError, match=r"versions.json has run_format .* not a whole number from 1; restore it"):
         run_format(run)
 
 

@@ -56,6 +56,16 @@ def _nearest_existing(folder: Path) -> Path:
     return folder
 
 
+def make_folder(path: str | Path) -> None:
+    """Create a user-named output folder (and its parents), with a one-line error when it cannot be."""
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
+        raise CanterError(f"cannot make the folder {path}: {exc.strerror or exc}; pick another path") from None
+
+
 def is_write_error(exc: BaseException) -> bool:
     """An OSError that a write can raise because of the disk or its permissions, not because of a bug."""
     return isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS
@@ -88,8 +98,38 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
         raise
 
 
+# What a run folder holds of its own (canter.training.run_folder): a user-named output never replaces one of them.
+RUN_OWN_FILES = frozenset(
+    {"config.toml", "metrics.csv", "metrics.csv.gz", "summary.json", "versions.json", "trackers.json"}
+)
+RUN_OWN_FOLDERS = frozenset({"checkpoints", "tb"})
+
+
+def _is_run_folder(folder: Path) -> bool:
+    return (folder / "config.toml").is_file() and any(
+        (folder / name).exists() for name in ("checkpoints", "metrics.csv", "metrics.csv.gz")
+    )
+
+
+def refuse_protected_target(path: str | Path) -> None:
+    """A user-named output that is not a plain file (a symlink, pipe or device, which the atomic rename would
+    replace), or that is one of a run folder's own files, is refused in one line."""
+    target = Path(path)
+    if target.is_symlink() or (target.exists() and not target.is_file()):
+        raise CanterError(f"cannot write {path}: it is not a plain file (a link, pipe or device); give a file path")
+    resolved = target.resolve()
+    if resolved.name in RUN_OWN_FILES and _is_run_folder(resolved.parent):
+        raise CanterError(f"cannot write {path}: it is a file of the run folder {resolved.parent}; give another path")
+    if resolved.parent.name in RUN_OWN_FOLDERS and _is_run_folder(resolved.parent.parent):
+        raise CanterError(
+            f"cannot write {path}: {resolved.parent.name}/ belongs to the run folder {resolved.parent.parent}; "
+            f"give another path"
+        )
+
+
 def write_output(path: str | Path, data: bytes) -> None:
     """Write a user-named output atomically, with a one-line error when the path is not writable."""
+    refuse_protected_target(path)
     try:
         atomic_write_bytes(Path(path), lambda f: f.write(data))
     except OSError as exc:  # not a write error (a folder where the file should be, ...): still the path's fault
@@ -98,8 +138,9 @@ def write_output(path: str | Path, data: bytes) -> None:
 
 def check_writable(path: str | Path) -> None:
     """Fail early, before any long computation, when an output path cannot be written (nothing is left behind)."""
-    if Path(path).is_dir():
+    if Path(path).is_dir() and not Path(path).is_symlink():
         raise CanterError(f"cannot write {path}: it is a folder; give a file name (inside it, or elsewhere)")
+    refuse_protected_target(path)
     folder = Path(path).parent
     try:
         folder.mkdir(parents=True, exist_ok=True)

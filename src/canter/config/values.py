@@ -60,36 +60,57 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
             return value.strip().lower() in ("true", "1", "yes", "on")
         raise bad
     if inner is int:
-        if isinstance(value, bool):
-            raise bad
-        if isinstance(value, int):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-        if isinstance(value, str):
-            try:
-                number = float(value)
-            except ValueError:
-                raise bad from None
-            if number.is_integer():
-                return int(number)
-        raise bad
+        return _within_int_limit(key, _whole_number(value, bad))
     if inner is float:
         if isinstance(value, bool):
             raise bad
         if isinstance(value, (int, float)):
-            return float(value)
-        if isinstance(value, str):
+            number = float(value)
+        elif isinstance(value, str):
             try:
-                return float(value)
+                number = float(value)
             except ValueError:
                 raise bad from None
-        raise bad
+        else:
+            raise bad
+        if not math.isfinite(number):  # no setting means anything by nan or inf; they fail deep in training
+            raise CanterError(f"{key} must be a finite number, got {value}")
+        return number
     if inner is str:
         if isinstance(value, str):
             return value
         raise bad
     raise bad
+
+
+def _whole_number(value: Any, bad: CanterError) -> int:
+    if isinstance(value, bool):
+        raise bad
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            raise bad from None
+        if number.is_integer():
+            return int(number)
+    raise bad
+
+
+# Counts live in int32 arrays on a JAX-native backend: every whole-number setting stays below 2^31, except the step
+# budgets and intervals, counted on the host (int64 there), and run.seed (its own limit, SEED_LIMIT).
+INT_LIMIT = 2**31
+STEP_KEYS = frozenset({"run.total_steps", "run.checkpoint_every", "run.eval_every", "run.video_every", "run.seed"})
+
+
+def _within_int_limit(key: str, number: int) -> int:
+    limit = 2**53 if key in STEP_KEYS else INT_LIMIT
+    if abs(number) >= limit:
+        raise CanterError(f"{key} must be below {limit:,} in size, got {number:,}")
+    return number
 
 
 def _escape_toml_char(match: re.Match[str]) -> str:

@@ -7,6 +7,8 @@ import os
 import sys
 from typing import Any
 
+from canter.errors import CanterError
+
 _platform_chosen = False
 _cpu_notice_given = False
 
@@ -44,7 +46,15 @@ def setup_jax(backend: str | None = None) -> None:
         if native:
             use_compile_cache(jax)
         _platform_chosen = True
-    if native and jax.default_backend() == "cpu" and not _cpu_notice_given:
+    try:
+        platform = jax.default_backend()
+    except (RuntimeError, AssertionError, ValueError) as exc:  # JAX_PLATFORMS names a platform this machine lacks
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise CanterError(
+            f"JAX could not start the platform JAX_PLATFORMS={os.environ.get('JAX_PLATFORMS', '')} asks for "
+            f"({first}); unset JAX_PLATFORMS, or install JAX for that device"
+        ) from None
+    if native and platform == "cpu" and not _cpu_notice_given:
         print(f"canter: no GPU found, so {backend} steps its physics on the CPU (correct, but slow)", file=sys.stderr)
         _cpu_notice_given = True
 

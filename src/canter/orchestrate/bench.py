@@ -37,6 +37,7 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
+from canter.files import make_folder
 from canter.orchestrate.jobs import (
     EVAL_FILE,
     SUMMARY_FILE,
@@ -674,7 +675,7 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
-    bench_dir.mkdir(parents=True, exist_ok=True)  # first: a SQLite storage may live in it
+    make_folder(bench_dir)  # first: a SQLite storage may live in it
     opened = _open_grid_study(settings, bench_dir) if settings.storage_url else None
     check_existing_runs(cells, settings, bench_dir)
     # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.

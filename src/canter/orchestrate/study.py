@@ -59,7 +59,12 @@ def describe_url(url: str) -> tuple[str, str]:
         ) from None
     driver = parsed.drivername
     if driver.startswith("sqlite"):
-        return driver, parsed.database or "(memory)"
+        if parsed.database in (None, "", ":memory:"):  # each worker process would get its own, empty database
+            raise CanterError(
+                f"--storage {url!r} is an in-memory database, which the worker processes cannot share; name a "
+                f"file, such as sqlite:///study.db"
+            )
+        return driver, parsed.database
     host = f"{parsed.host or 'localhost'}:{parsed.port}" if parsed.port else (parsed.host or "localhost")
     return driver, host
 
@@ -288,9 +293,11 @@ def run_worker(
             progress = (finished, n["FAIL"] if finished else 0)
         if ask_new and n["FAIL"] - progress[1] >= give_up:
             done = f"since the last of its {finished} finished trials" if finished else "and none finished"
+            failed = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.FAIL,))
+            last = next((t.user_attrs[FAIL_REASON] for t in reversed(failed) if FAIL_REASON in t.user_attrs), None)
             raise CanterError(
-                f"study '{study.study_name}': {n['FAIL'] - progress[1]} trials failed in a row {done}; see the "
-                f"'{FAIL_REASON}' of the failed trials (canter tune prints them)"
+                f"study '{study.study_name}': {n['FAIL'] - progress[1]} trials failed in a row {done}; the last "
+                f"one: {last or 'no reason recorded'} (each failed trial keeps its '{FAIL_REASON}' in the study)"
             )
         if n["WAITING"] == 0:
             if not ask_new and n["RUNNING"] == 0:

@@ -37,6 +37,7 @@ import numpy as np
 from canter.config.build import build_config
 from canter.config.schema import Config
 from canter.errors import CanterError
+from canter.files import make_folder
 from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
@@ -403,7 +404,7 @@ def tune(settings: TuneSettings) -> Any:
     base, space = check_settings(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     if settings.storage_url is None:
-        settings.study_dir.mkdir(parents=True, exist_ok=True)  # the SQLite file's folder
+        make_folder(settings.study_dir)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
     study = make_study(settings, storage)
     wanted = study_settings(settings, base, space)

@@ -70,7 +70,10 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
         return [], []
     # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
     reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8-sig", errors="replace"), newline=""))
-    return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
+    try:
+        return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
+    except csv.Error as exc:  # a NUL byte, a field past the csv module's limit: not a file canter wrote
+        raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
 
 
 def _header(path: Path) -> list[str]:
@@ -78,7 +81,10 @@ def _header(path: Path) -> list[str]:
     if not path.is_file():
         return []
     with open(path, newline="", encoding="utf-8-sig", errors="replace") as f:
-        return next(csv.reader(f), [])
+        try:
+            return next(csv.reader(f), [])
+        except csv.Error as exc:
+            raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
 
 
 def _count(text: str | None) -> int:
@@ -182,7 +188,7 @@ class MetricsLogger:
         packed = self.path.with_name(self.path.name + ".gz")
         if self.path.exists() or not packed.is_file():
             return
-        rows = gzip.decompress(packed.read_bytes())
+        rows = _whole_lines(packed)
         atomic_write_bytes(self.path, lambda f: f.write(rows))
         packed.unlink()
 

@@ -118,10 +118,12 @@ def run_format(run_dir: Path) -> int:
     value = _read_versions(run_dir).get("run_format", 1)
     try:
         found = int(value)
+        if found < 1:
+            raise ValueError
     except (TypeError, ValueError):
         raise CanterError(
-            f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number; restore it (1 for a "
-            f"folder without one)"
+            f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number from 1; restore it (1 "
+            f"for a folder without one)"
         ) from None
     if found > RUN_FORMAT:
         raise CanterError(

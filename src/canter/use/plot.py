@@ -428,6 +428,9 @@ def draw(
 
     if x_axis not in X_AXES:
         raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
+    if not metrics:
+        runs = ", ".join(str(run.run_dir) for group in groups for run in group.runs)
+        raise CanterError(f"no metric with values to plot in {runs}; check their metrics.csv (damaged or empty?)")
     columns = max(1, min(columns, len(metrics)))
     rows = math.ceil(len(metrics) / columns)
     # One panel alone is widened so that the legend and its caption fit without being cut at the edges.

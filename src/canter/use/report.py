@@ -9,6 +9,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import math
 import re
 import tempfile
 from collections.abc import Sequence
@@ -69,13 +70,18 @@ def run_facts(run_dir: str | Path, which: str = checkpoint.LAST) -> RunFacts:
     if not isinstance(summary, dict):
         summary = {}  # not a summary canter wrote: shown as missing
     robustness = (
-        tuple(sorted((run_dir / "robustness").rglob("*.png"), key=_natural_key))
+        tuple(sorted((p for p in (run_dir / "robustness").rglob("*.png") if p.is_file()), key=_natural_key))
         if (run_dir / "robustness").is_dir()
         else ()
     )
     videos_dir = run_dir / "videos"
     videos = (
-        tuple(sorted((p for p in videos_dir.iterdir() if p.suffix.lower() in (*VIDEO_TYPES, ".gif")), key=_natural_key))
+        tuple(
+            sorted(
+                (p for p in videos_dir.iterdir() if p.suffix.lower() in (*VIDEO_TYPES, ".gif") and p.is_file()),
+                key=_natural_key,
+            )
+        )
         if videos_dir.is_dir()
         else ()
     )
@@ -120,7 +126,13 @@ def _e(value: Any) -> str:
 
 def _number(value: Any) -> float | None:
     """A summary.json value that is a number, else None (a damaged or hand-edited file shows a dash)."""
-    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:  # an integer past float's range
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _duration(seconds: float | None) -> str:

@@ -35,6 +35,7 @@ from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
+MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL context
 _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 
 
@@ -64,6 +65,11 @@ def configure_gl() -> str:
     """Choose MUJOCO_GL for this process (a user's choice is kept if it works) and return it."""
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
+        if chosen not in (*GL_PACKAGES, "glfw"):
+            raise CanterError(
+                f"MUJOCO_GL={chosen} is not one of MuJoCo's renderers; set egl or osmesa (headless), glfw (a display), "
+                f"or unset it to let canter choose"
+            )
         if chosen in GL_PACKAGES and "mujoco" not in sys.modules and not _probe(chosen):
             raise CanterError(unavailable_message([chosen]))
         return chosen
@@ -306,6 +312,10 @@ def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int
         raise CanterError(f"--max-steps must be >= 0 (0: whole episodes), got {max_steps}")
     if width < 16 or height < 16 or fps < 1:
         raise CanterError(f"need --width and --height >= 16 and --fps >= 1, got {width}x{height} at {fps} fps")
+    if max(width, height) > MAX_SIDE:
+        raise CanterError(
+            f"--width and --height go up to {MAX_SIDE} (OpenGL's offscreen buffers), got {width}x{height}"
+        )
     if out.suffix.lower() == ".mp4" and (width % 2 or height % 2):
         raise CanterError(f"MP4 (H.264, yuv420p) needs an even width and height, got {width}x{height}")
     check_writable(out)  # before the rendering, which can take minutes

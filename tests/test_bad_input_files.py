@@ -1,0 +1,128 @@
+"""Bad input around files and settings: one line, a non-zero exit, and nothing of a run folder replaced."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.config.build import build_config
+from canter.errors import CanterError
+
+FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+
+
+@pytest.fixture
+def run(tmp_path):
+    folder = tmp_path / "run"
+    shutil.copytree(FIXTURE, folder)
+    return folder
+
+
+def one_line(capsys, argv, expected):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("canter: error: ") and expected in err, err
+
+
+def test_an_output_never_replaces_a_file_of_a_run_folder(run, tmp_path, capsys):
+    newest = sorted((run / "checkpoints").iterdir())[-1]
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    one_line(capsys, ["export", str(run), "--out", str(newest)], "checkpoints/ belongs to the run folder")
+    one_line(capsys, ["eval", str(run), "--json", str(run / "config.toml")], "it is a file of the run folder")
+    one_line(capsys, ["report", str(run), "--episodes", "0", "--out", str(run / "metrics.csv")], "a file of the run")
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
+    # A new file beside them is an ordinary output.
+    assert main(["export", str(run), "--out", str(run / "policy.npz")]) == 0
+
+
+def test_an_output_that_is_a_link_pipe_or_device_is_refused(run, tmp_path, capsys):
+    pipe = tmp_path / "p.npz"
+    os.mkfifo(pipe)
+    one_line(capsys, ["export", str(run), "--out", str(pipe)], "it is not a plain file (a link, pipe or device)")
+    link = tmp_path / "l.npz"
+    link.symlink_to(tmp_path / "elsewhere.npz")
+    one_line(capsys, ["export", str(run), "--out", str(link)], "it is not a plain file")
+    assert pipe.exists() and not pipe.is_file() and link.is_symlink()
+
+
+def test_damaged_run_files_are_one_line_errors(run, tmp_path, capsys):
+    (run / "versions.json").write_text(json.dumps({"run_format": 0}))
+    one_line(capsys, ["train", "--resume", str(run), "--total-steps", "9000"], "run_format 0, not a whole number")
+    (run / "versions.json").write_text(json.dumps({"run_format": 1}))
+    rows = (run / "metrics.csv").read_bytes()
+    (run / "metrics.csv").unlink()
+    (run / "metrics.csv.gz").write_bytes(gzip.compress(rows)[:60])
+    one_line(capsys, ["train", "--resume", str(run), "--total-steps", "9000"], "is not a whole gzip file")
+    (run / "metrics.csv.gz").unlink()
+    (run / "metrics.csv").write_text("global_step,episodic_return\n1," + "9" * 200_000 + "\n")
+    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "a.png")], "metrics.csv is damaged")
+    (run / "metrics.csv").write_text("global_step\n1\n2\n")
+    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "a.png")], "no metric with values to plot")
+
+
+def test_a_report_shows_damaged_summary_values_as_dashes_and_skips_dangling_links(run, tmp_path):
+    summary = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps(summary | {"wall_seconds": float("nan"), "sps": 1e400}))
+    (run / "videos").mkdir()
+    (run / "videos" / "step_000000000001.mp4").symlink_to(tmp_path / "gone.mp4")
+    (run / "robustness").mkdir()
+    (run / "robustness" / "mass.png").symlink_to(tmp_path / "gone.png")
+    assert main(["report", str(run), "--episodes", "0", "--out", str(tmp_path / "r.html")]) == 0
+    assert "gone" not in (tmp_path / "r.html").read_text()
+
+
+@pytest.mark.parametrize(
+    ("sets", "message"),
+    [
+        (["ppo.epochs=99999999999999999999"], "ppo.epochs must be below 2,147,483,648 in size"),
+        (["env.num_envs=3000000000"], "env.num_envs must be below 2,147,483,648 in size"),
+        (["net.log_std_init=nan"], "net.log_std_init must be a finite number, got nan"),
+        (["ppo.ent_coef=inf"], "ppo.ent_coef must be a finite number, got inf"),
+        (["run.preset=cleanrl"], "pass --preset cleanrl rather than --set run.preset"),
+    ],
+)
+def test_settings_out_of_range_are_refused_before_training(sets, message):
+    with pytest.raises(CanterError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        build_config("Hopper-v5", sets=sets)
+
+
+def test_step_budgets_may_pass_int32_and_run_preset_may_repeat_the_preset():
+    assert build_config("Hopper-v5", sets=["run.total_steps=5e9"]).run.total_steps == 5_000_000_000
+    assert build_config("Hopper-v5", preset="cleanrl", sets=["run.preset=cleanrl"]).run.preset == "cleanrl"
+
+
+@pytest.mark.parametrize("url", ["sqlite://", "sqlite:///", "sqlite:///:memory:"])
+def test_an_in_memory_study_storage_is_refused(url, tmp_path, capsys):
+    argv = ["tune", "Hopper-v5", "--trials", "1", "--total-steps", "2048", "--storage", url]
+    one_line(capsys, argv + ["--out-dir", str(tmp_path)], "an in-memory database, which the worker processes cannot")
+
+
+def test_video_settings_the_renderer_cannot_take(run, tmp_path, capsys, monkeypatch):
+    out = str(tmp_path / "v.mp4")
+    one_line(capsys, ["video", str(run), "--out", out, "--height", "100000"], "--width and --height go up to 4096")
+    monkeypatch.setenv("MUJOCO_GL", "bogus")
+    one_line(capsys, ["video", str(run), "--out", out], "MUJOCO_GL=bogus is not one of MuJoCo's renderers")
+
+
+def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    out = str(tmp_path / "file" / "b")
+    argv = ["bench", "--envs", "Hopper-v5", "--seeds", "0", "--total-steps", "2048", "--out", out]
+    one_line(capsys, argv, "cannot make the folder")
+
+
+def test_a_jax_platform_this_machine_lacks_is_one_line():
+    code = "import sys; from canter.cli.main import main; sys.exit(main(['eval', sys.argv[1], '--episodes', '1']))"
+    env = dict(os.environ, JAX_PLATFORMS="cuda")
+    done = subprocess.run([sys.executable, "-c", code, str(FIXTURE)], capture_output=True, text=True, env=env)
+    assert done.returncode == 2
+    lines = [line for line in done.stderr.splitlines() if line.startswith("canter: error:")]
+    assert len(lines) == 1 and "JAX_PLATFORMS=cuda" in lines[0] and "unset JAX_PLATFORMS" in lines[0], done.stderr
