@@ -97,6 +97,8 @@ def test_settings_out_of_range_are_refused_before_training(sets, message):
 def test_step_budgets_may_pass_int32_and_run_preset_may_repeat_the_preset():
     assert build_config("Hopper-v5", sets=["run.total_steps=5e9"]).run.total_steps == 5_000_000_000
     assert build_config("Hopper-v5", preset="cleanrl", sets=["run.preset=cleanrl"]).run.preset == "cleanrl"
+    aliased = build_config("Hopper-v5", preset="seed002-ddpg", sets=["run.preset=seed002-ddpg"])
+    assert aliased.run.preset == "report002-ddpg"
 
 
 @pytest.mark.parametrize("url", ["sqlite://", "sqlite:///", "sqlite:///:memory:"])
@@ -110,6 +112,11 @@ def test_video_settings_the_renderer_cannot_take(run, tmp_path, capsys, monkeypa
     one_line(capsys, ["video", str(run), "--out", out, "--height", "100000"], "--width and --height go up to 4096")
     monkeypatch.setenv("MUJOCO_GL", "bogus")
     one_line(capsys, ["video", str(run), "--out", out], "MUJOCO_GL=bogus is not one of MuJoCo's renderers")
+    from canter.use.video import configure_gl
+
+    for accepted in ("glx", "EGL", "cgl"):  # MuJoCo's own names, which it reads lower-cased
+        monkeypatch.setenv("MUJOCO_GL", accepted)
+        assert configure_gl() == accepted
 
 
 def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):

@@ -121,6 +121,12 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
     assert result.global_step == 2000 and run_status(tmp_path, 2000) == "done"
 
     saved(5000, 40_000)  # resumed by hand toward another budget, and stopped
-    with pytest.raises(CanterError, match=r"trained on past this budget \(2,000 steps\) to step 5,000"):
+    past = (
+        r"trained on toward a budget of 40,000 steps \(to step 5,000\) after this one's 2,000; give --total-steps 40000"
+    )
+    with pytest.raises(CanterError, match=past):
         run_status(tmp_path, 2000)
     assert run_status(tmp_path, 40_000) == "partial"
+    (tmp_path / "summary.json").write_text(json.dumps({"global_step": 5000, "stop_reason": "max_minutes"}))
+    with pytest.raises(CanterError, match=past):  # stopped cleanly: its summary is current, and still not this budget
+        run_status(tmp_path, 2000)

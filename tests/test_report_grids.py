@@ -153,3 +153,22 @@ def test_the_pack_waits_for_jobs_still_writing_their_last_checkpoint(tmp_path):
         assert time.monotonic() - started > 1.0  # it waited for the writer
     with tarfile.open(inflight_pack(page, "g")) as tar:
         assert f"{run.name}/checkpoints/{newer}" in tar.getnames()
+
+
+def test_a_pack_carries_a_run_that_ended_without_its_summary_and_skips_one_trained_past_the_grid(tmp_path, capsys):
+    import numpy as np
+
+    from canter.config.build import build_config
+    from canter.config.serialize import to_toml
+    from canter.training import checkpoint
+
+    def saved(run, step, budget):
+        header = {"global_step": step, "config": to_toml(build_config("Hopper-v5", total_steps=budget))}
+        checkpoint.save(checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
+
+    ended, past = tmp_path / "ended", tmp_path / "past"
+    saved(ended, 512, 512)  # its final checkpoint, and no summary.json
+    saved(past, 4096, 8192)
+    assert grids._carried_on(ended, 512, None)
+    assert not grids._carried_on(past, 512, None)
+    assert "past: not packed (" in capsys.readouterr().out

@@ -209,8 +209,7 @@ def _pack(page: Path, grid: Grid, work: Path) -> list[str]:
         cell.run_dir(work / grid.name, seed)
         for cell in grid.cells()
         for seed in grid.seeds
-        if run_status(cell.run_dir(work / grid.name, seed), grid.total_steps, cell.config.run.stop_at_return)
-        == "partial"
+        if _carried_on(cell.run_dir(work / grid.name, seed), grid.total_steps, cell.config.run.stop_at_return)
     ]
     path = inflight_pack(page, grid.name)
     if not runs:
@@ -220,6 +219,15 @@ def _pack(page: Path, grid: Grid, work: Path) -> list[str]:
         print(f"{grid.name}: its runs are too large to keep; a fresh machine starts them again", flush=True)
         return []
     return [r.name for r in runs]
+
+
+def _carried_on(run_dir: Path, total_steps: int, stop_at_return: float | None) -> bool:
+    """Whether a run is one the next call carries on: stopped after a checkpoint, or ended without its summary."""
+    try:
+        return run_status(run_dir, total_steps, stop_at_return) in ("partial", "ended")
+    except CanterError as exc:  # trained past the grid's budget by hand: not the grid's to pack
+        print(f"{run_dir.name}: not packed ({exc})", flush=True)
+        return False
 
 
 def run_grid(page: Path, grid: Grid, work: Path) -> None:

@@ -36,11 +36,13 @@ def build_config(
     if not resolved_id:
         raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
     preset = canonical_preset(preset)
-    if "run.preset" in set_data and set_data["run.preset"] != preset:  # a label alone would misname the run
+    if "run.preset" in set_data and canonical_preset(str(set_data["run.preset"])) != preset:  # it would misname the run
         raise CanterError(
             f"run.preset names the preset a run was built from; pass --preset {set_data['run.preset']} rather than "
             f"--set run.preset (it would label a run of preset {preset}'s settings)"
         )
+    if "run.preset" in set_data:
+        set_data["run.preset"] = preset  # an alias names its preset by the preset's own name
     config = Config()
     first: dict[str, Any] = {"env.id": resolved_id, "run.preset": preset}
     # The algorithm comes first, so that the preset's algorithm tables, its `algos` check and the unread-key check

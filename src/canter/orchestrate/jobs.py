@@ -48,15 +48,17 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     found = checkpoint.list_checkpoints(run_dir)
     newest = checkpoint.step_of(found[-1]) if found else None
     summarized = summary.get("global_step")
-    if newest is not None and (not isinstance(summarized, int) or newest > summarized):
-        # summary.json is missing, or older than the newest checkpoint (a resume since)
-        if newest >= total_steps:
-            if _budget(checkpoint.read_header(found[-1])) == total_steps:
-                return "ended"
+    stale = newest is not None and (not isinstance(summarized, int) or newest > summarized)  # a resume since
+    if newest is not None and newest >= total_steps:
+        budget = _budget(checkpoint.read_header(found[-1]))
+        if budget is not None and budget != total_steps:
             raise CanterError(
-                f"{run_dir} was trained on past this budget ({total_steps:,} steps) to step {newest:,} after it "
-                f"finished; give --total-steps {newest} or more, or move the folder away to train it again"
+                f"{run_dir} was trained on toward a budget of {budget:,} steps (to step {newest:,}) after this "
+                f"one's {total_steps:,}; give --total-steps {budget}, or move the folder away to train it again"
             )
+        if stale and budget == total_steps:
+            return "ended"
+    if stale:
         return "partial"
     try:
         if int(summary["global_step"]) >= total_steps:
@@ -259,8 +261,10 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
             status = run_status(run_dir, total, config.run.stop_at_return)
             if status == "partial":
                 partial.append(run_dir)
-            elif status == "ended":
-                summarize_ended_run(run_dir)
+            elif status == "ended":  # its tracker runs are closed as a finish closes them
+                recorded = resume_spec(spec.track.names, spec.track.mlflow_uri, [run_dir])
+                with tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)):
+                    summarize_ended_run(run_dir)
             elif status == "new":
                 if (run_dir / SUMMARY_FILE).is_file():
                     raise CanterError(

@@ -30,6 +30,9 @@ from canter.errors import CanterError
 from canter.files import atomic_write_bytes
 
 FORMAT_VERSION = 1
+# A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
+# it for a checkpoint of another config, so it says which canter reads it instead.
+LEFT_OUT_FORMAT_VERSION = 2
 _NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
@@ -75,7 +78,7 @@ def save(
     left_out = [name for name in arrays if name.split("/", 1)[0] in leave_out]
     for name in left_out:
         del arrays[name]
-    header = dict(header, format_version=FORMAT_VERSION, leaves=list(arrays))
+    header = dict(header, format_version=LEFT_OUT_FORMAT_VERSION if left_out else FORMAT_VERSION, leaves=list(arrays))
     if left_out:
         header["left_out"] = left_out
     if env_carry is not None:
@@ -115,10 +118,10 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise CanterError(f"checkpoint {path} is corrupt or truncated; {_EARLIER}") from None
     version = header.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in (FORMAT_VERSION, LEFT_OUT_FORMAT_VERSION):
         raise CanterError(
-            f"checkpoint {path} has format version {version}, this canter reads version "
-            f"{FORMAT_VERSION}; use the canter release that wrote it"
+            f"checkpoint {path} has format version {version}, this canter reads versions {FORMAT_VERSION} and "
+            f"{LEFT_OUT_FORMAT_VERSION}; use the canter release that wrote it"
         )
     expected = header.pop("sha256", None)
     if expected != _digest(arrays, header):

@@ -34,8 +34,8 @@ def policy_files(config: Config) -> int:
 
 
 def checkpoints_at_once(config: Config, existing: int) -> int:
-    """How many more full checkpoints the run will hold at its fullest than it holds now (`existing` counts every
-    .npz in its checkpoints folder, best.npz too, which errs toward a warning)."""
+    """How many more full checkpoints the run will hold at its fullest than it holds now (`existing`: its
+    ckpt_*.npz files)."""
     return max(config.run.keep_checkpoints + 1 - existing, 1)
 
 
@@ -52,7 +52,9 @@ def warn_if_checkpoints_will_not_fit(
 ) -> bool:
     """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
     `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
-    existing = len(list((Path(run_dir) / "checkpoints").glob("*.npz")))
+    from canter.training.checkpoint import list_checkpoints
+
+    existing = len(list_checkpoints(Path(run_dir)))
     one = state_bytes(state)
     policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
     needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)

@@ -188,21 +188,28 @@ def _write_summary(result: RunResult) -> dict[str, Any]:
 def summarize_ended_run(run_dir: Path) -> RunResult:
     """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
     between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
+    from canter.config.serialize import from_toml_text
+
     header = checkpoint.read_header(checkpoint.latest(run_dir))
-    totals = header.get("totals") or {}
+    step = int(header["global_step"])
+    totals = header.get("totals") or totals_until(run_folder.metrics_file(run_dir), step)
     recent = totals.get("recent_returns") or []
     train_seconds = float(totals.get("train_seconds", 0.0))
+    config = from_toml_text(header["config"], str(checkpoint.latest(run_dir)))
+    target = config.run.stop_at_return
+    reached = target is not None and bool(recent) and float(np.mean(recent)) >= target
     result = RunResult(
         run_dir=Path(run_dir),
-        global_step=int(header["global_step"]),
+        global_step=step,
         recent_return=float(np.mean(recent)) if recent else None,
         episodes=int(totals.get("episodes", 0)),
         wall_seconds=float(totals.get("wall_seconds", 0.0)),
         compile_seconds=float(totals.get("compile_seconds", 0.0)),
-        sps=int(header["global_step"]) / train_seconds if train_seconds > 0 else 0.0,
-        stop_reason="budget",
+        sps=step / train_seconds if train_seconds > 0 else 0.0,
+        stop_reason="stop_at_return" if reached else "budget",  # the loop's order: the target, then the budget
     )
-    _write_summary(result)
+    summary = _write_summary(result)
+    trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)
     return result
 
 
@@ -246,7 +253,7 @@ def _train_locked(
             _check_only_the_budget_differs(saved, config, out)
             start_step = int(header["global_step"])
             _note_a_changed_backend(out, header["env"]["backend"], backend, start_step)
-            earlier.append(header.get("totals") or totals_until(out / "metrics.csv", start_step))
+            earlier.append(header.get("totals") or totals_until(run_folder.metrics_file(out), start_step))
         else:
             start_step = 0
             out = Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config)

@@ -35,6 +35,10 @@ from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
+# What MuJoCo's own GL context reads from MUJOCO_GL (lower-cased): its renderers and its switches.
+MUJOCO_GL_VALUES = frozenset(
+    {"egl", "osmesa", "glfw", "glx", "cgl", "wgl", "enable", "on", "true", "1", "disable", "off", "false", "0"}
+)
 MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL context
 _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 
@@ -65,10 +69,10 @@ def configure_gl() -> str:
     """Choose MUJOCO_GL for this process (a user's choice is kept if it works) and return it."""
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
-        if chosen not in (*GL_PACKAGES, "glfw"):
+        if chosen.lower().strip() not in MUJOCO_GL_VALUES:
             raise CanterError(
-                f"MUJOCO_GL={chosen} is not one of MuJoCo's renderers; set egl or osmesa (headless), glfw (a display), "
-                f"or unset it to let canter choose"
+                f"MUJOCO_GL={chosen} is not one of MuJoCo's renderers; set egl or osmesa (headless), glfw, glx, cgl "
+                f"or wgl (a display), or unset it to let canter choose"
             )
         if chosen in GL_PACKAGES and "mujoco" not in sys.modules and not _probe(chosen):
             raise CanterError(unavailable_message([chosen]))
