@@ -82,6 +82,29 @@ def _roll(env, actions):
     )
 
 
+@pytest.mark.parametrize(
+    ("env_id", "differs"), [("Humanoid-v4", True), ("HumanoidStandup-v4", True), ("Humanoid-v5", False)]
+)
+def test_the_ids_whose_envpool_env_is_not_gymnasiums_are_named_where_a_run_is_replayed(env_id, differs):
+    """EnvPool's v4 humanoids keep their 84 contact-force entries at 0, where Gymnasium's move: a run of one that is
+    played in Gymnasium (a video, a robustness sweep, eval --backend gymnasium) gets a note saying so."""
+    from canter.envs.registry import replay_note
+
+    rng = np.random.default_rng(0)
+    a = make_vec_env(env_id, "envpool", 1, [0])
+    b = make_vec_env(env_id, "gymnasium", 1, [0])
+    a.reset(), b.reset()
+    actions = rng.uniform(-0.4, 0.4, size=(100, 1, a.spec.act_dim)).astype(np.float32)
+    contacts = slice(-84, None) if env_id.endswith("v4") else slice(-78, None)
+    largest = [np.abs(_roll(env, actions)[0][..., contacts]).max() for env in (a, b)]
+    assert bool(largest[0] == 0.0 and largest[1] > 10.0) == differs, largest
+    note = replay_note(env_id, "envpool", "gymnasium")
+    assert (note is not None) is differs
+    if differs:
+        assert note.startswith(f"canter: note: {env_id} trained on EnvPool") and "contact-force" in note
+    assert replay_note(env_id, "envpool", "envpool") is None and replay_note(env_id, "gymnasium", "envpool") is None
+
+
 @pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5"])
 def test_envpool_and_gymnasium_simulate_identically(env_id):
     """Same MuJoCo (pinned), zero reset noise, same actions: same observations and rewards, resets included."""

@@ -8,8 +8,9 @@ The learner's side is expressed in JAX types only: the learner never imports an 
 - `close()`.
 
 Episode semantics (every backend): the step that ends an episode returns the true final observation and its flags.
-The next step of that env is an autoreset step: it ignores its action and returns the reset observation, reward 0
-and both flags false.
+The next step of that env is an autoreset step: it ignores its action and returns the reset observation and both
+flags false. Its reward means nothing (0 for EnvPool's gym-style envs, the previous step's again for its DM Control
+ones), so every consumer masks autoreset steps out (`canter.envs.episodes`).
 """
 
 from __future__ import annotations
@@ -133,4 +134,9 @@ class Backend(Protocol):
 
     def dm_control_task(self, env_id: str) -> tuple[str, str] | None:
         """(domain, task) of dm_control's suite that env_id runs, or None when it is not a DM Control env."""
+        return None
+
+    def differs_from_single_envs(self, env_id: str) -> str | None:
+        """How its env of `env_id` differs from the single-env backend's of the same id, which replays its runs
+        (videos, robustness sweeps), or None where they step alike."""
         return None

@@ -73,6 +73,20 @@ def single_env_backend() -> Backend:
     return next(backend for backend in backends() if backend.single_envs)
 
 
+def replay_note(env_id: str, trained_on: str, played_on: str) -> str | None:
+    """A one-line note where a run is played on another backend than it trained on, whose env of that id differs."""
+    if trained_on == played_on or trained_on not in _BACKENDS or played_on != single_env_backend().name:
+        return None
+    how = get_backend(trained_on).differs_from_single_envs(env_id)
+    if how is None:
+        return None
+    return (
+        f"canter: note: {env_id} trained on {get_backend(trained_on).label}, whose env differs from "
+        f"{single_env_backend().label}'s that plays it here: {how}; the policy sees other inputs than it learned on, "
+        f"and the return is another reward"
+    )
+
+
 def dm_control_task(env_id: str) -> tuple[str, str] | None:
     """(domain, task) of dm_control's suite that env_id runs, or None when it is not a DM Control env."""
     return next((task for backend in backends() if (task := backend.dm_control_task(env_id))), None)

@@ -8,7 +8,8 @@ another platform, `record_video` renders in a subprocess instead.
 Which simulator replays the policy:
 - Gymnasium ids (MuJoCo, Box2D's BipedalWalker, custom `module:EnvId`): the Gymnasium env with render_mode
   "rgb_array". EnvPool's gym-style MuJoCo ids have the same observation layout as Gymnasium's, so EnvPool runs are
-  replayed there with the run's saved (frozen) normalizer statistics.
+  replayed there with the run's saved (frozen) normalizer statistics; where the two envs of an id differ (the v4
+  humanoids, `registry.replay_note`), a note says so.
 - EnvPool's DM Control ids (WalkerWalk-v1): dm_control's suite and its own MuJoCo renderer, with the observation
   dict flattened in EnvPool's order (sorted keys).
 """
@@ -347,12 +348,15 @@ def record_video(
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
         return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
-    from canter.envs.registry import dm_control_task
+    from canter.envs.registry import dm_control_task, replay_note, single_env_backend
     from canter.use.policy import load
 
     configure_gl()
     policy = load(run_dir, checkpoint)
     task = dm_control_task(policy.facts.env_id)
+    note = None if task else replay_note(policy.facts.env_id, policy.facts.backend, single_env_backend().name)
+    if note:
+        print(note, file=sys.stderr)
     player = (
         _DMControlPlayer(*task, width, height, camera)
         if task

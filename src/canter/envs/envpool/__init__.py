@@ -17,6 +17,16 @@ from canter.errors import CanterError
 
 NAME = "envpool"
 
+# Ids whose EnvPool env is not Gymnasium's, measured with the same actions from the same state (EnvPool 1.2.5,
+# Gymnasium 1.x, MuJoCo 3.6.0); the v5 ids and the other MuJoCo ids step alike (tests/test_envs.py).
+_DIFFERS_FROM_GYMNASIUM = {
+    "Humanoid-v4": "its observation's 84 contact-force entries stay 0 (Gymnasium's reach thousands)",
+    "HumanoidStandup-v4": (
+        "its observation's 84 contact-force entries stay 0 (Gymnasium's reach hundreds) and its reward leaves out "
+        "the impact cost"
+    ),
+}
+
 # EnvPool families with continuous actions that canter trains on.
 _CONTINUOUS_MODULES = ("envpool.mujoco.gym", "envpool.mujoco.dmc")
 _CONTINUOUS_IDS = (
@@ -72,6 +82,9 @@ class EnvPoolBackend(Backend):
         domain = re.sub(r"^Dmc|EnvSpec$", "", entry[1])
         domain = re.sub(r"(?<=[a-z])(?=[A-Z])", "_", domain).lower()
         return domain, entry[2]["task_name"]
+
+    def differs_from_single_envs(self, env_id: str) -> str | None:
+        return _DIFFERS_FROM_GYMNASIUM.get(env_id)
 
 
 BACKEND = EnvPoolBackend()
