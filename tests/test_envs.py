@@ -211,3 +211,18 @@ def test_a_custom_env_whose_bounds_exclude_zero_is_probed_within_them():
     env = make_vec_env("canter_test_envs:RefusesOutOfBounds-v0", "auto", 1, [0])
     assert env.spec.info_keys == ("speed",)
     env.close()
+
+
+def test_reading_a_dm_control_tasks_observation_prints_nothing_on_a_headless_machine():
+    """The EnvPool backend asks dm_control for a task's own observation keys, which imports its renderer: with no
+    display GLFW warned on every DM Control run and evaluation."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from canter.envs.dm_control_tasks import observation_keys; print(sorted(observation_keys('walker', 'walk')))"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert done.stdout.strip() == "['height', 'orientations', 'velocity']" and done.stderr == "", done.stderr

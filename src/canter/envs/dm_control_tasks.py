@@ -3,6 +3,7 @@ humanoid_CMU), for the EnvPool backend and for replaying a run in dm_control to 
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 
@@ -17,7 +18,11 @@ def observation_keys(domain: str, task: str) -> frozenset[str] | None:
     no such task). EnvPool declares one observation space per domain, so some of its tasks carry the keys of their
     domain's other tasks (QuadrupedRun the ball and target of QuadrupedFetch and QuadrupedEscape)."""
     try:
-        from dm_control import suite
+        with warnings.catch_warnings():
+            # dm_control loads its renderer on import, and on a machine without a display GLFW warns that it has
+            # none: this lookup renders nothing, and videos choose their own OpenGL platform (canter.use.video).
+            warnings.filterwarnings("ignore", message=r".*DISPLAY environment variable is missing")
+            from dm_control import suite
     except ImportError:
         return None
     found = suite_task(suite, domain, task)

@@ -1,7 +1,8 @@
 """`run.video_every`: videos of the policy rendered while it trains, each in a child process.
 
 The child runs `python -m canter.use.video` on a snapshot of the train state, so that rendering (and everything it
-imports: MuJoCo's OpenGL, Gymnasium's renderers, dm_control) stays out of the training process.
+loads: MuJoCo's OpenGL contexts, Gymnasium's renderers, dm_control's cameras) stays out of the training process,
+which imports dm_control at most to read a DM Control task's observation keys.
 """
 
 from __future__ import annotations
