@@ -133,3 +133,31 @@ def test_a_jax_platform_this_machine_lacks_is_one_line():
     assert done.returncode == 2
     lines = [line for line in done.stderr.splitlines() if line.startswith("canter: error:")]
     assert len(lines) == 1 and "JAX_PLATFORMS=cuda" in lines[0] and "unset JAX_PLATFORMS" in lines[0], done.stderr
+
+
+def test_a_folder_of_run_folders_names_the_glob_that_reaches_them(tmp_path, capsys):
+    bench = tmp_path / "bench"
+    shutil.copytree(FIXTURE, bench / "Hopper-v5__ppo__s0")
+    (bench / "results.md").write_text("")
+    for argv in (["eval", str(bench)], ["plot", str(bench), "--out", str(tmp_path / "a.png")]):
+        one_line(capsys, argv, f"{bench} is not a run folder but holds run folders (a bench's?): pass {bench}/*/")
+
+
+def test_an_off_policy_budget_within_learning_starts_is_noted(capsys):
+    from canter.cli import train as train_cli
+
+    config = build_config("Hopper-v5", algo="td3", total_steps=4096)
+    train_cli._note_a_budget_without_updates(config)
+    assert capsys.readouterr().err == (
+        "canter: note: td3 acts at random for its first td3.learning_starts=25,000 steps and updates nothing before "
+        "them, so this 4,096-step run will not learn; give a larger --total-steps or --set td3.learning_starts=N\n"
+    )
+    train_cli._note_a_budget_without_updates(build_config("Hopper-v5", algo="td3", total_steps=50_000))
+    train_cli._note_a_budget_without_updates(build_config("Hopper-v5", total_steps=4096))  # ppo has no such phase
+    assert capsys.readouterr().err == ""
+
+
+def test_a_v4_id_asked_for_on_purpose_makes_no_deprecation_warning():
+    code = "from canter.envs.gymnasium.single import make_single; make_single('HalfCheetah-v4').close()"
+    done = subprocess.run([sys.executable, "-W", "default", "-c", code], capture_output=True, text=True, check=True)
+    assert "out of date" not in done.stderr, done.stderr

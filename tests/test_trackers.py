@@ -437,16 +437,24 @@ def test_a_trackers_file_whose_entries_are_not_objects_is_one_line_on_resume(tmp
 
 
 @pytest.mark.slow
-def test_a_resume_from_another_folder_continues_the_mlflow_run_of_its_default_store(tmp_path, monkeypatch, capsys):
-    """MLflow's default store is a file under the working folder; trackers.json records it resolved, so a resume
-    started elsewhere finds the run rather than failing on a store that does not hold it."""
+@pytest.mark.parametrize("store", [[], ["--mlflow-uri", "sqlite:///mlflow.db"]], ids=["default", "relative"])
+def test_a_resume_from_another_folder_continues_the_mlflow_run_of_its_default_store(
+    tmp_path, monkeypatch, capsys, store
+):
+    """MLflow's default store, like a relative --mlflow-uri, is a file under the working folder; trackers.json records
+    it absolute, so a resume started elsewhere finds the run rather than failing on a store that does not hold it."""
     started, elsewhere = tmp_path / "started", tmp_path / "elsewhere"
     started.mkdir()
     elsewhere.mkdir()
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     monkeypatch.chdir(started)
     assert (
-        main(["train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs"), "--track", "mlflow"] + TINY_PPO) == 0
+        main(
+            ["train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs"), "--track", "mlflow"]
+            + TINY_PPO
+            + store
+        )
+        == 0
     )
     [run] = list((tmp_path / "runs").iterdir())
     ids = json.loads((run / "trackers.json").read_text())

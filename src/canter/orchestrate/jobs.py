@@ -50,7 +50,7 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     summarized = summary.get("global_step")
     stale = newest is not None and (not isinstance(summarized, int) or newest > summarized)  # a resume since
     if newest is not None and newest >= total_steps:
-        budget = _budget(checkpoint.read_header(found[-1]))
+        budget = _budget(found[-1])
         if budget is not None and budget != total_steps:
             raise CanterError(
                 f"{run_dir} was trained on toward a budget of {budget:,} steps (to step {newest:,}) after this "
@@ -76,12 +76,14 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
 
 
-def _budget(header: dict[str, Any]) -> int | None:
-    """run.total_steps of the config a checkpoint was written with."""
+def _budget(path: Path) -> int | None:
+    """run.total_steps of the config a checkpoint was written with; None where its header cannot say (a damaged
+    file is refused by whatever reads it next, with its own message)."""
     from canter.config.serialize import from_toml_text
+    from canter.training import checkpoint
 
     try:
-        return from_toml_text(header["config"], "checkpoint header").run.total_steps
+        return from_toml_text(checkpoint.read_header(path)["config"], str(path)).run.total_steps
     except (CanterError, KeyError):
         return None
 

@@ -194,10 +194,20 @@ def latest(run_dir: Path) -> Path:
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found:
+        if holds_runs(run_dir):
+            raise CanterError(f"{run_dir} is not a run folder but holds run folders (a bench's?): pass {run_dir}/*/")
         raise CanterError(
             f"no checkpoint in {run_dir}; train first, or pass the run folder that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
+
+
+def holds_runs(folder: Path) -> bool:
+    """Whether a folder that is no run folder itself has run folders inside (a bench's, a tune study's)."""
+    folder = Path(folder)
+    return not (folder / "config.toml").is_file() and any(
+        (child / "config.toml").is_file() for child in folder.iterdir() if child.is_dir()
+    )
 
 
 _NOTED: set[Path] = set()
@@ -233,8 +243,8 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     path = best_path(run_dir)
     if not path.is_file():
         raise CanterError(
-            f"{run_dir} has no best checkpoint: it never evaluated during training (train with --eval-every N); "
-            f"use --checkpoint last or a checkpoint file"
+            f"{run_dir} has no best checkpoint: it never evaluated during training (train with --eval-every N, "
+            f"run.eval_every); use the last checkpoint (--checkpoint last, checkpoint='last') or a checkpoint file"
         )
     return path
 

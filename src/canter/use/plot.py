@@ -110,6 +110,12 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
     if not path.is_file():
+        from canter.training.checkpoint import holds_runs
+
+        if path.parent.is_dir() and holds_runs(path.parent):
+            raise CanterError(
+                f"{path.parent} is not a run folder but holds run folders (a bench's?): pass {path.parent}/*/"
+            )
         raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
     header, rows = read_rows(path)  # a half-written last line is left out
     if not header or not rows:

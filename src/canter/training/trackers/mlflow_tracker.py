@@ -153,11 +153,23 @@ def _quoted(value: str) -> str:
     return f'"{value}"' if "'" in value else f"'{value}'"
 
 
+def absolute_store(uri: str) -> str:
+    """A tracking URI with a path relative to the working folder made absolute: a SQLite file or a plain folder."""
+    sqlite = "sqlite:///"
+    if uri.startswith(sqlite) and not uri.startswith(sqlite + "/") and uri != sqlite + ":memory:":
+        return sqlite + os.path.abspath(uri[len(sqlite) :])
+    if ":" not in uri and (uri.startswith(".") or os.path.isdir(uri)):  # not a scheme such as databricks
+        return os.path.abspath(uri)
+    return uri
+
+
 class _MlflowRun:
     def __init__(self, client: Any, run_id: str) -> None:
         self._client = client
         self.run_id = run_id
-        self.place = {"uri": str(client.tracking_uri)}  # resolved: a default store is a path under the working folder
+        # Absolute: a store named relative to the working folder (sqlite:///mlflow.db, the default's too) must be found
+        # again by a resume started elsewhere.
+        self.place = {"uri": absolute_store(str(client.tracking_uri))}
 
     def log(self, values: dict[str, float], step: int) -> None:
         from mlflow.entities import Metric
