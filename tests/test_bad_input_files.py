@@ -139,8 +139,36 @@ def test_a_folder_of_run_folders_names_the_glob_that_reaches_them(tmp_path, caps
     bench = tmp_path / "bench"
     shutil.copytree(FIXTURE, bench / "Hopper-v5__ppo__s0")
     (bench / "results.md").write_text("")
-    for argv in (["eval", str(bench)], ["plot", str(bench), "--out", str(tmp_path / "a.png")]):
-        one_line(capsys, argv, f"{bench} is not a run folder but holds run folders (a bench's?): pass {bench}/*/")
+    for argv in (
+        ["eval", str(bench)],
+        ["plot", str(bench), "--out", str(tmp_path / "a.png")],
+        ["video", str(bench), "--out", str(tmp_path / "v.mp4")],
+    ):
+        message = (
+            f"{bench} is not a run folder but holds 1 (a bench's?): pass them, such as {bench / 'Hopper-v5__ppo__s0'}"
+        )
+        one_line(capsys, argv, message)
+
+
+def test_a_relative_mlflow_store_is_recorded_absolute(tmp_path, monkeypatch):
+    from canter.training.trackers.mlflow_tracker import absolute_store
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mlruns").mkdir()
+    cases = {
+        "sqlite:///mlflow.db": f"sqlite:///{tmp_path}/mlflow.db",
+        "sqlite:///m.db?timeout=5": f"sqlite:///{tmp_path}/m.db?timeout=5",
+        "sqlite:////abs/m.db": "sqlite:////abs/m.db",
+        "sqlite:///:memory:": "sqlite:///:memory:",
+        "sqlite:///": "sqlite:///",
+        "file:./mlruns": f"file://{tmp_path}/mlruns",
+        "./mlruns": f"{tmp_path}/mlruns",
+        "mlruns": f"{tmp_path}/mlruns",
+        "databricks": "databricks",
+        "http://host:5000": "http://host:5000",
+        "file:///abs/mlruns": "file:///abs/mlruns",
+    }
+    assert {uri: absolute_store(uri) for uri in cases} == cases
 
 
 def test_an_off_policy_budget_within_learning_starts_is_noted(capsys):

@@ -635,14 +635,21 @@ def test_a_bench_rerun_refuses_to_retrain_a_finished_run_kept_without_checkpoint
 def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_path):
     """An extended budget whose run was interrupted between its training and its final evaluation keeps the old
     eval.json; the seed is not finished until the newest checkpoint is evaluated."""
+    import numpy as np
+
+    from canter.config.serialize import to_toml
     from canter.orchestrate.bench import seeds_finished
+    from canter.training import checkpoint
 
     settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 2000, eval_episodes=3)
     [cell] = make_cells(settings)
     run = cell.run_dir(tmp_path, 0)
-    (run / "checkpoints").mkdir(parents=True)
     for step in (1000, 2000):
-        (run / "checkpoints" / f"ckpt_{step:012d}.npz").write_bytes(b"")
+        header = {
+            "global_step": step,
+            "config": to_toml(replace(cell.config, run=replace(cell.config.run, total_steps=2000))),
+        }
+        checkpoint.save(checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
     (run / "summary.json").write_text(json.dumps({"global_step": 2000}))
     (run / "eval.json").write_text(json.dumps({"checkpoint": "ckpt_000000001000.npz", "episodes": 3, "mean": 1.0}))
     assert not seeds_finished(cell, (0,), settings, tmp_path)

@@ -100,9 +100,21 @@ def test_the_ids_whose_envpool_env_is_not_gymnasiums_are_named_where_a_run_is_re
     assert bool(largest[0] == 0.0 and largest[1] > 10.0) == differs, largest
     note = replay_note(env_id, "envpool", "gymnasium")
     assert (note is not None) is differs
+    # Either way round: a Gymnasium run evaluated on EnvPool sees the zeros instead.
+    assert (replay_note(env_id, "gymnasium", "envpool") is not None) is differs
     if differs:
-        assert note.startswith(f"canter: note: {env_id} trained on EnvPool") and "contact-force" in note
-    assert replay_note(env_id, "envpool", "envpool") is None and replay_note(env_id, "gymnasium", "envpool") is None
+        assert note.startswith(f"canter: note: {env_id} trained on EnvPool and played on Gymnasium here")
+        assert "contact-force" in note
+    assert replay_note(env_id, "envpool", "envpool") is None and replay_note(env_id, "envpool", "mjx") is None
+
+
+def test_a_replay_note_is_printed_once_per_env_and_pair_of_backends(capsys):
+    from canter.envs import registry
+
+    for _ in range(3):  # a robustness sweep evaluates once per scale
+        registry.note_replay("HumanoidStandup-v4", "envpool", "gymnasium")
+    registry.note_replay("HalfCheetah-v5", "envpool", "gymnasium")
+    assert capsys.readouterr().err.count("canter: note: HumanoidStandup-v4") == 1
 
 
 @pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5"])

@@ -130,3 +130,14 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
     (tmp_path / "summary.json").write_text(json.dumps({"global_step": 5000, "stop_reason": "max_minutes"}))
     with pytest.raises(CanterError, match=past):  # stopped cleanly: its summary is current, and still not this budget
         run_status(tmp_path, 2000)
+
+
+def test_a_damaged_newest_checkpoint_never_reads_as_done(tmp_path):
+    """Its budget cannot be read, so it cannot be told apart from a run trained toward another: the resume that
+    follows reads it and says what is wrong, rather than the bench reusing a cached evaluation."""
+    from canter.orchestrate.jobs import run_status
+
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "ckpt_000002000000.npz").write_bytes(b"garbage")
+    (tmp_path / "summary.json").write_text(json.dumps({"global_step": 2_000_000, "stop_reason": "budget"}))
+    assert run_status(tmp_path, 1_000_000) == "partial"

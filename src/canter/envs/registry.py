@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import sys
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
@@ -74,17 +75,32 @@ def single_env_backend() -> Backend:
 
 
 def replay_note(env_id: str, trained_on: str, played_on: str) -> str | None:
-    """A one-line note where a run is played on another backend than it trained on, whose env of that id differs."""
-    if trained_on == played_on or trained_on not in _BACKENDS or played_on != single_env_backend().name:
+    """A one-line note where a run is played on another backend than it trained on, whose env of that id differs
+    (either way round: the difference is between a backend and the single-env one)."""
+    single = single_env_backend().name
+    if trained_on == played_on or {trained_on, played_on} - set(_BACKENDS) or single not in (trained_on, played_on):
         return None
-    how = get_backend(trained_on).differs_from_single_envs(env_id)
+    other = get_backend(played_on if trained_on == single else trained_on)
+    how = other.differs_from_single_envs(env_id)
     if how is None:
         return None
     return (
-        f"canter: note: {env_id} trained on {get_backend(trained_on).label}, whose env differs from "
-        f"{single_env_backend().label}'s that plays it here: {how}; the policy sees other inputs than it learned on, "
-        f"and the return is another reward"
+        f"canter: note: {env_id} trained on {get_backend(trained_on).label} and played on "
+        f"{get_backend(played_on).label} here, whose envs of it differ ({other.label}'s: {how}); the policy sees other "
+        f"inputs than it learned on, and the return is another reward"
     )
+
+
+_NOTED_REPLAYS: set[tuple[str, str, str]] = set()
+
+
+def note_replay(env_id: str, trained_on: str, played_on: str) -> None:
+    """Print `replay_note` once per process for each (env, trained on, played on): a sweep plays many times."""
+    key = (env_id, trained_on, resolve_backend(env_id, played_on) if played_on == AUTO else played_on)
+    note = replay_note(*key)
+    if note and key not in _NOTED_REPLAYS:
+        _NOTED_REPLAYS.add(key)
+        print(note, file=sys.stderr)
 
 
 def dm_control_task(env_id: str) -> tuple[str, str] | None:

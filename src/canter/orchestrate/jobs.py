@@ -51,6 +51,8 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     stale = newest is not None and (not isinstance(summarized, int) or newest > summarized)  # a resume since
     if newest is not None and newest >= total_steps:
         budget = _budget(found[-1])
+        if budget is UNREADABLE:  # a resume reads it next, and says what is wrong with it
+            return "partial"
         if budget is not None and budget != total_steps:
             raise CanterError(
                 f"{run_dir} was trained on toward a budget of {budget:,} steps (to step {newest:,}) after this "
@@ -76,14 +78,21 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
 
 
+UNREADABLE = -1  # `_budget` of a checkpoint whose header cannot be read
+
+
 def _budget(path: Path) -> int | None:
-    """run.total_steps of the config a checkpoint was written with; None where its header cannot say (a damaged
-    file is refused by whatever reads it next, with its own message)."""
+    """run.total_steps of the config a checkpoint was written with: None where its header holds no config,
+    UNREADABLE where the file is damaged."""
     from canter.config.serialize import from_toml_text
     from canter.training import checkpoint
 
     try:
-        return from_toml_text(checkpoint.read_header(path)["config"], str(path)).run.total_steps
+        header = checkpoint.read_header(path)
+    except CanterError:
+        return UNREADABLE
+    try:
+        return from_toml_text(header["config"], str(path)).run.total_steps
     except (CanterError, KeyError):
         return None
 

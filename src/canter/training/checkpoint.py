@@ -194,20 +194,27 @@ def latest(run_dir: Path) -> Path:
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found:
-        if holds_runs(run_dir):
-            raise CanterError(f"{run_dir} is not a run folder but holds run folders (a bench's?): pass {run_dir}/*/")
+        inside = runs_inside(run_dir)
+        if inside:
+            raise CanterError(
+                f"{run_dir} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as {inside[0]}"
+            )
         raise CanterError(
             f"no checkpoint in {run_dir}; train first, or pass the run folder that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
 
 
-def holds_runs(folder: Path) -> bool:
-    """Whether a folder that is no run folder itself has run folders inside (a bench's, a tune study's)."""
+def runs_inside(folder: Path) -> list[Path]:
+    """The run folders directly inside a folder that is no run folder itself (a bench's), sorted; [] otherwise, and
+    where the folder cannot be read."""
     folder = Path(folder)
-    return not (folder / "config.toml").is_file() and any(
-        (child / "config.toml").is_file() for child in folder.iterdir() if child.is_dir()
-    )
+    try:
+        if (folder / "config.toml").is_file():
+            return []
+        return sorted(child for child in folder.iterdir() if child.is_dir() and (child / "config.toml").is_file())
+    except OSError:  # a folder or child this user may not search: not the question asked
+        return []
 
 
 _NOTED: set[Path] = set()

@@ -229,13 +229,14 @@ def _train_locked(
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import make_vec_env, resolve_backend
-    from canter.envs.registry import env_options, get_backend
+    from canter.envs.registry import env_options, get_backend, note_replay
 
     backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
     setup_jax(backend)
     for config in configs:
         validate(config)
-    evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a run folder is made
+    played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
+    note_replay(configs[0].env.id, backend, played)
     started = time.perf_counter()
 
     states, outs, start_steps, seeds, earlier = [], [], [], [], []

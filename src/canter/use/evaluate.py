@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -113,7 +112,7 @@ def evaluate(
 
     `physics` changes the physics settings of the eval envs, e.g. `{"solver_iterations": 4}` (`parse_physics`);
     without it they are the run's own on its env where the backend takes them, else the model's own."""
-    from canter.envs.registry import replay_note, single_env_backend
+    from canter.envs.registry import note_replay, single_env_backend
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
@@ -126,9 +125,8 @@ def evaluate(
         backend, extra = single_env_backend().name, {"on_make": prepare_env}
     else:
         extra = eval_physics(policy, env_id, backend, changes)
-    note = replay_note(env_id, policy.facts.backend, backend) if env_id == policy.facts.env_id else None
-    if note:
-        print(note, file=sys.stderr)
+    if env_id == policy.facts.env_id:
+        note_replay(env_id, policy.facts.backend, backend)
     first_call = [not deterministic]
 
     def act(obs: np.ndarray) -> np.ndarray:

@@ -110,11 +110,13 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
     if not path.is_file():
-        from canter.training.checkpoint import holds_runs
+        from canter.training.checkpoint import runs_inside
 
-        if path.parent.is_dir() and holds_runs(path.parent):
+        inside = runs_inside(path.parent) if path.parent.is_dir() else []
+        if inside:
             raise CanterError(
-                f"{path.parent} is not a run folder but holds run folders (a bench's?): pass {path.parent}/*/"
+                f"{path.parent} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as "
+                f"{inside[0]}"
             )
         raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
     header, rows = read_rows(path)  # a half-written last line is left out

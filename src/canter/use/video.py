@@ -340,23 +340,23 @@ def record_video(
 ) -> list[float]:
     """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
     GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`."""
-    from canter.training.checkpoint import resolve
+    from canter.envs.registry import dm_control_task, note_replay, single_env_backend
+    from canter.training.checkpoint import read_header, resolve
 
     out = Path(out_path)
     check_video_args(out, episodes, width, height, fps, max_steps)
+    header = read_header(resolve(Path(run_dir), checkpoint))
+    if dm_control_task(header["env"]["id"]) is None:  # here, not in a render subprocess, whose output is not shown
+        note_replay(header["env"]["id"], header["env"]["backend"], single_env_backend().name)
     if not _headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
         return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
-    from canter.envs.registry import dm_control_task, replay_note, single_env_backend
     from canter.use.policy import load
 
     configure_gl()
     policy = load(run_dir, checkpoint)
     task = dm_control_task(policy.facts.env_id)
-    note = None if task else replay_note(policy.facts.env_id, policy.facts.backend, single_env_backend().name)
-    if note:
-        print(note, file=sys.stderr)
     player = (
         _DMControlPlayer(*task, width, height, camera)
         if task

@@ -156,8 +156,13 @@ def _quoted(value: str) -> str:
 def absolute_store(uri: str) -> str:
     """A tracking URI with a path relative to the working folder made absolute: a SQLite file or a plain folder."""
     sqlite = "sqlite:///"
-    if uri.startswith(sqlite) and not uri.startswith(sqlite + "/") and uri != sqlite + ":memory:":
-        return sqlite + os.path.abspath(uri[len(sqlite) :])
+    if uri.startswith(sqlite) and not uri.startswith(sqlite + "/"):
+        path, mark, query = uri[len(sqlite) :].partition("?")
+        if path in ("", ":memory:"):
+            return uri
+        return sqlite + os.path.abspath(path) + mark + query
+    if uri.startswith("file:") and not uri.startswith("file:/"):  # file:./mlruns
+        return "file://" + os.path.abspath(uri[len("file:") :])
     if ":" not in uri and (uri.startswith(".") or os.path.isdir(uri)):  # not a scheme such as databricks
         return os.path.abspath(uri)
     return uri
