@@ -189,3 +189,28 @@ def test_a_v4_id_asked_for_on_purpose_makes_no_deprecation_warning():
     code = "from canter.envs.gymnasium.single import make_single; make_single('HalfCheetah-v4').close()"
     done = subprocess.run([sys.executable, "-W", "default", "-c", code], capture_output=True, text=True, check=True)
     assert "out of date" not in done.stderr, done.stderr
+
+
+def test_one_run_that_cannot_be_evaluated_keeps_the_others_results(tmp_path, capsys, monkeypatch):
+    import canter.use.evaluate
+
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    shutil.copytree(FIXTURE, good)
+    shutil.copytree(FIXTURE, bad)
+    real = canter.use.evaluate.evaluate
+
+    def evaluate(policy, **kwargs):
+        if policy.source == bad:
+            raise CanterError("cannot import module 'my_pkg.envs'")
+        return real(policy, **kwargs)
+
+    monkeypatch.setattr(canter.use.evaluate, "evaluate", evaluate)
+    out = tmp_path / "eval.json"
+    assert main(["eval", str(bad), str(good), "--episodes", "1", "--json", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "good last" in captured.out and "bad last" not in captured.out
+    assert captured.err == (
+        f"canter: error: 1 of 2 runs could not be evaluated ({bad}: cannot import module 'my_pkg.envs'); the other 1 "
+        f"are above and in {out}\n"
+    )
+    assert [row["run"] for row in json.loads(out.read_text())["runs"]] == [str(good)]

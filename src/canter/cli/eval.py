@@ -106,16 +106,21 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
     from canter.use.evaluate import evaluate, seed_stream
 
     rows = []
+    failed: list[tuple[Any, CanterError]] = []
     for policy in policies:
-        result = evaluate(
-            policy,
-            episodes=args.episodes,
-            deterministic=not args.stochastic,
-            seed=seed,
-            env_id=args.env,
-            backend=args.backend,
-            physics=physics,
-        )
+        try:
+            result = evaluate(
+                policy,
+                episodes=args.episodes,
+                deterministic=not args.stochastic,
+                seed=seed,
+                env_id=args.env,
+                backend=args.backend,
+                physics=physics,
+            )
+        except CanterError as exc:  # the other runs' evaluations are kept, and this one named at the end
+            failed.append((policy, exc))
+            continue
         rows.append(
             dict(
                 run=str(policy.source),
@@ -130,12 +135,20 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
                 **result.summary(),
             )
         )
+    evaluated = [p for p in policies if all(p is not f for f, _ in failed)]
     groups = [
-        _group_row(rows, members) for members in group_by_experiment([p.config for p in policies]) if len(members) > 1
+        _group_row(rows, members) for members in group_by_experiment([p.config for p in evaluated]) if len(members) > 1
     ]
-    _print_table(rows, groups)
-    if args.json:
+    if rows:
+        _print_table(rows, groups)
+    if args.json and rows:
         write_output(args.json, json.dumps({"runs": rows, "groups": groups}, indent=2).encode())
+    if failed:
+        first, reason = failed[0]
+        kept = (f"; the other {len(rows)} are above" + (f" and in {args.json}" if args.json else "")) if rows else ""
+        raise CanterError(
+            f"{len(failed)} of {len(policies)} runs could not be evaluated ({first.source}: {reason}){kept}"
+        )
     return 0
 
 
