@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -182,6 +183,32 @@ def test_an_off_policy_budget_within_learning_starts_is_noted(capsys):
     )
     train_cli._note_a_budget_without_updates(build_config("Hopper-v5", algo="td3", total_steps=50_000))
     train_cli._note_a_budget_without_updates(build_config("Hopper-v5", total_steps=4096))  # ppo has no such phase
+    assert capsys.readouterr().err == ""
+
+
+def test_a_budget_far_from_whole_iterations_is_noted(capsys):
+    from canter.cli import train as train_cli
+    from canter.config.algorithms import algorithm_spec
+
+    # brax preset: 4,096 envs x 80 steps = 327,680 env steps per iteration, so 4,096 steps train a whole iteration.
+    config = build_config("ant", preset="brax", total_steps=4096)
+    assert algorithm_spec("ppo").iteration_steps(config) == 4096 * 80
+    train_cli._note_a_rounded_budget(config)
+    assert capsys.readouterr().err == (
+        "canter: note: ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80), "
+        "so this run.total_steps=4,096 run trains about 327,680; give a multiple of 327,680, or smaller "
+        "env.num_envs / ppo.n_steps\n"
+    )
+    # td3: 16 envs and 1,000 steps per call are 62 vector steps, 992 env steps; 1,500 train 1,984.
+    td3 = build_config("Hopper-v5", algo="td3", total_steps=1500, sets=["env.num_envs=16"])
+    assert algorithm_spec("td3").iteration_steps(td3) == 992
+    train_cli._note_a_rounded_budget(td3)
+    assert "trains about 1,984" in capsys.readouterr().err
+    # Within 1% of the budget, or a whole number of iterations, says nothing.
+    fast = build_config("Hopper-v5", total_steps=1_000_000)
+    assert 0 < 1_000_000 % algorithm_spec("ppo").iteration_steps(fast) < 10_000
+    train_cli._note_a_rounded_budget(fast)
+    train_cli._note_a_rounded_budget(replace(config, run=replace(config.run, total_steps=2 * 327_680)))
     assert capsys.readouterr().err == ""
 
 

@@ -31,6 +31,10 @@ class AlgorithmSpec:
     on_policy: bool
     # (package, file) of the TOML search space that `canter tune` uses by default.
     search_space: tuple[str, str]
+    # The env steps of one jitted iteration, autoreset steps included (`iteration_steps(config)`): a run spends its
+    # budget in whole iterations. `iteration_keys` are the settings that size it, named when a budget is rounded up.
+    iteration_steps: Callable[[Any], int]
+    iteration_keys: tuple[str, ...]
     # Per preset name, the preset table this algorithm adds on top of the preset file (the same layout as a preset:
     # plain sections and `[env_overrides."<glob>"]`).
     preset_overrides: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
@@ -83,6 +87,28 @@ def all_plot_labels() -> dict[str, tuple[str, str]]:
 def unused_metrics(config: Any) -> tuple[str, ...]:
     """The diagnostics that the run's config turns off."""
     return algorithm_spec(config.run.algo).unused_metrics(config)
+
+
+def budget_rounding_note(config: Any) -> str | None:
+    """A note when the run's budget is far from a whole number of its iterations: it trains until the iteration
+    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 1%."""
+    spec = algorithm_spec(config.run.algo)
+    per_iteration = spec.iteration_steps(config)
+    budget = config.run.total_steps
+    trained = -(-budget // per_iteration) * per_iteration
+    if trained - budget <= budget / 100:
+        return None
+    sizes = " x ".join(f"{key} {_read(config, key):,}" for key in spec.iteration_keys)
+    return (
+        f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes}), so this "
+        f"run.total_steps={budget:,} run trains about {trained:,}; give a multiple of {per_iteration:,}, or "
+        f"smaller {' / '.join(spec.iteration_keys)}"
+    )
+
+
+def _read(config: Any, key: str) -> Any:
+    section, _, name = key.partition(".")
+    return getattr(getattr(config, section), name)
 
 
 def reads_key(algo: str, key: str) -> bool:

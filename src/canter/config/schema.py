@@ -67,7 +67,10 @@ class RunConfig:
     )
     seed: int = setting("Run seed: network init, sampling and the derived per-env seeds.", default=0, role=SEED)
     total_steps: int = setting(
-        "Environment steps to train for (reset steps of EnvPool are not counted).", default=1_000_000, role=BUDGET
+        "Environment steps to train for (reset steps of EnvPool are not counted), spent in whole iterations: the "
+        "run stops after the iteration that reaches it.",
+        default=1_000_000,
+        role=BUDGET,
     )
     out_dir: str = setting("Folder that receives run folders.", default="runs", role=OUTPUT)
     checkpoint_every: int = setting(

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from canter.algos.offpolicy.learner import OffPolicyLearner
+from canter.algos.offpolicy.sections import vector_steps
 from canter.config.schema import Config
 from canter.core.counters import count_dtype
 from canter.core.normalize import (
@@ -66,7 +67,7 @@ class EnvLoop(NamedTuple):
 
 
 def vector_steps_per_call(config: Config, learner: OffPolicyLearner) -> int:
-    return max(1, learner.cfg.steps_per_call // config.env.num_envs)
+    return vector_steps(learner.cfg.steps_per_call, config.env.num_envs)
 
 
 def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, act_dim: int) -> OffPolicyState:

@@ -137,6 +137,16 @@ register_section("ddpg", DDPGConfig, check_offpolicy)
 register_section("sac", SACConfig, check_sac)
 
 
+def vector_steps(steps_per_call: int, num_envs: int) -> int:
+    """The vector steps of one jitted call: steps_per_call rounded down to whole vector steps, at least one."""
+    return max(1, steps_per_call // num_envs)
+
+
+def _iteration_steps(config: Config) -> int:
+    num_envs = config.env.num_envs
+    return vector_steps(getattr(config, config.run.algo).steps_per_call, num_envs) * num_envs
+
+
 def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> AlgorithmSpec:
     return AlgorithmSpec(
         name=name,
@@ -146,6 +156,8 @@ def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> Algori
         validate=_check_buffer_holds_one_step,
         on_policy=False,
         search_space=(PACKAGE, f"search_space_{name}.toml"),
+        iteration_steps=_iteration_steps,
+        iteration_keys=("env.num_envs", f"{name}.steps_per_call"),
         preset_overrides=algorithm_preset_tables(PACKAGE, name),
         plot_labels=labels,
         seeds_train_apart=True,

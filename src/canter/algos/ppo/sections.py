@@ -113,6 +113,9 @@ def check_sym(sym: SymConfig, name: str) -> None:
     need(sym.coef == 0 or bool(pairs), f"{name}.coef > 0 needs {name}.groups, e.g. {name}.groups=3:7=7:11")
 
 
+ROLLOUT_KEYS = ("env.num_envs", "ppo.n_steps")
+
+
 def rollout_batch(config: Config) -> int:
     """Samples per on-policy iteration: ppo.n_steps x env.num_envs (ppo, rpo and trpo)."""
     return int(config.ppo.n_steps * config.env.num_envs)
@@ -168,6 +171,8 @@ PPO = AlgorithmSpec(
     validate=_check_minibatch,
     on_policy=True,
     search_space=(PACKAGE, "search_space_ppo.toml"),
+    iteration_steps=rollout_batch,
+    iteration_keys=ROLLOUT_KEYS,
     preset_overrides=algorithm_preset_tables(PACKAGE, "ppo"),
     plot_labels=PPO_LABELS,
     rollout_batch=rollout_batch,
@@ -182,6 +187,8 @@ RPO = AlgorithmSpec(
     validate=_check_minibatch,
     on_policy=True,
     search_space=(PACKAGE, "search_space_rpo.toml"),
+    iteration_steps=rollout_batch,
+    iteration_keys=ROLLOUT_KEYS,
     preset_overrides=algorithm_preset_tables(PACKAGE, "rpo"),
     plot_labels=PPO_LABELS,
     rollout_batch=rollout_batch,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from canter.algos.ppo.sections import rollout_batch
+from canter.algos.ppo.sections import ROLLOUT_KEYS, rollout_batch
 from canter.config.algorithms import AlgorithmSpec, register_algorithm
 from canter.config.fields import setting
 from canter.config.schema import Config, register_section
@@ -71,6 +71,8 @@ TRPO = AlgorithmSpec(
     validate=_check_critic_minibatch,
     on_policy=True,
     search_space=("canter.algos.trpo", "search_space.toml"),
+    iteration_steps=rollout_batch,
+    iteration_keys=ROLLOUT_KEYS,
     plot_labels={
         "surrogate_gain": ("Surrogate gain", "advantage units"),
         "policy_kl": ("Policy KL (old ‖ new)", "nats"),
