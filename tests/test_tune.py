@@ -23,9 +23,10 @@ from canter.orchestrate.search_space import (
     load_space,
     parse_space,
 )
-from canter.orchestrate.study import normalize_url
+from canter.orchestrate.study import Outcome, normalize_url
 from canter.orchestrate.tune import (
     TuneSettings,
+    announced,
     check_settings,
     evaluation_index,
     logged_evaluations,
@@ -235,7 +236,7 @@ def tiny_settings(tmp_path: Path, **kwargs) -> TuneSettings:
 
 
 @pytest.mark.slow
-def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
+def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path, capsys):
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
@@ -246,6 +247,8 @@ def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
     outcome = run_trial(trial, settings, base, space)
     assert outcome.state == "complete", outcome.reason
     trial_dir = settings.study_dir / "trials" / "trial_00000"
+    sampled = ", ".join(f"{key.split('.')[1]} {value:.4g}" for key, value in trial.params.items())
+    assert capsys.readouterr().out == f"start trial 0 ({sampled}) in {trial_dir}\n"
     # Recompute independently: load each seed's final policy and evaluate it deterministically.
     returns = []
     for seed in (3, 4):
@@ -259,6 +262,23 @@ def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path):
     frozen = study.tell(trial, outcome.value)
     assert sorted(frozen.intermediate_values) == [512, 1024]  # nominal steps: every 1/2 of the budget
     assert frozen.intermediate_values[1024] == outcome.value
+
+
+def test_each_trial_prints_how_it_ended(capsys):
+    outcomes = [
+        Outcome("complete", value=812.44),
+        Outcome("pruned", reason="pruned at step 512 with return -1200.0"),
+        Outcome("fail", reason="exceeded --trial-minutes 1 (stopped after about 0 steps)"),
+        Outcome("fail"),
+    ]
+    for number, outcome in enumerate(outcomes):
+        assert announced(number, lambda outcome=outcome: outcome) is outcome
+    assert capsys.readouterr().out.splitlines() == [
+        "done  trial 0 in 0.0 min: return 812.4",
+        "PRUNE trial 1 in 0.0 min: pruned at step 512 with return -1200.0",
+        "FAIL  trial 2 in 0.0 min: exceeded --trial-minutes 1 (stopped after about 0 steps)",
+        "FAIL  trial 3 in 0.0 min: no reason recorded",
+    ]
 
 
 def test_checkpoints_of_the_seeds_of_a_group_are_matched_by_evaluation_index():

@@ -28,6 +28,7 @@ import math
 import os
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -249,6 +250,9 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
     from canter.config.serialize import to_toml
 
+    sampled = ", ".join(f"{_short(key)} {_fmt(value)}" for key, value in values.items())
+    print(f"start trial {trial.number} ({sampled}) in {trial_dir}", flush=True)
+
     spec = JobSpec(to_toml(config), {s: str(d) for s, d in run_dirs.items()}, track=trial_track(settings, trial.number))
     proc = start_job(spec, trial_dir)
     deadline = time.monotonic() + settings.trial_minutes * 60 if settings.trial_minutes else None
@@ -332,11 +336,25 @@ def worker(settings: TuneSettings, job: int = 0) -> None:
         study,
         storage,
         settings.trials,
-        lambda trial: run_trial(trial, settings, config, space),
+        lambda trial: announced(trial.number, lambda: run_trial(trial, settings, config, space)),
         heartbeat_seconds=settings.heartbeat_seconds,
         poll_seconds=settings.poll_seconds,
         deadline=deadline,
     )
+
+
+TRIAL_ENDS = {"complete": "done ", "pruned": "PRUNE", "fail": "FAIL "}
+
+
+def announced(number: int, run: Callable[[], Outcome]) -> Outcome:
+    """Run a trial and print how it ended, as bench prints its jobs: a study of long trials is otherwise silent
+    until its summary."""
+    started = time.monotonic()
+    outcome = run()
+    minutes = (time.monotonic() - started) / 60
+    told = f"return {outcome.value:.1f}" if outcome.value is not None else (outcome.reason or "no reason recorded")
+    print(f"{TRIAL_ENDS[outcome.state]} trial {number} in {minutes:.1f} min: {told}", flush=True)
+    return outcome
 
 
 def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
