@@ -151,6 +151,10 @@ def test_wandb_offline_gets_every_column_by_step_and_one_group_per_experiment(tr
         group, history, files = _wandb_run(root, ids["wandb"]["run_id"])
         groups.add(group)
         assert {"summary.json", "config.toml"} <= files
+        # Copies, not links: `run.save` linked the live files (a resume rewrites them), warning twice per seed.
+        for saved in root.glob(f"wandb/offline-run-*-{ids['wandb']['run_id']}/files/*.*"):
+            if saved.name in ("summary.json", "config.toml"):
+                assert not saved.is_symlink() and saved.read_bytes() == (run / saved.name).read_bytes()
         rows = _rows(run)
         assert [h["_step"] for h in history] == [int(r["global_step"]) for r in rows]
         for logged, row in zip(history, rows):

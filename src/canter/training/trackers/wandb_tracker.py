@@ -5,6 +5,7 @@ The W&B project is `canter` unless WANDB_PROJECT says otherwise; WANDB_MODE=offl
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -83,8 +84,10 @@ class _WandbRun:
 
     def finish(self, out: Path, summary: dict[str, Any]) -> None:
         self._run.summary.update({f"summary/{k}": v for k, v in summary.items()})
+        # Copied, not `run.save`d: save links the live file (a resume rewrites it) and warns once per file, per
+        # seed; W&B uploads what its run folder holds when the run finishes.
         for name in ("summary.json", "config.toml"):
-            self._run.save(str(out / name), base_path=str(out), policy="now")
+            shutil.copyfile(out / name, Path(self._run.dir) / name)
         self._run.finish()
 
     def close(self) -> None:
