@@ -78,7 +78,7 @@ def test_a_grid_stopped_before_its_budget_is_carried_on_from_its_pack_on_a_fresh
     assert not pack.exists()  # finished: nothing is in flight
 
 
-def test_a_page_shows_the_interval_the_bench_archived_in_statistics_json():
+def test_a_page_computes_the_interval_the_bench_archived_and_shows_it_from_five_seeds_on():
     page = Path(grids.ROOT) / "benchmarks" / "reports" / "000-humanoidstandup-halfcheetah-ppo-rpo-sym"
     hs_ppo = grids.Grid(
         "hs-ppo",
@@ -95,7 +95,11 @@ def test_a_page_shows_the_interval_the_bench_archived_in_statistics_json():
     mean = archived["return"]["mean"]
     assert result["mean_interval"].low == pytest.approx(mean["low"])
     assert result["mean_interval"].high == pytest.approx(mean["high"])
-    assert grids.eval_text(result) == f"192,660 ± 25,478 [{mean['low']:,.0f}, {mean['high']:,.0f}]"
+    # Three seeds: the bootstrap interval of the mean is their min and max, so the page leaves it out.
+    assert (mean["low"], mean["high"]) == (min(result["seed_returns"]), max(result["seed_returns"]))
+    assert grids.eval_text(result) == "192,660 ± 25,478"
+    five = dict(result, runs=result["runs"] * 2)
+    assert grids.eval_text(five) == f"192,660 ± 25,478 [{mean['low']:,.0f}, {mean['high']:,.0f}]"
 
 
 def test_a_pack_keeps_the_newest_and_best_checkpoints_and_no_more_than_its_limit(tmp_path, monkeypatch):

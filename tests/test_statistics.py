@@ -182,6 +182,9 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     ]
     hopper_ppo = board.cells[0]
     assert hopper_ppo.returns.mean.estimate == pytest.approx(2933.333, abs=1e-3)
+    # One env's median is its runs' (3000), not rliable's median of per-env means, which is their mean.
+    assert hopper_ppo.returns.median.estimate == 3000.0
+    assert 2500.0 <= hopper_ppo.returns.median.low <= hopper_ppo.returns.median.high <= 3300.0
     # Optimality gap below Tianshou's 2609.3: only the 2500 run falls short.
     assert hopper_ppo.returns.optimality_gap.estimate == pytest.approx((2609.3 - 2500.0) / 3)
     ppo = board.methods[0]
@@ -208,7 +211,7 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
         "### Across envs, normalized",
         "### Performance profile",
         "### Probability of improvement",
-        "| ppo | trpo | Hopper-v5, Walker2d-v5 | 0.67 [",
+        "| ppo | trpo | Hopper-v5, Walker2d-v5 | 0.67 |",  # 3 runs per env: no interval
         "95% stratified-bootstrap confidence intervals",
         "python -m canter.use.random_score",
     ):
@@ -221,6 +224,21 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     assert data["across_envs"][0]["normalized"]["optimality_gap"]["estimate"] >= 0
     assert data["bootstrap"] == {"method": "stratified, percentile", "reps": REPS, "seed": 0}
     assert data["probability_of_improvement"][0]["probability"]["estimate"] == pytest.approx((1.0 + 3 / 9) / 2)
+
+
+def test_intervals_are_shown_from_five_runs_on():
+    three = [RunScore("ppo", "Hopper-v5", "ppo", v, f"s{i}") for i, v in enumerate([3000.0, 3300.0, 2500.0])]
+    three += [RunScore("trpo", "Hopper-v5", "trpo", v, f"s{i}") for i, v in enumerate([1000.0, 900.0, 1100.0])]
+    board = build_scoreboard(three, "final deterministic evaluation", reps=REPS)
+    rows = {row[:2]: row for row in board.tables()[0].rows}
+    # With 3 runs the bootstrap interval of the mean is the runs' min and max; it is kept in the JSON only.
+    assert rows[("Hopper-v5", "ppo")][3:6] == ("2,933.3", "2,933.3", "3,000.0")  # IQM of 3 runs: all of them
+    assert board.cells[0].returns.mean.low == 2500.0 and board.cells[0].returns.mean.high == 3300.0
+    assert board.tables()[-1].rows == (("ppo", "trpo", "Hopper-v5", "1.00"),)
+    assert json.loads(board.json())["probability_of_improvement"][0]["runs"] == [3, 3]
+    five = [RunScore("ppo", "Hopper-v5", "ppo", 3000.0 + 100 * i, f"s{i}") for i in range(5)]
+    shown = build_scoreboard(five, "final deterministic evaluation", reps=REPS).tables()[0].rows[0]
+    assert shown[4].startswith("3,200.0 [") and shown[4].endswith("]")
 
 
 def test_scoreboard_without_normalizers_or_a_second_method():

@@ -32,7 +32,7 @@ from canter.errors import CanterError
 from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
 from canter.orchestrate.jobs import read_json, run_status
 from canter.training import run_lock
-from canter.use.statistics import Interval, aggregates
+from canter.use.statistics import MIN_RUNS_FOR_INTERVAL, Interval, aggregates
 
 BENCH_FILES = ("results.md", "statistics.json")
 
@@ -122,16 +122,22 @@ def cell_result(page: Path, grid: Grid, cell: Cell) -> dict[str, Any] | None:
     return result
 
 
-EVAL_HEADER = "eval (mean ± std over seeds [95% interval of the mean])"
+EVAL_HEADER = (
+    f"eval (mean ± population std over seeds; [95% interval of the mean] from {MIN_RUNS_FOR_INTERVAL} seeds on)"
+)
 
 
 def eval_text(result: dict[str, Any]) -> str:
-    """A cell's final evaluation as the pages show it: '1,234 ± 56 [1,180, 1,290]', the bracket being rliable's
-    stratified-bootstrap 95% interval of the mean over seeds; one seed's mean alone."""
+    """A cell's final evaluation as the pages show it: '1,234 ± 56', and from MIN_RUNS_FOR_INTERVAL seeds on
+    '1,234 ± 56 [1,180, 1,290]', the bracket being rliable's stratified-bootstrap 95% interval of the mean over
+    seeds (over fewer seeds it only restates their min and max); one seed's mean alone."""
     interval: Interval | None = result["mean_interval"]
     if interval is None:
         return f"{result['return_mean']:,.0f}"
-    return f"{result['return_mean']:,.0f} ± {result['return_std']:,.0f} [{interval.low:,.0f}, {interval.high:,.0f}]"
+    text = f"{result['return_mean']:,.0f} ± {result['return_std']:,.0f}"
+    if len(result["runs"]) < MIN_RUNS_FOR_INTERVAL:
+        return text
+    return f"{text} [{interval.low:,.0f}, {interval.high:,.0f}]"
 
 
 def curves(page: Path, grid: Grid) -> Path:

@@ -340,20 +340,25 @@ def walker_row(algo: str, seed: int, folder: str = "") -> str:
 
 
 def walker_seeds_row(algo: str, folder: str = "") -> list[str]:
-    """The seeds together, once all are archived: eval mean ± std over seeds [rliable's 95% interval of the mean]."""
+    """The seeds together, once all are archived: eval mean ± std over seeds (`eval_text`)."""
     runs = [archived(PAGE, folder + walker_name(algo, seed)) for seed in SEEDS]
     if not all(runs):
         return []
     evals = np.array([run["eval"]["return_mean"] for run in runs if run])
     train = np.mean([run["summary"]["recent_return"] for run in runs if run])
-    result = {"return_mean": evals.mean(), "return_std": evals.std(), "mean_interval": aggregates(evals[:, None]).mean}
+    result = {
+        "return_mean": evals.mean(),
+        "return_std": evals.std(),
+        "mean_interval": aggregates(evals[:, None]).mean,
+        "runs": runs,
+    }
     return [f"| {algo} | {len(runs)} seeds | | | {train:,.1f} | {eval_text(result)} | |"]
 
 
 def walker_text() -> str:
     lines = [
         "| algo | seed | stop | wall time to the stop (H:MM:SS) | train return (last 20) | eval return, mean (std); "
-        "over seeds: mean ± std [95% interval of the mean] | eval steps |",
+        "over seeds: mean ± std (ddof 0) | eval steps |",
         "|---|---|---|---:|---:|---:|---:|",
     ]
     for algo in WALKER_PRESETS:

@@ -44,6 +44,7 @@ from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import metrics_file, read_config
 from canter.use.scoreboard import EVAL_SOURCE, LAST_EVAL_SOURCE, RunScore, Scoreboard, build_scoreboard, run_score
+from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -71,8 +72,6 @@ PANEL_LABELS: dict[str, tuple[str, str]] = {
 X_AXES = {"steps": ("global_step", "environment steps"), "wall": ("wall_time", "wall time (s)")}
 CONFIDENCE = 0.95
 BOOTSTRAP_SAMPLES = 2000
-# Groups with fewer runs get the range of their runs as band, groups with this many or more a bootstrap CI.
-MIN_RUNS_FOR_CI = 5
 # Band kinds, and how the legend names them.
 RANGE, BOOTSTRAP, SINGLE = "range", "bootstrap", "single"
 BAND_NAMES = {RANGE: "band: range", BOOTSTRAP: f"band: {CONFIDENCE:.0%} CI", SINGLE: "no band"}
@@ -329,7 +328,7 @@ def experiment_band(
     group: Experiment, column: str, x_axis: str = "steps", smooth: int = 1, seed: int = 0
 ) -> Band | None:
     """The curve of one column for one group: per-run smoothing, interpolation onto a common grid, then the mean
-    over runs and its band: the range of the runs below MIN_RUNS_FOR_CI runs, a bootstrap CI from there on. None
+    over runs and its band: the range of the runs below MIN_RUNS_FOR_INTERVAL runs, a bootstrap CI from there on. None
     when no run of the group logged the column."""
     x_column = X_AXES[x_axis][0]
     runs = [
@@ -346,7 +345,7 @@ def experiment_band(
         return Band(x, y, y.copy(), y.copy(), 1, SINGLE)
     grid = common_grid(xs)
     samples = np.stack([interpolate(x, y, grid, logging_interval(x)) for x, y in zip(xs, ys)])
-    if len(runs) < MIN_RUNS_FOR_CI:
+    if len(runs) < MIN_RUNS_FOR_INTERVAL:
         return Band(grid, *range_band(samples), len(runs), RANGE)
     mean, low, high = bootstrap_band(samples, seed=seed)
     return Band(grid, mean, low, high, len(runs), BOOTSTRAP)
@@ -428,7 +427,7 @@ def draw(
     board: Scoreboard | None = None,
 ) -> Figure:
     """A matplotlib Figure with one panel per metric and one line (mean) plus band per group (the range of its runs
-    below MIN_RUNS_FOR_CI runs, a 95% bootstrap CI from there on), and below them the statistics of `board` when
+    below MIN_RUNS_FOR_INTERVAL runs, a 95% bootstrap CI from there on), and below them the statistics of `board` when
     some group has several runs."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -487,10 +486,10 @@ def draw(
     band_note = "".join(
         note
         for kind, note in (
-            (RANGE, f"; band 'range' (groups of fewer than {MIN_RUNS_FOR_CI} runs): min to max of the runs"),
+            (RANGE, f"; band 'range' (groups of fewer than {MIN_RUNS_FOR_INTERVAL} runs): min to max of the runs"),
             (
                 BOOTSTRAP,
-                f"; band '{CONFIDENCE:.0%} CI' (groups of {MIN_RUNS_FOR_CI} runs or more): percentile "
+                f"; band '{CONFIDENCE:.0%} CI' (groups of {MIN_RUNS_FOR_INTERVAL} runs or more): percentile "
                 f"bootstrap CI of the mean, {BOOTSTRAP_SAMPLES:,} resamples",
             ),
         )
@@ -515,7 +514,7 @@ def draw(
 
 def band_kind(group: Experiment) -> str:
     """The band a group's curves get from its number of runs (a panel where fewer of them logged may get less)."""
-    return SINGLE if len(group.runs) == 1 else RANGE if len(group.runs) < MIN_RUNS_FOR_CI else BOOTSTRAP
+    return SINGLE if len(group.runs) == 1 else RANGE if len(group.runs) < MIN_RUNS_FOR_INTERVAL else BOOTSTRAP
 
 
 def final_score(run: RunCurves) -> tuple[float, str] | None:

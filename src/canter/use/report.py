@@ -24,8 +24,8 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
 from canter.training import checkpoint
-from canter.use.plot import MIN_RUNS_FOR_CI
 from canter.use.scoreboard import Scoreboard
+from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
 
 VIDEO_TYPES = {".mp4": "video/mp4", ".webm": "video/webm"}
 IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
@@ -351,8 +351,9 @@ def render_html(
         (
             "Learning curves",
             f"<p class='note'>Runs that differ only in seed are averaged; shaded: the range (min to max) of "
-            f"the runs for groups of fewer than {MIN_RUNS_FOR_CI} runs, the 95% bootstrap confidence band of the mean "
-            f"for groups of {MIN_RUNS_FOR_CI} or more (the legend names each group's band and its n); {smoothing}. "
+            f"the runs for groups of fewer than {MIN_RUNS_FOR_INTERVAL} runs, the 95% bootstrap confidence band of "
+            f"the mean for groups of {MIN_RUNS_FOR_INTERVAL} or more (the legend names each group's band and its n); "
+            f"{smoothing}. "
             f"Below the curves: the statistics of the final scores, as in the Statistics section.</p>"
             f"<img alt='learning curves' src='{data_uri(curves_png, 'image/png')}'>",
         ),

@@ -1,6 +1,7 @@
 """Draw a `canter.use.scoreboard.Scoreboard` into a matplotlib (sub)figure, in the style of rliable's plots: one
 axis per aggregate (IQM, mean, median, optimality gap) with a row per method and its 95% interval, the
-performance profiles, and the probability of improvement of every pair of methods."""
+performance profiles, and the probability of improvement of every pair of methods. Rows of fewer than
+MIN_RUNS_FOR_INTERVAL runs show their estimate alone, as the tables do."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import textwrap
 from typing import Any
 
 from canter.use.scoreboard import Scoreboard
-from canter.use.statistics import CONFIDENCE, Aggregates, Interval
+from canter.use.statistics import CONFIDENCE, MIN_RUNS_FOR_INTERVAL, Aggregates, Interval
 
 NORMALIZED = "normalized score"
 AGGREGATES = (("iqm", "IQM"), ("mean", "Mean"), ("median", "Median"), ("optimality_gap", "Optimality gap"))
@@ -27,7 +28,10 @@ def _rows(board: Scoreboard) -> tuple[list[str], list[Aggregates], str]:
     return labels, [c.returns for c in board.cells], "final return"
 
 
-def _interval_row(ax: Any, y: int, interval: Interval, color: str) -> None:
+def _interval_row(ax: Any, y: int, interval: Interval, color: str, runs: int) -> None:
+    if runs < MIN_RUNS_FOR_INTERVAL:
+        ax.plot([interval.estimate], [y], marker="o", color=color, markersize=6)
+        return
     ax.plot([interval.low, interval.high], [y, y], color=color, linewidth=6, alpha=0.45, solid_capstyle="butt")
     ax.plot([interval.estimate], [y], marker="|", color="black", markersize=12)
 
@@ -42,7 +46,7 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
         for y, (aggregates, color) in enumerate(zip(found, colors)):
             interval = getattr(aggregates, key)
             if interval is not None:
-                _interval_row(ax, y, interval, color)
+                _interval_row(ax, y, interval, color, aggregates.runs)
             else:  # an optimality gap needs a reference return
                 ax.text(0.5, y, "no published reference", transform=ax.get_yaxis_transform(), ha="center", fontsize=7)
         ax.set_yticks(range(len(labels)), labels if i == 0 else [""] * len(labels), fontsize=8)
@@ -58,7 +62,8 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
         next_axis += 1
         for i, (name, profile) in enumerate(board.profiles.items()):
             ax.plot(profile.taus, profile.fraction, color=f"C{i % 10}", linewidth=1.5, label=name)
-            ax.fill_between(profile.taus, profile.low, profile.high, color=f"C{i % 10}", alpha=0.2, linewidth=0)
+            if board.runs_per_env(name) >= MIN_RUNS_FOR_INTERVAL:
+                ax.fill_between(profile.taus, profile.low, profile.high, color=f"C{i % 10}", alpha=0.2, linewidth=0)
         ax.set_title("Performance profile", fontsize=10)
         ax.set_xlabel("normalized score τ", fontsize=8)
         ax.set_ylabel("fraction of runs > τ", fontsize=8)
@@ -69,7 +74,7 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
         ax = axes[next_axis]
         pairs = [f"P({c.x} > {c.y})" for c in board.comparisons]
         for y, comparison in enumerate(board.comparisons):
-            _interval_row(ax, y, comparison.probability, "C7")
+            _interval_row(ax, y, comparison.probability, "C7", min(comparison.runs))
         ax.axvline(0.5, color="black", linewidth=0.8, linestyle=":")
         ax.set_xlim(-0.03, 1.03)
         ax.set_yticks(range(len(pairs)), pairs, fontsize=8)
@@ -80,7 +85,8 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
         ax.grid(True, axis="x", alpha=0.3)
     caption = (
         f"Final scores: {board.source}. Bars: {CONFIDENCE:.0%} stratified-bootstrap CIs (rliable, "
-        f"{board.reps:,} resamples); ticks: point estimates; n: runs per env."
+        f"{board.reps:,} resamples); ticks: point estimates; dots: estimates of fewer than {MIN_RUNS_FOR_INTERVAL} "
+        f"runs, which get no interval; n: runs per env."
     )
     references = sorted({f"{c.normalizer.source} {c.algo}" for c in board.cells if c.normalizer})
     if unit == NORMALIZED or board.profiles:

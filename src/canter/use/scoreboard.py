@@ -72,6 +72,7 @@ class Comparison:
     y: str
     envs: tuple[str, ...]
     probability: Interval
+    runs: tuple[int, int]  # runs per env of X and of Y that the probability compares
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,8 @@ class Scoreboard:
         return (
             f"Intervals: {statistics.CONFIDENCE:.0%} stratified-bootstrap confidence intervals (rliable "
             f"get_interval_estimates, percentile method, {self.reps:,} resamples of the runs within each env, "
-            f"seed {self.seed}). n: runs per cell."
+            f"seed {self.seed}), shown from {statistics.MIN_RUNS_FOR_INTERVAL} runs on: with fewer, a bootstrap "
+            f"only restates the runs' spread. n: runs per cell."
         )
 
     def tables(self) -> list[Table]:
@@ -116,10 +118,10 @@ class Scoreboard:
                         c.env_id,
                         c.method,
                         str(c.returns.runs),
-                        c.returns.iqm.show(),
-                        c.returns.mean.show(),
-                        c.returns.median.show(),
-                        c.returns.optimality_gap.show() if c.returns.optimality_gap else "–",
+                        c.returns.iqm.show(runs=c.returns.runs),
+                        c.returns.mean.show(runs=c.returns.runs),
+                        c.returns.median.show(runs=c.returns.runs),
+                        c.returns.optimality_gap.show(runs=c.returns.runs) if c.returns.optimality_gap else "–",
                         f"{c.normalizer.reference:,.1f} ({c.normalizer.source})" if c.normalizer else "none published",
                     )
                     for c in self.cells
@@ -141,10 +143,12 @@ class Scoreboard:
                             ", ".join(m.envs)
                             + (f" (no normalizer: {', '.join(m.without_normalizer)})" if m.without_normalizer else ""),
                             str(m.normalized.runs) + (f" ({m.dropped_runs} more left out)" if m.dropped_runs else ""),
-                            m.normalized.iqm.show(2),
-                            m.normalized.mean.show(2),
-                            m.normalized.median.show(2),
-                            m.normalized.optimality_gap.show(2) if m.normalized.optimality_gap else "–",
+                            m.normalized.iqm.show(2, m.normalized.runs),
+                            m.normalized.mean.show(2, m.normalized.runs),
+                            m.normalized.median.show(2, m.normalized.runs),
+                            m.normalized.optimality_gap.show(2, m.normalized.runs)
+                            if m.normalized.optimality_gap
+                            else "–",
                         )
                         for m in self.methods
                     ),
@@ -156,12 +160,13 @@ class Scoreboard:
                 Table(
                     "Performance profile",
                     "Fraction of runs (over the envs of the row above) whose normalized score exceeds τ, with its "
-                    "interval (rliable create_performance_profile).",
+                    f"interval from {statistics.MIN_RUNS_FOR_INTERVAL} runs per env on (rliable "
+                    "create_performance_profile).",
                     ("method",) + tuple(f"τ = {t:g}" for t in shown),
                     tuple(
                         (name,)
                         + tuple(
-                            f"{p.fraction[i]:.2f} [{p.low[i]:.2f}, {p.high[i]:.2f}]"
+                            Interval(p.fraction[i], p.low[i], p.high[i]).show(2, self.runs_per_env(name))
                             for i in (PROFILE_TAUS.index(t) for t in shown)
                         )
                         for name, p in self.profiles.items()
@@ -174,13 +179,17 @@ class Scoreboard:
                     "Probability of improvement",
                     "P(X > Y): the probability that a run of X returns more than a run of Y on the same env (ties "
                     "count half), averaged over the envs both ran; its interval resamples the runs of X and Y "
-                    "independently (rliable probability_of_improvement). A method with unequal numbers of runs per "
-                    "env takes as many runs per env as its smallest env has.",
+                    f"independently (rliable probability_of_improvement), shown when both have "
+                    f"{statistics.MIN_RUNS_FOR_INTERVAL} runs per env or more. A method with unequal numbers of runs "
+                    "per env takes as many runs per env as its smallest env has.",
                     ("X", "Y", "envs", "P(X > Y)"),
-                    tuple((c.x, c.y, ", ".join(c.envs), c.probability.show(2)) for c in self.comparisons),
+                    tuple((c.x, c.y, ", ".join(c.envs), c.probability.show(2, min(c.runs))) for c in self.comparisons),
                 )
             )
         return tables
+
+    def runs_per_env(self, method: str) -> int:
+        return next(m.normalized.runs for m in self.methods if m.method == method)
 
     def normalizer_note(self) -> str:
         used = {(c.env_id, c.algo): c.normalizer for c in self.cells if c.normalizer}
@@ -230,7 +239,13 @@ class Scoreboard:
             ],
             "performance_profiles": {name: p.as_dict() for name, p in self.profiles.items()},
             "probability_of_improvement": [
-                {"x": c.x, "y": c.y, "envs": list(c.envs), "probability": c.probability.as_dict()}
+                {
+                    "x": c.x,
+                    "y": c.y,
+                    "envs": list(c.envs),
+                    "runs": list(c.runs),
+                    "probability": c.probability.as_dict(),
+                }
                 for c in self.comparisons
             ],
             "random_command": random_command(),
@@ -302,7 +317,8 @@ def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None =
         # P(X > Y) takes a matrix per method: X and Y may differ in runs, but each needs as many runs per env.
         px = _runs_by_env([by_env_x[e].scores for e in common])
         py = _runs_by_env([by_env_y[e].scores for e in common])
-        comparisons.append(Comparison(x, y, tuple(common), statistics.probability_of_improvement(px, py, reps, seed)))
+        probability = statistics.probability_of_improvement(px, py, reps, seed)
+        comparisons.append(Comparison(x, y, tuple(common), probability, (px.shape[0], py.shape[0])))
     return Scoreboard(source, tuple(cells), tuple(methods), profiles, tuple(comparisons), reps, seed)
 
 

@@ -27,6 +27,10 @@ CONFIDENCE = 0.95
 # Bootstrap resamples of every interval. rliable's own default (50,000) takes minutes for a grid; 2,000 puts the
 # 2.5% and 97.5% quantiles within about a percent of their limit.
 REPS = 2000
+# Fewer runs than this get no interval in what canter prints: a bootstrap over two or three runs only restates
+# their spread (with 3 runs the 95% interval of the mean is their min and max), so it reads as a precision the runs
+# do not have. The intervals are still computed and kept in the JSON, beside the number of runs.
+MIN_RUNS_FOR_INTERVAL = 5
 
 
 @dataclass(frozen=True)
@@ -37,7 +41,10 @@ class Interval:
     low: float
     high: float
 
-    def show(self, digits: int = 1) -> str:
+    def show(self, digits: int = 1, runs: int = MIN_RUNS_FOR_INTERVAL) -> str:
+        """'1,234.5 [1,100.0, 1,300.2]'; the estimate alone from fewer than MIN_RUNS_FOR_INTERVAL runs."""
+        if runs < MIN_RUNS_FOR_INTERVAL:
+            return f"{self.estimate:,.{digits}f}"
         return f"{self.estimate:,.{digits}f} [{self.low:,.{digits}f}, {self.high:,.{digits}f}]"
 
     def as_dict(self) -> dict[str, float]:
@@ -53,7 +60,7 @@ class Aggregates:
     tasks: int
     iqm: Interval
     mean: Interval
-    median: Interval
+    median: Interval  # of the per-task means across tasks; of the runs for one task
     optimality_gap: Interval | None  # None without a threshold
     gamma: float | None  # the optimality gap's threshold: the mean shortfall of the scores below it
 
@@ -126,6 +133,11 @@ def task_median(scores: np.ndarray) -> float:
     return float(np.median(np.mean(scores, axis=0)))
 
 
+def run_median(scores: np.ndarray) -> float:
+    """The median of the runs of one task: rliable's median over tasks would be their mean."""
+    return float(np.median(scores))
+
+
 def optimality_gap(scores: np.ndarray, gamma: float) -> float:
     """How far the scores fall short of `gamma` on average, a score above `gamma` counting as `gamma`."""
     return float(gamma - np.mean(np.minimum(scores, gamma)))
@@ -140,11 +152,13 @@ def improvement_probability(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def aggregates(scores: np.ndarray, gamma: float | None = None, reps: int = REPS, seed: int = 0) -> Aggregates:
-    """IQM, mean, median and (with `gamma`) optimality gap of `scores` [runs, tasks], with intervals."""
+    """IQM, mean, median and (with `gamma`) optimality gap of `scores` [runs, tasks], with intervals. The median is
+    of the per-task means across tasks (rliable's), and of the runs for a single task."""
     matrix = _matrix(scores)
+    median = run_median if matrix.shape[1] == 1 else task_median
 
     def statistics(s: np.ndarray) -> np.ndarray:
-        values = [interquartile_mean(s), task_mean(s), task_median(s)]
+        values = [interquartile_mean(s), task_mean(s), median(s)]
         if gamma is not None:
             values.append(optimality_gap(s, gamma))
         return np.array(values, float)
