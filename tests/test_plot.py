@@ -11,7 +11,7 @@ import pytest
 
 from canter.cli.main import main
 from canter.config.build import build_config
-from canter.config.experiment import experiment_key
+from canter.config.experiment import experiment_key, group_by_experiment
 from canter.config.overrides import apply_overrides
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
@@ -232,6 +232,23 @@ def test_unused_diagnostics_are_left_out_of_the_default_panels():
     assert "sym_loss" not in sac.columns and "sym_loss" not in choose_metrics([clipped, sac], None)
 
 
+def test_a_seed_run_twice_is_noted(capsys):
+    once, again, other = (
+        replace(fake_run([0, 1], [0, 1], seed=s), run_dir=Path(d)) for s, d in ((0, "a"), (0, "b"), (1, "c"))
+    )
+    assert [len(g.runs) for g in experiments_of([once, other])] == [2]
+    assert capsys.readouterr().err == ""
+    assert [len(g.runs) for g in experiments_of([once, again, other])] == [3]
+    assert capsys.readouterr().err == (
+        f"canter: note: {once.run_dir} and {again.run_dir} are both seed 0 of one experiment; each counts as a run "
+        "of its group, but a rerun repeats a seed rather than adding an independent one: leave one out, or train "
+        "another seed\n"
+    )
+    longer = fake_run([0, 1], [0, 1], seed=0, **{"run.total_steps": 3_000_000})  # another group: no repeat
+    experiments_of([once, longer])
+    assert capsys.readouterr().err == ""
+
+
 def test_grouping_and_labels():
     runs = [
         fake_run([0, 1], [0, 1], seed=0),
@@ -241,6 +258,17 @@ def test_grouping_and_labels():
     groups = experiments_of(runs)
     assert [len(g.runs) for g in groups] == [2, 1]
     assert [g.label for g in groups] == ["ppo.clip=0.2", "ppo.clip=0.3"]
+    # Another budget is another group (an annealed learning rate stretches over it), labelled by it; and so is it
+    # another method.
+    longer = fake_run([0, 1], [0, 1], seed=2, **{"run.total_steps": 3_000_000})
+    groups = experiments_of([*runs, longer])
+    assert [g.label for g in groups] == [
+        "ppo.clip=0.2, budget=1000000",
+        "ppo.clip=0.3, budget=1000000",
+        "ppo.clip=0.2, budget=3000000",
+    ]
+    assert method_labels([runs[0].config, longer.config]) == ["budget=1000000", "budget=3000000"]
+    assert group_by_experiment([r.config for r in [*runs, longer]]) == [[0, 1], [2], [3]]
 
     fast = build_config("Hopper-v5", preset="fast")
     cleanrl = build_config("Hopper-v5", preset="cleanrl")
@@ -271,8 +299,20 @@ def test_grouping_and_labels():
     ant, humanoid = build_config("ant", preset="brax"), build_config("humanoid", preset="brax")
     assert dict(experiment_key(ant))["ppo.n_steps"] != dict(experiment_key(humanoid))["ppo.n_steps"]
     assert method_labels([ant, humanoid]) == ["algo=ppo, preset=brax"] * 2
-    shorter = apply_overrides(humanoid, {"ppo.n_steps": 80}, "test")  # ant's value, set on humanoid: a change
-    assert method_labels([ant, humanoid, shorter]) == ["ppo.n_steps=preset's per env"] * 2 + ["ppo.n_steps=80"]
+    # Once runs on one env differ in a key, every run's method names its value: 80 on ant (the preset's) and 80 set
+    # on humanoid are one method, humanoid's preset value another.
+    shorter = apply_overrides(humanoid, {"ppo.n_steps": 80}, "test")
+    n_steps = dict(experiment_key(humanoid))["ppo.n_steps"]
+    assert method_labels([ant, humanoid, shorter]) == ["ppo.n_steps=80", f"ppo.n_steps={n_steps}", "ppo.n_steps=80"]
+    # A grid over a key whose preset value differs per env (fast: log_std_init -1 on Hopper, 0 on Walker2d) keeps
+    # the grid's values apart; they merged where a value happened to be the preset's for its env.
+    grid = [
+        apply_overrides(build_config(env, preset="fast"), {"net.log_std_init": value}, "test")
+        for env in ("Hopper-v5", "Walker2d-v5")
+        for value in (-1.0, 0.0)
+    ]
+    assert [dict(experiment_key(c))["net.log_std_init"] for c in (fast, walker)] == [-1.0, 0.0]
+    assert method_labels(grid) == ["net.log_std_init=-1.0", "net.log_std_init=0.0"] * 2
     # Another algorithm (its config section may differ too) is labelled by the algorithm alone.
     td3 = fast.replace(run=replace(fast.run, algo="td3"), net=replace(fast.net, hidden=(256, 256)))
     assert experiment_labels([fast, td3]) == ["algo=ppo", "algo=td3"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict[str, Any]) -> int:
-    from canter.config.experiment import group_by_experiment
+    from canter.config.experiment import group_by_experiment, repeated_seed_note
     from canter.use.evaluate import evaluate, seed_stream
 
     rows = []
@@ -136,6 +137,9 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
             )
         )
     evaluated = [p for p in policies if all(p is not f for f, _ in failed)]
+    note = repeated_seed_note([p.config for p in evaluated], [str(p.source) for p in evaluated])
+    if note is not None:
+        print(f"canter: note: {note}", file=sys.stderr)
     groups = [
         _group_row(rows, members) for members in group_by_experiment([p.config for p in evaluated]) if len(members) > 1
     ]

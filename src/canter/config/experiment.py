@@ -10,7 +10,7 @@ schedule follows the budget.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 from typing import Any
 
@@ -42,17 +42,47 @@ def experiment_key(config: Config) -> tuple[tuple[str, Any], ...]:
     return tuple((key, flat[key]) for key in learning_keys(config))
 
 
+BUDGET_KEY = "run.total_steps"
+
+
+def comparison_key(config: Config) -> tuple[tuple[str, Any], ...]:
+    """What makes finished runs seeds of one result when eval, plot and report compare them: the experiment and the
+    budget it trained to. A resume may change the budget (`experiment_key` leaves it out for that), but an annealed
+    learning rate stretches over it, and scores at different budgets are not samples of one number."""
+    return (*experiment_key(config), (BUDGET_KEY, config.run.total_steps))
+
+
 def group_by_experiment(configs: Sequence[Config]) -> list[list[int]]:
-    """Indices of the configs, grouped by experiment, in order of first appearance."""
+    """Indices of the configs, grouped by experiment and budget (`comparison_key`), in order of first appearance."""
     groups: dict[tuple[tuple[str, Any], ...], list[int]] = {}
     for i, config in enumerate(configs):
-        groups.setdefault(experiment_key(config), []).append(i)
+        groups.setdefault(comparison_key(config), []).append(i)
     return list(groups.values())
 
 
-def differing_keys(configs: Sequence[Config]) -> list[str]:
-    """Learning keys whose values are not the same in every config, in config.toml order."""
-    keyed = [dict(experiment_key(c)) for c in configs]
+def repeated_seed_note(configs: Sequence[Config], names: Sequence[str]) -> str | None:
+    """A note naming runs that are the same seed of one experiment and budget: each counts as a run of the group,
+    though a rerun of a seed repeats its result rather than adding an independent sample. None if there are none."""
+    seen: dict[tuple[Any, ...], str] = {}
+    repeats = []
+    for config, name in zip(configs, names):
+        first = seen.setdefault((comparison_key(config), config.run.seed), name)
+        if first != name:
+            repeats.append((first, name, config.run.seed))
+    if not repeats:
+        return None
+    first, name, seed = repeats[0]
+    more = f" (and {len(repeats) - 1} more such runs)" if len(repeats) > 1 else ""
+    return (
+        f"{first} and {name} are both seed {seed} of one experiment{more}; each counts as a run of its group, but a "
+        f"rerun repeats a seed rather than adding an independent one: leave one out, or train another seed"
+    )
+
+
+def differing_keys(configs: Sequence[Config], key: Callable[[Config], Any] = experiment_key) -> list[str]:
+    """Learning keys (with `key=comparison_key`, and the budget) whose values are not the same in every config, in
+    config.toml order."""
+    keyed = [dict(key(c)) for c in configs]
     order: list[str] = []
     for k in keyed:
         order += [key for key in k if key not in order]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import io
 import math
+import sys
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,7 +39,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canter.config.algorithms import all_plot_labels, unused_metrics
-from canter.config.experiment import differing_keys, experiment_key, flat_config
+from canter.config.experiment import (
+    BUDGET_KEY,
+    comparison_key,
+    differing_keys,
+    experiment_key,
+    flat_config,
+    repeated_seed_note,
+)
 from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
@@ -51,7 +59,7 @@ if TYPE_CHECKING:
 
 # Keys that name an experiment; a label uses only these when they tell the groups apart.
 HEADLINE_KEYS = ("env.id", "run.algo", "run.preset")
-SHORT_NAMES = {"env.id": "env", "run.algo": "algo", "run.preset": "preset"}
+SHORT_NAMES = {"env.id": "env", "run.algo": "algo", "run.preset": "preset", BUDGET_KEY: "budget"}
 
 # metrics.csv columns that are bookkeeping rather than curves.
 NOT_CURVES = ("global_step", "iteration", "wall_time", "episodes", "eval/return_std", "eval/episodes")
@@ -156,7 +164,7 @@ def _label_keys(flats: Sequence[dict[str, Any]], configs: Sequence[Config]) -> l
     """The keys that label each config (see `experiment_labels`)."""
     if len(configs) == 1:
         return [list(HEADLINE_KEYS)]
-    diff = differing_keys(configs)
+    diff = differing_keys(configs, comparison_key)
     headline = [k for k in HEADLINE_KEYS if any(f.get(k) != flats[0].get(k) for f in flats[1:])]
     keys = []
     for flat in flats:
@@ -194,22 +202,35 @@ def _preset_values(config: Config) -> dict[str, Any]:
     return flat_config(base)
 
 
-def method_key(config: Config) -> tuple[tuple[str, Any], ...]:
-    """What a run's method is on any env: its algorithm and preset, and the learning keys it sets apart from what
-    the preset gives its env (a preset may give each env its own values; those stay the same method)."""
-    base, missing = _preset_values(config), object()
-    changed = [(k, v) for k, v in experiment_key(config) if k != "env.id" and base.get(k, missing) != v]
-    return (("run.algo", config.run.algo), ("run.preset", config.run.preset), *changed)
+def method_keys(configs: Sequence[Config]) -> list[tuple[tuple[str, Any], ...]]:
+    """What each run's method is on any env: its algorithm, preset and budget, the learning keys that some runs of
+    one algorithm and preset on one env set to different values (a grid's keys: every run names its value), and
+    the keys it sets apart from what its preset gives its env (a preset may give each env its own values; those
+    stay the same method)."""
+    by_env: dict[tuple[str, str, str], list[Config]] = {}
+    for config in configs:
+        by_env.setdefault((config.env.id, config.run.algo, config.run.preset), []).append(config)
+    varied = {key for same_env in by_env.values() for key in differing_keys(same_env)}
+    missing = object()
+    keys = []
+    for config in configs:
+        base = _preset_values(config)
+        changed = [
+            (k, v) for k, v in experiment_key(config) if k != "env.id" and (k in varied or base.get(k, missing) != v)
+        ]
+        head = (("run.algo", config.run.algo), ("run.preset", config.run.preset))
+        keys.append((*head, *changed, (BUDGET_KEY, config.run.total_steps)))
+    return keys
 
 
 _PER_ENV = "preset's per env"
 
 
 def method_labels(configs: Sequence[Config]) -> list[str]:
-    """One label per config, equal for the configs of one method (`method_key`), whose scores on several envs the
+    """One label per config, equal for the configs of one method (`method_keys`), whose scores on several envs the
     statistics aggregate. A label names the keys whose values tell the methods apart (the algorithm, the preset,
     and the keys some method changed from its preset); a single method is labelled by its algorithm and preset."""
-    keys = [method_key(c) for c in configs]
+    keys = method_keys(configs)
     methods = list(dict.fromkeys(keys))
     if len(methods) == 1:
         return [", ".join(_show(k, v) for k, v in keys[0][:2])] * len(configs)
@@ -230,10 +251,14 @@ def method_labels(configs: Sequence[Config]) -> list[str]:
 
 
 def experiments_of(runs: Sequence[RunCurves]) -> list[Experiment]:
-    """Runs that are seeds of one experiment (`canter.config.experiment`) form one group, in first-seen order."""
+    """Runs that are seeds of one experiment trained to one budget (`canter.config.experiment.comparison_key`) form
+    one group, in first-seen order; a seed that is there twice is noted."""
+    note = repeated_seed_note([run.config for run in runs], [str(run.run_dir) for run in runs])
+    if note is not None:
+        print(f"canter: note: {note}", file=sys.stderr)
     keyed: dict[tuple, list[RunCurves]] = {}
     for run in runs:
-        keyed.setdefault(experiment_key(run.config), []).append(run)
+        keyed.setdefault(comparison_key(run.config), []).append(run)
     members = list(keyed.values())
     labels = experiment_labels([m[0].config for m in members])
     return [Experiment(label, tuple(m)) for label, m in zip(labels, members)]

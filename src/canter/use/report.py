@@ -186,13 +186,13 @@ def _show_value(value: Any) -> str:
 
 def experiment_of_each(facts: Sequence[RunFacts]) -> list[str]:
     """For each run, the label of its group (runs that differ only in seed share one), as `canter plot` draws it."""
-    from canter.config.experiment import experiment_key
+    from canter.config.experiment import comparison_key
     from canter.use.plot import experiment_labels
 
-    keys = list(dict.fromkeys(experiment_key(f.config) for f in facts))
-    first = [next(f.config for f in facts if experiment_key(f.config) == k) for k in keys]
+    keys = list(dict.fromkeys(comparison_key(f.config) for f in facts))
+    first = [next(f.config for f in facts if comparison_key(f.config) == k) for k in keys]
     labels = dict(zip(keys, experiment_labels(first)))
-    return [labels[experiment_key(f.config)] for f in facts]
+    return [labels[comparison_key(f.config)] for f in facts]
 
 
 def runs_section(facts: Sequence[RunFacts]) -> str:
