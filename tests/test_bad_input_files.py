@@ -38,6 +38,8 @@ def test_an_output_never_replaces_a_file_of_a_run_folder(run, tmp_path, capsys):
     before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
     one_line(capsys, ["export", str(run), "--out", str(newest)], "checkpoints/ belongs to the run folder")
     one_line(capsys, ["eval", str(run), "--json", str(run / "config.toml")], "it is a file of the run folder")
+    # eval.json is bench's cached final evaluation, which plot and report score the run by.
+    one_line(capsys, ["eval", str(run), "--json", str(run / "eval.json")], "it is a file of the run folder")
     one_line(capsys, ["report", str(run), "--episodes", "0", "--out", str(run / "metrics.csv")], "a file of the run")
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
     # A new file beside them is an ordinary output.
@@ -204,7 +206,7 @@ def test_a_budget_far_from_whole_iterations_is_noted(capsys):
     assert algorithm_spec("td3").iteration_steps(td3) == 992
     train_cli._note_a_rounded_budget(td3)
     assert "trains about 1,984" in capsys.readouterr().err
-    # Within 1% of the budget, or a whole number of iterations, says nothing.
+    # Within 10% of the budget, or a whole number of iterations, says nothing.
     fast = build_config("Hopper-v5", total_steps=1_000_000)
     assert 0 < 1_000_000 % algorithm_spec("ppo").iteration_steps(fast) < 10_000
     train_cli._note_a_rounded_budget(fast)

@@ -1,5 +1,6 @@
 """canter plot: smoothing, interpolation, bootstrap band and grouping against plain references; CLI smoke runs."""
 
+import json
 import math
 import shutil
 import xml.etree.ElementTree as ET
@@ -31,9 +32,10 @@ from canter.use.plot import (
     moving_average,
     range_band,
     read_metrics,
+    scoreboard_of,
     unused_diagnostic,
 )
-from canter.use.scoreboard import RunScore, build_scoreboard
+from canter.use.scoreboard import TRAINING_SOURCE, RunScore, build_scoreboard
 
 
 def test_moving_average_matches_a_loop_with_nans():
@@ -230,6 +232,30 @@ def test_unused_diagnostics_are_left_out_of_the_default_panels():
     # A run of an algorithm that never logs the column does not bring it back.
     sac = load_run(Path(__file__).parent / "fixtures" / "runs-v1" / "sac")
     assert "sym_loss" not in sac.columns and "sym_loss" not in choose_metrics([clipped, sac], None)
+
+
+def test_scores_of_one_kind_only(tmp_path, capsys):
+    def run(seed, summary, eval_json=None, last_eval=None):
+        folder = tmp_path / f"s{seed}"
+        folder.mkdir()
+        (folder / "summary.json").write_text(json.dumps({"recent_return": summary}))
+        if eval_json is not None:
+            (folder / "eval.json").write_text(json.dumps({"mean": eval_json}))
+        curves = fake_run([0, 1], [0, 1], seed=seed)
+        if last_eval is not None:
+            curves.columns["eval/return_mean"] = np.array([math.nan, last_eval])
+        return replace(curves, run_dir=folder)
+
+    evaluated = [run(0, 10.0, eval_json=100.0), run(1, 20.0, last_eval=200.0)]
+    board = scoreboard_of(experiments_of(evaluated))
+    assert board.cells[0].scores == (100.0, 200.0) and capsys.readouterr().err == ""
+    # A run without an evaluation: a training return (stochastic actions) is not a sample of the same score, so
+    # every run is scored by its training return.
+    board = scoreboard_of(experiments_of([*evaluated, run(2, 30.0)]))
+    assert board.cells[0].scores == (10.0, 20.0, 30.0) and board.source == TRAINING_SOURCE
+    assert capsys.readouterr().err == (
+        f"canter: note: {tmp_path / 's2'} has no evaluation, so every run is scored by its training return\n"
+    )
 
 
 def test_a_seed_run_twice_is_noted(capsys):

@@ -11,7 +11,7 @@ from rliable import library, metrics
 
 from canter.use import statistics
 from canter.use.reference_scores import normalizer_for, random_command, reference_score
-from canter.use.scoreboard import RunScore, build_scoreboard, run_score
+from canter.use.scoreboard import TRAINING_SOURCE, RunScore, build_scoreboard, run_score
 
 REPS = 200  # few resamples: these tests check the plumbing, not the coverage
 
@@ -257,3 +257,12 @@ def test_run_score_prefers_the_final_evaluation(tmp_path):
     assert run_score(tmp_path)[0] == 12.5 and "training return" in run_score(tmp_path)[1]
     (tmp_path / "eval.json").write_text(json.dumps({"mean": 20.0}))
     assert run_score(tmp_path)[0] == 20.0 and "deterministic evaluation" in run_score(tmp_path)[1]
+    assert run_score(tmp_path, (TRAINING_SOURCE,))[0] == 12.5
+    # With checkpoints, only an evaluation of the newest one counts: one from before a resume is stale.
+    (tmp_path / "checkpoints").mkdir()
+    for step in (1000, 2000):
+        (tmp_path / "checkpoints" / f"ckpt_{step:012d}.npz").write_bytes(b"")
+    (tmp_path / "eval.json").write_text(json.dumps({"mean": 20.0, "checkpoint": "ckpt_000000001000.npz"}))
+    assert run_score(tmp_path)[0] == 12.5
+    (tmp_path / "eval.json").write_text(json.dumps({"mean": 20.0, "checkpoint": "ckpt_000000002000.npz"}))
+    assert run_score(tmp_path)[0] == 20.0

@@ -100,7 +100,7 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
 
 # What a run folder holds of its own (canter.training.run_folder): a user-named output never replaces one of them.
 RUN_OWN_FILES = frozenset(
-    {"config.toml", "metrics.csv", "metrics.csv.gz", "summary.json", "versions.json", "trackers.json"}
+    {"config.toml", "metrics.csv", "metrics.csv.gz", "summary.json", "versions.json", "trackers.json", "eval.json"}
 )
 RUN_OWN_FOLDERS = frozenset({"checkpoints", "tb"})
 

@@ -91,12 +91,12 @@ def unused_metrics(config: Any) -> tuple[str, ...]:
 
 def budget_rounding_note(config: Any) -> str | None:
     """A note when the run's budget is far from a whole number of its iterations: it trains until the iteration
-    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 1%."""
+    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 10%."""
     spec = algorithm_spec(config.run.algo)
     per_iteration = spec.iteration_steps(config)
     budget = config.run.total_steps
     trained = -(-budget // per_iteration) * per_iteration
-    if trained - budget <= budget / 100:
+    if trained - budget <= budget / 10:
         return None
     sizes = " x ".join(f"{key} {_read(config, key):,}" for key in spec.iteration_keys)
     return (

@@ -51,7 +51,15 @@ from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import metrics_file, read_config
-from canter.use.scoreboard import EVAL_SOURCE, LAST_EVAL_SOURCE, RunScore, Scoreboard, build_scoreboard, run_score
+from canter.use.scoreboard import (
+    EVAL_SOURCE,
+    LAST_EVAL_SOURCE,
+    TRAINING_SOURCE,
+    RunScore,
+    Scoreboard,
+    build_scoreboard,
+    run_score,
+)
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
 
 if TYPE_CHECKING:
@@ -559,14 +567,25 @@ def scoreboard_of(
     `final_score`. Groups whose labels differ only in the env are one method. None unless some group has two or
     more scored runs: a single run has no interval."""
     methods = method_labels([g.runs[0].config for g in groups])
+    runs = [(method, run) for group, method in zip(groups, methods) for run in group.runs]
+    found = {run.run_dir: scores.get(run.run_dir) if scores is not None else final_score(run) for _, run in runs}
+    untested = [path for path, score in found.items() if score is not None and score[1] == TRAINING_SOURCE]
+    if untested and len(untested) < sum(score is not None for score in found.values()):
+        # An evaluation and a training return (stochastic actions) are not samples of one score.
+        print(
+            f"canter: note: {untested[0]}"
+            + (f" and {len(untested) - 1} more runs have" if len(untested) > 1 else " has")
+            + " no evaluation, so every run is scored by its training return",
+            file=sys.stderr,
+        )
+        found = {path: run_score(path, (TRAINING_SOURCE,)) for path in found}
     rows, sources = [], []
-    for group, method in zip(groups, methods):
-        for run in group.runs:
-            found = scores.get(run.run_dir) if scores is not None else final_score(run)
-            if found is None:
-                continue
-            rows.append(RunScore(method, run.config.env.id, run.config.run.algo, found[0], run.run_dir.name))
-            sources.append(found[1])
+    for method, run in runs:
+        score = found[run.run_dir]
+        if score is None:
+            continue
+        rows.append(RunScore(method, run.config.env.id, run.config.run.algo, score[0], run.run_dir.name))
+        sources.append(score[1])
     cells = [(r.method, r.env_id) for r in rows]
     if all(cells.count(cell) < 2 for cell in cells):
         return None

@@ -328,14 +328,31 @@ def _runs_by_env(columns: Sequence[tuple[float, ...]]) -> np.ndarray:
     return np.array([list(c[:runs]) for c in columns]).T
 
 
-def run_score(run_dir: Path) -> tuple[float, str] | None:
-    """(a finished run's score, what it is): its final deterministic evaluation where `canter bench` wrote one,
-    else the mean training return of its last episodes; None for a run without either."""
-    for name, key, source in (("eval.json", "mean", EVAL_SOURCE), ("summary.json", "recent_return", TRAINING_SOURCE)):
+SCORE_FILES = {EVAL_SOURCE: ("eval.json", "mean"), TRAINING_SOURCE: ("summary.json", "recent_return")}
+
+
+def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOURCE)) -> tuple[float, str] | None:
+    """(a finished run's score, what it is), from the first of `sources` the run has: its final deterministic
+    evaluation where `canter bench` wrote one for its newest checkpoint (one from before a resume is stale), the mean
+    training return of its last episodes; None for a run without either."""
+    for source in sources:
+        name, key = SCORE_FILES[source]
         try:
-            value = json.loads((run_dir / name).read_text()).get(key)
+            data = json.loads((run_dir / name).read_text())
+            value = data.get(key)
         except (OSError, ValueError, AttributeError):
+            continue
+        if source == EVAL_SOURCE and not _of_newest_checkpoint(run_dir, data.get("checkpoint")):
             continue
         if isinstance(value, int | float) and np.isfinite(value):
             return float(value), source
     return None
+
+
+def _of_newest_checkpoint(run_dir: Path, evaluated: Any) -> bool:
+    """Whether an eval.json of `evaluated` (a checkpoint's name) is of the run's newest checkpoint; an archived run
+    kept without checkpoints has only its eval.json to go by."""
+    from canter.training import checkpoint
+
+    found = checkpoint.list_checkpoints(run_dir)
+    return not found or found[-1].name == evaluated
