@@ -108,8 +108,9 @@ SECTIONS = (
         "HumanoidStandup-v4, ablation 1: entropy coefficient (PPO, no symmetric loss)",
         ("hs-ent",),
         "The slides do not state this ablation's budget; canter runs it at the best run's 5M steps. The 1e-4 row is "
-        "the preset's value, so it is the first table's ppo run on seed 100 (same settings and seed, trained beside "
-        "seeds 101-102).",
+        "the preset's value, so it is the first table's ppo run on seed 100 (same settings and seed, but trained in "
+        "one vmapped program beside seeds 101-102, whose float rounding differs from a seed trained alone: "
+        "docs/multiseed.md).",
     ),
     (
         "HumanoidStandup-v4, ablation 2: learning rate (PPO, no symmetric loss)",
@@ -155,7 +156,10 @@ PROTOCOL = (
     "Protocol: the report's *train* is CleanRL's logged training episodic return and its *test* an evaluation of "
     "unstated length; canter's *eval* is a deterministic evaluation of the final policy, 10 episodes per seed, and "
     "its *train* the mean return of the last 20 training episodes. Both use the v4 envs (canter through EnvPool, "
-    "MuJoCo 3.6). Wall time is the bench's (the training loop of a cell's seeds, which train together in one "
+    "MuJoCo 3.6), but EnvPool's HumanoidStandup-v4 is not Gymnasium's, which CleanRL and most likely the report "
+    "stepped: the 84 contact-force entries of its observation stay 0, and its reward leaves out the impact cost (one "
+    "checkpoint scored 27,569 on EnvPool and 32,576 on Gymnasium), so the HumanoidStandup figures compare across a "
+    "small env difference. Wall time is the bench's (the training loop of a cell's seeds, which train together in one "
     "process, every session of a resumed run) on a 2-core AMD EPYC without GPU, often shared with other work."
 )
 MARKERS = {
