@@ -11,7 +11,8 @@ import pytest
 
 from canter.algos import ExportedActor
 from canter.cli.main import main
-from canter.use.export import npz_arrays, numpy_forward, onnx_bytes
+from canter.errors import CanterError
+from canter.use.export import format_for, npz_arrays, numpy_forward, onnx_bytes
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "see-plots-export-report.md"
 
@@ -181,3 +182,14 @@ def test_export_of_a_run_state_with_large_actions_matches_the_policy(tiny_run):
     assert np.abs(run_onnx(onnx_bytes(exported), obs) - expected).max() <= 1e-5
     _, forward = doc_forward()
     assert np.abs(forward(npz_arrays(exported), obs) - expected).max() <= 1e-5
+
+
+def test_the_format_and_the_file_name_must_agree():
+    assert format_for("p.onnx", None) == "onnx" and format_for("p.NPZ", None) == "npz"
+    assert format_for("policy", "npz") == "npz" and format_for("p.npz", "npz") == "npz"
+    with pytest.raises(
+        CanterError, match=re.escape("--format npz would write p2.onnx, whose name says onnx; name it .npz")
+    ):
+        format_for("p2.onnx", "npz")
+    with pytest.raises(CanterError, match=re.escape("cannot tell the export format of p.bin")):
+        format_for("p.bin", None)

@@ -46,11 +46,16 @@ def load_actor(run_dir: str | Path, checkpoint: str | Path = "last") -> tuple[Ex
 
 
 def format_for(path: str | Path, requested: str | None) -> str:
+    suffix = Path(path).suffix.lower().lstrip(".")
     if requested:
         if requested not in FORMATS:
             raise CanterError(f"--format must be one of {', '.join(FORMATS)}, got {requested!r}")
+        if suffix in FORMATS and suffix != requested:
+            raise CanterError(
+                f"--format {requested} would write {path}, whose name says {suffix}; name it .{requested}, or drop "
+                f"--format"
+            )
         return requested
-    suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
         raise CanterError(f"cannot tell the export format of {path}; pass --format onnx or --format npz")
     return suffix

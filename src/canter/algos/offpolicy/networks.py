@@ -21,7 +21,7 @@ LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
 
 def init_actor(key: jax.Array, obs_dim: int, out_dim: int, hidden: tuple[int, ...]) -> list:
-    # PyTorch's default Linear init, as the reference TD3/SAC implementations use.
+    # PyTorch's default Linear weight init, as the reference TD3/SAC implementations use (biases start at 0 here).
     return init_mlp(key, [obs_dim, *hidden, out_dim], 1.0, ortho=False)
 
 
