@@ -148,6 +148,11 @@ def test_report_bad_input(tiny_run, tmp_path, capsys):
     assert main(["report", str(no_checkpoint), "--out", str(tmp_path / "r.html")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no checkpoint" in err
+    # Without an evaluation or a video the page plays nothing, so an archived run kept without checkpoints will do.
+    assert main(["report", str(no_checkpoint), "--episodes", "0", "--out", str(tmp_path / "archived.html")]) == 0
+    assert "Not evaluated" in (tmp_path / "archived.html").read_text()
+    (tmp_path / "archived.html").unlink()
+    capsys.readouterr()
 
     blocker = tmp_path / "a_file"
     blocker.write_text("")

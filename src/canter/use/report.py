@@ -56,12 +56,14 @@ def _natural_key(path: Path) -> list:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
-def run_facts(run_dir: str | Path, which: str = checkpoint.LAST) -> RunFacts:
-    """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names."""
+def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFacts:
+    """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names (None:
+    the page plays none, as an archived run kept without checkpoints allows)."""
     from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
-    checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
+    if which is not None:
+        checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
     config = read_config(run_dir)
     try:
         summary = json.loads((run_dir / "summary.json").read_text())
@@ -417,7 +419,8 @@ def build_report(
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
     if smooth < 1:
         raise CanterError(f"--smooth must be >= 1 rows, got {smooth}")
-    facts = [run_facts(r, which) for r in run_dirs]
+    plays = bool(episodes) or video
+    facts = [run_facts(r, which if plays else None) for r in run_dirs]
     for f in facts:  # a folder the curves cannot be read from fails now, not after minutes of evaluation
         load_run(f.run_dir)
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
