@@ -51,6 +51,7 @@ from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import metrics_file, read_config
+from canter.use import score_plot
 from canter.use.scoreboard import (
     EVAL_SOURCE,
     LAST_EVAL_SOURCE,
@@ -477,18 +478,16 @@ def draw(
     with_statistics = board is not None and any(len(c.scores) > 1 for c in board.cells)
     # The statistics row needs the width of three panels, and a line per row of intervals.
     width = max(5.0 * columns, 15.0 if with_statistics else 7.5)
-    statistics_height = 1.2 + 0.3 * max(len(board.cells), len(board.comparisons), 6) if board else 0.0
+    statistics_height = score_plot.statistics_height(board) if board else 0.0
     height = 3.4 * rows + 1.0 + (statistics_height if with_statistics else 0.0)
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)  # headless: no pyplot, no display, no global backend switch
     curves: Any = fig
     if with_statistics:
         assert board is not None
-        from canter.use.score_plot import draw_scoreboard
-
         parts: Any = fig.subfigures(2, 1, height_ratios=[3.4 * rows, statistics_height])
         curves = parts[0]
-        draw_scoreboard(parts[1], board)
+        score_plot.draw_scoreboard(parts[1], board)
     axes = curves.subplots(rows, columns, squeeze=False).ravel()
     colors = [f"C{i % 10}" for i in range(len(groups))]
     for ax, metric in zip(axes, metrics):
@@ -531,12 +530,16 @@ def draw(
     envs = list(dict.fromkeys(r.config.env.id for g in groups for r in g.runs))
     import textwrap
 
-    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}", width=int(width * 13))
+    line = int(width * 13)  # characters of 10-point text across the figure
+    caption = textwrap.fill(f"{', '.join(envs)}. Lines: mean over runs, {smoothing}{band_note}", width=line)
+    # As many columns as the longest name leaves room for, so that no name is cut at the figure's edges.
+    names = [textwrap.fill(name, width=line - 8) for name in names]
+    longest = max(len(row) for name in names for row in name.splitlines())
     fig.legend(
         handles,
         names,
         loc="outside upper center",
-        ncols=min(len(groups), 3 if width > 8 else 2),
+        ncols=max(1, min(len(groups), 3, line // (longest + 8))),
         fontsize=10,
         title=caption,
         title_fontsize=10,

@@ -12,6 +12,7 @@ from canter.use.scoreboard import Scoreboard
 from canter.use.statistics import CONFIDENCE, MIN_RUNS_FOR_INTERVAL, Aggregates, Interval
 
 NORMALIZED = "normalized score"
+LABEL_WIDTH = 40  # characters of a row label before it wraps
 AGGREGATES = (("iqm", "IQM"), ("mean", "Mean"), ("median", "Median"), ("optimality_gap", "Optimality gap"))
 
 
@@ -28,6 +29,18 @@ def _rows(board: Scoreboard) -> tuple[list[str], list[Aggregates], str]:
     return labels, [c.returns for c in board.cells], "final return"
 
 
+def statistics_height(board: Scoreboard) -> float:
+    """Inches the drawing needs: room for the caption, and for the wrapped labels of its rows and of its pairs."""
+    labels = [textwrap.fill(label, width=LABEL_WIDTH) for label in _rows(board)[0]]
+    pairs = [_pair_label(c.x, c.y) for c in board.comparisons]
+    lines = max(sum(text.count("\n") + 1 for text in texts) for texts in (labels, pairs or [""]))
+    return 1.4 + 0.17 * max(lines, 12)
+
+
+def _pair_label(x: str, y: str) -> str:
+    return textwrap.fill(f"P({x} > {y})", width=LABEL_WIDTH)
+
+
 def _interval_row(ax: Any, y: int, interval: Interval, color: str, runs: int) -> None:
     if runs < MIN_RUNS_FOR_INTERVAL:
         ax.plot([interval.estimate], [y], marker="o", color=color, markersize=6)
@@ -39,6 +52,8 @@ def _interval_row(ax: Any, y: int, interval: Interval, color: str, runs: int) ->
 def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
     """Fill `fig` (a Figure or SubFigure) with the board's aggregates, profiles and comparisons."""
     labels, found, unit = _rows(board)
+    # Long method names (a grid's keys) are wrapped: unwrapped, they squeeze the first axis to nothing.
+    labels = [textwrap.fill(label, width=LABEL_WIDTH) for label in labels]
     extra = int(bool(board.profiles)) + int(bool(board.comparisons))
     axes = fig.subplots(1, len(AGGREGATES) + extra, squeeze=False)[0]
     colors = [f"C{i % 10}" for i in range(len(labels))]
@@ -72,7 +87,7 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
         ax.legend(fontsize=7, frameon=False, loc="lower left")
     if board.comparisons:
         ax = axes[next_axis]
-        pairs = [f"P({c.x} > {c.y})" for c in board.comparisons]
+        pairs = [_pair_label(c.x, c.y) for c in board.comparisons]
         for y, comparison in enumerate(board.comparisons):
             _interval_row(ax, y, comparison.probability, "C7", min(comparison.runs))
         ax.axvline(0.5, color="black", linewidth=0.8, linestyle=":")
