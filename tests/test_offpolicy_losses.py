@@ -13,6 +13,7 @@ from canter.algos.offpolicy.ddpg import DDPG
 from canter.algos.offpolicy.networks import init_critics, q_values
 from canter.algos.offpolicy.sac import SAC, SACLearner
 from canter.algos.offpolicy.td3 import TD3
+from canter.config.build import build_config
 from canter.config.schema import Config
 from canter.core.networks import mlp
 from canter.core.replay import Transitions
@@ -276,3 +277,49 @@ def test_sac_update_moves_alpha_toward_the_target_entropy():
     fixed = replace(cfg, autotune=False)
     new, _ = _update(SAC(fixed, -10.0), SAC(fixed, -10.0).init(jax.random.key(0), 3, 2), batch, jax.random.key(2))
     assert float(new.log_alpha) == pytest.approx(math.log(0.5))
+
+
+def test_sac_entropies_in_the_envs_action_coordinates_match_a_reference():
+    from canter.algos.offpolicy import losses
+    from canter.algos.offpolicy.networks import q_values, squashed_gaussian
+    from canter.algos.offpolicy.sac import log_scale
+
+    # Humanoid's 17 actions have half-range 0.4: CleanRL's log pi is the unit box's minus 17 log 0.4 = +15.58.
+    env_box = replace(Config().sac, entropy_box="env")
+    assert build_config("Humanoid-v5", algo="sac", preset="cleanrl").sac.entropy_box == "env"  # as CleanRL's
+    assert build_config("Humanoid-v5", algo="sac").sac.entropy_box == "unit"
+    assert log_scale(env_box, [-0.4] * 17, [0.4] * 17) == pytest.approx(17 * math.log(0.4))
+    assert log_scale(Config().sac, [-0.4] * 17, [0.4] * 17) == 0.0
+    assert log_scale(env_box, [-1.0, 0.0], [1.0, 4.0]) == pytest.approx(math.log(2.0))
+
+    cfg = replace(env_box, hidden=(8,), alpha=0.5, gamma=0.9)
+    c = 2 * math.log(0.4)
+    sac = SAC(cfg, -2.0, c)
+    learner = sac.init(jax.random.key(0), 3, 2)
+    batch = _batch(jax.random.key(1))
+    diag = _update(sac, learner, batch, jax.random.key(2))[1]
+    # Reference, written out: the same draws, with log pi_env = log pi_unit - c in the soft target, the actor loss,
+    # the temperature loss and the logged entropy.
+    next_key, actor_key = jax.random.split(jax.random.key(2))
+    mean, log_std = squashed_gaussian(learner.actor, batch.next_obs, "relu")
+    next_action, next_log_prob = losses.squashed_sample(
+        mean, log_std, jax.random.normal(next_key, mean.shape, jnp.float32)
+    )
+    next_q = jnp.min(q_values(learner.target_critics, batch.next_obs, next_action, "relu"), axis=0)
+    target = batch.reward + 0.9 * (1 - batch.terminated) * (next_q - 0.5 * (next_log_prob - c))
+    q = q_values(learner.critics, batch.obs, batch.action, "relu")
+    np.testing.assert_allclose(diag["critic_loss"], float(jnp.mean(jnp.sum((q - target) ** 2, axis=0))), rtol=1e-5)
+    mean, log_std = squashed_gaussian(learner.actor, batch.obs, "relu")
+    _, log_prob = losses.squashed_sample(mean, log_std, jax.random.normal(actor_key, mean.shape, jnp.float32))
+    # The entropy is logged from the actor step, whose actor has not moved yet.
+    np.testing.assert_allclose(diag["entropy"], -float(jnp.mean(log_prob - c)), rtol=1e-5)
+    # The unit box reads the same policy's entropy -c (1.8 nats) higher; without bootstrapping (gamma 0) nothing
+    # else differs, so its temperature moves as the env box's does with the target shifted by c.
+    unit_diag = _update(SAC(replace(cfg, entropy_box="unit"), -2.0 - c), learner, batch, jax.random.key(2))[1]
+    np.testing.assert_allclose(unit_diag["entropy"], float(diag["entropy"]) - c, rtol=1e-5)
+    myopic = replace(cfg, gamma=0.0)
+    env_alpha = _update(SAC(myopic, -2.0, c), learner, batch, jax.random.key(2))[0].log_alpha
+    unit = replace(myopic, entropy_box="unit")
+    unit_alpha = _update(SAC(unit, -2.0 - c), learner, batch, jax.random.key(2))[0].log_alpha
+    np.testing.assert_allclose(env_alpha, unit_alpha, rtol=1e-6)
+    assert float(env_alpha) != float(_update(SAC(unit, -2.0), learner, batch, jax.random.key(2))[0].log_alpha)

@@ -7,8 +7,11 @@ computed and thrown away.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
+
+import numpy as np
 
 from canter.algos.offpolicy.learner import UPDATE_METRICS
 from canter.algos.offpolicy.record import offpolicy_algorithm
@@ -32,12 +35,24 @@ def entropy_target(cfg: SACConfig, act_dim: int) -> float:
     return float(-act_dim) if cfg.target_entropy is None else float(cfg.target_entropy)
 
 
+def log_scale(cfg: SACConfig, action_low: Sequence[float], action_high: Sequence[float]) -> float:
+    """What turns a log-probability of the [-1, 1] box into one of `sac.entropy_box`: sum(log half-range) for the
+    env's own bounds (log pi_env = log pi_unit - sum(log half)), 0 for the unit box."""
+    if cfg.entropy_box == "unit":
+        return 0.0
+    half = (np.asarray(action_high, np.float64) - np.asarray(action_low, np.float64)) / 2
+    return float(np.sum(np.log(half)))
+
+
 @dataclass(frozen=True)
 class SAC:
     """The sac learner of the shared off-policy loop (`OffPolicyLearner`)."""
 
     cfg: SACConfig
     target_entropy: float
+    # sum(log half-range) of the env's bounds with sac.entropy_box env, else 0: log-probabilities, and so the soft
+    # target, the temperature loss and the logged entropy, are then of the env's action coordinates, as CleanRL's.
+    log_scale: float = 0.0
     update_metrics: ClassVar[tuple[str, ...]] = UPDATE_METRICS + ("alpha", "entropy")
 
     def init(self, key: Any, obs_dim: int, act_dim: int) -> SACLearner:
@@ -85,6 +100,7 @@ class SAC:
         next_action, next_log_prob = losses.squashed_sample(
             mean, log_std, jax.random.normal(next_key, mean.shape, jnp.float32)
         )
+        next_log_prob = next_log_prob - self.log_scale
         next_q = q_values(learner.target_critics, batch.next_obs, next_action, act)
         target = jax.lax.stop_gradient(
             losses.td_target(batch.reward, batch.terminated, next_q, cfg.gamma, -alpha * next_log_prob)
@@ -104,6 +120,7 @@ class SAC:
                 mean, log_std, jax.random.normal(actor_key, mean.shape, jnp.float32)
             )
             q_pi = q_values(critics, batch.obs, action, act)
+            log_prob = log_prob - self.log_scale
             return losses.sac_actor_loss(q_pi, log_prob, alpha), log_prob
 
         def update_actor(operand):
@@ -158,7 +175,11 @@ class SAC:
 
 
 def _learner(config: Config, spec: Any) -> SAC:
-    return SAC(config.sac, entropy_target(config.sac, spec.act_dim))
+    return SAC(
+        config.sac,
+        entropy_target(config.sac, spec.act_dim),
+        log_scale(config.sac, spec.action_low, spec.action_high),
+    )
 
 
 ALGORITHM = offpolicy_algorithm("sac", _learner, SAC.update_metrics)

@@ -73,6 +73,12 @@ class SACConfig(OffPolicyConfig):
     alpha: float = setting("Initial (or, without autotune, fixed) entropy temperature.", default=1.0)
     alpha_lr: float = setting("Adam learning rate of log alpha.", default=1e-3)
     target_entropy: float | None = setting("Target policy entropy; none means -act_dim.", default=None)
+    entropy_box: str = setting(
+        "The action coordinates that entropies (the target's, the logged one) are measured in: unit, the [-1, 1] box "
+        "the actor acts in (as SB3), or env, the env's own bounds (as CleanRL, whose log-probabilities include the "
+        "action scale: on Humanoid, half-range 0.4, -act_dim there is -act_dim + 15.6 in the unit box).",
+        default="unit",
+    )
 
 
 def check_offpolicy(s: OffPolicyConfig, name: str) -> None:
@@ -110,6 +116,7 @@ def check_sac(s: SACConfig, name: str) -> None:
         need_positive(f"{name}.{key}", getattr(s, key))
     if s.target_entropy is not None:
         need(math.isfinite(s.target_entropy), f"{name}.target_entropy must be finite or none, got {s.target_entropy}")
+    need(s.entropy_box in ("unit", "env"), f"{name}.entropy_box must be unit or env, got '{s.entropy_box}'")
 
 
 def _check_buffer_holds_one_step(config: Config) -> None:
