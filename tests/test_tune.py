@@ -30,7 +30,9 @@ from canter.orchestrate.tune import (
     check_settings,
     evaluation_index,
     logged_evaluations,
+    make_study,
     run_trial,
+    sampler_seed,
 )
 from pg_server import postgres_url  # noqa: F401  (session fixture)
 
@@ -262,6 +264,27 @@ def test_objective_is_the_mean_deterministic_return_over_seeds(tmp_path, capsys)
     frozen = study.tell(trial, outcome.value)
     assert sorted(frozen.intermediate_values) == [512, 1024]  # nominal steps: every 1/2 of the budget
     assert frozen.intermediate_values[1024] == outcome.value
+
+
+def test_a_resumed_study_does_not_replay_its_proposals(tmp_path):
+    settings = tiny_settings(tmp_path, sampler_seed=7)
+    _, space = check_settings(settings)
+    storage = optuna.storages.RDBStorage(f"sqlite:///{tmp_path / 'study.db'}")
+
+    def first_proposal():
+        study = make_study(settings, storage)
+        trial = study.ask()
+        values = space.suggest(trial)
+        study.tell(trial, 0.0)
+        return values
+
+    # Three sessions of one trial each: a sampler seeded alike every time proposed the same trial three times.
+    proposals = [first_proposal() for _ in range(3)]
+    assert proposals[0] != proposals[1] != proposals[2] != proposals[0]
+    assert sampler_seed(7, 1, 0) == 8 and sampler_seed(None, 0, 5) is None
+    assert len({sampler_seed(7, job, trials) for job in range(4) for trials in range(1, 50)}) == 4 * 49
+    # The same study state gives the same seed, so a resume is reproducible.
+    assert sampler_seed(7, 0, 3) == sampler_seed(7, 0, 3)
 
 
 def test_each_trial_prints_how_it_ended(capsys):

@@ -304,25 +304,36 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 # ------------------------------------------------------------------------------------------------------ the study
 
 
+def sampler_seed(seed: int | None, job: int, trials: int) -> int | None:
+    """The TPE seed of job `job` joining a study that holds `trials` trials: seed + job for a new study, so parallel
+    jobs do not propose the same random trials, and one drawn from (seed, job, trials) for a study that has trials,
+    so that a resumed worker does not replay the proposals the study already ran."""
+    if seed is None:
+        return None
+    if trials == 0:
+        return seed + job
+    return int(np.random.SeedSequence([seed, job, trials]).generate_state(1)[0])
+
+
 def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
-    """The study with this worker's sampler and pruner (they are not stored; every worker makes its own). With
-    --sampler-seed, job J samples with seed + J, so parallel jobs do not propose the same random trials."""
+    """The study with this worker's sampler and pruner (they are not stored; every worker makes its own), seeded by
+    `sampler_seed` with --sampler-seed."""
     import optuna
 
     quiet_optuna()
-    seed = None if settings.sampler_seed is None else settings.sampler_seed + job
-    sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
     pruner = optuna.pruners.MedianPruner(
         n_startup_trials=max(1, settings.startup_trials // 2), n_warmup_steps=settings.total_steps // 3
     )
-    return optuna.create_study(
+    study = optuna.create_study(
         storage=storage,
         study_name=settings.name,
         direction="maximize",
-        sampler=sampler,
         pruner=pruner,
         load_if_exists=True,
     )
+    seed = sampler_seed(settings.sampler_seed, job, len(study.get_trials(deepcopy=False)))
+    study.sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
+    return study
 
 
 def worker(settings: TuneSettings, job: int = 0) -> None:
