@@ -284,7 +284,9 @@ def _stored_jobs(url: str, study: str) -> list[tuple[str, str]]:
 
     from canter.orchestrate.bench import trial_job
 
-    return sorted((t.state.name, trial_job(t)) for t in optuna.load_study(study_name=study, storage=url).trials)
+    # The experiment's digest ends every key; the tests read the rest.
+    trials = optuna.load_study(study_name=study, storage=url).trials
+    return sorted((t.state.name, trial_job(t).rpartition("|experiment=")[0]) for t in trials)
 
 
 @pytest.mark.slow
@@ -333,6 +335,12 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     assert main(argv("0.1,0.2")) == 0
     assert len(_stored_jobs(url, "grid")) == 2  # nothing ran twice
     assert len(read_rows(tmp_path / "bench" / "results.csv")) == 2
+    # Another bench in the same study, whose --set makes its cell another experiment under the same name, trains
+    # its own job rather than report the first bench's records as its own.
+    other = [a if a != str(tmp_path / "bench") else str(tmp_path / "other") for a in argv("0.1")]
+    assert main([*other, "--set", "ppo.gamma=0.9"]) == 0, capsys.readouterr().err
+    assert _stored_jobs(url, "grid").count(("COMPLETE", key.format("0.1", "0"))) == 2
+    assert (tmp_path / "other" / f"{cell.format('0.1')}__s0" / "eval.json").is_file()
 
     # Another seed: each cell's job is queued again with both seeds; seed 0's finished run is kept, seed 1 trains.
     seed0 = (tmp_path / "bench" / f"{cell.format('0.1')}__s0" / "summary.json").stat().st_mtime_ns
@@ -425,7 +433,7 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
     assert main(argv + ["--storage", url, "--study", "td3", "--heartbeat", "2"]) == 0, capsys.readouterr().err
     study = optuna.load_study(study_name="td3", storage=url)
     done = sorted(
-        (trial_job(t), [r["seed"] for r in t.user_attrs["records"]])
+        (trial_job(t).rpartition("|experiment=")[0], [r["seed"] for r in t.user_attrs["records"]])
         for t in study.trials
         if t.state == optuna.trial.TrialState.COMPLETE
     )
@@ -684,3 +692,30 @@ def test_a_job_whose_evaluation_is_not_a_number_fails_with_its_reason(tmp_path, 
     trial = study.ask()
     outcome = _job_trial(study, trial, {job_key(job, settings): job}, settings, tmp_path)
     assert outcome.state == "fail" and outcome.reason.startswith("a seed's eval.json has no finite mean return")
+
+
+def test_a_failure_reason_is_read_from_the_newest_start_of_the_job(tmp_path):
+    from canter.orchestrate.jobs import JOB_START, exit_text, failure_reason
+
+    log = tmp_path / "train.log"
+    log.write_text(
+        f"{JOB_START} 2026-11-29 07:00:00\n"
+        "canter: error: /tmp/run is being written by process 14396; wait for it\n"
+        f"{JOB_START} 2026-11-29 07:10:00\n"
+        "Hopper-v5 ppo 12,000/20,000\n"
+    )
+    # The earlier session's error is not why this one failed: a kill left only its progress line.
+    assert (
+        failure_reason(tmp_path, -9)
+        == "training process failed (killed by signal 9 (SIGKILL)): Hopper-v5 ppo 12,000/20,000"
+    )
+    log.write_text(log.read_text() + "canter: error: no space left\n")
+    assert failure_reason(tmp_path, 2) == "training process failed (exit 2): canter: error: no space left"
+    assert (
+        exit_text(0) == "exit 0"
+        and exit_text(-15) == "killed by signal 15 (SIGTERM)"
+        and exit_text(-99) == "killed by signal 99"
+    )
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "train.log").write_text("canter: error: a log written before starts were marked\n")
+    assert failure_reason(tmp_path / "old", 2).endswith("a log written before starts were marked")

@@ -20,9 +20,11 @@ that resumes a seed continues its tracker runs.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import itertools
 import math
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,6 +44,7 @@ from canter.orchestrate.jobs import (
     EVAL_FILE,
     SUMMARY_FILE,
     JobSpec,
+    exit_text,
     failure_reason,
     job_layout,
     read_json,
@@ -527,9 +530,17 @@ JOB_ATTR = "job"
 
 def job_key(job: Job, settings: BenchSettings) -> str:
     """What a stored trial of the grid stands for: the job and the settings its records answer to, so that a re-run
-    with more seeds, another budget or another episode count queues the job again rather than reuse old records."""
+    with more seeds, another budget, another episode count or another experiment under the same cell name (a bench
+    with other --set, --preset or --config values sharing the storage) queues the job again rather than reuse
+    another's records."""
+    from canter.config.experiment import experiment_key
+
     seeds = ",".join(map(str, job.seeds))
-    return f"{job.name}|seeds={seeds}|steps={settings.total_steps}|episodes={settings.eval_episodes}"
+    experiment = hashlib.sha1(repr(experiment_key(job.cell.config)).encode()).hexdigest()[:12]
+    return (
+        f"{job.name}|seeds={seeds}|steps={settings.total_steps}|episodes={settings.eval_episodes}"
+        f"|experiment={experiment}"
+    )
 
 
 def trial_job(trial: Any) -> str | None:
@@ -555,16 +566,22 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
     job = jobs[key]
     folder = bench_dir / ".cells" / job.name
+    print(f"start {job.name} (seeds {','.join(map(str, job.seeds))}; trial {trial.number})", flush=True)
+    started = time.monotonic()
     proc = start_job(job_spec(job, settings, bench_dir), folder)
     try:
         code = proc.wait()
     finally:
         stop_jobs([proc])
     if code != 0:
-        return Outcome("fail", reason=failure_reason(folder, code))
+        reason = failure_reason(folder, code)
+        print(f"FAIL  {job.name}: {reason}", flush=True)
+        return Outcome("fail", reason=reason)
     if not seeds_finished(job.cell, job.seeds, settings, bench_dir):
         # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
+        print(f"STOP  {job.name}: {STOPPED_EARLY}", flush=True)
         return Outcome("fail", reason=STOPPED_EARLY)
+    print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
     # The records travel with the trial, so any machine can build the table from the storage alone.
     records = [seed_record(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
     trial.set_user_attr("records", records)
@@ -639,8 +656,14 @@ def run_distributed(
             study.enqueue_trial({}, user_attrs={JOB_ATTR: key})
     if settings.jobs == 1:
         _grid_worker(cells, settings, bench_dir)
-    elif run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
-        raise CanterError("a bench worker failed; its error is printed above")
+    elif ended := run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
+        # The others retried what it held (a trial whose heartbeat stops is failed and queued again); the table
+        # below holds every cell they finished, and names the rest.
+        print(
+            f"canter: note: {len(ended)} of {settings.jobs} bench workers ended early ({exit_text(ended[0])}; a "
+            f"worker's own error is printed above)",
+            file=sys.stderr,
+        )
     done, failed = {}, {}
     for t in retrying(lambda: study.get_trials(deepcopy=False), storage.url, "reading the results"):
         held_by = trial_job(t)

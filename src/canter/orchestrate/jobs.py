@@ -191,12 +191,18 @@ class JobSpec:
         )
 
 
+# The line a job's start writes into its train.log, which its failure reason reads after.
+JOB_START = "canter: job started"
+
+
 def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
     """Start the child process of a job; its output goes to folder/train.log."""
     folder.mkdir(parents=True, exist_ok=True)
     spec_path = folder / "job.json"
     spec_path.write_text(spec.to_json())
     with open(folder / "train.log", "ab") as log:
+        log.write(f"{JOB_START} {time.strftime('%Y-%m-%d %H:%M:%S')}\n".encode())
+        log.flush()
         return subprocess.Popen(
             [sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)],
             stdout=log,
@@ -206,15 +212,28 @@ def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) ->
         )
 
 
+def exit_text(returncode: int) -> str:
+    """'exit 2', or 'killed by signal 9 (SIGKILL)' for a process a signal ended (a negative return code)."""
+    if returncode >= 0:
+        return f"exit {returncode}"
+    try:
+        name = f" ({signal.Signals(-returncode).name})"
+    except ValueError:
+        name = ""
+    return f"killed by signal {-returncode}{name}"
+
+
 def failure_reason(folder: Path, returncode: int) -> str:
-    """The child's one-line error (`canter: error: ...`), else the last line of its log, with the exit status."""
+    """The child's one-line error (`canter: error: ...`), else the last line of its log, with the exit status. Only
+    the output of the newest start counts: the log is appended to, and an earlier session's error is not this one's."""
     lines = []
     with contextlib.suppress(OSError):
         lines = [line for line in (folder / "train.log").read_text(errors="replace").splitlines() if line.strip()]
+    starts = [i for i, line in enumerate(lines) if line.startswith(JOB_START)]
+    lines = lines[starts[-1] + 1 :] if starts else lines
     errors = [line for line in lines if line.startswith("canter: error:")]
     last = errors[-1] if errors else (lines[-1] if lines else "no output")
-    how = f"killed by signal {-returncode}" if returncode < 0 else f"exit {returncode}"
-    return f"training process failed ({how}): {last.strip()[:300]}"
+    return f"training process failed ({exit_text(returncode)}): {last.strip()[:300]}"
 
 
 # A job told to stop finishes its iteration, or the evaluation under way, and writes its checkpoint; a long

@@ -428,7 +428,7 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
 
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
-    from canter.orchestrate.jobs import run_workers, warn_if_more_jobs_than_cores
+    from canter.orchestrate.jobs import exit_text, run_workers, warn_if_more_jobs_than_cores
 
     base, space = check_settings(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
@@ -442,15 +442,18 @@ def tune(settings: TuneSettings) -> Any:
     # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
     settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
     warn_if_more_jobs_than_cores(settings.jobs)
+    failed = []
     if settings.jobs == 1:
         worker(settings)
     else:
         failed = run_workers(worker, [(settings, i) for i in range(settings.jobs)], "canter-tune")
-        if failed:
-            raise CanterError(
-                f"{len(failed)} of {settings.jobs} tune workers failed (exit {failed[0]}); their error is printed above"
-            )
+    # What the study holds is written even when a worker ended early: the others may have finished its trials.
     retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
+    if failed:
+        raise CanterError(
+            f"{len(failed)} of {settings.jobs} tune workers ended early ({exit_text(failed[0])}; a worker's own error "
+            f"is printed above); the summary above holds what the study has, and the same command goes on with it"
+        )
     return study
 
 
