@@ -602,3 +602,33 @@ def test_a_trial_whose_training_ended_before_its_evaluations_were_read_is_not_pr
     study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
     outcome = run_trial(study.ask(), settings, base, space)
     assert outcome.state == "complete", outcome
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path):
+    """A scheduler's SIGTERM to `canter tune` stops the trial's training and records the trial as interrupted; it
+    left the trial RUNNING, so the next run waited out the heartbeat grace."""
+    args = ["Pendulum-v1", "--trials", "2", "--heartbeat", "60"] + tiny_args(tmp_path)
+    args[args.index("--total-steps") + 1] = "200000"  # a trial that outlasts the test
+    proc = _worker(args, tmp_path / "tune.log")
+    storage = f"sqlite:///{tmp_path / 'tune' / 'Pendulum-v1__ppo' / 'study.db'}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "tune.log").read_text()
+            try:
+                study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage)
+                if study.get_trials(states=(optuna.trial.TrialState.RUNNING,)):
+                    break
+            except (KeyError, Exception):
+                pass
+            time.sleep(0.5)
+        time.sleep(3.0)  # inside the trial: its training child is up
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=240) == 130, (tmp_path / "tune.log").read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    [trial] = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage).trials
+    assert trial.state == optuna.trial.TrialState.FAIL and trial.user_attrs["fail_reason"] == "interrupted"
+    assert "canter: interrupted" in (tmp_path / "tune.log").read_text()

@@ -103,5 +103,8 @@ def run(args: argparse.Namespace) -> int:
         heartbeat_seconds=args.heartbeat,
         track=track_spec(args),
     )
-    bench(settings)
+    from canter.orchestrate.jobs import sigterm_interrupts
+
+    with sigterm_interrupts():  # a scheduler's SIGTERM stops the jobs and records their trials, as Ctrl-C does
+        bench(settings)
     return 0

@@ -116,5 +116,8 @@ def run(args: argparse.Namespace) -> int:
         sampler_seed=args.sampler_seed,
         track=track_spec(args),
     )
-    tune(settings)
+    from canter.orchestrate.jobs import sigterm_interrupts
+
+    with sigterm_interrupts():  # a scheduler's SIGTERM stops the jobs and records their trials, as Ctrl-C does
+        tune(settings)
     return 0

@@ -21,7 +21,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -372,10 +372,32 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
         for p in processes:
             p.join()
     except KeyboardInterrupt:
+        # A terminal's Ctrl-C reaches the workers too, a SIGTERM to this process does not: tell them, then give
+        # each the time its running job takes to checkpoint.
         for p in processes:
-            p.join(30)
+            if p.is_alive() and p.pid is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(p.pid, signal.SIGINT)
+        deadline = time.monotonic() + STOP_GRACE_SECONDS + 30
+        for p in processes:
+            p.join(max(0.0, deadline - time.monotonic()))
         raise
     return [p.exitcode for p in processes if p.exitcode]
+
+
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """Within it, SIGTERM (a scheduler, `kill`, a dying parent) stops the process as Ctrl-C does, so that a bench or
+    tune worker stops its job and records its trial as interrupted rather than leave it running in the study."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: dict[str, str]) -> None:
@@ -383,7 +405,8 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
     os.environ.update(thread_caps)
     apply_cpu_pinning()
     try:
-        work(*args)
+        with sigterm_interrupts():
+            work(*args)
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
