@@ -719,3 +719,14 @@ def test_a_failure_reason_is_read_from_the_newest_start_of_the_job(tmp_path):
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / "train.log").write_text("canter: error: a log written before starts were marked\n")
     assert failure_reason(tmp_path / "old", 2).endswith("a log written before starts were marked")
+
+
+def test_a_storage_url_in_an_error_keeps_its_password_out(capsys):
+    from canter.orchestrate.study import redacted
+
+    assert main(["bench", "--envs", "Hopper-v5", "--storage", "postgresql://tuner:s3cret@dbhost:54x/canter"]) == 2
+    err = capsys.readouterr().err
+    assert "s3cret" not in err and "tuner:***@dbhost:54x/canter" in err and err.count("\n") == 1
+    assert redacted("sqlite:///a/b.db") == "sqlite:///a/b.db"
+    assert redacted("postgresql://u@h/db") == "postgresql://u@h/db"
+    assert redacted("postgresql://u:p@ss@h:5432/db") == "postgresql://u:***@h:5432/db"

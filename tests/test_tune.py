@@ -206,6 +206,13 @@ def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):
     code = main(["tune", "Pendulum-v1", "--algo", "ppoo"])
     assert code == 2 and "unknown algorithm 'ppoo'" in capsys.readouterr().err
 
+    # A shared storage with an --out-dir that cannot hold the trials' folders: refused before any trial is stored.
+    shared = f"sqlite:///{tmp_path / 'shared.db'}"
+    code = main(["tune", "Pendulum-v1", "--storage", shared, "--study", "s", "--out-dir", "/proc/canter-nope"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "/proc/canter-nope" in err, err
+    assert "s" not in optuna.get_all_study_names(storage=shared)  # no study, so no failed trials in it
+
     for argv, message in [
         (["--sampler-seed", "-1"], "argument --sampler-seed: expected a seed from 0 to 4294967295"),
         (["--sampler-seed", "4294967295", "--jobs", "2"], "--sampler-seed 4294967295 with 2 jobs passes 4294967295"),

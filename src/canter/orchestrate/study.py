@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import re
 import sys
 import threading
 import time
@@ -45,6 +46,11 @@ def normalize_url(url: str) -> str:
     return url
 
 
+def redacted(url: str) -> str:
+    """The URL with its password, if any, replaced by ***: error messages end up in logs and terminals."""
+    return re.sub(r"(://[^/@:]*:)[^/]*@", r"\1***@", url)
+
+
 def describe_url(url: str) -> tuple[str, str]:
     """(driver, host) of a storage URL, without the password."""
     from sqlalchemy.engine import make_url
@@ -54,7 +60,7 @@ def describe_url(url: str) -> tuple[str, str]:
         parsed = make_url(url)
     except (ArgumentError, ValueError):  # ValueError: a port that is not a number
         raise CanterError(
-            f"--storage {url!r} is not a database URL; use sqlite:///path/study.db or "
+            f"--storage {redacted(url)!r} is not a database URL; use sqlite:///path/study.db or "
             f"postgresql://user:password@host:5432/dbname"
         ) from None
     driver = parsed.drivername

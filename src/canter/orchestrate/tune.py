@@ -435,6 +435,7 @@ def tune(settings: TuneSettings) -> Any:
     if settings.storage_url is None:
         make_folder(settings.study_dir)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
+    make_folder(settings.study_dir)  # the trials' folders, with any storage, before a trial is stored
     study = make_study(settings, storage)
     wanted = study_settings(settings, base, space)
     check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
