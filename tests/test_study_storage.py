@@ -167,3 +167,29 @@ def test_a_worker_gives_up_when_trials_keep_failing_after_some_finished(tmp_path
         "(each failed trial keeps its 'fail_reason' in the study)"
     )
     assert len(study.trials) == 13
+
+
+def test_a_worker_says_what_it_waits_for_when_a_trial_runs_elsewhere(tmp_path, capsys):
+    """After a kill, the next run waits out the dead worker's trial in silence for minutes; it now says so."""
+    import optuna
+
+    from canter.orchestrate.study import Outcome, run_worker
+
+    storage = open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}", heartbeat_seconds=1, grace_seconds=2))
+    study = optuna.create_study(storage=storage, study_name="left", direction="maximize")
+    left = study.ask()  # a trial of a worker that was killed: running, and its heartbeat stops
+    left.set_user_attr("worker", "node7:4242")
+    storage.record_heartbeat(left._trial_id)
+
+    def run_trial(trial):
+        return Outcome("complete", value=1.0)
+
+    run_worker(study, storage, 1, run_trial, heartbeat_seconds=1, poll_seconds=0.2, deadline=time.time() + 60)
+    out = capsys.readouterr().out
+    assert out.count("waiting for") == 1, out
+    assert (
+        "waiting for trial 0 (node7:4242), running elsewhere; a trial whose worker died is failed and retried after 2 s"
+        in out
+    )
+    states = [t.state for t in study.trials]
+    assert states[0] == optuna.trial.TrialState.FAIL and optuna.trial.TrialState.COMPLETE in states

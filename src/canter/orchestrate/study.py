@@ -257,6 +257,29 @@ def _surplus(study: Any, number: int, target: int) -> bool:
     return sum(1 for t in study.get_trials(deepcopy=False, states=alive) if t.number < number) >= target
 
 
+def _running(study: Any) -> tuple[tuple[int, str], ...]:
+    """(number, worker) of the study's running trials; the worker as tune records it (host:pid), else '?'."""
+    from optuna.trial import TrialState
+
+    trials = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+    return tuple((t.number, str(t.user_attrs.get("worker", "?"))) for t in trials)
+
+
+def _say_waiting(running: tuple[tuple[int, str], ...], grace: float | None) -> None:
+    """One line when a worker starts waiting on trials that run elsewhere: after a kill, a stale trial is failed and
+    retried only once its heartbeat is older than the grace period, minutes in which nothing else is printed."""
+    if not running:
+        return
+    shown = ", ".join(f"trial {number}" + (f" ({worker})" if worker != "?" else "") for number, worker in running[:3])
+    more = f" and {len(running) - 3} more" if len(running) > 3 else ""
+    retried = f"{grace:.0f} s" if grace else "its grace period"
+    print(
+        f"waiting for {shown}{more}, running elsewhere; a trial whose worker died is failed and retried after "
+        f"{retried} without a heartbeat",
+        flush=True,
+    )
+
+
 def run_worker(
     study: Any,
     storage: Any,
@@ -289,6 +312,7 @@ def run_worker(
     states = {"complete": TrialState.COMPLETE, "pruned": TrialState.PRUNED, "fail": TrialState.FAIL}
     give_up = max(10, 2 * target)
     progress: tuple[int, int] | None = None  # (finished, failed) when the finished count last grew
+    waited_for: tuple[tuple[int, str], ...] = ()  # the running trials this worker last said it waits for
     while True:
         n = call("reading the study", lambda: (optuna.storages.fail_stale_trials(study), counts(study))[1])
         finished = n["COMPLETE"] + n["PRUNED"]
@@ -309,6 +333,10 @@ def run_worker(
             if not ask_new and n["RUNNING"] == 0:
                 return
             if not ask_new or finished + n["RUNNING"] >= target:
+                running = call("reading the study", functools.partial(_running, study))
+                if running != waited_for:
+                    waited_for = running
+                    _say_waiting(running, getattr(storage, "grace_period", None))
                 time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
                 continue
         trial = call("asking for a trial", study.ask)
