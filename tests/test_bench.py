@@ -526,6 +526,13 @@ def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
     assert "Cell wall min and cell SPS of td3: the mean per seed" in markdown
     markdown, _ = results_table([group], [], 1000)
     assert "mean per seed" not in markdown
+    # ppo seeds that trained in two sessions (seed 1 added by a later bench): no one process ran at their summed rate.
+    split = [dict(records[0], trained_with=[0]), dict(records[1], trained_with=[1])]
+    assert combine_records(ppo, [dict(r, trained_with=[0, 1]) for r in records])["sps"] == 400.0
+    late = combine_records(ppo, split)
+    assert late["wall_minutes"] == 15.0 and late["sps"] == 200.0
+    markdown, _ = results_table([late], [], 1000)
+    assert f"Cell wall min and cell SPS of {ppo.name}: the mean per seed, since their seeds did not all" in markdown
 
 
 def test_bench_defaults_to_five_seeds():

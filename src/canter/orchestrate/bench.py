@@ -306,11 +306,14 @@ def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
         totals = totals_until(metrics, int(summary["global_step"]))
         if totals["train_seconds"] > 0:
             wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
+    trained_with = summary.get("trained_with")
     return {
         "seed": seed,
         "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
         "wall_seconds": wall,
         "sps": sps,
+        # The seeds its last session trained beside; None for a summary written before that was kept.
+        "trained_with": [int(s) for s in trained_with] if isinstance(trained_with, list) else None,
     }
 
 
@@ -322,13 +325,16 @@ def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]
     """Final deterministic eval (mean over seeds of each seed's mean, std over seeds), wall time and SPS. A group
     of seeds trained together has one wall time (its slowest seed's) and their steps per second add up. Seeds
     trained as separate jobs (td3, ddpg, sac) may have run at different times, so a sum of their rates would
-    describe no real run: for them it is the mean per seed, of wall time and of SPS."""
+    describe no real run: for them it is the mean per seed, of wall time and of SPS; and so for a cell whose seeds
+    did not all train in one group (a seed added by a later bench, `per_seed`)."""
     from canter.algos import seeds_train_apart
 
     evals = [r["eval_mean"] for r in records if r["eval_mean"] is not None]
     walls = [r["wall_seconds"] for r in records if r["wall_seconds"] is not None]
     sps = [r["sps"] for r in records if r["sps"] is not None]
-    apart = seeds_train_apart(cell.algo)
+    seeds = {r["seed"] for r in records}
+    split = any(r.get("trained_with") is not None and not seeds <= set(r["trained_with"]) for r in records)
+    apart = seeds_train_apart(cell.algo) or split
     return {
         "cell": cell.name,
         "env": cell.env_id,
@@ -341,6 +347,7 @@ def combine_records(cell: Cell, records: list[dict[str, Any]]) -> dict[str, Any]
         "seed_returns": evals,
         "wall_minutes": float(np.mean(walls) if apart else np.max(walls)) / 60 if walls else math.nan,
         "sps": float(np.mean(sps) if apart else np.sum(sps)) if sps else math.nan,
+        "per_seed": apart,
     }
 
 
@@ -414,6 +421,13 @@ def results_table(results: list[dict[str, Any]], keys: list[str], total_steps: i
             f"Cell wall min and cell SPS of {', '.join(apart)}: the mean per seed, since each of their seeds "
             "trains as a job of its own (for the other algorithms, a cell's seeds train together: its wall "
             "time, and the steps per second of all its seeds).",
+        ]
+    split = [r["cell"] for r in results if r.get("per_seed") and not seeds_train_apart(r["algo"])]
+    if split:
+        md += [
+            "",
+            f"Cell wall min and cell SPS of {', '.join(split)}: the mean per seed, since their seeds did not all "
+            "train in one process (a seed added by a later bench trains in a group of its own).",
         ]
     md += [
         "",

@@ -43,6 +43,8 @@ class RunResult:
     compile_seconds: float  # this session's compile
     sps: float  # env steps per second over the whole run, compile excluded
     stop_reason: str  # budget | stop_at_return | max_minutes | signal
+    # The seeds of the process that trained its last session (itself alone, or its vmapped group); () unknown.
+    trained_with: tuple[int, ...] = ()
 
 
 class _StopFlag:
@@ -358,6 +360,7 @@ class _SeedRun:
         self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
         self.run_seconds = float(earlier.get("train_seconds", 0.0))
         self.compile_seconds = 0.0  # this session's, once compiled
+        self.trained_with: tuple[int, ...] = (config.run.seed,)  # the group sets its seeds
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
@@ -494,6 +497,7 @@ class _SeedRun:
             compile_seconds=compile_seconds,
             sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
             stop_reason=reason,
+            trained_with=self.trained_with,
         )
         self.trackers.finish(self.out, _write_summary(self.result))
 
@@ -574,6 +578,7 @@ def _loop(
     try:  # a seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)
         for c, out, start, before in zip(configs, outs, start_steps, earlier):
             runs.append(_SeedRun(c, spec, out, start, algorithm.metric_names, before))
+            runs[-1].trained_with = tuple(other.run.seed for other in configs)
         compile_start = time.perf_counter()
         try:
             compiled = iteration.lower(state, carry, fractions(runs)).compile()
