@@ -14,6 +14,7 @@ one whole process each, seed 100 (chosen before the runs).
 
 from __future__ import annotations
 
+import json
 import sys
 from functools import partial
 from pathlib import Path
@@ -42,6 +43,9 @@ LONG_RUNS = {  # name -> (who, canter train arguments)
     ),
 }
 MARKERS = ("<!-- report001-table -->\n", "<!-- /report001-table -->")
+V4_CHECK = PAGE / "runs" / "v4-cleanrl-1m"  # written by train_v4_check.sh
+V4_MARKERS = ("<!-- report001-v4-check -->\n", "<!-- /report001-v4-check -->")
+CLEANRL_V4 = (716.11, 49.08)  # CleanRL ppo_continuous_action, Humanoid-v4, 1M steps, 3 seeds (published.toml)
 PUBLISHED = "PPO at 1M steps: Tianshou 787 ± 194 (v3, 10 seeds, best average during training), CleanRL 716 ± 49 (v4)"
 
 
@@ -80,6 +84,35 @@ def table() -> str:
     return "\n".join(lines) + f"\n\nPublished: {PUBLISHED}."
 
 
+def v4_check_table() -> str:
+    """The implementation check: canter's cleanrl preset on CleanRL's own env version and budget."""
+    runs = sorted(p for p in V4_CHECK.iterdir() if p.is_dir()) if V4_CHECK.is_dir() else []
+    if not runs:
+        return "not run yet (`bash benchmarks/reports/001-humanoid-ppo/train_v4_check.sh OUT_DIR`)"
+    lines = [
+        "| seed | steps | wall time | training return (last 20 episodes) | eval return (10 episodes, deterministic) |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    trains = []
+    for run in runs:
+        summary = json.loads((run / "summary.json").read_text())
+        evaluation = json.loads((run / "eval.json").read_text())
+        seed = int(run.name.split("__s")[1].split("__")[0])
+        trains.append(summary["recent_return"])
+        lines.append(
+            f"| {seed} | {summary['global_step']:,} | {summary['wall_seconds'] / 60:.1f} min | "
+            f"{summary['recent_return']:,.0f} | {evaluation['mean']:,.0f} ± {evaluation['std']:,.0f} |"
+        )
+    mean, std = CLEANRL_V4
+    lines += [
+        "",
+        f"Training return over the {len(trains)} seeds: **{np.mean(trains):,.0f} ± {np.std(trains):,.0f}** "
+        f"(population std), against CleanRL's published {mean:,.0f} ± {std:,.0f} (3 seeds, training return at 1M "
+        f"steps on Humanoid-v4).",
+    ]
+    return "\n".join(lines)
+
+
 def train_long(name: str) -> None:
     if timed_train(PAGE, name, [ENV, "--algo", "ppo", "--seed", str(SEED), *LONG_RUNS[name][1]], WORK):
         plot_and_film(PAGE, name, WORK)
@@ -87,7 +120,7 @@ def train_long(name: str) -> None:
 
 def main() -> int:
     steps = {name: partial(train_long, name) for name in LONG_RUNS}
-    return page_main(__doc__ or "", PAGE, [(MARKERS, table)], steps)
+    return page_main(__doc__ or "", PAGE, [(MARKERS, table), (V4_MARKERS, v4_check_table)], steps)
 
 
 if __name__ == "__main__":
