@@ -30,6 +30,7 @@ from canter.orchestrate.tune import (
     check_settings,
     evaluation_index,
     logged_evaluations,
+    logged_steps,
     make_study,
     run_trial,
     sampler_seed,
@@ -298,7 +299,7 @@ def test_each_trial_prints_how_it_ended(capsys):
     outcomes = [
         Outcome("complete", value=812.44),
         Outcome("pruned", reason="pruned at step 512 with return -1200.0"),
-        Outcome("fail", reason="exceeded --trial-minutes 1 (stopped after about 0 steps)"),
+        Outcome("fail", reason="exceeded --trial-minutes 1 (stopped after 0 steps)"),
         Outcome("fail"),
     ]
     for number, outcome in enumerate(outcomes):
@@ -306,7 +307,7 @@ def test_each_trial_prints_how_it_ended(capsys):
     assert capsys.readouterr().out.splitlines() == [
         "done  trial 0 in 0.0 min: return 812.4",
         "PRUNE trial 1 in 0.0 min: pruned at step 512 with return -1200.0",
-        "FAIL  trial 2 in 0.0 min: exceeded --trial-minutes 1 (stopped after about 0 steps)",
+        "FAIL  trial 2 in 0.0 min: exceeded --trial-minutes 1 (stopped after 0 steps)",
         "FAIL  trial 3 in 0.0 min: no reason recorded",
     ]
 
@@ -351,6 +352,9 @@ def test_trial_over_its_time_limit_fails_with_the_reason(tmp_path):
         optuna.trial.FixedTrial({"ppo.lr": 1e-3, "ppo.n_steps": 64, "ppo.ent_coef": 0.0}), settings, base, space
     )
     assert outcome.state == "fail" and "exceeded --trial-minutes 0.002" in outcome.reason
+    # The steps it had trained, as its metrics.csv logged them (it said "about 0" whenever no evaluation had come).
+    run = settings.study_dir / "trials" / "trial_00000" / "s0"
+    assert outcome.reason.endswith(f"(stopped after {logged_steps(run):,} steps)")
 
 
 # ------------------------------------------------------------------------------- SQLite jobs and the best preset

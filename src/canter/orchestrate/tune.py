@@ -213,6 +213,14 @@ def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float
     return found
 
 
+def logged_steps(run_dir: Path) -> int:
+    """The env steps of the last row a run has logged to its metrics.csv; 0 before its first."""
+    from canter.training.logger import read_rows
+
+    rows = read_rows(run_dir / "metrics.csv")[1]
+    return int(float(rows[-1]["global_step"])) if rows else 0
+
+
 def study_group(settings: TuneSettings) -> str:
     """The tracker group of every trial of the study."""
     return f"tune-{settings.name}"
@@ -276,10 +284,10 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
                 break
             if deadline is not None and time.monotonic() > deadline:
                 stop_jobs([proc], grace_seconds=5)
-                done = max(reported, default=0) * settings.eval_interval
+                done = min(logged_steps(d) for d in run_dirs.values())
                 return Outcome(
                     "fail",
-                    reason=f"exceeded --trial-minutes {settings.trial_minutes:g} (stopped after about {done} steps)",
+                    reason=f"exceeded --trial-minutes {settings.trial_minutes:g} (stopped after {done:,} steps)",
                 )
             time.sleep(settings.poll_seconds)
     finally:
