@@ -84,6 +84,22 @@ def test_a_run_stopped_at_its_target_return_counts_as_done(tmp_path, summary, ta
     assert run_status(tmp_path / "missing", 10_000, target) == "new"
 
 
+def test_a_run_that_reached_its_target_toward_another_budget_is_not_this_budgets_result(tmp_path):
+    from canter.config.build import build_config
+    from canter.config.serialize import to_toml
+    from canter.errors import CanterError
+    from canter.orchestrate.jobs import run_status
+
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "ckpt_000000004000.npz").write_bytes(b"")
+    (tmp_path / "config.toml").write_text(to_toml(build_config("Hopper-v5", total_steps=50_000)))
+    summary = {"global_step": 4_000, "stop_reason": "stop_at_return", "recent_return": 310.0}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert run_status(tmp_path, 50_000, 300.0) == "done"
+    with pytest.raises(CanterError, match="toward a budget of 50,000 steps, not this one's 10,000; give --total-steps"):
+        run_status(tmp_path, 10_000, 300.0)
+
+
 def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_path):
     """The final checkpoint saved and summary.json not (a full disk, a kill between the two writes): the bench
     writes the summary from the checkpoint rather than failing on a run that has its budget. A run trained on past
@@ -117,6 +133,7 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
         "compile_seconds": 5.0,
         "sps": 100.0,
         "stop_reason": "budget",
+        "trained_with": None,  # not known from a checkpoint
     }
     assert result.global_step == 2000 and run_status(tmp_path, 2000) == "done"
 

@@ -74,8 +74,26 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
         and isinstance(reached, int | float)
         and reached >= stop_at_return
     ):
+        # Its schedules (an annealed learning rate) stretched over the budget it trained toward, so it is a run of
+        # that budget, whatever step it stopped at.
+        budget = _config_budget(run_dir)
+        if budget is not None and budget != total_steps:
+            raise CanterError(
+                f"{run_dir} reached its target return while training toward a budget of {budget:,} steps, not this "
+                f"one's {total_steps:,}; give --total-steps {budget}, or move the folder away to train it again"
+            )
         return "done"
     return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
+
+
+def _config_budget(run_dir: Path) -> int | None:
+    """run.total_steps of the run folder's config.toml; None where it has none that canter reads."""
+    from canter.training.run_folder import read_config
+
+    try:
+        return read_config(run_dir).run.total_steps
+    except (CanterError, OSError):
+        return None
 
 
 UNREADABLE = -1  # `_budget` of a checkpoint whose header cannot be read

@@ -43,8 +43,8 @@ class RunResult:
     compile_seconds: float  # this session's compile
     sps: float  # env steps per second over the whole run, compile excluded
     stop_reason: str  # budget | stop_at_return | max_minutes | signal
-    # The seeds of the process that trained its last session (itself alone, or its vmapped group); () unknown.
-    trained_with: tuple[int, ...] = ()
+    # The seeds of the process that trained its last session (itself alone, or its vmapped group); None unknown.
+    trained_with: tuple[int, ...] | None = None
 
 
 class _StopFlag:
