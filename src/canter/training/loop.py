@@ -192,12 +192,13 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
     from canter.config.serialize import from_toml_text
 
-    header = checkpoint.read_header(checkpoint.latest(run_dir))
+    newest = checkpoint.latest(run_dir)
+    header = checkpoint.read_header(newest)
     step = int(header["global_step"])
     totals = header.get("totals") or totals_until(run_folder.metrics_file(run_dir), step)
     recent = totals.get("recent_returns") or []
     train_seconds = float(totals.get("train_seconds", 0.0))
-    config = from_toml_text(header["config"], str(checkpoint.latest(run_dir)))
+    config = from_toml_text(header["config"], str(newest))
     target = config.run.stop_at_return
     reached = target is not None and bool(recent) and float(np.mean(recent)) >= target
     result = RunResult(
