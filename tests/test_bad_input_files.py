@@ -188,30 +188,35 @@ def test_an_off_policy_budget_within_learning_starts_is_noted(capsys):
     assert capsys.readouterr().err == ""
 
 
-def test_a_budget_far_from_whole_iterations_is_noted(capsys):
-    from canter.cli import train as train_cli
-    from canter.config.algorithms import algorithm_spec
+def test_a_budget_far_from_whole_iterations_is_noted():
+    from canter.config.algorithms import algorithm_spec, budget_rounding_note
 
     # brax preset: 4,096 envs x 80 steps = 327,680 env steps per iteration, so 4,096 steps train a whole iteration.
     config = build_config("ant", preset="brax", total_steps=4096)
     assert algorithm_spec("ppo").iteration_steps(config) == 4096 * 80
-    train_cli._note_a_rounded_budget(config)
-    assert capsys.readouterr().err == (
-        "canter: note: ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80), "
-        "so this run.total_steps=4,096 run trains about 327,680; give a multiple of 327,680, or smaller "
-        "env.num_envs / ppo.n_steps\n"
+    assert budget_rounding_note(config) == (
+        "ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80), so this "
+        "run.total_steps=4,096 run trains about 327,680; give a multiple of 327,680, or smaller env.num_envs / "
+        "ppo.n_steps"
     )
     # td3: 16 envs and 1,000 steps per call are 62 vector steps, 992 env steps; 1,500 train 1,984.
     td3 = build_config("Hopper-v5", algo="td3", total_steps=1500, sets=["env.num_envs=16"])
     assert algorithm_spec("td3").iteration_steps(td3) == 992
-    train_cli._note_a_rounded_budget(td3)
-    assert "trains about 1,984" in capsys.readouterr().err
+    assert "trains about 1,984" in budget_rounding_note(td3)
     # Within 10% of the budget, or a whole number of iterations, says nothing.
     fast = build_config("Hopper-v5", total_steps=1_000_000)
     assert 0 < 1_000_000 % algorithm_spec("ppo").iteration_steps(fast) < 10_000
-    train_cli._note_a_rounded_budget(fast)
-    train_cli._note_a_rounded_budget(replace(config, run=replace(config.run, total_steps=2 * 327_680)))
-    assert capsys.readouterr().err == ""
+    assert budget_rounding_note(fast) is None
+    assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=2 * 327_680))) is None
+
+
+@pytest.mark.slow
+def test_the_rounded_budget_note_comes_from_training_after_its_checks(tmp_path, capsys):
+    """Printed once the run has passed every check, so that a refused run still gets one line."""
+    argv = ["train", "InvertedPendulum-v5", "--total-steps", "100", "--out-dir", str(tmp_path), "--quiet"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "canter: note: ppo trains in whole iterations of 2,048 env steps" in err, err
 
 
 def test_a_v4_id_asked_for_on_purpose_makes_no_deprecation_warning():

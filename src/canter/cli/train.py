@@ -133,7 +133,6 @@ def _train(args: argparse.Namespace) -> list[Any]:
             )
         else:
             config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes)
-            _note_a_rounded_budget(config)
             results = [train(config, resume=args.resume[0], quiet=args.quiet)]
     else:
         extra = {}
@@ -168,7 +167,6 @@ def _train(args: argparse.Namespace) -> list[Any]:
         from canter.training.loop import train, train_seeds
 
         _note_a_budget_without_updates(config)
-        _note_a_rounded_budget(config)
         if args.seeds is not None:
             if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
                 print(
@@ -193,14 +191,6 @@ def _note_a_budget_without_updates(config: Any) -> None:
             f"--total-steps or --set {algo}.learning_starts=N",
             file=sys.stderr,
         )
-
-
-def _note_a_rounded_budget(config: Any) -> None:
-    from canter.config.algorithms import budget_rounding_note
-
-    note = budget_rounding_note(config)
-    if note is not None:
-        print(f"canter: note: {note}", file=sys.stderr)
 
 
 def _report(results: list[Any]) -> None:

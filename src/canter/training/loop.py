@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.config.algorithms import budget_rounding_note
 from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.config.validate import validate
@@ -589,6 +590,9 @@ def _loop(
             raise
         device_memory.check_fits(compiled, envs)
         compile_seconds = time.perf_counter() - compile_start
+        # After every check that can refuse the run, so that a refusal stays one line.
+        if (note := budget_rounding_note(config)) is not None:
+            print(f"canter: note: {note}", file=sys.stderr)
         for run in runs:
             run.compile_seconds = compile_seconds
     except BaseException:
