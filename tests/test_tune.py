@@ -393,14 +393,12 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monke
 # ------------------------------------------------------------------------ PostgreSQL: a worker killed mid-trial
 
 
-def _worker(args: list[str], log: Path) -> subprocess.Popen:
+def _worker(args: list[str], log: Path, ignore_sigint: bool = False) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    return subprocess.Popen(
-        [sys.executable, "-m", "canter.cli.main", "tune"] + args,
-        stdout=open(log, "wb"),
-        stderr=subprocess.STDOUT,
-        env=env,
-    )
+    command = [sys.executable, "-m", "canter.cli.main", "tune"] + args
+    if ignore_sigint:  # as a job started with `&` from a script inherits it: its processes ignore SIGINT
+        command = ["bash", "-c", 'trap "" INT; exec "$@"', "bash", *command]
+    return subprocess.Popen(command, stdout=open(log, "wb"), stderr=subprocess.STDOUT, env=env)
 
 
 def _wait_gone(pid: int, seconds: float) -> None:
@@ -616,30 +614,34 @@ def test_a_trial_whose_training_ended_before_its_evaluations_were_read_is_not_pr
 
 
 @pytest.mark.slow
-def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path):
-    """A scheduler's SIGTERM to `canter tune` stops the trial's training and records the trial as interrupted; it
-    left the trial RUNNING, so the next run waited out the heartbeat grace."""
-    args = ["Pendulum-v1", "--trials", "2", "--heartbeat", "60"] + tiny_args(tmp_path)
+@pytest.mark.parametrize("jobs, ignore_sigint", [(1, False), (2, True)])
+def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path, jobs, ignore_sigint):
+    """A scheduler's SIGTERM to `canter tune` alone stops every trial's training and records the trials as
+    interrupted; it left them RUNNING, so the next run waited out the heartbeat grace. With --jobs the workers do
+    not get the signal: the parent passes it on, as SIGTERM, which a background job's workers do not ignore."""
+    args = ["Pendulum-v1", "--trials", "2", "--jobs", str(jobs), "--heartbeat", "60"] + tiny_args(tmp_path)
     args[args.index("--total-steps") + 1] = "200000"  # a trial that outlasts the test
-    proc = _worker(args, tmp_path / "tune.log")
+    proc = _worker(args, tmp_path / "tune.log", ignore_sigint)
     storage = f"sqlite:///{tmp_path / 'tune' / 'Pendulum-v1__ppo' / 'study.db'}"
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 180
         while True:
             assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "tune.log").read_text()
             try:
-                study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage)
-                if study.get_trials(states=(optuna.trial.TrialState.RUNNING,)):
-                    break
-            except (KeyError, Exception):
+                if (tmp_path / "tune" / "Pendulum-v1__ppo" / "study.db").is_file():
+                    study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage)
+                    if len(study.get_trials(states=(optuna.trial.TrialState.RUNNING,))) == jobs:
+                        break
+            except KeyError:  # the study is not made yet
                 pass
             time.sleep(0.5)
-        time.sleep(3.0)  # inside the trial: its training child is up
+        time.sleep(3.0)  # inside the trials: their training children are up
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=240) == 130, (tmp_path / "tune.log").read_text()
+        assert proc.wait(timeout=120) == 130, (tmp_path / "tune.log").read_text()
     finally:
         if proc.poll() is None:
             proc.kill()
-    [trial] = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage).trials
-    assert trial.state == optuna.trial.TrialState.FAIL and trial.user_attrs["fail_reason"] == "interrupted"
+    trials = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage).trials
+    assert len(trials) == jobs
+    assert all(t.state == optuna.trial.TrialState.FAIL and t.user_attrs["fail_reason"] == "interrupted" for t in trials)
     assert "canter: interrupted" in (tmp_path / "tune.log").read_text()

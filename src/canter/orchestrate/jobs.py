@@ -390,12 +390,13 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
         for p in processes:
             p.join()
     except KeyboardInterrupt:
-        # A terminal's Ctrl-C reaches the workers too, a SIGTERM to this process does not: tell them, then give
+        # A terminal's Ctrl-C reaches the workers too; a SIGTERM to this process alone does not, nor does a SIGINT
+        # that a background shell made them ignore. Tell them (a worker that stopped already ignores it), then give
         # each the time its running job takes to checkpoint.
         for p in processes:
             if p.is_alive() and p.pid is not None:
                 with contextlib.suppress(ProcessLookupError):
-                    os.kill(p.pid, signal.SIGINT)
+                    os.kill(p.pid, signal.SIGTERM)
         deadline = time.monotonic() + STOP_GRACE_SECONDS + 30
         for p in processes:
             p.join(max(0.0, deadline - time.monotonic()))
@@ -403,19 +404,28 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
     return [p.exitcode for p in processes if p.exitcode]
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextlib.contextmanager
 def sigterm_interrupts() -> Iterator[None]:
     """Within it, SIGTERM (a scheduler, `kill`, a dying parent) stops the process as Ctrl-C does, so that a bench or
-    tune worker stops its job and records its trial as interrupted rather than leave it running in the study."""
+    tune worker stops its job and records its trial as interrupted rather than leave it running in the study. The
+    first stop signal interrupts, and later ones are ignored: a second one (Ctrl-C to the process group, then the
+    parent passing it on) would cut short the cleanup that waits for the job's checkpoint, which is bounded anyway
+    (`stop_jobs`: its grace, then SIGKILL)."""
 
     def interrupt(signum: int, frame: Any) -> None:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {sig: signal.signal(sig, interrupt) for sig in STOP_SIGNALS}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: dict[str, str]) -> None:
