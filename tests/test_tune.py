@@ -293,6 +293,11 @@ def test_a_resumed_study_does_not_replay_its_proposals(tmp_path):
     assert len({sampler_seed(7, job, trials) for job in range(4) for trials in range(1, 50)}) == 4 * 49
     # The same study state gives the same seed, so a resume is reproducible.
     assert sampler_seed(7, 0, 3) == sampler_seed(7, 0, 3)
+    # The workers of one command seed from the count the command made when it started, not from what they see
+    # when they start (a sibling's first trial may be there by then): counted as at the start, the first proposal
+    # of the first session comes back.
+    again = make_study(settings, storage, 0, trials_before=0).ask()
+    assert space.suggest(again) == proposals[0]
 
 
 def test_each_trial_prints_how_it_ended(capsys):

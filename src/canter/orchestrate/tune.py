@@ -323,9 +323,10 @@ def sampler_seed(seed: int | None, job: int, trials: int) -> int | None:
     return int(np.random.SeedSequence([seed, job, trials]).generate_state(1)[0])
 
 
-def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
+def make_study(settings: TuneSettings, storage: Any, job: int = 0, trials_before: int | None = None) -> Any:
     """The study with this worker's sampler and pruner (they are not stored; every worker makes its own), seeded by
-    `sampler_seed` with --sampler-seed."""
+    `sampler_seed` with --sampler-seed from `trials_before`, the trials the study held when the command started
+    (counted here where not given: a worker that counted for itself would see its siblings' first trials)."""
     import optuna
 
     quiet_optuna()
@@ -339,17 +340,19 @@ def make_study(settings: TuneSettings, storage: Any, job: int = 0) -> Any:
         pruner=pruner,
         load_if_exists=True,
     )
-    seed = sampler_seed(settings.sampler_seed, job, len(study.get_trials(deepcopy=False)))
+    if trials_before is None:
+        trials_before = len(study.get_trials(deepcopy=False))
+    seed = sampler_seed(settings.sampler_seed, job, trials_before)
     study.sampler = optuna.samplers.TPESampler(n_startup_trials=settings.startup_trials, seed=seed, constant_liar=True)
     return study
 
 
-def worker(settings: TuneSettings, job: int = 0) -> None:
+def worker(settings: TuneSettings, job: int = 0, trials_before: int | None = None) -> None:
     """One worker: run trials until the study has its number of finished trials."""
     config, space = check_settings(settings)
     storage = open_storage(settings.storage)
     url = settings.storage.url
-    study = retrying(functools.partial(make_study, settings, storage, job), url, "opening the study")
+    study = retrying(functools.partial(make_study, settings, storage, job, trials_before), url, "opening the study")
     deadline = retrying(functools.partial(_study_deadline, study, settings), url, "reading the study")
     run_worker(
         study,
@@ -443,8 +446,10 @@ def tune(settings: TuneSettings) -> Any:
     if settings.storage_url is None:
         make_folder(settings.study_dir)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
-    make_folder(settings.study_dir)  # the trials' folders, with any storage, before a trial is stored
+    if settings.storage_url is not None:
+        make_folder(settings.study_dir)  # the trials' folders, once the storage is reached, before a trial is stored
     study = make_study(settings, storage)
+    trials_before = len(study.get_trials(deepcopy=False))  # one count for every worker's sampler seed
     wanted = study_settings(settings, base, space)
     check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
     retrying(check, settings.storage.url, "reading the study")
@@ -453,9 +458,9 @@ def tune(settings: TuneSettings) -> Any:
     warn_if_more_jobs_than_cores(settings.jobs)
     failed = []
     if settings.jobs == 1:
-        worker(settings)
+        worker(settings, 0, trials_before)
     else:
-        failed = run_workers(worker, [(settings, i) for i in range(settings.jobs)], "canter-tune")
+        failed = run_workers(worker, [(settings, i, trials_before) for i in range(settings.jobs)], "canter-tune")
     # What the study holds is written even when a worker ended early: the others may have finished its trials.
     retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
     if failed:
