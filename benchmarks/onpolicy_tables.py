@@ -73,7 +73,7 @@ def full_length(rows: list[dict[str, Any]]) -> str:
 def iqm_interval(returns: list[float]) -> str:
     from canter.use.statistics import aggregates
 
-    return aggregates(np.asarray(returns, float)[:, None]).iqm.show(0)
+    return aggregates(np.asarray(returns, float)[:, None]).iqm.show(0, runs=len(returns))
 
 
 def cell_result(algo: str, env: str, rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -737,3 +737,4 @@ def test_a_storage_url_in_an_error_keeps_its_password_out(capsys):
     assert redacted("sqlite:///a/b.db") == "sqlite:///a/b.db"
     assert redacted("postgresql://u@h/db") == "postgresql://u@h/db"
     assert redacted("postgresql://u:p@ss@h:5432/db") == "postgresql://u:***@h:5432/db"
+    assert redacted("postgresql://u:se/cr@t@h/db") == "postgresql://u:***@h/db"  # SQLAlchemy takes a / in one

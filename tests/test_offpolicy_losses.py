@@ -315,11 +315,10 @@ def test_sac_entropies_in_the_envs_action_coordinates_match_a_reference():
     np.testing.assert_allclose(diag["entropy"], -float(jnp.mean(log_prob - c)), rtol=1e-5)
     # The unit box reads the same policy's entropy -c (1.8 nats) higher; without bootstrapping (gamma 0) nothing
     # else differs, so its temperature moves as the env box's does with the target shifted by c.
-    unit_diag = _update(SAC(replace(cfg, entropy_box="unit"), -2.0 - c), learner, batch, jax.random.key(2))[1]
+    unit_diag = _update(SAC(cfg, -2.0 - c), learner, batch, jax.random.key(2))[1]  # log_scale 0: the unit box
     np.testing.assert_allclose(unit_diag["entropy"], float(diag["entropy"]) - c, rtol=1e-5)
     myopic = replace(cfg, gamma=0.0)
     env_alpha = _update(SAC(myopic, -2.0, c), learner, batch, jax.random.key(2))[0].log_alpha
-    unit = replace(myopic, entropy_box="unit")
-    unit_alpha = _update(SAC(unit, -2.0 - c), learner, batch, jax.random.key(2))[0].log_alpha
+    unit_alpha = _update(SAC(myopic, -2.0 - c), learner, batch, jax.random.key(2))[0].log_alpha
     np.testing.assert_allclose(env_alpha, unit_alpha, rtol=1e-6)
-    assert float(env_alpha) != float(_update(SAC(unit, -2.0), learner, batch, jax.random.key(2))[0].log_alpha)
+    assert float(env_alpha) != float(_update(SAC(myopic, -2.0), learner, batch, jax.random.key(2))[0].log_alpha)

@@ -256,6 +256,12 @@ def test_scores_of_one_kind_only(tmp_path, capsys):
     assert capsys.readouterr().err == (
         f"canter: note: {tmp_path / 's2'} has no evaluation, so every run is scored by its training return\n"
     )
+    # A run with an evaluation but no training return (no summary.json yet) is then left out, and named.
+    unfinished = run(3, 40.0, last_eval=400.0)
+    (unfinished.run_dir / "summary.json").unlink()
+    board = scoreboard_of(experiments_of([*evaluated, run(4, 50.0), unfinished]))
+    assert board.cells[0].scores == (10.0, 20.0, 50.0)
+    assert f"{tmp_path / 's3'} has no training return" in capsys.readouterr().err
 
 
 def test_a_seed_run_twice_is_noted(capsys):

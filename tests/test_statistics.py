@@ -184,7 +184,6 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     assert hopper_ppo.returns.mean.estimate == pytest.approx(2933.333, abs=1e-3)
     # One env's median is its runs' (3000), not rliable's median of per-env means, which is their mean.
     assert hopper_ppo.returns.median.estimate == 3000.0
-    assert 2500.0 <= hopper_ppo.returns.median.low <= hopper_ppo.returns.median.high <= 3300.0
     # Optimality gap below Tianshou's 2609.3: only the 2500 run falls short.
     assert hopper_ppo.returns.optimality_gap.estimate == pytest.approx((2609.3 - 2500.0) / 3)
     ppo = board.methods[0]

@@ -130,7 +130,7 @@ EVAL_HEADER = (
 def eval_text(result: dict[str, Any]) -> str:
     """A cell's final evaluation as the pages show it: '1,234 ± 56', and from MIN_RUNS_FOR_INTERVAL seeds on
     '1,234 ± 56 [1,180, 1,290]', the bracket being rliable's stratified-bootstrap 95% interval of the mean over
-    seeds (over fewer seeds it only restates their min and max); one seed's mean alone."""
+    seeds (over 2 or 3 seeds it is their min and max, and over 4 little more); one seed's mean alone."""
     interval: Interval | None = result["mean_interval"]
     if interval is None:
         return f"{result['return_mean']:,.0f}"

@@ -79,10 +79,10 @@ def repeated_seed_note(configs: Sequence[Config], names: Sequence[str]) -> str |
     )
 
 
-def differing_keys(configs: Sequence[Config], key: Callable[[Config], Any] = experiment_key) -> list[str]:
-    """Learning keys (with `key=comparison_key`, and the budget) whose values are not the same in every config, in
+def differing_keys(configs: Sequence[Config], key_of: Callable[[Config], Any] = experiment_key) -> list[str]:
+    """Learning keys (with `key_of=comparison_key`, and the budget) whose values are not the same in every config, in
     config.toml order."""
-    keyed = [dict(key(c)) for c in configs]
+    keyed = [dict(key_of(c)) for c in configs]
     order: list[str] = []
     for k in keyed:
         order += [key for key in k if key not in order]

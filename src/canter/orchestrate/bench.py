@@ -675,7 +675,7 @@ def run_distributed(
         # below holds every cell they finished, and names the rest.
         print(
             f"canter: note: {len(ended)} of {settings.jobs} bench workers ended early ({exit_text(ended[0])}; a "
-            f"worker's own error is printed above)",
+            f"worker's own error, if it had one, is printed above)",
             file=sys.stderr,
         )
     done, failed = {}, {}

@@ -48,7 +48,7 @@ def normalize_url(url: str) -> str:
 
 def redacted(url: str) -> str:
     """The URL with its password, if any, replaced by ***: error messages end up in logs and terminals."""
-    return re.sub(r"(://[^/@:]*:)[^/]*@", r"\1***@", url)
+    return re.sub(r"(://[^/@:]*:).*@", r"\1***@", url)
 
 
 def describe_url(url: str) -> tuple[str, str]:

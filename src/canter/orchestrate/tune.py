@@ -372,7 +372,11 @@ def announced(number: int, run: Callable[[], Outcome]) -> Outcome:
     """Run a trial and print how it ended, as bench prints its jobs: a study of long trials is otherwise silent
     until its summary."""
     started = time.monotonic()
-    outcome = run()
+    try:
+        outcome = run()
+    except Exception as exc:  # the worker records the failure; the line says so here too
+        print(f"{TRIAL_ENDS['fail']} trial {number}: {type(exc).__name__}: {exc}"[:500], flush=True)
+        raise
     minutes = (time.monotonic() - started) / 60
     told = f"return {outcome.value:.1f}" if outcome.value is not None else (outcome.reason or "no reason recorded")
     print(f"{TRIAL_ENDS[outcome.state]} trial {number} in {minutes:.1f} min: {told}", flush=True)
@@ -465,8 +469,9 @@ def tune(settings: TuneSettings) -> Any:
     retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
     if failed:
         raise CanterError(
-            f"{len(failed)} of {settings.jobs} tune workers ended early ({exit_text(failed[0])}; a worker's own error "
-            f"is printed above); the summary above holds what the study has, and the same command goes on with it"
+            f"{len(failed)} of {settings.jobs} tune workers ended early ({exit_text(failed[0])}; a worker's own "
+            f"error, if it had one, is printed above); the summary above holds what the study has, and the same "
+            f"command goes on with it"
         )
     return study
 

@@ -582,6 +582,14 @@ def scoreboard_of(
             file=sys.stderr,
         )
         found = {path: run_score(path, (TRAINING_SOURCE,)) for path in found}
+        unscored = [path for path, score in found.items() if score is None]
+        if unscored:
+            print(
+                f"canter: note: {unscored[0]}"
+                + (f" and {len(unscored) - 1} more runs have" if len(unscored) > 1 else " has")
+                + " no training return (no finished episode, or no summary.json yet) and is left out of the statistics",
+                file=sys.stderr,
+            )
     rows, sources = [], []
     for method, run in runs:
         score = found[run.run_dir]

@@ -143,10 +143,10 @@ class Scoreboard:
                             ", ".join(m.envs)
                             + (f" (no normalizer: {', '.join(m.without_normalizer)})" if m.without_normalizer else ""),
                             str(m.normalized.runs) + (f" ({m.dropped_runs} more left out)" if m.dropped_runs else ""),
-                            m.normalized.iqm.show(2, m.normalized.runs),
-                            m.normalized.mean.show(2, m.normalized.runs),
-                            m.normalized.median.show(2, m.normalized.runs),
-                            m.normalized.optimality_gap.show(2, m.normalized.runs)
+                            m.normalized.iqm.show(2, runs=m.normalized.runs),
+                            m.normalized.mean.show(2, runs=m.normalized.runs),
+                            m.normalized.median.show(2, runs=m.normalized.runs),
+                            m.normalized.optimality_gap.show(2, runs=m.normalized.runs)
                             if m.normalized.optimality_gap
                             else "–",
                         )
@@ -166,7 +166,7 @@ class Scoreboard:
                     tuple(
                         (name,)
                         + tuple(
-                            Interval(p.fraction[i], p.low[i], p.high[i]).show(2, self.runs_per_env(name))
+                            Interval(p.fraction[i], p.low[i], p.high[i]).show(2, runs=self.runs_per_env(name))
                             for i in (PROFILE_TAUS.index(t) for t in shown)
                         )
                         for name, p in self.profiles.items()
@@ -183,7 +183,9 @@ class Scoreboard:
                     f"{statistics.MIN_RUNS_FOR_INTERVAL} runs per env or more. A method with unequal numbers of runs "
                     "per env takes as many runs per env as its smallest env has.",
                     ("X", "Y", "envs", "P(X > Y)"),
-                    tuple((c.x, c.y, ", ".join(c.envs), c.probability.show(2, min(c.runs))) for c in self.comparisons),
+                    tuple(
+                        (c.x, c.y, ", ".join(c.envs), c.probability.show(2, runs=min(c.runs))) for c in self.comparisons
+                    ),
                 )
             )
         return tables

@@ -41,7 +41,7 @@ class Interval:
     low: float
     high: float
 
-    def show(self, digits: int = 1, runs: int = MIN_RUNS_FOR_INTERVAL) -> str:
+    def show(self, digits: int = 1, *, runs: int) -> str:
         """'1,234.5 [1,100.0, 1,300.2]'; the estimate alone from fewer than MIN_RUNS_FOR_INTERVAL runs."""
         if runs < MIN_RUNS_FOR_INTERVAL:
             return f"{self.estimate:,.{digits}f}"
@@ -53,8 +53,9 @@ class Interval:
 
 @dataclass(frozen=True)
 class Aggregates:
-    """IQM, mean, median and optimality gap of a score matrix [runs, tasks], each with its interval. The mean and
-    median are of the per-task means (rliable's definitions); the IQM and the optimality gap pool all runs."""
+    """IQM, mean, median and optimality gap of a score matrix [runs, tasks], each with its interval. The mean is of
+    the per-task means, and so is the median over several tasks (rliable's definitions); over one task the median is
+    of its runs. The IQM and the optimality gap pool all runs."""
 
     runs: int
     tasks: int
