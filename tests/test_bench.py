@@ -468,6 +468,7 @@ def test_a_resumed_runs_record_counts_every_session(tmp_path):
         "eval_mean": 7.0,
         "wall_seconds": pytest.approx(25.0),
         "sps": pytest.approx(300 / (10 + 10 + 2.5)),
+        "trained_with": None,  # a summary written before canter kept it
     }
 
 
