@@ -118,6 +118,7 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--algos", "ppo,td3,ppo"], "each name may appear once"),
         (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat must be >= 1 second, got 0"),
         (["--storage", "postgresql://u@host:abc/db"], "is not a database URL; use sqlite:///path/study.db"),
+        (["--storage", "foo://host/db"], "foo"),  # parses, but no such driver: refused when opened
     ],
 )
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):

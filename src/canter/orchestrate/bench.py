@@ -712,8 +712,14 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
+    existed = bench_dir.exists()
     make_folder(bench_dir)  # first: a SQLite storage may live in it
-    opened = _open_grid_study(settings, bench_dir) if settings.storage_url else None
+    try:
+        opened = _open_grid_study(settings, bench_dir) if settings.storage_url else None
+    except CanterError:
+        if not existed and not any(bench_dir.iterdir()):  # a refused command leaves nothing behind
+            bench_dir.rmdir()
+        raise
     check_existing_runs(cells, settings, bench_dir)
     # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.
     unfinished = [c for c in cells if not seeds_finished(c, settings.seeds, settings, bench_dir)]
