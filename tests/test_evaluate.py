@@ -98,6 +98,9 @@ def test_cli_group_row_and_json(tiny_run, tmp_path, capsys):
     means = [r["return_mean"] for r in report["runs"]]
     assert group["return_mean"] == pytest.approx(np.mean(means)) and group["return_std"] == pytest.approx(np.std(means))
     assert "group:" in out and sum(line.count("±") == 2 for line in out.splitlines()) == 3
+    # The label names the budget (another budget is another group), and a copy of a run is the same seed twice.
+    assert group["label"] == "Pendulum-v1 ppo, budget 8,192, seeds 0,0"  # tiny_run's
+    assert "are both seed 0 of one experiment" in err
 
 
 @pytest.mark.slow

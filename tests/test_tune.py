@@ -650,3 +650,27 @@ def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path, jobs, ignore_sigint):
     assert len(trials) == jobs
     assert all(t.state == optuna.trial.TrialState.FAIL and t.user_attrs["fail_reason"] == "interrupted" for t in trials)
     assert "canter: interrupted" in (tmp_path / "tune.log").read_text()
+
+
+def test_a_worker_that_gives_up_still_leaves_the_summary(tmp_path, monkeypatch, capsys):
+    import canter.orchestrate.tune as tune_module
+
+    def gives_up(settings, job, trials_before):
+        print("start trial 0 (...)")
+        raise CanterError("study 'x': 10 trials failed in a row and none finished; the last one: broken")
+
+    written = []
+    monkeypatch.setattr(tune_module, "worker", gives_up)
+    monkeypatch.setattr(tune_module, "write_results", lambda study, settings: written.append(study.study_name))
+    with pytest.raises(CanterError, match="10 trials failed in a row"):
+        tune_module.tune(tiny_settings(tmp_path))
+    assert written == ["Pendulum-v1__ppo"]  # summary.md and best.toml come from what the study holds
+
+
+def test_an_interrupted_trial_prints_its_fail_line(capsys):
+    def interrupted():
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        announced(5, interrupted)
+    assert capsys.readouterr().out == "FAIL  trial 5: interrupted\n"

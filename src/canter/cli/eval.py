@@ -133,6 +133,7 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
                 seed_stream=seed_stream(policy),
                 eval_seed=seed,
                 global_step=policy.facts.global_step,
+                total_steps=policy.config.run.total_steps,
                 **result.summary(),
             )
         )
@@ -165,7 +166,10 @@ def _group_row(rows: list[dict[str, Any]], members: list[int]) -> dict[str, Any]
     lengths = np.array([r["length_mean"] for r in chosen])
     first = chosen[0]
     return {
-        "label": f"{first['env']} {first['algo']}, seeds {','.join(str(r['seed']) for r in chosen)}",
+        "label": (
+            f"{first['env']} {first['algo']}, budget {first['total_steps']:,}, "
+            f"seeds {','.join(str(r['seed']) for r in chosen)}"
+        ),
         "runs": [r["run"] for r in chosen],
         "checkpoint": first["checkpoint"],
         "seeds": [r["seed"] for r in chosen],

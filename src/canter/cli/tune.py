@@ -31,14 +31,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="env steps per trial (default 1e6: the defaults train 50M steps in all)",
     )
     t.add_argument("--seeds-per-trial", type=int, default=1, help="average the objective over K seeds (default 1)")
-    t.add_argument("--seed", type=seed_arg, default=0, help="first seed of every trial (seeds SEED..SEED+K-1)")
+    t.add_argument(
+        "--seed", type=seed_arg, default=0, help="first seed of every trial (seeds SEED..SEED+K-1; default 0)"
+    )
     t.add_argument(
         "--startup-trials", type=int, default=10, help="random trials before TPE models the space (default 10)"
     )
     t.add_argument(
         "--evaluations", type=int, default=20, help="evaluations during training per trial, for pruning (default 20)"
     )
-    t.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation during training")
+    t.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation during training (default 5)")
     t.add_argument("--trial-minutes", type=float, default=None, help="wall-clock limit of one trial")
     t.add_argument("--study-hours", type=float, default=None, help="stop starting trials after this many hours")
     t.add_argument("--space", default=None, metavar="FILE", help="search space TOML (default: the shipped one)")

@@ -377,6 +377,9 @@ def announced(number: int, run: Callable[[], Outcome]) -> Outcome:
     except Exception as exc:  # the worker records the failure; the line says so here too
         print(f"{TRIAL_ENDS['fail']} trial {number}: {type(exc).__name__}: {exc}"[:500], flush=True)
         raise
+    except KeyboardInterrupt:
+        print(f"{TRIAL_ENDS['fail']} trial {number}: interrupted", flush=True)
+        raise
     minutes = (time.monotonic() - started) / 60
     told = f"return {outcome.value:.1f}" if outcome.value is not None else (outcome.reason or "no reason recorded")
     print(f"{TRIAL_ENDS[outcome.state]} trial {number} in {minutes:.1f} min: {told}", flush=True)
@@ -462,7 +465,11 @@ def tune(settings: TuneSettings) -> Any:
     warn_if_more_jobs_than_cores(settings.jobs)
     failed = []
     if settings.jobs == 1:
-        worker(settings, 0, trials_before)
+        try:
+            worker(settings, 0, trials_before)
+        except CanterError:  # a worker that gives up: what the study holds is still written
+            retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
+            raise
     else:
         failed = run_workers(worker, [(settings, i, trials_before) for i in range(settings.jobs)], "canter-tune")
     # What the study holds is written even when a worker ended early: the others may have finished its trials.

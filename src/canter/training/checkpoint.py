@@ -187,10 +187,20 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if _NAME.match(p.name))
 
 
-def latest(run_dir: Path) -> Path:
-    run_dir = Path(run_dir)
+def need_run_folder(run_dir: Path) -> None:
+    """A one-line refusal of a path that is not a folder: a checkpoint file names its checkpoint, not its run."""
+    if run_dir.is_file():
+        raise CanterError(
+            f"{run_dir} is a file, not a run folder; pass the run folder, and --checkpoint {run_dir} to pick this "
+            f"checkpoint"
+        )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
+
+
+def latest(run_dir: Path) -> Path:
+    run_dir = Path(run_dir)
+    need_run_folder(run_dir)
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found:
@@ -245,8 +255,7 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     if which == LAST:
         return latest(run_dir)
     run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise CanterError(f"run folder not found: {run_dir}")
+    need_run_folder(run_dir)
     path = best_path(run_dir)
     if not path.is_file():
         raise CanterError(
