@@ -10,8 +10,9 @@ the statistics of `canter.use.scoreboard`: aggregates with 95% bootstrap interva
 improvement), `results.csv`, `statistics.json` and a plot per env.
 
 With `--storage`, the jobs are the trials of an Optuna study: each job is enqueued once, under a key that holds its
-name, seeds, step budget and evaluation episodes (`job_key`), so workers on several machines share the grid the way
-`canter tune` workers share a study, and a re-run with more seeds or steps queues what it adds.
+name, seeds, step budget, evaluation episodes and a digest of its experiment (`job_key`), so workers on several
+machines share the grid the way `canter tune` workers share a study, and a re-run with more seeds or steps queues
+what it adds.
 
 With `--track`, each seed is a tracker run, the seeds of a cell in one group (`canter.training.trackers`); a job
 that resumes a seed continues its tracker runs.
