@@ -346,6 +346,7 @@ class _SeedRun:
         start_step: int,
         metric_names: tuple[str, ...],
         earlier: dict[str, Any] | None,
+        trained_with: tuple[int, ...],
     ) -> None:
         """`earlier`: wall seconds, training seconds, episodes and the recent episode returns of the sessions before
         a resume; None for a new run. (A resume may start at step 0: a run whose first iteration was non-finite.)"""
@@ -362,7 +363,7 @@ class _SeedRun:
         self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
         self.run_seconds = float(earlier.get("train_seconds", 0.0))
         self.compile_seconds = 0.0  # this session's, once compiled
-        self.trained_with: tuple[int, ...] = (config.run.seed,)  # the group sets its seeds
+        self.trained_with = trained_with  # the seeds of this process's group, its own included
         every = config.run.checkpoint_every
         self.next_checkpoint = (start_step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
@@ -578,9 +579,9 @@ def _loop(
     envs = config.env.num_envs
     runs: list[_SeedRun] = []
     try:  # a seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)
+        group_seeds = tuple(c.run.seed for c in configs)
         for c, out, start, before in zip(configs, outs, start_steps, earlier):
-            runs.append(_SeedRun(c, spec, out, start, algorithm.metric_names, before))
-            runs[-1].trained_with = tuple(other.run.seed for other in configs)
+            runs.append(_SeedRun(c, spec, out, start, algorithm.metric_names, before, group_seeds))
         compile_start = time.perf_counter()
         try:
             compiled = iteration.lower(state, carry, fractions(runs)).compile()

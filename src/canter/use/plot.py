@@ -575,20 +575,12 @@ def scoreboard_of(
     untested = [path for path, score in found.items() if score is not None and score[1] == TRAINING_SOURCE]
     if untested and len(untested) < sum(score is not None for score in found.values()):
         # An evaluation and a training return (stochastic actions) are not samples of one score.
-        print(
-            f"canter: note: {untested[0]}"
-            + (f" and {len(untested) - 1} more runs have" if len(untested) > 1 else " has")
-            + " no evaluation, so every run is scored by its training return",
-            file=sys.stderr,
-        )
+        _note_runs(untested, "no evaluation, so every run is scored by its training return")
         found = {path: run_score(path, (TRAINING_SOURCE,)) for path in found}
         unscored = [path for path, score in found.items() if score is None]
         if unscored:
-            print(
-                f"canter: note: {unscored[0]}"
-                + (f" and {len(unscored) - 1} more runs have" if len(unscored) > 1 else " has")
-                + " no training return (no finished episode, or no summary.json yet) and is left out of the statistics",
-                file=sys.stderr,
+            _note_runs(
+                unscored, "no training return (no finished episode, or no summary.json yet): left out of the statistics"
             )
     rows, sources = [], []
     for method, run in runs:
@@ -601,6 +593,11 @@ def scoreboard_of(
     if all(cells.count(cell) < 2 for cell in cells):
         return None
     return build_scoreboard(rows, "; ".join(dict.fromkeys(sources)), seed=seed)
+
+
+def _note_runs(paths: Sequence[Path], what: str) -> None:
+    subject = f"{paths[0]} has" if len(paths) == 1 else f"{paths[0]} and {len(paths) - 1} more runs have"
+    print(f"canter: note: {subject} {what}", file=sys.stderr)
 
 
 def render(
