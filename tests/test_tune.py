@@ -442,11 +442,10 @@ def test_postgres_distributed_worker_killed_mid_trial(tmp_path, postgres_url):  
         victim_trial = None
         while victim_trial is None:
             assert time.monotonic() < deadline and victim.poll() is None, (tmp_path / "a.log").read_text()
-            try:
-                study = optuna.load_study(study_name="killed-worker", storage=storage)
-            except KeyError:
+            if "start trial" not in (tmp_path / "a.log").read_text():  # its tables are made: the study can be read
                 time.sleep(0.2)
                 continue
+            study = optuna.load_study(study_name="killed-worker", storage=storage)
             running = [
                 t
                 for t in study.get_trials(states=(optuna.trial.TrialState.RUNNING,))
@@ -630,15 +629,10 @@ def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path, jobs, ignore_sigint):
     storage = f"sqlite:///{tmp_path / 'tune' / 'Pendulum-v1__ppo' / 'study.db'}"
     try:
         deadline = time.monotonic() + 180
-        while True:
+        # The log, not the study, says when the trials are up: opening the SQLite file while tune is still making
+        # its tables races it for the schema's first row.
+        while (tmp_path / "tune.log").read_text().count("start trial") < jobs:
             assert time.monotonic() < deadline and proc.poll() is None, (tmp_path / "tune.log").read_text()
-            try:
-                if (tmp_path / "tune" / "Pendulum-v1__ppo" / "study.db").is_file():
-                    study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage)
-                    if len(study.get_trials(states=(optuna.trial.TrialState.RUNNING,))) == jobs:
-                        break
-            except KeyError:  # the study is not made yet
-                pass
             time.sleep(0.5)
         time.sleep(3.0)  # inside the trials: their training children are up
         proc.send_signal(signal.SIGTERM)
