@@ -740,3 +740,9 @@ def test_a_storage_url_in_an_error_keeps_its_password_out(capsys):
     assert redacted("postgresql://u@h/db") == "postgresql://u@h/db"
     assert redacted("postgresql://u:p@ss@h:5432/db") == "postgresql://u:***@h:5432/db"
     assert redacted("postgresql://u:se/cr@t@h/db") == "postgresql://u:***@h/db"  # SQLAlchemy takes a / in one
+
+
+def test_a_password_with_an_unencoded_at_sign_is_refused_without_showing_it(capsys):
+    assert main(["bench", "--envs", "Hopper-v5", "--storage", "postgresql://tuner:s3@cret@dbhost/canter"]) == 2
+    err = capsys.readouterr().err
+    assert "cret" not in err and "%40" in err and err.count("\n") == 1

@@ -71,6 +71,11 @@ def describe_url(url: str) -> tuple[str, str]:
                 f"file, such as sqlite:///study.db"
             )
         return driver, parsed.database
+    if "@" in (parsed.host or ""):  # SQLAlchemy splits at the first @, so the password's tail would read as the host
+        raise CanterError(
+            f"--storage {redacted(url)!r}: its password holds an '@'; write it as %40 "
+            f"(postgresql://user:p%40ss@host/db), as URLs need"
+        )
     host = f"{parsed.host or 'localhost'}:{parsed.port}" if parsed.port else (parsed.host or "localhost")
     return driver, host
 
