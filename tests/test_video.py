@@ -1,5 +1,6 @@
 """Videos: decoded frame counts, sizes and content; GL selection; DM Control; the training hook; bad input."""
 
+import os
 import re
 import sys
 
@@ -50,18 +51,24 @@ def test_mp4_of_a_mujoco_run(tiny_hopper_run, capsys):
     )
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert out.count("return") == 2
+    assert re.findall(r"episode (\d)/2: return", out) == ["1", "2"] and out.startswith("rendering 2 episode(s) of")
     # Each episode: the reset frame plus one per step.
     assert_real_video(frames_of("hopper.mp4"), 2 * 9, 64, 48)
 
 
 @pytest.mark.slow
 def test_gif_of_a_non_mujoco_env_is_resized(tiny_run):
+    told = []  # each episode is told as it ends, before the file is written
+
+    def on_episode(index, value):
+        told.append((index, value, os.path.exists("pendulum.gif")))
+
     returns = video.record_video(
-        tiny_run.run_dir, "pendulum.gif", episodes=1, width=40, height=30, fps=20, max_steps=12
+        tiny_run.run_dir, "pendulum.gif", episodes=2, width=40, height=30, fps=20, max_steps=12, on_episode=on_episode
     )
-    assert len(returns) == 1 and np.isfinite(returns[0])
-    assert_real_video(frames_of("pendulum.gif"), 13, 40, 30)
+    assert len(returns) == 2 and np.all(np.isfinite(returns))
+    assert told == [(0, returns[0], False), (1, returns[1], False)]
+    assert_real_video(frames_of("pendulum.gif"), 2 * 13, 40, 30)
 
 
 @pytest.mark.slow

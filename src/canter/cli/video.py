@@ -36,6 +36,15 @@ def run(args: argparse.Namespace) -> int:
     from canter.use.video import record_video
 
     started = time.perf_counter()
+    last = [started]
+
+    def episode_done(index: int, value: float) -> None:
+        now = time.perf_counter()
+        print(f"episode {index + 1}/{args.episodes}: return {value:.1f} ({now - last[0]:.1f} s)", flush=True)
+        last[0] = now
+
+    cut = f", at most {args.max_steps} steps each" if args.max_steps else ""
+    print(f"rendering {args.episodes} episode(s) of {args.run} to {args.out}{cut}", flush=True)
     returns = record_video(
         args.run,
         args.out,
@@ -47,8 +56,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else 0,
         checkpoint=args.checkpoint,
         max_steps=args.max_steps,
+        on_episode=episode_done,
     )
-    for i, value in enumerate(returns):
-        print(f"episode {i + 1}: return {value:.1f}")
     print(f"wrote {args.out} ({len(returns)} episodes) in {time.perf_counter() - started:.1f} s")
     return 0

@@ -337,9 +337,11 @@ def record_video(
     seed: int = 0,
     checkpoint: str | Path = "last",
     max_steps: int = 0,
+    on_episode: Callable[[int, float], None] | None = None,
 ) -> list[float]:
     """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
-    GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`."""
+    GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`; `on_episode(i,
+    return)` is called as each one ends, since a long episode takes minutes to render on a CPU."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
@@ -351,7 +353,11 @@ def record_video(
     if not _headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
-        return _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
+        returns = _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
+        for i, value in enumerate(returns):
+            if on_episode:
+                on_episode(i, value)
+        return returns
     from canter.use.policy import load
 
     configure_gl()
@@ -366,7 +372,11 @@ def record_video(
         with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
             writer = _AtomicVideo(out, fps)
             try:
-                returns = [player.episode(policy, seed + i, max_steps, writer.append) for i in range(episodes)]
+                returns = []
+                for i in range(episodes):
+                    returns.append(player.episode(policy, seed + i, max_steps, writer.append))
+                    if on_episode:
+                        on_episode(i, returns[-1])
                 writer.commit()
             except BaseException:
                 writer.abort()
