@@ -209,6 +209,42 @@ def test_the_legend_states_each_groups_n_and_band_and_the_statistics_sit_below(t
     assert "Final scores" not in (tmp_path / "one.svg").read_text()
 
 
+def test_a_method_keeps_one_colour_across_envs_and_its_statistics_rows_share_it(tmp_path):
+    """The statistics aggregate a method over envs; with a colour per curve group, its rows took colours that no
+    curve of that method had. A method now has one colour, its envs a line style each."""
+    from matplotlib.colors import to_hex
+
+    from canter.use.plot import group_styles
+
+    steps = np.arange(0.0, 5000.0, 1000.0)
+
+    def runs(env, algo):
+        configs = [build_config(env, seed=i, algo=algo, total_steps=5000) for i in range(3)]
+        return tuple(RunCurves(Path(f"{env}-{algo}-{i}"), c, {"global_step": steps}) for i, c in enumerate(configs))
+
+    groups = [Experiment(f"{e} {a}", runs(e, a)) for e in ("Hopper-v5", "Walker2d-v5") for a in ("td3", "sac")]
+    styles = group_styles(groups)
+    assert styles.colors == ("C0", "C1", "C0", "C1") and styles.line_styles == ("-", "-", "--", "--")
+    assert styles.method_colors == {"algo=td3": "C0", "algo=sac": "C1"}
+    scores = [
+        RunScore(m, e, a, float(100 * i + len(m)), f"s{i}")
+        for e in ("Hopper-v5", "Walker2d-v5")
+        for m, a in (("algo=sac", "sac"), ("algo=td3", "td3"))  # rows in another order than the curves
+        for i in range(3)
+    ]
+    board = build_scoreboard(scores, "final deterministic evaluation", reps=50)
+    fig = draw(groups, ["episodic_return"], board=board)
+    statistics = fig.subfigs[1].axes[0]
+    row_colors = [to_hex(line.get_color()) for line in statistics.lines]
+    rows = [label.get_text() for label in statistics.get_yticklabels()]
+    expected = {"algo=td3": to_hex("C0"), "algo=sac": to_hex("C1")}
+    assert [r.split(" (")[0] for r in rows] == ["algo=sac", "algo=td3"]
+    assert row_colors == [expected[r.split(" (")[0]] for r in rows]
+    # One method with two groups on one env: a colour per group, the statistics' own palette.
+    twice = [groups[0], Experiment("again", groups[0].runs)]
+    assert group_styles(twice).colors == ("C0", "C1") and group_styles(twice).method_colors == {}
+
+
 def test_unused_diagnostics_are_left_out_of_the_default_panels():
     def with_diagnostics(**sets):
         run = fake_run([0, 1, 2], [0.0, 0.0, 0.0], **sets)

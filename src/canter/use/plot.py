@@ -34,7 +34,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -451,6 +451,34 @@ def figure_format(path: str | Path) -> str:
     return FORMATS[suffix]
 
 
+LineStyle = Literal["-", "--", ":", "-."]
+LINE_STYLES: tuple[LineStyle, ...] = ("-", "--", ":", "-.")
+
+
+@dataclass(frozen=True)
+class Styles:
+    """How a plot tells its groups apart: each group's colour and line style, and the colour of each method, which
+    the statistics below the curves use for its rows, so that a row and its curves look alike."""
+
+    colors: tuple[str, ...]
+    line_styles: tuple[LineStyle, ...]
+    method_colors: dict[str, str]
+
+
+def group_styles(groups: Sequence[Experiment]) -> Styles:
+    """Colour by method and line style by env, as papers draw algorithms on several tasks: the statistics
+    aggregate methods across envs, so a colour per group would give their rows colours no curve has. Where one
+    method has two groups on one env (runs that differ in a key the method does not name), each group gets its own
+    colour instead, and the statistics their own palette."""
+    methods = method_labels([g.runs[0].config for g in groups])
+    envs = [g.runs[0].config.env.id for g in groups]
+    if len(set(zip(methods, envs))) < len(groups):
+        return Styles(tuple(f"C{i % 10}" for i in range(len(groups))), (LINE_STYLES[0],) * len(groups), {})
+    method_colors = {m: f"C{i % 10}" for i, m in enumerate(dict.fromkeys(methods))}
+    env_styles = {e: LINE_STYLES[i % len(LINE_STYLES)] for i, e in enumerate(dict.fromkeys(envs))}
+    return Styles(tuple(method_colors[m] for m in methods), tuple(env_styles[e] for e in envs), method_colors)
+
+
 def draw(
     groups: Sequence[Experiment],
     metrics: Sequence[str],
@@ -483,20 +511,20 @@ def draw(
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)  # headless: no pyplot, no display, no global backend switch
     curves: Any = fig
+    styles = group_styles(groups)
     if with_statistics:
         assert board is not None
         parts: Any = fig.subfigures(2, 1, height_ratios=[3.4 * rows, statistics_height])
         curves = parts[0]
-        score_plot.draw_scoreboard(parts[1], board)
+        score_plot.draw_scoreboard(parts[1], board, styles.method_colors)
     axes = curves.subplots(rows, columns, squeeze=False).ravel()
-    colors = [f"C{i % 10}" for i in range(len(groups))]
     for ax, metric in zip(axes, metrics):
         title, unit = panel_labels(metric)
-        for group, color in zip(groups, colors):
+        for group, color, line_style in zip(groups, styles.colors, styles.line_styles):
             band = experiment_band(group, metric, x_axis, smooth, seed)
             if band is None:
                 continue
-            ax.plot(band.x, band.mean, color=color, linewidth=1.6)
+            ax.plot(band.x, band.mean, color=color, linestyle=line_style, linewidth=1.6)
             if band.kind != SINGLE:
                 ax.fill_between(band.x, band.low, band.high, color=color, alpha=0.22, linewidth=0)
         ax.set_title(title, fontsize=11)
@@ -509,7 +537,7 @@ def draw(
         ax.set_visible(False)
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], color=c, linewidth=2.5) for c in colors]
+    handles = [Line2D([], [], color=c, linestyle=ls, linewidth=2.5) for c, ls in zip(styles.colors, styles.line_styles)]
     names = [
         f"{g.label} ({len(g.runs)} run{'s' if len(g.runs) > 1 else ''}), {BAND_NAMES[band_kind(g)]}" for g in groups
     ]

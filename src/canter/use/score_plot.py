@@ -6,6 +6,7 @@ MIN_RUNS_FOR_INTERVAL runs show their estimate alone, as the tables do."""
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Mapping
 from typing import Any
 
 from canter.use.scoreboard import Scoreboard
@@ -49,14 +50,28 @@ def _interval_row(ax: Any, y: int, interval: Interval, color: str, runs: int) ->
     ax.plot([interval.estimate], [y], marker="|", color="black", markersize=12)
 
 
-def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
-    """Fill `fig` (a Figure or SubFigure) with the board's aggregates, profiles and comparisons."""
+def _row_colors(board: Scoreboard, method_colors: Mapping[str, str]) -> list[str]:
+    """Each row's method's colour where the curves gave it one, else a colour per row."""
+    methods = [m.method for m in board.methods] if _rows(board)[2] == NORMALIZED else [c.method for c in board.cells]
+    if not all(m in method_colors for m in methods):
+        return [f"C{i % 10}" for i in range(len(methods))]
+    return [method_colors[m] for m in methods]
+
+
+def draw_scoreboard(fig: Any, board: Scoreboard, method_colors: Mapping[str, str] | None = None) -> None:
+    """Fill `fig` (a Figure or SubFigure) with the board's aggregates, profiles and comparisons, each method in its
+    colour from `method_colors` where that names them all."""
     labels, found, unit = _rows(board)
     # Long method names (a grid's keys) are wrapped: unwrapped, they squeeze the first axis to nothing.
     labels = [textwrap.fill(label, width=LABEL_WIDTH) for label in labels]
     extra = int(bool(board.profiles)) + int(bool(board.comparisons))
     axes = fig.subplots(1, len(AGGREGATES) + extra, squeeze=False)[0]
-    colors = [f"C{i % 10}" for i in range(len(labels))]
+    colors = _row_colors(board, method_colors or {})
+    profile_colors = (
+        dict(method_colors)
+        if method_colors and all(name in method_colors for name in board.profiles)
+        else {name: f"C{i % 10}" for i, name in enumerate(board.profiles)}
+    )
     for i, (ax, (key, title)) in enumerate(zip(axes, AGGREGATES)):
         for y, (aggregates, color) in enumerate(zip(found, colors)):
             interval = getattr(aggregates, key)
@@ -75,10 +90,11 @@ def draw_scoreboard(fig: Any, board: Scoreboard) -> None:
     if board.profiles:
         ax = axes[next_axis]
         next_axis += 1
-        for i, (name, profile) in enumerate(board.profiles.items()):
-            ax.plot(profile.taus, profile.fraction, color=f"C{i % 10}", linewidth=1.5, label=name)
+        for name, profile in board.profiles.items():
+            color = profile_colors[name]
+            ax.plot(profile.taus, profile.fraction, color=color, linewidth=1.5, label=name)
             if board.runs_per_env(name) >= MIN_RUNS_FOR_INTERVAL:
-                ax.fill_between(profile.taus, profile.low, profile.high, color=f"C{i % 10}", alpha=0.2, linewidth=0)
+                ax.fill_between(profile.taus, profile.low, profile.high, color=color, alpha=0.2, linewidth=0)
         ax.set_title("Performance profile", fontsize=10)
         ax.set_xlabel("normalized score τ", fontsize=8)
         ax.set_ylabel("fraction of runs > τ", fontsize=8)
