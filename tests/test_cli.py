@@ -137,7 +137,7 @@ def _bad_inputs(tmp_path, run):
         (["train", "Hopper-v5", "--seed", "-1"], "argument --seed: expected a seed from 0 to 4294967295"),
         (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
         (["eval", str(tmp_path / "missing")], "run folder not found"),
-        (["eval", str(empty)], "no checkpoint"),
+        (["eval", str(empty)], "has no config.toml and no checkpoint; is it a canter run folder?"),
         (["eval", str(corrupt)], "corrupt or truncated"),
         (["eval", str(run), "--env", "Hopper-v5"], "pick a matching --env"),
         (["eval", str(run), "--episodes", "0"], "--episodes must be >= 1"),

@@ -261,6 +261,19 @@ def test_bad_inputs(tiny_hopper_run, tmp_path, capsys):
         (["video", run, "--out", str(out / "a.mp4"), "--camera", "no_such_camera"] + small, "cameras: track"),
     ]:
         code = main(argv)
-        _, err = capsys.readouterr()
+        said, err = capsys.readouterr()
         assert code != 0 and message in err and err.count("\n") == 1, (argv, err)
+        assert said == "", argv  # refused before it says it is rendering
     assert not out.exists() or not list(out.iterdir())  # no partial video left behind
+
+
+@pytest.mark.slow
+def test_a_pygame_env_renders_headless_without_an_error_line(tiny_run, tmp_path):
+    """Pygame's SDL opened a sound device, and without XDG_RUNTIME_DIR printed an error as the process ended."""
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("SDL_", "XDG_"))}
+    env["PYTHONPATH"] = os.pathsep.join(sys.path)
+    argv = [sys.executable, "-m", "canter.cli.main", "video", str(tiny_run.run_dir), "--out", str(tmp_path / "p.gif")]
+    done = subprocess.run(argv + ["--max-steps", "3"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "error" not in done.stderr.lower(), done.stderr

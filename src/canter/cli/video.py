@@ -43,8 +43,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"episode {index + 1}/{args.episodes}: return {value:.1f} ({now - last[0]:.1f} s)", flush=True)
         last[0] = now
 
-    cut = f", at most {args.max_steps} steps each" if args.max_steps else ""
-    print(f"rendering {args.episodes} episode(s) of {args.run} to {args.out}{cut}", flush=True)
+    def starting() -> None:
+        cut = f", at most {args.max_steps} steps each" if args.max_steps else ""
+        print(f"rendering {args.episodes} episode(s) of {args.run} to {args.out}{cut}", flush=True)
+        last[0] = time.perf_counter()
+
     returns = record_video(
         args.run,
         args.out,
@@ -56,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else 0,
         checkpoint=args.checkpoint,
         max_steps=args.max_steps,
+        on_start=starting,
         on_episode=episode_done,
     )
     print(f"wrote {args.out} ({len(returns)} episodes) in {time.perf_counter() - started:.1f} s")

@@ -38,7 +38,10 @@ BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 # The fix for a damaged checkpoint: `last` is the newest file, so without it the one before is used.
-_EARLIER = "move it out of its folder to use the checkpoint before it, or pass --checkpoint FILE"
+_EARLIER = (
+    "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "
+    "--checkpoint FILE)"
+)
 
 
 def _path_name(path: tuple) -> str:
@@ -209,6 +212,8 @@ def latest(run_dir: Path) -> Path:
             raise CanterError(
                 f"{run_dir} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as {inside[0]}"
             )
+        if not (run_dir / "config.toml").is_file():  # as train --resume says of it
+            raise CanterError(f"{run_dir} has no config.toml and no checkpoint; is it a canter run folder?")
         raise CanterError(
             f"no checkpoint in {run_dir}; train first, or pass the run folder that holds checkpoints/ckpt_*.npz"
         )

@@ -121,6 +121,9 @@ class _GymnasiumPlayer:
                 kwargs.update(camera_id=int(camera)) if camera.isdigit() else kwargs.update(camera_name=camera)
         elif camera is not None:
             raise CanterError(f"--camera applies to MuJoCo envs; {env_id} has a fixed view")
+        else:  # pygame draws these; its SDL would open a sound device and, headless, print an error at exit
+            os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+            os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         try:
             self.env = backend.make_single(env_id, **kwargs)
         except ValueError as exc:
@@ -337,11 +340,13 @@ def record_video(
     seed: int = 0,
     checkpoint: str | Path = "last",
     max_steps: int = 0,
+    on_start: Callable[[], None] | None = None,
     on_episode: Callable[[int, float], None] | None = None,
 ) -> list[float]:
     """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
-    GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`; `on_episode(i,
-    return)` is called as each one ends, since a long episode takes minutes to render on a CPU."""
+    GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`. `on_start()`
+    is called once the arguments are checked and rendering begins, and `on_episode(i, return)` as each episode
+    ends, since a long episode takes minutes to render on a CPU."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
@@ -353,6 +358,8 @@ def record_video(
     if not _headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
+        if on_start:
+            on_start()
         returns = _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
         for i, value in enumerate(returns):
             if on_episode:
@@ -372,6 +379,8 @@ def record_video(
         with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
             writer = _AtomicVideo(out, fps)
             try:
+                if on_start:
+                    on_start()
                 returns = []
                 for i in range(episodes):
                     returns.append(player.episode(policy, seed + i, max_steps, writer.append))
