@@ -9,13 +9,14 @@
 #   bash benchmarks/gpu/aside.sh size     # MiB that would travel now, .whl/ included; fails over 64
 #
 # Nothing on disk is moved or changed, and no commit is made; `off` must run before the next commit, or the commit
-# would delete the archives.
+# would delete the archives. While `on`, a pre-commit hook refuses every commit (git commit --no-verify passes it).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 ARCHIVES=(benchmarks/reports benchmarks/results benchmarks/gpu/humanoid_cpu)
 exclude=.git/info/exclude
 BEGIN="# from benchmarks/gpu/aside.sh on"
 END="# to here"
+hook=$(git rev-parse --git-path hooks)/pre-commit
 
 travelling_bytes() {
     { git ls-files -z --cached --others --exclude-standard; if [ -d .whl ]; then find .whl -type f -print0; fi; } |
@@ -28,10 +29,19 @@ on)
         { echo "$BEGIN"; printf '/%s/\n' "${ARCHIVES[@]}"; echo "$END"; } >>"$exclude"
     fi
     git rm -r -q --cached --ignore-unmatch "${ARCHIVES[@]}"
+    if [ -e "$hook" ] && ! grep -qF "$BEGIN" "$hook"; then
+        echo "aside.sh: $hook exists, so no guard was added: run 'aside.sh off' before any commit" >&2
+    else
+        mkdir -p "$(dirname "$hook")"
+        printf '#!/bin/sh\n%s\necho "aside.sh is on: the archives are out of the index; run bash benchmarks/gpu/aside.sh off first" >&2\nexit 1\n' \
+            "$BEGIN" >"$hook"
+        chmod +x "$hook"
+    fi
     ;;
 off)
     git reset -q -- "${ARCHIVES[@]}"
     if [ -f "$exclude" ]; then sed -i "\|^$BEGIN\$|,\|^$END\$|d" "$exclude"; fi
+    if [ -f "$hook" ] && grep -qF "$BEGIN" "$hook"; then rm -f "$hook"; fi
     ;;
 size) ;;
 *)

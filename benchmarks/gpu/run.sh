@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# One part of canter's GPU benchmarks (issue 26), sized to finish within 5 minutes on one H100, compile included:
+# One part of canter's GPU benchmarks (issue 26), each sized to finish within 5 minutes on one H100, compile included
+# (`ppo-brax` with no env runs two such parts back to back, and `HUMANOID_MINUTES=8` makes humanoid a longer one):
 #
 #   bash benchmarks/gpu/run.sh smoke       # install check: jax.devices() and 1 PPO iteration of Hopper-v5 on mjx
 #   bash benchmarks/gpu/run.sh ppo-brax    # Brax's own PPO vs canter ppo --preset brax on Brax's ant and humanoid
@@ -39,7 +40,10 @@ RUNS=$OUT/runs
 # timeout with it, while canter is still finishing its iteration, checkpointing and writing summary.json: the part
 # would be summarized and packed without them. With the trap bash waits for the running command, then stops; tee
 # ignores the signal, so the log keeps canter's last lines.
-trap 'echo "run.sh: stopped by SIGTERM"; exit 143' TERM
+# The trap only marks the stop: `timed` then records the process it waited for before it exits, so a cut process
+# still has its whole-process time, and no new process starts.
+stopping=0
+trap 'stopping=1; echo "run.sh: stopped by SIGTERM"' TERM
 exec > >(
     trap '' TERM
     exec tee -a "$OUT/$part.log"
@@ -56,6 +60,9 @@ else
     export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH}
 fi
 export PYTHONUNBUFFERED=1
+# canter keeps compiled programs in ~/.cache/canter/xla for mjx and brax runs, and Brax keeps none: on a machine that
+# ran a part before, canter's compile and whole-process times would come from the cache. Every part starts cold.
+export CANTER_COMPILE_CACHE=${CANTER_COMPILE_CACHE:-off}
 
 echo "== $part ($(date -u +%FT%TZ), CANTER_GPU_SMOKE=$SMOKE)"
 "$PY" - <<'EOF' | tee "$OUT/device.txt"
@@ -74,16 +81,19 @@ fi
 
 # Settings of this part, recorded in PART.md; a second run of the part in the same OUT adds its own.
 settings() { printf '%s\n' "$@" >>"$OUT/$part.settings"; }
-settings "# run.sh $part $* ($(date -u +%FT%TZ))"
+settings "# run.sh $part $* ($(date -u +%FT%TZ), CANTER_COMPILE_CACHE=$CANTER_COMPILE_CACHE)"
 # Whole processes, timed from outside (interpreter start, imports, compile, training, evaluations): one JSON line
 # per process in $OUT/$part.times, for the like-for-like column of ppo-brax.
 timed() {
     local label=$1 start status=0
     shift
+    if [ "$stopping" = 1 ]; then exit 143; fi
     start=$(date +%s%N)
     "$@" || status=$?
-    printf '{"label": "%s", "seconds": %s, "exit": %d}\n' "$label" \
-        "$(((($(date +%s%N) - start) / 1000000)))e-3" "$status" >>"$OUT/$part.times"
+    printf '{"label": "%s", "seconds": %s, "exit": %d, "stopped": %s}\n' "$label" \
+        "$(((($(date +%s%N) - start) / 1000000)))e-3" "$status" "$([ "$stopping" = 1 ] && echo true || echo false)" \
+        >>"$OUT/$part.times"
+    if [ "$stopping" = 1 ]; then exit 143; fi
     return $status
 }
 # canter train with what every run here shares: no TensorBoard, one checkpoint at the end, no progress bar.

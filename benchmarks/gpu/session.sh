@@ -6,9 +6,17 @@
 #   bash benchmarks/gpu/session.sh ppo-brax=ant:240 seeds:150      # PART[=ARG]:SECONDS ...
 #
 # A part that reaches its limit gets SIGTERM, which canter train answers by checkpointing and stopping cleanly; its
-# figures are then summarized from what it wrote.
+# figures are then summarized from what it wrote. A part still running KILL_AFTER seconds (60) past its limit is
+# killed.
+#
+# SESSION_SECONDS (optional): the device call's timeout_s. A part whose limit and KILL_AFTER do not fit in what is
+# left of it (less a margin for the packing) gets a shorter limit, or is skipped when less than a minute is left:
+# a device call that is killed brings back only session.log, and none of the part's run folders.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
+began=$(date +%s)
+KILL_AFTER=${KILL_AFTER:-60}
+PACKING=20 # seconds for the last summary and tar
 final=${OUT:-benchmarks/gpu/out}
 mkdir -p "$final"
 # Everything this call prints also goes straight to $OUT, so a call the device stops before its packing still
@@ -34,8 +42,19 @@ for item in "$@"; do
     part=${spec%%=*}
     arg=()
     [ "$spec" != "$part" ] && arg=("${spec#*=}")
+    if [ -n "${SESSION_SECONDS:-}" ]; then
+        left=$((SESSION_SECONDS - ($(date +%s) - began) - KILL_AFTER - PACKING))
+        if [ "$left" -lt 60 ]; then
+            echo "== $part skipped: ${left} s left of SESSION_SECONDS=$SESSION_SECONDS after the time it needs to stop"
+            continue
+        fi
+        if [ "$limit" -gt "$left" ]; then
+            echo "== $part: limit ${limit} s cut to ${left} s to end within SESSION_SECONDS=$SESSION_SECONDS"
+            limit=$left
+        fi
+    fi
     echo "== $part ${arg[*]} (limit ${limit} s, $(date -u +%T))"
-    OUT=$work timeout --kill-after=30 "$limit" bash benchmarks/gpu/run.sh "$part" "${arg[@]}"
+    OUT=$work timeout --kill-after="$KILL_AFTER" "$limit" bash benchmarks/gpu/run.sh "$part" "${arg[@]}"
     status=$?
     echo "== $part exit $status ($(date -u +%T))"
     if [ $status -ne 0 ]; then

@@ -35,6 +35,7 @@ def run_facts(run_dir: Path) -> dict:
         if r.get("eval/return_mean")
     ]
     return dict(
+        iterations=int(float(rows[-1]["iteration"])) if rows and rows[-1].get("iteration") else None,
         run=run_dir.name,
         algo=config["run"]["algo"],
         seed=config["run"]["seed"],
@@ -78,36 +79,46 @@ def device_name(out: Path) -> str:
 
 
 def process_seconds(out: Path, part: str) -> dict[str, float]:
-    """The whole-process times run.sh recorded for a part, by label (the last run of each)."""
+    """The whole-process times run.sh recorded for a part, by label (the last run of each): those that ended by
+    themselves, since a process stopped at its limit did not do the whole of its work."""
     path = out / f"{part}.times"
     if not path.exists():
         return {}
     records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    return {r["label"]: float(r["seconds"]) for r in records if r["exit"] == 0}
+    return {r["label"]: float(r["seconds"]) for r in records if r["exit"] == 0 and not r.get("stopped", False)}
+
+
+def brax_iterations(record: dict) -> int:
+    """Brax's training steps: each collects batch_size x num_minibatches rollouts of unroll_length env steps."""
+    s = record["settings"]
+    per_step = s["batch_size"] * s["num_minibatches"] * s["unroll_length"] * s.get("action_repeat", 1)
+    return round(record["steps"] / per_step)
 
 
 def ppo_brax(out: Path) -> list[str]:
     lines = [
-        "| env | trainer | steps | whole process (s) | compile + training (s) | steps/s, training | "
-        "final eval return | train return (last 20) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
+        "| env | trainer | steps | iterations | whole process (s) | compile + training (s) | steps/s, training | "
+        "final eval return | train return (last 20) | stopped |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     processes = process_seconds(out, "ppo-brax")
     for env in ("ant", "humanoid"):
         record_path = out / f"brax_{env}.json"
         if record_path.exists():
             b = json.loads(record_path.read_text())
+            kind = "deterministic" if b["settings"].get("deterministic_eval") else "stochastic"
             lines.append(
-                f"| {env} | Brax PPO | {b['steps']:,} | {fmt(processes.get(f'brax-{env}'))} | "
+                f"| {env} | Brax PPO | {b['steps']:,} | {brax_iterations(b)} | {fmt(processes.get(f'brax-{env}'))} | "
                 f"{fmt(b.get('training_walltime'))} | {fmt(b['training_sps'], 0)} | "
-                f"{fmt(b['final_eval_return'])} (stochastic, {b['eval_episodes']} eps) | - |"
+                f"{fmt(b['final_eval_return'])} ({kind}, {b['eval_episodes']} eps) | - | end |"
             )
         for run in runs(out / "runs" / f"ppo-brax-{env}"):
             c = run_facts(run)
             lines.append(
-                f"| {env} | canter ppo --preset brax | {c['steps']:,} | {fmt(processes.get(f'ppo-brax-{env}'))} | "
-                f"{fmt(c['compile'] + c['steps'] / c['sps'])} | {fmt(c['sps'], 0)} | "
-                f"{fmt(c['final_eval'])} (deterministic) | {fmt(c['train_return'])} |"
+                f"| {env} | canter ppo --preset brax | {c['steps']:,} | {c['iterations'] or '-'} | "
+                f"{fmt(processes.get(f'ppo-brax-{env}'))} | {fmt(c['compile'] + c['steps'] / c['sps'])} | "
+                f"{fmt(c['sps'], 0)} | {fmt(c['final_eval'])} (deterministic) | {fmt(c['train_return'])} | "
+                f"{c['stop']} |"
             )
     lines.append("")
     lines.append(
@@ -116,7 +127,10 @@ def ppo_brax(out: Path) -> list[str]:
         "training epochs, the first of which compiles), canter's compile plus its steps at its SPS. Training: "
         "Brax's `training/sps` of its last epoch (of two: the first compiles), canter's SPS with the compile left "
         "out. canter trains whole iterations until it has counted Brax's steps, and counts no autoreset step (Brax "
-        "resets inside the step that ends an episode), so its count can pass Brax's by up to one iteration."
+        "resets inside the step that ends an episode), so it can train one iteration more: the iterations column "
+        "says. A canter run stopped other than by `budget` was cut by its limit. Brax's AutoResetWrapper restarts an "
+        "env from the state its first reset drew; canter draws fresh reset noise each episode, and its resets count "
+        "in its SPS."
     )
     return lines
 
@@ -138,26 +152,35 @@ def humanoid(out: Path) -> list[str]:
 
 def seeds(out: Path) -> list[str]:
     lines = [
-        "| program | runs | envs per seed | steps per seed | wall (s) | compile (s) | wall less compile (s) |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| program | runs | envs per seed | steps per seed | wall (s) | compile (s) | wall less compile (s) "
+        "| stopped |",
+        "|---|---:|---:|---:|---:|---:|---:|---|",
     ]
-    walls = {}
-    for label in ("one", "five"):
-        found = [run_facts(r) for r in runs(out / "runs" / f"seeds-{label}")]
-        if not found:
-            continue
-        c = found[0]
-        walls[label] = (c["wall"], c["wall"] - c["compile"])
-        lines.append(
-            f"| {label} seed{'s' if label == 'five' else ''} | {len(found)} | {c['num_envs']} | {c['steps']:,} | "
-            f"{fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['wall'] - c['compile'])} |"
-        )
-    if len(walls) == 2:
-        whole = walls["five"][0] / walls["one"][0]
-        running = walls["five"][1] / walls["one"][1]
-        lines.append("")
-        lines.append(f"Wall time of 5 vmapped seeds / 1 seed: {whole:.2f}x (compile left out: {running:.2f}x).")
+    found = {label: [run_facts(r) for r in runs(out / "runs" / f"seeds-{label}")] for label in ("one", "five")}
+    for label, facts in found.items():
+        if facts:
+            c = facts[0]
+            lines.append(
+                f"| {label} seed{'s' if label == 'five' else ''} | {len(facts)} | {c['num_envs']} | {c['steps']:,} | "
+                f"{fmt(c['wall'])} | {fmt(c['compile'])} | {fmt(c['wall'] - c['compile'])} | {c['stop']} |"
+            )
+    if found["one"] and found["five"]:
+        lines += ["", seeds_ratio(found["one"][0], found["five"][0])]
     return lines
+
+
+def seeds_ratio(one: dict, five: dict) -> str:
+    """Five seeds' wall time over one seed's, for the same steps per seed: a run cut by its limit trained fewer,
+    and dividing its time by a whole run's would make five seeds look cheap; then the ratio is per step."""
+    if one["stop"] == five["stop"] == "budget" and one["steps"] == five["steps"]:
+        whole = five["wall"] / one["wall"]
+        running = (five["wall"] - five["compile"]) / (one["wall"] - one["compile"])
+        return f"Wall time of 5 vmapped seeds / 1 seed: {whole:.2f}x (compile left out: {running:.2f}x)."
+    per_step = ((five["wall"] - five["compile"]) / five["steps"]) / ((one["wall"] - one["compile"]) / one["steps"])
+    return (
+        f"A run did not train its whole budget (stopped: one seed {one['stop']}, five seeds {five['stop']}), so no "
+        f"whole-run ratio; time per step per seed, compile left out, 5 vmapped seeds / 1 seed: {per_step:.2f}x."
+    )
 
 
 def offpolicy(out: Path) -> list[str]:
