@@ -185,6 +185,8 @@ def test_cli_eval_set_on_a_cpu_backend_names_the_backend_that_takes_it(tiny_run,
     code = main(["eval", str(tiny_run.run_dir), "--set", "env.solver_iterations=4"])
     out, err = capsys.readouterr()
     assert code == 2 and not out, out
+    # Pendulum has no MJX port, so --backend mjx would only fail next.
     assert err.strip().endswith(
-        "env.solver_iterations applies to the mjx backend only; add --backend mjx or drop env.solver_iterations"
+        "env.solver_iterations applies to the mjx backend only; Pendulum-v1 has no mjx version: drop "
+        "env.solver_iterations"
     ), err

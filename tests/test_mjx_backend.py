@@ -286,14 +286,31 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypa
     assert on_cpu.mean >= 900, on_cpu.returns
     # The user's commands: evaluated on EnvPool's C MuJoCo, and rendered through the CPU backends.
     from canter.cli.main import main
+    from canter.core import runtime
 
+    monkeypatch.setattr(runtime, "_cpu_notice_given", False)
+    capsys.readouterr()
     assert main(["eval", str(result.run_dir), "--backend", "envpool", "--episodes", "4", "--json", "e.json"]) == 0
+    assert "no GPU found" not in capsys.readouterr().err  # nothing steps on mjx here
     on_envpool = json.loads(Path("e.json").read_text())["runs"][0]
     assert on_envpool["return_mean"] >= 900
     during = checkpoint.read_header(checkpoint.best_path(result.run_dir))["evaluation"]
     assert during["backend"] == "envpool" and during["returns"] == on_envpool["returns"]
     assert main(["video", str(result.run_dir), "--episodes", "1", "--max-steps", "100", "--out", "v.mp4"]) == 0
     assert Path("v.mp4").stat().st_size > 0
+
+
+def test_the_cpu_notice_comes_where_mjx_steps_not_where_its_policy_loads(monkeypatch, capsys):
+    from canter.core import runtime
+
+    monkeypatch.setattr(runtime, "_cpu_notice_given", False)
+    runtime.setup_jax("mjx", announce=False)  # as loading an mjx run's checkpoint does
+    for backend in ("envpool", "gymnasium", "auto", None):
+        runtime.announce_physics(backend)
+    assert capsys.readouterr().err == ""
+    runtime.announce_physics("mjx")
+    runtime.announce_physics("mjx")
+    assert capsys.readouterr().err == "canter: no GPU found, so mjx steps its physics on the CPU (correct, but slow)\n"
 
 
 def _eval_with_other_physics(monkeypatch, run_dir, capsys):

@@ -32,13 +32,16 @@ def check_physics(env: Any) -> None:
     from canter.envs.registry import get_backend, solver_backends
 
     takes = env.backend != "auto" and get_backend(env.backend).solver_options
+    # Suggest a backend only where it runs this env: Pendulum has no MJX port, so --backend mjx would fail next.
+    runs_it = [name for name in solver_backends() if not env.id or env.id in get_backend(name).supported_ids()]
 
     def only_there(key: str, default: bool) -> None:
-        need(
-            default or takes,
-            f"env.{key} applies to the {' and '.join(solver_backends())} backend only; add --backend "
-            f"{solver_backends()[0]} or drop env.{key}",
+        fix = (
+            f"add --backend {runs_it[0]} or drop env.{key}"
+            if runs_it
+            else f"{env.id} has no {' or '.join(solver_backends())} version: drop env.{key}"
         )
+        need(default or takes, f"env.{key} applies to the {' and '.join(solver_backends())} backend only; {fix}")
 
     for key in ("solver_iterations", "solver_ls_iterations"):
         value = getattr(env, key)

@@ -17,7 +17,7 @@ COMPILE_CACHE_ENV = "CANTER_COMPILE_CACHE"
 COMPILE_CACHE_LIMIT = 4 * 1024**3  # bytes; the least recently used programs go beyond it
 
 
-def setup_jax(backend: str | None = None) -> None:
+def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     """Set JAX up for the env backend a program will step (None: a host-stepped one).
 
     - EnvPool and Gymnasium step C MuJoCo from the host: 64-bit types on (EnvPool's MuJoCo envs take float64
@@ -27,13 +27,14 @@ def setup_jax(backend: str | None = None) -> None:
       JAX finds one, else on the CPU with a one-line notice.
 
     The platform is fixed by the first call in a process (JAX cannot move afterwards); the 64-bit switch follows
-    each call's backend, since JAX keys its compiled programs on it."""
+    each call's backend, since JAX keys its compiled programs on it. `announce=False` leaves the CPU notice to
+    `announce_physics`, for a program that only loads what such a backend trained."""
     import jax
 
     from canter.envs.functional import x64_enabled
     from canter.envs.registry import get_backend
 
-    global _platform_chosen, _cpu_notice_given
+    global _platform_chosen
     native = backend is not None and backend != "auto" and get_backend(backend).jax_native
     if _platform_chosen and x64_enabled() == native:
         # Switching precision in a process that has traced programs: JAX's staging caches can hold a nested
@@ -47,14 +48,27 @@ def setup_jax(backend: str | None = None) -> None:
             use_compile_cache(jax)
         _platform_chosen = True
     try:
-        platform = jax.default_backend()
+        jax.default_backend()  # starts the platform: a missing one fails here, in one line
     except (RuntimeError, AssertionError, ValueError) as exc:  # JAX_PLATFORMS names a platform this machine lacks
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise CanterError(
             f"JAX could not start the platform JAX_PLATFORMS={os.environ.get('JAX_PLATFORMS', '')} asks for "
             f"({first}); unset JAX_PLATFORMS, or install JAX for that device"
         ) from None
-    if native and platform == "cpu" and not _cpu_notice_given:
+    if announce:
+        announce_physics(backend)
+
+
+def announce_physics(backend: str | None) -> None:
+    """The one-line notice (once per process) that a JAX-native backend steps its physics on the CPU, given where
+    that backend is about to step: a policy trained on mjx and evaluated on EnvPool loads as mjx but steps none."""
+    import jax
+
+    from canter.envs.registry import get_backend
+
+    global _cpu_notice_given
+    native = backend is not None and backend != "auto" and get_backend(backend).jax_native
+    if native and jax.default_backend() == "cpu" and not _cpu_notice_given:
         print(f"canter: no GPU found, so {backend} steps its physics on the CPU (correct, but slow)", file=sys.stderr)
         _cpu_notice_given = True
 

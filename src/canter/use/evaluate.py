@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.core.runtime import announce_physics
 from canter.core.seeding import EVAL, HELD_OUT
 from canter.errors import CanterError
 from canter.training.evaluation import EvalResult, run_episodes
@@ -87,7 +88,7 @@ def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str
             f"{trained_on.name} runs evaluate on the {trained_on.name} backend only, which takes no physics "
             f"settings; drop --set"
         )
-    check_physics(dataclasses.replace(EnvConfig(), backend=backend, **changes))
+    check_physics(dataclasses.replace(EnvConfig(), id=env_id, backend=backend, **changes))
     own = policy.config.env if env_id == policy.facts.env_id else EnvConfig()
     return env_options(dataclasses.replace(own, **changes), backend)
 
@@ -138,4 +139,5 @@ def evaluate(
     purpose = HELD_OUT if policy.chosen_by_evaluation else EVAL
     traced = policy.traced() if deterministic and prepare_env is None else None
     sizes = (policy.obs_dim, policy.act_dim)
+    announce_physics(backend)
     return run_episodes(act, env_id, backend, episodes, seed, purpose, sizes, extra, traced_act=traced)
