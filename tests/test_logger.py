@@ -185,3 +185,17 @@ def test_float32_metrics_are_written_as_their_shortest_round_tripping_decimal(ti
     for column in ("episodic_return", "policy_loss", "value_loss", "entropy", "approx_kl"):
         for row in rows:
             assert row[column] and _significant_digits(row[column]) <= 9, (column, row[column])
+
+
+def test_tensorboard_files_progress_under_charts_and_the_update_under_losses(tmp_path):
+    from test_faults import _event_records
+
+    logger = MetricsLogger(tmp_path, ("approx_kl", "gradient_steps"), ("reward_run",), tensorboard=True)
+    logger.log(
+        dict.fromkeys(BASE_COLUMNS, 1.0)
+        | {"global_step": 10, "approx_kl": 0.01, "gradient_steps": 4.0, "info/reward_run": 2.5}
+    )
+    logger.close()
+    tags = {tag for events in (tmp_path / "tb").glob("events.*") for tag, _, _ in _event_records(events)}
+    assert {"charts/wall_time", "charts/sps", "charts/gradient_steps", "losses/approx_kl", "info/reward_run"} <= tags
+    assert not {"losses/wall_time", "losses/gradient_steps"} & tags

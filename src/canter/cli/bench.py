@@ -28,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--algos", type=_names, default=None, help="comma-separated algorithms (default ppo)")
     b.add_argument("--envs", type=_names, default=None, help="comma-separated env ids, e.g. Hopper-v5,Walker2d-v5")
     b.add_argument("--seeds", type=seeds_arg, default=(0, 1, 2, 3, 4), help="comma-separated seeds (default 0,1,2,3,4)")
-    b.add_argument("--total-steps", type=steps_arg, default=1_000_000, help="env steps per run (1e6 works)")
+    b.add_argument(
+        "--total-steps", type=steps_arg, default=1_000_000, help="env steps per run (1e6 works; default 1e6)"
+    )
     b.add_argument(
         "--grid",
         action="append",
@@ -40,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--jobs",
         type=int,
         default=1,
-        help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed)",
+        help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed; default 1)",
     )
     b.add_argument("--out", default="bench", help="bench folder (default bench/)")
     b.add_argument("--preset", default="fast", help="preset under the grid values (default fast)")

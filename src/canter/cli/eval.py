@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     e.add_argument("runs", nargs="+", help="run folders")
     add_checkpoint_arg(e)
-    e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value)")
+    e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value; default 10)")
     e.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     e.add_argument("--env", default=None, help="evaluate on another env with the same observation/action sizes")
     e.add_argument(

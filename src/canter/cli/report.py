@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("runs", nargs="+", help="run folders")
     add_checkpoint_arg(p)
     p.add_argument("--out", default="report.html", help="output HTML file (default report.html)")
-    p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per run; 0 skips evaluation")
+    p.add_argument(
+        "--episodes", type=int, default=10, help="evaluation episodes per run (default 10); 0 skips evaluation"
+    )
     p.add_argument("--seed", type=seed_arg, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
     p.add_argument("--smooth", type=int, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
     p.add_argument(

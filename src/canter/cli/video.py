@@ -21,10 +21,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     v.add_argument("run", help="run folder")
     v.add_argument("--out", required=True, help="output file: .mp4 (H.264) or .gif")
-    v.add_argument("--episodes", type=int, default=1)
-    v.add_argument("--width", type=int, default=DEFAULT_WIDTH)
-    v.add_argument("--height", type=int, default=DEFAULT_HEIGHT)
-    v.add_argument("--fps", type=int, default=DEFAULT_FPS)
+    v.add_argument("--episodes", type=int, default=1, help="episodes, one after another (default 1)")
+    v.add_argument(
+        "--width", type=int, default=DEFAULT_WIDTH, help=f"frame width, 16 to 4096 (default {DEFAULT_WIDTH})"
+    )
+    v.add_argument(
+        "--height", type=int, default=DEFAULT_HEIGHT, help=f"frame height, 16 to 4096 (default {DEFAULT_HEIGHT})"
+    )
+    v.add_argument("--fps", type=int, default=DEFAULT_FPS, help=f"frames per second (default {DEFAULT_FPS})")
     v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
     add_checkpoint_arg(v)

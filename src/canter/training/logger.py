@@ -145,6 +145,21 @@ def totals_until(path: Path, step: int) -> dict[str, float]:
     }
 
 
+# TensorBoard sections, as CleanRL names them: progress under charts/, what the update computes under losses/.
+TENSORBOARD_CHARTS = frozenset(
+    {
+        "episodic_return",
+        "episodic_length",
+        "sps",
+        "learning_rate",
+        "episodes",
+        "wall_time",
+        "gradient_steps",
+        "buffer_size",
+    }
+)
+
+
 class MetricsLogger:
     """Appends to metrics.csv and TensorBoard. A resumed run passes `resume_step`: rows and events logged after
     that checkpoint belong to training that was lost with the process, so they are dropped and redone."""
@@ -248,15 +263,7 @@ class MetricsLogger:
                     continue
                 if isinstance(value, float) and math.isnan(value):
                     continue
-                tag = (
-                    key
-                    if "/" in key
-                    else (
-                        f"charts/{key}"
-                        if key in ("episodic_return", "episodic_length", "sps", "learning_rate", "episodes")
-                        else f"losses/{key}"
-                    )
-                )
+                tag = key if "/" in key else f"charts/{key}" if key in TENSORBOARD_CHARTS else f"losses/{key}"
                 scalars[tag] = value
             self._tb.add_scalars(int(row["global_step"]), scalars)
 

@@ -137,6 +137,8 @@ UPDATE_LABELS = {
     "critic_loss": ("Critic loss", "loss (squared return units)"),
     "q_mean": ("Mean Q value", "return units"),
     "learning_rate": ("Learning rate", "Adam step size"),
+    "gradient_steps": ("Gradient steps", "updates per logged row"),
+    "buffer_size": ("Replay buffer", "stored transitions"),
 }
 
 register_section("td3", TD3Config, check_td3)
