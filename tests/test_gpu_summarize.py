@@ -33,7 +33,8 @@ def make_run(folder: Path, *, steps: int, wall: float, compile_s: float, stop: s
 
 def test_the_seeds_ratio_divides_whole_runs_only(summarize, tmp_path):
     one = make_run(tmp_path / "runs" / "seeds-one", steps=500_000, wall=90.0, compile_s=30.0, stop="budget")
-    five = make_run(tmp_path / "runs" / "seeds-five", steps=500_000, wall=120.0, compile_s=40.0, stop="budget")
+    # Whole runs count slightly different steps: autoreset steps are not counted.
+    five = make_run(tmp_path / "runs" / "seeds-five", steps=500_032, wall=120.0, compile_s=40.0, stop="budget")
     text = "\n".join(summarize.seeds(tmp_path))
     assert "5 vmapped seeds / 1 seed: 1.33x (compile left out: 1.33x)" in text
     # Five seeds cut at half their budget: their wall time is not a whole run's.
@@ -57,6 +58,7 @@ def test_the_ppo_brax_table_names_iterations_stops_and_the_evaluation_kind(summa
              iteration=17)  # fmt: skip
     times = [
         {"label": "brax-humanoid", "seconds": 160.0, "exit": 0, "stopped": False},
+        {"label": "ppo-brax-humanoid", "seconds": 150.0, "exit": 0, "stopped": False},  # an earlier, whole run
         {"label": "ppo-brax-humanoid", "seconds": 170.0, "exit": 0, "stopped": True},
     ]
     (tmp_path / "ppo-brax.times").write_text("".join(json.dumps(t) + "\n" for t in times))

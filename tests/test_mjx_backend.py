@@ -301,9 +301,12 @@ def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypa
 
 
 def test_the_cpu_notice_comes_where_mjx_steps_not_where_its_policy_loads(monkeypatch, capsys):
+    import jax
+
     from canter.core import runtime
 
     monkeypatch.setattr(runtime, "_cpu_notice_given", False)
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")  # as on a machine without a GPU, where it is said
     runtime.setup_jax("mjx", announce=False)  # as loading an mjx run's checkpoint does
     for backend in ("envpool", "gymnasium", "auto", None):
         runtime.announce_physics(backend)

@@ -243,6 +243,10 @@ def test_a_method_keeps_one_colour_across_envs_and_its_statistics_rows_share_it(
     # One method with two groups on one env: a colour per group, the statistics' own palette.
     twice = [groups[0], Experiment("again", groups[0].runs)]
     assert group_styles(twice).colors == ("C0", "C1") and group_styles(twice).method_colors == {}
+    # One method on five envs: four line styles cannot tell them apart, so each gets its own colour.
+    envs = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Swimmer-v5")
+    five = group_styles([Experiment(e, runs(e, "td3")) for e in envs])
+    assert five.colors == ("C0", "C1", "C2", "C3", "C4") and five.method_colors == {}
 
 
 def test_unused_diagnostics_are_left_out_of_the_default_panels():

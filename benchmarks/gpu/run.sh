@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One part of canter's GPU benchmarks (issue 26), each sized to finish within 5 minutes on one H100, compile included
-# (`ppo-brax` with no env runs two such parts back to back, and `HUMANOID_MINUTES=8` makes humanoid a longer one):
+# (`ppo-brax` with no env runs two such parts back to back, and `HUMANOID_MINUTES=7` makes humanoid a longer one):
 #
 #   bash benchmarks/gpu/run.sh smoke       # install check: jax.devices() and 1 PPO iteration of Hopper-v5 on mjx
 #   bash benchmarks/gpu/run.sh ppo-brax    # Brax's own PPO vs canter ppo --preset brax on Brax's ant and humanoid
@@ -154,7 +154,7 @@ humanoid)
     # exploration noise relative to the action range (net.log_std_init -0.916), a 256-256-256 policy and
     # half-length iterations. On the CPU these cut the env steps to an evaluation of 6000 from about 20M to 8M on
     # seed 0, and four seeds of five got there by 8.1M (benchmarks/gpu/humanoid_cpu/recipes.md, seeds.md). At about
-    # 30k env steps/s that is more than the default 4 minutes: HUMANOID_MINUTES=8 runs it to the score, when the
+    # 30k env steps/s that is more than the default 4 minutes: HUMANOID_MINUTES=7 runs it to the score, when the
     # device time allows a part that long. HUMANOID_SETS adds `--set` flags on top of the preset.
     num_envs=${HUMANOID_ENVS:-2048}
     read -r -a extra <<<"${HUMANOID_SETS:-}"

@@ -1,6 +1,6 @@
 """Report 003 (PPO vs TD3 on HalfCheetah, Hopper and Walker2d, with compute time) redone with canter.
 
-    python benchmarks/reports/003-ppo-td3-compute-time/run.py            # train what is not archived, then write
+    python benchmarks/reports/003-ppo-td3-compute-time/run.py            # train what is not archived (td3: hours)
     python benchmarks/reports/003-ppo-td3-compute-time/run.py --only td3 --max-minutes 100   # td3 only, in parts
     python benchmarks/reports/003-ppo-td3-compute-time/run.py --write    # only rewrite the page's table
     python benchmarks/reports/003-ppo-td3-compute-time/run.py --check    # exit 1 if the table is not the archive's

@@ -32,16 +32,11 @@ def check_physics(env: Any) -> None:
     from canter.envs.registry import get_backend, solver_backends
 
     takes = env.backend != "auto" and get_backend(env.backend).solver_options
-    # Suggest a backend only where it runs this env: Pendulum has no MJX port, so --backend mjx would fail next.
-    runs_it = [name for name in solver_backends() if not env.id or env.id in get_backend(name).supported_ids()]
 
     def only_there(key: str, default: bool) -> None:
-        fix = (
-            f"add --backend {runs_it[0]} or drop env.{key}"
-            if runs_it
-            else f"{env.id} has no {' or '.join(solver_backends())} version: drop env.{key}"
-        )
-        need(default or takes, f"env.{key} applies to the {' and '.join(solver_backends())} backend only; {fix}")
+        if not (default or takes):
+            where = " and ".join(solver_backends())
+            raise CanterError(f"env.{key} applies to the {where} backend only; {_physics_fix(env.id, key)}")
 
     for key in ("solver_iterations", "solver_ls_iterations"):
         value = getattr(env, key)
@@ -49,6 +44,22 @@ def check_physics(env: Any) -> None:
         only_there(key, value == 0)
     need(env.contacts in CONTACTS, f"env.contacts must be {' or '.join(CONTACTS)}, got '{env.contacts}'")
     only_there("contacts", env.contacts == "all")
+
+
+def _physics_fix(env_id: str, key: str) -> str:
+    """What to do about a physics key on a backend that does not take it: name a backend that takes it and runs the
+    env. An env that none of them ports (Pendulum has no MJX version) is told so, since --backend would fail next;
+    an id no backend knows, or one asked of a backend that is not installed, gets the plain advice."""
+    from canter.envs.registry import get_backend, known_ids, solver_backends
+
+    names = solver_backends()
+    installed = [name for name in names if get_backend(name).available()]
+    if env_id and installed and env_id in known_ids():
+        ports = [name for name in installed if env_id in get_backend(name).supported_ids()]
+        if not ports:
+            return f"{env_id} has no {' or '.join(installed)} version: drop env.{key}"
+        names = ports
+    return f"add --backend {names[0]} or drop env.{key}"
 
 
 def _check_eval_backend(backend: str, eval_backend: str) -> None:

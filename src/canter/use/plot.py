@@ -469,14 +469,16 @@ def group_styles(groups: Sequence[Experiment]) -> Styles:
     """Colour by method and line style by env, as papers draw algorithms on several tasks: the statistics
     aggregate methods across envs, so a colour per group would give their rows colours no curve has. Where one
     method has two groups on one env (runs that differ in a key the method does not name), each group gets its own
-    colour instead, and the statistics their own palette."""
+    colour instead, and the statistics their own palette; so do groups that colours and line styles cannot tell apart
+    (more than 10 methods, or more than 4 envs)."""
     methods = method_labels([g.runs[0].config for g in groups])
     envs = [g.runs[0].config.env.id for g in groups]
-    if len(set(zip(methods, envs))) < len(groups):
-        return Styles(tuple(f"C{i % 10}" for i in range(len(groups))), (LINE_STYLES[0],) * len(groups), {})
     method_colors = {m: f"C{i % 10}" for i, m in enumerate(dict.fromkeys(methods))}
     env_styles = {e: LINE_STYLES[i % len(LINE_STYLES)] for i, e in enumerate(dict.fromkeys(envs))}
-    return Styles(tuple(method_colors[m] for m in methods), tuple(env_styles[e] for e in envs), method_colors)
+    styles = Styles(tuple(method_colors[m] for m in methods), tuple(env_styles[e] for e in envs), method_colors)
+    if len(set(zip(methods, envs))) < len(groups) or len(set(zip(styles.colors, styles.line_styles))) < len(groups):
+        return Styles(tuple(f"C{i % 10}" for i in range(len(groups))), (LINE_STYLES[0],) * len(groups), {})
+    return styles
 
 
 def draw(

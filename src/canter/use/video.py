@@ -346,7 +346,9 @@ def record_video(
     """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
     GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`. `on_start()`
     is called once the arguments are checked and rendering begins, and `on_episode(i, return)` as each episode
-    ends, since a long episode takes minutes to render on a CPU."""
+    ends, since a long episode takes minutes to render on a CPU. In a process whose MuJoCo already renders
+    otherwise, the render runs in a subprocess: then `on_start` comes before that process checks the camera and
+    the env, and every `on_episode` once the file is written."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 

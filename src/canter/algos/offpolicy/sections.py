@@ -166,7 +166,7 @@ def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> Algori
         on_policy=False,
         search_space=(PACKAGE, f"search_space_{name}.toml"),
         iteration_steps=_iteration_steps,
-        iteration_keys=("env.num_envs", f"{name}.steps_per_call"),
+        iteration_keys=(f"{name}.steps_per_call",),  # in whole vector steps of env.num_envs each
         preset_overrides=algorithm_preset_tables(PACKAGE, name),
         plot_labels=labels,
         seeds_train_apart=True,
