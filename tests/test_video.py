@@ -277,3 +277,8 @@ def test_a_pygame_env_renders_headless_without_an_error_line(tiny_run, tmp_path)
     argv = [sys.executable, "-m", "canter.cli.main", "video", str(tiny_run.run_dir), "--out", str(tmp_path / "p.gif")]
     done = subprocess.run(argv + ["--max-steps", "3"], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and "error" not in done.stderr.lower(), done.stderr
+    # A driver the machine lacks, asked for in the environment: one line that names it, not pygame's traceback.
+    env["SDL_VIDEODRIVER"] = "nosuchdriver"
+    done = subprocess.run(argv + ["--max-steps", "3"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "SDL_VIDEODRIVER=nosuchdriver asks for it: unset it, or set it to dummy" in done.stderr

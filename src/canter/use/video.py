@@ -113,6 +113,7 @@ class _GymnasiumPlayer:
         except CanterError:
             raise CanterError(f"cannot replay {env_id}: Gymnasium has no such env to render") from None
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
+        self.env_id = env_id
         self.size = (width, height)
         kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
         if "mujoco" in entry:
@@ -149,6 +150,10 @@ class _GymnasiumPlayer:
             frame = self.env.render()
         except ValueError as exc:  # Gymnasium's MuJoCo renderer reports a bad camera name here
             raise CanterError(f"cannot render: {exc}") from None
+        except RuntimeError as exc:  # pygame.error: an SDL driver from the environment that this machine lacks
+            driver = os.environ.get("SDL_VIDEODRIVER", "dummy")
+            fix = f"; SDL_VIDEODRIVER={driver} asks for it: unset it, or set it to dummy" if driver != "dummy" else ""
+            raise CanterError(f"cannot render {self.env_id}: {exc}{fix}") from None
         return _resize(np.asarray(frame), self.size)
 
     def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
