@@ -127,6 +127,10 @@ ppo-brax)
     # a final evaluation of each.
     envs=("$@")
     [ ${#envs[@]} -gt 0 ] || envs=(ant humanoid)
+    case "${BRAX_TRAINERS:-both}" in
+    both | brax | canter) ;;
+    *) echo "run.sh ppo-brax: BRAX_TRAINERS is both, brax or canter, not ${BRAX_TRAINERS}" >&2 && exit 2 ;;
+    esac
     for env in "${envs[@]}"; do
         case "$env" in
         ant) timesteps=${BRAX_ANT_STEPS:-10000000} ;;
@@ -137,10 +141,25 @@ ppo-brax)
         [ "$SMOKE" = 1 ] && smoke_flag=(--smoke) && timesteps=80
         # Three evaluations give Brax two training epochs; the first compiles, so the last epoch's training/sps is
         # its compile-free rate, the figure canter's SPS (its compile left out) compares with.
-        settings "python benchmarks/gpu/brax_ppo.py $env --timesteps $timesteps --num-evals 3 ${smoke_flag[*]}"
-        timed "brax-$env" "$PY" benchmarks/gpu/brax_ppo.py "$env" --timesteps "$timesteps" --num-evals 3 \
-            "${smoke_flag[@]}" --out "$OUT/brax_$env.json"
-        steps=$("$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['steps'])" "$OUT/brax_$env.json")
+        # BRAX_TRAINERS=brax or canter runs one side only, for a budget whose two sides do not fit one device call
+        # (ant at Brax's full 50M steps): canter then trains the steps of BRAX_RECORD, the brax_ENV.json that Brax's
+        # side wrote in an earlier call, or else the steps asked for.
+        record=$OUT/brax_$env.json
+        if [ "${BRAX_TRAINERS:-both}" != canter ]; then
+            settings "python benchmarks/gpu/brax_ppo.py $env --timesteps $timesteps --num-evals 3 ${smoke_flag[*]}"
+            timed "brax-$env" "$PY" benchmarks/gpu/brax_ppo.py "$env" --timesteps "$timesteps" --num-evals 3 \
+                "${smoke_flag[@]}" --out "$record"
+        elif [ -n "${BRAX_RECORD:-}" ]; then
+            record=$BRAX_RECORD
+        fi
+        [ "${BRAX_TRAINERS:-both}" = brax ] && continue
+        if [ -f "$record" ]; then
+            steps=$("$PY" -c "import json, sys; print(json.load(open(sys.argv[1]))['steps'])" "$record")
+            settings "canter trains the $steps env steps Brax trained ($record)"
+        else
+            steps=$timesteps
+            settings "canter trains the $steps env steps asked for (no Brax record)"
+        fi
         shrink=()
         if [ "$SMOKE" = 1 ]; then
             shrink=(--set env.num_envs=8 --set ppo.n_steps=10 --set ppo.minibatch_size=40)
