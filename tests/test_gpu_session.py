@@ -1,10 +1,13 @@
 """benchmarks/gpu/session.sh: the parts of one device call fit the call's time (SESSION_SECONDS), and what a part
 left is packed. Tested with a stand-in run.sh, since a call the device kills brings back only its log."""
 
+import json
 import shutil
 import subprocess
 import tarfile
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -52,3 +55,45 @@ def test_without_session_seconds_every_part_keeps_its_limit(tmp_path):
     assert "== smoke  (limit 30 s" in log and "== seeds  (limit 40 s" in log and "cut to" not in log
     with tarfile.open(out / "session.tgz") as packed:
         assert {"./smoke.md", "./seeds.md"} <= set(packed.getnames())
+
+
+@pytest.mark.slow
+def test_a_part_stopped_by_its_limit_keeps_the_time_of_the_process_it_cut(tmp_path):
+    """session.sh's `timeout` sends SIGTERM to run.sh's whole process group; the part records the process it waited
+    for as stopped, with its time, and starts no other."""
+    import os
+    import signal
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    env = {
+        **os.environ,
+        "OUT": str(out),
+        "CANTER_GPU_SMOKE": "1",
+        "CANTER_GPU_INSTALL": "0",
+        "PYTHON": sys.executable,
+        "PYTHONPATH": os.pathsep.join(sys.path),
+    }
+    proc = subprocess.Popen(
+        ["bash", str(ROOT / "benchmarks" / "gpu" / "run.sh"), "smoke"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 240
+        settings = out / "smoke.settings"
+        while not (settings.is_file() and "canter train" in settings.read_text()):
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.5)
+        time.sleep(3)  # inside the timed `canter train`
+        os.killpg(proc.pid, signal.SIGTERM)
+        assert proc.wait(timeout=120) == 143
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    [record] = [json.loads(line) for line in (out / "smoke.times").read_text().splitlines()]
+    assert record["label"] == "smoke" and record["stopped"] is True and record["seconds"] > 3
+    assert "run.sh: stopped by SIGTERM" in (out / "smoke.log").read_text()
