@@ -214,16 +214,7 @@ def test_a_budget_far_from_whole_iterations_is_noted():
     assert 0 < 1_000_000 % algorithm_spec("ppo").iteration_steps(fast) < 10_000
     assert budget_rounding_note(fast) is None
     assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=20 * 327_680))) is None
-    # A few whole iterations: autoreset steps do not count, so where episodes end the run may take one more.
-    assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=2 * 327_680))) == (
-        "ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80) until it has "
-        "counted run.total_steps=655,360, and autoreset steps do not count, so this run trains 655,360 env steps, or "
-        "983,040 where its episodes' autoresets leave it short; a budget of many iterations, or smaller env.num_envs "
-        "/ ppo.n_steps, keeps that small"
-    )
-    # From ten iterations on, one more is within 10%.
-    assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=10 * 327_680))) is None
-    assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=9 * 327_680))) is not None
+    assert budget_rounding_note(replace(config, run=replace(config.run, total_steps=2 * 327_680))) is None
 
 
 @pytest.mark.slow

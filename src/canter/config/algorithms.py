@@ -90,29 +90,22 @@ def unused_metrics(config: Any) -> tuple[str, ...]:
 
 
 def budget_rounding_note(config: Any) -> str | None:
-    """A note when the run may train more than 10% past its budget. It trains until the iteration that reaches
-    run.total_steps ends, so a budget below one iteration trains a whole one; and autoreset steps do not count, so
-    where episodes end a budget of a few whole iterations can take one more (how many autoresets a run has depends
-    on its episodes, so that case says "may"). None otherwise."""
+    """A note when the run's budget is far from a whole number of its iterations: it trains until the iteration
+    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 10%. (Where
+    episodes end, autoreset steps, which do not count, can add one more iteration; how many a run has depends on
+    its episodes, so that is documented rather than guessed at here.)"""
     spec = algorithm_spec(config.run.algo)
     per_iteration = spec.iteration_steps(config)
     budget = config.run.total_steps
     trained = -(-budget // per_iteration) * per_iteration
+    if trained - budget <= budget / 10:
+        return None
     sizes = " x ".join(f"{key} {_read(config, key):,}" for key in spec.iteration_keys)
-    smaller = " / ".join(spec.iteration_keys)
-    head = f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes})"
-    if trained - budget > budget / 10:
-        return (
-            f"{head}, so this run.total_steps={budget:,} run trains about {trained:,}; give a multiple of "
-            f"{per_iteration:,}, or smaller {smaller}"
-        )
-    if trained + per_iteration - budget > budget / 10:
-        return (
-            f"{head} until it has counted run.total_steps={budget:,}, and autoreset steps do not count, so this run "
-            f"trains {trained:,} env steps, or {trained + per_iteration:,} where its episodes' autoresets leave it "
-            f"short; a budget of many iterations, or smaller {smaller}, keeps that small"
-        )
-    return None
+    return (
+        f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes}), so this "
+        f"run.total_steps={budget:,} run trains about {trained:,}; give a multiple of {per_iteration:,}, or "
+        f"smaller {' / '.join(spec.iteration_keys)}"
+    )
 
 
 def _read(config: Any, key: str) -> Any:
