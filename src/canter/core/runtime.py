@@ -32,10 +32,9 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     import jax
 
     from canter.envs.functional import x64_enabled
-    from canter.envs.registry import get_backend
 
     global _platform_chosen
-    native = backend is not None and backend != "auto" and get_backend(backend).jax_native
+    native = _steps_in_jax(backend)
     if _platform_chosen and x64_enabled() == native:
         # Switching precision in a process that has traced programs: JAX's staging caches can hold a nested
         # program traced in the other precision (MJX's integrators do), so they start over.
@@ -59,16 +58,20 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
         announce_physics(backend)
 
 
+def _steps_in_jax(backend: str | None) -> bool:
+    """Whether `backend` steps its physics inside the JAX program (MJX, Brax); None and `auto` are host-stepped."""
+    from canter.envs.registry import get_backend
+
+    return backend is not None and backend != "auto" and get_backend(backend).jax_native
+
+
 def announce_physics(backend: str | None) -> None:
     """The one-line notice (once per process) that a JAX-native backend steps its physics on the CPU, given where
     that backend is about to step: a policy trained on mjx and evaluated on EnvPool loads as mjx but steps none."""
     import jax
 
-    from canter.envs.registry import get_backend
-
     global _cpu_notice_given
-    native = backend is not None and backend != "auto" and get_backend(backend).jax_native
-    if native and jax.default_backend() == "cpu" and not _cpu_notice_given:
+    if _steps_in_jax(backend) and jax.default_backend() == "cpu" and not _cpu_notice_given:
         print(f"canter: no GPU found, so {backend} steps its physics on the CPU (correct, but slow)", file=sys.stderr)
         _cpu_notice_given = True
 

@@ -50,9 +50,8 @@ def _interval_row(ax: Any, y: int, interval: Interval, color: str, runs: int) ->
     ax.plot([interval.estimate], [y], marker="|", color="black", markersize=12)
 
 
-def _row_colors(board: Scoreboard, method_colors: Mapping[str, str]) -> list[str]:
-    """Each row's method's colour where the curves gave it one, else a colour per row."""
-    methods = [m.method for m in board.methods] if _rows(board)[2] == NORMALIZED else [c.method for c in board.cells]
+def _colors(methods: list[str], method_colors: Mapping[str, str]) -> list[str]:
+    """Each method's colour where the curves gave one to every method drawn, else a colour per entry."""
     if not all(m in method_colors for m in methods):
         return [f"C{i % 10}" for i in range(len(methods))]
     return [method_colors[m] for m in methods]
@@ -66,12 +65,9 @@ def draw_scoreboard(fig: Any, board: Scoreboard, method_colors: Mapping[str, str
     labels = [textwrap.fill(label, width=LABEL_WIDTH) for label in labels]
     extra = int(bool(board.profiles)) + int(bool(board.comparisons))
     axes = fig.subplots(1, len(AGGREGATES) + extra, squeeze=False)[0]
-    colors = _row_colors(board, method_colors or {})
-    profile_colors = (
-        dict(method_colors)
-        if method_colors and all(name in method_colors for name in board.profiles)
-        else {name: f"C{i % 10}" for i, name in enumerate(board.profiles)}
-    )
+    methods = [m.method for m in board.methods] if unit == NORMALIZED else [c.method for c in board.cells]
+    colors = _colors(methods, method_colors or {})
+    profile_colors = dict(zip(board.profiles, _colors(list(board.profiles), method_colors or {})))
     for i, (ax, (key, title)) in enumerate(zip(axes, AGGREGATES)):
         for y, (aggregates, color) in enumerate(zip(found, colors)):
             interval = getattr(aggregates, key)
