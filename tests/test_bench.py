@@ -3,6 +3,7 @@ resume after an interruption."""
 
 import csv
 import json
+import math
 import shutil
 import time
 from dataclasses import replace
@@ -602,6 +603,30 @@ def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
     assert set(data["performance_profiles"]) == {"ppo", "trpo"}
     [comparison] = data["probability_of_improvement"]
     assert (comparison["x"], comparison["y"]) == ("ppo", "trpo") and data["bootstrap"]["reps"] == 100
+
+
+def test_a_cell_with_a_diverged_seed_is_left_out_of_the_statistics_and_named(monkeypatch):
+    """A seed whose eval.json holds a NaN mean (a diverged policy) once crashed the statistics, so no results file
+    was written. Its cell now stays out of them whole, and the results say so."""
+    import canter.use.statistics
+    from canter.orchestrate.bench import combine_records, results_markdown
+
+    monkeypatch.setattr(canter.use.statistics, "REPS", 100)
+    settings = BenchSettings(algos=("ppo", "trpo"), envs=("Hopper-v5",), seeds=(0, 1, 2), total_steps=1000)
+    returns = {"ppo": [3300.0, math.nan, 2900.0], "trpo": [2000.0, 2100.0, 2050.0]}
+    results = [
+        combine_records(
+            cell,
+            [{"seed": s, "eval_mean": v, "wall_seconds": 60.0, "sps": 100.0} for s, v in enumerate(returns[cell.algo])],
+        )
+        for cell in make_cells(settings)
+    ]
+    markdown, _csv, statistics_json = results_markdown(results, [], 1000)
+    ppo_cell = results[0]["cell"]
+    assert f"Left out of the statistics: {ppo_cell}, each with a final evaluation that is not finite" in markdown
+    assert "| Hopper-v5 | ppo | nan ± nan |" in markdown
+    data = json.loads(statistics_json)
+    assert [(c["method"], c["scores"]) for c in data["cells"]] == [("trpo", returns["trpo"])]
 
 
 def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp_path, monkeypatch):

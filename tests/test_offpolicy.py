@@ -108,6 +108,22 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
         assert (ou[env] == 0).all() == bool(last_done[env])
 
 
+def test_ou_noise_stays_at_zero_through_the_autoreset_step():
+    """The autoreset step's action is ignored, so its OU noise must not advance: the next episode's first action
+    then carries one increment from 0, as SB3's does, not two."""
+    config = build_config(
+        "Pendulum-v1",
+        algo="td3",
+        sets=["env.num_envs=2", "td3.steps_per_call=20", "td3.learning_starts=0", "td3.buffer_size=64"]
+        + ["td3.batch_size=4", "td3.hidden=4", "td3.noise=ou", "td3.noise_std=1.0"],
+    )
+    state, _, metrics = run_counter_iteration(config, TD3(config.td3))
+    done = np.asarray(metrics["finished"])
+    assert done[-2].tolist() == [False, True] and not done[-1].any()  # env 1's last step was its autoreset step
+    ou = np.asarray(state.ou_state)
+    assert (ou[1] == 0).all() and (ou[0] != 0).all()
+
+
 def test_an_autoreset_step_that_stores_nothing_makes_no_update():
     """One env that terminates every 3 steps: of 8 vector steps, 2 are autoresets, so 6 transitions and 6 updates
     at train_freq 1, as in the references, whose envs reset within the step."""

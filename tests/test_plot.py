@@ -26,6 +26,7 @@ from canter.use.plot import (
     experiment_band,
     experiment_labels,
     experiments_of,
+    final_score,
     interpolate,
     load_run,
     method_labels,
@@ -35,7 +36,7 @@ from canter.use.plot import (
     scoreboard_of,
     unused_diagnostic,
 )
-from canter.use.scoreboard import TRAINING_SOURCE, RunScore, build_scoreboard
+from canter.use.scoreboard import EVAL_SOURCE, TRAINING_SOURCE, RunScore, build_scoreboard
 
 
 def test_moving_average_matches_a_loop_with_nans():
@@ -302,6 +303,33 @@ def test_scores_of_one_kind_only(tmp_path, capsys):
     board = scoreboard_of(experiments_of([*evaluated, run(4, 50.0), unfinished]))
     assert board.cells[0].scores == (10.0, 20.0, 50.0)
     assert f"{tmp_path / 's3'} has no training return" in capsys.readouterr().err
+
+
+def test_a_diverged_final_evaluation_is_no_score_and_is_named(tmp_path, capsys):
+    """A NaN in eval.json is the run's final score: neither its training return nor an evaluation from before it
+    diverged may stand in for it. It stays out of the statistics, with a note."""
+    from canter.use.scoreboard import run_score
+
+    def run(seed, eval_mean):
+        folder = tmp_path / f"s{seed}"
+        folder.mkdir()
+        (folder / "summary.json").write_text(json.dumps({"recent_return": 50.0}))
+        (folder / "eval.json").write_text(json.dumps({"mean": eval_mean}))
+        curves = fake_run([0, 1], [0, 1], seed=seed)
+        curves.columns["eval/return_mean"] = np.array([900.0, math.nan])
+        return replace(curves, run_dir=folder)
+
+    runs = [run(0, 100.0), run(1, 200.0), run(2, math.nan)]
+    (tmp_path / "s2" / "eval.json").write_text('{"mean": NaN}')  # as json.dumps writes a NaN
+    score, source = run_score(tmp_path / "s2")
+    assert math.isnan(score) and source == EVAL_SOURCE
+    assert math.isnan(final_score(runs[2])[0])
+    board = scoreboard_of(experiments_of(runs))
+    assert board.cells[0].scores == (100.0, 200.0)
+    assert capsys.readouterr().err == (
+        f"canter: note: {tmp_path / 's2'} has a final evaluation that is not finite (a diverged policy): left out "
+        "of the statistics\n"
+    )
 
 
 def test_a_seed_run_twice_is_noted(capsys):

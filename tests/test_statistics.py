@@ -127,6 +127,7 @@ def test_shipped_random_scores_carry_their_command_and_cover_the_published_envs(
     assert reference_score("ppo", "Hopper-v5") == (2609.3, "Tianshou")
     assert reference_score("ppo", "Pusher-v4") == (-40.38, "CleanRL")
     assert reference_score("rpo", "Hopper-v5") is None
+    assert reference_score("td3", "Humanoid-v5") == (5189.5, "Tianshou")  # Tianshou's where it has one
     hopper = normalizer_for("ppo", "Hopper-v5")
     assert hopper.random == data["env"]["Hopper-v5"]["mean"] and hopper.reference == 2609.3
     assert normalizer_for("ppo", "Pendulum-v1") is None

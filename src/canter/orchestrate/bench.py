@@ -460,17 +460,33 @@ def results_scoreboard(results: list[dict[str, Any]], keys: list[str], reps: int
     from canter.use.scoreboard import EVAL_SOURCE, RunScore, build_scoreboard
     from canter.use.statistics import REPS
 
+    left_out = {r["cell"] for r in diverged_cells(results)}
     scores = [
         RunScore(method_label(r, keys), r["env"], r["algo"], value, f"{r['cell']}#{i}")
         for r in results
+        if r["cell"] not in left_out
         for i, value in enumerate(r["seed_returns"])
     ]
     return build_scoreboard(scores, EVAL_SOURCE, reps=reps or REPS) if scores else None
 
 
+def diverged_cells(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The cells with a seed whose final evaluation is not finite. They stay out of the statistics whole: leaving
+    out only the failed seed would score the cell as if it had not failed."""
+    return [r for r in results if not all(math.isfinite(v) for v in r["seed_returns"])]
+
+
 def results_markdown(results: list[dict[str, Any]], keys: list[str], total_steps: int) -> tuple[str, str, str]:
     """(results.md: the table, then the statistics; results.csv; statistics.json, empty without scores)."""
+    from canter.use.scoreboard import DIVERGED
+
     markdown, table_csv = results_table(results, keys, total_steps)
+    diverged = diverged_cells(results)
+    if diverged:
+        markdown += (
+            f"\nLeft out of the statistics: {', '.join(r['cell'] for r in diverged)}, each with {DIVERGED} in a "
+            "seed's eval.json.\n"
+        )
     board = results_scoreboard(results, keys)
     if board is None:
         return markdown, table_csv, ""

@@ -53,6 +53,7 @@ from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import metrics_file, read_config
 from canter.use import score_plot
 from canter.use.scoreboard import (
+    DIVERGED,
     EVAL_SOURCE,
     LAST_EVAL_SOURCE,
     TRAINING_SOURCE,
@@ -612,10 +613,13 @@ def scoreboard_of(
             _note_runs(
                 unscored, "no training return (no finished episode, or no summary.json yet): left out of the statistics"
             )
+    diverged = [path for path, score in found.items() if score is not None and not np.isfinite(score[0])]
+    if diverged:
+        _note_runs(diverged, f"{DIVERGED}: left out of the statistics")
     rows, sources = [], []
     for method, run in runs:
         score = found[run.run_dir]
-        if score is None:
+        if score is None or not np.isfinite(score[0]):
             continue
         rows.append(RunScore(method, run.config.env.id, run.config.run.algo, score[0], run.run_dir.name))
         sources.append(score[1])

@@ -118,7 +118,7 @@ def draw_scoreboard(fig: Any, board: Scoreboard, method_colors: Mapping[str, str
     references = sorted({f"{c.normalizer.source} {c.algo}" for c in board.cells if c.normalizer})
     if unit == NORMALIZED or board.profiles:
         caption += (
-            " Normalized score: 0 = uniformly random actions (measured by canter), 1 = the published 1M-step return "
-            f"of the same algorithm ({', '.join(references)})."
+            " Normalized score: 0 = uniformly random actions (measured by canter), 1 = the published 1M-step figure "
+            f"of the same algorithm ({', '.join(references)}), measured under its source's own protocol."
         )
     fig.suptitle(textwrap.fill(caption, width=int(fig.get_figure(root=True).get_figwidth() * 14)), fontsize=9)

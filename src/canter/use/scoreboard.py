@@ -32,6 +32,7 @@ SHOWN_TAUS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
 EVAL_SOURCE = "final deterministic evaluation (eval.json: mean return over its episodes)"
 LAST_EVAL_SOURCE = "last evaluation during training (metrics.csv: eval/return_mean)"
 TRAINING_SOURCE = "training return (summary.json: mean of the last 20 training episodes)"
+DIVERGED = "a final evaluation that is not finite (a diverged policy)"
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ class Scoreboard:
             Table(
                 "Final return per env",
                 f"Score of a run: {self.source}. IQM: mean of the middle 50% of runs. Optimality gap: mean shortfall "
-                "of the runs below the reference (the published 1M-step return of the same algorithm), in return "
+                "of the runs below the reference (the published 1M-step figure of the same algorithm), in return "
                 "units. " + self.interval_note(),
                 ("env", "method", "n", "IQM", "mean", "median", "optimality gap", "reference"),
                 tuple(
@@ -133,8 +134,10 @@ class Scoreboard:
                 Table(
                     "Across envs, normalized",
                     "Normalized score = (return − random) / (reference − random): 0 is uniformly random actions "
-                    "(measured by canter), 1 the published 1M-step return of the same algorithm (Tianshou where it "
-                    "has one, else CleanRL). Mean and median are of the per-env means; IQM and optimality gap "
+                    "(measured by canter), 1 the published 1M-step figure of the same algorithm: Tianshou's best "
+                    "10-seed average during training (MuJoCo v3) where it has one, else CleanRL's training return "
+                    "(v4), another protocol and env version than these runs', so a yardstick rather than a ranking. "
+                    "Mean and median are of the per-env means; IQM and optimality gap "
                     "(γ = 1) pool every run.",
                     ("method", "envs", "n per env", "IQM", "mean", "median", "optimality gap"),
                     tuple(
@@ -336,7 +339,9 @@ SCORE_FILES = {EVAL_SOURCE: ("eval.json", "mean"), TRAINING_SOURCE: ("summary.js
 def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOURCE)) -> tuple[float, str] | None:
     """(a finished run's score, what it is), from the first of `sources` the run has: its final deterministic
     evaluation where `canter bench` wrote one for its newest checkpoint (one from before a resume is stale), the mean
-    training return of its last episodes; None for a run without either."""
+    training return of its last episodes; None for a run without either. A final evaluation that is not finite (a
+    diverged policy) is still the run's score: falling back to its training return would score a failed run as if
+    it had not failed."""
     for source in sources:
         name, key = SCORE_FILES[source]
         try:
@@ -346,7 +351,7 @@ def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOU
             continue
         if source == EVAL_SOURCE and not _of_newest_checkpoint(run_dir, data.get("checkpoint")):
             continue
-        if isinstance(value, int | float) and np.isfinite(value):
+        if isinstance(value, int | float) and (np.isfinite(value) or source == EVAL_SOURCE):
             return float(value), source
     return None
 

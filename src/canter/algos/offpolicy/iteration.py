@@ -183,7 +183,10 @@ def make_iteration(
         following = EnvLoop(
             learner_state=learner_state,
             buffer=buffer,
-            ou_state=next_ou * (1.0 - episodes.done.astype(jnp.float32))[:, None],
+            # An autoreset step's action is ignored, so its noise does not advance: an episode's first action
+            # then carries one OU increment from 0, as in the references.
+            ou_state=jnp.where(valid[:, None], next_ou, loop.ou_state)
+            * (1.0 - episodes.done.astype(jnp.float32))[:, None],
             obs_stats=obs_stats,
             return_stats=return_stats,
             carry=next_carry,
