@@ -94,6 +94,54 @@ def sync(wanted: dict[Path, str], check: bool, script: str) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------------------------ provenance
+# canter names a run folder <...>__<YYYYMMDD>-<HHMMSS>-<tag>; an archived run renamed by its page keeps that name in
+# the first line of its train.log.
+_RUN_DATE = re.compile(r"__(\d{4})(\d{2})(\d{2})-\d{6}-[0-9a-f]{4}")
+
+
+def _run_dates(folder: Path, versions: dict[str, Any]) -> set[str]:
+    """The days a run folder was made on: versions.json's `created` (runs from 2026-11-29 on), else the date in its
+    folder's name or its train.log's first lines."""
+    if isinstance(versions.get("created"), str):
+        return {versions["created"][:10]}
+    log = folder / "train.log"
+    text = folder.name + (log.read_text(errors="replace")[:2000] if log.is_file() else "")
+    return {f"{y}-{m}-{d}" for y, m, d in _RUN_DATE.findall(text)}
+
+
+def provenance_table(folders: Iterable[Path]) -> str:
+    """Which code, machine and library versions trained the archived runs under `folders` (each run's
+    versions.json) and on which days: one row per commit, machine and versions. A resumed run counts under the
+    commit of its first session, which made its versions.json."""
+    rows: dict[tuple[str, str, str], tuple[int, set[str]]] = {}
+    for folder in folders:
+        for versions_file in sorted(folder.rglob("versions.json")) if folder.is_dir() else []:
+            versions = json.loads(versions_file.read_text())
+            commit = versions.get("canter_commit")
+            code = (
+                "not recorded (runs before 2026-11-26)"
+                if not commit
+                else f"{commit[:7]}" + (" with uncommitted changes" if versions.get("canter_dirty") else "")
+            )
+            gpu = versions.get("gpu")
+            machine = f"{versions.get('cpu', '?')}, {versions.get('cpu_count', '?')} cores" + (
+                f", {gpu}" if gpu else ""
+            )
+            libraries = ", ".join(
+                f"{name} {versions[name]}" for name in ("jax", "envpool", "mujoco") if versions.get(name) is not None
+            )
+            count, dates = rows.get((code, machine, libraries), (0, set()))
+            rows[(code, machine, libraries)] = (count + 1, dates | _run_dates(versions_file.parent, versions))
+    lines = ["| canter commit | runs | trained | machine | versions |", "|---|---:|---|---|---|"]
+    for (code, machine, libraries), (count, dates) in sorted(
+        rows.items(), key=lambda r: (min(r[1][1], default=""), r[0])
+    ):
+        when = " to ".join(dict.fromkeys([min(dates), max(dates)])) if dates else "not recorded"
+        lines.append(f"| {code} | {count} | {when} | {machine} | {libraries} |")
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------------------------------------ in-flight packs
 # Work folders (runs/) do not outlive the machine, so a page keeps what a stopped run needs to carry on in a file of
 # its own, committed with it: <page>/inflight/<name>.tar. A pack over this size is not kept (an off-policy run's

@@ -72,3 +72,40 @@ def test_the_walker_pages_first_crossing_follows_the_last_episodes(monkeypatch, 
         "3000,3,15.0,200,2,640.0\n"
     )
     assert page.training_rows(tmp_path) == [(1000.0, 1, 28.5, 5.0), (3000.0, 2, 640.0, 15.0)]
+
+
+def test_provenance_groups_runs_by_commit_machine_and_versions_with_their_days(tmp_path):
+    import json
+
+    sys.path.insert(0, str(REPORTS.parent))
+    from archive import provenance_table
+
+    def run(name, created=None, log=None, **versions):
+        folder = tmp_path / name
+        folder.mkdir(parents=True)
+        base = {"canter_commit": None, "canter_dirty": None, "cpu": "AMD EPYC", "cpu_count": 2, "gpu": None}
+        base |= {"jax": "0.10.2", "envpool": "1.2.5", "mujoco": "3.6.0"} | versions
+        (folder / "versions.json").write_text(json.dumps(base | ({"created": created} if created else {})))
+        if log:
+            (folder / "train.log").write_text(log)
+
+    sha = "0123456789abcdef0123456789abcdef01234567"
+    run("grid/Hopper-v5__ppo__s0", created="2026-11-29T10:00:00Z", canter_commit=sha, canter_dirty=False)
+    run("grid/Hopper-v5__ppo__s1", created="2026-11-30T01:00:00Z", canter_commit=sha, canter_dirty=False)
+    run(
+        "renamed",
+        log="run: /x/Hopper-v5__ppo__fast__s100__20261126-182911-42f3\n",
+        canter_commit=sha,
+        canter_dirty=True,
+    )
+    run("old/Hopper-v5__ppo__s2")
+    run("gpu", created="2026-11-27T00:00:00Z", canter_commit=sha, canter_dirty=False, gpu="NVIDIA H200", jax="0.11.2")
+    libraries = "jax 0.10.2, envpool 1.2.5, mujoco 3.6.0"
+    assert provenance_table([tmp_path, tmp_path / "missing"]).splitlines() == [
+        "| canter commit | runs | trained | machine | versions |",
+        "|---|---:|---|---|---|",
+        f"| not recorded (runs before 2026-11-26) | 1 | not recorded | AMD EPYC, 2 cores | {libraries} |",
+        f"| 0123456 with uncommitted changes | 1 | 2026-11-26 | AMD EPYC, 2 cores | {libraries} |",
+        "| 0123456 | 1 | 2026-11-27 | AMD EPYC, 2 cores, NVIDIA H200 | jax 0.11.2, envpool 1.2.5, mujoco 3.6.0 |",
+        f"| 0123456 | 2 | 2026-11-29 to 2026-11-30 | AMD EPYC, 2 cores | {libraries} |",
+    ]

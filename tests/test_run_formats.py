@@ -121,3 +121,13 @@ def test_migration_is_one_step_per_version_and_a_newer_format_is_refused(v1_runs
 
     with pytest.raises(CanterError, match=f"run-folder format {RUN_FORMAT + 1}, this canter reads up to"):
         read_config(run)
+
+
+def test_a_new_run_folder_records_when_it_was_made(tmp_path):
+    """An archive renames run folders, whose names held their date; versions.json keeps it as evidence."""
+    from datetime import UTC, datetime
+
+    before = datetime.now(UTC).replace(microsecond=0)
+    run_folder.create(tmp_path / "run", read_config(FIXTURES / "sac"))
+    created = json.loads((tmp_path / "run" / "versions.json").read_text())["created"]
+    assert before <= datetime.strptime(created, "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=UTC) <= datetime.now(UTC)

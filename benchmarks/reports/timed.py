@@ -31,7 +31,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from archive import RUN_FILES, copy_run, inflight_pack, read_pack, read_text, replace_between, sync, write_pack
+from archive import (
+    RUN_FILES,
+    copy_run,
+    inflight_pack,
+    provenance_table,
+    read_pack,
+    read_text,
+    replace_between,
+    sync,
+    write_pack,
+)
 
 from canter.errors import CanterError
 from canter.training import run_lock
@@ -333,12 +343,27 @@ def wall_text(run: dict[str, Any]) -> str:
 
 
 Block = tuple[tuple[str, str], Callable[[], str]]  # a page's marker pair and what writes between them
+PROVENANCE_MARKERS = ("<!-- provenance -->\n", "<!-- /provenance -->")
 
 
-def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str, Callable[[], None]]) -> int:
+def provenance_text(folders: Sequence[Path]) -> str:
+    return (
+        "The code, machine and versions behind the archived runs (each run's `versions.json`; a resumed run counts "
+        "under the commit it started at):\n\n" + provenance_table(folders)
+    )
+
+
+def page_main(
+    doc: str,
+    page: Path,
+    blocks: Sequence[Block],
+    steps: Mapping[str, Callable[[], None]],
+    archives: Sequence[Path] = (),
+) -> int:
     """A report page's command line. Without options it runs its steps (a step skips what is archived already),
     all of them or those named by --only, then writes the page's blocks from the archive; --write only writes them,
-    and --check exits 1 where the page differs from what its archive gives."""
+    and --check exits 1 where the page differs from what its archive gives. Every page ends with the provenance of
+    the runs archived under its runs/ and in `archives`."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only check that the page's tables are the archive's")
     parser.add_argument("--write", action="store_true", help="only rewrite the page's tables")
@@ -358,6 +383,7 @@ def page_main(doc: str, page: Path, blocks: Sequence[Block], steps: Mapping[str,
             steps[name]()
     path = page / "README.md"
     text = read_text(path)
-    for markers, render in blocks:
+    provenance = (PROVENANCE_MARKERS, lambda: provenance_text([page / "runs", *archives]))
+    for markers, render in [*blocks, provenance]:
         text = replace_between(text, markers, render())
     return sync({path: text}, args.check, f"{page.relative_to(ROOT)}/run.py --write")

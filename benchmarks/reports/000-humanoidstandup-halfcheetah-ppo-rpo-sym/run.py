@@ -306,7 +306,7 @@ def results_text() -> str:
 def main() -> int:
     steps = {name: partial(run_grid, PAGE, grid, ROOT / WORK) for name, grid in GRIDS.items()}
     blocks = [(MARKERS["commands"], commands_table), (MARKERS["results"], results_text)]
-    return page_main(__doc__ or "", PAGE, blocks, steps)
+    return page_main(__doc__ or "", PAGE, blocks, steps, archives=[SEED0])
 
 
 if __name__ == "__main__":

@@ -41,6 +41,10 @@ LONG_RUNS = {  # name -> (who, canter train arguments)
         "canter `--preset cleanrl` (the settings of Baselines' ppo2 that the report ran), 20M steps",
         ["--preset", "cleanrl", "--total-steps", "2e7", "--eval-every", "2000000"],
     ),
+    f"{ENV}__humanoid__10M__s{SEED}": (
+        "canter `--preset humanoid` (2,048 envs; tuned on seeds 0-4), 10M steps, evaluated every 1M",
+        ["--preset", "humanoid", "--total-steps", "1e7", "--eval-every", "1000000"],
+    ),
 }
 MARKERS = ("<!-- report001-table -->\n", "<!-- /report001-table -->")
 V4_CHECK = PAGE / "runs" / "v4-cleanrl-1m"  # written by train_v4_check.sh
@@ -120,7 +124,8 @@ def train_long(name: str) -> None:
 
 def main() -> int:
     steps = {name: partial(train_long, name) for name in LONG_RUNS}
-    return page_main(__doc__ or "", PAGE, [(MARKERS, table), (V4_MARKERS, v4_check_table)], steps)
+    blocks = [(MARKERS, table), (V4_MARKERS, v4_check_table)]
+    return page_main(__doc__ or "", PAGE, blocks, steps, archives=sorted(HELDOUT.glob(f"{ENV}__ppo__s*")))
 
 
 if __name__ == "__main__":

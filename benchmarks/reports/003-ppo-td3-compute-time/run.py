@@ -112,7 +112,7 @@ def table() -> str:
 def main() -> int:
     work = ROOT / "runs" / "report003"
     steps = {"ppo": partial(train_ppo, work), "td3": partial(train_td3, work)}
-    return page_main(__doc__ or "", PAGE, [(MARKERS, table)], steps)
+    return page_main(__doc__ or "", PAGE, [(MARKERS, table)], steps, archives=sorted(OFFPOLICY.glob("*__td3__s*")))
 
 
 if __name__ == "__main__":

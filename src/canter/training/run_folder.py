@@ -20,7 +20,7 @@ import os
 import platform
 import secrets
 from collections.abc import Callable
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -172,10 +172,12 @@ def write_config(run_dir: Path, config: Config) -> None:
 
 
 def create(run_dir: Path, config: Config) -> None:
-    """Start a new run folder in the current format."""
+    """Start a new run folder in the current format; versions.json records when (UTC), as evidence of when a result
+    was made, which a folder renamed into an archive no longer says."""
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     write_config(run_dir, config)
-    _write_versions(run_dir, dict(versions(), run_format=RUN_FORMAT))
+    created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    _write_versions(run_dir, dict(versions(), created=created, run_format=RUN_FORMAT))
 
 
 def _config_reads_only(run_dir: Path) -> None:
