@@ -167,6 +167,9 @@ def test_space_types_and_tuple_choices():
         ({"ppo": {"lr": {"low": 1e-5}}}, "needs choices"),
         ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 0.5}}}, "its step must be a whole number, got 0.5"),
         ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 2.5}}}, "its step must be a whole number, got 2.5"),
+        # Optuna refuses any step with log on a float, at every trial; an integer takes step 1.
+        ({"ppo": {"lr": {"low": 1e-5, "high": 1e-2, "log": True, "step": 1}}}, "cannot combine with log"),
+        ({"ppo": {"epochs": {"low": 1, "high": 16, "log": True, "step": 2}}}, "cannot combine with log"),
         ({}, "empty"),
     ],
 )
@@ -385,6 +388,7 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monke
     best = max(complete, key=lambda t: t.value)
     preset = study_dir / "best.toml"
     assert f"best trial {best.number}" in preset.read_text()
+    assert "canter train --config best.toml --seed 1  (a seed the study did not tune on;" in preset.read_text()
     loaded = build_config(None, config_file=str(preset))
     trained = build_config(None, config_file=str(Path(best.user_attrs["trial_dir"]) / "s0" / "config.toml"))
     assert experiment_key(loaded) == experiment_key(trained)
@@ -612,6 +616,39 @@ def test_a_trial_whose_training_ended_before_its_evaluations_were_read_is_not_pr
         return proc
 
     monkeypatch.setattr(tune_module, "start_job", start_and_finish)
+    study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
+    outcome = run_trial(study.ask(), settings, base, space)
+    assert outcome.state == "complete", outcome
+
+
+@pytest.mark.slow
+def test_a_trial_whose_last_evaluations_are_read_in_one_poll_is_not_pruned(tmp_path, monkeypatch):
+    """The final evaluation read in the same poll as the one before it, while the trainer is still closing (poll()
+    says running): the trial has trained its whole budget, so it completes; it was once pruned at the earlier one."""
+    import canter.orchestrate.tune as tune_module
+
+    settings = tiny_settings(tmp_path)
+    base, space = check_settings(settings)
+    real_start = tune_module.start_job
+
+    class StillClosing:
+        def __init__(self, proc):
+            self.proc, self.polls = proc, 0
+
+        def poll(self):
+            self.polls += 1
+            return None if self.polls == 1 else self.proc.poll()
+
+        def __getattr__(self, name):
+            return getattr(self.proc, name)
+
+    def start_and_finish(spec, folder, *args):
+        proc = real_start(spec, folder, *args)
+        proc.wait()
+        return StillClosing(proc)
+
+    monkeypatch.setattr(tune_module, "start_job", start_and_finish)
+    monkeypatch.setattr(tune_module, "stop_jobs", lambda procs, **kw: None)
     study = optuna.create_study(direction="maximize", pruner=optuna.pruners.ThresholdPruner(lower=1e9))
     outcome = run_trial(study.ask(), settings, base, space)
     assert outcome.state == "complete", outcome

@@ -179,9 +179,10 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     if log and low <= 0:
         raise CanterError(f"{source}: [{key}] is log-uniform, so low must be > 0, got {low}")
     step = spec.get("step")
-    if step is not None and (not isinstance(step, (int, float)) or step <= 0 or (log and step != 1)):
-        raise CanterError(f"{source}: [{key}] step must be a positive number (and cannot combine with log)")
     integer = isinstance(low, int)
+    # Optuna takes log with no step on a float, and with step 1 on an integer.
+    if step is not None and (not isinstance(step, (int, float)) or step <= 0 or (log and (step != 1 or not integer))):
+        raise CanterError(f"{source}: [{key}] step must be a positive number (and cannot combine with log)")
     if integer and step is not None and (isinstance(step, bool) or step != int(step)):
         raise CanterError(f"{source}: [{key}] takes whole numbers, so its step must be a whole number, got {step}")
     for value in (low, high):

@@ -157,7 +157,7 @@ def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings
             eval_episodes=settings.eval_episodes,
             tensorboard=False,
             max_minutes=None,
-            stop_at_return=None,  # every trial trains its whole budget, so that their objectives compare
+            stop_at_return=None,  # every trial trains its whole budget (in whole iterations), so objectives compare
         ),
     )
 
@@ -270,13 +270,16 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
             code = proc.poll()
             found = [logged_evaluations(d, settings) for d in run_dirs.values()]
             ready = set.intersection(*(set(f) for f in found)) - set(reported)
+            # The final evaluation may be read in the same poll as the one before it, while the trainer is still
+            # closing: the trial has then trained its whole budget, and nothing is left to cut.
+            finished = settings.evaluations in ready
             for index in sorted(ready):
                 value = float(np.mean([f[index] for f in found]))
                 reported[index] = value
                 step = min(index * settings.eval_interval, settings.total_steps)  # nominal, the same for all trials
                 retrying(functools.partial(trial.report, value, step), url, "reporting an evaluation")
                 # Once the training has ended (code set), its evaluations are only read late: nothing is left to cut.
-                pruning = code is None and index < settings.evaluations
+                pruning = code is None and not finished and index < settings.evaluations
                 if pruning and retrying(trial.should_prune, url, "asking the pruner"):
                     stop_jobs([proc])
                     return Outcome("pruned", reason=f"pruned at step {step} with return {value:.1f}")
@@ -548,7 +551,8 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
         f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
         f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
         f"{', '.join(map(str, settings.seeds))}\n"
-        f"train with: canter train --config {BEST_FILE} --seed 0"
+        f"train with: canter train --config {BEST_FILE} --seed {max(settings.seeds) + 1}  (a seed the study did "
+        f"not tune on; --seed {settings.seeds[0]} repeats the best trial's first run)"
     )
     body = best.user_attrs[PRESET_ATTR]
     path = settings.study_dir / BEST_FILE
