@@ -255,3 +255,38 @@ def test_one_run_that_cannot_be_evaluated_keeps_the_others_results(tmp_path, cap
         f"are above and in {out}\n"
     )
     assert [row["run"] for row in json.loads(out.read_text())["runs"]] == [str(good)]
+
+
+def test_a_checkpoint_file_of_another_run_is_refused_and_one_of_its_own_is_taken(run, tmp_path, capsys):
+    """Results carry the run folder's name, so `--checkpoint FILE` of another run would be reported as this run's
+    (a td3 policy on InvertedPendulum once scored under a Pendulum ppo label)."""
+    other = sorted((FIXTURE.parent / "sac" / "checkpoints").iterdir())[-1]
+    for command in (["eval"], ["export", "--out", str(tmp_path / "p.onnx")]):
+        argv = [command[0], str(run), *command[1:], "--checkpoint", str(other)]
+        one_line(capsys, argv, "is a checkpoint of another run than")
+    assert not (tmp_path / "p.onnx").exists()
+    kept = tmp_path / "kept.npz"  # one of its own, moved out of checkpoints/
+    shutil.copy(sorted((run / "checkpoints").iterdir())[0], kept)
+    assert main(["eval", str(run), "--checkpoint", str(kept), "--episodes", "1"]) == 0
+
+
+@pytest.mark.parametrize("where", ["long", "missing_parent"])
+def test_a_path_the_file_system_refuses_is_one_line(tmp_path, capsys, where):
+    out = tmp_path / ("z" * 300) if where == "long" else Path("/proc/no-such-folder/runs")
+    one_line(capsys, ["train", "Pendulum-v1", "--out-dir", str(out), "--total-steps", "64"], str(out)[:20])
+
+
+def test_an_out_dir_that_is_not_utf8_is_refused_before_any_work(tmp_path, capsys):
+    out = os.fsdecode(bytes(tmp_path) + b"/bad\xffname")
+    one_line(capsys, ["train", "Pendulum-v1", "--out-dir", out, "--total-steps", "64"], "is not valid UTF-8")
+    assert not Path(out).exists()
+
+
+def test_a_bad_value_in_a_file_names_the_file(run, tmp_path, capsys):
+    """Among many run folders given to plot, a bad value alone did not say which config.toml holds it."""
+    text = (run / "config.toml").read_text()
+    (run / "config.toml").write_text(text.replace("clip = 0.2", 'clip = "wide"', 1))
+    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "p.png")], f"got 'wide' (in {run / 'config.toml'})")
+    given = tmp_path / "given.toml"
+    given.write_text('[ppo]\nclip = "wide"\n')
+    one_line(capsys, ["train", "Pendulum-v1", "--config", str(given)], f"got 'wide' (in {given})")

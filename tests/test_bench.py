@@ -771,3 +771,24 @@ def test_a_password_with_an_unencoded_at_sign_is_refused_without_showing_it(caps
     assert main(["bench", "--envs", "Hopper-v5", "--storage", "postgresql://tuner:s3@cret@dbhost/canter"]) == 2
     err = capsys.readouterr().err
     assert "cret" not in err and "%40" in err and err.count("\n") == 1
+
+
+def test_runs_without_a_finished_episode_get_a_note_instead_of_a_plot(tmp_path, capsys):
+    """A budget in which no episode ended once failed every bench, and every rerun, with plot's "no column
+    episodic_return" error after the results were written."""
+    from canter.orchestrate.bench import plot_env
+
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    rows = list(csv.reader((run / "metrics.csv").read_text().splitlines()))
+    column = rows[0].index("episodic_return")
+    for row in rows[1:]:
+        row[column] = ""
+    with open(run / "metrics.csv", "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    plot_env([run], tmp_path / "plot_InvertedPendulum-v5.png")
+    assert not (tmp_path / "plot_InvertedPendulum-v5.png").exists()
+    assert capsys.readouterr().err == (
+        "canter: note: no plot plot_InvertedPendulum-v5.png: no training episode ended within the budget; a larger "
+        "--total-steps gives one\n"
+    )

@@ -96,7 +96,8 @@ def test_prune_keeps_newest(tmp_path):
     assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"
     empty = tmp_path / "empty_run"
     empty.mkdir()
-    with pytest.raises(CanterError, match="no checkpoint"):
+    (empty / "config.toml").write_text("")  # a run stopped before its first checkpoint: it can start again
+    with pytest.raises(CanterError, match=r"no checkpoint in .* yet .*: start it again with canter train --config "):
         checkpoint.latest(empty)
     with pytest.raises(CanterError, match="run folder not found"):
         checkpoint.latest(tmp_path / "missing")

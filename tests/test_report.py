@@ -159,6 +159,12 @@ def test_report_bad_input(tiny_run, tmp_path, capsys):
     assert main(["report", str(tiny_run.run_dir), "--episodes", "0", "--out", str(blocker / "r.html")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write" in err
+    # The page is HTML whatever the name says: a report.pdf would be an HTML file no PDF reader opens.
+    assert main(["report", str(tiny_run.run_dir), "--episodes", "0", "--out", str(tmp_path / "r.pdf")]) == 2
+    assert (
+        capsys.readouterr().err
+        == f"canter: error: --out {tmp_path / 'r.pdf'}: the report is one HTML page; name it *.html\n"
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run_without_checkpoint"]
 
 

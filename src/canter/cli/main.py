@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -58,9 +60,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    except OSError as exc:
+        if exc.filename is None or exc.errno not in _PATH_ERRORS:
+            raise
+        print(f"canter: error: {_shown(exc.filename)}: {_PATH_ERRORS[exc.errno]}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
         return 130
+
+
+# Errors of a path the user gave, not of canter: one line each, with the fix.
+_PATH_ERRORS = {
+    errno.ENAMETOOLONG: "file name too long for this file system (at most 255 bytes a name); choose a shorter path",
+    errno.ENOENT: "no such file or folder, and none can be made there; check the path",
+    errno.ELOOP: "too many symbolic links; choose a path without a link loop",
+}
+
+
+def _shown(path: object, limit: int = 80) -> str:
+    text = os.fsdecode(path) if isinstance(path, (str, bytes)) else str(path)
+    text = text.encode("utf-8", "backslashreplace").decode()
+    return text if len(text) <= limit else f"{text[: limit // 2]}...{text[-limit // 2 :]} ({len(text)} characters)"
 
 
 def entry() -> None:

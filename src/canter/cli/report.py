@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
+from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
 
@@ -38,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
     check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
     check_writable(args.out)  # before the evaluation, which can take minutes
+    if Path(args.out).suffix.lower() not in (".html", ".htm"):
+        raise CanterError(f"--out {args.out}: the report is one HTML page; name it *.html")
     page = build_report(
         args.runs,
         episodes=args.episodes,

@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-minutes",
         type=float,
         default=None,
-        help="stop cleanly, with a checkpoint, after M minutes (with --resume: replaces the saved limit)",
+        help="stop cleanly, with a checkpoint, after M minutes (with --resume: replaces the saved limit; inf lifts it)",
     )
     t.add_argument("--out-dir", default=None, help="folder for run folders (default runs/)")
     t.add_argument(

@@ -24,6 +24,10 @@ def unknown_key_error(key: str, source: str) -> CanterError:
     return CanterError(f"unknown config key '{key}' in {source}{hint}")
 
 
+# Sources of overrides that the command line gives; any other is a file or a preset, which a bad value names.
+FROM_FLAGS = ("--set", "arguments")
+
+
 def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> Config:
     """Apply `{"section.key": value}` overrides, checking names and types."""
     sections: dict[str, dict[str, Any]] = {}
@@ -32,7 +36,12 @@ def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> C
         section, _, name = key.partition(".")
         if section not in known or name not in field_names(section):
             raise unknown_key_error(key, source)
-        sections.setdefault(section, {})[name] = coerce(key, field_types(section)[name], value)
+        try:
+            sections.setdefault(section, {})[name] = coerce(key, field_types(section)[name], value)
+        except CanterError as exc:
+            if source in FROM_FLAGS:  # the user has the flag in front of them
+                raise
+            raise CanterError(f"{exc} (in {source})") from None
     return config.replace(**{s: dataclasses.replace(config.section(s), **values) for s, values in sections.items()})
 
 

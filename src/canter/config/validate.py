@@ -81,6 +81,15 @@ def _check_eval_backend(backend: str, eval_backend: str) -> None:
     )
 
 
+def _is_utf8(text: str) -> bool:
+    """False for a path given in bytes that are not UTF-8, which Python keeps as lone surrogates."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def validate(config: Config) -> None:
     from canter.envs.registry import backend_names
 
@@ -113,6 +122,11 @@ def validate(config: Config) -> None:
         check_section(name, config.section(name))
     spec.validate(config)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
+    need(
+        _is_utf8(run.out_dir),
+        f"run.out_dir {run.out_dir.encode('utf-8', 'backslashreplace').decode()} is not valid UTF-8, which the run's "
+        "files record it in; choose a folder name of UTF-8 characters",
+    )
     need(0 <= run.seed < SEED_LIMIT, f"run.seed must be from 0 to {SEED_LIMIT - 1}, got {run.seed}")
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")

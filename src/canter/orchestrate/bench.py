@@ -443,8 +443,16 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     """One figure per env through `canter plot`: one curve (mean over seeds, with a band) per algorithm and grid
     values, training return against env steps."""
     from canter.files import write_output
-    from canter.use.plot import render
+    from canter.use.plot import load_run, render
 
+    returns = [load_run(d).columns.get("episodic_return") for d in run_dirs]
+    if not any(r is not None and np.isfinite(r).any() for r in returns):
+        print(
+            f"canter: note: no plot {path.name}: no training episode ended within the budget; a larger "
+            "--total-steps gives one",
+            file=sys.stderr,
+        )
+        return
     write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
 
 

@@ -38,6 +38,8 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     config = from_toml_text(header["config"], str(path))
     if path.resolve().parent == checkpoint.checkpoint_dir(run_dir).resolve():  # one of the folder's own
         run_folder.check_own_checkpoint(run_dir, config, path)
+    else:
+        run_folder.check_given_checkpoint(run_dir, config, path)
     env = header["env"]
     setup_jax(env["backend"], announce=False)  # the precision it trained in; where it plays, says its player
     facts = PolicyFacts(

@@ -146,24 +146,46 @@ def read_config(run_dir: Path) -> Config:
     return from_toml_text(text, str(path))
 
 
-def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
-    """A checkpoint found in a run folder's checkpoints/ was written by that run: the same experiment and seed
-    (the step budget may differ, a resume extends it). A checkpoint copied in from another run is refused."""
+def _keys_apart(run_dir: Path, checkpoint_config: Config) -> list[str]:
+    """The experiment keys (and the seed) in which a checkpoint's config differs from the run folder's config.toml;
+    [] when they agree or the folder has no readable config.toml to compare with (what needs it refuses such a
+    folder itself). The step budget may differ: a resume extends it."""
     from canter.config.experiment import differing_keys
 
     try:
         own = read_config(run_dir)
     except CanterError:
-        return  # nothing to compare with; what needs config.toml refuses such a folder itself
+        return []
     keys = differing_keys([own, checkpoint_config])
     if own.run.seed != checkpoint_config.run.seed:
         keys.append("run.seed")
+    return keys
+
+
+def _shown_keys(keys: list[str]) -> str:
+    return ", ".join(keys[:3]) + (f" and {len(keys) - 3} more" if len(keys) > 3 else "")
+
+
+def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
+    """A checkpoint found in a run folder's checkpoints/ was written by that run: the same experiment and seed. A
+    checkpoint copied in from another run is refused."""
+    keys = _keys_apart(run_dir, checkpoint_config)
     if keys:
-        shown = ", ".join(keys[:3]) + (f" and {len(keys) - 3} more" if len(keys) > 3 else "")
         raise CanterError(
-            f"{path} does not match {run_dir / CONFIG_FILE} in {shown}: if config.toml was edited, put back what "
-            f"the checkpoint holds (`--resume` takes only --total-steps and --max-minutes); if the checkpoint came "
-            f"from another run, move it out of {path.parent}"
+            f"{path} does not match {run_dir / CONFIG_FILE} in {_shown_keys(keys)}: if config.toml was edited, put "
+            f"back what the checkpoint holds (`--resume` takes only --total-steps and --max-minutes); if the "
+            f"checkpoint came from another run, move it out of {path.parent}"
+        )
+
+
+def check_given_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
+    """A checkpoint file given with a run folder (`--checkpoint FILE`) is one of that run's, kept elsewhere: the
+    results are labelled with the folder, so a checkpoint of another run would be reported as this one."""
+    keys = _keys_apart(run_dir, checkpoint_config)
+    if keys:
+        raise CanterError(
+            f"{path} is a checkpoint of another run than {run_dir} (they differ in {_shown_keys(keys)}); pass the "
+            f"run folder it came from"
         )
 
 
