@@ -276,6 +276,14 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")
     one_line(["plot", str(truncated), "--out", str(tmp_path / "d.png")], "metrics.csv has no logged rows")
+    renamed = folder("renamed_header")  # once told to "train for at least one iteration"
+    text = (renamed / "metrics.csv").read_text()
+    (renamed / "metrics.csv").write_text(text.replace("global_step,", "step,", 1))
+    one_line(["plot", str(renamed), "--out", str(tmp_path / "d.png")], "has no global_step column in its first line")
+    appended = folder("appended_junk")  # once said the file had no global_step column
+    with open(appended / "metrics.csv", "a") as f:
+        f.write("abc,def,###\n")
+    one_line(["plot", str(appended), "--out", str(tmp_path / "d.png")], "has a row whose global_step is 'abc'")
 
     locked = folder("lock_is_a_folder")
     (locked / ".writer.lock").mkdir()

@@ -123,6 +123,14 @@ class Band:
 # ------------------------------------------------------------------------------------------------------ reading
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
@@ -137,8 +145,19 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
             )
         raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
     header, rows = read_rows(path)  # a half-written last line is left out
+    if header and "global_step" not in header:
+        raise CanterError(
+            f"{path} has no global_step column in its first line, so it is not a metrics file canter wrote, or it "
+            f"was edited or damaged; restore it from a copy"
+        )
     if not header or not rows:
         raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
+    for row in rows:
+        if not _is_number(row.get("global_step") or ""):
+            raise CanterError(
+                f"{path} has a row whose global_step is {row.get('global_step')!r}, not a step: the file was edited "
+                f"or damaged; delete that row or restore the file from a copy"
+            )
     if "global_step" in header and "iteration" in header:
         rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
     columns: dict[str, np.ndarray] = {}
