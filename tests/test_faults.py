@@ -272,6 +272,13 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     newest = checkpoint.latest(corrupt)
     newest.write_bytes(newest.read_bytes()[:1000])
     one_line(["export", str(corrupt), "--out", str(tmp_path / "c.onnx")], "move it out of its folder")
+    # The fix depends on where the damaged file is: given from elsewhere, or the run's only checkpoint.
+    elsewhere = tmp_path / "elsewhere.npz"
+    elsewhere.write_bytes(b"not a checkpoint")
+    one_line(["eval", str(corrupt), "--checkpoint", str(elsewhere)], "corrupt or truncated; pass a sound one")
+    for older in checkpoint.list_checkpoints(corrupt)[:-1]:
+        older.unlink()
+    one_line(["eval", str(corrupt)], "it is the run's only one, so move it away and start the run again with")
 
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")

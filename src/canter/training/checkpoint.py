@@ -37,11 +37,24 @@ _NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
-# The fix for a damaged checkpoint: `last` is the newest file, so without it the one before is used.
-_EARLIER = (
-    "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "
-    "--checkpoint FILE)"
-)
+
+
+def _damaged_fix(path: Path) -> str:
+    """What to do about a damaged checkpoint, by where it is: of a run folder's periodic ones, `last` is the newest
+    file, so without it the one before is used, if there is one."""
+    if path.parent.name != checkpoint_dir(Path()).name or not (_NAME.match(path.name) or path.name == BEST_FILE):
+        return "pass a sound one (a run folder's checkpoints/ckpt_*.npz)"
+    if path.name == BEST_FILE:
+        return f"use --checkpoint {LAST}, or move it away; the next evaluation during training writes a new one"
+    if len(list_checkpoints(path.parent.parent)) > 1:
+        return (
+            "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "
+            "--checkpoint FILE)"
+        )
+    return (
+        f"it is the run's only one, so move it away and start the run again with canter train --config "
+        f"{path.parent.parent / 'config.toml'}"
+    )
 
 
 def _path_name(path: tuple) -> str:
@@ -104,7 +117,7 @@ def read_header(path: Path) -> dict[str, Any]:
     except PermissionError:
         raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(f"checkpoint {path} is corrupt or truncated; delete it or train again") from None
+        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_damaged_fix(Path(path))}") from None
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -119,7 +132,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     except PermissionError:
         raise
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_EARLIER}") from None
+        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_damaged_fix(path)}") from None
     version = header.get("format_version")
     if version not in (FORMAT_VERSION, LEFT_OUT_FORMAT_VERSION):
         raise CanterError(
@@ -128,7 +141,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         )
     expected = header.pop("sha256", None)
     if expected != _digest(arrays, header):
-        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); {_EARLIER}")
+        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); {_damaged_fix(path)}")
     header["sha256"] = expected
     return arrays, header
 
