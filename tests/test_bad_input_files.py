@@ -290,3 +290,9 @@ def test_a_bad_value_in_a_file_names_the_file(run, tmp_path, capsys):
     given = tmp_path / "given.toml"
     given.write_text('[ppo]\nclip = "wide"\n')
     one_line(capsys, ["train", "Pendulum-v1", "--config", str(given)], f"got 'wide' (in {given})")
+
+
+def test_a_path_of_the_wrong_kind_says_what_is_wanted(run, tmp_path, capsys):
+    one_line(capsys, ["train", "Pendulum-v1", "--config", str(tmp_path)], "is a folder; --config takes a TOML file")
+    one_line(capsys, ["plot", str(run / "config.toml")], "is a file, not a run folder")
+    one_line(capsys, ["eval", str(run), "--checkpoint", "lst"], "--checkpoint takes last, best or a .npz file")

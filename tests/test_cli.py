@@ -143,7 +143,19 @@ def _bad_inputs(tmp_path, run):
         (["eval", str(run), "--episodes", "0"], "--episodes must be >= 1"),
         (["eval", str(run), "--episodes", "1", "--json", str(bad_toml / "x.json")], "cannot write"),
         (["frobnicate"], "invalid choice"),
-        (["train", "Hopper-v5", "--bogus"], "canter: error: unrecognized arguments: --bogus"),
+        (["train", "Hopper-v5", "--bogus"], "canter: error: train: unrecognized arguments: --bogus"),
+        (
+            ["train", "Hopper-v5", "--totalsteps", "9"],
+            "unrecognized arguments: --totalsteps 9; did you mean --total-steps?",
+        ),
+        (["train", "Hopper-v5", "--algo", "PPO"], "unknown algorithm 'PPO'; did you mean ppo?"),
+        # A flag and --set of one key: the flag won, silently.
+        (["train", "Hopper-v5", "--set", "env.id=Ant-v5"], "env.id is given twice, by the env argument and by --set"),
+        (["train", "Hopper-v5", "--seeds", "0,1", "--set", "run.seed=7"], "run.seed is given twice, by --seeds and"),
+        (
+            ["train", "Hopper-v5", "--out-dir", "a", "--set", "run.out_dir=b"],
+            "run.out_dir is given twice, by --out-dir",
+        ),
         (["train", "Hopper-v5", "--total-steps"], "canter: error: train: argument --total-steps"),
     ]
 

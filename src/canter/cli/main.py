@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import errno
 import importlib
 import os
@@ -24,6 +25,19 @@ class _Parser(argparse.ArgumentParser):
         raise CanterError(f"{command}: {message} (see --help)" if command else f"{message} (see --help)")
 
 
+def _unrecognized(parser: argparse.ArgumentParser, command: str | None, extra: list[str]) -> CanterError:
+    """argparse's 'unrecognized arguments' error, with the command's flags closest to the unknown ones."""
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    actions = commands[command]._actions if command in commands else parser._actions
+    flags = [flag for action in actions for flag in action.option_strings if flag.startswith("--")]
+    given = [word.split("=", 1)[0] for word in extra if word.startswith("--")]
+    close = [match for word in given for match in difflib.get_close_matches(word, flags, n=1, cutoff=0.7)]
+    hint = f"; did you mean {', '.join(close)}?" if close else ""
+    return CanterError(
+        f"{command + ': ' if command else ''}unrecognized arguments: {' '.join(extra)}{hint} (see --help)"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="canter", description="Fast, correct continuous-control RL for MuJoCo robots.")
     parser.add_argument("--version", action="version", version=_version())
@@ -42,7 +56,9 @@ def _version() -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:
+            raise _unrecognized(parser, args.command, extra)
         if args.command is None:
             parser.print_help()
             return 2

@@ -96,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
+    from canter.config.overrides import parse_set_args
 
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
@@ -150,6 +151,11 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["run.eval_every"] = args.eval_every
         if args.eval_episodes is not None:
             extra["run.eval_episodes"] = args.eval_episodes
+        flags = {key: "--" + key.partition(".")[2].replace("_", "-") for key in extra}
+        if args.seeds is not None:
+            flags["run.seed"] = "--seeds"
+        for key in sorted(flags.keys() & parse_set_args(list(args.set)).keys()):  # the flag would win, silently
+            raise CanterError(f"{key} is given twice, by {flags[key]} and by --set {key}; give it once")
         sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
         config = build_config(
             args.env,

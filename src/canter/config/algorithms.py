@@ -67,7 +67,7 @@ def algorithm_names() -> list[str]:
 
 def check_algorithm_name(name: str) -> None:
     if name not in _REGISTERED:
-        close = difflib.get_close_matches(name, list(_REGISTERED), n=1, cutoff=0.5)
+        close = difflib.get_close_matches(name.lower(), list(_REGISTERED), n=1, cutoff=0.5)
         hint = f"did you mean {close[0]}? " if close else ""
         raise CanterError(f"unknown algorithm '{name}'; {hint}choose one of: {', '.join(_REGISTERED)}")
 

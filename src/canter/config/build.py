@@ -16,6 +16,14 @@ from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
 
+# The flags that set a key directly, as a message names them.
+FLAG_NAMES = {
+    "env.id": "the env argument",
+    "run.algo": "--algo",
+    "run.seed": "--seed (or --seeds)",
+    "run.total_steps": "--total-steps",
+}
+
 
 def build_config(
     env_id: str | None,
@@ -71,6 +79,8 @@ def build_config(
         flags["run.seed"] = seed
     if total_steps is not None:
         flags["run.total_steps"] = total_steps
+    for key in flags.keys() & set_data.keys():  # the flag would win, silently
+        raise CanterError(f"{key} is given twice, by {FLAG_NAMES[key]} and by --set {key}; give it once")
     config = apply_overrides(config, flags, "arguments")
     validate(config)
     return config

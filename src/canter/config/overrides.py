@@ -69,6 +69,8 @@ def flatten_toml(data: dict[str, Any], source: str) -> dict[str, Any]:
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
+    if path.is_dir():
+        raise CanterError(f"{path} is a folder; --config takes a TOML file, such as a run folder's config.toml")
     if not path.is_file():
         raise CanterError(f"config file not found: {path}")
     try:

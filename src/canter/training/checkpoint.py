@@ -124,7 +124,10 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint."""
     path = Path(path)
     if not path.is_file():
-        raise CanterError(f"checkpoint not found: {path}")
+        named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
+        raise CanterError(
+            f"checkpoint not found: {path}" + (f"; --checkpoint takes {LAST}, {BEST} or a .npz file" if named else "")
+        )
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(bytes(data["header"]).decode())

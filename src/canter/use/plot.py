@@ -174,6 +174,10 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
 
 def load_run(run_dir: str | Path) -> RunCurves:
     run_dir = Path(run_dir)
+    if run_dir.is_file():
+        raise CanterError(
+            f"{run_dir} is a file, not a run folder; pass the folder that holds config.toml and metrics.csv"
+        )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
     columns = read_metrics(metrics_file(run_dir))
