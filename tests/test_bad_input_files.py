@@ -11,6 +11,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from canter.cli.main import main
@@ -296,3 +297,17 @@ def test_a_path_of_the_wrong_kind_says_what_is_wanted(run, tmp_path, capsys):
     one_line(capsys, ["train", "Pendulum-v1", "--config", str(tmp_path)], "is a folder; --config takes a TOML file")
     one_line(capsys, ["plot", str(run / "config.toml")], "is a file, not a run folder")
     one_line(capsys, ["eval", str(run), "--checkpoint", "lst"], "--checkpoint takes last, best or a .npz file")
+
+
+def test_a_policy_refuses_observations_that_are_not_real_numbers(run):
+    import canter
+
+    policy = canter.load(run)
+    good = np.zeros((2, policy.obs_dim))
+    assert policy(good).shape == (2, policy.act_dim) and policy(good.astype(int).tolist()).shape == (2, policy.act_dim)
+    with pytest.raises(CanterError, match="policy expects numeric observations of shape"):
+        policy(np.full((2, policy.obs_dim), "a"))
+    with pytest.raises(CanterError, match="real-valued observations, got complex numbers"):
+        policy(good + 1j)
+    with pytest.raises(CanterError, match=rf"observations of shape \(batch, {policy.obs_dim}\), got \(2, 1\)"):
+        policy(np.zeros((2, 1)))

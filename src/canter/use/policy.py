@@ -60,7 +60,15 @@ class Policy:
     def __call__(self, obs_batch: np.ndarray, deterministic: bool = True, seed: int | None = None) -> np.ndarray:
         import jax
 
-        obs = np.asarray(obs_batch, np.float32)
+        if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
+            raise CanterError("policy expects real-valued observations, got complex numbers")
+        try:
+            obs = np.asarray(obs_batch, np.float32)
+        except (TypeError, ValueError):
+            raise CanterError(
+                f"policy expects numeric observations of shape (batch, {self.obs_dim}), got {type(obs_batch).__name__} "
+                "that is not numbers"
+            ) from None
         single = obs.ndim == 1
         if single:
             obs = obs[None]
