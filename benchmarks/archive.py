@@ -134,9 +134,9 @@ def provenance_table(folders: Iterable[Path]) -> str:
             count, dates = rows.get((code, machine, libraries), (0, set()))
             rows[(code, machine, libraries)] = (count + 1, dates | _run_dates(versions_file.parent, versions))
     lines = ["| canter commit | runs | trained | machine | versions |", "|---|---:|---|---|---|"]
-    for (code, machine, libraries), (count, dates) in sorted(
-        rows.items(), key=lambda r: (min(r[1][1], default=""), r[0])
-    ):
+    # Runs with no recorded commit are the oldest; the others in order of their first recorded day.
+    order = sorted(rows.items(), key=lambda r: (not r[0][0].startswith("not recorded"), min(r[1][1], default=""), r[0]))
+    for (code, machine, libraries), (count, dates) in order:
         when = " to ".join(dict.fromkeys([min(dates), max(dates)])) if dates else "not recorded"
         lines.append(f"| {code} | {count} | {when} | {machine} | {libraries} |")
     return "\n".join(lines)

@@ -44,7 +44,7 @@ def test_an_output_never_replaces_a_file_of_a_run_folder(run, tmp_path, capsys):
     # A checkpoint given where its run folder belongs: the message says how to pick it.
     newest_path = sorted((run / "checkpoints").iterdir())[-1]
     one_line(capsys, ["eval", str(newest_path)], "is a file, not a run folder; pass the run folder, and --checkpoint")
-    one_line(capsys, ["report", str(run), "--episodes", "0", "--out", str(run / "metrics.csv")], "a file of the run")
+    one_line(capsys, ["report", str(run), "--episodes", "0", "--out", str(run / "metrics.csv")], "one HTML page")
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
     # A new file beside them is an ordinary output.
     assert main(["export", str(run), "--out", str(run / "policy.npz")]) == 0

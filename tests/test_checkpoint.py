@@ -97,7 +97,10 @@ def test_prune_keeps_newest(tmp_path):
     empty = tmp_path / "empty_run"
     empty.mkdir()
     (empty / "config.toml").write_text("")  # a run stopped before its first checkpoint: it can start again
-    with pytest.raises(CanterError, match=r"no checkpoint in .* yet .*: start it again with canter train --config "):
+    with pytest.raises(
+        CanterError,
+        match=r"no checkpoint in .* yet: .* one stopped before that starts again with canter train --config ",
+    ):
         checkpoint.latest(empty)
     with pytest.raises(CanterError, match="run folder not found"):
         checkpoint.latest(tmp_path / "missing")

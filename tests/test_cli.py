@@ -72,6 +72,12 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
     assert code == 0, err
     assert "steps 4," in out
     assert "max_minutes = 60.0" in (run / "config.toml").read_text()
+    # inf lifts the limit: the config then holds none, so the run still resumes and evaluates (it once held inf,
+    # which every later read refused).
+    resume = ["train", "--resume", str(run), "--total-steps", "4608", "--max-minutes", "inf", "--quiet"]
+    code, out, err = run_cli(resume, capsys)
+    assert code == 0, err
+    assert "# max_minutes = none" in (run / "config.toml").read_text()
 
     code, out, err = run_cli(["eval", str(run), "--episodes", "3", "--json", str(tmp_path / "e.json")], capsys)
     assert code == 0, err
@@ -150,7 +156,10 @@ def _bad_inputs(tmp_path, run):
         ),
         (["train", "Hopper-v5", "--algo", "PPO"], "unknown algorithm 'PPO'; did you mean ppo?"),
         # A flag and --set of one key: the flag won, silently.
-        (["train", "Hopper-v5", "--set", "env.id=Ant-v5"], "env.id is given twice, by the env argument and by --set"),
+        (
+            ["train", "Hopper-v5", "--set", "env.id=Ant-v5"],
+            "env.id is given twice, by the env (its argument, or --envs) and by --set",
+        ),
         (["train", "Hopper-v5", "--seeds", "0,1", "--set", "run.seed=7"], "run.seed is given twice, by --seeds and"),
         (
             ["train", "Hopper-v5", "--out-dir", "a", "--set", "run.out_dir=b"],

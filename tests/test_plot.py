@@ -330,6 +330,13 @@ def test_a_diverged_final_evaluation_is_no_score_and_is_named(tmp_path, capsys):
         f"canter: note: {tmp_path / 's2'} has a final evaluation that is not finite (a diverged policy): left out "
         "of the statistics\n"
     )
+    # Beside runs scored by their training return, the diverged run is still left out, not scored by its own.
+    for seed in (0, 1):
+        (tmp_path / f"s{seed}" / "eval.json").unlink()
+        runs[seed].columns["eval/return_mean"] = np.array([math.nan, math.nan])
+    board = scoreboard_of(experiments_of(runs))
+    assert board.cells[0].scores == (50.0, 50.0) and board.source == TRAINING_SOURCE
+    assert f"{tmp_path / 's2'} has a final evaluation that is not finite" in capsys.readouterr().err
 
 
 def test_a_seed_run_twice_is_noted(capsys):

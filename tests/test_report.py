@@ -165,6 +165,8 @@ def test_report_bad_input(tiny_run, tmp_path, capsys):
         capsys.readouterr().err
         == f"canter: error: --out {tmp_path / 'r.pdf'}: the report is one HTML page; name it *.html\n"
     )
+    # Refused before any folder of the output's is made.
+    assert main(["report", str(tiny_run.run_dir), "--episodes", "0", "--out", str(tmp_path / "new" / "r.pdf")]) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "run_without_checkpoint"]
 
 

@@ -9,6 +9,7 @@ import importlib
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError
@@ -77,8 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 2
     except OSError as exc:
-        if exc.filename is None or exc.errno not in _PATH_ERRORS:
-            raise
+        if exc.filename is None or exc.errno not in _PATH_ERRORS or _in_package(exc.filename):
+            raise  # not a path the user gave: a bug, which keeps its traceback
         print(f"canter: error: {_shown(exc.filename)}: {_PATH_ERRORS[exc.errno]}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -89,9 +90,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 # Errors of a path the user gave, not of canter: one line each, with the fix.
 _PATH_ERRORS = {
     errno.ENAMETOOLONG: "file name too long for this file system (at most 255 bytes a name); choose a shorter path",
-    errno.ENOENT: "no such file or folder, and none can be made there; check the path",
+    errno.ENOENT: "no such file or folder (or a folder on the way to it is missing); check the path",
     errno.ELOOP: "too many symbolic links; choose a path without a link loop",
 }
+
+
+def _in_package(path: str | bytes) -> bool:
+    package = Path(__file__).resolve().parent.parent
+    try:
+        return Path(os.fsdecode(path)).resolve().is_relative_to(package)
+    except (OSError, ValueError, TypeError):
+        return False
 
 
 def _shown(path: object, limit: int = 80) -> str:

@@ -37,11 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.use.report import build_report
 
+    if Path(args.out).suffix.lower() not in (".html", ".htm"):  # before check_writable, which makes its folders
+        raise CanterError(f"--out {args.out}: the report is one HTML page; name it *.html")
     check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
     check_writable(args.out)  # before the evaluation, which can take minutes
-    if Path(args.out).suffix.lower() not in (".html", ".htm"):
-        raise CanterError(f"--out {args.out}: the report is one HTML page; name it *.html")
     page = build_report(
         args.runs,
         episodes=args.episodes,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -141,7 +142,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["env.backend"] = args.backend
         if args.stop_at_return is not None:
             extra["run.stop_at_return"] = args.stop_at_return
-        if args.max_minutes is not None:
+        if args.max_minutes is not None and args.max_minutes != math.inf:  # inf: no limit, as without the flag
             extra["run.max_minutes"] = args.max_minutes
         if args.out_dir:
             extra["run.out_dir"] = args.out_dir

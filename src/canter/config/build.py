@@ -16,12 +16,12 @@ from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
 
-# The flags that set a key directly, as a message names them.
+# The options that set a key directly, as a message names them (train's, and bench's and tune's).
 FLAG_NAMES = {
-    "env.id": "the env argument",
-    "run.algo": "--algo",
+    "env.id": "the env (its argument, or --envs)",
+    "run.algo": "--algo (or --algos)",
     "run.seed": "--seed (or --seeds)",
-    "run.total_steps": "--total-steps",
+    "run.total_steps": "--total-steps (or its default)",
 }
 
 
@@ -35,7 +35,8 @@ def build_config(
     algo: str | None = None,
     check_unread: bool = True,
 ) -> Config:
-    """Resolve defaults < preset < config file < --set (< explicit flags), then validate. The algorithm is known
+    """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
+    validate. The algorithm is known
     before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does not
     read is refused (unless `check_unread` is off), since it would change nothing."""
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}

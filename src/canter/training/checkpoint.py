@@ -231,9 +231,9 @@ def latest(run_dir: Path) -> Path:
         if not (run_dir / "config.toml").is_file():  # as train --resume says of it
             raise CanterError(f"{run_dir} has no config.toml and no checkpoint; is it a canter run folder?")
         raise CanterError(
-            f"no checkpoint in {run_dir} yet (a run stopped before its first has none to resume): start it again "
-            f"with canter train --config {run_dir / 'config.toml'}, or pass the run folder that holds "
-            f"checkpoints/ckpt_*.npz"
+            f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and one stopped "
+            f"before that starts again with canter train --config {run_dir / 'config.toml'}; or pass the run folder "
+            f"that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
 

@@ -720,8 +720,9 @@ def resume_config(
     config = read_config(Path(run_dir))
     if total_steps is not None:
         config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
-    if max_minutes is not None:
-        config = replace(config, run=replace(config.run, max_minutes=float(max_minutes)))
+    if max_minutes is not None:  # inf lifts a saved limit: the config holds no limit as None, which TOML can omit
+        lifted = math.isinf(max_minutes) and max_minutes > 0
+        config = replace(config, run=replace(config.run, max_minutes=None if lifted else float(max_minutes)))
     if not isinstance(stop_at_return, Saved):
         config = replace(config, run=replace(config.run, stop_at_return=stop_at_return))
     return config

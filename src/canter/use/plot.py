@@ -626,17 +626,18 @@ def scoreboard_of(
     methods = method_labels([g.runs[0].config for g in groups])
     runs = [(method, run) for group, method in zip(groups, methods) for run in group.runs]
     found = {run.run_dir: scores.get(run.run_dir) if scores is not None else final_score(run) for _, run in runs}
+    # A diverged run's score stands, whatever the others are scored by: its training return would hide the failure.
+    diverged = [path for path, score in found.items() if score is not None and not np.isfinite(score[0])]
     untested = [path for path, score in found.items() if score is not None and score[1] == TRAINING_SOURCE]
     if untested and len(untested) < sum(score is not None for score in found.values()):
         # An evaluation and a training return (stochastic actions) are not samples of one score.
         _note_runs(untested, "no evaluation, so every run is scored by its training return")
-        found = {path: run_score(path, (TRAINING_SOURCE,)) for path in found}
+        found = {path: found[path] if path in diverged else run_score(path, (TRAINING_SOURCE,)) for path in found}
         unscored = [path for path, score in found.items() if score is None]
         if unscored:
             _note_runs(
                 unscored, "no training return (no finished episode, or no summary.json yet): left out of the statistics"
             )
-    diverged = [path for path, score in found.items() if score is not None and not np.isfinite(score[0])]
     if diverged:
         _note_runs(diverged, f"{DIVERGED}: left out of the statistics")
     rows, sources = [], []

@@ -135,10 +135,10 @@ class Scoreboard:
                     "Across envs, normalized",
                     "Normalized score = (return − random) / (reference − random): 0 is uniformly random actions "
                     "(measured by canter), 1 the published 1M-step figure of the same algorithm: Tianshou's best "
-                    "10-seed average during training (MuJoCo v3) where it has one, else CleanRL's training return "
-                    "(v4), another protocol and env version than these runs', so a yardstick rather than a ranking. "
-                    "Mean and median are of the per-env means; IQM and optimality gap "
-                    "(γ = 1) pool every run.",
+                    "10-seed average during training (MuJoCo v3; v2 for Reacher and the pendulums) where it has "
+                    "one, else CleanRL's training return (v4), another protocol and env version than these runs', so "
+                    "a yardstick rather than a ranking. Mean and median are of the per-env means; IQM and optimality "
+                    "gap (γ = 1) pool every run.",
                     ("method", "envs", "n per env", "IQM", "mean", "median", "optimality gap"),
                     tuple(
                         (
