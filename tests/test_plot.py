@@ -520,3 +520,15 @@ def test_plot_cli_bad_input(tiny_run, tmp_path, capsys):
     code, _out, err = run_cli(["plot", str(tiny_run.run_dir), "--out", str(blocker / "c.png")], capsys)
     assert code == 2 and err.count("\n") == 1 and "cannot write" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "empty_run"]
+
+
+def test_a_constant_curve_reads_its_value_on_the_axis(tmp_path):
+    """A learning rate that is not annealed is constant; matplotlib's offset notation labelled its axis
+    "1e-16+3e-4" with ticks at 0."""
+    steps = np.cumsum(np.random.default_rng(0).integers(150_000, 170_000, 62))  # uneven, as iterations end
+    run = fake_run(steps, [3e-4] * 62)  # interpolated onto a grid, it varies by about 1e-19
+    fig = draw([Experiment("g", (run,))], ["episodic_return"])
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    assert ax.yaxis.get_offset_text().get_text() == ""
+    assert any("0.0003" in label.get_text() for label in ax.get_yticklabels())

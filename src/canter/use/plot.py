@@ -557,6 +557,7 @@ def draw(
         ax.set_ylabel(unit, fontsize=9)
         ax.set_xlabel(X_AXES[x_axis][1], fontsize=9)
         ax.xaxis.set_major_formatter(EngFormatter(sep=""))
+        _widen_if_flat(ax)
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=8)
     for ax in axes[len(metrics) :]:
@@ -600,6 +601,19 @@ def draw(
         frameon=False,
     )
     return fig
+
+
+def _widen_if_flat(ax: Any) -> None:
+    """A constant curve (a learning rate that is not annealed) varies by rounding alone after interpolation, and its
+    axis would span those 1e-19 steps ("1e-16+3e-4"); give it 5% of its value on each side instead."""
+    values = [np.asarray(line.get_ydata(), float) for line in ax.lines]
+    ys = np.concatenate(values) if values else np.array([])
+    ys = ys[np.isfinite(ys)]
+    if ys.size == 0 or ys.max() - ys.min() > 1e-9 * max(abs(ys.max()), abs(ys.min())):
+        return
+    center = float(np.median(ys))
+    pad = abs(center) * 0.05 or 1.0
+    ax.set_ylim(center - pad, center + pad)
 
 
 def band_kind(group: Experiment) -> str:
