@@ -36,9 +36,8 @@ def build_config(
     check_unread: bool = True,
 ) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
-    validate. The algorithm is known
-    before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does not
-    read is refused (unless `check_unread` is off), since it would change nothing."""
+    validate. The algorithm is known before the preset is applied, so presets can hold per-algorithm tables. A --set
+    key that the algorithm does not read is refused (unless `check_unread` is off), since it would change nothing."""
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
