@@ -160,7 +160,10 @@ def _bad_inputs(tmp_path, run):
             ["train", "Hopper-v5", "--set", "env.id=Ant-v5"],
             "env.id is given twice, by the env (its argument, or --envs) and by --set",
         ),
-        (["train", "Hopper-v5", "--seeds", "0,1", "--set", "run.seed=7"], "run.seed is given twice, by --seeds and"),
+        (
+            ["train", "Hopper-v5", "--seeds", "0,1", "--set", "run.seed=7"],
+            "run.seed is given twice, by --seed (or --seeds) and",
+        ),
         (
             ["train", "Hopper-v5", "--out-dir", "a", "--set", "run.out_dir=b"],
             "run.out_dir is given twice, by --out-dir",

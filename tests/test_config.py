@@ -41,6 +41,27 @@ def test_precedence_defaults_preset_file_set_flags(tmp_path):
     assert config.env.num_envs == 1  # the preset beats the defaults
 
 
+def test_a_key_set_by_a_flag_and_by_set_is_refused_naming_both():
+    """The flag would win silently; each flag is named as the user typed it."""
+    config = build_config("Hopper-v5", flags={"env.backend": "gymnasium", "run.eval_every": 5000}, seed=4)
+    assert config.env.backend == "gymnasium" and config.run.eval_every == 5000 and config.run.seed == 4
+    cases = [
+        (
+            {"sets": ["env.backend=envpool"], "flags": {"env.backend": "gymnasium"}},
+            "env.backend is given twice, by --backend and by --set env.backend",
+        ),
+        (
+            {"sets": ["run.eval_every=7"], "flags": {"run.eval_every": 5000}},
+            "run.eval_every is given twice, by --eval-every and",
+        ),
+        ({"sets": ["run.seed=7"], "seed": 0}, r"run.seed is given twice, by --seed \(or --seeds\) and"),
+        ({"sets": ["run.algo=sac"], "algo": "ppo"}, r"run.algo is given twice, by --algo \(or --algos\) and"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(CanterError, match=message):
+            build_config("Hopper-v5", **kwargs)
+
+
 def test_strings_with_quotes_backslashes_and_control_characters_survive_the_round_trip():
     for folder in ['runs/"quoted"', "C:\\runs", "line\nbreak", "tab\there", "bell\x07", "ünïcode"]:
         config = build_config("Hopper-v5", sets=[]).with_values("run", out_dir=folder)

@@ -97,7 +97,6 @@ def run(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
-    from canter.config.overrides import parse_set_args
 
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
@@ -137,7 +136,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
             config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes)
             results = [train(config, resume=args.resume[0], quiet=args.quiet)]
     else:
-        extra = {}
+        extra: dict[str, Any] = {}
         if args.backend:
             extra["env.backend"] = args.backend
         if args.stop_at_return is not None:
@@ -152,20 +151,16 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["run.eval_every"] = args.eval_every
         if args.eval_episodes is not None:
             extra["run.eval_episodes"] = args.eval_episodes
-        flags = {key: "--" + key.partition(".")[2].replace("_", "-") for key in extra}
-        if args.seeds is not None:
-            flags["run.seed"] = "--seeds"
-        for key in sorted(flags.keys() & parse_set_args(list(args.set)).keys()):  # the flag would win, silently
-            raise CanterError(f"{key} is given twice, by {flags[key]} and by --set {key}; give it once")
-        sets = list(args.set) + [f"{k}={v}" for k, v in extra.items()]
         config = build_config(
             args.env,
             preset=args.preset or "fast",
             config_file=args.config,
-            sets=sets,
-            seed=args.seed,
+            sets=list(args.set),
+            # A group replaces the seed by each of its own; given here, it refuses a --set run.seed all the same.
+            seed=args.seeds[0] if args.seeds else args.seed,
             total_steps=args.total_steps,
             algo=args.algo,
+            flags=extra,
         )
         if args.eval_episodes is not None and not config.run.eval_every:
             raise CanterError(

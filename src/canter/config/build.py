@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from canter.config.algorithms import check_algorithm_name, reads_key, unread_key_error
@@ -16,13 +17,18 @@ from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
 
-# The options that set a key directly, as a message names them (train's, and bench's and tune's).
+# The options that set a key and are not named after it, as a message names them (train's, and bench's and tune's).
 FLAG_NAMES = {
     "env.id": "the env (its argument, or --envs)",
     "run.algo": "--algo (or --algos)",
     "run.seed": "--seed (or --seeds)",
     "run.total_steps": "--total-steps (or its default)",
 }
+
+
+def flag_name(key: str) -> str:
+    """The option that sets `key`, as a message names it: `run.eval_every` is set by --eval-every."""
+    return FLAG_NAMES.get(key) or "--" + key.partition(".")[2].replace("_", "-")
 
 
 def build_config(
@@ -34,10 +40,12 @@ def build_config(
     total_steps: int | None = None,
     algo: str | None = None,
     check_unread: bool = True,
+    flags: Mapping[str, Any] | None = None,
 ) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
     validate. The algorithm is known before the preset is applied, so presets can hold per-algorithm tables. A --set
-    key that the algorithm does not read is refused (unless `check_unread` is off), since it would change nothing."""
+    key that the algorithm does not read is refused (unless `check_unread` is off), since it would change nothing.
+    `flags` holds the keys that a command's other flags set (train's `--backend` as `env.backend`, say)."""
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
@@ -70,17 +78,13 @@ def build_config(
         for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
             if not reads_key(config.run.algo, key):
                 raise CanterError(unread_key_error(config.run.algo, key))
-    flags: dict[str, Any] = {}
-    if env_id:
-        flags["env.id"] = env_id
-    if algo:
-        flags["run.algo"] = algo
-    if seed is not None:
-        flags["run.seed"] = seed
-    if total_steps is not None:
-        flags["run.total_steps"] = total_steps
-    for key in flags.keys() & set_data.keys():  # the flag would win, silently
-        raise CanterError(f"{key} is given twice, by {FLAG_NAMES[key]} and by --set {key}; give it once")
-    config = apply_overrides(config, flags, "arguments")
+    explicit: dict[str, Any] = {key: value for key, value in (("env.id", env_id), ("run.algo", algo)) if value}
+    explicit |= {
+        key: value for key, value in (("run.seed", seed), ("run.total_steps", total_steps)) if value is not None
+    }
+    explicit |= dict(flags or {})
+    for key in sorted(explicit.keys() & set_data.keys()):  # the flag would win, silently
+        raise CanterError(f"{key} is given twice, by {flag_name(key)} and by --set {key}; give it once")
+    config = apply_overrides(config, explicit, "arguments")
     validate(config)
     return config

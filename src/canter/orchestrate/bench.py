@@ -443,9 +443,10 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     """One figure per env through `canter plot`: one curve (mean over seeds, with a band) per algorithm and grid
     values, training return against env steps."""
     from canter.files import write_output
-    from canter.use.plot import load_run, render
+    from canter.use.plot import load_run, render_runs
 
-    returns = [load_run(d).columns.get("episodic_return") for d in run_dirs]
+    runs = [load_run(d) for d in run_dirs]
+    returns = [run.columns.get("episodic_return") for run in runs]
     if not any(r is not None and np.isfinite(r).any() for r in returns):
         print(
             f"canter: note: no plot {path.name}: no training episode ended within the budget; a larger "
@@ -453,7 +454,7 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
             file=sys.stderr,
         )
         return
-    write_output(path, render(run_dirs, "png", ["episodic_return"], smooth=5))
+    write_output(path, render_runs(runs, "png", ["episodic_return"], smooth=5)[0])
 
 
 def method_label(result: dict[str, Any], keys: list[str]) -> str:

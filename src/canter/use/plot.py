@@ -696,7 +696,19 @@ def render_with_scoreboard(
     scores: dict[Path, tuple[float, str]] | None = None,
 ) -> tuple[bytes, Scoreboard | None]:
     """`render`, and the scoreboard it drew."""
-    runs = [load_run(r) for r in run_dirs]
+    return render_runs([load_run(r) for r in run_dirs], fmt, metrics, x_axis, smooth, seed, scores)
+
+
+def render_runs(
+    runs: Sequence[RunCurves],
+    fmt: str = "png",
+    metrics: Sequence[str] | None = None,
+    x_axis: str = "steps",
+    smooth: int = 1,
+    seed: int = 0,
+    scores: dict[Path, tuple[float, str]] | None = None,
+) -> tuple[bytes, Scoreboard | None]:
+    """`render_with_scoreboard` of runs already read."""
     groups = experiments_of(runs)
     board = scoreboard_of(groups, scores, seed)
     fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed, board=board)
