@@ -51,6 +51,15 @@ LONG_RUNS = {  # name -> (who, canter train arguments)
         "the same, seed 101",
         ["--preset", "humanoid", "--total-steps", "1e7", "--eval-every", "1000000"],
     ),
+    # The rest of the held-out set, 102-104, chosen together after seed 101's run and before any of theirs; they run
+    # in this order, and every one that has run is shown, whatever it scores.
+    **{
+        f"{ENV}__humanoid__10M__s{seed}": (
+            f"the same, seed {seed}",
+            ["--preset", "humanoid", "--total-steps", "1e7", "--eval-every", "1000000"],
+        )
+        for seed in (102, 103, 104)
+    },
 }
 MARKERS = ("<!-- report001-table -->\n", "<!-- /report001-table -->")
 V4_CHECK = PAGE / "runs" / "v4-cleanrl-1m"  # written by train_v4_check.sh
