@@ -683,20 +683,7 @@ def render(
 ) -> bytes:
     """Read runs, group them, draw the chosen panels and the statistics of their final scores (`scores` by run
     folder where given, else each run's `final_score`); the image file's bytes."""
-    return render_with_scoreboard(run_dirs, fmt, metrics, x_axis, smooth, seed, scores)[0]
-
-
-def render_with_scoreboard(
-    run_dirs: Sequence[str | Path],
-    fmt: str = "png",
-    metrics: Sequence[str] | None = None,
-    x_axis: str = "steps",
-    smooth: int = 1,
-    seed: int = 0,
-    scores: dict[Path, tuple[float, str]] | None = None,
-) -> tuple[bytes, Scoreboard | None]:
-    """`render`, and the scoreboard it drew."""
-    return render_runs([load_run(r) for r in run_dirs], fmt, metrics, x_axis, smooth, seed, scores)
+    return render_runs([load_run(r) for r in run_dirs], fmt, metrics, x_axis, smooth, seed, scores)[0]
 
 
 def render_runs(
@@ -708,7 +695,7 @@ def render_runs(
     seed: int = 0,
     scores: dict[Path, tuple[float, str]] | None = None,
 ) -> tuple[bytes, Scoreboard | None]:
-    """`render_with_scoreboard` of runs already read."""
+    """`render` of runs already read, and the scoreboard it drew."""
     groups = experiments_of(runs)
     board = scoreboard_of(groups, scores, seed)
     fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed, board=board)

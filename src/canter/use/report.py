@@ -413,7 +413,7 @@ def build_report(
     """The report page, evaluating the checkpoint `which` names (`last`, `best` or a file). With `video`, one
     deterministic episode of each run is rendered for it (canter.use.video) rather than embedding the newest file
     of the run's videos/ folder."""
-    from canter.use.plot import load_run, render_with_scoreboard
+    from canter.use.plot import load_run, render_runs
 
     if episodes < 0:
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
@@ -421,13 +421,12 @@ def build_report(
         raise CanterError(f"--smooth must be >= 1 rows, got {smooth}")
     plays = bool(episodes) or video
     facts = [run_facts(r, which if plays else None) for r in run_dirs]
-    for f in facts:  # a folder the curves cannot be read from fails now, not after minutes of evaluation
-        load_run(f.run_dir)
+    runs = [load_run(f.run_dir) for f in facts]  # a folder the curves cannot be read from fails now, not later
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
     # The statistics use this report's evaluation where there is one, else each run's own final score.
     source = f"this report's evaluation ({_checkpoint_note(which).lower()}, {episodes} deterministic episodes)"
     scores = {f.run_dir: (r.return_mean, source) for f, r in zip(facts, rows)} if rows else None
-    curves, board = render_with_scoreboard([f.run_dir for f in facts], "png", smooth=smooth, seed=seed, scores=scores)
+    curves, board = render_runs(runs, "png", smooth=smooth, seed=seed, scores=scores)
     if not video:
         return render_html(facts, rows, episodes, curves, smooth, which=which, board=board)
     from canter.use.video import record_video
