@@ -89,6 +89,14 @@ def _each_step_from_the_same_state(env_id, steps=100):
         if terminated:
             terminations += 1
             reference.reset()
+    # A diverged state: C MuJoCo resets to the rest pose (zero controls) at the next step's start and steps on.
+    data.qvel[:] = 1e20
+    state = mjx.put_data(model, data)
+    action = np.zeros(reference.action_space.shape, np.float32)
+    obs, reward, terminated, _, _ = reference.step(action)
+    _, p_obs, p_reward, p_terminated, _ = step(state, jnp.asarray(action))
+    assert np.isfinite(obs).all() and _rel(p_obs, obs) < tolerance, _rel(p_obs, obs)
+    assert _rel(p_reward, reward) < reward_tolerance and bool(p_terminated) == terminated, (float(p_reward), reward)
     return terminations
 
 

@@ -26,7 +26,8 @@ def assets_dir() -> Path:
 
 def load_model(task: Task, env_id: str) -> Any:
     """The task's MjModel, with the one change MJX needs: it has no PGS solver, so a model that asks for PGS
-    (Humanoid, HumanoidStandup) solves its constraints with Newton instead, and says so once."""
+    (Humanoid, HumanoidStandup) solves its constraints with Newton instead, and says so each time an env definition
+    is built (once per process, physics setting and precision)."""
     import mujoco
 
     model = mujoco.MjModel.from_xml_path(str(assets_dir() / task.xml))
@@ -55,6 +56,35 @@ def collide_with_floor_only(model: Any) -> None:
     model.geom_conaffinity[colliding] = (~planes[colliding]).astype(model.geom_conaffinity.dtype)
 
 
+# C MuJoCo's mj_step resets the data to the model's rest pose (mj_resetData, then mj_forward) when an entry of qpos,
+# qvel or qacc is NaN, infinite or beyond mjMAXVAL, so Gymnasium's and EnvPool's physics never hand a learner a
+# non-finite state. MJX has no such check; the port makes it, so that one diverging env of thousands behaves as it
+# would on the CPU backends instead of ending the run.
+MAX_VALUE = 1e10  # mjMAXVAL
+# What mjx.step reads of its Data (forward recomputes everything else), so a substep's reset replaces only these.
+STEP_INPUTS = ("time", "qpos", "qvel", "act", "ctrl", "qacc_warmstart")
+
+
+def physics_diverged(*arrays: jnp.ndarray) -> jnp.ndarray:
+    """Whether any entry is NaN, infinite or beyond C MuJoCo's mjMAXVAL (its mju_isBad)."""
+    return ~jnp.all(jnp.stack([jnp.all(jnp.abs(a) <= MAX_VALUE) for a in arrays]))
+
+
+def _reset_where(diverged: jnp.ndarray, rest: Any, data: Any, fields: tuple[str, ...] | None = None) -> Any:
+    if fields is None:
+        return jax.tree.map(lambda r, d: jnp.where(diverged, r, d), rest, data)
+    return data.replace(**{f: jnp.where(diverged, getattr(rest, f), getattr(data, f)) for f in fields})
+
+
+def rest_data(mj_model: Any) -> Any:
+    """The MjData that C MuJoCo's divergence reset leaves: mj_resetData, then mj_forward."""
+    import mujoco
+
+    data = mujoco.MjData(mj_model)
+    mujoco.mj_forward(mj_model, data)
+    return data
+
+
 def _same_types(new: Any, old: Any) -> Any:
     # With 64-bit types on, MJX's step returns a few int32 index fields of its Data as int64.
     return jax.tree.map(lambda a, b: a.astype(b.dtype), new, old)
@@ -78,9 +108,10 @@ class MjxTaskEnv:
             self.mj_model.opt.ls_iterations = solver_ls_iterations
         if contacts == "floor":
             collide_with_floor_only(self.mj_model)
-        self.model = mjx.put_model(self.mj_model)
+        self.model = mjx.put_model(self.mj_model, impl="jax")  # the port reads its internals
         self.dt = float(self.mj_model.opt.timestep) * task.frame_skip
-        self._template = mjx.make_data(self.model)
+        self._template = mjx.make_data(self.model, impl="jax")
+        self._rest = _same_types(mjx.put_data(self.mj_model, rest_data(self.mj_model), impl="jax"), self._template)
 
     def from_state(self, qpos: jnp.ndarray, qvel: jnp.ndarray) -> tuple[Any, jnp.ndarray]:
         """The env set to (qpos, qvel) as Gymnasium's `set_state` does, and its observation. `mj_forward` there
@@ -116,8 +147,15 @@ class MjxTaskEnv:
         action = action.astype(data.ctrl.dtype)
         before = task.progress(model, data)
         data = data.replace(ctrl=action)
+
+        def substep(_: int, d: Any) -> Any:  # C MuJoCo checks qpos and qvel as each mj_step starts
+            d = _reset_where(physics_diverged(d.qpos, d.qvel), self._rest, d, STEP_INPUTS)
+            return _same_types(mjx.step(model, d), d)
+
         with c_mujoco_collisions():
-            data = jax.lax.fori_loop(0, task.frame_skip, lambda _, d: _same_types(mjx.step(model, d), d), data)
+            data = jax.lax.fori_loop(0, task.frame_skip, substep, data)
+        # ...and qacc within it: a bad qacc (or state) from the last substep resets now, as the next would
+        data = _reset_where(physics_diverged(data.qpos, data.qvel, data.qacc), self._rest, data)
         if task.contact_forces:
             data = mjx.rne_postconstraint(model, data)
         velocity = (task.progress(model, data) - before) / self.dt
