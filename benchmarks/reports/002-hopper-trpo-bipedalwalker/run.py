@@ -79,10 +79,12 @@ CURVES = {
     "ddpg": "episodic_return,episodic_length,sps,actor_loss,critic_loss",
 }
 
-# Steps per second for the wall-time estimates, the median of the per-iteration `sps` column of metrics.csv. None
-# of these presets has an archived run: two smoke runs of about 20k steps each on 2026-11-26 under a load average
-# of 9-11 gave trpo 5,208 and 5,697, ppo 9,134 and 8,680, ddpg 1,337 and 2,630 (a HumanoidStandup smoke run beside
-# them gave 830, 1,816 and 1,342 against 1,300 for its archived 5M-step runs, so expect +-50%).
+# Steps per second for the wall-time estimates, the median of the per-iteration `sps` column of metrics.csv from two
+# smoke runs of about 20k steps each, made on 2026-11-26 under a load average of 9-11 before any run of these
+# presets was archived: trpo 5,208 and 5,697, ppo 9,134 and 8,680, ddpg 1,337 and 2,630 (a HumanoidStandup smoke run
+# beside them gave 830, 1,816 and 1,342 against 1,300 for its archived 5M-step runs, so expect +-50%). What the
+# archived runs took is in the commands table's last column (`archived_wall`): ppo 37 min for its three seeds
+# against 56 estimated, ddpg 4.7 h against 4.2.
 SPS = {"hopper-trpo": 5400, "ppo": 8900, "ddpg": 2000}
 # A trial's start, compile and evaluations: trials of 4k-8k steps took 0.8-1.1 min in two 2-trial smoke studies.
 TRIAL_OVERHEAD_SECONDS = 60
@@ -99,8 +101,8 @@ REPORT_WALKER = (
     ("ddpg", 12, "-31.3 (68.2)", "1589.4", "1:54:18"),
     ("ddpg", 47, "none: stopped after 12 h", "", ""),
 )
-# The report's tables 2 and 5: the values Optuna chose (canter's names; SB3's vf_coef and target_kl translated as
-# in the preset), and the reward of the best trial during tuning.
+# The report's tables 2 and 5: the values Optuna chose (canter's names, the report's values), and the reward of the
+# best trial during tuning.
 REPORT_TUNE: dict[str, tuple[str, dict[str, Any]]] = {
     "ppo": (
         "315.19",
@@ -114,8 +116,8 @@ REPORT_TUNE: dict[str, tuple[str, dict[str, Any]]] = {
             "ppo.ent_coef": 6.243275791612454e-06,
             "ppo.clip": 0.2,
             "ppo.max_grad_norm": 0.6,
-            "ppo.vf_coef": 0.7608143081737873,
-            "ppo.target_kl": 0.1801298,
+            "ppo.vf_coef": 0.38040715408689363,
+            "ppo.target_kl": 0.1200865249782578,
         },
     ),
     "ddpg": (
@@ -134,6 +136,11 @@ REPORT_TUNE: dict[str, tuple[str, dict[str, Any]]] = {
         },
     ),
 }
+# The two PPO keys whose SB3 value means something else in canter, with the factor the preset and the search space
+# apply: SB3's value loss is the plain MSE, canter's 0.5 * MSE (canter.algos.ppo.losses), so vf_coef is doubled;
+# SB3 stops an epoch at the first minibatch whose approx KL exceeds 1.5 * target_kl, canter stops after an epoch whose
+# last minibatch's approx KL exceeds ppo.target_kl (canter.algos.ppo.learner), so target_kl is multiplied by 1.5.
+TRANSLATED = {"ppo.vf_coef": 2.0, "ppo.target_kl": 1.5}
 MARKERS = {
     "commands": ("<!-- report002-commands -->\n", "<!-- /report002-commands -->"),
     "hopper": ("<!-- report002-hopper -->\n", "<!-- /report002-hopper -->"),
@@ -268,11 +275,37 @@ def _archived(name: str) -> bool:
     return all((tune_archive(name.removeprefix("tune-")) / f).is_file() for f in TUNE_FILES)
 
 
+def _trial_minutes(algo: str) -> tuple[int, float]:
+    """The study's complete trials and their minutes, summed from summary.md (pruned and failed trials are not timed
+    there)."""
+    rows = [line.split("|")[1:-1] for line in (tune_archive(algo) / "summary.md").read_text().splitlines()]
+    rows = [[cell.strip() for cell in row] for row in rows if row]
+    column = rows[0].index("minutes")
+    return len(rows) - 2, sum(float(row[column]) for row in rows[2:])
+
+
+def archived_wall(name: str) -> str:
+    """What an archived step took, as far as its archived files time it."""
+    if name == "hopper-trpo":
+        [cell] = HOPPER.cells()
+        result = cell_result(PAGE, HOPPER, cell)
+        return f"{result['wall_minutes']:.0f} min (one process)" if result else ""
+    if name.startswith("walker-"):
+        runs = [archived(PAGE, walker_name(name.removeprefix("walker-"), seed)) for seed in SEEDS]
+        total = sum(run["timing"]["wall_seconds"] for run in runs if run)
+        return f"{_duration(total)} (the seeds' `timing.json`, summed)"
+    if name.startswith("tune-"):
+        trials, minutes = _trial_minutes(name.removeprefix("tune-"))
+        return f"{minutes:.0f} min for its {trials} complete trials (`summary.md`)"
+    return "not timed"
+
+
 def commands_table() -> str:
     lines = ["| step | command | estimated wall | archived |", "|---|---|---:|---|"]
     for name, step in STEPS.items():
         shown = "<br>".join(f"`{c}`" for c in step.commands)
-        lines.append(f"| `{name}` | {shown} | {_duration(step.seconds)} | {'yes' if _archived(name) else 'no'} |")
+        done = f"yes, {archived_wall(name)}" if _archived(name) else "no"
+        lines.append(f"| `{name}` | {shown} | {_duration(step.seconds)} | {done} |")
     total = sum(step.seconds for step in STEPS.values())
     lines.append(f"| all | `python {PAGE_PATH}/run.py` | {_duration(total)} | |")
     return "\n".join(lines)
@@ -434,7 +467,24 @@ def tune_text() -> str:
         for param in space.params:
             section, _, key = param.key.partition(".")
             mine = _value(best[section][key]) if ran else "not run yet"
-            lines.append(f"| `{param.key}` | {_searched(param)} | {_value(chosen[param.key])} | {mine} |")
+            theirs = _value(chosen[param.key])
+            if param.key in TRANSLATED:
+                factor = TRANSLATED[param.key]
+                theirs += f" (× {factor:g} = {_value(chosen[param.key] * factor)})"
+            lines.append(f"| `{param.key}` | {_searched(param)} | {theirs} | {mine} |")
+        if any(param.key in TRANSLATED for param in space.params):
+            lines += [
+                "",
+                "`ppo.vf_coef` and `ppo.target_kl` mean something else in canter than in SB3, so the preset and the "
+                "search space translate the report's values and ranges (the ranges above are canter's; table 1's are "
+                "uniform(0, 1) and log-uniform(0.001, 0.3)); the translated value is in brackets. SB3's value loss is "
+                "the plain mean squared error and canter's is half of it "
+                "([`losses.py`](../../../src/canter/algos/ppo/losses.py)), so vf_coef is doubled for the same "
+                "gradient. SB3 stops an update's epochs at the first minibatch whose approximate KL exceeds 1.5 × "
+                "target_kl; canter stops them after an epoch whose last minibatch's approximate KL exceeds target_kl "
+                "([`learner.py`](../../../src/canter/algos/ppo/learner.py)), so target_kl is multiplied by 1.5. "
+                "canter's best is in canter's terms.",
+            ]
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
 
