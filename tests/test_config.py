@@ -191,14 +191,15 @@ def test_a_preset_that_extends_another_lays_its_keys_over_the_others(monkeypatch
     shipped = presets.shipped_preset_text
     monkeypatch.setattr(presets, "shipped_preset_text", lambda name: extra.get(name) or shipped(name))
 
-    assert presets.preset_chain("grandchild") == ["fast", "child", "grandchild"]
     child = presets.preset_overrides("child", "Hopper-v5", "ppo")
     # The child's minibatch wins over fast's ppo table for Hopper; fast's env layer stays.
     assert (child["ppo.minibatch_size"], child["ppo.lr"], child["env.num_envs"]) == (128, 1e-4, 16)
     assert presets.preset_overrides("child", "Hopper-v5", "td3")["env.num_envs"] == 1
-    assert presets.preset_overrides("grandchild", "Hopper-v5", "ppo")["env.num_envs"] == 4
-    assert presets.preset_algorithms("child") is None and presets.preset_algorithms("grandchild") == ["ppo"]
-    assert presets.preset_algorithms("heir") == ["td3"]
+    # The whole chain, base first: fast's layer, then the child's, then the grandchild's own.
+    grandchild = presets.preset_overrides("grandchild", "Hopper-v5", "ppo")
+    assert (grandchild["net.log_std_init"], grandchild["ppo.lr"], grandchild["env.num_envs"]) == (-1.0, 1e-4, 4)
+    with pytest.raises(CanterError, match="preset grandchild holds settings for ppo only, not td3"):
+        presets.preset_overrides("grandchild", "Hopper-v5", "td3")
     with pytest.raises(CanterError, match="preset heir holds settings for td3 only, not ppo"):
         presets.preset_overrides("heir", "Hopper-v5", "ppo")
     with pytest.raises(CanterError, match=r"preset loop-a extends itself \(loop-a -> loop-b -> loop-a\)"):

@@ -263,6 +263,9 @@ def test_best_for_a_run_that_never_evaluated_is_one_line(tiny_run, tmp_path, cap
 
 
 def test_bad_input_is_one_line(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.toml").touch()
     for argv, message in [
         (["train", "Pendulum-v1", "--eval-episodes", "3"], "also pass --eval-every N"),
         (["train", "Pendulum-v1", "--set", "run.eval_every=-1"], "run.eval_every must be >= 0"),
@@ -274,7 +277,7 @@ def test_bad_input_is_one_line(tmp_path, capsys):
         ),
         (["bench", "--envs", "Pendulum-v1", "--eval-episodes", "2"], "bench --eval-episodes is now --episodes"),
         (["eval", str(tmp_path / "a"), str(tmp_path / "b"), "--checkpoint", "x.npz"], "pass one run folder"),
-        (["eval", str(tmp_path), "--checkpoint", str(tmp_path / "x.npz")], "checkpoint not found"),
+        (["eval", str(run), "--checkpoint", str(tmp_path / "x.npz")], "checkpoint not found"),
         (["export", str(tmp_path / "none"), "--checkpoint", "best", "--out", "a.npz"], "run folder not found"),
         (["train", "Pendulum-v1", "--set", "run.eval_backend=cpu"], "run.eval_backend must be empty (the run's own)"),
         (["train", "ant", "--backend", "brax", "--set", "run.eval_backend=auto"], "brax runs evaluate on the brax"),

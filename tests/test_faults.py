@@ -20,7 +20,7 @@ import pytest
 from canter.files import WriteError
 from canter.training import checkpoint
 from canter.training.logger import MetricsLogger, read_rows, totals_until
-from canter.training.run_folder import training_write_error
+from canter.training.loop import training_write_error
 from conftest import TINY
 
 RUN_SETS = TINY + [

@@ -5,7 +5,11 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from canter.algos.ppo.symmetry import parse_groups
+from canter.errors import CanterError
 
 REPORTS = Path(__file__).resolve().parents[1] / "benchmarks" / "reports"
 PAGES = sorted(REPORTS.glob("*/run.py"))
@@ -49,6 +53,44 @@ def test_the_limb_measure_finds_each_of_its_runs_among_the_pages_grids(monkeypat
     with pytest.raises(ValueError):
         page.limbs.run_folder(missing, 100, page.GRIDS)
     assert page.limbs.run_folder(page.limbs.GridRun("hs-sym", (("sym.coef", "0.0"),)), 101, page.GRIDS) is None
+
+
+def _limbs(monkeypatch):
+    """Page 000's limb measures (limbs.py), which only that page uses."""
+    return _load_page(REPORTS / "000-humanoidstandup-halfcheetah-ppo-rpo-sym" / "run.py", monkeypatch).limbs
+
+
+def test_effort_asymmetry_hand_values(monkeypatch):
+    limbs = _limbs(monkeypatch)
+    pairs = parse_groups("0:2=2:4,4=5", negate=(3,))
+    actions = np.array([[1.0, 1.0, 0.5, -0.5, 0.0, 0.0], [1.0, 1.0, -0.5, 0.5, 0.0, 0.0]])
+    legs, still = limbs.effort_asymmetry(actions, pairs)
+    # Left: mean square 1.0; right: 0.25, whatever the signs: (1 - 0.25) / 1.25.
+    assert legs == pytest.approx(0.6) and still == 0.0
+    assert limbs.effort_asymmetry(np.array([[0.3, -0.2, 0.2, 0.3, 0.4, 0.0]]), pairs) == pytest.approx((0.0, 1.0))
+
+
+def test_effort_asymmetry_rejects_bad_shapes(monkeypatch):
+    limbs = _limbs(monkeypatch)
+    pairs = parse_groups("0=1")
+    with pytest.raises(CanterError, match=r"shaped \[steps, act_dim\]"):
+        limbs.effort_asymmetry(np.zeros(2), pairs)
+    with pytest.raises(CanterError, match="out of the action range"):
+        limbs.effort_asymmetry(np.zeros((3, 1)), pairs)
+
+
+def test_mirror_mismatch_hand_values(monkeypatch):
+    limbs = _limbs(monkeypatch)
+    pairs = parse_groups("0:2=2:4", negate=(3,))
+    mirrored = np.array([[0.5, -1.0, 0.5, 1.0], [2.0, 3.0, 2.0, -3.0]])
+    assert limbs.mirror_mismatch(mirrored, pairs) == (0.0,)
+    assert limbs.mirror_mismatch(-mirrored * np.array([1, 1, -1, -1]), pairs) == pytest.approx((2.0,))  # opposite
+    # Row 1: L (1, 0), sR (0, 1): gap 2; row 2: L (1, 1), sR (1, 1): gap 0. Energies: L 1 + 2, R 1 + 2 (means 1.5).
+    actions = np.array([[1.0, 0.0, 0.0, -1.0], [1.0, 1.0, 1.0, -1.0]])
+    assert limbs.mirror_mismatch(actions, pairs) == pytest.approx((1.0 / 3.0,))
+    assert limbs.mirror_mismatch(np.zeros((2, 4)), pairs) == (0.0,)
+    with pytest.raises(CanterError, match="mirror_mismatch needs actions"):
+        limbs.mirror_mismatch(np.zeros(4), pairs)
 
 
 def test_the_walker_pages_bar_against_cleanrl_is_two_standard_errors_of_the_difference(monkeypatch):

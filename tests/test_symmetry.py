@@ -5,8 +5,6 @@ import pytest
 from canter.algos.ppo.symmetry import (
     MirrorPair,
     check_action_range,
-    effort_asymmetry,
-    mirror_mismatch,
     parse_groups,
     symmetric_loss,
 )
@@ -66,33 +64,3 @@ def test_hand_computed_value_mean_over_pairs_and_masked_rows():
     pair_b = np.mean([(0 - 1) ** 2, (2 - 0) ** 2])  # (1 + 4) / 2
     expected = (pair_a + pair_b) / 2
     assert float(symmetric_loss(values, pairs, mask, use_signs=True)) == pytest.approx(expected)
-
-
-def test_effort_asymmetry_hand_values():
-    pairs = parse_groups("0:2=2:4,4=5", negate=(3,))
-    actions = np.array([[1.0, 1.0, 0.5, -0.5, 0.0, 0.0], [1.0, 1.0, -0.5, 0.5, 0.0, 0.0]])
-    legs, still = effort_asymmetry(actions, pairs)
-    # Left: mean square 1.0; right: 0.25, whatever the signs: (1 - 0.25) / 1.25.
-    assert legs == pytest.approx(0.6) and still == 0.0
-    assert effort_asymmetry(np.array([[0.3, -0.2, 0.2, 0.3, 0.4, 0.0]]), pairs) == pytest.approx((0.0, 1.0))
-
-
-def test_effort_asymmetry_rejects_bad_shapes():
-    pairs = parse_groups("0=1")
-    with pytest.raises(CanterError, match=r"shaped \[steps, act_dim\]"):
-        effort_asymmetry(np.zeros(2), pairs)
-    with pytest.raises(CanterError, match="out of the action range"):
-        effort_asymmetry(np.zeros((3, 1)), pairs)
-
-
-def test_mirror_mismatch_hand_values():
-    pairs = parse_groups("0:2=2:4", negate=(3,))
-    mirrored = np.array([[0.5, -1.0, 0.5, 1.0], [2.0, 3.0, 2.0, -3.0]])
-    assert mirror_mismatch(mirrored, pairs) == (0.0,)
-    assert mirror_mismatch(-mirrored * np.array([1, 1, -1, -1]), pairs) == pytest.approx((2.0,))  # opposite
-    # Row 1: L (1, 0), sR (0, 1): gap 2; row 2: L (1, 1), sR (1, 1): gap 0. Energies: L 1 + 2, R 1 + 2 (means 1.5).
-    actions = np.array([[1.0, 0.0, 0.0, -1.0], [1.0, 1.0, 1.0, -1.0]])
-    assert mirror_mismatch(actions, pairs) == pytest.approx((1.0 / 3.0,))
-    assert mirror_mismatch(np.zeros((2, 4)), pairs) == (0.0,)
-    with pytest.raises(CanterError, match="mirror_mismatch needs actions"):
-        mirror_mismatch(np.zeros(4), pairs)

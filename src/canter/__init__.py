@@ -1,4 +1,5 @@
-"""canter: fast, correct PPO for continuous control on MuJoCo, on an ordinary CPU.
+"""canter: continuous-control RL for MuJoCo in JAX: PPO, RPO, TRPO, TD3, DDPG and SAC, on EnvPool, Gymnasium, MJX
+or Brax envs.
 
 import canter
 result = canter.train(canter.build_config("Hopper-v5", total_steps=200_000))

@@ -31,7 +31,8 @@ sys.path.insert(0, str(PAGE.parent))  # grids.py
 from archive import ROOT  # noqa: E402
 from grids import Grid, finished  # noqa: E402
 
-from canter.algos.ppo.symmetry import effort_asymmetry, mirror_mismatch, parse_groups  # noqa: E402
+from canter.algos.ppo.symmetry import MirrorPair, check_action_range, parse_groups  # noqa: E402
+from canter.errors import CanterError  # noqa: E402
 from canter.orchestrate.jobs import read_json  # noqa: E402
 
 if TYPE_CHECKING:
@@ -81,6 +82,42 @@ def run_folder(where: Path | GridRun, seed: int, grids: Mapping[str, Grid]) -> P
     (cell,) = [c for c in grid.cells() if c.values == where.values]
     folder = cell.run_dir(WORK / grid.name, seed)
     return folder if finished(folder, grid.total_steps) else None
+
+
+def effort_asymmetry(actions: np.ndarray, pairs: tuple[MirrorPair, ...]) -> tuple[float, ...]:
+    """How unevenly a trajectory's actions [T, act_dim] load each mirror pair: |L - R| / (L + R) per pair, where L
+    and R are the mean squared actions of the pair's two groups. 0 is even use, 1 is one side only (0 when both sides
+    are still). A behaviour measure, not the loss: it asks whether a humanoid uses both arms or legs."""
+    values = _trajectory(actions, pairs, "effort_asymmetry")
+    result = []
+    for pair in pairs:
+        first = float(np.mean(np.square(values[:, list(pair.first)])))
+        mirror = float(np.mean(np.square(values[:, list(pair.mirror)])))
+        total = first + mirror
+        result.append(abs(first - mirror) / total if total > 0 else 0.0)
+    return tuple(result)
+
+
+def mirror_mismatch(actions: np.ndarray, pairs: tuple[MirrorPair, ...]) -> tuple[float, ...]:
+    """How far each mirror pair's two sides are from moving as mirror images over a trajectory [T, act_dim]:
+    E|L - sR|^2 / (E|L|^2 + E|R|^2) per pair, with the signs `s` of `sym.negate`. 0 is mirrored motion, 1 is sides
+    that move independently (uncorrelated), 2 is opposite motion (0 when both sides are still)."""
+    values = _trajectory(actions, pairs, "mirror_mismatch")
+    result = []
+    for pair in pairs:
+        first, mirror = values[:, list(pair.first)], values[:, list(pair.mirror)] * np.asarray(pair.signs)
+        total = float(np.mean(np.sum(np.square(first), -1)) + np.mean(np.sum(np.square(mirror), -1)))
+        gap = float(np.mean(np.sum(np.square(first - mirror), -1)))
+        result.append(gap / total if total > 0 else 0.0)
+    return tuple(result)
+
+
+def _trajectory(actions: np.ndarray, pairs: tuple[MirrorPair, ...], name: str) -> np.ndarray:
+    values = np.asarray(actions, np.float64)
+    if values.ndim != 2:
+        raise CanterError(f"{name} needs actions shaped [steps, act_dim], got shape {values.shape}")
+    check_action_range(pairs, values.shape[1], name)
+    return values
 
 
 def measure(policy: Policy, episodes: int = EPISODES) -> dict[str, Any]:

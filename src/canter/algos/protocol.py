@@ -17,11 +17,11 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
 - `export_actor(config, state, spec)` describes the deterministic actor as plain arrays (`ExportedActor`), for ONNX and
   npz export.
 - `donate_state`, `policy_checkpoint_leaves_out`: see the fields' comments.
-- `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts.
-  `spec` is None when only the config is known.
+- `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts;
+  the trainer passes the env's `EnvSpec`.
 
-Where a `spec` is passed, only `obs_dim`, `act_dim`, `action_low` and `action_high` may be read: a loaded policy
-passes its `PolicyFacts` instead of an `EnvSpec`.
+Elsewhere, where a `spec` is passed, only `obs_dim`, `act_dim`, `action_low` and `action_high` may be read: a loaded
+policy passes its `PolicyFacts` instead of an `EnvSpec`.
 
 What an algorithm declares without JAX (its config sections, the keys it reads, checks, search space, preset tables,
 plot labels) is its `AlgorithmSpec` (`canter.config.algorithms`), built in its folder's `sections.py`.
@@ -35,6 +35,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from canter.config.schema import Config
+from canter.envs.base import EnvSpec
 
 
 @dataclass(frozen=True)
@@ -66,7 +69,7 @@ class Algorithm:
     make_act: Callable[..., Any]
     policy_params: Callable[[Any], Any]
     export_actor: Callable[..., ExportedActor]
-    validate: Callable[..., None]
+    validate: Callable[[Config, EnvSpec], None]
     # Donate the train state to jit so large arrays (a replay buffer) are updated in place, not copied per call.
     # The input state is then invalid after the call, so an iteration reporting `finite` False must return the
     # last good state itself: the trainer checkpoints the returned state in that case.

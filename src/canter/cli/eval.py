@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PATH.png",
         help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png in each run",
     )
-    e.add_argument("--seed", type=seed_arg, default=None, help="seed of the evaluation envs (default 0)")
+    e.add_argument("--seed", type=seed_arg, default=0, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)
 
 
@@ -96,10 +96,9 @@ def run(args: argparse.Namespace) -> int:
         check_eval_env(policy.facts, args.env, args.backend, varied=spec is not None)
         if physics:
             eval_physics(policy, *eval_target(policy, args.env, args.backend), physics)
-    seed = args.seed if args.seed is not None else 0
     if spec is not None:
-        return _vary(args, spec, policies, seed)
-    return _evaluate(args, policies, seed, physics)
+        return _vary(args, spec, policies, args.seed)
+    return _evaluate(args, policies, args.seed, physics)
 
 
 def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict[str, Any]) -> int:

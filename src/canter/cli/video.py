@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
     add_checkpoint_arg(v)
-    v.add_argument("--seed", type=seed_arg, default=None, help="env seed of the first episode (default 0)")
+    v.add_argument("--seed", type=seed_arg, default=0, help="env seed of the first episode (default 0)")
     v.set_defaults(func=run)
 
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         height=args.height,
         fps=args.fps,
         camera=args.camera,
-        seed=args.seed if args.seed is not None else 0,
+        seed=args.seed,
         checkpoint=args.checkpoint,
         max_steps=args.max_steps,
         on_start=starting,

@@ -91,19 +91,8 @@ def _read_chain(name: str) -> list[tuple[str, dict[str, Any], list[str] | None]]
     return chain
 
 
-def preset_chain(name: str) -> list[str]:
-    """The presets a preset is laid over, base first, ending with itself."""
-    return [link for link, _, _ in _read_chain(name)]
-
-
 def _nearest_algorithms(chain: list[tuple[str, dict[str, Any], list[str] | None]]) -> list[str] | None:
     return next((algos for _, _, algos in reversed(chain) if algos is not None), None)
-
-
-def preset_algorithms(name: str) -> list[str] | None:
-    """The algorithms a preset declares it holds settings for (its top-level `algos`, or the nearest preset's it
-    extends), or None for all."""
-    return _nearest_algorithms(_read_chain(name))
 
 
 def preset_layer(table: dict[str, Any], env_id: str, source: str) -> dict[str, Any]:

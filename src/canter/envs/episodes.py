@@ -15,8 +15,9 @@ from canter.envs.base import StepOutput, is_summed_info
 
 
 class EnvCarry(NamedTuple):
-    """What the env loop carries between steps and iterations. It is not checkpointed: a resumed run restarts
-    its episodes."""
+    """What the env loop carries between steps and iterations. A run on mjx or brax, whose envs are JAX arrays,
+    checkpoints it, so that a resumed run continues its episodes in flight; one on envpool or gymnasium, whose envs
+    live outside JAX, does not, so a resumed run restarts its episodes."""
 
     env_state: Any
     obs: jnp.ndarray  # [N, D] raw float32 observation to act on next

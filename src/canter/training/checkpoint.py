@@ -28,6 +28,7 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
+from canter.training.run_folder import CONFIG_FILE
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -53,7 +54,7 @@ def _damaged_fix(path: Path) -> str:
         )
     return (
         f"it is the run's only one, so move it away and start the run again with canter train --config "
-        f"{path.parent.parent / 'config.toml'}"
+        f"{path.parent.parent / CONFIG_FILE}"
     )
 
 
@@ -207,7 +208,9 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
 
 
 def need_run_folder(run_dir: Path) -> None:
-    """A one-line refusal of a path that is not a folder: a checkpoint file names its checkpoint, not its run."""
+    """A one-line refusal of a path that is not a run folder, whichever checkpoint is asked of it. A checkpoint file
+    names its checkpoint, not its run; a folder with checkpoints but no config.toml is still one, as each checkpoint
+    holds the config."""
     if run_dir.is_file():
         raise CanterError(
             f"{run_dir} is a file, not a run folder; pass the run folder, and --checkpoint {run_dir} to pick this "
@@ -215,6 +218,14 @@ def need_run_folder(run_dir: Path) -> None:
         )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
+    if (run_dir / CONFIG_FILE).is_file() or list_checkpoints(run_dir):
+        return
+    inside = runs_inside(run_dir)
+    if inside:
+        raise CanterError(
+            f"{run_dir} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as {inside[0]}"
+        )
+    raise CanterError(f"{run_dir} has no {CONFIG_FILE} and no checkpoint; is it a canter run folder?")
 
 
 def latest(run_dir: Path) -> Path:
@@ -223,16 +234,9 @@ def latest(run_dir: Path) -> Path:
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found:
-        inside = runs_inside(run_dir)
-        if inside:
-            raise CanterError(
-                f"{run_dir} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as {inside[0]}"
-            )
-        if not (run_dir / "config.toml").is_file():  # as train --resume says of it
-            raise CanterError(f"{run_dir} has no config.toml and no checkpoint; is it a canter run folder?")
         raise CanterError(
             f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and one stopped "
-            f"before that starts again with canter train --config {run_dir / 'config.toml'}; or pass the run folder "
+            f"before that starts again with canter train --config {run_dir / CONFIG_FILE}; or pass the run folder "
             f"that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
@@ -243,9 +247,9 @@ def runs_inside(folder: Path) -> list[Path]:
     where the folder cannot be read."""
     folder = Path(folder)
     try:
-        if (folder / "config.toml").is_file():
+        if (folder / CONFIG_FILE).is_file():
             return []
-        return sorted(child for child in folder.iterdir() if child.is_dir() and (child / "config.toml").is_file())
+        return sorted(child for child in folder.iterdir() if child.is_dir() and (child / CONFIG_FILE).is_file())
     except OSError:  # a folder or child this user may not search: not the question asked
         return []
 
@@ -273,12 +277,12 @@ def best_path(run_dir: Path) -> Path:
 def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     """The checkpoint file that `which` names for a run folder: `last` (the newest), `best` (the best evaluated
     state) or a checkpoint file (any path; a `Path` is always a file)."""
-    if isinstance(which, Path) or which not in (LAST, BEST):
-        return Path(which)
+    run_dir = Path(run_dir)
     if which == LAST:
         return latest(run_dir)
-    run_dir = Path(run_dir)
     need_run_folder(run_dir)
+    if which != BEST:  # a file: a `Path` never equals a name
+        return Path(which)
     path = best_path(run_dir)
     if not path.is_file():
         raise CanterError(

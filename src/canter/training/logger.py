@@ -36,6 +36,7 @@ import numpy as np
 from canter.errors import CanterError
 from canter.files import AppendFile, atomic_write_bytes
 from canter.training.evaluation import EVAL_COLUMNS
+from canter.training.run_folder import METRICS_FILE
 
 BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
 
@@ -173,7 +174,7 @@ class MetricsLogger:
         resume_step: int | None = None,
         evaluates: bool = False,
     ) -> None:
-        self.path = Path(run_dir) / "metrics.csv"
+        self.path = Path(run_dir) / METRICS_FILE
         self.columns = columns_for(metric_names, info_keys, evaluates)
         self._unpack_archived()
         self._cut_half_written_line()

@@ -25,7 +25,7 @@ from canter.config.serialize import to_toml
 from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
-from canter.files import atomic_write_bytes
+from canter.files import WriteError, atomic_write_bytes, is_write_error
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation, evaluation_backend
 from canter.training.logger import MetricsLogger, Progress, logged, totals_until
@@ -184,7 +184,9 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
 
 def _write_summary(result: RunResult) -> dict[str, Any]:
     summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
-    atomic_write_bytes(result.run_dir / "summary.json", lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    atomic_write_bytes(
+        result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
+    )
     return summary
 
 
@@ -306,12 +308,29 @@ def _train_locked(
         carry = _initial_carry(env, spec, resumed_from)
         return _loop(configs, env, spec, states, carry, outs, start_steps, earlier, quiet, started)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
-        error = run_folder.training_write_error(exc, outs)
+        error = training_write_error(exc, outs)
         if error is None:
             raise
         raise error from None
     finally:
         env.close()
+
+
+def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError | None:
+    """A write error that stopped training (None for any other exception), with the fix that continues it:
+    `canter train --resume` of the run folders when each holds a checkpoint, else training again."""
+    if isinstance(exc, WriteError):
+        error = exc
+    elif is_write_error(exc):
+        assert isinstance(exc, OSError)
+        error = WriteError(exc.filename or run_dirs[0], exc)
+    else:
+        return None
+    if error.path.name == run_folder.SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
+        return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
+    if all(checkpoint.list_checkpoints(d) for d in run_dirs):
+        return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
+    return error.resumable("train again (no checkpoint was written to resume from)")
 
 
 def _initial_carry(env: Any, spec: Any, resumed_from: list[Path | None]) -> Any:

@@ -27,7 +27,7 @@ from typing import Any
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
-from canter.files import WriteError, atomic_write_bytes, is_write_error
+from canter.files import atomic_write_bytes
 from canter.training import provenance
 
 RUN_FORMAT = 2
@@ -216,22 +216,3 @@ def migrate(run_dir: Path) -> None:
     for version in range(found, RUN_FORMAT):
         MIGRATIONS[version](Path(run_dir))
         _write_versions(run_dir, dict(_read_versions(run_dir), run_format=version + 1))
-
-
-def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError | None:
-    """A write error that stopped training (None for any other exception), with the fix that continues it:
-    `canter train --resume` of the run folders when each holds a checkpoint, else training again."""
-    from canter.training.checkpoint import list_checkpoints
-
-    if isinstance(exc, WriteError):
-        error = exc
-    elif is_write_error(exc):
-        assert isinstance(exc, OSError)
-        error = WriteError(exc.filename or run_dirs[0], exc)
-    else:
-        return None
-    if error.path.name == SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
-        return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
-    if all(list_checkpoints(d) for d in run_dirs):
-        return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
-    return error.resumable("train again (no checkpoint was written to resume from)")

@@ -59,14 +59,14 @@ def _natural_key(path: Path) -> list:
 def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFacts:
     """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names (None:
     the page plays none, as an archived run kept without checkpoints allows)."""
-    from canter.training.run_folder import read_config
+    from canter.training.run_folder import SUMMARY_FILE, read_config
 
     run_dir = Path(run_dir)
     if which is not None:
         checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
     config = read_config(run_dir)
     try:
-        summary = json.loads((run_dir / "summary.json").read_text())
+        summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     except (OSError, ValueError):
         summary = {}  # still training, or stopped before the end: the table shows dashes
     if not isinstance(summary, dict):

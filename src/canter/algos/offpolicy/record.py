@@ -13,6 +13,7 @@ from canter.algos.offpolicy.learner import LOOP_METRICS, OffPolicyLearner
 from canter.algos.offpolicy.sections import OffPolicyConfig
 from canter.algos.protocol import Algorithm, ExportedActor, export_mlp_actor
 from canter.config.schema import Config
+from canter.envs.base import EnvSpec
 from canter.errors import CanterError
 
 
@@ -33,7 +34,7 @@ def offpolicy_algorithm(
     def export_actor(config: Config, state: Any, spec: Any) -> ExportedActor:
         return _export_tanh_actor(config, make_learner(config, spec).cfg, state, spec)
 
-    def validate(config: Config, spec: Any) -> None:
+    def validate(config: Config, spec: EnvSpec) -> None:
         _validate_bounded_actions(name, spec)
 
     return Algorithm(
@@ -79,14 +80,11 @@ def _export_tanh_actor(config: Config, section: OffPolicyConfig, state: Any, spe
     return export_mlp_actor(config, actor, stats, spec, section.activation, squash=True)
 
 
-def _validate_bounded_actions(name: str, spec: Any) -> None:
+def _validate_bounded_actions(name: str, spec: EnvSpec) -> None:
     """Bounded actions are required: the actors map tanh outputs onto [low, high]."""
-    if spec is None:
-        return
     low, high = np.asarray(spec.action_low), np.asarray(spec.action_high)
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
         raise CanterError(
             f"{name} needs finite action bounds (it squashes actions with tanh); "
-            f"{getattr(spec, 'id', getattr(spec, 'env_id', 'this env'))} has low={low.tolist()} "
-            f"high={high.tolist()}"
+            f"{spec.id} has low={low.tolist()} high={high.tolist()}"
         )

@@ -8,6 +8,7 @@ from typing import Any
 from canter.algos import Algorithm, ExportedActor
 from canter.algos.protocol import export_mlp_actor
 from canter.config.schema import Config
+from canter.envs.base import EnvSpec
 
 PPO_METRICS = (
     "policy_loss",
@@ -73,12 +74,12 @@ def export_gaussian_actor(config: Config, state: Any, spec: Any) -> ExportedActo
     return export_mlp_actor(config, actor, stats, spec, config.net.activation, squash=False)
 
 
-def validate_continuous(config: Config, spec: Any) -> None:
+def validate_continuous(config: Config, spec: EnvSpec) -> None:
     """Checks against the env: symmetric-loss groups inside the action range. (Box actions are checked when the
     env is built; the trainer names the algorithm in that error.)"""
     from canter.algos.ppo.symmetry import check_action_range, parse_groups
 
-    if spec is not None and config.sym.coef > 0:
+    if config.sym.coef > 0:
         check_action_range(parse_groups(config.sym.groups, config.sym.negate), spec.act_dim, config.run.algo)
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
+from canter.training.run_folder import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
 GROUP_TAG = "canter.group"
@@ -188,7 +189,7 @@ class _MlflowRun:
         step = int(summary.get("global_step", 0))
         self.log({f"summary/{k}": v for k, v in numbers.items()}, step)
         self._client.set_tag(self.run_id, "canter.stop_reason", str(summary.get("stop_reason")))
-        for name in ("summary.json", "config.toml"):
+        for name in (SUMMARY_FILE, CONFIG_FILE):
             self._client.log_artifact(self.run_id, str(out / name))
         self._client.set_terminated(self.run_id, "FINISHED")
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
+from canter.training.run_folder import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
 
@@ -86,7 +87,7 @@ class _WandbRun:
         self._run.summary.update({f"summary/{k}": v for k, v in summary.items()})
         # Copied, not `run.save`d: save links the live file (a resume rewrites it) and warns once per file, per
         # seed; W&B uploads what its run folder holds when the run finishes.
-        for name in ("summary.json", "config.toml"):
+        for name in (SUMMARY_FILE, CONFIG_FILE):
             shutil.copyfile(out / name, Path(self._run.dir) / name)
         self._run.finish()
 
