@@ -8,7 +8,9 @@
 Every comparison is one `canter bench` grid on the report's own settings (presets report000-humanoidstandup and
 report000-halfcheetah), one factor at a time, with seeds chosen before the runs (the report's seed numbers mean
 nothing to canter's generators). The three seed-0 HumanoidStandup runs of 2026-11-23 (benchmarks/results/
-humanoidstandup-5m) are the first results and are read from where they are archived.
+humanoidstandup-5m) are the first results and are read from where they are archived. Their checkpoints' evaluations
+on EnvPool and on Gymnasium (env_check/) and the videos and cheetah poses (video/) come from the commands the page
+shows; this script only reads them.
 """
 
 from __future__ import annotations
@@ -24,11 +26,14 @@ sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
 sys.path.insert(0, str(PAGE))  # limbs.py
 sys.path.insert(0, str(PAGE.parents[1]))  # archive.py
 import limbs  # noqa: E402
+import numpy as np  # noqa: E402
 from archive import ROOT  # noqa: E402
 from grids import EVAL_HEADER, Grid, archived_runs, cell_result, curves, eval_text, label, run_grid  # noqa: E402
 from timed import page_main  # noqa: E402
 
 from canter.orchestrate.bench import seed_record  # noqa: E402
+from canter.training.run_folder import metrics_file  # noqa: E402
+from canter.use.plot import read_metrics  # noqa: E402
 
 WORK = "runs/report000"  # the bench folders (with checkpoints), relative to the repository root
 SEEDS = (100, 101, 102)  # chosen before the runs, for every comparison that runs 3 seeds
@@ -181,16 +186,19 @@ SEED0_RUNS = (
     ("rpo", "rpo", "rpo", "RPO, coef 0.5 (yellow): **better than PPO**"),
     ("rpo + sym 0.02", "rposym", "rposym", REPORT["hs-rpo-sym"]["rpo + sym 0.02"]),
 )
-PROTOCOL = (
-    "Protocol: the report's *train* is CleanRL's logged training episodic return and its *test* an evaluation of "
-    "unstated length; canter's *eval* is a deterministic evaluation of the final policy, 10 episodes per seed, and "
-    "its *train* the mean return of the last 20 training episodes. Both use the v4 envs (canter through EnvPool, "
-    "MuJoCo 3.6), but EnvPool's HumanoidStandup-v4 is not Gymnasium's, which CleanRL and most likely the report "
-    "stepped: the 84 contact-force entries of its observation stay 0, and its reward leaves out the impact cost (one "
-    "checkpoint scored 27,569 on EnvPool and 32,576 on Gymnasium), so the HumanoidStandup figures compare across a "
-    "small env difference. Wall time is the bench's (the training loop of a cell's seeds, which train together in one "
-    "process, every session of a resumed run) on a 2-core AMD EPYC without GPU, often shared with other work."
-)
+
+# HumanoidStandup's reward_linup is the torso's height over the physics timestep: Gymnasium's humanoidstandup_v4.py
+# (and v5, whose uph_cost_weight is 1) has uph_cost = qpos[2] / model.opt.timestep, 0.003 s in humanoidstandup.xml
+# (not dt, the 0.015 s of the 5 physics steps between actions). metrics.csv holds each episode's sum of it (a reward
+# term), averaged over the episodes an iteration ended.
+LINUP_TIMESTEP = 0.003
+LAST_EPISODES = 20  # as the train column: the mean return of the last 20 training episodes
+HEIGHTS_TITLE = "### HumanoidStandup-v4: does the humanoid stand up?"
+
+# The seed-0 checkpoints evaluated on both backends' HumanoidStandup-v4: the evaluations are archived here.
+ENV_CHECK = PAGE / "env_check"
+BACKENDS = {"envpool": "EnvPool", "gymnasium": "Gymnasium"}
+IMPACT_CAP = 10.0  # Gymnasium's impact cost per step, min(0.5e-6 * sum(cfrc_ext^2), 10); EnvPool's has none
 MARKERS = {
     "commands": ("<!-- report000-commands -->\n", "<!-- /report000-commands -->"),
     "results": ("<!-- report000-results -->\n", "<!-- /report000-results -->"),
@@ -276,11 +284,165 @@ def seed0_rows() -> list[str]:
         [result] = json.loads((SEED0 / f"eval_{evaluation}.json").read_text())["runs"]
         wall = seed_record(run, 0)["wall_seconds"]
         link = f"[{variant}](../../results/humanoidstandup-5m/run-folders/{folder}/)"
+        # One seed: the eval column and the per-seed column hold the same mean, as in the one-seed grids' rows.
         rows.append(
-            f"| {link} | {report} | 0 (2026-11-23) | {result['return_mean']:,.0f} | ± {result['return_std']:,.0f} "
-            f"over {result['episodes']} episodes | {summary['recent_return']:,.0f} | {wall / 60:.0f} min |"
+            f"| {link} | {report} | 0 (2026-11-23) | {result['return_mean']:,.0f} | {result['return_mean']:,.0f} "
+            f"| {summary['recent_return']:,.0f} | {wall / 60:.0f} min |"
         )
     return rows
+
+
+def torso_heights(run: Path) -> tuple[float, float, float]:
+    """A run's episode-mean torso height in metres, in its first training iteration that ended episodes, over the
+    last iterations that ended at least LAST_EPISODES, and in the highest of any iteration."""
+    columns = read_metrics(metrics_file(run))
+    ended = columns["episodes"] > 0
+    episodes = columns["episodes"][ended]
+    heights = columns["info/reward_linup"][ended] / columns["episodic_length"][ended] * LINUP_TIMESTEP
+    last = int(np.searchsorted(np.cumsum(episodes[::-1]), LAST_EPISODES)) + 1  # whole iterations from the end
+    final = float(np.average(heights[-last:], weights=episodes[-last:]))
+    return float(heights[0]), final, float(heights.max())
+
+
+def height_runs() -> list[tuple[str, str, Path, float]]:
+    """Every archived HumanoidStandup run: its setting, its seed, its folder and its evaluation's mean return per
+    step."""
+    runs = []
+    for variant, folder, evaluation, _ in SEED0_RUNS:
+        [run] = (SEED0 / "run-folders" / folder).iterdir()
+        [result] = json.loads((SEED0 / f"eval_{evaluation}.json").read_text())["runs"]
+        runs.append((variant, "0 (2026-11-23)", run, result["return_mean"] / result["length_mean"]))
+    for name, grid in GRIDS.items():
+        if grid.env != HS:
+            continue
+        cells = grid.cells()
+        for cell in cells:
+            text = LABELS.get(name, label(cell, cells))
+            for record in archived_runs(PAGE, grid, cell):
+                evaluation = record["evaluation"]
+                per_step = evaluation["mean"] / float(np.mean(evaluation["lengths"]))
+                run = cell.run_dir(PAGE / "runs" / name, record["seed"])
+                runs.append((f"{text} (`{name}`)", str(record["seed"]), run, per_step))
+    return runs
+
+
+def heights_text() -> str:
+    rows = [
+        "| run | seed | first training episodes | last 20 training episodes | highest iteration | evaluation |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    measured = []  # first, last 20, highest, evaluation
+    for setting, seed, run, per_step in height_runs():
+        # EnvPool's return per step is reward_linup + 1 (alive) - the control cost (at most 0.1 * 17 * 0.4^2 =
+        # 0.272, 0.0008 m of height, left out); it has no impact cost.
+        heights = (*torso_heights(run), LINUP_TIMESTEP * (per_step - 1))
+        measured.append(heights)
+        rows.append(f"| {setting} | {seed} | " + " | ".join(f"{h:.2f}" for h in heights) + " |")
+    firsts, finals, highs, evaluated = zip(*measured)
+    note = (
+        "The torso's height in metres, averaged over each 1,000-step episode. Gymnasium's HumanoidStandup-v4 (and "
+        "v5) rewards `reward_linup` = qpos[2] / 0.003 every step, the torso's height over the physics timestep with "
+        "weight 1, so a training episode's mean height is 0.003 × its `info/reward_linup` in metrics.csv (the "
+        "episode's sum, averaged over the episodes an iteration ended) / its length. *first*: the first iteration "
+        f"that ended episodes; *last 20*: the last iterations that ended at least {LAST_EPISODES} episodes, the "
+        "train column's; *highest*: the highest of any iteration; *evaluation*: the 10 deterministic episodes of the "
+        "eval column, 0.003 × (R / L - 1) from their mean return R over L steps, EnvPool's return per step being "
+        "reward_linup + 1 minus a control cost of at most 0.272 (0.0008 m). The humanoid starts lying with its "
+        f"torso at 0.105 m (humanoidstandup.xml), as the first episodes' {min(firsts):.2f}-{max(firsts):.2f} m "
+        "show. The same body in Humanoid-v4 starts standing with its torso at 1.4 m, and an episode there ends as a "
+        "fall once the torso is below 1.0 m. Every run here ends its training at "
+        f"{min(finals):.2f}-{max(finals):.2f} m and evaluates at {min(evaluated):.2f}-{max(evaluated):.2f} m; "
+        f"no iteration of any run averages above {max(highs):.2f} m."
+    )
+    return f"{HEIGHTS_TITLE}\n\n" + "\n".join(rows) + f"\n\n{note}"
+
+
+def env_check() -> dict[str, dict[str, dict[str, Any]]]:
+    """The archived evaluations of the seed-0 checkpoints: backend -> the run's SEED0_RUNS label -> its result."""
+    labels = {folder: variant for variant, folder, _, _ in SEED0_RUNS}
+    results: dict[str, dict[str, dict[str, Any]]] = {}
+    for backend in BACKENDS:
+        runs = json.loads((ENV_CHECK / f"eval_{backend}.json").read_text())["runs"]
+        results[backend] = {labels[Path(r["run"]).parent.name]: r for r in runs}
+    return results
+
+
+def env_check_text() -> str:
+    commands = "\n".join(
+        f"canter eval {SEED0.relative_to(ROOT)}/run-folders/*/* --backend {backend} "
+        f"--json {(ENV_CHECK / f'eval_{backend}.json').relative_to(ROOT)}"
+        for backend in BACKENDS
+    )
+    results = env_check()
+    rows = [
+        "| run (seed 0) | EnvPool | Gymnasium | Gymnasium - EnvPool |",
+        "|---|---:|---:|---:|",
+    ]
+    for variant, _, _, _ in SEED0_RUNS:
+        envpool, gymnasium = (results[backend][variant] for backend in BACKENDS)
+        gap = gymnasium["return_mean"] - envpool["return_mean"]
+        rows.append(
+            f"| {variant} | {envpool['return_mean']:,.0f} ± {envpool['return_std']:,.0f} | "
+            f"{gymnasium['return_mean']:,.0f} ± {gymnasium['return_std']:,.0f} | {gap:+,.0f} "
+            f"({gap / envpool['return_mean']:+.0%}) |"
+        )
+    [episodes] = {r["episodes"] for result in results.values() for r in result.values()}
+    [steps] = {r["length_mean"] for result in results.values() for r in result.values()}
+    note = (
+        f"Mean ± std over {episodes} deterministic episodes of {steps:,.0f} steps (eval seed 0) of each "
+        "seed-0 checkpoint, which trained on EnvPool. Gymnasium's HumanoidStandup-v4 gives the policy the 84 "
+        "contact-force entries of its observation that EnvPool's keeps at 0, and subtracts an impact cost of at "
+        f"most {IMPACT_CAP:g} per step ({IMPACT_CAP * steps:,.0f} per episode) that EnvPool's leaves out. Every "
+        f"policy scores less there, by {min(gymnasium_losses()):.0%} to {max(gymnasium_losses()):.0%}."
+    )
+    title = "### HumanoidStandup-v4: the seed-0 policies on EnvPool's env and on Gymnasium's"
+    return f"{title}\n\n```\n{commands}\n```\n\n" + "\n".join(rows) + f"\n\n{note}"
+
+
+def gymnasium_losses() -> list[float]:
+    """How much less each seed-0 policy scores on Gymnasium's env than on EnvPool's, as a fraction."""
+    results = env_check()
+    return [1 - results["gymnasium"][v]["return_mean"] / results["envpool"][v]["return_mean"] for v, *_ in SEED0_RUNS]
+
+
+def protocol_text() -> str:
+    losses = gymnasium_losses()
+    return (
+        "Protocol: the report's *train* and *test* figures are the highest points of its curves "
+        '("Training: 160,000 (highest)", "Test: 131,000 (highest)"): *train* CleanRL\'s logged training episodic '
+        "return, *test* an evaluation of unstated length. canter's are final means, not maxima: its *eval* is a "
+        "deterministic evaluation of the final policy, 10 episodes per seed, and its *train* the mean return of the "
+        "last 20 training episodes. Both use the v4 envs (canter through EnvPool, MuJoCo 3.6), but EnvPool's "
+        "HumanoidStandup-v4 is not Gymnasium's, which CleanRL and most likely the report stepped: its observation's "
+        "84 contact-force entries stay 0 and its reward leaves out the impact cost. The seed-0 policies score "
+        f"{min(losses):.0%} to {max(losses):.0%} less on Gymnasium's env (the table above), so canter's "
+        "HumanoidStandup figures and the report's are of two envs that differ by more than a rounding. Wall time is "
+        "the bench's (the training loop of a cell's seeds, which train together in one process, every session of a "
+        "resumed run) on a 2-core AMD EPYC without GPU, often shared with other work."
+    )
+
+
+def time_text() -> str:
+    """The wall time of every archived run, added up."""
+    walls = {HS: 0.0, HC: 0.0}
+    for grid in GRIDS.values():
+        for cell in grid.cells():
+            result = cell_result(PAGE, grid, cell)
+            if result is not None:
+                walls[grid.env] += result["wall_minutes"] * 60
+    seed0 = []
+    for _, folder, _, _ in SEED0_RUNS:
+        [run] = (SEED0 / "run-folders" / folder).iterdir()
+        seed0.append(seed_record(run, 0)["wall_seconds"])
+    grids = walls[HS] + walls[HC]
+    return (
+        "Time: the report gives no wall time. canter's archived runs add up to "
+        f"{(grids + sum(seed0)) / 3600:.1f} h of wall time: the grids {grids / 3600:.1f} h (HumanoidStandup "
+        f"{walls[HS] / 3600:.1f} h, HalfCheetah {walls[HC] / 60:.0f} min; a cell counts once, its seeds training "
+        f"together), and the three seed-0 runs {sum(seed0) / 3600:.1f} h (one seed per process; the three started "
+        f"together and ran side by side, the last for {max(seed0) / 3600:.1f} h). Runs often shared the 2 cores, "
+        "with each other or with other work, so the sum is not the time from the page's first run to its last."
+    )
 
 
 def results_text() -> str:
@@ -300,7 +462,8 @@ def results_text() -> str:
         parts.append(text + (f"\n\n{note}" if note else "") + (f"\n\n{images}" if images else ""))
         if "hs-sym" in names:
             parts.append(f"{LIMBS_TITLE}\n\n```\n{LIMBS_COMMAND}\n```\n\n{limbs.table()}\n\n{LIMBS_NOTE}")
-    return "\n\n".join([*parts, PROTOCOL])
+            parts.append(heights_text())
+    return "\n\n".join([*parts, env_check_text(), protocol_text(), time_text()])
 
 
 def main() -> int:
