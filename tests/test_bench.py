@@ -117,7 +117,7 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--seeds", "0,-1"], "expected seeds from 0 to 4294967295"),
         (["--envs", "Hopper-v5,Hopper-v5"], "each name may appear once"),
         (["--algos", "ppo,td3,ppo"], "each name may appear once"),
-        (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat must be >= 1 second, got 0"),
+        (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat (heartbeat_seconds) must be >= 1, got 0"),
         (["--storage", "postgresql://u@host:abc/db"], "is not a database URL; use sqlite:///path/study.db"),
         (["--storage", "foo://host/db"], "foo"),  # parses, but no such driver: refused when opened
     ],

@@ -77,7 +77,7 @@ def test_train_eval_resume_smoke(tmp_path, capsys):
     resume = ["train", "--resume", str(run), "--total-steps", "4608", "--max-minutes", "inf", "--quiet"]
     code, out, err = run_cli(resume, capsys)
     assert code == 0, err
-    assert "# max_minutes = none" in (run / "config.toml").read_text()
+    assert 'max_minutes = "none"' in (run / "config.toml").read_text()
 
     code, out, err = run_cli(["eval", str(run), "--episodes", "3", "--json", str(tmp_path / "e.json")], capsys)
     assert code == 0, err

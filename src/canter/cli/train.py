@@ -141,8 +141,8 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["env.backend"] = args.backend
         if args.stop_at_return is not None:
             extra["run.stop_at_return"] = args.stop_at_return
-        if args.max_minutes is not None and args.max_minutes != math.inf:  # inf: no limit, as without the flag
-            extra["run.max_minutes"] = args.max_minutes
+        if args.max_minutes is not None:  # inf is no limit, which the config holds as none
+            extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
         if args.out_dir:
             extra["run.out_dir"] = args.out_dir
         if args.video_every is not None:

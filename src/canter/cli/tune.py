@@ -84,10 +84,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.env:
         raise CanterError("no environment given; pass an env id, e.g. `canter tune Hopper-v5`")
-    if args.heartbeat < 1:
-        raise CanterError(f"--heartbeat must be >= 1 second, got {args.heartbeat}")
-    if args.seeds_per_trial < 1:
-        raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
     if args.seed + args.seeds_per_trial > SEED_LIMIT:
         raise CanterError(f"--seed {args.seed} with {args.seeds_per_trial} seeds per trial passes {SEED_LIMIT - 1}")
     if args.sampler_seed is not None and args.sampler_seed + args.jobs > SEED_LIMIT:
@@ -114,7 +110,6 @@ def run(args: argparse.Namespace) -> int:
         study_name=args.study,
         storage_url=args.storage,
         heartbeat_seconds=args.heartbeat,
-        grace_seconds=3 * args.heartbeat,
         sampler_seed=args.sampler_seed,
         track=track_spec(args),
     )

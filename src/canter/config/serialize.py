@@ -2,11 +2,14 @@
 
 The TOML holds `env`, `run` and what the run's algorithm reads: whole sections, or the single keys it reads of a
 section (as trpo reads four `ppo.*` keys). Keys it does not read take today's defaults when the text is read back.
+A none is written as the string "none" (`written_value`). Older files hold it as a comment, `# key = none`: read as a
+run's config, that key takes its default, which is none for every optional key, so they read back the same.
 """
 
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Iterable
 from dataclasses import fields
 from typing import Any
 
@@ -31,17 +34,26 @@ def written_keys(config: Config) -> list[tuple[str, list[str]]]:
     return [("env", names("env")), *algorithm, ("run", names("run"))]
 
 
-def to_toml(config: Config) -> str:
-    """What the run reads of the config; `none` values are written as comments, since TOML has no null."""
+def written_value(value: Any) -> str:
+    """A config value as TOML. TOML has no null, so none is the string "none", which every reader of a config takes
+    as none (`coerce`); a key left out instead would take the value beneath it, a preset's under `--config`."""
+    return '"none"' if value is None else toml_value(value)
+
+
+def toml_tables(tables: Iterable[tuple[str, Iterable[tuple[str, Any]]]]) -> str:
+    """`[section]` tables of `name = value` lines, each followed by an empty line."""
     lines: list[str] = []
-    for section, keys in written_keys(config):
-        lines.append(f"[{section}]")
-        table = config.section(section)
-        for name in keys:
-            value = getattr(table, name)
-            lines.append(f"# {name} = none" if value is None else f"{name} = {toml_value(value)}")
-        lines.append("")
+    for section, items in tables:
+        lines += [f"[{section}]", *(f"{name} = {written_value(value)}" for name, value in items), ""]
     return "\n".join(lines)
+
+
+def to_toml(config: Config) -> str:
+    """What the run reads of the config."""
+    return toml_tables(
+        (section, [(name, getattr(config.section(section), name)) for name in keys])
+        for section, keys in written_keys(config)
+    )
 
 
 def from_toml_text(text: str, source: str) -> Config:

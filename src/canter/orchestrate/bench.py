@@ -43,7 +43,6 @@ from canter.errors import CanterError
 from canter.files import make_folder
 from canter.orchestrate.jobs import (
     EVAL_FILE,
-    SUMMARY_FILE,
     JobSpec,
     exit_text,
     failure_reason,
@@ -56,6 +55,8 @@ from canter.orchestrate.jobs import (
     warn_if_more_jobs_than_cores,
 )
 from canter.orchestrate.study import describe_url, normalize_url
+from canter.orchestrate.tune import check_at_least, study_storage
+from canter.training.run_folder import CONFIG_FILE, METRICS_FILE, SUMMARY_FILE
 from canter.training.trackers import TrackSpec, check_trackers, group_name, open_groups
 from canter.use.reference_scores import published_scores
 
@@ -86,6 +87,15 @@ class BenchSettings:
     heartbeat_seconds: int = 60
     poll_seconds: float = 0.5
     track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: a tracker run per seed, a group per cell
+
+    def __post_init__(self) -> None:
+        check_at_least(
+            [
+                ("--jobs", self.jobs, 1),
+                ("--episodes (eval_episodes)", self.eval_episodes, 1),
+                ("--heartbeat (heartbeat_seconds)", self.heartbeat_seconds, 1),
+            ]
+        )
 
 
 @dataclass(frozen=True)
@@ -196,6 +206,10 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
     # A --set applies to the cells whose algorithm reads it, so one bench can carry td3.* and sac.* settings.
     set_keys = {item.partition("=")[0].strip(): item for item in settings.sets}
     for key in set_keys:
+        if key in _FORBIDDEN:  # the bench's own value would replace it
+            raise CanterError(
+                f"{key} is set by the bench's {_FORBIDDEN[key]}; give {_FORBIDDEN[key]} rather than --set {key}"
+            )
         if key in known and algos and not any(reads_key(algo, key) for algo in algos):
             raise CanterError(f"--set {unread_key_error(algos[0], key)}")
     for env_id in envs:
@@ -270,7 +284,7 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
     for cell in cells:
         expected = dict(experiment_key(cell.config))
         for seed in settings.seeds:
-            saved = cell.run_dir(bench_dir, seed) / "config.toml"
+            saved = cell.run_dir(bench_dir, seed) / CONFIG_FILE
             if not saved.is_file():
                 continue
             try:
@@ -513,7 +527,7 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
         write_output(bench_dir / "statistics.json", statistics_json.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
         run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
-        run_dirs = [d for d in run_dirs if (d / "metrics.csv").is_file() and (d / "config.toml").is_file()]
+        run_dirs = [d for d in run_dirs if (d / METRICS_FILE).is_file() and (d / CONFIG_FILE).is_file()]
         if run_dirs:
             plot_env(run_dirs, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
     return markdown
@@ -636,12 +650,10 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
 def _open_grid_study(settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any]:
     import optuna
 
-    from canter.orchestrate.study import StorageSettings, open_storage, retrying
+    from canter.orchestrate.study import open_storage, retrying
 
     assert settings.storage_url is not None, "only a bench with --storage runs through a study"
-    storage = open_storage(
-        StorageSettings(settings.storage_url, settings.heartbeat_seconds, 3 * settings.heartbeat_seconds)
-    )
+    storage = open_storage(study_storage(settings.storage_url, settings.heartbeat_seconds))
     study = retrying(
         lambda: optuna.create_study(
             storage=storage,
@@ -729,10 +741,6 @@ def run_distributed(
 
 def bench(settings: BenchSettings) -> str:
     """Check the grid, run it (locally or through the storage), and write the results; returns the markdown."""
-    if settings.jobs < 1:
-        raise CanterError(f"--jobs must be >= 1, got {settings.jobs}")
-    if settings.eval_episodes < 1:
-        raise CanterError(f"--episodes must be >= 1, got {settings.eval_episodes}")
     cells = make_cells(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any cell
     bench_dir = Path(settings.out_dir)

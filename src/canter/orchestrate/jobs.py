@@ -28,10 +28,10 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
+from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
 EVAL_FILE = "eval.json"
-SUMMARY_FILE = "summary.json"
 
 
 # ------------------------------------------------------------------------------------------------ run folder status

@@ -21,14 +21,12 @@ tracker group, `tune-STUDY` (`trial_track`).
 
 from __future__ import annotations
 
-import csv
 import functools
-import io
 import math
 import os
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -36,7 +34,9 @@ from typing import Any
 import numpy as np
 
 from canter.config.build import build_config
+from canter.config.overrides import parse_set_args
 from canter.config.schema import Config
+from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
 from canter.files import make_folder
 from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
@@ -51,12 +51,30 @@ from canter.orchestrate.study import (
     retrying,
     run_worker,
 )
+from canter.training.logger import read_rows
+from canter.training.run_folder import METRICS_FILE
 from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
 SUMMARY_FILE = "summary.md"
 PRESET_ATTR = "preset"
+GRACE_HEARTBEATS = 3  # a trial whose worker missed this many heartbeats is failed and retried
+
+
+def check_at_least(limits: Iterable[tuple[str, float, float]]) -> None:
+    """Refuse the first (name, value, least value) below its least value. A name is the flag, followed by the
+    settings field where it is spelled otherwise (`--heartbeat (heartbeat_seconds)`), so that the message reads right
+    from the command line and from Python."""
+    for name, value, low in limits:
+        if value < low:
+            raise CanterError(f"{name} must be >= {low:g}, got {value:g}")
+
+
+def study_storage(url: str, heartbeat_seconds: int) -> StorageSettings:
+    """The storage settings of a study whose workers beat every `heartbeat_seconds` (tune's, and bench's with
+    --storage)."""
+    return StorageSettings(url, heartbeat_seconds, GRACE_HEARTBEATS * heartbeat_seconds)
 
 
 @dataclass(frozen=True)
@@ -80,10 +98,28 @@ class TuneSettings:
     study_name: str | None = None
     storage_url: str | None = None
     heartbeat_seconds: int = 60
-    grace_seconds: int = 180
     sampler_seed: int | None = None
     poll_seconds: float = 0.5
     track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: see `trial_track`
+
+    def __post_init__(self) -> None:
+        check_at_least(
+            [
+                ("--trials", self.trials, 1),
+                ("--jobs", self.jobs, 1),
+                ("--evaluations", self.evaluations, 1),
+                ("--eval-episodes (eval_episodes)", self.eval_episodes, 1),
+                ("--seeds-per-trial (the number of seeds)", len(self.seeds), 1),
+                ("--startup-trials (startup_trials)", self.startup_trials, 0),
+                ("--heartbeat (heartbeat_seconds)", self.heartbeat_seconds, 1),
+            ]
+        )
+        for name, limit in (
+            ("--trial-minutes (trial_minutes)", self.trial_minutes),
+            ("--study-hours (study_hours)", self.study_hours),
+        ):
+            if limit is not None and not limit > 0:
+                raise CanterError(f"{name} must be > 0, got {limit:g}")
 
     @property
     def name(self) -> str:
@@ -96,7 +132,7 @@ class TuneSettings:
     @property
     def storage(self) -> StorageSettings:
         url = self.storage_url or f"sqlite:///{(self.study_dir / DB_FILE).resolve()}"
-        return StorageSettings(url, self.heartbeat_seconds, self.grace_seconds)
+        return study_storage(url, self.heartbeat_seconds)
 
     @property
     def eval_interval(self) -> int:
@@ -115,22 +151,33 @@ def base_config(settings: TuneSettings) -> Config:
     )
 
 
+def owned_keys(settings: TuneSettings, trial_dir: Path) -> dict[str, tuple[Any, str]]:
+    """The keys that every trial takes from tune, whatever its base config holds: key -> (value, what sets it, as
+    an error names it)."""
+    return {
+        "run.out_dir": (str(trial_dir), "tune's --out-dir (each trial trains in its own folder of the study)"),
+        "run.eval_every": (settings.eval_interval, "tune's --evaluations (an evaluation every 1/N of the budget)"),
+        "run.eval_episodes": (settings.eval_episodes, "tune's --eval-episodes"),
+        "run.max_minutes": (None, "tune, as none (a trial trains its whole budget; --trial-minutes limits a trial)"),
+        "run.stop_at_return": (None, "tune, as none (every trial trains its whole budget, so that objectives compare)"),
+        "run.checkpoint_every": (0, "tune, as 0 (a trial keeps its final checkpoint only)"),
+        "run.keep_checkpoints": (1, "tune, as 1 (a trial keeps its final checkpoint only)"),
+        "run.tensorboard": (False, "tune, as false (a trial's curves are in its metrics.csv)"),
+    }
+
+
+def check_owned_keys(settings: TuneSettings) -> None:
+    """Refuse a --set of a key tune sets in every trial: it would be dropped. A --config file may give them (a run
+    folder's config.toml gives them all), and tune's values win, as a command's own flags beat a file."""
+    owned = owned_keys(settings, Path())
+    for key in parse_set_args(list(settings.sets)):
+        if key in owned:
+            raise CanterError(f"{key} is set by {owned[key][1]}; leave out --set {key}")
+
+
 def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
-    """Everything that can be refused before a trial starts."""
-    for name, value, low in (
-        ("--trials", settings.trials, 1),
-        ("--jobs", settings.jobs, 1),
-        ("--evaluations", settings.evaluations, 1),
-        ("--eval-episodes", settings.eval_episodes, 1),
-        ("--seeds-per-trial", len(settings.seeds), 1),
-    ):
-        if value < low:
-            raise CanterError(f"{name} must be >= {low}, got {value}")
-    if settings.startup_trials < 0:
-        raise CanterError(f"--startup-trials must be >= 0, got {settings.startup_trials}")
-    for name, limit in (("--trial-minutes", settings.trial_minutes), ("--study-hours", settings.study_hours)):
-        if limit is not None and not limit > 0:
-            raise CanterError(f"{name} must be > 0, got {limit}")
+    """Everything that can be refused before a trial starts (`TuneSettings` checks its own values)."""
+    check_owned_keys(settings)
     config = base_config(settings)
     from canter.envs import resolve_backend
 
@@ -146,43 +193,25 @@ def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
 
 def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:
     config = apply_sample(base, values)
-    return replace(
-        config,
-        run=replace(
-            config.run,
-            out_dir=str(trial_dir),
-            checkpoint_every=0,
-            keep_checkpoints=1,
-            eval_every=settings.eval_interval,
-            eval_episodes=settings.eval_episodes,
-            tensorboard=False,
-            max_minutes=None,
-            stop_at_return=None,  # every trial trains its whole budget (in whole iterations), so objectives compare
-        ),
-    )
+    owned = {key.partition(".")[2]: value for key, (value, _) in owned_keys(settings, trial_dir).items()}
+    return replace(config, run=replace(config.run, **owned))
 
 
 # ------------------------------------------------------------------------------------------------- the config file
 
 
-def _config_file_value(value: Any) -> str:
-    from canter.config.values import toml_value
-
-    return '"none"' if value is None else toml_value(value)
-
-
 def config_file_toml(config: Config) -> str:
     """The config as a TOML file that `canter train --config FILE` takes as it is: the keys that define the
     experiment (`canter.config.experiment`) and the step budget the trials trained for, which the learning-rate
-    schedule follows; `none` is written as the string "none"."""
+    schedule follows."""
     from canter.config.experiment import flat_config, learning_keys
 
     flat = flat_config(config)
-    tables: dict[str, list[str]] = {}
+    tables: dict[str, list[tuple[str, Any]]] = {}
     for key in [*learning_keys(config), "run.total_steps"]:
         section, _, name = key.partition(".")
-        tables.setdefault(section, []).append(f"{name} = {_config_file_value(flat[key])}")
-    return "\n".join(line for section, body in tables.items() for line in [f"[{section}]", *body, ""])
+        tables.setdefault(section, []).append((name, flat[key]))
+    return toml_tables(tables.items())
 
 
 # ------------------------------------------------------------------------------------------------------- a trial
@@ -200,24 +229,17 @@ def evaluation_index(step: int, settings: TuneSettings) -> int:
 def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float]:
     """Evaluation index -> mean return of the evaluations a run has logged to its metrics.csv so far (a line the
     trainer is still writing is left for the next look)."""
-    try:
-        text = (run_dir / "metrics.csv").read_text()
-    except OSError:
-        return {}
-    complete = text[: text.rfind("\n") + 1]
     found = {}
-    for row in csv.DictReader(io.StringIO(complete)):
+    for row in read_rows(run_dir / METRICS_FILE)[1]:
         value = row.get("eval/return_mean")
         if value and row.get("eval/episodes"):
-            found[evaluation_index(int(row["global_step"]), settings)] = float(value)
+            found[evaluation_index(int(float(row["global_step"])), settings)] = float(value)
     return found
 
 
 def logged_steps(run_dir: Path) -> int:
     """The env steps of the last row a run has logged to its metrics.csv; 0 before its first."""
-    from canter.training.logger import read_rows
-
-    rows = read_rows(run_dir / "metrics.csv")[1]
+    rows = read_rows(run_dir / METRICS_FILE)[1]
     return int(float(rows[-1]["global_step"])) if rows else 0
 
 
@@ -256,8 +278,6 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     ):
         retrying(functools.partial(trial.set_user_attr, attr, text), url, "recording a trial")
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
-    from canter.config.serialize import to_toml
-
     sampled = ", ".join(f"{_short(key)} {_fmt(value)}" for key, value in values.items())
     print(f"start trial {trial.number} ({sampled}) in {trial_dir}", flush=True)
 
