@@ -29,6 +29,23 @@ FAIL_REASON = "fail_reason"
 # How long a worker waits for a storage that went away (a restarted server, a full disk) before it stops.
 OUTAGE_SECONDS = 300.0
 T = TypeVar("T")
+# Which canter command a study belongs to: a bench's jobs are no tune's trials, and the other way round.
+COMMAND_ATTR = "canter_command"
+
+
+def claim_study(study: Any, command: str, other_made_it: bool = False) -> None:
+    """Mark `study` as `command`'s (bench or tune), or refuse one that the other command made. `other_made_it` tells
+    a study from before the mark was kept, which the caller recognises by what it holds."""
+    owner = study.user_attrs.get(COMMAND_ATTR)
+    if owner is None and other_made_it:
+        owner = "bench" if command == "tune" else "tune"
+    if owner is not None and owner != command:
+        raise CanterError(
+            f"study '{study.study_name}' holds a canter {owner}'s {'jobs' if owner == 'bench' else 'trials'}; give "
+            f"this {command} another --study (or another --storage)"
+        )
+    if owner is None:
+        study.set_user_attr(COMMAND_ATTR, command)
 
 
 @dataclass(frozen=True)
@@ -153,6 +170,14 @@ def open_storage(settings: StorageSettings) -> Any:
                             max_retry=settings.max_retry
                         ),
                     )
+            except RuntimeError as exc:
+                if "storage upgrade" not in str(exc):
+                    raise
+                raise CanterError(
+                    f"the study database at {host} was made by another Optuna version than this one "
+                    f"({optuna.__version__}); back it up and run `optuna storage upgrade --storage URL`, or give "
+                    f"another --storage"
+                ) from None
             except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
                 attempt += 1
                 if attempt == SCHEMA_TRIES:

@@ -45,6 +45,7 @@ from canter.orchestrate.study import (
     FAIL_REASON,
     Outcome,
     StorageSettings,
+    claim_study,
     counts,
     open_storage,
     quiet_optuna,
@@ -450,6 +451,7 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
     """Refuse to resume a study with settings that make its trials incomparable, and a new study whose trial
     folders would land on those of an earlier one (a deleted or another database under the same --out-dir)."""
     stored = study.user_attrs.get(SETTINGS_ATTR)
+    claim_study(study, "tune", other_made_it=stored is None and study.trials != [])
     if stored is None:
         if study.trials == [] and trials_dir.is_dir() and any(trials_dir.iterdir()):
             raise CanterError(
