@@ -28,7 +28,6 @@ class AlgorithmSpec:
     reads: tuple[str, ...]
     # Checks across the keys it reads (each section's own checks run for every section); `validate(config)`.
     validate: Callable[[Any], None]
-    on_policy: bool
     # (package, file) of the TOML search space that `canter tune` uses by default.
     search_space: tuple[str, str]
     # The env steps of one jitted iteration, autoreset steps included (`iteration_steps(config)`): a run spends its

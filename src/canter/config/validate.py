@@ -11,8 +11,6 @@ from canter.config.schema import Config, check_section, section_names
 from canter.config.values import SEED_LIMIT
 from canter.errors import CanterError
 
-ACTIVATIONS = ("tanh", "relu", "elu")
-
 
 def need(ok: bool, message: str) -> None:
     if not ok:

@@ -6,7 +6,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from canter.config.fields import setting
-from canter.config.validate import ACTIVATIONS, need
+from canter.config.validate import need
+
+# The hidden activations, by name: the config checks these without importing JAX; `canter.core.networks` and
+# `canter.use.export` map each name to its function (tests/test_read_keys.py checks that they map exactly these).
+ACTIVATIONS = ("tanh", "relu", "elu")
+ACTIVATION_CHOICES = f"{', '.join(ACTIVATIONS[:-1])} or {ACTIVATIONS[-1]}"
+
+
+def check_activation(key: str, value: str) -> None:
+    need(value in ACTIVATIONS, f"{key} must be {ACTIVATION_CHOICES}, got '{value}'")
 
 
 @dataclass(frozen=True)
@@ -17,7 +26,7 @@ class NetConfig:
     critic_hidden: tuple[int, ...] = setting(
         "Hidden sizes of the critic; empty means the same as `hidden`.", default=()
     )
-    activation: str = setting("Hidden activation: tanh, relu or elu.", default="tanh")
+    activation: str = setting(f"Hidden activation: {ACTIVATION_CHOICES}.", default="tanh")
     log_std_init: float = setting("Initial log standard deviation of the Gaussian policy.", default=0.0)
     state_dependent_std: bool = setting(
         "Predict log std from the observation instead of a learned vector.", default=False
@@ -33,4 +42,4 @@ def check_net(net: NetConfig, name: str) -> None:
         f"{name}.hidden must be positive sizes such as 64,64, got {net.hidden}",
     )
     need(all(h > 0 for h in net.critic_hidden), f"{name}.critic_hidden must be positive sizes, got {net.critic_hidden}")
-    need(net.activation in ACTIVATIONS, f"{name}.activation must be tanh, relu or elu, got '{net.activation}'")
+    check_activation(f"{name}.activation", net.activation)

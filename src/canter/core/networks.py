@@ -13,7 +13,8 @@ from canter.core.netconfig import NetConfig
 
 Params = dict[str, Any]
 
-ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu, "elu": jax.nn.elu}
+# One function per name in netconfig.ACTIVATIONS.
+ACTIVATION_FUNCTIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu, "elu": jax.nn.elu}
 LOG_2PI = math.log(2.0 * math.pi)
 
 
@@ -37,7 +38,7 @@ def init_mlp(key: jax.Array, sizes: list[int], out_gain: float, ortho: bool) -> 
 
 
 def mlp(layers: list[dict[str, jnp.ndarray]], x: jnp.ndarray, activation: str) -> jnp.ndarray:
-    act = ACTIVATIONS[activation]
+    act = ACTIVATION_FUNCTIONS[activation]
     for layer in layers[:-1]:
         x = act(x @ layer["w"] + layer["b"])
     return x @ layers[-1]["w"] + layers[-1]["b"]

@@ -21,6 +21,7 @@ FORMATS = ("onnx", "npz")
 # Opset 17 (IR version 8) is read by every onnxruntime since 1.13 and by most other ONNX consumers.
 ONNX_OPSET = 17
 ONNX_IR_VERSION = 8
+# Keyed by netconfig.ACTIVATIONS, as is the table inside numpy_forward, which must stand alone for the docs.
 ONNX_ACTIVATIONS = {"tanh": "Tanh", "relu": "Relu", "elu": "Elu"}
 
 

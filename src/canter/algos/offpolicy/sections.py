@@ -10,7 +10,8 @@ from canter.config.algorithms import AlgorithmSpec, register_algorithm
 from canter.config.fields import setting
 from canter.config.presets import algorithm_preset_tables
 from canter.config.schema import Config, register_section
-from canter.config.validate import ACTIVATIONS, need, need_positive
+from canter.config.validate import need, need_positive
+from canter.core.netconfig import ACTIVATION_CHOICES, check_activation
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class OffPolicyConfig:
     actor_lr: float = setting("Adam learning rate of the actor.", default=3e-4)
     critic_lr: float = setting("Adam learning rate of the critic(s).", default=3e-4)
     hidden: tuple[int, ...] = setting("Hidden layer sizes of the actor and of each critic.", default=(256, 256))
-    activation: str = setting("Hidden activation: relu, tanh or elu.", default="relu")
+    activation: str = setting(f"Hidden activation: {ACTIVATION_CHOICES}.", default="relu")
     noise: str = setting(
         "Exploration noise: gaussian, ou (Ornstein-Uhlenbeck, per env, reset at episode end) or none. Ignored by sac.",
         default="gaussian",
@@ -98,7 +99,7 @@ def check_offpolicy(s: OffPolicyConfig, name: str) -> None:
         len(s.hidden) >= 1 and all(h > 0 for h in s.hidden),
         f"{name}.hidden must be positive sizes such as 256,256, got {s.hidden}",
     )
-    need(s.activation in ACTIVATIONS, f"{name}.activation must be tanh, relu or elu, got '{s.activation}'")
+    check_activation(f"{name}.activation", s.activation)
     need(s.noise in ("gaussian", "ou", "none"), f"{name}.noise must be gaussian, ou or none, got '{s.noise}'")
     need(math.isfinite(s.noise_std) and s.noise_std >= 0, f"{name}.noise_std must be >= 0, got {s.noise_std}")
 
@@ -163,7 +164,6 @@ def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> Algori
         runtime=f"{PACKAGE}.algorithms",
         reads=(name,),
         validate=_check_buffer_holds_one_step,
-        on_policy=False,
         search_space=(PACKAGE, f"search_space_{name}.toml"),
         iteration_steps=_iteration_steps,
         iteration_keys=(f"{name}.steps_per_call",),  # in whole vector steps of env.num_envs each

@@ -69,7 +69,6 @@ TRPO = AlgorithmSpec(
     runtime="canter.algos.trpo",
     reads=("net", "trpo", "ppo.n_steps", "ppo.gamma", "ppo.gae_lambda", "ppo.norm_adv"),
     validate=_check_critic_minibatch,
-    on_policy=True,
     search_space=("canter.algos.trpo", "search_space.toml"),
     iteration_steps=rollout_batch,
     iteration_keys=ROLLOUT_KEYS,
