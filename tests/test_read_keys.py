@@ -45,3 +45,11 @@ def test_every_activation_key_documents_the_same_choices():
     }
     assert {"net", "td3", "ddpg", "sac"} <= set(docs)
     assert all(doc == f"Hidden activation: {ACTIVATION_CHOICES}." for doc in docs.values()), docs
+
+
+@pytest.mark.parametrize("key", ["noise_std", "ou_theta", "ou_dt"])
+def test_sac_refuses_the_exploration_noise_keys_it_never_reads(key):
+    """They would change nothing but split sac's runs into different experiments."""
+    with pytest.raises(CanterError, match=rf"sac.{key} has no effect on sac \(it explores by sampling its policy\)"):
+        build_config("Hopper-v5", algo="sac", sets=[f"sac.{key}=0.7"])
+    assert build_config("Hopper-v5", algo="sac").sac.noise_std == 0.1

@@ -113,6 +113,13 @@ def check_td3(s: TD3Config, name: str) -> None:
 def check_sac(s: SACConfig, name: str) -> None:
     check_offpolicy(s, name)
     need(s.noise == "none", f"{name}.noise must be none (sac explores by sampling its policy), got '{s.noise}'")
+    # SAC inherits the exploration-noise keys it never reads; a changed one would only split its runs into
+    # experiments that train alike.
+    for key in ("noise_std", "ou_theta", "ou_dt"):
+        need(
+            getattr(s, key) == getattr(SACConfig, key),
+            f"{name}.{key} has no effect on sac (it explores by sampling its policy); leave it out",
+        )
     for key in ("alpha", "alpha_lr"):
         need_positive(f"{name}.{key}", getattr(s, key))
     if s.target_entropy is not None:
