@@ -28,7 +28,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
-    t.add_argument("--backend", choices=backend_choices(), default=None)
+    t.add_argument(
+        "--backend",
+        choices=backend_choices(),
+        default=None,
+        help="env backend, as env.backend (default: the config's, auto, which takes the first CPU backend that has "
+        "the env, EnvPool first; mjx and brax step the env in JAX, on a GPU where there is one: docs/gpu.md)",
+    )
     t.add_argument(
         "--stop-at-return",
         type=float,
