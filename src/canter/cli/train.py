@@ -32,8 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--backend",
         choices=backend_choices(),
         default=None,
-        help="env backend, as env.backend (default: the config's, auto, which takes the first CPU backend that has "
-        "the env, EnvPool first; mjx and brax step the env in JAX, on a GPU where there is one: docs/gpu.md)",
+        help="env backend, as env.backend (default: the config's, normally auto, the first CPU backend that has the "
+        "env; README 'Environments' lists them, docs/gpu.md the ones whose step is JAX)",
     )
     t.add_argument(
         "--stop-at-return",
