@@ -678,8 +678,12 @@ def test_sigterm_stops_a_study_as_ctrl_c_does(tmp_path, jobs, ignore_sigint):
         if proc.poll() is None:
             proc.kill()
     trials = optuna.load_study(study_name="Pendulum-v1__ppo", storage=storage).trials
-    assert len(trials) == jobs
-    assert all(t.state == optuna.trial.TrialState.FAIL and t.user_attrs["fail_reason"] == "interrupted" for t in trials)
+    stopped = [t for t in trials if t.state == optuna.trial.TrialState.FAIL]
+    assert len(stopped) == jobs and all(t.user_attrs["fail_reason"] == "interrupted" for t in stopped)
+    # Each is queued again with its parameters, for the next run.
+    queued = [t for t in trials if t.state == optuna.trial.TrialState.WAITING]
+    assert sorted(t.params["ppo.lr"] for t in queued) == sorted(t.params["ppo.lr"] for t in stopped)
+    assert len(trials) == 2 * jobs
     assert "canter: interrupted" in (tmp_path / "tune.log").read_text()
 
 

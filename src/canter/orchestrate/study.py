@@ -2,7 +2,9 @@
 
 The storage is Optuna's RDB storage: a SQLite file by default, or a PostgreSQL server that workers on many machines
 share. Heartbeats mark the trial of a worker that died as FAILED once its heartbeat is older than the grace period,
-and `RetryHeartbeatStaleTrialCallback` enqueues a copy of it, so no trial is lost and none is counted twice.
+and a copy of it with the same parameters is queued (`queue_copy`), so no trial is lost and none is counted twice. A
+worker on the machine of the dead one fails its trial at once (`_fail_dead_workers_trials`), and a trial stopped by
+Ctrl-C or SIGTERM is queued again as it stops, so that the next run trains it.
 
 `run_worker` asks for trials until the study holds `target` finished (COMPLETE or PRUNED) trials, counted across
 all workers: a worker only asks for a new trial while the finished and running trials are fewer than the target
@@ -13,19 +15,27 @@ FAILED with the reason `surplus`, so the number of finished trials ends exactly 
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
+import os
 import re
+import socket
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 from canter.errors import CanterError
 
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
+INTERRUPTED = "interrupted"
+# The worker running a trial: host:pid, as messages show it, and which process exactly (`_worker_attrs`).
+WORKER_ATTR = "worker"
+PROCESS_ATTR = "worker_process"
 # How long a worker waits for a storage that went away (a restarted server, a full disk) before it stops.
 OUTAGE_SECONDS = 300.0
 T = TypeVar("T")
@@ -166,9 +176,7 @@ def open_storage(settings: StorageSettings) -> Any:
                         engine_kwargs=engine_kwargs,
                         heartbeat_interval=settings.heartbeat_seconds,
                         grace_period=settings.grace_seconds,
-                        heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
-                            max_retry=settings.max_retry
-                        ),
+                        heartbeat_stale_trial_callback=functools.partial(queue_copy, max_retry=settings.max_retry),
                     )
             except RuntimeError as exc:
                 if "storage upgrade" not in str(exc):
@@ -288,11 +296,11 @@ def _surplus(study: Any, number: int, target: int) -> bool:
 
 
 def _running(study: Any) -> tuple[tuple[int, str], ...]:
-    """(number, worker) of the study's running trials; the worker as tune records it (host:pid), else '?'."""
+    """(number, worker) of the study's running trials; the worker as `run_worker` records it (host:pid), else '?'."""
     from optuna.trial import TrialState
 
     trials = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
-    return tuple((t.number, str(t.user_attrs.get("worker", "?"))) for t in trials)
+    return tuple((t.number, str(t.user_attrs.get(WORKER_ATTR, "?"))) for t in trials)
 
 
 def _say_waiting(running: tuple[tuple[int, str], ...], grace: float | None) -> None:
@@ -308,6 +316,114 @@ def _say_waiting(running: tuple[tuple[int, str], ...], grace: float | None) -> N
         f"{retried} without a heartbeat",
         flush=True,
     )
+
+
+def queue_copy(study: Any, trial: Any, max_retry: int | None) -> None:
+    """Queue a copy of `trial` (a FrozenTrial) with its parameters, as Optuna's `RetryHeartbeatStaleTrialCallback`
+    does (`retried_trial_number` names the original), up to `max_retry` copies in a row (None: no limit). The copy
+    leaves out the original's worker and failure: its own worker records them, and until then a worker on the dead
+    one's machine would take it for the dead one's trial (`_fail_dead_workers_trials`)."""
+    import optuna
+
+    fresh = copy.copy(trial)
+    fresh.user_attrs = {k: v for k, v in trial.user_attrs.items() if k not in (FAIL_REASON, WORKER_ATTR, PROCESS_ATTR)}
+    optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=max_retry)(study, fresh)
+
+
+def _process_of(pid: int) -> tuple[str, str] | None:
+    """(state, start time in clock ticks since boot) of process `pid`, from /proc; None where it has none."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return fields[0], fields[19]
+
+
+def _this_machine() -> str | None:
+    """This boot of this machine and this pid namespace: a recorded pid names the same process only where both
+    match (a container with the same host name has pids of its own; a rebooted machine, new ones). None off Linux,
+    where a dead worker's trial waits out its grace period."""
+    try:
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+        return f"{boot} {os.readlink('/proc/self/ns/pid')}"
+    except OSError:
+        return None
+
+
+def _worker_attrs() -> dict[str, str]:
+    attrs = {WORKER_ATTR: f"{socket.gethostname()}:{os.getpid()}"}
+    machine, me = _this_machine(), _process_of(os.getpid())
+    if machine is not None and me is not None:
+        # The start time tells this process from a later one that reuses its pid.
+        attrs[PROCESS_ATTR] = f"{machine} {os.getpid()} {me[1]}"
+    return attrs
+
+
+def _worker_gone(trial: Any, machine: str) -> bool:
+    """Whether the recorded worker of a running trial was a process of this machine that has ended."""
+    recorded = trial.user_attrs.get(PROCESS_ATTR)
+    if not isinstance(recorded, str) or recorded.count(" ") < 3:
+        return False
+    where, pid, start = recorded.rsplit(" ", 2)
+    if where != machine or not pid.isdigit():
+        return False
+    found = _process_of(int(pid))
+    return found is None or found[1] != start or found[0] in ("Z", "X")  # a zombie has ended, unreaped
+
+
+def _fail_dead_workers_trials(study: Any, storage: Any) -> None:
+    """Fail the running trials whose worker was a process of this machine that has ended (kill -9, the OOM killer),
+    and queue their copies as a stale heartbeat would: their heartbeat would keep this worker waiting 3 intervals."""
+    import optuna
+    from optuna.trial import TrialState
+
+    machine = _this_machine()
+    if machine is None:
+        return
+    for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        if not _worker_gone(trial, machine):
+            continue
+        snapshot = copy.deepcopy(trial)
+        try:
+            study._storage.set_trial_user_attr(trial._trial_id, FAIL_REASON, "worker died (its process is gone)")
+            study._storage.set_trial_state_values(trial._trial_id, TrialState.FAIL)
+        except optuna.exceptions.UpdateFinishedTrialError:
+            continue  # another worker failed it first, and queued its copy
+        print(
+            f"trial {trial.number}: its worker {trial.user_attrs.get(WORKER_ATTR, '?')} on this machine is gone, so "
+            f"the trial is failed now rather than after the heartbeat grace period, and retried as a stale one is",
+            flush=True,
+        )
+        callback = storage.get_heartbeat_stale_trial_callback()
+        if callback is not None:
+            callback(study, snapshot)
+
+
+def _fail_gone_then_count(study: Any, storage: Any) -> dict[str, int]:
+    """The study's trials by state, once the trials of workers known to be gone are failed and retried."""
+    import optuna
+
+    _fail_dead_workers_trials(study, storage)
+    optuna.storages.fail_stale_trials(study)
+    return counts(study)
+
+
+def _stop_interrupted(study: Any, trial: Any, requeue: bool) -> None:
+    """Fail a trial that Ctrl-C or SIGTERM stopped, so that nobody waits for its heartbeat, and with `requeue`
+    queue a copy with its parameters for the next run. A stop is no fault of the trial, so its copies are not
+    limited in number; a trial failed meanwhile by another worker has its copy already."""
+    import optuna
+    from optuna.trial import TrialState
+
+    snapshot = copy.deepcopy(study._storage.get_trial(trial._trial_id))
+    try:
+        trial.set_user_attr(FAIL_REASON, INTERRUPTED)
+        study.tell(trial, state=TrialState.FAIL)
+    except (ValueError, optuna.exceptions.UpdateFinishedTrialError):  # ValueError: study.tell of a finished trial
+        return
+    if requeue:
+        queue_copy(study, snapshot, max_retry=None)
+        print(f"trial {trial.number} is queued again with its parameters; the same command trains it", flush=True)
 
 
 def run_worker(
@@ -344,7 +460,7 @@ def run_worker(
     progress: tuple[int, int] | None = None  # (finished, failed) when the finished count last grew
     waited_for: tuple[tuple[int, str], ...] = ()  # the running trials this worker last said it waits for
     while True:
-        n = call("reading the study", lambda: (optuna.storages.fail_stale_trials(study), counts(study))[1])
+        n = call("reading the study", functools.partial(_fail_gone_then_count, study, storage))
         finished = n["COMPLETE"] + n["PRUNED"]
         if (ask_new and finished >= target) or (deadline is not None and time.time() >= deadline):
             return
@@ -373,15 +489,17 @@ def run_worker(
         if ask_new and call("reading the study", functools.partial(_surplus, study, trial.number, target)):
             _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
             continue
+        for attr, value in _worker_attrs().items():
+            call("recording a trial", functools.partial(trial.set_user_attr, attr, value))
         try:
             with _Heartbeat(storage, trial, heartbeat_seconds):
                 outcome = run_trial(trial)
         except Exception as exc:  # the trial fails with the reason; the study goes on
             outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
         except BaseException:
+            # A queue of fixed work queues its failed items itself when run again.
             with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
-                trial.set_user_attr(FAIL_REASON, "interrupted")
-                study.tell(trial, state=TrialState.FAIL, skip_if_finished=True)
+                _stop_interrupted(study, trial, requeue=ask_new)
             raise
         _tell(study, trial, outcome, states[outcome.state], call)
 

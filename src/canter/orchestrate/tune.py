@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-import socket
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
@@ -272,11 +270,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     except CanterError as exc:
         return Outcome("fail", reason=f"invalid sample: {exc}")
     url = settings.storage.url
-    for attr, text in (
-        (PRESET_ATTR, config_file_toml(config)),
-        ("trial_dir", str(trial_dir.resolve())),
-        ("worker", f"{socket.gethostname()}:{os.getpid()}"),
-    ):
+    for attr, text in ((PRESET_ATTR, config_file_toml(config)), ("trial_dir", str(trial_dir.resolve()))):
         retrying(functools.partial(trial.set_user_attr, attr, text), url, "recording a trial")
     run_dirs = {seed: trial_dir / f"s{seed}" for seed in settings.seeds}
     sampled = ", ".join(f"{_short(key)} {_fmt(value)}" for key, value in values.items())
@@ -469,6 +463,18 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
             )
 
 
+def progress_line(study: Any, target: int) -> str:
+    """What a resumed study holds, said as the command starts: its finished trials of `target`, and the failed,
+    queued (a stopped or dead worker's trial, to run again) and running ones."""
+    n = counts(study)
+    line = (
+        f"resuming study '{study.study_name}': {n['COMPLETE'] + n['PRUNED']} of {target} trials done "
+        f"({n['COMPLETE']} complete, {n['PRUNED']} pruned)"
+    )
+    words = (("FAIL", "failed"), ("WAITING", "queued"), ("RUNNING", "running"))
+    return ", ".join([line, *(f"{n[state]} {word}" for state, word in words if n[state])])
+
+
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
     from canter.orchestrate.jobs import exit_text, run_workers, warn_if_more_jobs_than_cores
@@ -485,20 +491,29 @@ def tune(settings: TuneSettings) -> Any:
     wanted = study_settings(settings, base, space)
     check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
     retrying(check, settings.storage.url, "reading the study")
+    if trials_before:
+        print(
+            retrying(
+                functools.partial(progress_line, study, settings.trials), settings.storage.url, "reading the study"
+            )
+        )
     # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
     settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
     warn_if_more_jobs_than_cores(settings.jobs)
+    write = functools.partial(
+        retrying, functools.partial(write_results, study, settings), settings.storage.url, "reading the results"
+    )
     failed = []
-    if settings.jobs == 1:
-        try:
+    try:
+        if settings.jobs == 1:
             worker(settings, 0, trials_before)
-        except CanterError:  # a worker that gives up: what the study holds is still written
-            retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
-            raise
-    else:
-        failed = run_workers(worker, [(settings, i, trials_before) for i in range(settings.jobs)], "canter-tune")
+        else:
+            failed = run_workers(worker, [(settings, i, trials_before) for i in range(settings.jobs)], "canter-tune")
+    except (CanterError, KeyboardInterrupt):  # a worker that gives up, or a stop: what the study holds is written
+        write()
+        raise
     # What the study holds is written even when a worker ended early: the others may have finished its trials.
-    retrying(functools.partial(write_results, study, settings), settings.storage.url, "reading the results")
+    write()
     if failed:
         raise CanterError(
             f"{len(failed)} of {settings.jobs} tune workers ended early ({exit_text(failed[0])}; a worker's own "
@@ -563,10 +578,11 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
 
     table = summary_table(study)
     print(table)
-    write_output(settings.study_dir / SUMMARY_FILE, (table + "\n").encode())
+    summary = settings.study_dir / SUMMARY_FILE
+    write_output(summary, (table + "\n").encode())
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if not complete:
-        print("no trial completed, so there is no best preset yet")
+        print(f"summary written to {summary}; no trial completed, so there is no best preset yet")
         return None
     best = max(complete, key=lambda t: t.value)
     header = (
@@ -579,5 +595,5 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
     body = best.user_attrs[PRESET_ATTR]
     path = settings.study_dir / BEST_FILE
     write_output(path, ("\n".join(f"# {line}" for line in header.splitlines()) + "\n" + body).encode())
-    print(f"best trial {best.number}: return {best.value:.1f}; preset written to {path}")
+    print(f"best trial {best.number}: return {best.value:.1f}; preset written to {path}, summary to {summary}")
     return path
