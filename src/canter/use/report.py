@@ -26,6 +26,7 @@ from canter.errors import CanterError
 from canter.training import checkpoint
 from canter.use.scoreboard import Scoreboard
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
+from canter.use.video import is_unfinished_video
 
 VIDEO_TYPES = {".mp4": "video/mp4", ".webm": "video/webm"}
 IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
@@ -37,7 +38,7 @@ class RunFacts:
     config: Config
     summary: dict[str, Any]  # summary.json of a finished training (empty while a run is going)
     robustness_plots: tuple[Path, ...]
-    videos: tuple[Path, ...]  # RUN/videos/*.mp4|*.webm|*.gif in natural order; the last is embedded
+    videos: tuple[Path, ...]  # finished RUN/videos/*.mp4|*.webm|*.gif in natural order; the last is embedded
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,11 @@ def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFa
     videos = (
         tuple(
             sorted(
-                (p for p in videos_dir.iterdir() if p.suffix.lower() in (*VIDEO_TYPES, ".gif") and p.is_file()),
+                (
+                    p
+                    for p in videos_dir.iterdir()
+                    if p.suffix.lower() in (*VIDEO_TYPES, ".gif") and not is_unfinished_video(p) and p.is_file()
+                ),
                 key=_natural_key,
             )
         )

@@ -19,13 +19,14 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from canter.errors import CanterError
 from canter.files import OUTPUT_FILE_MODE, check_writable
 from canter.training.videos import child_env, quiet_fork
 
+if TYPE_CHECKING:
+    from canter.training.loop import _StopFlag
+
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
 # What MuJoCo's own GL context reads from MUJOCO_GL (lower-cased): its renderers and its switches.
@@ -41,6 +45,9 @@ MUJOCO_GL_VALUES = frozenset(
     {"egl", "osmesa", "glfw", "glx", "cgl", "wgl", "enable", "on", "true", "1", "disable", "off", "false", "0"}
 )
 MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL context
+# A caller stopped by a signal waits this long for its render subprocess to stop: a frame, then the encoder's end.
+_STOP_SECONDS = 30
+_POLL_SECONDS = 0.1  # how soon a caller passes a stop signal on to its render subprocess
 _PROBE = "import mujoco; c = mujoco.GLContext(16, 16); c.make_current(); c.free()"
 
 
@@ -250,6 +257,16 @@ class _GifWriter:
             self.path.write_bytes(data)
 
 
+_TEMP_MARK = ".tmp"  # ends the stem of every temp video (`_AtomicVideo`): what `is_unfinished_video` looks for
+
+
+def is_unfinished_video(path: Path) -> bool:
+    """Whether `path` is the temp file of a video (`.NAME.<random>.tmp.mp4` beside NAME.mp4): one still being
+    rendered, or left by a renderer that was killed. Readers of a videos/ folder skip these."""
+    name = Path(path).name
+    return name.startswith(".") and Path(Path(name).stem).suffix == _TEMP_MARK
+
+
 class _AtomicVideo:
     """Frames go to a temp file beside the output, renamed into place only once the video is complete."""
 
@@ -259,26 +276,30 @@ class _AtomicVideo:
         suffix = out.suffix.lower()
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
-            fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f".tmp{suffix}", dir=out.parent)
+            fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f"{_TEMP_MARK}{suffix}", dir=out.parent)
             os.close(fd)
         except OSError as exc:
             raise CanterError(f"cannot write {out}: {exc.strerror or exc}; pick a writable path") from None
         self.out, self.tmp, self.frames = out, Path(name), 0
         self.writer: Any
-        if suffix == ".gif":
-            self.writer = _GifWriter(self.tmp, fps)
-        else:
-            self.writer = imageio.get_writer(
-                self.tmp,
-                format="FFMPEG",
-                mode="I",
-                fps=fps,
-                codec="libx264",
-                pixelformat="yuv420p",
-                macro_block_size=1,
-                quality=7,
-                ffmpeg_log_level="fatal",  # a failed write is reported by commit() as one line
-            )
+        try:
+            if suffix == ".gif":
+                self.writer = _GifWriter(self.tmp, fps)
+            else:
+                self.writer = imageio.get_writer(
+                    self.tmp,
+                    format="FFMPEG",
+                    mode="I",
+                    fps=fps,
+                    codec="libx264",
+                    pixelformat="yuv420p",
+                    macro_block_size=1,
+                    quality=7,
+                    ffmpeg_log_level="fatal",  # a failed write is reported by commit() as one line
+                )
+        except BaseException:  # an error, or a second Ctrl-C, before the caller has a writer to abort
+            self.tmp.unlink(missing_ok=True)
+            raise
 
     def append(self, frame: np.ndarray) -> None:
         try:
@@ -311,9 +332,11 @@ class _AtomicVideo:
         os.replace(self.tmp, self.out)
 
     def abort(self) -> None:
-        with contextlib.suppress(Exception):  # the temp file goes either way
-            self.writer.close()
-        self.tmp.unlink(missing_ok=True)
+        try:
+            with contextlib.suppress(Exception):  # the temp file goes either way
+                self.writer.close()
+        finally:  # also when a second Ctrl-C cuts the close short
+            self.tmp.unlink(missing_ok=True)
 
 
 def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int, max_steps: int = 0) -> None:
@@ -332,6 +355,19 @@ def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int
     if out.suffix.lower() == ".mp4" and (width % 2 or height % 2):
         raise CanterError(f"MP4 (H.264, yuv420p) needs an even width and height, got {width}x{height}")
     check_writable(out)  # before the rendering, which can take minutes
+
+
+class _Stopped(BaseException):
+    """Raised at the first frame after SIGINT or SIGTERM, to remove the unfinished video before the signal acts."""
+
+
+def _deliver(signum: int | None) -> None:
+    """Deliver a stop signal that waited for the unfinished video to be removed, now that its handler from before is
+    back: SIGINT raises KeyboardInterrupt, and SIGTERM's default action ends the process (143 in a shell)."""
+    if signum is None:
+        return
+    signal.raise_signal(signum)
+    raise KeyboardInterrupt  # that handler returned, or ignores the signal: the video is stopped all the same
 
 
 def record_video(
@@ -353,7 +389,9 @@ def record_video(
     is called once the arguments are checked and rendering begins, and `on_episode(i, return)` as each episode
     ends, since a long episode takes minutes to render on a CPU. In a process whose MuJoCo already renders
     otherwise, the render runs in a subprocess: then `on_start` comes before that process checks the camera and
-    the env, and every `on_episode` once the file is written."""
+    the env, and every `on_episode` once the file is written. SIGINT or SIGTERM (in the main thread) stops the
+    render at its next frame and removes the unfinished file; then the signal acts as it would have: SIGINT raises
+    KeyboardInterrupt, and SIGTERM's default action ends the process."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
@@ -372,6 +410,7 @@ def record_video(
             if on_episode:
                 on_episode(i, value)
         return returns
+    from canter.training.loop import _StopFlag
     from canter.use.policy import load
 
     configure_gl()
@@ -382,23 +421,35 @@ def record_video(
         if task
         else _GymnasiumPlayer(policy.facts.env_id, width, height, camera)
     )
-    try:
-        with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
-            writer = _AtomicVideo(out, fps)
-            try:
-                if on_start:
-                    on_start()
-                returns = []
-                for i in range(episodes):
-                    returns.append(player.episode(policy, seed + i, max_steps, writer.append))
-                    if on_episode:
-                        on_episode(i, returns[-1])
-                writer.commit()
-            except BaseException:
-                writer.abort()
-                raise
-    finally:
-        player.close()
+    returns = []
+    # SIGINT and SIGTERM set a flag that the next frame acts on, as they stop training at the next iteration: raised
+    # in a handler, an exception is lost when the signal lands in a garbage-collection callback (JAX has one).
+    with _StopFlag() as stop:
+        try:
+            with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
+                writer = _AtomicVideo(out, fps)
+                try:
+                    if on_start:
+                        on_start()
+
+                    def on_frame(frame: np.ndarray) -> None:
+                        if stop.signal is not None:
+                            raise _Stopped
+                        writer.append(frame)
+
+                    for i in range(episodes):
+                        returns.append(player.episode(policy, seed + i, max_steps, on_frame))
+                        if on_episode:
+                            on_episode(i, returns[-1])
+                    writer.commit()
+                except BaseException:
+                    writer.abort()
+                    raise
+        except _Stopped:
+            pass  # the signal is delivered below, once its handler from before is back
+        finally:
+            player.close()
+    _deliver(stop.signal)
     return returns
 
 
@@ -426,18 +477,46 @@ def _record_in_subprocess(
         max_steps=max_steps,
         checkpoint=str(checkpoint),
     )
-    with quiet_fork():
-        done = subprocess.run(
-            [sys.executable, "-m", "canter.use.video", json.dumps(request)],
-            env=child_env(),
-            capture_output=True,
-            text=True,
-        )
-    lines = done.stdout.strip().splitlines()
-    if done.returncode != 0 or not lines:
-        error = (done.stderr.strip().splitlines() or ["no output"])[-1]
+    from canter.training.loop import _StopFlag
+
+    with _StopFlag() as stop:
+        with quiet_fork():
+            process = subprocess.Popen(
+                [sys.executable, "-m", "canter.use.video", json.dumps(request)],
+                env=child_env(),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        try:
+            stdout, stderr = _wait_for_renderer(process, stop)
+        except BaseException:  # a second Ctrl-C: this process leaves now, and the renderer still stops and cleans up
+            process.terminate()
+            raise
+    _deliver(stop.signal)
+    lines = stdout.strip().splitlines()
+    if process.returncode != 0 or not lines:
+        error = (stderr.strip().splitlines() or ["no output"])[-1]
         raise CanterError(f"rendering failed in a subprocess: {error.removeprefix('canter: error: ')}")
     return json.loads(lines[-1])
+
+
+def _wait_for_renderer(process: subprocess.Popen, stop: _StopFlag) -> tuple[str, str]:
+    """The render subprocess's stdout and stderr once it ends. A stop signal to this process is passed on to it as
+    SIGTERM, a stop that it too takes at its next frame, removing its temp file (rather than render on as an
+    orphan); it is killed if it has not ended within _STOP_SECONDS."""
+    deadline = None
+    while True:
+        try:
+            return process.communicate(timeout=_POLL_SECONDS)
+        except subprocess.TimeoutExpired:
+            if stop.signal is None:
+                continue
+            if deadline is None:
+                process.terminate()
+                deadline = time.monotonic() + _STOP_SECONDS
+            elif time.monotonic() > deadline:
+                process.kill()
 
 
 def _end_with(parent: int) -> None:
@@ -471,6 +550,9 @@ def _main(argv: list[str]) -> int:
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("canter: interrupted", file=sys.stderr)
+        return 130
     print(f"{request['out_path']}: returns {returns} in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     print(json.dumps(returns))
     return 0

@@ -1,0 +1,147 @@
+"""Videos when things go wrong: a render stopped by SIGTERM leaves no temp file (as Ctrl-C did), and the readers of
+RUN/videos/ skip the temp file of a render still going or killed."""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.use import video
+from canter.use.report import run_facts
+
+KILLED_RENDER = (
+    ".step_000000001427.5gma70b4.tmp.mp4"  # the name in the fault report: a renderer killed with its trainer
+)
+
+
+def test_a_videos_temp_file_is_not_a_finished_video(tmp_path):
+    writer = video._AtomicVideo(tmp_path / "videos" / "step_000000001427.mp4", fps=10)
+    try:
+        assert video.is_unfinished_video(writer.tmp)
+        assert not video.is_unfinished_video(writer.out)
+    finally:
+        writer.abort()
+    assert video.is_unfinished_video(Path(KILLED_RENDER))
+    assert not video.is_unfinished_video(Path("clip.tmp.mp4"))  # not hidden: a file of the user's, not canter's
+
+
+@pytest.fixture
+def run_copy(tiny_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run.run_dir, run)
+    (run / "videos").mkdir()
+    return run
+
+
+@pytest.mark.slow
+def test_a_report_embeds_no_killed_renderers_temp_file(run_copy, tmp_path, capsys):
+    (run_copy / "videos" / KILLED_RENDER).write_bytes(b"half a video")
+    assert run_facts(run_copy, None).videos == ()
+    assert main(["report", str(run_copy), "--episodes", "0", "--out", str(tmp_path / "a.html")]) == 0
+    page = (tmp_path / "a.html").read_text()
+    assert ".tmp" not in page and "No video in these runs' videos/ folders." in page
+
+    (run_copy / "videos" / "step_000000000100.mp4").write_bytes(b"a whole video")
+    assert run_facts(run_copy, None).videos == (run_copy / "videos" / "step_000000000100.mp4",)
+    assert main(["report", str(run_copy), "--episodes", "0", "--out", str(tmp_path / "b.html")]) == 0
+    page = (tmp_path / "b.html").read_text()
+    assert ".tmp" not in page and "run 1: step_000000000100.mp4</figcaption>" in page, capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------------ SIGTERM
+
+
+def _renders_to(path: Path) -> list[int]:
+    """The processes whose command line names `path`: a render still going."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and str(path) in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                found.append(int(entry.name))
+        except OSError:  # ended while listed
+            continue
+    return found
+
+
+def _signal_once_rendering(argv: list[str], folder: Path, pattern: str, sig: int, env: dict | None = None):
+    """Start `argv`, send it `sig` once a temp file matching `pattern` appears under `folder` (a render that has just
+    begun, the moment a signal was once lost in), and return its exit status and stderr."""
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 600
+        while not list(folder.glob(pattern)):
+            assert process.poll() is None, process.communicate()[1]
+            assert time.monotonic() < deadline, "no temp file appeared"
+            time.sleep(0.01)
+        process.send_signal(sig)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return process.returncode, err
+
+
+# SIGTERM ends the process by the signal, as it ends any command (143 in a shell); Ctrl-C exits 130.
+STOPPED = [(signal.SIGTERM, -signal.SIGTERM, ""), (signal.SIGINT, 130, "canter: interrupted\n")]
+
+
+def _check_stopped(ended: tuple[int, str], code: int, said: str) -> None:
+    assert ended[0] == code and ended[1].endswith(said) and "Traceback" not in ended[1], ended
+
+
+def _video_argv(run_dir: Path, out: Path) -> list[str]:
+    # Enough frames that the render is still going when the signal lands.
+    return ["video", str(run_dir), "--out", str(out), "--episodes", "50", "--width", "64", "--height", "48"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("sig", "code", "said"), STOPPED, ids=["SIGTERM", "SIGINT"])
+def test_a_stopped_canter_video_leaves_no_temp_file(tiny_run, tmp_path, sig, code, said):
+    out = tmp_path / "vid" / "v.mp4"
+    argv = [sys.executable, "-m", "canter.cli.main", *_video_argv(tiny_run.run_dir, out)]
+    _check_stopped(_signal_once_rendering(argv, out.parent, ".v.*.tmp.mp4", sig), code, said)
+    assert list(out.parent.iterdir()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("sig", "code", "said"), STOPPED, ids=["SIGTERM", "SIGINT"])
+def test_a_stopped_canter_video_stops_its_render_subprocess(tiny_run, tmp_path, sig, code, said):
+    """Where mujoco was imported with another GL platform, the video renders in a child process: a signal to the
+    parent stops that child too, and its temp file goes, rather than an orphan rendering on."""
+    out = tmp_path / "vid" / "v.mp4"
+    script = (
+        "import sys; from canter.use import video; video._headless_in_this_process = lambda: False; "
+        "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    )
+    argv = [sys.executable, "-c", script, *_video_argv(tiny_run.run_dir, out)]
+    _check_stopped(_signal_once_rendering(argv, out.parent, ".v.*.tmp.mp4", sig), code, said)
+    orphans = _renders_to(out)
+    for pid in orphans:
+        os.kill(pid, signal.SIGKILL)
+    assert orphans == [] and list(out.parent.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_sigterm_to_canter_report_video_leaves_no_temp_file(tiny_run, tmp_path):
+    """`canter report --video` renders into a temp folder: SIGTERM leaves no half-written video there."""
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    # One episode renders in seconds; slowed, the render is surely going when the signal lands.
+    script = (
+        "import sys, time; from canter.use import video; append = video._AtomicVideo.append; "
+        "video._AtomicVideo.append = lambda self, frame: (time.sleep(0.05), append(self, frame)); "
+        "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    )
+    out = tmp_path / "r.html"
+    argv = [sys.executable, "-c", script, "report", str(tiny_run.run_dir), "--episodes", "0", "--video", "--out"]
+    env = dict(os.environ, TMPDIR=str(temp))
+    code, err = _signal_once_rendering([*argv, str(out)], temp, "canter-report-*/.run1.*.tmp.mp4", signal.SIGTERM, env)
+    assert code == -signal.SIGTERM, err
+    assert [p for p in temp.rglob("*") if p.is_file()] == [] and not out.exists()
