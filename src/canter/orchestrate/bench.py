@@ -20,6 +20,7 @@ that resumes a seed continues its tracker runs.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -27,6 +28,7 @@ import itertools
 import math
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -40,14 +42,16 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
-from canter.files import make_folder
+from canter.files import WriteError, check_writable, make_folder
 from canter.orchestrate.jobs import (
     EVAL_FILE,
     JobSpec,
     exit_text,
     failure_reason,
+    is_number,
     job_layout,
-    read_json,
+    read_object,
+    read_summary,
     run_status,
     run_workers,
     start_job,
@@ -56,7 +60,7 @@ from canter.orchestrate.jobs import (
 )
 from canter.orchestrate.study import claim_study, describe_url, normalize_url
 from canter.orchestrate.tune import SETTINGS_ATTR, check_at_least, study_storage
-from canter.training.run_folder import CONFIG_FILE, METRICS_FILE, SUMMARY_FILE
+from canter.training.run_folder import CONFIG_FILE, METRICS_FILE
 from canter.training.trackers import TrackSpec, check_trackers, group_name, open_groups
 from canter.use.reference_scores import published_scores
 
@@ -264,10 +268,12 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
         run_dir = cell.run_dir(bench_dir, seed)
         if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
             return False
-        evaluation = read_json(run_dir / EVAL_FILE) or {}
+        evaluation = read_object(run_dir / EVAL_FILE) or {}  # a damaged one is evaluated again
         newest = checkpoint.list_checkpoints(run_dir)  # none in a run restored from a results archive
-        if evaluation.get("episodes") != settings.eval_episodes or (
-            newest and evaluation.get("checkpoint") != newest[-1].name
+        if (
+            evaluation.get("episodes") != settings.eval_episodes
+            or (newest and evaluation.get("checkpoint") != newest[-1].name)
+            or not is_number(evaluation.get("mean"))
         ):
             return False
     return True
@@ -312,8 +318,8 @@ def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
     from canter.training.logger import totals_until
     from canter.training.run_folder import metrics_file
 
-    evaluation = read_json(run_dir / EVAL_FILE) or {}
-    summary = read_json(run_dir / SUMMARY_FILE) or {}
+    evaluation = read_object(run_dir / EVAL_FILE) or {}
+    summary = read_summary(run_dir) or {}
     wall = float(summary["wall_seconds"]) if "wall_seconds" in summary else None
     sps = float(summary["sps"]) if "sps" in summary else None
     metrics = metrics_file(run_dir)
@@ -324,7 +330,7 @@ def seed_record(run_dir: Path, seed: int) -> dict[str, Any]:
     trained_with = summary.get("trained_with")
     return {
         "seed": seed,
-        "eval_mean": float(evaluation["mean"]) if "mean" in evaluation else None,
+        "eval_mean": float(evaluation["mean"]) if is_number(evaluation.get("mean")) else None,
         "wall_seconds": wall,
         "sps": sps,
         # The seeds its last session trained beside; None for a summary written before that was kept.
@@ -529,8 +535,30 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
         run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
         run_dirs = [d for d in run_dirs if (d / METRICS_FILE).is_file() and (d / CONFIG_FILE).is_file()]
         if run_dirs:
-            plot_env(run_dirs, bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png")
+            plot_env(run_dirs, plot_path(bench_dir, env_id))
     return markdown
+
+
+def plot_path(bench_dir: Path, env_id: str) -> Path:
+    return bench_dir / f"plot_{_safe(env_id.split(':')[-1])}.png"
+
+
+RESULT_FILES = ("results.md", "results.csv", "statistics.json")
+
+
+def check_results_writable(cells: list[Cell], bench_dir: Path) -> None:
+    """Before any job starts, as eval and report check their outputs: each file the bench writes once the jobs have
+    ended is a plain file or absent (the atomic rename would replace a link or fail on a folder), in a folder that
+    takes new files."""
+    paths = [bench_dir / name for name in RESULT_FILES]
+    paths += [plot_path(bench_dir, env_id) for env_id in dict.fromkeys(c.env_id for c in cells)]
+    for path in paths:
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise CanterError(
+                f"cannot write {path}: it is not a plain file (a folder or a link), and the bench writes its results "
+                f"there; move it away, then run the command again"
+            )
+    check_writable(paths[0])
 
 
 # ------------------------------------------------------------------------------------------------------- running
@@ -539,14 +567,39 @@ def write_results(cells: list[Cell], results: list[dict[str, Any]], settings: Be
 STOPPED_EARLY = "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a re-run resumes it"
 
 
+def seed_steps(job: Job, bench_dir: Path) -> list[int | None]:
+    """Each seed's newest checkpoint step, which its job goes on from; None for a seed that trains anew."""
+    from canter.training import checkpoint
+
+    found = [checkpoint.list_checkpoints(job.cell.run_dir(bench_dir, seed)) for seed in job.seeds]
+    return [checkpoint.step_of(f[-1]) if f else None for f in found]
+
+
+def start_text(job: Job, steps: list[int | None], total_steps: int) -> str:
+    """The line a job's start prints: whether it trains anew, resumes checkpointed runs (from which step), or only
+    evaluates runs trained to the budget."""
+    seeds = f"seeds {','.join(map(str, job.seeds))}"
+    if all(step is None for step in steps):
+        return f"start {job.name} ({seeds})"
+    if all(step is not None and step >= total_steps for step in steps):
+        return f"evaluate {job.name} ({seeds}; trained to the budget)"
+    if len(set(steps)) == 1:
+        return f"resume {job.name} ({seeds}) from step {steps[0]:,}"
+    each = [
+        f"seed {seed} " + ("anew" if step is None else f"from step {step:,}") for seed, step in zip(job.seeds, steps)
+    ]
+    return f"resume {job.name} ({seeds}): {', '.join(each)}"
+
+
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
     """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
-    pending = []
-    for job in make_jobs(cells, settings.seeds):
-        if seeds_finished(job.cell, job.seeds, settings, bench_dir):
-            print(f"skip {job.name} (finished)")
-        else:
-            pending.append(job)
+    jobs = make_jobs(cells, settings.seeds)
+    finished = [seeds_finished(job.cell, job.seeds, settings, bench_dir) for job in jobs]
+    if any(finished):
+        print(f"{sum(finished)} of {len(jobs)} jobs already done", flush=True)
+    for job in itertools.compress(jobs, finished):
+        print(f"skip {job.name} (finished)")
+    pending = [job for job, done in zip(jobs, finished) if not done]
     slots = job_layout(settings.jobs) if settings.jobs > 1 else [{}]
     running: dict[int, tuple[Job, Any, float]] = {}
     failures: dict[str, str] = {}
@@ -555,9 +608,10 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
             for slot, caps in enumerate(slots):
                 if slot not in running and pending:
                     job = pending.pop(0)
+                    line = start_text(job, seed_steps(job, bench_dir), settings.total_steps)  # before the job saves any
                     proc = start_job(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
                     running[slot] = (job, proc, time.monotonic())
-                    print(f"start {job.name} (seeds {','.join(map(str, job.seeds))})", flush=True)
+                    print(line, flush=True)
             for slot, (job, proc, started) in list(running.items()):
                 code = proc.poll()
                 if code is None:
@@ -620,7 +674,7 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
     job = jobs[key]
     folder = bench_dir / ".cells" / job.name
-    print(f"start {job.name} (seeds {','.join(map(str, job.seeds))}; trial {trial.number})", flush=True)
+    print(f"{start_text(job, seed_steps(job, bench_dir), settings.total_steps)}; trial {trial.number}", flush=True)
     started = time.monotonic()
     proc = start_job(job_spec(job, settings, bench_dir), folder)
     try:
@@ -744,6 +798,30 @@ def run_distributed(
     return results, failures
 
 
+@contextlib.contextmanager
+def holding_bench_folder(bench_dir: Path) -> Iterator[None]:
+    """A local bench holds its --out folder's writer lock (`canter.training.run_lock`) while it runs: a second one
+    on the same folder would fail each cell the first one trains, with the first one's lock error, and write a table
+    of the rest. Workers that share a grid through --storage take their jobs from the study instead."""
+    from canter.training import run_lock
+
+    try:
+        run_lock.acquire(bench_dir)
+    except WriteError:  # a full or read-only disk, not another bench
+        raise
+    except CanterError:
+        holder = run_lock.read_holder(bench_dir)
+        who = f" (process {holder.get('pid')} on {holder.get('host')}: {holder.get('command')})" if holder else ""
+        raise CanterError(
+            f"{bench_dir} is in use by another bench{who}; wait for it to finish, or run both with --storage to "
+            f"share the grid between them"
+        ) from None
+    try:
+        yield
+    finally:
+        run_lock.release(bench_dir)
+
+
 def bench(settings: BenchSettings) -> str:
     """Check the grid, run it (locally or through the storage), and write the results; returns the markdown."""
     cells = make_cells(settings)
@@ -759,6 +837,12 @@ def bench(settings: BenchSettings) -> str:
         if not existed and not any(bench_dir.iterdir()):  # a refused command leaves nothing behind
             bench_dir.rmdir()
         raise
+    with holding_bench_folder(bench_dir) if opened is None else contextlib.nullcontext():
+        return _run_grid(cells, settings, bench_dir, opened)
+
+
+def _run_grid(cells: list[Cell], settings: BenchSettings, bench_dir: Path, opened: tuple[Any, Any] | None) -> str:
+    check_results_writable(cells, bench_dir)
     check_existing_runs(cells, settings, bench_dir)
     # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.
     unfinished = [c for c in cells if not seeds_finished(c, settings.seeds, settings, bench_dir)]

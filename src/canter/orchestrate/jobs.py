@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
-from canter.files import atomic_write_bytes
+from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
 from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
@@ -44,7 +44,7 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     the budget may be gone, and evaluating a later one would report another budget's policy."""
     from canter.training import checkpoint
 
-    summary = read_json(run_dir / SUMMARY_FILE) or {}
+    summary = read_summary(run_dir) or {}
     found = checkpoint.list_checkpoints(run_dir)
     newest = checkpoint.step_of(found[-1]) if found else None
     summarized = summary.get("global_step")
@@ -62,16 +62,13 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
             return "ended"
     if stale:
         return "partial"
-    try:
-        if int(summary["global_step"]) >= total_steps:
-            return "done"
-    except (ValueError, KeyError, TypeError):
-        pass
+    if isinstance(summarized, int) and summarized >= total_steps:
+        return "done"
     reached = summary.get("recent_return")
     if (
         summary.get("stop_reason") == "stop_at_return"
         and stop_at_return is not None
-        and isinstance(reached, int | float)
+        and reached is not None
         and reached >= stop_at_return
     ):
         # Its schedules (an annealed learning rate) stretched over the budget it trained toward, so it is a run of
@@ -83,7 +80,15 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
                 f"one's {total_steps:,}; give --total-steps {budget}, or move the folder away to train it again"
             )
         return "done"
-    return "partial" if checkpoint.list_checkpoints(run_dir) else "new"
+    if found:
+        return "partial"
+    problem = summary_problem(read_json(run_dir / SUMMARY_FILE))
+    if problem and (run_dir / SUMMARY_FILE).is_file():  # and no checkpoint to write it again from
+        raise CanterError(
+            f"{run_dir / SUMMARY_FILE} is damaged ({problem}); restore it from a copy, or move {run_dir} away to "
+            f"train it again"
+        )
+    return "new"
 
 
 def _config_budget(run_dir: Path) -> int | None:
@@ -115,11 +120,56 @@ def _budget(path: Path) -> int | None:
         return None
 
 
-def read_json(path: Path) -> dict[str, Any] | None:
+def read_json(path: Path) -> Any:
+    """The file's JSON value; None where it is missing or not JSON."""
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return None
+
+
+def read_object(path: Path) -> dict[str, Any] | None:
+    """The file's JSON object; None where it is missing or holds anything else (a hand-edited or damaged file, which
+    the bench treats as missing: it writes the file again)."""
+    data = read_json(path)
+    return data if isinstance(data, dict) else None
+
+
+def is_number(value: Any) -> bool:
+    """A JSON number: NaN counts (a diverged evaluation is one), true and false do not."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+# summary.json values that the bench reads, each with a test of its type; a file that gives another type is damaged.
+_SUMMARY_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "global_step": ("a whole number", lambda v: isinstance(v, int) and not isinstance(v, bool)),
+    "wall_seconds": ("a number", is_number),
+    "sps": ("a number", is_number),
+    "recent_return": ("a number", lambda v: v is None or is_number(v)),
+    "stop_reason": ("a string", lambda v: isinstance(v, str)),
+    "trained_with": (
+        "a list of seeds",
+        lambda v: v is None or (isinstance(v, list) and all(isinstance(s, int) for s in v)),
+    ),
+}
+
+
+def summary_problem(summary: Any) -> str | None:
+    """What makes a summary.json's content unusable ('not a JSON object', 'sps is not a number'); None when the
+    bench can read it. A value it lacks is no problem: summaries written by older versions lack some."""
+    if not isinstance(summary, dict):
+        return "not a JSON object"
+    for key, (kind, valid) in _SUMMARY_CHECKS.items():
+        if key in summary and not valid(summary[key]):
+            return f"{key} is not {kind}"
+    return None
+
+
+def read_summary(run_dir: Path) -> dict[str, Any] | None:
+    """A run's summary.json; None where it is missing, or damaged (`summary_problem`): a run with its final
+    checkpoint has it written again from that checkpoint, as after a kill between the two writes."""
+    summary = read_json(run_dir / SUMMARY_FILE)
+    return None if summary_problem(summary) else summary
 
 
 # ------------------------------------------------------------------------------------------------------ CPU limits
@@ -214,20 +264,29 @@ JOB_START = "canter: job started"
 
 
 def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
-    """Start the child process of a job; its output goes to folder/train.log."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """Start the child process of a job; its output goes to folder/train.log. A write error (a full disk) is a
+    `WriteError` that leaves no half-written job.json behind."""
     spec_path = folder / "job.json"
-    spec_path.write_text(spec.to_json())
-    with open(folder / "train.log", "ab") as log:
-        log.write(f"{JOB_START} {time.strftime('%Y-%m-%d %H:%M:%S')}\n".encode())
-        log.flush()
-        return subprocess.Popen(
-            [sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            env={**os.environ, **(env or {})},
-        )
+    log_path = folder / "train.log"
+    atomic_write_bytes(spec_path, lambda f: f.write(spec.to_json().encode()))
+    log = AppendFile(log_path)
+    try:
+        log.append(f"{JOB_START} {time.strftime('%Y-%m-%d %H:%M:%S')}\n".encode())
+    finally:
+        log.close()
+    try:
+        with open(log_path, "ab") as output:
+            return subprocess.Popen(
+                [sys.executable, "-m", "canter.orchestrate.jobs", str(spec_path)],
+                stdout=output,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env={**os.environ, **(env or {})},
+            )
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(log_path, exc) from None
+        raise
 
 
 def exit_text(returncode: int) -> str:
@@ -242,16 +301,17 @@ def exit_text(returncode: int) -> str:
 
 
 def failure_reason(folder: Path, returncode: int) -> str:
-    """The child's one-line error (`canter: error: ...`), else the last line of its log, with the exit status. Only
-    the output of the newest start counts: the log is appended to, and an earlier session's error is not this one's."""
+    """The child's one-line error (`canter: error: ...`), whole, since its fix comes last; else the last line of its
+    log (cut short: a crash's last line can be any length), with the exit status. Only the output of the newest
+    start counts: the log is appended to, and an earlier session's error is not this one's."""
     lines = []
     with contextlib.suppress(OSError):
         lines = [line for line in (folder / "train.log").read_text(errors="replace").splitlines() if line.strip()]
     starts = [i for i, line in enumerate(lines) if line.startswith(JOB_START)]
     lines = lines[starts[-1] + 1 :] if starts else lines
     errors = [line for line in lines if line.startswith("canter: error:")]
-    last = errors[-1] if errors else (lines[-1] if lines else "no output")
-    return f"training process failed ({exit_text(returncode)}): {last.strip()[:300]}"
+    last = errors[-1] if errors else (lines[-1][:300] if lines else "no output")
+    return f"training process failed ({exit_text(returncode)}): {last.strip()}"
 
 
 # A job told to stop finishes its iteration, or the evaluation under way, and writes its checkpoint; a long
@@ -344,15 +404,21 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
 
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json with every episode's
-    return and length. A cached evaluation without lengths (written before they were kept) is done again."""
+    return and length. A cached evaluation without lengths (written before they were kept), or without a mean
+    return (a damaged file), is done again."""
     from canter.training import checkpoint
     from canter.use.evaluate import evaluate
     from canter.use.policy import load
 
     path = run_dir / EVAL_FILE
-    cached = read_json(path)
+    cached = read_object(path) or {}
     step = checkpoint.latest(run_dir).name
-    if cached and cached.get("checkpoint") == step and cached.get("episodes") == episodes and "lengths" in cached:
+    if (
+        cached.get("checkpoint") == step
+        and cached.get("episodes") == episodes
+        and "lengths" in cached
+        and is_number(cached.get("mean"))
+    ):
         return cached
     result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=0)
     summary = result.summary()

@@ -1,0 +1,301 @@
+"""canter bench when things go wrong: damaged summary.json and eval.json files, a full disk, a second local bench on
+the same folder, results paths that cannot be written, and what a re-run says it resumes."""
+
+import csv
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import canter.orchestrate.bench as bench_module
+from canter.cli.main import main
+from canter.config.serialize import to_toml
+from canter.errors import CanterError
+from canter.orchestrate.bench import BenchSettings, Cell, make_cells, make_jobs, seed_record, seeds_finished
+from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
+from canter.training import checkpoint
+
+TINY = [
+    "--set",
+    "net.hidden=16,16",
+    "--set",
+    "run.tensorboard=false",
+    "--set",
+    "env.num_envs=4",
+    "--set",
+    "ppo.n_steps=128",
+    "--set",
+    "ppo.minibatch_size=256",
+    "--set",
+    "ppo.epochs=2",
+    "--set",
+    "run.checkpoint_every=512",
+]
+BUDGET = 2000
+EVAL = {"checkpoint": f"ckpt_{BUDGET:012d}.npz", "episodes": 3, "mean": 1.0, "returns": [1.0], "lengths": [5]}
+
+
+def _save_checkpoint(cell: Cell, run: Path, step: int) -> None:
+    config = replace(cell.config, run=replace(cell.config.run, total_steps=BUDGET))
+    checkpoint.save(
+        checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, {"global_step": step, "config": to_toml(config)}
+    )
+
+
+def _finished_run(cell: Cell, bench_dir: Path, seed: int) -> Path:
+    """A run folder that reads as finished: its final checkpoint, its summary and its evaluation of that checkpoint."""
+    run = cell.run_dir(bench_dir, seed)
+    _save_checkpoint(cell, run, BUDGET)
+    (run / "summary.json").write_text(json.dumps({"global_step": BUDGET, "wall_seconds": 60.0, "sps": 100.0}))
+    (run / "eval.json").write_text(json.dumps(EVAL))
+    return run
+
+
+def _one_cell(seeds: tuple[int, ...] = (0,)) -> tuple[BenchSettings, Cell]:
+    settings = BenchSettings(("ppo",), ("Hopper-v5",), seeds, BUDGET, eval_episodes=3)
+    [cell] = make_cells(settings)
+    return settings, cell
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+# ---------------------------------------------------------------------------------------- damaged summary and eval
+
+
+@pytest.mark.parametrize(
+    "content",
+    ['"x"', "[1]", '{"global_step": 2000, "wall_seconds": "n/a"}', '{"global_step": 2000, "trained_with": ["a"]}'],
+)
+def test_a_damaged_summary_is_written_again_from_the_final_checkpoint(tmp_path, content):
+    """A summary.json that is not an object, or holds a value of the wrong type, crashed the bench with a traceback
+    (AttributeError, ValueError); the bench writes it again from the final checkpoint, as after a kill between the
+    two writes."""
+    settings, cell = _one_cell()
+    run = _finished_run(cell, tmp_path, 0)
+    assert run_status(run, BUDGET) == "done" and seeds_finished(cell, (0,), settings, tmp_path)
+    (run / "summary.json").write_text(content)
+    assert run_status(run, BUDGET) == "ended"
+    assert not seeds_finished(cell, (0,), settings, tmp_path)
+    assert seed_record(run, 0)["wall_seconds"] is None  # the table's reader never raises either
+
+
+def test_a_damaged_summary_without_a_checkpoint_to_rebuild_it_from_is_named(tmp_path):
+    settings, cell = _one_cell()
+    run = _finished_run(cell, tmp_path, 0)
+    (run / "checkpoints" / EVAL["checkpoint"]).unlink()  # a run kept from a results archive
+    (run / "summary.json").write_text('{"global_step": 2000, "sps": null}')
+    with pytest.raises(CanterError) as raised:
+        seeds_finished(cell, (0,), settings, tmp_path)
+    assert str(raised.value) == (
+        f"{run / 'summary.json'} is damaged (sps is not a number); restore it from a copy, or move {run} away to "
+        f"train it again"
+    )
+
+
+@pytest.mark.parametrize(
+    "content", ["[1]", '"x"', json.dumps({**EVAL, "mean": None}), json.dumps({**EVAL, "mean": "1"})]
+)
+def test_a_damaged_evaluation_is_done_again(tmp_path, monkeypatch, content):
+    """An eval.json that is not an object, or whose mean is not a number, crashed the bench (AttributeError,
+    TypeError); the seed is unfinished until its job evaluates it again."""
+    import canter.use.evaluate
+    import canter.use.policy
+
+    settings, cell = _one_cell()
+    run = _finished_run(cell, tmp_path, 0)
+    (run / "eval.json").write_text(content)
+    assert not seeds_finished(cell, (0,), settings, tmp_path)
+    assert seed_record(run, 0)["eval_mean"] is None
+
+    class Evaluated:
+        mean, std = 2.0, 0.0
+
+        def summary(self):
+            return {"returns": [2.0], "lengths": [5], "backend": "envpool", "physics": {}}
+
+    monkeypatch.setattr(canter.use.policy, "load", lambda run_dir: None)
+    monkeypatch.setattr(canter.use.evaluate, "evaluate", lambda *args, **kwargs: Evaluated())
+    assert write_final_eval(run, 3)["mean"] == 2.0
+    assert seeds_finished(cell, (0,), settings, tmp_path)
+
+
+@pytest.mark.slow
+def test_a_bench_rerun_over_damaged_files_writes_them_again_and_says_what_it_resumes(tmp_path, capsys):
+    """The fault review's reruns: each damaged file crashed the bench with a traceback. And a re-run printed the same
+    `start` line for a job that trains anew and one that resumes."""
+    out = tmp_path / "bench"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0,1", "--total-steps", "1024", "--episodes", "2"]
+    argv += ["--grid", "ppo.ent_coef=0,0.01", "--jobs", "2", "--out", str(out)] + TINY
+    assert main(argv) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    damaged, cut = "InvertedPendulum-v4__ppo__ppo.ent_coef=0.0", "InvertedPendulum-v4__ppo__ppo.ent_coef=0.01"
+    (out / f"{damaged}__s0" / "summary.json").write_text('"x"')
+    summary = json.loads((out / f"{damaged}__s1" / "summary.json").read_text())
+    (out / f"{damaged}__s1" / "summary.json").write_text(json.dumps({**summary, "wall_seconds": "n/a"}))
+    (out / f"{damaged}__s0" / "eval.json").write_text("[1]")
+    evaluation = json.loads((out / f"{damaged}__s1" / "eval.json").read_text())
+    (out / f"{damaged}__s1" / "eval.json").write_text(json.dumps({**evaluation, "mean": None}))
+    interrupted = out / f"{cut}__s1"  # stopped after its first checkpoint
+    *_, kept, final = sorted((interrupted / "checkpoints").glob("ckpt_*.npz"))
+    for path in (final, interrupted / "summary.json", interrupted / "eval.json"):
+        path.unlink()
+    newest = checkpoint.step_of(sorted((out / f"{cut}__s0" / "checkpoints").glob("ckpt_*.npz"))[-1])
+
+    assert main(argv) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    assert f"evaluate {damaged} (seeds 0,1; trained to the budget)" in printed
+    resumed = f"seed 0 from step {newest:,}, seed 1 from step {checkpoint.step_of(kept):,}"
+    assert f"resume {cut} (seeds 0,1): {resumed}" in printed
+    for seed in (0, 1):
+        assert isinstance(json.loads((out / f"{damaged}__s{seed}" / "eval.json").read_text())["mean"], float)
+        assert isinstance(json.loads((out / f"{damaged}__s{seed}" / "summary.json").read_text())["wall_seconds"], float)
+    with open(out / "results.csv", newline="") as f:
+        assert [row["seeds"] for row in csv.DictReader(f)] == ["2", "2"]
+
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "2 of 2 jobs already done" in printed and f"skip {cut} (finished)" in printed
+
+
+# ---------------------------------------------------------------------------------------------------- full disk
+
+
+@pytest.mark.slow
+def test_a_full_disk_when_a_job_starts_is_one_line_and_leaves_no_half_written_spec(tmp_path):
+    """A file-size limit makes every write past 1 KiB fail as a full disk does (EFBIG, one of its errors), without
+    root or a small file system: the bench's lock fits, a job's job.json (1.4 KB) does not. It was a traceback."""
+
+    # The limit is set in the child itself: a preexec_fn would fork this process, which runs JAX's threads.
+    program = (
+        "import resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "  # the error, not the kill
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (1024, 1024)); "
+        "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    )
+    out = tmp_path / "b"
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "1000", "--out", str(out)]
+    done = subprocess.run([sys.executable, "-c", program, *argv], capture_output=True, text=True, timeout=300)
+    job = out / ".cells" / "InvertedPendulum-v4__ppo"
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr == (
+        f"canter: error: cannot write {job / 'job.json'}: File too large; free space in {job}, then run the command "
+        f"again\n"
+    )
+    assert not [p.name for p in job.iterdir()]
+
+
+# ---------------------------------------------------------------------------------------- two benches, one folder
+
+
+@pytest.mark.slow
+def test_a_second_local_bench_on_the_same_folder_is_refused_at_once(tmp_path, capsys):
+    """Two local benches on one --out each failed the cells the other held, with the run lock's error, and wrote a
+    table of the rest; the second one's start line went into the first one's job logs."""
+    out = tmp_path / "b"
+    program = f"from canter.training import run_lock; run_lock.acquire({str(out)!r}); print(flush=True); input()"
+    other = subprocess.Popen([sys.executable, "-c", program], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert other.stdout is not None and other.stdout.readline() == b"\n"  # it holds the folder
+        argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "1024", "--episodes", "1"]
+        code = main(argv + ["--out", str(out)] + TINY)
+        err = _one_line_error(capsys)
+    finally:
+        other.kill()
+        other.wait()
+    assert code == 2
+    assert f"{out} is in use by another bench (process {other.pid} on " in err
+    assert err.endswith("; wait for it to finish, or run both with --storage to share the grid between them")
+    assert not (out / ".cells").exists()
+
+
+def test_a_failure_reason_keeps_the_whole_error_with_its_fix(tmp_path):
+    """The run lock's error is over 300 characters, and the cut dropped its fix."""
+    error = (
+        "canter: error: /home/user/bench/HalfCheetah-v5__ppo__ppo.ent_coef=0.01__net.hidden=64-64__s0 is being "
+        "written by process 19801 on host (since 2026-11-29T16:24:35: jobs.py /home/user/bench/.cells/HalfCheetah-v5"
+        "__ppo__ppo.ent_coef=0.01__net.hidden=64-64/job.json); one process writes a run folder at a time: wait for it "
+        "to finish or stop it, then run the command again"
+    )
+    (tmp_path / "train.log").write_text(f"{JOB_START} 2026-11-29 16:24:40\n{error}\n")
+    assert failure_reason(tmp_path, 2) == f"training process failed (exit 2): {error}"
+    # Any other last line (a crash's) stays cut short.
+    (tmp_path / "train.log").write_text(f"{JOB_START} 2026-11-29 16:24:40\nValueError: {'x' * 1000}\n")
+    assert len(failure_reason(tmp_path, 1)) < 400
+
+
+# ----------------------------------------------------------------------------------------------- results paths
+
+
+@pytest.mark.parametrize("name", ["results.md", "results.csv", "plot_InvertedPendulum-v4.png"])
+@pytest.mark.parametrize("kind", ["folder", "link"])
+def test_a_results_path_that_cannot_be_written_is_refused_before_any_job(tmp_path, capsys, name, kind):
+    """They were found once every job had trained, with the results.md of write_output's "give a file path", for a
+    path that bench has no flag for."""
+    out = tmp_path / "b"
+    out.mkdir()
+    if kind == "folder":
+        (out / name).mkdir()
+    else:
+        (out / name).symlink_to(tmp_path / "elsewhere")
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "1024", "--episodes", "1"]
+    assert main(argv + ["--out", str(out)] + TINY) == 2
+    assert _one_line_error(capsys) == (
+        f"canter: error: cannot write {out / name}: it is not a plain file (a folder or a link), and the bench "
+        f"writes its results there; move it away, then run the command again"
+    )
+    assert not (out / ".cells").exists()
+
+
+# --------------------------------------------------------------------------------------------- what a re-run says
+
+
+def test_a_jobs_start_line_says_whether_it_trains_anew_resumes_or_evaluates():
+    from canter.orchestrate.bench import start_text
+
+    _, cell = _one_cell((0, 1))
+    [job] = make_jobs([cell], (0, 1))
+    assert start_text(job, [None, None], BUDGET) == "start Hopper-v5__ppo (seeds 0,1)"
+    assert start_text(job, [1024, 1024], BUDGET) == "resume Hopper-v5__ppo (seeds 0,1) from step 1,024"
+    assert (
+        start_text(job, [1024, None], BUDGET)
+        == "resume Hopper-v5__ppo (seeds 0,1): seed 0 from step 1,024, seed 1 anew"
+    )
+    assert start_text(job, [2048, 2000], BUDGET) == "evaluate Hopper-v5__ppo (seeds 0,1; trained to the budget)"
+
+
+def test_a_rerun_counts_the_jobs_already_done_and_names_the_step_each_resumes_from(tmp_path, capsys, monkeypatch):
+    settings = BenchSettings(
+        ("ppo",),
+        ("Hopper-v5",),
+        (0, 1),
+        BUDGET,
+        grid=(("ppo.ent_coef", ("0", "0.01")),),
+        eval_episodes=3,
+        poll_seconds=0,
+    )
+    finished, partial = make_cells(settings)
+    for seed in (0, 1):
+        _finished_run(finished, tmp_path, seed)
+    _save_checkpoint(partial, partial.run_dir(tmp_path, 0), 512)
+
+    class Stopped:
+        def poll(self):
+            return 0
+
+    started = []
+    monkeypatch.setattr(bench_module, "start_job", lambda spec, folder, caps: started.append(folder) or Stopped())
+    bench_module.run_local([finished, partial], settings, tmp_path)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[:3] == [
+        "1 of 2 jobs already done",
+        f"skip {finished.name} (finished)",
+        f"resume {partial.name} (seeds 0,1): seed 0 from step 512, seed 1 anew",
+    ]
+    assert started == [tmp_path / ".cells" / partial.name]
