@@ -8,6 +8,7 @@ import pytest
 
 from canter import build_config
 from canter.config.schema import section_names, section_type
+from canter.config.serialize import from_toml_text, to_toml
 from canter.core import networks
 from canter.core.netconfig import ACTIVATION_CHOICES, ACTIVATIONS
 from canter.errors import CanterError
@@ -48,8 +49,20 @@ def test_every_activation_key_documents_the_same_choices():
 
 
 @pytest.mark.parametrize("key", ["noise_std", "ou_theta", "ou_dt"])
-def test_sac_refuses_the_exploration_noise_keys_it_never_reads(key):
+def test_sac_refuses_the_exploration_noise_keys_it_never_reads(key, tmp_path):
     """They would change nothing but split sac's runs into different experiments."""
     with pytest.raises(CanterError, match=rf"sac.{key} has no effect on sac \(it explores by sampling its policy\)"):
         build_config("Hopper-v5", algo="sac", sets=[f"sac.{key}=0.7"])
-    assert build_config("Hopper-v5", algo="sac").sac.noise_std == 0.1
+    config = build_config("Hopper-v5", algo="sac")
+    assert config.sac.noise_std == 0.1
+    # A run's config.toml gives every key of its section: it is still a config file to start from.
+    path = tmp_path / "config.toml"
+    path.write_text(to_toml(config))
+    assert build_config("Hopper-v5", algo="sac", config_file=str(path)) == config
+
+
+def test_a_sac_run_folder_that_set_a_noise_key_still_loads():
+    """Folders written before the refusal hold such values; eval, export, report and --resume read them."""
+    config = build_config("Hopper-v5", algo="sac")
+    old = config.replace(sac=dataclasses.replace(config.sac, noise_std=0.2, ou_theta=3.0))
+    assert from_toml_text(to_toml(old), "config.toml").sac.noise_std == 0.2

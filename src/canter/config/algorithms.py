@@ -48,6 +48,8 @@ class AlgorithmSpec:
     # The metrics.csv columns that a config turns off (logged as 0 or empty then), which plots leave out:
     # `unused_metrics(config)`.
     unused_metrics: Callable[[Any], tuple[str, ...]] = lambda config: ()
+    # Keys of its section that it never reads (inherited by the section), with why: `check_ignored_keys`.
+    ignores: Mapping[str, str] = field(default_factory=dict)
 
 
 _REGISTERED: dict[str, AlgorithmSpec] = {}
@@ -146,3 +148,14 @@ def unread_key_error(algo: str, key: str) -> str:
         readers = ", ".join(a for a in _REGISTERED if reads_key(a, key)) or "no algorithm"
         fix = f"drop it ({key} is read by {readers})"
     return f"{key} has no effect on {algo}, which reads {listed}; {fix}"
+
+
+def check_ignored_keys(config: Any) -> None:
+    """Refuse a key the algorithm ignores set away from its default: it would change nothing but split runs into
+    different experiments. Only what a user builds is checked (`build_config`), so run folders that hold one load."""
+    spec = algorithm_spec(config.run.algo)
+    for key, why in spec.ignores.items():
+        section, _, name = key.partition(".")
+        values = config.section(section)
+        if getattr(values, name) != getattr(type(values)(), name):
+            raise CanterError(f"{key} has no effect on {spec.name} ({why}); leave it out")

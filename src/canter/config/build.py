@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from canter.config.algorithms import check_algorithm_name, reads_key, unread_key_error
+from canter.config.algorithms import check_algorithm_name, check_ignored_keys, reads_key, unread_key_error
 from canter.config.overrides import (
     apply_overrides,
     flatten_toml,
@@ -78,6 +78,7 @@ def build_config(
         for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
             if not reads_key(config.run.algo, key):
                 raise CanterError(unread_key_error(config.run.algo, key))
+        check_ignored_keys(config)
     explicit: dict[str, Any] = {key: value for key, value in (("env.id", env_id), ("run.algo", algo)) if value}
     explicit |= {
         key: value for key, value in (("run.seed", seed), ("run.total_steps", total_steps)) if value is not None

@@ -113,13 +113,6 @@ def check_td3(s: TD3Config, name: str) -> None:
 def check_sac(s: SACConfig, name: str) -> None:
     check_offpolicy(s, name)
     need(s.noise == "none", f"{name}.noise must be none (sac explores by sampling its policy), got '{s.noise}'")
-    # SAC inherits the exploration-noise keys it never reads; a changed one would only split its runs into
-    # experiments that train alike.
-    for key in ("noise_std", "ou_theta", "ou_dt"):
-        need(
-            getattr(s, key) == getattr(SACConfig, key),
-            f"{name}.{key} has no effect on sac (it explores by sampling its policy); leave it out",
-        )
     for key in ("alpha", "alpha_lr"):
         need_positive(f"{name}.{key}", getattr(s, key))
     if s.target_entropy is not None:
@@ -164,7 +157,9 @@ def _iteration_steps(config: Config) -> int:
     return vector_steps(getattr(config, config.run.algo).steps_per_call, num_envs) * num_envs
 
 
-def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> AlgorithmSpec:
+def _spec(
+    name: str, summary: str, labels: dict[str, tuple[str, str]], ignores: dict[str, str] | None = None
+) -> AlgorithmSpec:
     return AlgorithmSpec(
         name=name,
         summary=summary,
@@ -177,6 +172,7 @@ def _spec(name: str, summary: str, labels: dict[str, tuple[str, str]]) -> Algori
         preset_overrides=algorithm_preset_tables(PACKAGE, name),
         plot_labels=labels,
         seeds_train_apart=True,
+        ignores=ignores or {},
     )
 
 
@@ -191,6 +187,8 @@ for spec in (
         "sac",
         "Soft Actor-Critic with automatic entropy tuning (off-policy)",
         {**UPDATE_LABELS, "alpha": ("Entropy temperature α", "dimensionless"), "entropy": ("Policy entropy", "nats")},
+        # Its section inherits the exploration-noise keys; a changed one would only split its runs into experiments.
+        {f"sac.{key}": "it explores by sampling its policy" for key in ("noise_std", "ou_theta", "ou_dt")},
     ),
 ):
     register_algorithm(spec)
