@@ -89,10 +89,11 @@ def _each_step_from_the_same_state(env_id, steps=100):
         if terminated:
             terminations += 1
             reference.reset()
-    # A diverged state: C MuJoCo resets to the rest pose (zero controls) at the next step's start and steps on.
+    # A diverged state: C MuJoCo resets to the rest pose at the next step's start and steps on with zero controls,
+    # whatever the action (which still sets the control cost).
     data.qvel[:] = 1e20
     state = mjx.put_data(model, data)
-    action = np.zeros(reference.action_space.shape, np.float32)
+    action = reference.action_space.high.astype(np.float32)
     obs, reward, terminated, _, _ = reference.step(action)
     _, p_obs, p_reward, p_terminated, _ = step(state, jnp.asarray(action))
     assert np.isfinite(obs).all() and _rel(p_obs, obs) < tolerance, _rel(p_obs, obs)

@@ -56,10 +56,10 @@ def collide_with_floor_only(model: Any) -> None:
     model.geom_conaffinity[colliding] = (~planes[colliding]).astype(model.geom_conaffinity.dtype)
 
 
-# C MuJoCo's mj_step resets the data to the model's rest pose (mj_resetData, then mj_forward) when an entry of qpos,
-# qvel or qacc is NaN, infinite or beyond mjMAXVAL, so Gymnasium's and EnvPool's physics never hand a learner a
-# non-finite state. MJX has no such check; the port makes it, so that one diverging env of thousands behaves as it
-# would on the CPU backends instead of ending the run.
+# C MuJoCo's mj_step resets the data to the model's rest pose (mj_resetData, then mj_forward) when an entry of qpos or
+# qvel is NaN, infinite or beyond mjMAXVAL as it starts, or of qacc once forward has computed it, so Gymnasium's and
+# EnvPool's physics never compute from a diverged state. MJX has no such check; the port makes it, so that one
+# diverging env of thousands goes on as it would on the CPU backends instead of ending the run.
 MAX_VALUE = 1e10  # mjMAXVAL
 # What mjx.step reads of its Data (forward recomputes everything else), so a substep's reset replaces only these.
 STEP_INPUTS = ("time", "qpos", "qvel", "act", "ctrl", "qacc_warmstart")
@@ -148,14 +148,18 @@ class MjxTaskEnv:
         before = task.progress(model, data)
         data = data.replace(ctrl=action)
 
-        def substep(_: int, d: Any) -> Any:  # C MuJoCo checks qpos and qvel as each mj_step starts
+        def substep(_: int, d: Any) -> Any:  # C MuJoCo checks qpos and qvel as each mj_step starts...
             d = _reset_where(physics_diverged(d.qpos, d.qvel), self._rest, d, STEP_INPUTS)
-            return _same_types(mjx.step(model, d), d)
+            d = _same_types(mjx.step(model, d), d)
+            # ...and qacc before it integrates, which MJX's step does not stop for: the state it integrated from a bad
+            # qacc is replaced, one substep later than C MuJoCo's reset (C integrates that substep from the rest pose)
+            return _reset_where(physics_diverged(d.qacc), self._rest, d, STEP_INPUTS)
 
         with c_mujoco_collisions():
             data = jax.lax.fori_loop(0, task.frame_skip, substep, data)
-        # ...and qacc within it: a bad qacc (or state) from the last substep resets now, as the next would
-        data = _reset_where(physics_diverged(data.qpos, data.qvel, data.qacc), self._rest, data)
+        # The last substep's qacc reset, whole, since the observation reads the derived quantities. A qpos or qvel that
+        # went bad in the last integration stays, as C MuJoCo returns it (Hopper then terminates), until the next step.
+        data = _reset_where(physics_diverged(data.qacc), self._rest, data)
         if task.contact_forces:
             data = mjx.rne_postconstraint(model, data)
         velocity = (task.progress(model, data) - before) / self.dt
