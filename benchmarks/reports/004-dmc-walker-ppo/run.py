@@ -48,10 +48,10 @@ RUNS = {  # name -> (who, canter train arguments)
 # The report's one comparison ("tanh ... seemed to lead to better results" than ReLU) and the step it calls crucial
 # (normalized advantages), each undone on exactly the report's setup and its seed. Both chosen before their runs,
 # with the same seed (100) as the report's-setup run above (`--only variants`). The third, the report's setup itself
-# again, was added after those two had run: a rerun of that setup on their code (5cc8943, with uncommitted edits
-# under src/ by then; not archived) did not repeat the archived run (trained at 4a3cd17; its first episode's return
-# already differs, and its training return was 294 against 265, evaluation 347), so the variants need a baseline
-# trained on their own code.
+# again, was added after those two had run: a rerun of that setup here (5cc8943, with uncommitted edits under src/
+# by then; not archived) did not repeat the archived run (trained at 4a3cd17 on another machine; its first
+# episode's return already differs, and its training return was 294 against 265, evaluation 347). 4a3cd17 run here
+# gives the rerun's numbers, so the machine, not the code, moved it; the variants need a baseline from this one.
 VARIANTS = {
     f"{ENV}__report004-rerun__s{SEED}": (
         "the report's setup again, on the variants' code",
