@@ -7,8 +7,9 @@ import optuna
 import pytest
 
 from canter.errors import CanterError
-from canter.orchestrate.study import COMMAND_ATTR, StorageSettings, claim_study, open_storage
-from canter.orchestrate.tune import SETTINGS_ATTR, check_study_settings
+from canter.orchestrate.bench import JOB_ATTR
+from canter.orchestrate.study import COMMAND_ATTR, SETTINGS_ATTR, StorageSettings, claim_study, open_storage
+from canter.orchestrate.tune import PRESET_ATTR, check_study_settings
 
 
 def _study(tmp_path, name="S"):
@@ -29,20 +30,41 @@ def test_a_study_is_claimed_by_the_first_command_and_refused_to_the_other(tmp_pa
         claim_study(other, "bench")
 
 
-def test_studies_from_before_the_mark_are_told_apart_by_what_they_hold(tmp_path):
+def test_studies_from_before_the_mark_are_told_apart_by_what_their_trials_hold(tmp_path):
+    """A tune study from before tune kept its settings was taken for a bench's (it had trials and no settings):
+    tune refused to resume it, and a bench would have taken it."""
     bench_made = _study(tmp_path, "old-bench")
-    bench_made.enqueue_trial({})  # a bench's queued job: a trial, and no tune settings
+    bench_made.enqueue_trial({}, user_attrs={JOB_ATTR: "cell|seeds=0"})  # a bench's queued job
     with pytest.raises(CanterError, match="holds a canter bench's jobs"):
         check_study_settings(bench_made, {"env": "Pendulum-v1"}, tmp_path / "trials")
-    tune_made = _study(tmp_path, "old-tune")
-    tune_made.set_user_attr(SETTINGS_ATTR, {"env": "Pendulum-v1"})
+    claim_study(bench_made, "bench")
+    assert bench_made.user_attrs[COMMAND_ATTR] == "bench"
+
+    tune_made = _study(tmp_path, "old-tune")  # trials with their preset, and no settings yet
+    tune_made.add_trial(optuna.trial.create_trial(value=1.0, user_attrs={PRESET_ATTR: "[run]\n"}))
     with pytest.raises(CanterError, match="holds a canter tune's trials"):
-        claim_study(tune_made, "bench", other_made_it=SETTINGS_ATTR in tune_made.user_attrs)
+        claim_study(tune_made, "bench")
+    check_study_settings(tune_made, {"env": "Pendulum-v1"}, tmp_path / "trials")
+    assert tune_made.user_attrs[COMMAND_ATTR] == "tune"
+
+    settings_kept = _study(tmp_path, "tune-with-settings")  # from before the command was marked
+    settings_kept.set_user_attr(SETTINGS_ATTR, {"env": "Pendulum-v1"})
+    with pytest.raises(CanterError, match="holds a canter tune's trials"):
+        claim_study(settings_kept, "bench")
 
 
-def test_a_database_of_another_optuna_version_is_one_line_naming_the_upgrade(tmp_path):
+def test_a_database_of_an_older_optuna_is_one_line_naming_the_upgrade(tmp_path):
     _study(tmp_path)
     with sqlite3.connect(tmp_path / "study.db") as connection:
         connection.execute("update alembic_version set version_num='v3.0.0.d'")
-    with pytest.raises(CanterError, match=r"made by another Optuna version .*optuna storage upgrade --storage URL"):
+    with pytest.raises(CanterError, match=r"made by an older Optuna .*optuna storage upgrade --storage URL"):
+        open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}"))
+
+
+def test_a_database_of_a_newer_optuna_is_one_line_naming_the_newer_canter(tmp_path):
+    """Optuna's advice for a schema it does not know (pip install -U optuna) came out as a traceback."""
+    _study(tmp_path)
+    with sqlite3.connect(tmp_path / "study.db") as connection:
+        connection.execute("update alembic_version set version_num='v99.0.0.a'")
+    with pytest.raises(CanterError, match=r"made by a newer Optuna .*upgrade canter here\), or give another --storage"):
         open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}"))

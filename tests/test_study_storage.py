@@ -163,8 +163,8 @@ def test_a_worker_gives_up_when_trials_keep_failing_after_some_finished(tmp_path
     with pytest.raises(CanterError) as stopped:
         run_worker(study, storage, 5, run_trial, heartbeat_seconds=1, poll_seconds=0.01, deadline=time.time() + 60)
     assert str(stopped.value) == (
-        "study 'breaks': 10 trials failed in a row since the last of its 2 finished trials; the last one: broken "
-        "(each failed trial keeps its 'fail_reason' in the study)"
+        "study 'breaks': 10 trials failed in a row since the last of its 2 finished trials; the last one: broken; "
+        "fix that and run the same command again (each failed trial keeps its 'fail_reason' in the study)"
     )
     assert len(study.trials) == 13
 

@@ -5,6 +5,7 @@ worker on this machine is gone is failed and retried at once, not after its hear
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from types import SimpleNamespace
 
@@ -190,3 +191,147 @@ def test_a_trial_whose_worker_on_this_machine_was_killed_is_retried_at_once(tmp_
         in out
     )
     assert "running elsewhere" not in out
+
+
+def _stopped(trial):
+    trial.suggest_float("x", 0.0, 1.0)
+    raise KeyboardInterrupt
+
+
+def _dead_worker_record():
+    """A PROCESS_ATTR as a worker of this machine records it, of a process that has ended."""
+    from canter.orchestrate import study as study_module
+
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    return f"{study_module._this_machine()} {ended.pid} 1"
+
+
+def test_stopped_trials_count_toward_no_limit_and_the_rerun_trains_the_queued_copy(tmp_path, capsys):
+    """Stops counted toward the failures in a row after which a worker gives up (10 of them with --trials 2): the rerun
+    refused at once, and the queued copy was never trained."""
+    storage = open_storage(_sqlite(tmp_path))
+    study = optuna.create_study(storage=storage, study_name="stops", direction="maximize")
+    for _ in range(10):
+        with pytest.raises(KeyboardInterrupt):
+            run_worker(study, storage, 2, _stopped, heartbeat_seconds=1, poll_seconds=0.01)
+    stopped_params = study.get_trials()[0].params
+    trained = []
+
+    def completes(trial):
+        trained.append(trial.suggest_float("x", 0.0, 1.0))
+        return Outcome("complete", value=trained[-1])
+
+    run_worker(study, storage, 2, completes, heartbeat_seconds=1, poll_seconds=0.01)
+    assert trained[0] == stopped_params["x"]
+    assert [t.state for t in study.get_trials()].count(TrialState.COMPLETE) == 2
+
+
+def test_a_trial_stopped_three_times_is_still_retried_when_its_worker_dies(tmp_path, capsys):
+    """The copies queued by stops used up the 3 retries of a dead worker's trial, so a trial stopped 3 times and then
+    killed was not retried, and the study went on with new parameters."""
+    storage = open_storage(_sqlite(tmp_path, heartbeat_seconds=60))
+    study = optuna.create_study(storage=storage, study_name="stops", direction="maximize")
+    for _ in range(3):
+        with pytest.raises(KeyboardInterrupt):
+            run_worker(study, storage, 1, _stopped, heartbeat_seconds=60, poll_seconds=0.01)
+    killed = study.ask()  # the queued copy, taken by a worker that is then killed
+    killed.set_user_attr(PROCESS_ATTR, _dead_worker_record())
+    trained = []
+
+    def completes(trial):
+        trained.append(trial.suggest_float("x", 0.0, 1.0))
+        return Outcome("complete", value=trained[-1])
+
+    run_worker(study, storage, 1, completes, heartbeat_seconds=60, poll_seconds=0.01, deadline=time.time() + 60)
+    assert trained == [study.get_trials()[0].params["x"]]
+
+
+def test_a_trial_stopped_once_the_study_has_its_trials_is_not_queued_again(tmp_path, capsys, monkeypatch):
+    """The stopped trial's copy was queued even when the other workers had finished the study meanwhile: it never ran,
+    the stop said the same command would train it, and every rerun reported it as queued."""
+    import canter.orchestrate.tune as tune_module
+
+    settings = tiny_settings(tmp_path, trials=1)
+    monkeypatch.setattr(tune_module, "write_results", lambda *args: None)
+    monkeypatch.setattr(tune_module, "worker", lambda *args: None)
+    tune_module.tune(settings)  # the study, with its settings
+    storage = open_storage(settings.storage)
+    study = optuna.load_study(study_name=STUDY, storage=storage)
+
+    def finished_elsewhere_then_stopped(trial):
+        trial.suggest_float("x", 0.0, 1.0)
+        study.add_trial(optuna.trial.create_trial(value=1.0))  # another worker's trial completes the study
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_worker(study, storage, 1, finished_elsewhere_then_stopped, heartbeat_seconds=1, poll_seconds=0.01)
+    assert capsys.readouterr().out == "trial 0 is not queued again: the study has its number of trials\n"
+    assert TrialState.WAITING not in [t.state for t in study.get_trials()]
+
+    study.enqueue_trial({"x": 0.5})  # a copy that an earlier version queued all the same
+    tune_module.tune(settings)
+    assert capsys.readouterr().out.splitlines()[0] == (
+        f"resuming study '{STUDY}': 1 of 1 trials done (1 complete, 0 pruned), 1 failed"
+    )
+
+
+def test_a_worker_whose_process_another_user_runs_is_alive_though_proc_hides_it(monkeypatch):
+    """Under a /proc mounted with hidepid, a worker could not read another user's /proc/PID/stat and took that
+    user's live worker for dead, failing its trials."""
+    import os
+
+    from canter.orchestrate import study as study_module
+
+    machine = study_module._this_machine()
+    where, pid, start = study_module._worker_attrs()[PROCESS_ATTR].rsplit(" ", 2)
+    ended = _dead_worker_record().rsplit(" ", 2)[1]
+    monkeypatch.setattr(study_module, "_process_of", lambda pid: None)  # hidepid: no stat of another user's process
+
+    def gone(pid):
+        return study_module._worker_gone(SimpleNamespace(user_attrs={PROCESS_ATTR: f"{where} {pid} {start}"}), machine)
+
+    assert not gone(pid)
+    assert gone(ended)
+
+    def not_permitted(pid, signal):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "kill", not_permitted)  # another user's process
+    assert not gone(pid)
+
+
+def test_workers_that_find_a_dead_workers_trial_at_once_queue_one_copy(tmp_path):
+    """On SQLite, Optuna's fail-then-queue is a read and then a write: workers sweeping at the same moment each
+    failed the dead worker's trial and each queued a copy of it."""
+    from canter.orchestrate import study as study_module
+
+    settings = _sqlite(tmp_path, heartbeat_seconds=60)
+    for round in range(5):
+        storage = open_storage(settings)
+        study = optuna.create_study(storage=storage, study_name=f"race{round}", direction="maximize")
+        dead = study.ask()
+        dead.suggest_float("x", 0.0, 1.0)
+        dead.set_user_attr(PROCESS_ATTR, _dead_worker_record())
+        workers = [open_storage(settings) for _ in range(4)]
+        studies = [optuna.load_study(study_name=study.study_name, storage=s) for s in workers]
+        for s in studies:
+            s.get_trials()  # each worker has read the study before they sweep
+        barrier = threading.Barrier(len(workers))
+
+        def sweep(s, storage, barrier):
+            barrier.wait()
+            study_module._fail_dead_workers_trials(s, storage)
+
+        threads = [threading.Thread(target=sweep, args=(*pair, barrier)) for pair in zip(studies, workers)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert [t.state for t in study.get_trials()] == [TrialState.FAIL, TrialState.WAITING], f"round {round}"
+
+
+def test_seeds_per_trial_below_one_is_refused_with_the_value_given(tmp_path, capsys):
+    """`--seeds-per-trial -3` said "got 0": the settings only saw the empty range of seeds it made."""
+    code = main(["tune", "Pendulum-v1", "--seeds-per-trial", "-3", *tiny_args(tmp_path)])
+    assert code == 2 and capsys.readouterr().err.strip() == "canter: error: --seeds-per-trial must be >= 1, got -3"

@@ -85,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.env:
         raise CanterError("no environment given; pass an env id, e.g. `canter tune Hopper-v5`")
+    if args.seeds_per_trial < 1:  # TuneSettings sees the seeds, none at all for a count below 1
+        raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
     if args.seed + args.seeds_per_trial > SEED_LIMIT:
         raise CanterError(f"--seed {args.seed} with {args.seeds_per_trial} seeds per trial passes {SEED_LIMIT - 1}")
     if args.sampler_seed is not None and args.sampler_seed + args.jobs > SEED_LIMIT:

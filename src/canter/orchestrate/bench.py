@@ -58,8 +58,7 @@ from canter.orchestrate.jobs import (
     stop_jobs,
     warn_if_more_jobs_than_cores,
 )
-from canter.orchestrate.study import claim_study, describe_url, normalize_url
-from canter.orchestrate.tune import SETTINGS_ATTR, check_at_least, study_storage
+from canter.orchestrate.study import check_at_least, claim_study, describe_url, normalize_url, study_storage
 from canter.training.run_folder import CONFIG_FILE, METRICS_FILE
 from canter.training.trackers import TrackSpec, check_trackers, group_name, open_groups
 from canter.use.reference_scores import published_scores
@@ -720,7 +719,7 @@ def _open_grid_study(settings: BenchSettings, bench_dir: Path) -> tuple[Any, Any
         "opening the study",
     )
     retrying(
-        lambda: claim_study(study, "bench", other_made_it=SETTINGS_ATTR in study.user_attrs),
+        lambda: claim_study(study, "bench"),
         settings.storage_url,
         "opening the study",
     )

@@ -23,7 +23,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -33,6 +33,10 @@ from canter.errors import CanterError
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
 INTERRUPTED = "interrupted"
+# A stop or a surplus is no fault of the trial's parameters: such trials count toward no limit on failures.
+NO_FAULT = (INTERRUPTED, SURPLUS)
+# The trials of a copy's retry_history that a stop failed (system attr), which count toward no retry limit.
+STOPPED_ATTR = "canter_stopped"
 # The worker running a trial: host:pid, as messages show it, and which process exactly (`_worker_attrs`).
 WORKER_ATTR = "worker"
 PROCESS_ATTR = "worker_process"
@@ -41,20 +45,44 @@ OUTAGE_SECONDS = 300.0
 T = TypeVar("T")
 # Which canter command a study belongs to: a bench's jobs are no tune's trials, and the other way round.
 COMMAND_ATTR = "canter_command"
+# The settings a tune study keeps (`canter.orchestrate.tune.check_study_settings`).
+SETTINGS_ATTR = "canter_settings"
+# What the trials of each command hold, which tells the studies from before COMMAND_ATTR was kept: a bench trial
+# its job (`canter.orchestrate.bench.JOB_ATTR`), a tune trial the preset it trained (`tune.PRESET_ATTR`).
+TRIAL_MARKS = {"bench": "job", "tune": "preset"}
+GRACE_HEARTBEATS = 3  # a trial whose worker missed this many heartbeats is failed and retried
 
 
-def claim_study(study: Any, command: str, other_made_it: bool = False) -> None:
-    """Mark `study` as `command`'s (bench or tune), or refuse one that the other command made. `other_made_it` tells
-    a study from before the mark was kept, which the caller recognises by what it holds."""
-    owner = study.user_attrs.get(COMMAND_ATTR)
-    if owner is None and other_made_it:
-        owner = "bench" if command == "tune" else "tune"
+def check_at_least(limits: Iterable[tuple[str, float, float]]) -> None:
+    """Refuse the first (name, value, least value) below its least value. A name is the flag, followed by the
+    settings field where it is spelled otherwise (`--heartbeat (heartbeat_seconds)`), so that the message reads right
+    from the command line and from Python."""
+    for name, value, low in limits:
+        if value < low:
+            raise CanterError(f"{name} must be >= {low:g}, got {value:g}")
+
+
+def _maker(study: Any) -> str | None:
+    """The command that made a study without COMMAND_ATTR, by what it holds; None for one that holds neither's."""
+    if SETTINGS_ATTR in study.user_attrs:
+        return "tune"
+    for trial in study.get_trials(deepcopy=False):
+        for command, attr in TRIAL_MARKS.items():
+            if attr in trial.user_attrs:
+                return command
+    return None
+
+
+def claim_study(study: Any, command: str) -> None:
+    """Mark `study` as `command`'s (bench or tune), or refuse one that the other command made."""
+    marked = study.user_attrs.get(COMMAND_ATTR)
+    owner = marked or _maker(study)
     if owner is not None and owner != command:
         raise CanterError(
             f"study '{study.study_name}' holds a canter {owner}'s {'jobs' if owner == 'bench' else 'trials'}; give "
             f"this {command} another --study (or another --storage)"
         )
-    if owner is None:
+    if marked is None:
         study.set_user_attr(COMMAND_ATTR, command)
 
 
@@ -64,6 +92,12 @@ class StorageSettings:
     heartbeat_seconds: int = 60
     grace_seconds: int = 180
     max_retry: int = 3
+
+
+def study_storage(url: str, heartbeat_seconds: int) -> StorageSettings:
+    """The storage settings of a study whose workers beat every `heartbeat_seconds` (tune's, and bench's with
+    --storage)."""
+    return StorageSettings(url, heartbeat_seconds, GRACE_HEARTBEATS * heartbeat_seconds)
 
 
 def normalize_url(url: str) -> str:
@@ -179,12 +213,19 @@ def open_storage(settings: StorageSettings) -> Any:
                         heartbeat_stale_trial_callback=functools.partial(queue_copy, max_retry=settings.max_retry),
                     )
             except RuntimeError as exc:
-                if "storage upgrade" not in str(exc):
+                # Optuna names the upgrade of a schema it knows, and `pip install -U optuna` for one it does not.
+                if "compatible with the table schema" not in str(exc):
                     raise
+                if "storage upgrade" in str(exc):
+                    raise CanterError(
+                        f"the study database at {host} was made by an older Optuna than this one "
+                        f"({optuna.__version__}); back it up and run `optuna storage upgrade --storage URL`, or "
+                        f"give another --storage"
+                    ) from None
                 raise CanterError(
-                    f"the study database at {host} was made by another Optuna version than this one "
-                    f"({optuna.__version__}); back it up and run `optuna storage upgrade --storage URL`, or give "
-                    f"another --storage"
+                    f"the study database at {host} was made by a newer Optuna than this one "
+                    f"({optuna.__version__}); run the command from a canter with the Optuna version that made it "
+                    f"(upgrade canter here), or give another --storage"
                 ) from None
             except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
                 attempt += 1
@@ -318,20 +359,38 @@ def _say_waiting(running: tuple[tuple[int, str], ...], grace: float | None) -> N
     )
 
 
-def queue_copy(study: Any, trial: Any, max_retry: int | None) -> None:
-    """Queue a copy of `trial` (a FrozenTrial) with its parameters, as Optuna's `RetryHeartbeatStaleTrialCallback`
-    does (`retried_trial_number` names the original), up to `max_retry` copies in a row (None: no limit). The copy
-    leaves out the original's worker and failure: its own worker records them, and until then a worker on the dead
-    one's machine would take it for the dead one's trial (`_fail_dead_workers_trials`)."""
+def queue_copy(study: Any, trial: Any, max_retry: int | None, stopped: bool = False) -> None:
+    """Queue a copy of `trial` (a FrozenTrial) with its parameters, with the system attrs of Optuna's
+    `RetryHeartbeatStaleTrialCallback` (`retried_trial_number` names the original, `retry_history` every failed
+    copy), up to `max_retry` copies in a row (None: no limit). The copies of trials that a stop failed (`stopped`)
+    count toward no limit. The copy leaves out the original's worker and failure: its own worker records them, and
+    until then a worker on the dead one's machine would take it for the dead one's trial (`_fail_dead_workers_trials`).
+    """
     import optuna
 
-    fresh = copy.copy(trial)
-    fresh.user_attrs = {k: v for k, v in trial.user_attrs.items() if k not in (FAIL_REASON, WORKER_ATTR, PROCESS_ATTR)}
-    optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=max_retry)(study, fresh)
+    history = [*trial.system_attrs.get("retry_history", []), trial.number]
+    stops = [*trial.system_attrs.get(STOPPED_ATTR, []), *([trial.number] if stopped else [])]
+    if max_retry is not None and len(history) - len(stops) > max_retry:
+        return
+    study.add_trial(
+        optuna.trial.create_trial(
+            state=optuna.trial.TrialState.WAITING,
+            params=trial.params,
+            distributions=trial.distributions,
+            user_attrs={k: v for k, v in trial.user_attrs.items() if k not in (FAIL_REASON, WORKER_ATTR, PROCESS_ATTR)},
+            system_attrs={
+                "failed_trial": trial.number,
+                **trial.system_attrs,
+                "retry_history": history,
+                STOPPED_ATTR: stops,
+            },
+        )
+    )
 
 
 def _process_of(pid: int) -> tuple[str, str] | None:
-    """(state, start time in clock ticks since boot) of process `pid`, from /proc; None where it has none."""
+    """(state, start time in clock ticks since boot) of process `pid`, from /proc; None where it cannot be read (no
+    such process, or another user's under a /proc mounted with hidepid)."""
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
@@ -367,14 +426,56 @@ def _worker_gone(trial: Any, machine: str) -> bool:
     where, pid, start = recorded.rsplit(" ", 2)
     if where != machine or not pid.isdigit():
         return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # another user's live process
+        pass
     found = _process_of(int(pid))
-    return found is None or found[1] != start or found[0] in ("Z", "X")  # a zombie has ended, unreaped
+    if found is None:  # alive, but /proc hides it: the heartbeat tells whether the pid still is the worker
+        return False
+    return found[1] != start or found[0] in ("Z", "X")  # a zombie has ended, unreaped
+
+
+def _fail_if_running(storage: Any, trial_id: int, reason: str | None) -> bool:
+    """Fail a running trial, with `reason` as its FAIL_REASON, in one UPDATE that changes only a RUNNING trial; False
+    where another worker failed or finished it first. Of the workers that sweep at once, only the one that failed
+    the trial queues its copy: Optuna's read-then-write let several through on SQLite, where FOR UPDATE is a no-op."""
+    import json
+    from datetime import datetime
+
+    import sqlalchemy
+    from optuna.storages._rdb import models
+    from optuna.trial import TrialState
+
+    trials, attrs = models.TrialModel, models.TrialUserAttributeModel
+    with storage.engine.begin() as connection:
+        failed = connection.execute(
+            sqlalchemy.update(trials)
+            .where(trials.trial_id == trial_id, trials.state == TrialState.RUNNING)
+            .values(state=TrialState.FAIL, datetime_complete=datetime.now())
+        ).rowcount
+        if failed and reason is not None:
+            connection.execute(sqlalchemy.delete(attrs).where(attrs.trial_id == trial_id, attrs.key == FAIL_REASON))
+            connection.execute(
+                sqlalchemy.insert(attrs).values(trial_id=trial_id, key=FAIL_REASON, value_json=json.dumps(reason))
+            )
+    return bool(failed)
+
+
+def _fail_stale_trials(study: Any, storage: Any) -> None:
+    """Optuna's `fail_stale_trials`, failing each trial with `_fail_if_running`, so that one copy is queued however
+    many workers find the trial stale at once."""
+    callback = storage.get_heartbeat_stale_trial_callback()
+    for trial_id in storage._get_stale_trial_ids(study._study_id):
+        if _fail_if_running(storage, trial_id, None) and callback is not None:
+            callback(study, copy.deepcopy(storage.get_trial(trial_id)))
 
 
 def _fail_dead_workers_trials(study: Any, storage: Any) -> None:
     """Fail the running trials whose worker was a process of this machine that has ended (kill -9, the OOM killer),
     and queue their copies as a stale heartbeat would: their heartbeat would keep this worker waiting 3 intervals."""
-    import optuna
     from optuna.trial import TrialState
 
     machine = _this_machine()
@@ -384,10 +485,7 @@ def _fail_dead_workers_trials(study: Any, storage: Any) -> None:
         if not _worker_gone(trial, machine):
             continue
         snapshot = copy.deepcopy(trial)
-        try:
-            study._storage.set_trial_user_attr(trial._trial_id, FAIL_REASON, "worker died (its process is gone)")
-            study._storage.set_trial_state_values(trial._trial_id, TrialState.FAIL)
-        except optuna.exceptions.UpdateFinishedTrialError:
+        if not _fail_if_running(storage, trial._trial_id, "worker died (its process is gone)"):
             continue  # another worker failed it first, and queued its copy
         print(
             f"trial {trial.number}: its worker {trial.user_attrs.get(WORKER_ATTR, '?')} on this machine is gone, so "
@@ -399,19 +497,29 @@ def _fail_dead_workers_trials(study: Any, storage: Any) -> None:
             callback(study, snapshot)
 
 
-def _fail_gone_then_count(study: Any, storage: Any) -> dict[str, int]:
-    """The study's trials by state, once the trials of workers known to be gone are failed and retried."""
-    import optuna
+def _faults(study: Any) -> tuple[int, str | None]:
+    """The failed trials that count toward a worker's limit on failures (not those of a stop or a surplus), and the
+    reason of the last of them."""
+    from optuna.trial import TrialState
 
+    reasons = [t.user_attrs.get(FAIL_REASON) for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL,))]
+    faults = [reason for reason in reasons if reason not in NO_FAULT]
+    return len(faults), next((reason for reason in reversed(faults) if reason is not None), None)
+
+
+def _fail_gone_then_count(study: Any, storage: Any) -> tuple[dict[str, int], int]:
+    """The study's trials by state and its number of faults (`_faults`), once the trials of workers known to be gone
+    are failed and retried."""
     _fail_dead_workers_trials(study, storage)
-    optuna.storages.fail_stale_trials(study)
-    return counts(study)
+    _fail_stale_trials(study, storage)
+    return counts(study), _faults(study)[0]
 
 
-def _stop_interrupted(study: Any, trial: Any, requeue: bool) -> None:
-    """Fail a trial that Ctrl-C or SIGTERM stopped, so that nobody waits for its heartbeat, and with `requeue`
-    queue a copy with its parameters for the next run. A stop is no fault of the trial, so its copies are not
-    limited in number; a trial failed meanwhile by another worker has its copy already."""
+def _stop_interrupted(study: Any, trial: Any, target: int | None) -> None:
+    """Fail a trial that Ctrl-C or SIGTERM stopped, so that nobody waits for its heartbeat, and queue a copy with its
+    parameters for the next run, unless the study has its `target` finished trials already (or `target` is None: a
+    queue of fixed work queues its items itself). A stop is no fault of the trial, so its copies are not limited in
+    number; a trial failed meanwhile by another worker has its copy already."""
     import optuna
     from optuna.trial import TrialState
 
@@ -421,9 +529,14 @@ def _stop_interrupted(study: Any, trial: Any, requeue: bool) -> None:
         study.tell(trial, state=TrialState.FAIL)
     except (ValueError, optuna.exceptions.UpdateFinishedTrialError):  # ValueError: study.tell of a finished trial
         return
-    if requeue:
-        queue_copy(study, snapshot, max_retry=None)
-        print(f"trial {trial.number} is queued again with its parameters; the same command trains it", flush=True)
+    if target is None:
+        return
+    n = counts(study)
+    if n["COMPLETE"] + n["PRUNED"] >= target:
+        print(f"trial {trial.number} is not queued again: the study has its number of trials", flush=True)
+        return
+    queue_copy(study, snapshot, max_retry=None, stopped=True)
+    print(f"trial {trial.number} is queued again with its parameters; the same command trains it", flush=True)
 
 
 def run_worker(
@@ -443,13 +556,13 @@ def run_worker(
     returns once none is queued or running: a queue of fixed work such as a bench grid, where a failed item is not
     retried by a new trial, and `target` is not used.
 
-    A worker gives up with a one-line error once `max(10, 2 * target)` trials in a row have failed since the study
-    last finished one (a space or a command that cannot work, such as a space edited under a resumed study).
+    A worker gives up with a one-line error once `max(10, 2 * target)` trials in a row have failed since it started
+    or the study last finished one (a space or a command that cannot work, such as a space edited under a resumed
+    study); trials failed by a stop or as surplus (`NO_FAULT`) do not count.
 
     Every storage call waits out an outage of up to `outage_seconds` (`retrying`). A trial that ran through one is
     told when the storage is back; if another worker failed it meanwhile (its heartbeat went stale), that worker
     retries it and this outcome is dropped, so no trial counts twice."""
-    import optuna
     from optuna.trial import TrialState
 
     def call(what: str, fn: Callable[[], T]) -> T:
@@ -457,23 +570,23 @@ def run_worker(
 
     states = {"complete": TrialState.COMPLETE, "pruned": TrialState.PRUNED, "fail": TrialState.FAIL}
     give_up = max(10, 2 * target)
-    progress: tuple[int, int] | None = None  # (finished, failed) when the finished count last grew
+    progress: tuple[int, int] | None = None  # (finished, faults) as this worker started or the finished count grew
     waited_for: tuple[tuple[int, str], ...] = ()  # the running trials this worker last said it waits for
     while True:
-        n = call("reading the study", functools.partial(_fail_gone_then_count, study, storage))
+        n, faults = call("reading the study", functools.partial(_fail_gone_then_count, study, storage))
         finished = n["COMPLETE"] + n["PRUNED"]
         if (ask_new and finished >= target) or (deadline is not None and time.time() >= deadline):
             return
         if progress is None or finished > progress[0]:
-            # A study with nothing finished counts every failure; a resumed one, those since this worker started.
-            progress = (finished, n["FAIL"] if finished else 0)
-        if ask_new and n["FAIL"] - progress[1] >= give_up:
+            # A rerun counts its own failures: the one before may have stopped on a cause fixed since.
+            progress = (finished, faults)
+        if ask_new and faults - progress[1] >= give_up:
             done = f"since the last of its {finished} finished trials" if finished else "and none finished"
-            failed = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.FAIL,))
-            last = next((t.user_attrs[FAIL_REASON] for t in reversed(failed) if FAIL_REASON in t.user_attrs), None)
+            last = call("reading the study", functools.partial(_faults, study))[1]
             raise CanterError(
-                f"study '{study.study_name}': {n['FAIL'] - progress[1]} trials failed in a row {done}; the last "
-                f"one: {last or 'no reason recorded'} (each failed trial keeps its '{FAIL_REASON}' in the study)"
+                f"study '{study.study_name}': {faults - progress[1]} trials failed in a row {done}; the last one: "
+                f"{last or 'no reason recorded'}; fix that and run the same command again (each failed trial keeps "
+                f"its '{FAIL_REASON}' in the study)"
             )
         if n["WAITING"] == 0:
             if not ask_new and n["RUNNING"] == 0:
@@ -499,7 +612,7 @@ def run_worker(
         except BaseException:
             # A queue of fixed work queues its failed items itself when run again.
             with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
-                _stop_interrupted(study, trial, requeue=ask_new)
+                _stop_interrupted(study, trial, target if ask_new else None)
             raise
         _tell(study, trial, outcome, states[outcome.state], call)
 

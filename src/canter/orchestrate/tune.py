@@ -24,7 +24,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -41,14 +41,18 @@ from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_job
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
     FAIL_REASON,
+    SETTINGS_ATTR,
+    TRIAL_MARKS,
     Outcome,
     StorageSettings,
+    check_at_least,
     claim_study,
     counts,
     open_storage,
     quiet_optuna,
     retrying,
     run_worker,
+    study_storage,
 )
 from canter.training.logger import read_rows
 from canter.training.run_folder import METRICS_FILE
@@ -57,23 +61,7 @@ from canter.training.trackers import TrackSpec, check_trackers, open_groups
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
 SUMMARY_FILE = "summary.md"
-PRESET_ATTR = "preset"
-GRACE_HEARTBEATS = 3  # a trial whose worker missed this many heartbeats is failed and retried
-
-
-def check_at_least(limits: Iterable[tuple[str, float, float]]) -> None:
-    """Refuse the first (name, value, least value) below its least value. A name is the flag, followed by the
-    settings field where it is spelled otherwise (`--heartbeat (heartbeat_seconds)`), so that the message reads right
-    from the command line and from Python."""
-    for name, value, low in limits:
-        if value < low:
-            raise CanterError(f"{name} must be >= {low:g}, got {value:g}")
-
-
-def study_storage(url: str, heartbeat_seconds: int) -> StorageSettings:
-    """The storage settings of a study whose workers beat every `heartbeat_seconds` (tune's, and bench's with
-    --storage)."""
-    return StorageSettings(url, heartbeat_seconds, GRACE_HEARTBEATS * heartbeat_seconds)
+PRESET_ATTR = TRIAL_MARKS["tune"]
 
 
 @dataclass(frozen=True)
@@ -412,9 +400,6 @@ def _study_deadline(study: Any, settings: TuneSettings) -> float | None:
     return min(starts, default=time.time()) + settings.study_hours * 3600
 
 
-SETTINGS_ATTR = "canter_settings"
-
-
 def _param_text(param: Any) -> str:
     if param.same_as is not None:
         return f"same as {param.same_as}"
@@ -445,7 +430,7 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
     """Refuse to resume a study with settings that make its trials incomparable, and a new study whose trial
     folders would land on those of an earlier one (a deleted or another database under the same --out-dir)."""
     stored = study.user_attrs.get(SETTINGS_ATTR)
-    claim_study(study, "tune", other_made_it=stored is None and study.trials != [])
+    claim_study(study, "tune")
     if stored is None:
         if study.trials == [] and trials_dir.is_dir() and any(trials_dir.iterdir()):
             raise CanterError(
@@ -465,10 +450,13 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
 
 def progress_line(study: Any, target: int) -> str:
     """What a resumed study holds, said as the command starts: its finished trials of `target`, and the failed,
-    queued (a stopped or dead worker's trial, to run again) and running ones."""
+    queued (a stopped or dead worker's trial, to run again, while the study lacks trials) and running ones."""
     n = counts(study)
+    done = n["COMPLETE"] + n["PRUNED"]
+    if done >= target:  # no worker asks for a trial, so queued copies left by a stop do not run
+        n["WAITING"] = 0
     line = (
-        f"resuming study '{study.study_name}': {n['COMPLETE'] + n['PRUNED']} of {target} trials done "
+        f"resuming study '{study.study_name}': {done} of {target} trials done "
         f"({n['COMPLETE']} complete, {n['PRUNED']} pruned)"
     )
     words = (("FAIL", "failed"), ("WAITING", "queued"), ("RUNNING", "running"))
