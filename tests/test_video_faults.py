@@ -1,6 +1,7 @@
 """Videos when things go wrong: a render stopped by SIGTERM leaves no temp file (as Ctrl-C did), and the readers of
 RUN/videos/ skip the temp file of a render still going or killed."""
 
+import json
 import os
 import shutil
 import signal
@@ -69,22 +70,46 @@ def _renders_to(path: Path) -> list[int]:
     return found
 
 
-def _signal_once_rendering(argv: list[str], folder: Path, pattern: str, sig: int, env: dict | None = None):
-    """Start `argv`, send it `sig` once a temp file matching `pattern` appears under `folder` (a render that has just
-    begun, the moment a signal was once lost in), and return its exit status and stderr."""
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+# Runs a command with SIGINT ignored or not (SIG_IGN or SIG_DFL, as a number), whatever this process has: exec keeps
+# both. A preexec_fn would do it too, but JAX warns of the fork.
+WITH_SIGINT = (
+    "import os, signal, sys; signal.signal(signal.SIGINT, signal.Handlers(int(sys.argv[1]))); "
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
+
+
+def _rendering(argv: list[str], folder: Path, pattern: str, env: dict | None = None, sigint=signal.SIG_DFL):
+    """Start `argv` with SIGINT handled as `sigint` (SIG_IGN: as a job that a script starts with `&`; SIG_DFL,
+    whatever this test process was started with) and return it once a temp file matching `pattern` appears under
+    `folder`: a render that has just begun, the moment a signal was once lost in."""
+    launch = [sys.executable, "-c", WITH_SIGINT, str(int(sigint))]
+    process = subprocess.Popen([*launch, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         deadline = time.monotonic() + 600
         while not list(folder.glob(pattern)):
             assert process.poll() is None, process.communicate()[1]
             assert time.monotonic() < deadline, "no temp file appeared"
             time.sleep(0.01)
+    except BaseException:
+        _end(process)
+        raise
+    return process
+
+
+def _end(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.kill()
+        process.wait()
+
+
+def _signal_once_rendering(argv: list[str], folder: Path, pattern: str, sig: int, env: dict | None = None):
+    """Send `argv` `sig` once it is `_rendering`, and return its exit status and stderr."""
+    process = _rendering(argv, folder, pattern, env)
+    try:
         process.send_signal(sig)
         _, err = process.communicate(timeout=120)
     finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
+        _end(process)
     return process.returncode, err
 
 
@@ -94,6 +119,15 @@ STOPPED = [(signal.SIGTERM, -signal.SIGTERM, ""), (signal.SIGINT, 130, "canter: 
 
 def _check_stopped(ended: tuple[int, str], code: int, said: str) -> None:
     assert ended[0] == code and ended[1].endswith(said) and "Traceback" not in ended[1], ended
+
+
+# `canter video` as where mujoco was imported with another GL platform: it renders in a child process.
+IN_A_SUBPROCESS = (
+    "import sys; from canter.use import video; video._headless_in_this_process = lambda: False; "
+    "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+)
+# The ways a video renders: in the process that asks for it, or in a child process of it.
+WHERE = {"in process": ["-m", "canter.cli.main"], "in a subprocess": ["-c", IN_A_SUBPROCESS]}
 
 
 def _video_argv(run_dir: Path, out: Path) -> list[str]:
@@ -116,11 +150,7 @@ def test_a_stopped_canter_video_stops_its_render_subprocess(tiny_run, tmp_path, 
     """Where mujoco was imported with another GL platform, the video renders in a child process: a signal to the
     parent stops that child too, and its temp file goes, rather than an orphan rendering on."""
     out = tmp_path / "vid" / "v.mp4"
-    script = (
-        "import sys; from canter.use import video; video._headless_in_this_process = lambda: False; "
-        "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
-    )
-    argv = [sys.executable, "-c", script, *_video_argv(tiny_run.run_dir, out)]
+    argv = [sys.executable, "-c", IN_A_SUBPROCESS, *_video_argv(tiny_run.run_dir, out)]
     _check_stopped(_signal_once_rendering(argv, out.parent, ".v.*.tmp.mp4", sig), code, said)
     orphans = _renders_to(out)
     for pid in orphans:
@@ -145,3 +175,65 @@ def test_sigterm_to_canter_report_video_leaves_no_temp_file(tiny_run, tmp_path):
     code, err = _signal_once_rendering([*argv, str(out)], temp, "canter-report-*/.run1.*.tmp.mp4", signal.SIGTERM, env)
     assert code == -signal.SIGTERM, err
     assert [p for p in temp.rglob("*") if p.is_file()] == [] and not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", WHERE)
+def test_a_canter_video_started_ignoring_sigint_renders_on_after_it(tiny_run, tmp_path, where):
+    """A job that a script starts with `&` ignores SIGINT, so that a Ctrl-C meant for the foreground leaves it
+    running: canter video left it ignored (it stopped, as if Ctrl-C'd). SIGTERM still stops it, temp file and all."""
+    out = tmp_path / "vid" / "v.mp4"
+    argv = [sys.executable, *WHERE[where], *_video_argv(tiny_run.run_dir, out)]
+    process = _rendering(argv, out.parent, ".v.*.tmp.mp4", sigint=signal.SIG_IGN)
+    try:
+        process.send_signal(signal.SIGINT)
+        time.sleep(3.0)  # a stop takes a frame, then the encoder's end; 50 episodes take far longer
+        assert process.poll() is None, process.communicate()
+        assert list(out.parent.glob(".v.*.tmp.mp4"))
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        _end(process)
+    _check_stopped((process.returncode, err), -signal.SIGTERM, "")
+    orphans = _renders_to(out)
+    for pid in orphans:
+        os.kill(pid, signal.SIGKILL)
+    assert orphans == [] and list(out.parent.iterdir()) == []
+
+
+# A caller of record_video with a SIGTERM handler of its own that returns: it notes the signal and goes on.
+OWN_HANDLER = """
+import json, os, signal, sys, threading, time
+from pathlib import Path
+from canter.use import video
+
+if sys.argv[3] == "in a subprocess":
+    video._headless_in_this_process = lambda: False
+out = Path(sys.argv[2])
+noted = []
+note = lambda signum, frame: noted.append(signum)
+signal.signal(signal.SIGTERM, note)
+
+def once_rendering():
+    while not list(out.parent.glob(".v.*.tmp.mp4")):
+        time.sleep(0.01)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+threading.Thread(target=once_rendering, daemon=True).start()
+returns = video.record_video(sys.argv[1], out, episodes=50, width=64, height=48)
+print(json.dumps({"noted": noted, "episodes": len(returns), "back": signal.getsignal(signal.SIGTERM) is note}))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", WHERE)
+def test_record_video_passes_sigterm_to_its_callers_handler(tiny_run, tmp_path, where):
+    """The caller's own SIGTERM handler gets the signal once the unfinished file is gone, and as it returns, so does
+    record_video, with fewer episodes than asked and no file; it raised KeyboardInterrupt, which no handler did."""
+    out = tmp_path / "vid" / "v.mp4"
+    argv = [sys.executable, "-c", OWN_HANDLER, str(tiny_run.run_dir), str(out), where]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    said = json.loads(done.stdout.strip().splitlines()[-1])
+    assert said["noted"] == [signal.SIGTERM] and said["episodes"] < 50 and said["back"], said
+    assert not out.exists() and list(out.parent.iterdir()) == []

@@ -28,6 +28,7 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
+from canter.signals import handling_stop_signals
 from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
@@ -470,28 +471,21 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
     return [p.exitcode for p in processes if p.exitcode]
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
 @contextlib.contextmanager
 def sigterm_interrupts() -> Iterator[None]:
     """Within it, SIGTERM (a scheduler, `kill`, a dying parent) stops the process as Ctrl-C does, so that a bench or
     tune worker stops its job and records its trial as interrupted rather than leave it running in the study. The
     first stop signal interrupts, and later ones are ignored: a second one (Ctrl-C to the process group, then the
     parent passing it on) would cut short the cleanup that waits for the job's checkpoint, which is bounded anyway
-    (`stop_jobs`: its grace, then SIGKILL)."""
+    (`stop_jobs`: its grace, then SIGKILL). A signal the process ignores stays ignored (`handling_stop_signals`)."""
 
     def interrupt(signum: int, frame: Any) -> None:
-        for sig in STOP_SIGNALS:
+        for sig in handled:
             signal.signal(sig, signal.SIG_IGN)
         raise KeyboardInterrupt
 
-    previous = {sig: signal.signal(sig, interrupt) for sig in STOP_SIGNALS}
-    try:
+    with handling_stop_signals(interrupt) as handled:
         yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: dict[str, str]) -> None:

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import sys
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -26,6 +24,7 @@ from canter.config.validate import validate
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import WriteError, atomic_write_bytes, is_write_error
+from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation, evaluation_backend
 from canter.training.logger import MetricsLogger, Progress, logged, totals_until
@@ -46,29 +45,6 @@ class RunResult:
     stop_reason: str  # budget | stop_at_return | max_minutes | signal
     # The seeds of the process that trained its last session (itself alone, or its vmapped group); None unknown.
     trained_with: tuple[int, ...] | None = None
-
-
-class _StopFlag:
-    """SIGINT/SIGTERM set a flag; the loop writes a checkpoint and returns at the next iteration boundary."""
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> _StopFlag:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.signal is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt  # a second Ctrl-C means now
-        self.signal = signum
-
-    def __exit__(self, *exc: Any) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
 
 
 class Saved(Enum):
@@ -624,7 +600,8 @@ def _loop(
     progress = Progress(total, min(start_steps), quiet, label)
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
     try:
-        with _StopFlag() as stop:
+        # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
+        with StopFlag() as stop:
             while any(run.stop_reason is None for run in runs):
                 t0 = time.perf_counter()
                 try:

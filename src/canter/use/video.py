@@ -26,17 +26,15 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from canter.envs.dm_control_tasks import suite_task
 from canter.errors import CanterError
 from canter.files import OUTPUT_FILE_MODE, check_writable
+from canter.signals import StopFlag
 from canter.training.videos import child_env, quiet_fork
-
-if TYPE_CHECKING:
-    from canter.training.loop import _StopFlag
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
@@ -361,15 +359,6 @@ class _Stopped(BaseException):
     """Raised at the first frame after SIGINT or SIGTERM, to remove the unfinished video before the signal acts."""
 
 
-def _deliver(signum: int | None) -> None:
-    """Deliver a stop signal that waited for the unfinished video to be removed, now that its handler from before is
-    back: SIGINT raises KeyboardInterrupt, and SIGTERM's default action ends the process (143 in a shell)."""
-    if signum is None:
-        return
-    signal.raise_signal(signum)
-    raise KeyboardInterrupt  # that handler returned, or ignores the signal: the video is stopped all the same
-
-
 def record_video(
     run_dir: str | Path,
     out_path: str | Path,
@@ -389,9 +378,11 @@ def record_video(
     is called once the arguments are checked and rendering begins, and `on_episode(i, return)` as each episode
     ends, since a long episode takes minutes to render on a CPU. In a process whose MuJoCo already renders
     otherwise, the render runs in a subprocess: then `on_start` comes before that process checks the camera and
-    the env, and every `on_episode` once the file is written. SIGINT or SIGTERM (in the main thread) stops the
-    render at its next frame and removes the unfinished file; then the signal acts as it would have: SIGINT raises
-    KeyboardInterrupt, and SIGTERM's default action ends the process."""
+    the env, and every `on_episode` once the file is written. SIGINT or SIGTERM (in the main thread; not one that
+    the process ignores) stops the render at its next frame and removes the unfinished file; then the signal acts
+    as it would have (`StopFlag.deliver`): Python's SIGINT handler raises KeyboardInterrupt, and SIGTERM's default
+    action ends the process. Where the caller's own handler returns instead, so does this, with no file written
+    and the returns of the episodes finished before the stop (fewer than asked)."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
@@ -410,7 +401,6 @@ def record_video(
             if on_episode:
                 on_episode(i, value)
         return returns
-    from canter.training.loop import _StopFlag
     from canter.use.policy import load
 
     configure_gl()
@@ -423,8 +413,8 @@ def record_video(
     )
     returns = []
     # SIGINT and SIGTERM set a flag that the next frame acts on, as they stop training at the next iteration: raised
-    # in a handler, an exception is lost when the signal lands in a garbage-collection callback (JAX has one).
-    with _StopFlag() as stop:
+    # in a handler, an exception could be lost (`StopFlag`).
+    with StopFlag() as stop:
         try:
             with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
                 writer = _AtomicVideo(out, fps)
@@ -449,7 +439,7 @@ def record_video(
             pass  # the signal is delivered below, once its handler from before is back
         finally:
             player.close()
-    _deliver(stop.signal)
+    stop.deliver()
     return returns
 
 
@@ -477,9 +467,7 @@ def _record_in_subprocess(
         max_steps=max_steps,
         checkpoint=str(checkpoint),
     )
-    from canter.training.loop import _StopFlag
-
-    with _StopFlag() as stop:
+    with StopFlag() as stop:
         with quiet_fork():
             process = subprocess.Popen(
                 [sys.executable, "-m", "canter.use.video", json.dumps(request)],
@@ -493,15 +481,17 @@ def _record_in_subprocess(
         except BaseException:  # a second Ctrl-C: this process leaves now, and the renderer still stops and cleans up
             process.terminate()
             raise
-    _deliver(stop.signal)
+    stop.deliver()
     lines = stdout.strip().splitlines()
+    if stop.signal is not None and process.returncode != 0:
+        return []  # stopped, and the caller's own handler let it go on: no episode came back, and no file
     if process.returncode != 0 or not lines:
         error = (stderr.strip().splitlines() or ["no output"])[-1]
         raise CanterError(f"rendering failed in a subprocess: {error.removeprefix('canter: error: ')}")
     return json.loads(lines[-1])
 
 
-def _wait_for_renderer(process: subprocess.Popen, stop: _StopFlag) -> tuple[str, str]:
+def _wait_for_renderer(process: subprocess.Popen, stop: StopFlag) -> tuple[str, str]:
     """The render subprocess's stdout and stderr once it ends. A stop signal to this process is passed on to it as
     SIGTERM, a stop that it too takes at its next frame, removing its temp file (rather than render on as an
     orphan); it is killed if it has not ended within _STOP_SECONDS."""
@@ -525,7 +515,6 @@ def _end_with(parent: int) -> None:
     if not sys.platform.startswith("linux"):
         return
     import ctypes
-    import signal
 
     pr_set_pdeathsig = 1
     with contextlib.suppress(OSError, AttributeError):

@@ -1,0 +1,61 @@
+"""SIGINT and SIGTERM, the signals that stop a canter command: handlers set for a stretch of work and put back after,
+and a stop held back until the work is in a safe state, then passed on to the handling it would have had."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from types import FrameType
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def handling_stop_signals(handler: Callable[[int, FrameType | None], Any]) -> Iterator[dict[signal.Signals, Any]]:
+    """Within it, `handler` handles SIGINT and SIGTERM; yields the handlers it replaced, by signal, put back at the
+    end. A signal the process ignores stays ignored: a shell starts a background job (`cmd &` in a script) with
+    SIGINT ignored so that a Ctrl-C meant for the foreground leaves it running, as Python itself does then. So does
+    a handler that was not set from Python, which could not be put back. Outside the main thread, where Python
+    cannot set handlers, nothing changes."""
+    replaced: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            if signal.getsignal(sig) not in (signal.SIG_IGN, None):
+                replaced[sig] = signal.signal(sig, handler)
+    try:
+        yield replaced
+    finally:
+        for sig, earlier in replaced.items():
+            signal.signal(sig, earlier)
+
+
+class StopFlag:
+    """A context in which SIGINT and SIGTERM (those `handling_stop_signals` handles) set `signal`, for work that stops
+    at its next safe point: an exception raised in a handler is lost when the signal lands in a garbage-collection
+    callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._handling = contextlib.ExitStack()
+
+    def __enter__(self) -> StopFlag:
+        self._handling.enter_context(handling_stop_signals(self._handle))
+        return self
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signal is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signal = signum
+
+    def __exit__(self, *exc: object) -> None:
+        self._handling.close()
+
+    def deliver(self) -> None:
+        """Once the context is left: the signal it held back, if any, acts now as it would have when it came. The
+        handler from before runs (Python's own raises KeyboardInterrupt for SIGINT) and, if it returns, so does this;
+        where there was none, the default action ends the process by the signal (143 in a shell for SIGTERM)."""
+        if self.signal is not None:
+            signal.raise_signal(self.signal)
