@@ -125,8 +125,13 @@ def provenance_table(folders: Iterable[Path]) -> str:
                 else f"{commit[:7]}" + (" with uncommitted changes" if versions.get("canter_dirty") else "")
             )
             gpu = versions.get("gpu")
-            machine = f"{versions.get('cpu', '?')}, {versions.get('cpu_count', '?')} cores" + (
-                f", {gpu}" if gpu else ""
+            # The kernel build tells this workplace's machines apart, which the CPU's name does not; runs repeat to
+            # the bit only on one of them (report 004 measured a first episode that differs across two).
+            kernel = str(versions.get("platform") or "").split("-x86_64")[0].split("-aarch64")[0]
+            machine = (
+                f"{versions.get('cpu', '?')}, {versions.get('cpu_count', '?')} cores"
+                + (f", {gpu}" if gpu else "")
+                + (f", `{kernel}`" if kernel else "")
             )
             libraries = ", ".join(
                 f"{name} {versions[name]}" for name in ("jax", "envpool", "mujoco") if versions.get(name) is not None

@@ -142,6 +142,8 @@ def test_provenance_groups_runs_by_commit_machine_and_versions_with_their_days(t
     )
     run("old/Hopper-v5__ppo__s2")
     run("gpu", created="2026-11-27T00:00:00Z", canter_commit=sha, canter_dirty=False, gpu="NVIDIA H200", jax="0.11.2")
+    platform = "Linux-6.18.44-fc-v669-x86_64-with-glibc2.36"
+    run("other", created="2026-11-28T00:00:00Z", canter_commit=sha, canter_dirty=False, platform=platform)
     libraries = "jax 0.10.2, envpool 1.2.5, mujoco 3.6.0"
     assert provenance_table([tmp_path, tmp_path / "missing"]).splitlines() == [
         "| canter commit | runs | trained | machine | versions |",
@@ -149,5 +151,6 @@ def test_provenance_groups_runs_by_commit_machine_and_versions_with_their_days(t
         f"| not recorded (runs before 2026-11-26) | 1 | not recorded | AMD EPYC, 2 cores | {libraries} |",
         f"| 0123456 with uncommitted changes | 1 | 2026-11-26 | AMD EPYC, 2 cores | {libraries} |",
         "| 0123456 | 1 | 2026-11-27 | AMD EPYC, 2 cores, NVIDIA H200 | jax 0.11.2, envpool 1.2.5, mujoco 3.6.0 |",
+        f"| 0123456 | 1 | 2026-11-28 | AMD EPYC, 2 cores, `Linux-6.18.44-fc-v669` | {libraries} |",
         f"| 0123456 | 2 | 2026-11-29 to 2026-11-30 | AMD EPYC, 2 cores | {libraries} |",
     ]
