@@ -18,23 +18,8 @@ from canter.errors import CanterError
 from canter.orchestrate.bench import BenchSettings, Cell, make_cells, make_jobs, seed_record, seeds_finished
 from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
 from canter.training import checkpoint
+from test_bench import TINY
 
-TINY = [
-    "--set",
-    "net.hidden=16,16",
-    "--set",
-    "run.tensorboard=false",
-    "--set",
-    "env.num_envs=4",
-    "--set",
-    "ppo.n_steps=128",
-    "--set",
-    "ppo.minibatch_size=256",
-    "--set",
-    "ppo.epochs=2",
-    "--set",
-    "run.checkpoint_every=512",
-]
 BUDGET = 2000
 EVAL = {"checkpoint": f"ckpt_{BUDGET:012d}.npz", "episodes": 3, "mean": 1.0, "returns": [1.0], "lengths": [5]}
 
