@@ -163,7 +163,7 @@ def test_the_heartbeat_grace_follows_the_heartbeat():
     "argv, message",
     [
         (["--heartbeat", "0"], "--heartbeat (heartbeat_seconds) must be >= 1, got 0"),
-        (["--seeds-per-trial", "0"], "--seeds-per-trial (the number of seeds) must be >= 1, got 0"),
+        (["--seeds-per-trial", "0"], "--seeds-per-trial must be >= 1, got 0"),
     ],
 )
 def test_tune_command_line_says_the_same(tmp_path, capsys, argv, message):
