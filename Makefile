@@ -14,7 +14,14 @@ install: $(VENV)/.installed
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[test,distributed]"
+	$(PY) -m pip install -q -e ".[test]"
+	touch $@
+
+# The demo needs canter alone, not the test tools and the extras they cover.
+$(VENV)/.installed-core: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e .
 	touch $@
 
 lint: install
@@ -26,7 +33,7 @@ test: lint
 test-fast: lint
 	$(PY) -m pytest -q -m "not slow"
 
-demo: install
+demo: $(VENV)/.installed-core
 	rm -rf $(DEMO_DIR)
 	$(VENV)/bin/canter train Hopper-v5 --seed 0 --total-steps 2.5e6 --out-dir $(DEMO_DIR)
 	$(VENV)/bin/canter eval $$(ls -d $(DEMO_DIR)/*/ | head -n 1) --episodes 10
