@@ -18,7 +18,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from canter.orchestrate.bench import seed_record
+from canter.orchestrate.bench_results import seed_record
 from canter.training import checkpoint
 from canter.training.run_folder import METRICS_FILE
 

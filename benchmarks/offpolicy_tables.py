@@ -24,8 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # archive.py, when loaded from elsewhere (the tests)
 from archive import ROOT, finished_runs, read_text, replace_between, sync
 
-from canter.orchestrate.bench import combine_records, plot_env, published_for
-from canter.orchestrate.bench import results_table as bench_table
+from canter.orchestrate.bench_results import combine_records, plot_env, published_for
+from canter.orchestrate.bench_results import results_table as bench_table
 
 ARCHIVE = ROOT / "benchmarks" / "results" / "offpolicy-1m"
 # preset name -> archive of runs made with it ("" is the default preset, whose runs are in ARCHIVE).

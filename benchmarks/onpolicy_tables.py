@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # archive.py, when loaded from elsewhere (the tests)
 from archive import ROOT, copy_run, finished_runs, read_text, replace_between, sync
 
-from canter.orchestrate.bench import combine_records, plot_env, published_for, results_markdown
+from canter.orchestrate.bench_results import combine_records, plot_env, published_for, results_markdown
 
 ARCHIVE = ROOT / "benchmarks" / "results" / "onpolicy-1m-heldout"
 ALGOS = ("ppo", "rpo", "trpo")

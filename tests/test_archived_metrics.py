@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canter.orchestrate.bench import seed_record
+from canter.orchestrate.bench_results import seed_record
 from canter.training.logger import read_rows, totals_until
 from canter.training.run_folder import metrics_file
 from canter.use.plot import read_metrics

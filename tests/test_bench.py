@@ -13,13 +13,8 @@ import numpy as np
 import pytest
 
 from canter.cli.main import main
-from canter.orchestrate.bench import (
-    BenchSettings,
-    make_cells,
-    make_jobs,
-    published_for,
-    varying_keys,
-)
+from canter.orchestrate.bench_grid import BenchSettings, make_cells, make_jobs, varying_keys
+from canter.orchestrate.bench_results import published_for
 
 TINY = [
     "--set",
@@ -49,7 +44,8 @@ def test_published_scores_are_shipped_with_their_sources():
 
     text = resources.files("canter.data").joinpath("published.toml").read_text()
     assert "vwxyzjn/cleanrl" in text and "thu-ml/tianshou" in text and "rl-baselines3-zoo" in text
-    assert "/work/shared" not in Path(__file__).parent.parent.joinpath("src/canter/orchestrate/bench.py").read_text()
+    for module in Path(__file__).parent.parent.joinpath("src/canter/orchestrate").glob("bench*.py"):
+        assert "/work/shared" not in module.read_text(), module
 
 
 def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
@@ -285,7 +281,7 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
 def _stored_jobs(url: str, study: str) -> list[tuple[str, str]]:
     import optuna
 
-    from canter.orchestrate.bench import trial_job
+    from canter.orchestrate.bench_distributed import trial_job
 
     # The experiment's digest ends every key; the tests read the rest.
     trials = optuna.load_study(study_name=study, storage=url).trials
@@ -297,7 +293,7 @@ def test_grid_through_an_optuna_storage(tmp_path, capsys):
     """With --storage every job is one queued trial; a re-run queues only what it adds: a cell, or a seed."""
     import optuna
 
-    from canter.orchestrate.bench import trial_job
+    from canter.orchestrate.bench_distributed import trial_job
 
     url = f"sqlite:///{tmp_path / 'grid.db'}"
 
@@ -414,7 +410,7 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
     """Each td3 seed is its own trial; the cell's row combines both seeds' records, locally as from the storage."""
     import optuna
 
-    from canter.orchestrate.bench import trial_job
+    from canter.orchestrate.bench_distributed import trial_job
 
     out = tmp_path / "bench"
     url = f"sqlite:///{tmp_path / 'grid.db'}"
@@ -457,7 +453,7 @@ def test_off_policy_seeds_run_as_jobs_through_a_storage_and_the_table_merges_the
 
 
 def test_a_resumed_runs_record_counts_every_session(tmp_path):
-    from canter.orchestrate.bench import seed_record
+    from canter.orchestrate.bench_results import seed_record
 
     # The summary of the last session, as runs resumed before totals were carried over wrote it.
     (tmp_path / "summary.json").write_text(json.dumps({"global_step": 300, "wall_seconds": 5.0, "sps": 40.0}))
@@ -510,31 +506,28 @@ def test_a_set_reaches_the_cells_whose_algorithm_reads_it():
 
 
 def test_a_cells_wall_time_and_sps_depend_on_how_its_seeds_trained():
-    from canter.orchestrate.bench import combine_records, results_table
+    from canter.orchestrate.bench_results import SeedRecord, combine_seeds, results_table
 
-    records = [
-        {"seed": 0, "eval_mean": 10.0, "wall_seconds": 600.0, "sps": 100.0},
-        {"seed": 1, "eval_mean": 20.0, "wall_seconds": 1200.0, "sps": 300.0},
-    ]
+    records = [SeedRecord(0, 10.0, 600.0, 100.0, None), SeedRecord(1, 20.0, 1200.0, 300.0, None)]
     settings = BenchSettings(algos=("ppo", "td3"), envs=("Hopper-v5",), seeds=(0, 1), total_steps=1000)
     ppo, td3 = sorted(make_cells(settings), key=lambda c: c.algo)
     # A vmapped group: one process, so the slowest seed's wall time and the seeds' rates together.
-    group = combine_records(ppo, records)
-    assert group["wall_minutes"] == 20.0 and group["sps"] == 400.0
+    group = combine_seeds(ppo, records)
+    assert group.wall_minutes == 20.0 and group.sps == 400.0
     # Separate jobs, maybe at different times: the mean per seed.
-    apart = combine_records(td3, records)
-    assert apart["wall_minutes"] == 15.0 and apart["sps"] == 200.0
-    assert apart["return_mean"] == group["return_mean"] == 15.0 and apart["return_std"] == 5.0
+    apart = combine_seeds(td3, records)
+    assert apart.wall_minutes == 15.0 and apart.sps == 200.0
+    assert apart.return_mean == group.return_mean == 15.0 and apart.return_std == 5.0
 
     markdown, _ = results_table([group, apart], [], 1000)
     assert "Cell wall min and cell SPS of td3: the mean per seed" in markdown
     markdown, _ = results_table([group], [], 1000)
     assert "mean per seed" not in markdown
     # ppo seeds that trained in two sessions (seed 1 added by a later bench): no one process ran at their summed rate.
-    split = [dict(records[0], trained_with=[0]), dict(records[1], trained_with=[1])]
-    assert combine_records(ppo, [dict(r, trained_with=[0, 1]) for r in records])["sps"] == 400.0
-    late = combine_records(ppo, split)
-    assert late["wall_minutes"] == 15.0 and late["sps"] == 200.0
+    split = [replace(records[0], trained_with=(0,)), replace(records[1], trained_with=(1,))]
+    assert combine_seeds(ppo, [replace(r, trained_with=(0, 1)) for r in records]).sps == 400.0
+    late = combine_seeds(ppo, split)
+    assert late.wall_minutes == 15.0 and late.sps == 200.0
     markdown, _ = results_table([late], [], 1000)
     assert f"Cell wall min and cell SPS of {ppo.name}: the mean per seed, since their seeds did not all" in markdown
 
@@ -548,7 +541,7 @@ def test_bench_defaults_to_five_seeds():
 
 def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
     import canter.use.statistics
-    from canter.orchestrate.bench import combine_records, results_markdown
+    from canter.orchestrate.bench_results import combine_records, results_markdown
     from canter.use.reference_scores import normalizer_for
 
     monkeypatch.setattr(canter.use.statistics, "REPS", 100)  # few resamples: the plumbing, not the coverage
@@ -610,7 +603,7 @@ def test_a_cell_with_a_diverged_seed_is_left_out_of_the_statistics_and_named(mon
     """A seed whose eval.json holds a NaN mean (a diverged policy) once crashed the statistics, so no results file
     was written. Its cell now stays out of them whole, and the results say so."""
     import canter.use.statistics
-    from canter.orchestrate.bench import combine_records, results_markdown
+    from canter.orchestrate.bench_results import combine_records, results_markdown
 
     monkeypatch.setattr(canter.use.statistics, "REPS", 100)
     settings = BenchSettings(algos=("ppo", "trpo"), envs=("Hopper-v5",), seeds=(0, 1, 2), total_steps=1000)
@@ -681,7 +674,7 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
     import numpy as np
 
     from canter.config.serialize import to_toml
-    from canter.orchestrate.bench import seeds_finished
+    from canter.orchestrate.bench_runs import seeds_finished
     from canter.training import checkpoint
 
     settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 2000, eval_episodes=3)
@@ -706,8 +699,8 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
 def test_a_job_whose_evaluation_is_not_a_number_fails_with_its_reason(tmp_path, monkeypatch):
     import optuna
 
-    import canter.orchestrate.bench as bench_module
-    from canter.orchestrate.bench import JOB_ATTR, _job_trial, job_key, make_jobs
+    import canter.orchestrate.bench_distributed as bench_distributed
+    from canter.orchestrate.bench_distributed import JOB_ATTR, _job_trial, job_key
 
     settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 1000, eval_episodes=1)
     [job] = make_jobs(make_cells(settings), settings.seeds)
@@ -719,9 +712,9 @@ def test_a_job_whose_evaluation_is_not_a_number_fails_with_its_reason(tmp_path, 
         def wait(self):
             return 0
 
-    monkeypatch.setattr(bench_module, "start_job", lambda spec, folder: Finished())
-    monkeypatch.setattr(bench_module, "stop_jobs", lambda procs: None)
-    monkeypatch.setattr(bench_module, "seeds_finished", lambda *args: True)
+    monkeypatch.setattr(bench_distributed, "start_job", lambda spec, folder: Finished())
+    monkeypatch.setattr(bench_distributed, "stop_jobs", lambda procs: None)
+    monkeypatch.setattr(bench_distributed, "seeds_finished", lambda *args: True)
     study = optuna.create_study(direction="maximize")
     study.enqueue_trial({}, user_attrs={JOB_ATTR: job_key(job, settings)})
     trial = study.ask()
@@ -777,7 +770,7 @@ def test_a_password_with_an_unencoded_at_sign_is_refused_without_showing_it(caps
 def test_runs_without_a_finished_episode_get_a_note_instead_of_a_plot(tmp_path, capsys):
     """A budget in which no episode ended once failed every bench, and every rerun, with plot's "no column
     episodic_return" error after the results were written."""
-    from canter.orchestrate.bench import plot_env
+    from canter.orchestrate.bench_results import plot_env
 
     run = tmp_path / "run"
     shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)

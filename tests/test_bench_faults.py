@@ -1,8 +1,10 @@
-"""canter bench when things go wrong: damaged summary.json and eval.json files, a full disk, a second local bench on
-the same folder, results paths that cannot be written, and what a re-run says it resumes."""
+"""canter bench when things go wrong: damaged summary.json and eval.json files, a full disk, a second bench on the
+same folder, results paths that cannot be written, and what a re-run says it resumes."""
 
 import csv
 import json
+import os
+import socket
 import subprocess
 import sys
 from dataclasses import replace
@@ -11,11 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import canter.orchestrate.bench as bench_module
+import canter.orchestrate.bench_local as bench_local
 from canter.cli.main import main
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
-from canter.orchestrate.bench import BenchSettings, Cell, make_cells, make_jobs, seed_record, seeds_finished
+from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells, make_jobs
+from canter.orchestrate.bench_results import read_seed
+from canter.orchestrate.bench_runs import seeds_finished
 from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
 from canter.training import checkpoint
 from test_bench import TINY
@@ -69,7 +73,7 @@ def test_a_damaged_summary_is_written_again_from_the_final_checkpoint(tmp_path, 
     (run / "summary.json").write_text(content)
     assert run_status(run, BUDGET) == "ended"
     assert not seeds_finished(cell, (0,), settings, tmp_path)
-    assert seed_record(run, 0)["wall_seconds"] is None  # the table's reader never raises either
+    assert read_seed(run, 0).wall_seconds is None  # the table's reader never raises either
 
 
 def test_a_damaged_summary_without_a_checkpoint_to_rebuild_it_from_is_named(tmp_path):
@@ -98,7 +102,7 @@ def test_a_damaged_evaluation_is_done_again(tmp_path, monkeypatch, content):
     run = _finished_run(cell, tmp_path, 0)
     (run / "eval.json").write_text(content)
     assert not seeds_finished(cell, (0,), settings, tmp_path)
-    assert seed_record(run, 0)["eval_mean"] is None
+    assert read_seed(run, 0).eval_mean is None
 
     class Evaluated:
         mean, std = 2.0, 0.0
@@ -200,6 +204,39 @@ def test_a_second_local_bench_on_the_same_folder_is_refused_at_once(tmp_path, ca
     assert not (out / ".cells").exists()
 
 
+def test_a_local_bench_and_a_shared_grids_worker_on_one_folder_refuse_each_other(tmp_path, capsys):
+    """A local bench and a bench with --storage on one --out trained the same run folders, each failing the jobs the
+    other one held, and overwrote each other's tables. The workers of one shared grid still share the folder."""
+    import optuna
+
+    from canter.orchestrate.bench_folder import holding_bench_folder, sharing_bench_folder
+
+    out, url = tmp_path / "b", f"sqlite:///{tmp_path / 'grid.db'}"
+    out.mkdir()
+    argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "1024", "--episodes", "1"]
+    argv += ["--out", str(out)] + TINY
+    who = f"(process {os.getpid()} on {socket.gethostname()}: "
+    with holding_bench_folder(out):  # a local bench is running on the folder
+        assert main([*argv, "--storage", url, "--study", "grid"]) == 2
+        err = _one_line_error(capsys)
+    assert f"{out} is in use by a bench without --storage {who}" in err
+    assert err.endswith(
+        "; wait for it to finish, or stop it and run both with --storage to share the grid between them"
+    )
+    assert optuna.load_study(study_name="grid", storage=url).trials == []  # it queued no job
+
+    with sharing_bench_folder(out, url):  # a worker of the shared grid is running on it
+        with sharing_bench_folder(out, url):  # as may the grid's other workers
+            pass
+        assert main(argv) == 2
+        err = _one_line_error(capsys)
+    assert f"{out} is in use by a bench that shares its grid through --storage {url} {who}" in err
+    assert err.endswith("; wait for it to finish, or run this command with the same --storage to share the grid")
+    assert not (out / ".cells").exists()
+    with holding_bench_folder(out):  # the worker has ended: a local bench takes the folder
+        pass
+
+
 def test_a_failure_reason_keeps_the_whole_error_with_its_fix(tmp_path):
     """The run lock's error is over 300 characters, and the cut dropped its fix."""
     error = (
@@ -242,7 +279,7 @@ def test_a_results_path_that_cannot_be_written_is_refused_before_any_job(tmp_pat
 
 
 def test_a_jobs_start_line_says_whether_it_trains_anew_resumes_or_evaluates():
-    from canter.orchestrate.bench import start_text
+    from canter.orchestrate.bench_runs import start_text
 
     _, cell = _one_cell((0, 1))
     [job] = make_jobs([cell], (0, 1))
@@ -275,8 +312,8 @@ def test_a_rerun_counts_the_jobs_already_done_and_names_the_step_each_resumes_fr
             return 0
 
     started = []
-    monkeypatch.setattr(bench_module, "start_job", lambda spec, folder, caps: started.append(folder) or Stopped())
-    bench_module.run_local([finished, partial], settings, tmp_path)
+    monkeypatch.setattr(bench_local, "start_job", lambda spec, folder, caps: started.append(folder) or Stopped())
+    bench_local.run_local([finished, partial], settings, tmp_path)
     lines = capsys.readouterr().out.splitlines()
     assert lines[:3] == [
         "1 of 2 jobs already done",

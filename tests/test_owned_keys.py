@@ -11,7 +11,7 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
-from canter.orchestrate.bench import BenchSettings, make_cells
+from canter.orchestrate.bench_grid import BenchSettings, make_cells
 from canter.orchestrate.tune import (
     TuneSettings,
     check_settings,

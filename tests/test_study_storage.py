@@ -28,9 +28,10 @@ if kind == "tune":
     settings = TuneSettings("InvertedPendulum-v4", storage_url=url, study_name="tuned")
     open_study = lambda: make_study(settings, open_storage(settings.storage))
 else:
-    from canter.orchestrate.bench import BenchSettings, _open_grid_study
+    from canter.orchestrate.bench_distributed import open_grid_study
+    from canter.orchestrate.bench_grid import BenchSettings
     settings = BenchSettings(("ppo",), ("InvertedPendulum-v4",), (0,), 512, storage_url=url, study_name="benched")
-    open_study = lambda: _open_grid_study(settings, Path("x"))[1]
+    open_study = lambda: open_grid_study(settings, Path("x"))[1]
 print("ready", flush=True)
 while not go.exists():
     time.sleep(0.01)

@@ -29,7 +29,8 @@ from archive import ROOT, copy_run, has_run_files, inflight_pack, read_pack, wri
 from timed import STOP_GRACE_SECONDS, canter_command, out_of_time, run_to_deadline
 
 from canter.errors import CanterError
-from canter.orchestrate.bench import BenchSettings, Cell, combine_records, make_cells, seed_record
+from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
+from canter.orchestrate.bench_results import combine_records, seed_record
 from canter.orchestrate.jobs import read_json, run_status
 from canter.training import run_lock
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL, Interval, aggregates

@@ -31,7 +31,7 @@ from archive import ROOT  # noqa: E402
 from grids import EVAL_HEADER, Grid, archived_runs, cell_result, curves, eval_text, label, run_grid  # noqa: E402
 from timed import page_main  # noqa: E402
 
-from canter.orchestrate.bench import seed_record  # noqa: E402
+from canter.orchestrate.bench_results import seed_record  # noqa: E402
 from canter.training.run_folder import metrics_file  # noqa: E402
 from canter.use.plot import read_metrics  # noqa: E402
 

@@ -71,7 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from canter.errors import CanterError
-    from canter.orchestrate.bench import BenchSettings, bench, parse_grid_arg
+    from canter.orchestrate.bench import bench
+    from canter.orchestrate.bench_grid import BenchSettings, parse_grid_arg
 
     if args.eval_episodes is not None:
         raise CanterError(

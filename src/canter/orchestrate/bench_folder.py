@@ -1,0 +1,131 @@
+"""Who works on a bench's --out folder: one local bench alone, or any number of workers of one grid shared through
+--storage, never both at once. Each trains the run folders of the folder's cells and writes its results files, so
+a local bench beside a shared grid's worker would fail the jobs the other one holds and overwrite its tables.
+
+Both lock the folder's writer lock file (`canter.training.run_lock`): a local bench holds the exclusive writer lock,
+a worker of a shared grid a shared flock on the same file, which the grid's other workers share with it. A worker
+records itself in the file as a writer does, with the storage it shares the grid through, so that a refused local
+bench names it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import os
+import socket
+import sys
+from collections.abc import Iterator
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from canter.errors import CanterError
+from canter.files import WriteError, is_write_error
+from canter.orchestrate.study import redacted
+from canter.training import run_lock
+
+STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid, not a local bench
+
+
+def _who(holder: dict[str, Any]) -> str:
+    return f" (process {holder.get('pid')} on {holder.get('host')}: {holder.get('command')})" if holder else ""
+
+
+@contextlib.contextmanager
+def holding_bench_folder(bench_dir: Path) -> Iterator[None]:
+    """A local bench holds its --out folder's writer lock while it runs: a second one on the same folder would fail
+    each cell the first one trains, with the first one's lock error, and write a table of the rest; and so would a
+    worker of a grid shared through --storage (`sharing_bench_folder`)."""
+    try:
+        run_lock.acquire(bench_dir)
+    except WriteError:  # a full or read-only disk, not another bench
+        raise
+    except CanterError:
+        holder = run_lock.read_holder(bench_dir)
+        if STORAGE_KEY in holder:
+            raise CanterError(
+                f"{bench_dir} is in use by a bench that shares its grid through --storage {holder[STORAGE_KEY]}"
+                f"{_who(holder)}; wait for it to finish, or run this command with the same --storage to share the grid"
+            ) from None
+        raise CanterError(
+            f"{bench_dir} is in use by another bench{_who(holder)}; wait for it to finish, or run both with --storage "
+            f"to share the grid between them"
+        ) from None
+    try:
+        yield
+    finally:
+        run_lock.release(bench_dir)
+
+
+@contextlib.contextmanager
+def sharing_bench_folder(bench_dir: Path, storage_url: str) -> Iterator[None]:
+    """A worker of a grid shared through --storage holds a shared flock on the folder's writer lock file while it
+    runs: the grid's other workers take it too, on this machine or another, and a local bench on the folder refuses
+    it and is refused."""
+    path = bench_dir / run_lock.LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
+        raise
+    try:
+        if not _share(fd, bench_dir):
+            holder = run_lock.read_holder(bench_dir)
+            raise CanterError(
+                f"{bench_dir} is in use by a bench without --storage{_who(holder)}; wait for it to finish, or stop "
+                f"it and run both with --storage to share the grid between them"
+            )
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, _worker_record(storage_url), 0)
+        except OSError as exc:
+            if is_write_error(exc):
+                raise WriteError(path, exc) from None
+            raise
+        yield
+    finally:
+        os.close(fd)  # releases the flock
+
+
+def _share(fd: int, bench_dir: Path) -> bool:
+    """Take the shared flock; False while a local bench holds the folder."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    except OSError as exc:
+        if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
+            raise
+        # Without flock only the record tells, and only of this host: a local bench whose process is alive.
+        holder = run_lock.read_holder(bench_dir)
+        return STORAGE_KEY in holder or not _alive_here(holder)
+    return True
+
+
+def _alive_here(holder: dict[str, Any]) -> bool:
+    if holder.get("host") != socket.gethostname() or holder.get("pid") == os.getpid():
+        return False
+    try:
+        os.kill(int(holder["pid"]), 0)
+    except (KeyError, ValueError, TypeError, ProcessLookupError):
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def _worker_record(storage_url: str) -> bytes:
+    """The writer lock's record (`run_lock.read_holder`), with the storage, its password left out as everywhere."""
+    command = " ".join([Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "python", *sys.argv[1:]])
+    record = {
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "started": datetime.now().isoformat(timespec="seconds"),
+        "command": command.replace(storage_url, redacted(storage_url)),
+        STORAGE_KEY: redacted(storage_url),
+    }
+    return json.dumps(record).encode()

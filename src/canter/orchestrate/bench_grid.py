@@ -1,0 +1,196 @@
+"""The grid of `canter bench`: its settings, its cells (one algorithm x env x grid values combination each, with
+its validated config) and its jobs (the seeds of a cell that one child process trains)."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from canter.config.algorithms import reads_key, unread_key_error
+from canter.config.build import build_config
+from canter.config.overrides import all_keys
+from canter.config.schema import Config
+from canter.config.values import coerce, field_types
+from canter.errors import CanterError
+from canter.orchestrate.study import check_at_least
+from canter.training.trackers import TrackSpec
+
+# Keys the bench sets itself, each from its own flag (run.algo and env.id as grid axes stand in for --algos and
+# --envs).
+_FORBIDDEN = {"run.seed": "--seeds", "run.total_steps": "--total-steps", "run.out_dir": "--out"}
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    algos: tuple[str, ...]
+    envs: tuple[str, ...]
+    seeds: tuple[int, ...]
+    total_steps: int
+    grid: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (key, raw values) in the order given
+    jobs: int = 1
+    out_dir: str = "bench"
+    preset: str = "fast"
+    config_file: str | None = None
+    sets: tuple[str, ...] = ()
+    eval_episodes: int = 10
+    storage_url: str | None = None
+    study_name: str | None = None
+    heartbeat_seconds: int = 60
+    poll_seconds: float = 0.5
+    track: TrackSpec = field(default_factory=TrackSpec)  # `--track`: a tracker run per seed, a group per cell
+
+    def __post_init__(self) -> None:
+        check_at_least(
+            [
+                ("--jobs", self.jobs, 1),
+                ("--episodes (eval_episodes)", self.eval_episodes, 1),
+                ("--heartbeat (heartbeat_seconds)", self.heartbeat_seconds, 1),
+            ]
+        )
+
+
+@dataclass(frozen=True)
+class Cell:
+    algo: str
+    env_id: str
+    values: tuple[tuple[str, str], ...]  # every grid axis: (key, canonical value)
+    config: Config
+
+    @property
+    def name(self) -> str:
+        parts = [self.env_id.split(":")[-1], self.algo] + [f"{key}={value}" for key, value in self.values]
+        return "__".join(safe_name(p) for p in parts)
+
+    def run_dir(self, bench_dir: Path, seed: int) -> Path:
+        return bench_dir / f"{self.name}__s{seed}"
+
+
+@dataclass(frozen=True)
+class Job:
+    """The seeds of one cell that one child process trains together."""
+
+    cell: Cell
+    seeds: tuple[int, ...]
+    apart: bool  # one seed of a cell whose seeds train apart: the seed is part of the name
+
+    @property
+    def name(self) -> str:
+        return f"{self.cell.name}__s{self.seeds[0]}" if self.apart else self.cell.name
+
+
+def make_jobs(cells: list[Cell], seeds: tuple[int, ...]) -> list[Job]:
+    from canter.algos import seeds_train_apart
+
+    jobs = []
+    for cell in cells:
+        if seeds_train_apart(cell.algo):
+            jobs += [Job(cell, (seed,), True) for seed in seeds]
+        else:
+            jobs.append(Job(cell, tuple(seeds), False))
+    return jobs
+
+
+def safe_name(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_.=," else "-" for c in text)
+
+
+def canonical(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "-".join(map(str, value))
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "none"
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    items = tuple(v.strip() for v in values.split(",") if v.strip())
+    if not sep or not key or not items:
+        raise CanterError(f"--grid expects KEY=V1,V2,... such as ppo.ent_coef=0.01,1e-4,0; got {text!r}")
+    return key, items
+
+
+def make_cells(settings: BenchSettings) -> list[Cell]:
+    """Every cell, each with its validated config; refuses an unknown algo, env, key or value before any work."""
+    from canter.algos import check_algorithm_name
+    from canter.envs import resolve_backend
+
+    algos, envs = list(settings.algos), list(settings.envs)
+    axes: list[tuple[str, list[str]]] = []
+    seen: set[str] = set()
+    known = set(all_keys())
+    for key, raw in settings.grid:
+        if key in seen:
+            raise CanterError(f"--grid {key} is given twice; list all its values in one --grid")
+        seen.add(key)
+        if key in _FORBIDDEN:
+            raise CanterError(f"--grid {key} is not a grid axis; use {_FORBIDDEN[key]}")
+        if key == "run.algo":
+            algos = list(raw)
+            continue
+        if key == "env.id":
+            envs = list(raw)
+            continue
+        if key not in known:
+            import difflib
+
+            close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
+            raise CanterError(
+                f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?" if close else "")
+            )
+        section, _, name = key.partition(".")
+        values = [canonical(coerce(key, field_types(section)[name], v)) for v in raw]
+        if len(set(values)) != len(values):
+            raise CanterError(f"--grid {key} repeats a value")
+        axes.append((key, values))
+    if not algos or not envs or not settings.seeds:
+        raise CanterError("the bench needs at least one algorithm, one env and one seed")
+    for algo in algos:
+        check_algorithm_name(algo)
+    for key, _ in axes:
+        for algo in algos:
+            if not reads_key(algo, key):
+                raise CanterError(f"--grid {key}: {unread_key_error(algo, key)}, or bench {algo} in a bench of its own")
+    # A --set applies to the cells whose algorithm reads it, so one bench can carry td3.* and sac.* settings.
+    set_keys = {item.partition("=")[0].strip(): item for item in settings.sets}
+    for key in set_keys:
+        if key in _FORBIDDEN:  # the bench's own value would replace it
+            raise CanterError(
+                f"{key} is set by the bench's {_FORBIDDEN[key]}; give {_FORBIDDEN[key]} rather than --set {key}"
+            )
+        if key in known and algos and not any(reads_key(algo, key) for algo in algos):
+            raise CanterError(f"--set {unread_key_error(algos[0], key)}")
+    for env_id in envs:
+        resolve_backend(env_id, "auto")
+    cells = []
+    for algo, env_id in itertools.product(algos, envs):
+        for combo in itertools.product(*(values for _, values in axes)):
+            pairs = tuple(zip((key for key, _ in axes), combo))
+            sets = [item for key, item in set_keys.items() if key not in known or reads_key(algo, key)]
+            sets += [f"{key}={value}" for key, value in pairs]
+            try:
+                config = build_config(
+                    env_id,
+                    preset=settings.preset,
+                    config_file=settings.config_file,
+                    sets=sets,
+                    seed=settings.seeds[0],
+                    total_steps=settings.total_steps,
+                    algo=algo,
+                )
+            except CanterError as exc:
+                where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
+                raise CanterError(f"cell ({where}): {exc}") from None
+            cells.append(Cell(algo, env_id, pairs, config))
+    return cells
+
+
+def varying_keys(cells: list[Cell]) -> list[str]:
+    """The grid keys whose value differs between cells: they label the table rows."""
+    keys = [key for key, _ in cells[0].values] if cells else []
+    return [k for i, k in enumerate(keys) if len({c.values[i][1] for c in cells}) > 1]

@@ -1,0 +1,100 @@
+"""The run folders of a bench's cells: what a job that trains them is given, whether they are finished, whether they
+were trained with this bench's settings, and the line a job's start prints."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from canter.config.serialize import to_toml
+from canter.errors import CanterError
+from canter.orchestrate.bench_grid import BenchSettings, Cell, Job
+from canter.orchestrate.jobs import EVAL_FILE, JobSpec, is_number, read_object, run_status
+from canter.training.run_folder import CONFIG_FILE
+
+
+def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
+    cell = job.cell
+    config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
+    return JobSpec(
+        to_toml(config),
+        {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},
+        settings.eval_episodes,
+        settings.track,
+    )
+
+
+def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, bench_dir: Path) -> bool:
+    """Each seed trained to the budget, with its final evaluation of its newest checkpoint (one left from a smaller
+    budget, whose extension stopped before the evaluations, does not count; a run restored from a results archive
+    keeps its evaluation and no checkpoint)."""
+    from canter.training import checkpoint
+
+    for seed in seeds:
+        run_dir = cell.run_dir(bench_dir, seed)
+        if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
+            return False
+        evaluation = read_object(run_dir / EVAL_FILE) or {}  # a damaged one is evaluated again
+        newest = checkpoint.list_checkpoints(run_dir)  # none in a run restored from a results archive
+        if (
+            evaluation.get("episodes") != settings.eval_episodes
+            or (newest and evaluation.get("checkpoint") != newest[-1].name)
+            or not is_number(evaluation.get("mean"))
+        ):
+            return False
+    return True
+
+
+def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> None:
+    """Refuse a bench folder whose run folders were trained with other settings than this command gives their
+    cells (a changed --set, --config or preset): reusing them would put old results under the new settings. A run
+    folder belongs to its cell when it is a seed of the same experiment (`canter.config.experiment`), so a larger
+    --total-steps extends finished runs."""
+    from canter.config.experiment import experiment_key
+    from canter.training.run_folder import read_config
+
+    for cell in cells:
+        expected = dict(experiment_key(cell.config))
+        for seed in settings.seeds:
+            saved = cell.run_dir(bench_dir, seed) / CONFIG_FILE
+            if not saved.is_file():
+                continue
+            try:
+                found = dict(experiment_key(read_config(saved.parent)))
+            except (CanterError, OSError):
+                continue  # unreadable: the run is not usable anyway, and training it anew rewrites the file
+            differing = [k for k in expected if found.get(k) != expected[k]]
+            if differing:
+                key = differing[0]
+                more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
+                raise CanterError(
+                    f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
+                    f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it"
+                )
+
+
+STOPPED_EARLY = "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a re-run resumes it"
+
+
+def seed_steps(job: Job, bench_dir: Path) -> list[int | None]:
+    """Each seed's newest checkpoint step, which its job goes on from; None for a seed that trains anew."""
+    from canter.training import checkpoint
+
+    found = [checkpoint.list_checkpoints(job.cell.run_dir(bench_dir, seed)) for seed in job.seeds]
+    return [checkpoint.step_of(f[-1]) if f else None for f in found]
+
+
+def start_text(job: Job, steps: list[int | None], total_steps: int) -> str:
+    """The line a job's start prints: whether it trains anew, resumes checkpointed runs (from which step), or only
+    evaluates runs trained to the budget."""
+    seeds = f"seeds {','.join(map(str, job.seeds))}"
+    if all(step is None for step in steps):
+        return f"start {job.name} ({seeds})"
+    if all(step is not None and step >= total_steps for step in steps):
+        return f"evaluate {job.name} ({seeds}; trained to the budget)"
+    if len(set(steps)) == 1:
+        return f"resume {job.name} ({seeds}) from step {steps[0]:,}"
+    each = [
+        f"seed {seed} " + ("anew" if step is None else f"from step {step:,}") for seed, step in zip(job.seeds, steps)
+    ]
+    return f"resume {job.name} ({seeds}): {', '.join(each)}"
