@@ -7,7 +7,7 @@ import optuna
 import pytest
 
 from canter.errors import CanterError
-from canter.orchestrate.bench import JOB_ATTR
+from canter.orchestrate.bench_distributed import JOB_ATTR
 from canter.orchestrate.study import COMMAND_ATTR, SETTINGS_ATTR, StorageSettings, claim_study, open_storage
 from canter.orchestrate.tune import PRESET_ATTR, check_study_settings
 
@@ -53,18 +53,19 @@ def test_studies_from_before_the_mark_are_told_apart_by_what_their_trials_hold(t
         claim_study(settings_kept, "bench")
 
 
-def test_a_database_of_an_older_optuna_is_one_line_naming_the_upgrade(tmp_path):
+@pytest.mark.parametrize(
+    ("version", "message"),
+    [
+        ("v3.0.0.d", r"made by an older Optuna .*optuna storage upgrade --storage URL"),
+        ("v99.0.0.a", r"made by a newer Optuna .*upgrade canter here\), or give another --storage"),
+    ],
+    ids=["older", "newer"],
+)
+def test_a_database_of_another_optuna_is_one_line_naming_its_fix(tmp_path, version, message):
+    """An older schema names Optuna's upgrade of the database, a newer one the canter to run instead: Optuna's advice
+    for a schema it does not know (pip install -U optuna) came out as a traceback."""
     _study(tmp_path)
     with sqlite3.connect(tmp_path / "study.db") as connection:
-        connection.execute("update alembic_version set version_num='v3.0.0.d'")
-    with pytest.raises(CanterError, match=r"made by an older Optuna .*optuna storage upgrade --storage URL"):
-        open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}"))
-
-
-def test_a_database_of_a_newer_optuna_is_one_line_naming_the_newer_canter(tmp_path):
-    """Optuna's advice for a schema it does not know (pip install -U optuna) came out as a traceback."""
-    _study(tmp_path)
-    with sqlite3.connect(tmp_path / "study.db") as connection:
-        connection.execute("update alembic_version set version_num='v99.0.0.a'")
-    with pytest.raises(CanterError, match=r"made by a newer Optuna .*upgrade canter here\), or give another --storage"):
+        connection.execute("update alembic_version set version_num=?", (version,))
+    with pytest.raises(CanterError, match=message):
         open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}"))

@@ -2,6 +2,7 @@
 parameters and the summary of what completed is still written; a rerun says what the study holds; and a trial whose
 worker on this machine is gone is failed and retried at once, not after its heartbeat's grace period."""
 
+import signal
 import subprocess
 import sys
 import textwrap
@@ -62,6 +63,64 @@ def test_an_interrupted_trial_is_queued_again_with_its_parameters_and_counted_on
     assert trained[0] == trained[1] == trained[2] != trained[3]  # the stopped parameters trained, then a new trial
     trials = study.get_trials()
     assert [t.state for t in trials] == [TrialState.FAIL, TrialState.FAIL, TrialState.COMPLETE, TrialState.COMPLETE]
+
+
+def _signal_in_ask(study, monkeypatch):
+    """SIGTERM to the worker inside `study.ask`, once the storage has made the trial RUNNING."""
+    ask = study.ask
+
+    def signalled():
+        trial = ask()
+        signal.raise_signal(signal.SIGTERM)
+        return trial
+
+    monkeypatch.setattr(study, "ask", signalled)
+
+
+def _interrupt_recording_the_worker(study, monkeypatch):
+    """Ctrl-C as the worker records itself on its trial."""
+    from canter.orchestrate import study as study_module
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study_module, "_worker_attrs", interrupted)
+
+
+@pytest.mark.parametrize("stop", [_signal_in_ask, _interrupt_recording_the_worker], ids=["in-ask", "recording"])
+@pytest.mark.parametrize("ask_new", [True, False], ids=["tune", "bench"])
+def test_a_trial_stopped_as_its_worker_takes_it_is_failed_at_once(tmp_path, monkeypatch, capsys, stop, ask_new):
+    """Ctrl-C or SIGTERM between the storage making a queued trial RUNNING and the start of its heartbeat left the
+    trial running with no heartbeat, which no worker failed: every rerun waited for it. Stopped there, a trial is
+    failed as one stopped while training is: tune queues it again with its parameters; a bench, whose queue of
+    fixed work queues its failed jobs itself when run again, leaves it failed."""
+    from canter.orchestrate.jobs import sigterm_interrupts
+
+    storage = open_storage(_sqlite(tmp_path, heartbeat_seconds=60))
+    study = optuna.create_study(storage=storage, study_name="taken", direction="maximize")
+    study.enqueue_trial({"x": 0.25})  # a stopped trial's copy, or a bench's job
+    trained = []
+
+    def completes(trial):
+        trained.append(trial.suggest_float("x", 0.0, 1.0))
+        return Outcome("complete", value=trained[-1])
+
+    with monkeypatch.context() as patched:
+        stop(study, patched)
+        with pytest.raises(KeyboardInterrupt), sigterm_interrupts():  # as canter tune and bench run their workers
+            run_worker(study, storage, 1, completes, heartbeat_seconds=60, poll_seconds=0.01, ask_new=ask_new)
+    assert trained == []
+    trials = study.get_trials()
+    assert trials[0].state == TrialState.FAIL and trials[0].user_attrs[FAIL_REASON] == "interrupted"
+    if not ask_new:
+        assert len(trials) == 1
+        return
+    assert [t.state for t in trials] == [TrialState.FAIL, TrialState.WAITING]
+    assert capsys.readouterr().out == "trial 0 is queued again with its parameters; the same command trains it\n"
+    # The rerun trains the copy at once, rather than wait for a trial running nowhere.
+    run_worker(study, storage, 1, completes, heartbeat_seconds=60, poll_seconds=0.01, deadline=time.time() + 60)
+    assert trained == [0.25]
+    assert [t.state for t in study.get_trials()] == [TrialState.FAIL, TrialState.COMPLETE]
 
 
 @pytest.mark.parametrize("jobs", [1, 2])

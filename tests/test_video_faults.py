@@ -159,25 +159,6 @@ def test_a_stopped_canter_video_stops_its_render_subprocess(tiny_run, tmp_path, 
 
 
 @pytest.mark.slow
-def test_sigterm_to_canter_report_video_leaves_no_temp_file(tiny_run, tmp_path):
-    """`canter report --video` renders into a temp folder: SIGTERM leaves no half-written video there."""
-    temp = tmp_path / "tmp"
-    temp.mkdir()
-    # One episode renders in seconds; slowed, the render is surely going when the signal lands.
-    script = (
-        "import sys, time; from canter.use import video; append = video._AtomicVideo.append; "
-        "video._AtomicVideo.append = lambda self, frame: (time.sleep(0.05), append(self, frame)); "
-        "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
-    )
-    out = tmp_path / "r.html"
-    argv = [sys.executable, "-c", script, "report", str(tiny_run.run_dir), "--episodes", "0", "--video", "--out"]
-    env = dict(os.environ, TMPDIR=str(temp))
-    code, err = _signal_once_rendering([*argv, str(out)], temp, "canter-report-*/.run1.*.tmp.mp4", signal.SIGTERM, env)
-    assert code == -signal.SIGTERM, err
-    assert [p for p in temp.rglob("*") if p.is_file()] == [] and not out.exists()
-
-
-@pytest.mark.slow
 @pytest.mark.parametrize("where", WHERE)
 def test_a_canter_video_started_ignoring_sigint_renders_on_after_it(tiny_run, tmp_path, where):
     """A job that a script starts with `&` ignores SIGINT, so that a Ctrl-C meant for the foreground leaves it

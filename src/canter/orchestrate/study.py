@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from canter.errors import CanterError
+from canter.signals import StopFlag
 
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
@@ -48,7 +49,7 @@ COMMAND_ATTR = "canter_command"
 # The settings a tune study keeps (`canter.orchestrate.tune.check_study_settings`).
 SETTINGS_ATTR = "canter_settings"
 # What the trials of each command hold, which tells the studies from before COMMAND_ATTR was kept: a bench trial
-# its job (`canter.orchestrate.bench.JOB_ATTR`), a tune trial the preset it trained (`tune.PRESET_ATTR`).
+# its job (`canter.orchestrate.bench_distributed.JOB_ATTR`), a tune trial the preset it trained (`tune.PRESET_ATTR`).
 TRIAL_MARKS = {"bench": "job", "tune": "preset"}
 GRACE_HEARTBEATS = 3  # a trial whose worker missed this many heartbeats is failed and retried
 
@@ -598,23 +599,45 @@ def run_worker(
                     _say_waiting(running, getattr(storage, "grace_period", None))
                 time.sleep(poll_seconds)  # the last trials run elsewhere; wait in case their worker dies
                 continue
-        trial = call("asking for a trial", study.ask)
-        if ask_new and call("reading the study", functools.partial(_surplus, study, trial.number, target)):
-            _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
-            continue
-        for attr, value in _worker_attrs().items():
-            call("recording a trial", functools.partial(trial.set_user_attr, attr, value))
+        asked: list[Any] = []  # the trial, from the moment the storage hands it out
         try:
+            stop = call("asking for a trial", functools.partial(_ask, study, asked))
+            trial = asked[0]
             with _Heartbeat(storage, trial, heartbeat_seconds):
-                outcome = run_trial(trial)
-        except Exception as exc:  # the trial fails with the reason; the study goes on
-            outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
-        except BaseException:
-            # A queue of fixed work queues its failed items itself when run again.
-            with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
-                _stop_interrupted(study, trial, target if ask_new else None)
+                stop.deliver()  # now that a stop fails the trial and queues it again (below)
+                if ask_new and call("reading the study", functools.partial(_surplus, study, trial.number, target)):
+                    _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
+                    continue
+                for attr, value in _worker_attrs().items():
+                    call("recording a trial", functools.partial(trial.set_user_attr, attr, value))
+                try:
+                    outcome = run_trial(trial)
+                except Exception as exc:  # the trial fails with the reason; the study goes on
+                    outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
+        except BaseException as exc:
+            # A stop fails the trial and queues it again (a queue of fixed work queues its failed items itself when
+            # run again); after an error, such as a storage gone for good, the trial is left to its heartbeat.
+            if asked and not isinstance(exc, Exception):
+                with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
+                    _stop_interrupted(study, asked[0], target if ask_new else None)
             raise
         _tell(study, trial, outcome, states[outcome.state], call)
+
+
+def _ask(study: Any, asked: list[Any]) -> StopFlag:
+    """Ask `study` for a trial, appended to `asked` as soon as the storage hands it out, with Ctrl-C and SIGTERM held
+    back meanwhile in the StopFlag returned, for the caller to deliver once a stop fails the trial and queues it again:
+    raised inside `study.ask`, after the storage has made the trial RUNNING, a stop would leave it running with no
+    heartbeat and no worker recorded, which no worker fails and every rerun waits for. A stop during a try that
+    failed acts at once, rather than once an outage of the storage is over."""
+    stop = StopFlag()
+    try:
+        with stop:
+            asked.append(study.ask())
+    except Exception:
+        stop.deliver()
+        raise
+    return stop
 
 
 def _tell(study: Any, trial: Any, outcome: Outcome, state: Any, call: Callable[[str, Callable[[], Any]], Any]) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
+from canter.signals import StopFlag
 from canter.training import checkpoint
 from canter.use.scoreboard import Scoreboard
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
@@ -416,8 +417,10 @@ def build_report(
     which: str = checkpoint.LAST,
 ) -> str:
     """The report page, evaluating the checkpoint `which` names (`last`, `best` or a file). With `video`, one
-    deterministic episode of each run is rendered for it (canter.use.video) rather than embedding the newest file
-    of the run's videos/ folder."""
+    deterministic episode of each run is rendered for it (canter.use.video) into a temp folder, rather than embedding
+    the newest file of the run's videos/ folder. SIGINT or SIGTERM stops the rendering and acts once the temp folder
+    is removed, as it would have (`StopFlag.deliver`); where the caller's own handler returns instead, so does this,
+    with a page of the videos finished before the stop."""
     from canter.use.plot import load_run, render_runs
 
     if episodes < 0:
@@ -436,9 +439,16 @@ def build_report(
         return render_html(facts, rows, episodes, curves, smooth, which=which, board=board)
     from canter.use.video import record_video
 
-    with tempfile.TemporaryDirectory(prefix="canter-report-") as folder:
+    # A stop signal is held back until the temp folder is gone, which SIGTERM's default action would leave behind.
+    with StopFlag() as stop, tempfile.TemporaryDirectory(prefix="canter-report-") as folder:
         recorded = {}
         for i, f in enumerate(facts):
+            if stop.signal is not None:
+                break
             path = Path(folder) / f"run{i + 1}.mp4"
-            recorded[f.run_dir] = (path, record_video(f.run_dir, path, episodes=1, seed=seed, checkpoint=which))
-        return render_html(facts, rows, episodes, curves, smooth, recorded, which, board)
+            returns = record_video(f.run_dir, path, episodes=1, seed=seed, checkpoint=which, stop=stop)
+            if stop.signal is None:  # a render that the stop cut short wrote no file
+                recorded[f.run_dir] = (path, returns)
+        page = render_html(facts, rows, episodes, curves, smooth, recorded, which, board)
+    stop.deliver()
+    return page

@@ -372,6 +372,7 @@ def record_video(
     max_steps: int = 0,
     on_start: Callable[[], None] | None = None,
     on_episode: Callable[[int, float], None] | None = None,
+    stop: StopFlag | None = None,
 ) -> list[float]:
     """Render `episodes` deterministic episodes of a run's checkpoint (`last`, `best` or a file) to an MP4 or
     GIF, written atomically; returns the episode returns. Episode i starts from env seed `seed + i`. `on_start()`
@@ -382,7 +383,9 @@ def record_video(
     the process ignores) stops the render at its next frame and removes the unfinished file; then the signal acts
     as it would have (`StopFlag.deliver`): Python's SIGINT handler raises KeyboardInterrupt, and SIGTERM's default
     action ends the process. Where the caller's own handler returns instead, so does this, with no file written
-    and the returns of the episodes finished before the stop (fewer than asked)."""
+    and the returns of the episodes finished before the stop (fewer than asked). With `stop`, a StopFlag that the
+    caller has entered and delivers itself, its signal stops the render (one that came before the render started,
+    too) and this returns as just said, leaving the signal to the caller."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
@@ -396,7 +399,7 @@ def record_video(
         path = resolve(Path(run_dir), checkpoint).absolute()
         if on_start:
             on_start()
-        returns = _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps)
+        returns = _record_in_subprocess(run_dir, out, episodes, width, height, fps, camera, seed, path, max_steps, stop)
         for i, value in enumerate(returns):
             if on_episode:
                 on_episode(i, value)
@@ -414,7 +417,7 @@ def record_video(
     returns = []
     # SIGINT and SIGTERM set a flag that the next frame acts on, as they stop training at the next iteration: raised
     # in a handler, an exception could be lost (`StopFlag`).
-    with StopFlag() as stop:
+    with _stop_flag(stop) as flag:
         try:
             with quiet_fork():  # imageio runs ffmpeg to check it, then again at the first frame
                 writer = _AtomicVideo(out, fps)
@@ -423,7 +426,7 @@ def record_video(
                         on_start()
 
                     def on_frame(frame: np.ndarray) -> None:
-                        if stop.signal is not None:
+                        if flag.signal is not None:
                             raise _Stopped
                         writer.append(frame)
 
@@ -439,8 +442,14 @@ def record_video(
             pass  # the signal is delivered below, once its handler from before is back
         finally:
             player.close()
-    stop.deliver()
+    if stop is None:
+        flag.deliver()
     return returns
+
+
+def _stop_flag(stop: StopFlag | None) -> contextlib.AbstractContextManager[StopFlag]:
+    """The caller's StopFlag, which it has entered and delivers, else one of this render's own."""
+    return contextlib.nullcontext(stop) if stop is not None else StopFlag()
 
 
 def _record_in_subprocess(
@@ -454,6 +463,7 @@ def _record_in_subprocess(
     seed: int,
     checkpoint: Path,
     max_steps: int,
+    caller_stop: StopFlag | None = None,
 ) -> list[float]:
     request = dict(
         run_dir=str(run_dir),
@@ -467,7 +477,7 @@ def _record_in_subprocess(
         max_steps=max_steps,
         checkpoint=str(checkpoint),
     )
-    with StopFlag() as stop:
+    with _stop_flag(caller_stop) as stop:
         with quiet_fork():
             process = subprocess.Popen(
                 [sys.executable, "-m", "canter.use.video", json.dumps(request)],
@@ -481,7 +491,8 @@ def _record_in_subprocess(
         except BaseException:  # a second Ctrl-C: this process leaves now, and the renderer still stops and cleans up
             process.terminate()
             raise
-    stop.deliver()
+    if caller_stop is None:
+        stop.deliver()
     lines = stdout.strip().splitlines()
     if stop.signal is not None and process.returncode != 0:
         return []  # stopped, and the caller's own handler let it go on: no episode came back, and no file

@@ -1,0 +1,40 @@
+"""canter report when things go wrong: a `--video` report stopped by SIGTERM or Ctrl-C leaves nothing in the temp
+dir, neither the half-written video nor the folder it renders into."""
+
+import os
+import sys
+
+import pytest
+
+from test_video_faults import STOPPED, _check_stopped, _signal_once_rendering
+
+# `canter report` with each frame slowed: one Pendulum episode renders in a second or two, and the signal must land
+# while it is going.
+SLOWED_REPORT = (
+    "import sys, time; from canter.use import video; append = video._AtomicVideo.append; "
+    "video._AtomicVideo.append = lambda self, frame: (time.sleep(0.05), append(self, frame)); "
+    "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
+)
+# When the signal lands: as soon as the temp folder is made (before the render has its writer), or mid-render.
+MADE, RENDERING = "canter-report-*", "canter-report-*/.run1.*.tmp.mp4"
+TERM, INT = STOPPED  # (signal, exit status, the end of stderr)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("moment", "stop"),
+    [(MADE, TERM), (RENDERING, TERM), (RENDERING, INT)],
+    ids=["SIGTERM-folder-made", "SIGTERM-rendering", "SIGINT-rendering"],
+)
+def test_a_stopped_canter_report_video_leaves_no_temp_folder(tiny_run, tmp_path, moment, stop):
+    """SIGTERM's default action, delivered once the unfinished video was removed, ended the process before the temp
+    folder it was in was removed: every stopped `canter report --video` left an empty canter-report-* folder."""
+    sig, code, said = stop
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    out = tmp_path / "r.html"
+    argv = [sys.executable, "-c", SLOWED_REPORT, "report", str(tiny_run.run_dir), "--episodes", "0", "--video"]
+    env = dict(os.environ, TMPDIR=str(temp))
+    ended = _signal_once_rendering([*argv, "--out", str(out)], temp, moment, sig, env)
+    _check_stopped(ended, code, said)  # SIGTERM: the process ended by the signal, 143 in a shell
+    assert list(temp.glob("canter-report-*")) == [] and not out.exists()
