@@ -8,7 +8,8 @@ import math
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import datetime
 from enum import Enum
@@ -210,8 +211,8 @@ def _train_locked(
 ) -> list[RunResult]:
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
-    from canter.envs import make_vec_env, resolve_backend
-    from canter.envs.registry import env_options, get_backend, note_replay
+    from canter.envs import resolve_backend
+    from canter.envs.registry import note_replay
 
     backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
     setup_jax(backend)
@@ -221,75 +222,100 @@ def _train_locked(
     note_replay(configs[0].env.id, backend, played)
     started = time.perf_counter()
 
-    states, outs, start_steps, seeds, earlier = [], [], [], [], []
-    resumed_from: list[Path | None] = []
-    for config, resume, run_dir in zip(configs, resumes, run_dirs):
-        state = None
-        if resume is not None:
-            from canter.training.restore import load_state
-
-            out = Path(resume)
-            locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
-            latest = checkpoint.latest(out)
-            resumed_from.append(latest)
-            saved, _, state, header = load_state(out, latest)
-            _check_only_the_budget_differs(saved, config, out)
-            start_step = int(header["global_step"])
-            _note_a_changed_backend(out, header["env"]["backend"], backend, start_step)
-            earlier.append(header.get("totals") or totals_until(run_folder.metrics_file(out), start_step))
-        else:
-            start_step = 0
-            out = Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config)
-            earlier.append(None)
-            resumed_from.append(None)
-        if start_step >= config.run.total_steps:
-            raise CanterError(
-                f"{out} already has {start_step} of run.total_steps={config.run.total_steps} "
-                f"steps; pass --total-steps larger than {start_step} to extend it"
-            )
-        purpose, salt = (RESUME, start_step) if resume is not None else (TRAIN, 0)
-        # A seed's envs get exactly the seeds its single-seed run would give them, wherever it sits in the group.
-        seeds += env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
-        states.append(state)
-        outs.append(out)
-        start_steps.append(start_step)
-        if resume is None:
-            locks.take(out)  # before anything is written to it
-
-    config = configs[0]
-    options = env_options(config.env, backend)
+    starts = [_start_of(c, resume, run_dir, backend, locks) for c, resume, run_dir in zip(configs, resumes, run_dirs)]
+    seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
+    env = _make_env(configs[0], backend, seeds)
+    spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
+    algorithm = get_algorithm(configs[0].run.algo)
     try:
-        if not get_backend(backend).jax_native:  # JAX envs are checked on the compiled program instead
-            host_memory.check_envs_fit(config.env.id, backend, options, len(seeds))
-        env = make_vec_env(config.env.id, backend, len(seeds), seeds, config.env.envpool_shards, **options)
-    except DiscreteActionsError as exc:
-        raise CanterError(
-            f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
-            f"({exc.space}); choose an env with Box actions"
-        ) from None
-    spec = replace(env.spec, num_envs=config.env.num_envs)  # what one seed sees
-    algorithm = get_algorithm(config.run.algo)
-    try:
-        algorithm.validate(config, spec)
-        for i, (config, out) in enumerate(zip(configs, outs)):
-            if states[i] is None:
-                states[i] = algorithm.init_state(config, spec)
-            out.mkdir(parents=True, exist_ok=True)
-            if resumes[i] is None:
-                run_folder.create(out, config)
-            else:
-                run_folder.migrate(out)
-                run_folder.write_config(out, config)
-            disk_room.warn_if_checkpoints_will_not_fit(out, states[i], config, algorithm.policy_checkpoint_leaves_out)
-        carry = _initial_carry(env, spec, resumed_from)
-        return _loop(configs, env, spec, states, carry, outs, start_steps, earlier, quiet, started)
+        algorithm.validate(configs[0], spec)
+        states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
+        carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
+        return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
-        error = training_write_error(exc, outs)
+        error = training_write_error(exc, [start.out for start in starts])
         if error is None:
             raise
         raise error from None
     finally:
         env.close()
+
+
+@dataclass(frozen=True)
+class _SeedStart:
+    """Where one seed of a group starts: its run folder and, for a resume, what its newest checkpoint holds."""
+
+    out: Path
+    state: Any = None  # None: the algorithm's initial state
+    step: int = 0
+    # Wall seconds, training seconds, episodes and recent returns of the sessions before a resume; None: a new run.
+    earlier: dict[str, Any] | None = None
+    resumed_from: Path | None = None  # the checkpoint
+
+    @property
+    def resumed(self) -> bool:
+        return self.resumed_from is not None
+
+    def env_seeds(self, config: Config) -> list[int]:
+        """Exactly the seeds its single-seed run would give its envs, wherever it sits in the group."""
+        purpose, salt = (RESUME, self.step) if self.resumed else (TRAIN, 0)
+        return env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
+
+
+def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> _SeedStart:
+    """Take one seed's run folder and, for a resume, read its newest checkpoint; refuse a run that has its budget."""
+    if resume is not None:
+        from canter.training.restore import load_state
+
+        out = Path(resume)
+        locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
+        latest = checkpoint.latest(out)
+        saved, _, state, header = load_state(out, latest)
+        _check_only_the_budget_differs(saved, config, out)
+        step = int(header["global_step"])
+        _note_a_changed_backend(out, header["env"]["backend"], backend, step)
+        earlier = header.get("totals") or totals_until(run_folder.metrics_file(out), step)
+        start = _SeedStart(out, state, step, earlier, latest)
+    else:
+        start = _SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
+    if start.step >= config.run.total_steps:
+        raise CanterError(
+            f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
+            f"steps; pass --total-steps larger than {start.step} to extend it"
+        )
+    if resume is None:
+        locks.take(start.out)  # before anything is written to it
+    return start
+
+
+def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
+    """The group's vector env: one env per seed in `seeds`, the seeds of a group one block after another."""
+    from canter.envs import make_vec_env
+    from canter.envs.registry import env_options, get_backend
+
+    options = env_options(config.env, backend)
+    try:
+        if not get_backend(backend).jax_native:  # JAX envs are checked on the compiled program instead
+            host_memory.check_envs_fit(config.env.id, backend, options, len(seeds))
+        return make_vec_env(config.env.id, backend, len(seeds), seeds, config.env.envpool_shards, **options)
+    except DiscreteActionsError as exc:
+        raise CanterError(
+            f"{config.run.algo} is continuous-only, but {exc.env_id} has discrete actions "
+            f"({exc.space}); choose an env with Box actions"
+        ) from None
+
+
+def _prepare_seed(config: Config, start: _SeedStart, algorithm: Any, spec: Any) -> Any:
+    """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
+    state = start.state if start.state is not None else algorithm.init_state(config, spec)
+    start.out.mkdir(parents=True, exist_ok=True)
+    if start.resumed:
+        run_folder.migrate(start.out)
+        run_folder.write_config(start.out, config)
+    else:
+        run_folder.create(start.out, config)
+    disk_room.warn_if_checkpoints_will_not_fit(start.out, state, config, algorithm.policy_checkpoint_leaves_out)
+    return state
 
 
 def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError | None:
@@ -330,6 +356,221 @@ def _initial_carry(env: Any, spec: Any, resumed_from: list[Path | None]) -> Any:
     return carries[0] if group == 1 else seedgroup.stack(carries)
 
 
+def _loop(
+    configs: list[Config],
+    algorithm: Any,
+    env: Any,
+    spec: Any,
+    states: list[Any],
+    carry: Any,
+    starts: list[_SeedStart],
+    quiet: bool,
+    started: float,
+) -> list[RunResult]:
+    """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
+    non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
+    inside the vmapped program until the last seed is done, but nothing of it is kept."""
+    config = configs[0]
+    program = _GroupProgram(config, algorithm, spec, env, states, carry)
+    runs = _open_seeds(configs, spec, starts, program, started)
+    label = f"{spec.id} {config.run.algo}" + (f" x{program.group} seeds" if program.group > 1 else "")
+    progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)
+    deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
+    try:
+        # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
+        with StopFlag() as stop:
+            while any(run.stop_reason is None for run in runs):
+                chunk = program.call(runs)
+                steps = 0
+                for i, run in enumerate(runs):
+                    if run.stop_reason is None:
+                        steps += _take_share(program, i, run, chunk)
+                program.advance(chunk)
+                _stop_seeds(program, runs, _group_stop_reason(deadline, stop))
+                _show_progress(progress, runs, steps / chunk.elapsed)
+    finally:
+        progress.close()
+        for run in runs:
+            run.close()
+    return _results(runs)
+
+
+def _open_seeds(
+    configs: list[Config], spec: Any, starts: list[_SeedStart], program: _GroupProgram, started: float
+) -> list[_SeedRun]:
+    """Each seed's host side, then the group's program compiled. A seed's setup or the compile failing still closes
+    what the seeds before it opened (tracker runs)."""
+    runs: list[_SeedRun] = []
+    try:
+        group_seeds = tuple(c.run.seed for c in configs)
+        for config, start in zip(configs, starts):
+            runs.append(_SeedRun(config, spec, start, program.algorithm.metric_names, group_seeds, started))
+        compile_seconds = program.compile(runs)
+        # After every check that can refuse the run, so that a refusal stays one line.
+        if (note := budget_rounding_note(configs[0])) is not None:
+            print(f"canter: note: {note}", file=sys.stderr)
+        for run in runs:
+            run.compile_seconds = compile_seconds
+    except BaseException:
+        for run in runs:
+            run.close()
+        raise
+    return runs
+
+
+def _take_share(program: _GroupProgram, i: int, run: _SeedRun, chunk: _Chunk) -> int:
+    """Seed i's share of an iteration: its metrics.csv row (with an evaluation when one is due), then a checkpoint and
+    a video when due; a non-finite iteration stops the seed instead. Returns the env steps it adds to the group's
+    SPS."""
+    metrics = program.pick(chunk.metrics, i)
+    if not bool(metrics["finite"]):
+        # A donated state is gone; such an algorithm returns the last good state itself.
+        last_good = chunk.state if program.algorithm.donate_state else program.state
+        run.fail(program.pick(last_good, i), program.env_carry(program.carry, i))
+        return 0
+    row = run.record(metrics, int(program.pick(chunk.iterations, i)), chunk.elapsed)
+    if run.evaluation_due():
+        row.update(run.evaluate(program.pick(chunk.state, i)))
+    run.logger.log(row)
+    run.trackers.log(row)
+    if run.checkpoint_due():
+        run.save_periodic(program.pick(chunk.state, i), program.env_carry(chunk.carry, i))
+    # Seed i's part of the group's state is picked out only when a video is due.
+    run.videos.maybe_record(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
+    return int(metrics["steps"])
+
+
+def _group_stop_reason(deadline: float | None, stop: StopFlag) -> str | None:
+    """What stops every seed after this iteration: the wall-minute limit, else a signal."""
+    if deadline is not None and time.perf_counter() >= deadline:
+        return "max_minutes"
+    if stop.signal is not None:
+        return "signal"
+    return None
+
+
+def _stop_seeds(program: _GroupProgram, runs: list[_SeedRun], group_reason: str | None) -> None:
+    """Finish, with a final checkpoint and summary, each seed still training that is done after this iteration."""
+    for i, run in enumerate(runs):
+        if run.stop_reason is None and (reason := run.stop_reason_after(group_reason)) is not None:
+            run.finish(program.pick(program.state, i), reason, program.env_carry(program.carry, i))
+
+
+def _show_progress(progress: Progress, runs: list[_SeedRun], sps: float) -> None:
+    """The bar follows the seed furthest behind among those still training."""
+    active = [run for run in runs if run.stop_reason is None] or runs
+    recents = [run.recent_mean for run in runs if run.recent_mean is not None]
+    progress.update(min(run.global_step for run in active), sps, float(np.mean(recents)) if recents else None)
+
+
+def _results(runs: list[_SeedRun]) -> list[RunResult]:
+    """Each seed's result; a seed that failed makes the group's error instead, which says how the others stopped."""
+    failed = [run for run in runs if run.error is not None]
+    if failed:
+        if len(runs) == 1:
+            raise CanterError(failed[0].error)
+        others = [run for run in runs if run.error is None]
+        tail = "; ".join(f"seed {run.config.run.seed} stopped: {run.stop_reason}" for run in others)
+        raise CanterError(
+            "; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed) + (f"; {tail}" if tail else "")
+        )
+    results = [run.result for run in runs if run.result is not None]
+    assert len(results) == len(runs), "a seed that did not fail has finished"
+    return results
+
+
+@contextmanager
+def _fewer_envs_when_out_of_device_memory(envs: int) -> Iterator[None]:
+    """The device running out of memory, reported as what the user can change: env.num_envs."""
+    try:
+        yield
+    except Exception as exc:
+        if device_memory.is_out_of_memory(exc):
+            raise device_memory.too_many_envs(envs) from None
+        raise
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """One call of the group's program: the state and env carry it returned, its metrics on the host, and its wall
+    seconds."""
+
+    state: Any
+    carry: Any
+    metrics: Any
+    iterations: np.ndarray  # each seed's iteration count after the call
+    elapsed: float
+
+
+class _GroupProgram:
+    """The group's jitted iteration (one seed's alone, or every seed's vmapped on a leading axis), and the train state
+    and env carry it steps from one call to the next."""
+
+    def __init__(self, config: Config, algorithm: Any, spec: Any, env: Any, states: list[Any], carry: Any) -> None:
+        import jax
+
+        self.algorithm = algorithm
+        self.group = len(states)
+        self.total = config.run.total_steps
+        self.envs = config.env.num_envs
+        donate = (0,) if algorithm.donate_state else ()
+        self.pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
+        if self.group == 1:
+            state = states[0]
+            self.iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
+            self.pick = lambda tree, i: tree
+        else:
+            from canter.training import seedgroup
+
+            state = seedgroup.stack(states)
+            # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
+            vmaps = getattr(env, "vmappable", False)
+            env_step = env.jax_step if vmaps else seedgroup.group_step(env.jax_step, self.group)
+            self.iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
+            self.pick = seedgroup.unstack
+        self.keeps_carry = getattr(env, "resumes_exactly", False)
+        if algorithm.donate_state:
+            state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
+        self.state = state
+        self.carry = carry
+        self.compiled: Any = None
+
+    def env_carry(self, tree: Any, i: int) -> Any:
+        """Seed i's episodes in flight, for a backend that can resume them exactly (else None)."""
+        return self.pick(tree, i) if self.keeps_carry else None
+
+    def lr_fractions(self, runs: list[_SeedRun]) -> Any:
+        """Each seed's fraction of its budget still to train, which its learning-rate schedule follows."""
+        import jax.numpy as jnp
+
+        values = [max(1.0 - run.global_step / self.total, 0.0) for run in runs]
+        return jnp.float32(values[0]) if self.group == 1 else jnp.asarray(values, jnp.float32)
+
+    def compile(self, runs: list[_SeedRun]) -> float:
+        """Compile the iteration, refusing a program the device cannot hold; returns the seconds this took."""
+        start = time.perf_counter()
+        with _fewer_envs_when_out_of_device_memory(self.envs):
+            self.compiled = self.iteration.lower(self.state, self.carry, self.lr_fractions(runs)).compile()
+        device_memory.check_fits(self.compiled, self.envs)
+        return time.perf_counter() - start
+
+    def call(self, runs: list[_SeedRun]) -> _Chunk:
+        """One call of the compiled iteration, from the state and carry that the last one left."""
+        import jax
+
+        t0 = time.perf_counter()
+        with _fewer_envs_when_out_of_device_memory(self.envs):
+            state, carry, metrics = self.compiled(self.state, self.carry, self.lr_fractions(runs))
+        metrics = jax.device_get(metrics)
+        iterations = np.asarray(jax.device_get(state.iteration))
+        return _Chunk(state, carry, metrics, iterations, time.perf_counter() - t0)
+
+    def advance(self, chunk: _Chunk) -> None:
+        """The next call goes on from this chunk. Until then `state` and `carry` are those from before it, which a
+        seed whose chunk was non-finite keeps."""
+        self.state, self.carry = chunk.state, chunk.carry
+
+
 class _SeedRun:
     """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
 
@@ -337,21 +578,21 @@ class _SeedRun:
         self,
         config: Config,
         spec: Any,
-        out: Path,
-        start_step: int,
+        start: _SeedStart,
         metric_names: tuple[str, ...],
-        earlier: dict[str, Any] | None,
         trained_with: tuple[int, ...],
+        started: float,
     ) -> None:
-        """`earlier`: wall seconds, training seconds, episodes and the recent episode returns of the sessions before
-        a resume; None for a new run. (A resume may start at step 0: a run whose first iteration was non-finite.)"""
-        resumed = earlier is not None
+        """`started`: when this session started, on time.perf_counter's clock. (A resume may start at step 0: a run
+        whose first iteration was non-finite.)"""
+        resumed = start.resumed
+        out = start.out
         self.config = config
         self.out = out
         self.metric_names = metric_names
-        self.start_step = start_step
-        self.global_step = start_step
-        earlier = earlier or {}
+        self.global_step = start.step
+        self.started = started
+        earlier = start.earlier or {}
         self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
         self.episodes = int(earlier.get("episodes", 0))
         # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
@@ -360,22 +601,22 @@ class _SeedRun:
         self.compile_seconds = 0.0  # this session's, once compiled
         self.trained_with = trained_with  # the seeds of this process's group, its own included
         every = config.run.checkpoint_every
-        self.next_checkpoint = (start_step // every + 1) * every if every else None
+        self.next_checkpoint = (start.step // every + 1) * every if every else None
         self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
         self.logger = MetricsLogger(
             out,
             metric_names,
             spec.info_keys,
             config.run.tensorboard,
-            resume_step=start_step if resumed else None,
+            resume_step=start.step if resumed else None,
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
-            TrainingEvaluation(config, spec, start_step, _best_return(out) if resumed else None)
+            TrainingEvaluation(config, spec, start.step, _best_return(out) if resumed else None)
             if config.run.eval_every
             else None
         )
-        self.videos = TrainingVideos(out, config.run.video_every, start_step, resumed=resumed)
+        self.videos = TrainingVideos(out, config.run.video_every, start.step, resumed=resumed)
         self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
         self.closed = False
         self.stop_reason: str | None = None  # set once the seed is done; the group may still run
@@ -386,29 +627,29 @@ class _SeedRun:
     def recent_mean(self) -> float | None:
         return float(np.mean(self.recent)) if self.recent else None
 
-    def totals(self, started: float) -> dict[str, Any]:
+    def totals(self) -> dict[str, Any]:
         return {
-            "wall_seconds": self.earlier_wall + time.perf_counter() - started,
+            "wall_seconds": self.earlier_wall + time.perf_counter() - self.started,
             "train_seconds": self.run_seconds,
             "episodes": self.episodes,
             "recent_returns": list(self.recent),
             "compile_seconds": self.compile_seconds,
         }
 
-    def _header(self, step: int, started: float) -> dict[str, Any]:
+    def _header(self) -> dict[str, Any]:
         return dict(
             self.header_base,
-            global_step=step,
+            global_step=self.global_step,
             saved_at=datetime.now().isoformat(timespec="seconds"),
-            totals=self.totals(started),
+            totals=self.totals(),
         )
 
-    def save(self, train_state: Any, step: int, started: float, env_carry: Any = None) -> None:
+    def save(self, train_state: Any, env_carry: Any = None) -> None:
         """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None)."""
         checkpoint.save(
-            checkpoint.checkpoint_path(self.out, step),
+            checkpoint.checkpoint_path(self.out, self.global_step),
             train_state,
-            self._header(step, started),
+            self._header(),
             compress=self.config.run.compress_checkpoints,
             env_carry=env_carry,
         )
@@ -417,7 +658,7 @@ class _SeedRun:
     def evaluation_due(self) -> bool:
         return self.evaluation is not None and self.evaluation.due(self.global_step)
 
-    def evaluate(self, train_state: Any, started: float) -> dict[str, float]:
+    def evaluate(self, train_state: Any) -> dict[str, float]:
         """Evaluate the state after this iteration; a new best score saves it as checkpoints/best.npz. Returns
         the eval/* columns of this iteration's row."""
         from canter.algos import get_algorithm
@@ -426,7 +667,7 @@ class _SeedRun:
         result = self.evaluation.evaluate(train_state, self.global_step)
         if self.evaluation.improves(result):
             evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
-            header = dict(self._header(self.global_step, started), evaluation=evaluation)
+            header = dict(self._header(), evaluation=evaluation)
             checkpoint.save(
                 checkpoint.best_path(self.out),
                 train_state,
@@ -436,7 +677,7 @@ class _SeedRun:
             )
         return result.columns()
 
-    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float, started: float) -> dict[str, Any]:
+    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float) -> dict[str, Any]:
         """This iteration's metrics.csv row, which the loop logs once any evaluation has joined it."""
         steps = int(metrics["steps"])
         self.global_step += steps
@@ -449,7 +690,7 @@ class _SeedRun:
         row: dict[str, Any] = {
             "global_step": self.global_step,
             "iteration": iteration,
-            "wall_time": round(self.earlier_wall + time.perf_counter() - started, 3),
+            "wall_time": round(self.earlier_wall + time.perf_counter() - self.started, 3),
             "sps": round(steps / elapsed, 1),
             "episodes": int(finished.sum()),
             "episodic_return": logged(returns.mean()) if returns.size else math.nan,
@@ -469,7 +710,27 @@ class _SeedRun:
             and self.global_step < self.config.run.total_steps
         )
 
-    def own_stop_reason(self) -> str | None:
+    def save_periodic(self, train_state: Any, env_carry: Any = None) -> None:
+        """The checkpoint that run.checkpoint_every asks for at this step."""
+        self.save(train_state, env_carry)
+        every = self.config.run.checkpoint_every
+        self.next_checkpoint = (self.global_step // every + 1) * every
+
+    def save_snapshot(self, path: Path, train_state: Any) -> None:
+        """The policy state that a video of this step is rendered from (`canter.training.videos`)."""
+        from canter.algos import get_algorithm
+
+        checkpoint.save(
+            path,
+            train_state,
+            dict(self.header_base, global_step=self.global_step),
+            leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
+        )
+
+    def stop_reason_after(self, group_reason: str | None) -> str | None:
+        """Why the seed stops after this iteration, if it does: its return target, its budget, else what stops the
+        group (max_minutes, a signal). A seed whose budget is spent is complete even when the deadline or a signal
+        comes in the same iteration: marked stopped early, a resume would find nothing left to train."""
         run = self.config.run
         if (
             run.stop_at_return is not None
@@ -478,21 +739,21 @@ class _SeedRun:
             and mean >= run.stop_at_return
         ):
             return "stop_at_return"
-        return None
+        if self.global_step >= run.total_steps:
+            return "budget"
+        return group_reason
 
-    def finish(
-        self, train_state: Any, reason: str, compile_seconds: float, started: float, env_carry: Any = None
-    ) -> None:
+    def finish(self, train_state: Any, reason: str, env_carry: Any = None) -> None:
         self.stop_reason = reason
-        self.save(train_state, self.global_step, started, env_carry)
+        self.save(train_state, env_carry)
         self.close()
         self.result = RunResult(
             run_dir=self.out,
             global_step=self.global_step,
             recent_return=self.recent_mean,
             episodes=self.episodes,
-            wall_seconds=self.earlier_wall + time.perf_counter() - started,
-            compile_seconds=compile_seconds,
+            wall_seconds=self.earlier_wall + time.perf_counter() - self.started,
+            compile_seconds=self.compile_seconds,
             sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
             stop_reason=reason,
             trained_with=self.trained_with,
@@ -507,183 +768,18 @@ class _SeedRun:
         if self.stop_reason is None or self.error is not None:  # failed or interrupted: `finish` ends them itself
             self.trackers.close()
 
-    def fail(self, last_good_state: Any, started: float, env_carry: Any = None) -> None:
+    def fail(self, last_good_state: Any, env_carry: Any = None) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
         self.stop_reason = "non_finite"
         # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
         # (an off-policy buffer keeps the finite transitions of the failed call).
         if not checkpoint.checkpoint_path(self.out, self.global_step).is_file():
-            self.save(last_good_state, self.global_step, started, env_carry)
+            self.save(last_good_state, env_carry)
         self.close()
         self.error = (
             f"non-finite observation, reward or parameter during the iteration after step "
             f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
         )
-
-
-def _loop(
-    configs: list[Config],
-    env: Any,
-    spec: Any,
-    states: list[Any],
-    carry: Any,
-    outs: list[Path],
-    start_steps: list[int],
-    earlier: list[dict[str, Any] | None],
-    quiet: bool,
-    started: float,
-) -> list[RunResult]:
-    """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
-    non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
-    inside the vmapped program until the last seed is done, but nothing of it is kept."""
-    import jax
-    import jax.numpy as jnp
-
-    from canter.algos import get_algorithm
-
-    config = configs[0]
-    group = len(configs)
-    algorithm = get_algorithm(config.run.algo)
-    total = config.run.total_steps
-    donate = (0,) if algorithm.donate_state else ()
-    pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
-    if group == 1:
-        state = states[0]
-        iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
-        pick = lambda tree, i: tree  # noqa: E731
-    else:
-        from canter.training import seedgroup
-
-        state = seedgroup.stack(states)
-        # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
-        env_step = env.jax_step if getattr(env, "vmappable", False) else seedgroup.group_step(env.jax_step, group)
-        iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
-        pick = seedgroup.unstack
-    keeps_carry = getattr(env, "resumes_exactly", False)
-
-    def env_carry(tree: Any, i: int) -> Any:
-        return pick(tree, i) if keeps_carry else None
-
-    if algorithm.donate_state:
-        state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
-
-    def fractions(runs: list[_SeedRun]) -> jnp.ndarray:
-        values = [max(1.0 - run.global_step / total, 0.0) for run in runs]
-        return jnp.float32(values[0]) if group == 1 else jnp.asarray(values, jnp.float32)
-
-    envs = config.env.num_envs
-    runs: list[_SeedRun] = []
-    try:  # a seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)
-        group_seeds = tuple(c.run.seed for c in configs)
-        for c, out, start, before in zip(configs, outs, start_steps, earlier):
-            runs.append(_SeedRun(c, spec, out, start, algorithm.metric_names, before, group_seeds))
-        compile_start = time.perf_counter()
-        try:
-            compiled = iteration.lower(state, carry, fractions(runs)).compile()
-        except Exception as exc:
-            if device_memory.is_out_of_memory(exc):
-                raise device_memory.too_many_envs(envs) from None
-            raise
-        device_memory.check_fits(compiled, envs)
-        compile_seconds = time.perf_counter() - compile_start
-        # After every check that can refuse the run, so that a refusal stays one line.
-        if (note := budget_rounding_note(config)) is not None:
-            print(f"canter: note: {note}", file=sys.stderr)
-        for run in runs:
-            run.compile_seconds = compile_seconds
-    except BaseException:
-        for run in runs:
-            run.close()
-        raise
-
-    label = f"{spec.id} {config.run.algo}" + (f" x{group} seeds" if group > 1 else "")
-    progress = Progress(total, min(start_steps), quiet, label)
-    deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
-    try:
-        # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
-        with StopFlag() as stop:
-            while any(run.stop_reason is None for run in runs):
-                t0 = time.perf_counter()
-                try:
-                    new_state, new_carry, metrics = compiled(state, carry, fractions(runs))
-                except Exception as exc:
-                    if device_memory.is_out_of_memory(exc):
-                        raise device_memory.too_many_envs(envs) from None
-                    raise
-                metrics = jax.device_get(metrics)
-                iterations = np.asarray(jax.device_get(new_state.iteration))
-                elapsed = time.perf_counter() - t0
-                steps = 0
-                for i, run in enumerate(runs):
-                    if run.stop_reason is not None:
-                        continue
-                    seed_metrics = pick(metrics, i)
-                    if not bool(seed_metrics["finite"]):
-                        # A donated state is gone; such an algorithm returns the last good state itself.
-                        run.fail(pick(new_state if algorithm.donate_state else state, i), started, env_carry(carry, i))
-                        continue
-                    row = run.record(seed_metrics, int(pick(iterations, i)), elapsed, started)
-                    if run.evaluation_due():
-                        row.update(run.evaluate(pick(new_state, i), started))
-                    run.logger.log(row)
-                    run.trackers.log(row)
-                    steps += int(seed_metrics["steps"])
-                    if run.checkpoint_due():
-                        run.save(pick(new_state, i), run.global_step, started, env_carry(new_carry, i))
-                        every = run.config.run.checkpoint_every
-                        run.next_checkpoint = (run.global_step // every + 1) * every
-
-                    def save_snapshot(
-                        path: Path, i: int = i, run: _SeedRun = run, group_state: Any = new_state
-                    ) -> None:
-                        checkpoint.save(
-                            path,
-                            pick(group_state, i),
-                            dict(run.header_base, global_step=run.global_step),
-                            leave_out=algorithm.policy_checkpoint_leaves_out,
-                        )
-
-                    run.videos.maybe_record(run.global_step, save_snapshot)
-                state, carry = new_state, new_carry
-
-                group_reason = None
-                if deadline is not None and time.perf_counter() >= deadline:
-                    group_reason = "max_minutes"
-                elif stop.signal is not None:
-                    group_reason = "signal"
-                for i, run in enumerate(runs):
-                    if run.stop_reason is not None:
-                        continue
-                    # A seed whose budget is spent is complete even when the deadline or a signal comes in the
-                    # same iteration: marked stopped early, a resume would find nothing left to train.
-                    budget = "budget" if run.global_step >= total else None
-                    reason = run.own_stop_reason() or budget or group_reason
-                    if reason is not None:
-                        run.finish(pick(state, i), reason, compile_seconds, started, env_carry(carry, i))
-                active = [run for run in runs if run.stop_reason is None] or runs
-                recents = [run.recent_mean for run in runs if run.recent_mean is not None]
-                progress.update(
-                    min(run.global_step for run in active),
-                    steps / elapsed,
-                    float(np.mean(recents)) if recents else None,
-                )
-    finally:
-        progress.close()
-        for run in runs:
-            run.close()
-
-    failed = [run for run in runs if run.error is not None]
-    if failed:
-        if group == 1:
-            raise CanterError(failed[0].error)
-        others = [run for run in runs if run.error is None]
-        tail = "; ".join(f"seed {run.config.run.seed} stopped: {run.stop_reason}" for run in others)
-        raise CanterError(
-            "; ".join(f"seed {run.config.run.seed}: {run.error}" for run in failed) + (f"; {tail}" if tail else "")
-        )
-    results = [run.result for run in runs if run.result is not None]
-    assert len(results) == len(runs), "a seed that did not fail has finished"
-    return results
 
 
 def _best_return(run_dir: Path) -> float | None:
