@@ -12,7 +12,8 @@ import pytest
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training import checkpoint
-from canter.training.loop import RECENT_EPISODES, resume_config, train
+from canter.training.loop import resume_config, train
+from canter.training.seed_run import RECENT_EPISODES
 from conftest import TINY
 
 # Pendulum's episodes are 200 steps and never end early: 4 envs finish about 2.5 episodes per 512-step iteration,

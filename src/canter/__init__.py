@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # imported lazily below, so that `import canter` stays light
     from collections.abc import Mapping, Sequence
     from pathlib import Path
 
-    from canter.training.loop import RunResult
+    from canter.training.seed_run import RunResult
     from canter.use.evaluate import EvalResult
     from canter.use.policy import Policy
 
@@ -80,7 +80,7 @@ def evaluate(
 
 def __getattr__(name: str) -> type:
     if name == "RunResult":
-        from canter.training.loop import RunResult
+        from canter.training.seed_run import RunResult
 
         return RunResult
     if name == "Policy":

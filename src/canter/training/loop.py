@@ -3,15 +3,11 @@ and handle stop conditions and signals."""
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
-from collections import deque
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass, replace
-from datetime import datetime
+from collections.abc import Sequence
+from dataclasses import replace
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -20,51 +16,21 @@ import numpy as np
 
 from canter.config.algorithms import budget_rounding_note
 from canter.config.schema import Config
-from canter.config.serialize import to_toml
 from canter.config.validate import validate
-from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError, DiscreteActionsError
-from canter.files import WriteError, atomic_write_bytes, is_write_error
+from canter.files import WriteError, is_write_error
 from canter.signals import StopFlag
-from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
-from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation, evaluation_backend
-from canter.training.logger import MetricsLogger, Progress, logged, totals_until
-from canter.training.videos import TrainingVideos
-
-RECENT_EPISODES = 20
-
-
-@dataclass(frozen=True)
-class RunResult:
-    run_dir: Path
-    global_step: int
-    recent_return: float | None  # mean raw return of the last 20 training episodes
-    episodes: int
-    wall_seconds: float  # the whole run, compile and earlier sessions of a resumed run included
-    compile_seconds: float  # this session's compile
-    sps: float  # env steps per second over the whole run, compile excluded
-    stop_reason: str  # budget | stop_at_return | max_minutes | signal
-    # The seeds of the process that trained its last session (itself alone, or its vmapped group); None unknown.
-    trained_with: tuple[int, ...] | None = None
+from canter.training import checkpoint, disk_room, host_memory, run_folder, run_lock, trackers
+from canter.training.evaluation import evaluation_backend
+from canter.training.group_program import Chunk, GroupProgram
+from canter.training.logger import Progress, totals_until
+from canter.training.seed_run import RunResult, SeedRun, SeedStart, write_summary
 
 
 class Saved(Enum):
     """A budget key left as the run folder saved it."""
 
     KEEP = "keep"
-
-
-def _env_header(spec: Any) -> dict[str, Any]:
-    return {
-        "id": spec.id,
-        "backend": spec.backend,
-        "obs_dim": spec.obs_dim,
-        "act_dim": spec.act_dim,
-        "action_low": list(spec.action_low),
-        "action_high": list(spec.action_high),
-        "max_episode_steps": spec.max_episode_steps,
-        "info_keys": list(spec.info_keys),
-    }
 
 
 def train(
@@ -159,14 +125,6 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
         return _train_locked(configs, resumes, run_dirs, quiet, locks)
 
 
-def _write_summary(result: RunResult) -> dict[str, Any]:
-    summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
-    atomic_write_bytes(
-        result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
-    )
-    return summary
-
-
 def summarize_ended_run(run_dir: Path) -> RunResult:
     """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
     between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
@@ -191,7 +149,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
         sps=step / train_seconds if train_seconds > 0 else 0.0,
         stop_reason="stop_at_return" if reached else "budget",  # the loop's order: the target, then the budget
     )
-    summary = _write_summary(result)
+    summary = write_summary(result)
     trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)
     return result
 
@@ -241,28 +199,7 @@ def _train_locked(
         env.close()
 
 
-@dataclass(frozen=True)
-class _SeedStart:
-    """Where one seed of a group starts: its run folder and, for a resume, what its newest checkpoint holds."""
-
-    out: Path
-    state: Any = None  # None: the algorithm's initial state
-    step: int = 0
-    # Wall seconds, training seconds, episodes and recent returns of the sessions before a resume; None: a new run.
-    earlier: dict[str, Any] | None = None
-    resumed_from: Path | None = None  # the checkpoint
-
-    @property
-    def resumed(self) -> bool:
-        return self.resumed_from is not None
-
-    def env_seeds(self, config: Config) -> list[int]:
-        """Exactly the seeds its single-seed run would give its envs, wherever it sits in the group."""
-        purpose, salt = (RESUME, self.step) if self.resumed else (TRAIN, 0)
-        return env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
-
-
-def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> _SeedStart:
+def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> SeedStart:
     """Take one seed's run folder and, for a resume, read its newest checkpoint; refuse a run that has its budget."""
     if resume is not None:
         from canter.training.restore import load_state
@@ -275,9 +212,9 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         step = int(header["global_step"])
         _note_a_changed_backend(out, header["env"]["backend"], backend, step)
         earlier = header.get("totals") or totals_until(run_folder.metrics_file(out), step)
-        start = _SeedStart(out, state, step, earlier, latest)
+        start = SeedStart(out, state, step, earlier, latest)
     else:
-        start = _SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
+        start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
         raise CanterError(
             f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
@@ -305,7 +242,7 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
         ) from None
 
 
-def _prepare_seed(config: Config, start: _SeedStart, algorithm: Any, spec: Any) -> Any:
+def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any) -> Any:
     """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.out.mkdir(parents=True, exist_ok=True)
@@ -363,7 +300,7 @@ def _loop(
     spec: Any,
     states: list[Any],
     carry: Any,
-    starts: list[_SeedStart],
+    starts: list[SeedStart],
     quiet: bool,
     started: float,
 ) -> list[RunResult]:
@@ -371,7 +308,7 @@ def _loop(
     non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
     inside the vmapped program until the last seed is done, but nothing of it is kept."""
     config = configs[0]
-    program = _GroupProgram(config, algorithm, spec, env, states, carry)
+    program = GroupProgram(config, algorithm, spec, env, states, carry)
     runs = _open_seeds(configs, spec, starts, program, started)
     label = f"{spec.id} {config.run.algo}" + (f" x{program.group} seeds" if program.group > 1 else "")
     progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)
@@ -396,15 +333,15 @@ def _loop(
 
 
 def _open_seeds(
-    configs: list[Config], spec: Any, starts: list[_SeedStart], program: _GroupProgram, started: float
-) -> list[_SeedRun]:
+    configs: list[Config], spec: Any, starts: list[SeedStart], program: GroupProgram, started: float
+) -> list[SeedRun]:
     """Each seed's host side, then the group's program compiled. A seed's setup or the compile failing still closes
     what the seeds before it opened (tracker runs)."""
-    runs: list[_SeedRun] = []
+    runs: list[SeedRun] = []
     try:
         group_seeds = tuple(c.run.seed for c in configs)
         for config, start in zip(configs, starts):
-            runs.append(_SeedRun(config, spec, start, program.algorithm.metric_names, group_seeds, started))
+            runs.append(SeedRun(config, spec, start, program.algorithm.metric_names, group_seeds, started))
         compile_seconds = program.compile(runs)
         # After every check that can refuse the run, so that a refusal stays one line.
         if (note := budget_rounding_note(configs[0])) is not None:
@@ -418,7 +355,7 @@ def _open_seeds(
     return runs
 
 
-def _take_share(program: _GroupProgram, i: int, run: _SeedRun, chunk: _Chunk) -> int:
+def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:
     """Seed i's share of an iteration: its metrics.csv row (with an evaluation when one is due), then a checkpoint and
     a video when due; a non-finite iteration stops the seed instead. Returns the env steps it adds to the group's
     SPS."""
@@ -449,21 +386,21 @@ def _group_stop_reason(deadline: float | None, stop: StopFlag) -> str | None:
     return None
 
 
-def _stop_seeds(program: _GroupProgram, runs: list[_SeedRun], group_reason: str | None) -> None:
+def _stop_seeds(program: GroupProgram, runs: list[SeedRun], group_reason: str | None) -> None:
     """Finish, with a final checkpoint and summary, each seed still training that is done after this iteration."""
     for i, run in enumerate(runs):
         if run.stop_reason is None and (reason := run.stop_reason_after(group_reason)) is not None:
             run.finish(program.pick(program.state, i), reason, program.env_carry(program.carry, i))
 
 
-def _show_progress(progress: Progress, runs: list[_SeedRun], sps: float) -> None:
+def _show_progress(progress: Progress, runs: list[SeedRun], sps: float) -> None:
     """The bar follows the seed furthest behind among those still training."""
     active = [run for run in runs if run.stop_reason is None] or runs
     recents = [run.recent_mean for run in runs if run.recent_mean is not None]
     progress.update(min(run.global_step for run in active), sps, float(np.mean(recents)) if recents else None)
 
 
-def _results(runs: list[_SeedRun]) -> list[RunResult]:
+def _results(runs: list[SeedRun]) -> list[RunResult]:
     """Each seed's result; a seed that failed makes the group's error instead, which says how the others stopped."""
     failed = [run for run in runs if run.error is not None]
     if failed:
@@ -477,323 +414,6 @@ def _results(runs: list[_SeedRun]) -> list[RunResult]:
     results = [run.result for run in runs if run.result is not None]
     assert len(results) == len(runs), "a seed that did not fail has finished"
     return results
-
-
-@contextmanager
-def _fewer_envs_when_out_of_device_memory(envs: int) -> Iterator[None]:
-    """The device running out of memory, reported as what the user can change: env.num_envs."""
-    try:
-        yield
-    except Exception as exc:
-        if device_memory.is_out_of_memory(exc):
-            raise device_memory.too_many_envs(envs) from None
-        raise
-
-
-@dataclass(frozen=True)
-class _Chunk:
-    """One call of the group's program: the state and env carry it returned, its metrics on the host, and its wall
-    seconds."""
-
-    state: Any
-    carry: Any
-    metrics: Any
-    iterations: np.ndarray  # each seed's iteration count after the call
-    elapsed: float
-
-
-class _GroupProgram:
-    """The group's jitted iteration (one seed's alone, or every seed's vmapped on a leading axis), and the train state
-    and env carry it steps from one call to the next."""
-
-    def __init__(self, config: Config, algorithm: Any, spec: Any, env: Any, states: list[Any], carry: Any) -> None:
-        import jax
-
-        self.algorithm = algorithm
-        self.group = len(states)
-        self.total = config.run.total_steps
-        self.envs = config.env.num_envs
-        donate = (0,) if algorithm.donate_state else ()
-        self.pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
-        if self.group == 1:
-            state = states[0]
-            self.iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
-            self.pick = lambda tree, i: tree
-        else:
-            from canter.training import seedgroup
-
-            state = seedgroup.stack(states)
-            # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
-            vmaps = getattr(env, "vmappable", False)
-            env_step = env.jax_step if vmaps else seedgroup.group_step(env.jax_step, self.group)
-            self.iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
-            self.pick = seedgroup.unstack
-        self.keeps_carry = getattr(env, "resumes_exactly", False)
-        if algorithm.donate_state:
-            state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
-        self.state = state
-        self.carry = carry
-        self.compiled: Any = None
-
-    def env_carry(self, tree: Any, i: int) -> Any:
-        """Seed i's episodes in flight, for a backend that can resume them exactly (else None)."""
-        return self.pick(tree, i) if self.keeps_carry else None
-
-    def lr_fractions(self, runs: list[_SeedRun]) -> Any:
-        """Each seed's fraction of its budget still to train, which its learning-rate schedule follows."""
-        import jax.numpy as jnp
-
-        values = [max(1.0 - run.global_step / self.total, 0.0) for run in runs]
-        return jnp.float32(values[0]) if self.group == 1 else jnp.asarray(values, jnp.float32)
-
-    def compile(self, runs: list[_SeedRun]) -> float:
-        """Compile the iteration, refusing a program the device cannot hold; returns the seconds this took."""
-        start = time.perf_counter()
-        with _fewer_envs_when_out_of_device_memory(self.envs):
-            self.compiled = self.iteration.lower(self.state, self.carry, self.lr_fractions(runs)).compile()
-        device_memory.check_fits(self.compiled, self.envs)
-        return time.perf_counter() - start
-
-    def call(self, runs: list[_SeedRun]) -> _Chunk:
-        """One call of the compiled iteration, from the state and carry that the last one left."""
-        import jax
-
-        t0 = time.perf_counter()
-        with _fewer_envs_when_out_of_device_memory(self.envs):
-            state, carry, metrics = self.compiled(self.state, self.carry, self.lr_fractions(runs))
-        metrics = jax.device_get(metrics)
-        iterations = np.asarray(jax.device_get(state.iteration))
-        return _Chunk(state, carry, metrics, iterations, time.perf_counter() - t0)
-
-    def advance(self, chunk: _Chunk) -> None:
-        """The next call goes on from this chunk. Until then `state` and `carry` are those from before it, which a
-        seed whose chunk was non-finite keeps."""
-        self.state, self.carry = chunk.state, chunk.carry
-
-
-class _SeedRun:
-    """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
-
-    def __init__(
-        self,
-        config: Config,
-        spec: Any,
-        start: _SeedStart,
-        metric_names: tuple[str, ...],
-        trained_with: tuple[int, ...],
-        started: float,
-    ) -> None:
-        """`started`: when this session started, on time.perf_counter's clock. (A resume may start at step 0: a run
-        whose first iteration was non-finite.)"""
-        resumed = start.resumed
-        out = start.out
-        self.config = config
-        self.out = out
-        self.metric_names = metric_names
-        self.global_step = start.step
-        self.started = started
-        earlier = start.earlier or {}
-        self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
-        self.episodes = int(earlier.get("episodes", 0))
-        # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
-        self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
-        self.run_seconds = float(earlier.get("train_seconds", 0.0))
-        self.compile_seconds = 0.0  # this session's, once compiled
-        self.trained_with = trained_with  # the seeds of this process's group, its own included
-        every = config.run.checkpoint_every
-        self.next_checkpoint = (start.step // every + 1) * every if every else None
-        self.header_base = {"config": to_toml(config), "env": _env_header(spec), "algo": config.run.algo}
-        self.logger = MetricsLogger(
-            out,
-            metric_names,
-            spec.info_keys,
-            config.run.tensorboard,
-            resume_step=start.step if resumed else None,
-            evaluates=config.run.eval_every > 0,
-        )
-        self.evaluation = (
-            TrainingEvaluation(config, spec, start.step, _best_return(out) if resumed else None)
-            if config.run.eval_every
-            else None
-        )
-        self.videos = TrainingVideos(out, config.run.video_every, start.step, resumed=resumed)
-        self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
-        self.closed = False
-        self.stop_reason: str | None = None  # set once the seed is done; the group may still run
-        self.error: str | None = None
-        self.result: RunResult | None = None
-
-    @property
-    def recent_mean(self) -> float | None:
-        return float(np.mean(self.recent)) if self.recent else None
-
-    def totals(self) -> dict[str, Any]:
-        return {
-            "wall_seconds": self.earlier_wall + time.perf_counter() - self.started,
-            "train_seconds": self.run_seconds,
-            "episodes": self.episodes,
-            "recent_returns": list(self.recent),
-            "compile_seconds": self.compile_seconds,
-        }
-
-    def _header(self) -> dict[str, Any]:
-        return dict(
-            self.header_base,
-            global_step=self.global_step,
-            saved_at=datetime.now().isoformat(timespec="seconds"),
-            totals=self.totals(),
-        )
-
-    def save(self, train_state: Any, env_carry: Any = None) -> None:
-        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None)."""
-        checkpoint.save(
-            checkpoint.checkpoint_path(self.out, self.global_step),
-            train_state,
-            self._header(),
-            compress=self.config.run.compress_checkpoints,
-            env_carry=env_carry,
-        )
-        checkpoint.prune(self.out, self.config.run.keep_checkpoints)
-
-    def evaluation_due(self) -> bool:
-        return self.evaluation is not None and self.evaluation.due(self.global_step)
-
-    def evaluate(self, train_state: Any) -> dict[str, float]:
-        """Evaluate the state after this iteration; a new best score saves it as checkpoints/best.npz. Returns
-        the eval/* columns of this iteration's row."""
-        from canter.algos import get_algorithm
-
-        assert self.evaluation is not None
-        result = self.evaluation.evaluate(train_state, self.global_step)
-        if self.evaluation.improves(result):
-            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
-            header = dict(self._header(), evaluation=evaluation)
-            checkpoint.save(
-                checkpoint.best_path(self.out),
-                train_state,
-                header,
-                compress=self.config.run.compress_checkpoints,
-                leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
-            )
-        return result.columns()
-
-    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float) -> dict[str, Any]:
-        """This iteration's metrics.csv row, which the loop logs once any evaluation has joined it."""
-        steps = int(metrics["steps"])
-        self.global_step += steps
-        self.run_seconds += elapsed
-        finished = np.asarray(metrics["finished"], bool)
-        returns = np.asarray(metrics["episode_return"])[finished]
-        lengths = np.asarray(metrics["episode_length"])[finished]
-        self.episodes += int(finished.sum())
-        self.recent.extend(float(r) for r in returns)
-        row: dict[str, Any] = {
-            "global_step": self.global_step,
-            "iteration": iteration,
-            "wall_time": round(self.earlier_wall + time.perf_counter() - self.started, 3),
-            "sps": round(steps / elapsed, 1),
-            "episodes": int(finished.sum()),
-            "episodic_return": logged(returns.mean()) if returns.size else math.nan,
-            "episodic_length": logged(lengths.mean()) if lengths.size else math.nan,
-        }
-        for key in self.metric_names:
-            row[key] = logged(metrics[key])
-        for key, values in metrics["episode_info"].items():
-            chosen = np.asarray(values)[finished]
-            row[f"info/{key}"] = logged(chosen.mean()) if chosen.size else math.nan
-        return row
-
-    def checkpoint_due(self) -> bool:
-        return (
-            self.next_checkpoint is not None
-            and self.global_step >= self.next_checkpoint
-            and self.global_step < self.config.run.total_steps
-        )
-
-    def save_periodic(self, train_state: Any, env_carry: Any = None) -> None:
-        """The checkpoint that run.checkpoint_every asks for at this step."""
-        self.save(train_state, env_carry)
-        every = self.config.run.checkpoint_every
-        self.next_checkpoint = (self.global_step // every + 1) * every
-
-    def save_snapshot(self, path: Path, train_state: Any) -> None:
-        """The policy state that a video of this step is rendered from (`canter.training.videos`)."""
-        from canter.algos import get_algorithm
-
-        checkpoint.save(
-            path,
-            train_state,
-            dict(self.header_base, global_step=self.global_step),
-            leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
-        )
-
-    def stop_reason_after(self, group_reason: str | None) -> str | None:
-        """Why the seed stops after this iteration, if it does: its return target, its budget, else what stops the
-        group (max_minutes, a signal). A seed whose budget is spent is complete even when the deadline or a signal
-        comes in the same iteration: marked stopped early, a resume would find nothing left to train."""
-        run = self.config.run
-        if (
-            run.stop_at_return is not None
-            and len(self.recent) >= RECENT_EPISODES
-            and (mean := self.recent_mean) is not None
-            and mean >= run.stop_at_return
-        ):
-            return "stop_at_return"
-        if self.global_step >= run.total_steps:
-            return "budget"
-        return group_reason
-
-    def finish(self, train_state: Any, reason: str, env_carry: Any = None) -> None:
-        self.stop_reason = reason
-        self.save(train_state, env_carry)
-        self.close()
-        self.result = RunResult(
-            run_dir=self.out,
-            global_step=self.global_step,
-            recent_return=self.recent_mean,
-            episodes=self.episodes,
-            wall_seconds=self.earlier_wall + time.perf_counter() - self.started,
-            compile_seconds=self.compile_seconds,
-            sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
-            stop_reason=reason,
-            trained_with=self.trained_with,
-        )
-        self.trackers.finish(self.out, _write_summary(self.result))
-
-    def close(self) -> None:
-        if not self.closed:
-            self.logger.close()
-            self.videos.close()
-            self.closed = True
-        if self.stop_reason is None or self.error is not None:  # failed or interrupted: `finish` ends them itself
-            self.trackers.close()
-
-    def fail(self, last_good_state: Any, env_carry: Any = None) -> None:
-        """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
-        self.stop_reason = "non_finite"
-        # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
-        # (an off-policy buffer keeps the finite transitions of the failed call).
-        if not checkpoint.checkpoint_path(self.out, self.global_step).is_file():
-            self.save(last_good_state, env_carry)
-        self.close()
-        self.error = (
-            f"non-finite observation, reward or parameter during the iteration after step "
-            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
-        )
-
-
-def _best_return(run_dir: Path) -> float | None:
-    """The score of the run's best.npz, so that a resumed run keeps its best state until a better one comes."""
-    path = checkpoint.best_path(run_dir)
-    if not path.is_file():
-        return None
-    try:
-        return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
-    except (KeyError, TypeError, ValueError):
-        raise CanterError(
-            f"{path} holds no evaluation score, so it is not a best checkpoint of this run; move it out of the "
-            f"folder, then resume"
-        ) from None
 
 
 def resume_config(

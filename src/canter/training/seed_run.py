@@ -1,0 +1,308 @@
+"""One seed's host side of training: its run folder, metrics.csv, checkpoints, evaluations during training, recent
+returns and stop reason, and what it hands back when it ends (`RunResult`, summary.json)."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canter.config.schema import Config
+from canter.config.serialize import to_toml
+from canter.core.seeding import RESUME, TRAIN, env_seeds
+from canter.errors import CanterError
+from canter.files import atomic_write_bytes
+from canter.training import checkpoint, run_folder, trackers
+from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
+from canter.training.logger import MetricsLogger, logged
+from canter.training.videos import TrainingVideos
+
+RECENT_EPISODES = 20
+
+
+@dataclass(frozen=True)
+class RunResult:
+    run_dir: Path
+    global_step: int
+    recent_return: float | None  # mean raw return of the last 20 training episodes
+    episodes: int
+    wall_seconds: float  # the whole run, compile and earlier sessions of a resumed run included
+    compile_seconds: float  # this session's compile
+    sps: float  # env steps per second over the whole run, compile excluded
+    stop_reason: str  # budget | stop_at_return | max_minutes | signal
+    # The seeds of the process that trained its last session (itself alone, or its vmapped group); None unknown.
+    trained_with: tuple[int, ...] | None = None
+
+
+def env_header(spec: Any) -> dict[str, Any]:
+    return {
+        "id": spec.id,
+        "backend": spec.backend,
+        "obs_dim": spec.obs_dim,
+        "act_dim": spec.act_dim,
+        "action_low": list(spec.action_low),
+        "action_high": list(spec.action_high),
+        "max_episode_steps": spec.max_episode_steps,
+        "info_keys": list(spec.info_keys),
+    }
+
+
+def write_summary(result: RunResult) -> dict[str, Any]:
+    summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
+    atomic_write_bytes(
+        result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
+    )
+    return summary
+
+
+@dataclass(frozen=True)
+class SeedStart:
+    """Where one seed of a group starts: its run folder and, for a resume, what its newest checkpoint holds."""
+
+    out: Path
+    state: Any = None  # None: the algorithm's initial state
+    step: int = 0
+    # Wall seconds, training seconds, episodes and recent returns of the sessions before a resume; None: a new run.
+    earlier: dict[str, Any] | None = None
+    resumed_from: Path | None = None  # the checkpoint
+
+    @property
+    def resumed(self) -> bool:
+        return self.resumed_from is not None
+
+    def env_seeds(self, config: Config) -> list[int]:
+        """Exactly the seeds its single-seed run would give its envs, wherever it sits in the group."""
+        purpose, salt = (RESUME, self.step) if self.resumed else (TRAIN, 0)
+        return env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
+
+
+class SeedRun:
+    """One seed's host side: its run folder, metrics, checkpoints, recent returns and stop reason."""
+
+    def __init__(
+        self,
+        config: Config,
+        spec: Any,
+        start: SeedStart,
+        metric_names: tuple[str, ...],
+        trained_with: tuple[int, ...],
+        started: float,
+    ) -> None:
+        """`started`: when this session started, on time.perf_counter's clock. (A resume may start at step 0: a run
+        whose first iteration was non-finite.)"""
+        resumed = start.resumed
+        out = start.out
+        self.config = config
+        self.out = out
+        self.metric_names = metric_names
+        self.global_step = start.step
+        self.started = started
+        earlier = start.earlier or {}
+        self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
+        self.episodes = int(earlier.get("episodes", 0))
+        # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
+        self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
+        self.run_seconds = float(earlier.get("train_seconds", 0.0))
+        self.compile_seconds = 0.0  # this session's, once compiled
+        self.trained_with = trained_with  # the seeds of this process's group, its own included
+        every = config.run.checkpoint_every
+        self.next_checkpoint = (start.step // every + 1) * every if every else None
+        self.header_base = {"config": to_toml(config), "env": env_header(spec), "algo": config.run.algo}
+        self.logger = MetricsLogger(
+            out,
+            metric_names,
+            spec.info_keys,
+            config.run.tensorboard,
+            resume_step=start.step if resumed else None,
+            evaluates=config.run.eval_every > 0,
+        )
+        self.evaluation = (
+            TrainingEvaluation(config, spec, start.step, best_return(out) if resumed else None)
+            if config.run.eval_every
+            else None
+        )
+        self.videos = TrainingVideos(out, config.run.video_every, start.step, resumed=resumed)
+        self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
+        self.closed = False
+        self.stop_reason: str | None = None  # set once the seed is done; the group may still run
+        self.error: str | None = None
+        self.result: RunResult | None = None
+
+    @property
+    def recent_mean(self) -> float | None:
+        return float(np.mean(self.recent)) if self.recent else None
+
+    def totals(self) -> dict[str, Any]:
+        return {
+            "wall_seconds": self.earlier_wall + time.perf_counter() - self.started,
+            "train_seconds": self.run_seconds,
+            "episodes": self.episodes,
+            "recent_returns": list(self.recent),
+            "compile_seconds": self.compile_seconds,
+        }
+
+    def _header(self) -> dict[str, Any]:
+        return dict(
+            self.header_base,
+            global_step=self.global_step,
+            saved_at=datetime.now().isoformat(timespec="seconds"),
+            totals=self.totals(),
+        )
+
+    def save(self, train_state: Any, env_carry: Any = None) -> None:
+        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None)."""
+        checkpoint.save(
+            checkpoint.checkpoint_path(self.out, self.global_step),
+            train_state,
+            self._header(),
+            compress=self.config.run.compress_checkpoints,
+            env_carry=env_carry,
+        )
+        checkpoint.prune(self.out, self.config.run.keep_checkpoints)
+
+    def evaluation_due(self) -> bool:
+        return self.evaluation is not None and self.evaluation.due(self.global_step)
+
+    def evaluate(self, train_state: Any) -> dict[str, float]:
+        """Evaluate the state after this iteration; a new best score saves it as checkpoints/best.npz. Returns
+        the eval/* columns of this iteration's row."""
+        from canter.algos import get_algorithm
+
+        assert self.evaluation is not None
+        result = self.evaluation.evaluate(train_state, self.global_step)
+        if self.evaluation.improves(result):
+            evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
+            header = dict(self._header(), evaluation=evaluation)
+            checkpoint.save(
+                checkpoint.best_path(self.out),
+                train_state,
+                header,
+                compress=self.config.run.compress_checkpoints,
+                leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
+            )
+        return result.columns()
+
+    def record(self, metrics: dict[str, Any], iteration: int, elapsed: float) -> dict[str, Any]:
+        """This iteration's metrics.csv row, which the loop logs once any evaluation has joined it."""
+        steps = int(metrics["steps"])
+        self.global_step += steps
+        self.run_seconds += elapsed
+        finished = np.asarray(metrics["finished"], bool)
+        returns = np.asarray(metrics["episode_return"])[finished]
+        lengths = np.asarray(metrics["episode_length"])[finished]
+        self.episodes += int(finished.sum())
+        self.recent.extend(float(r) for r in returns)
+        row: dict[str, Any] = {
+            "global_step": self.global_step,
+            "iteration": iteration,
+            "wall_time": round(self.earlier_wall + time.perf_counter() - self.started, 3),
+            "sps": round(steps / elapsed, 1),
+            "episodes": int(finished.sum()),
+            "episodic_return": logged(returns.mean()) if returns.size else math.nan,
+            "episodic_length": logged(lengths.mean()) if lengths.size else math.nan,
+        }
+        for key in self.metric_names:
+            row[key] = logged(metrics[key])
+        for key, values in metrics["episode_info"].items():
+            chosen = np.asarray(values)[finished]
+            row[f"info/{key}"] = logged(chosen.mean()) if chosen.size else math.nan
+        return row
+
+    def checkpoint_due(self) -> bool:
+        return (
+            self.next_checkpoint is not None
+            and self.global_step >= self.next_checkpoint
+            and self.global_step < self.config.run.total_steps
+        )
+
+    def save_periodic(self, train_state: Any, env_carry: Any = None) -> None:
+        """The checkpoint that run.checkpoint_every asks for at this step."""
+        self.save(train_state, env_carry)
+        every = self.config.run.checkpoint_every
+        self.next_checkpoint = (self.global_step // every + 1) * every
+
+    def save_snapshot(self, path: Path, train_state: Any) -> None:
+        """The policy state that a video of this step is rendered from (`canter.training.videos`)."""
+        from canter.algos import get_algorithm
+
+        checkpoint.save(
+            path,
+            train_state,
+            dict(self.header_base, global_step=self.global_step),
+            leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
+        )
+
+    def stop_reason_after(self, group_reason: str | None) -> str | None:
+        """Why the seed stops after this iteration, if it does: its return target, its budget, else what stops the
+        group (max_minutes, a signal). A seed whose budget is spent is complete even when the deadline or a signal
+        comes in the same iteration: marked stopped early, a resume would find nothing left to train."""
+        run = self.config.run
+        if (
+            run.stop_at_return is not None
+            and len(self.recent) >= RECENT_EPISODES
+            and (mean := self.recent_mean) is not None
+            and mean >= run.stop_at_return
+        ):
+            return "stop_at_return"
+        if self.global_step >= run.total_steps:
+            return "budget"
+        return group_reason
+
+    def finish(self, train_state: Any, reason: str, env_carry: Any = None) -> None:
+        self.stop_reason = reason
+        self.save(train_state, env_carry)
+        self.close()
+        self.result = RunResult(
+            run_dir=self.out,
+            global_step=self.global_step,
+            recent_return=self.recent_mean,
+            episodes=self.episodes,
+            wall_seconds=self.earlier_wall + time.perf_counter() - self.started,
+            compile_seconds=self.compile_seconds,
+            sps=self.global_step / self.run_seconds if self.run_seconds > 0 else 0.0,
+            stop_reason=reason,
+            trained_with=self.trained_with,
+        )
+        self.trackers.finish(self.out, write_summary(self.result))
+
+    def close(self) -> None:
+        if not self.closed:
+            self.logger.close()
+            self.videos.close()
+            self.closed = True
+        if self.stop_reason is None or self.error is not None:  # failed or interrupted: `finish` ends them itself
+            self.trackers.close()
+
+    def fail(self, last_good_state: Any, env_carry: Any = None) -> None:
+        """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
+        self.stop_reason = "non_finite"
+        # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
+        # (an off-policy buffer keeps the finite transitions of the failed call).
+        if not checkpoint.checkpoint_path(self.out, self.global_step).is_file():
+            self.save(last_good_state, env_carry)
+        self.close()
+        self.error = (
+            f"non-finite observation, reward or parameter during the iteration after step "
+            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
+        )
+
+
+def best_return(run_dir: Path) -> float | None:
+    """The score of the run's best.npz, so that a resumed run keeps its best state until a better one comes."""
+    path = checkpoint.best_path(run_dir)
+    if not path.is_file():
+        return None
+    try:
+        return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
+    except (KeyError, TypeError, ValueError):
+        raise CanterError(
+            f"{path} holds no evaluation score, so it is not a best checkpoint of this run; move it out of the "
+            f"folder, then resume"
+        ) from None
