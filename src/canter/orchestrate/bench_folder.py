@@ -11,14 +11,9 @@ bench names it.
 from __future__ import annotations
 
 import contextlib
-import errno
-import fcntl
-import json
 import os
 import socket
-import sys
 from collections.abc import Iterator
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -65,13 +60,7 @@ def sharing_bench_folder(bench_dir: Path, storage_url: str) -> Iterator[None]:
     """A worker of a grid shared through --storage holds a shared flock on the folder's writer lock file while it
     runs: the grid's other workers take it too, on this machine or another, and a local bench on the folder refuses
     it and is refused."""
-    path = bench_dir / run_lock.LOCK_FILE
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as exc:
-        if is_write_error(exc):
-            raise WriteError(path, exc) from None
-        raise
+    fd = run_lock.open_lock_file(bench_dir)
     try:
         if not _share(fd, bench_dir):
             holder = run_lock.read_holder(bench_dir)
@@ -79,12 +68,13 @@ def sharing_bench_folder(bench_dir: Path, storage_url: str) -> Iterator[None]:
                 f"{bench_dir} is in use by a bench without --storage{_who(holder)}; wait for it to finish, or stop "
                 f"it and run both with --storage to share the grid between them"
             )
+        hidden = redacted(storage_url)
+        command = run_lock.command_line().replace(storage_url, hidden)
         try:
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, _worker_record(storage_url), 0)
+            run_lock.write_holder(fd, command=command, **{STORAGE_KEY: hidden})
         except OSError as exc:
             if is_write_error(exc):
-                raise WriteError(path, exc) from None
+                raise WriteError(bench_dir / run_lock.LOCK_FILE, exc) from None
             raise
         yield
     finally:
@@ -93,17 +83,12 @@ def sharing_bench_folder(bench_dir: Path, storage_url: str) -> Iterator[None]:
 
 def _share(fd: int, bench_dir: Path) -> bool:
     """Take the shared flock; False while a local bench holds the folder."""
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return False
-    except OSError as exc:
-        if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS):
-            raise
+    shared = run_lock.flock(fd, shared=True)
+    if shared is None:
         # Without flock only the record tells, and only of this host: a local bench whose process is alive.
         holder = run_lock.read_holder(bench_dir)
         return STORAGE_KEY in holder or not _alive_here(holder)
-    return True
+    return shared
 
 
 def _alive_here(holder: dict[str, Any]) -> bool:
@@ -116,16 +101,3 @@ def _alive_here(holder: dict[str, Any]) -> bool:
     except PermissionError:  # another user's live process
         return True
     return True
-
-
-def _worker_record(storage_url: str) -> bytes:
-    """The writer lock's record (`run_lock.read_holder`), with the storage, its password left out as everywhere."""
-    command = " ".join([Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "python", *sys.argv[1:]])
-    record = {
-        "pid": os.getpid(),
-        "host": socket.gethostname(),
-        "started": datetime.now().isoformat(timespec="seconds"),
-        "command": command.replace(storage_url, redacted(storage_url)),
-        STORAGE_KEY: redacted(storage_url),
-    }
-    return json.dumps(record).encode()

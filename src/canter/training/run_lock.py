@@ -49,7 +49,7 @@ class _Held:
 _HELD: dict[Path, _Held] = {}
 
 
-def _command() -> str:
+def command_line() -> str:
     """This process's command line, as the user would recognise it (`canter train ...`, a job's `jobs.py SPEC`)."""
     if not sys.argv or not sys.argv[0]:
         return "python"
@@ -59,14 +59,18 @@ def _command() -> str:
     return " ".join([program, *sys.argv[1:]])
 
 
-def _holder_text() -> bytes:
+def write_holder(fd: int, **fields: str) -> None:
+    """Record this process in the lock file `fd` whose flock it holds: pid, host, start time and command, with
+    `fields` added or replacing them (a command with a password left out, say)."""
     record = {
         "pid": os.getpid(),
         "host": socket.gethostname(),
         "started": datetime.now().isoformat(timespec="seconds"),
-        "command": _command(),
+        "command": command_line(),
+        **fields,
     }
-    return json.dumps(record).encode()
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, json.dumps(record).encode(), 0)
 
 
 def read_holder(run_dir: Path) -> dict[str, Any]:
@@ -104,10 +108,11 @@ def _refusal(run_dir: Path, holder: dict[str, Any]) -> CanterError:
     )
 
 
-def _flock(fd: int) -> bool | None:
-    """Take the flock: True, False when another process holds it, None where the filesystem has no flock."""
+def flock(fd: int, shared: bool = False) -> bool | None:
+    """Take the flock, exclusive or `shared`: True, False when another process holds it (exclusively, for a shared
+    one), None where the filesystem has no flock."""
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
     except BlockingIOError:
         return False
     except OSError as exc:
@@ -115,6 +120,19 @@ def _flock(fd: int) -> bool | None:
             return None
         raise
     return True
+
+
+def open_lock_file(run_dir: Path) -> int:
+    """The folder's lock file opened for writing, the folder made first where it is missing; a full or read-only
+    disk is a WriteError."""
+    path = Path(run_dir) / LOCK_FILE
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        if is_write_error(exc):
+            raise WriteError(path, exc) from None
+        raise
 
 
 def acquire(run_dir: Path) -> None:
@@ -128,20 +146,13 @@ def acquire(run_dir: Path) -> None:
         return
     path = run_dir / LOCK_FILE
     created = not run_dir.exists()
+    fd = open_lock_file(run_dir)
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as exc:
-        if is_write_error(exc):
-            raise WriteError(path, exc) from None
-        raise
-    try:
-        locked = _flock(fd)
+        locked = flock(fd)
         holder = read_holder(run_dir)
         if locked is False or (locked is None and _alive_here(holder)):
             raise _refusal(run_dir, holder)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, _holder_text(), 0)
+        write_holder(fd)
         _remove_half_written(run_dir)
     except BaseException as exc:
         os.close(fd)
