@@ -116,6 +116,11 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat (heartbeat_seconds) must be >= 1, got 0"),
         (["--storage", "postgresql://u@host:abc/db"], "is not a database URL; use sqlite:///path/study.db"),
         (["--storage", "foo://host/db"], "foo"),  # parses, but no such driver: refused when opened
+        # Without a storage there is no study to name nor trial to heartbeat: refused rather than ignored.
+        (["--study", "x"], "--study goes with --storage only"),
+        (["--heartbeat", "5"], "--heartbeat goes with --storage only"),
+        (["--study", "x", "--heartbeat", "5"], "--study and --heartbeat go with --storage only"),
+        (["--storage", "", "--study", "x"], "add --storage URL to share the grid, or leave out --study"),
     ],
 )
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
@@ -142,6 +147,92 @@ def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monke
     code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "unknown algorithm 'nope'" in err, err
+
+
+def test_worker_count_never_passes_the_work_left():
+    from canter.orchestrate.jobs import worker_count
+
+    assert [worker_count(1000, 1), worker_count(4, 10), worker_count(4, 4), worker_count(3, 2)] == [1, 4, 4, 2]
+    # One even with nothing left: it finds that out, or waits for what runs elsewhere, and the results are written.
+    assert worker_count(8, 0) == worker_count(8, -2) == 1
+
+
+def test_jobs_far_over_the_cores_are_refused_before_anything_starts(tmp_path, capsys, monkeypatch):
+    import canter.orchestrate.jobs
+    from canter.errors import CanterError
+
+    monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+
+    def no_process(*args, **kwargs):
+        raise AssertionError("a refused command started a process")
+
+    monkeypatch.setattr(canter.orchestrate.jobs, "run_workers", no_process)
+    monkeypatch.setattr(canter.orchestrate.jobs, "start_job", no_process)
+    canter.orchestrate.jobs.check_jobs(8)  # 4 per core: slow, but a choice; the warning says so
+    with pytest.raises(CanterError) as refused:
+        canter.orchestrate.jobs.check_jobs(9)
+    assert str(refused.value) == (
+        "--jobs 9 is more than 4 per CPU core, and this machine lets canter use 2; pass --jobs 2 (one per core), or "
+        "at most --jobs 8"
+    )
+    out = tmp_path / "b"
+    for through_storage in (False, True):
+        storage = ["--storage", f"sqlite:///{tmp_path / 'grid.db'}"] if through_storage else []
+        code = main(["bench", "--envs", "Hopper-v5", "--seeds", "0", "--jobs", "1000", "--out", str(out), *storage])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and "--jobs 1000 is more than 4 per CPU core" in err, err
+        assert "pass --jobs 2" in err and "Traceback" not in err and not out.exists()
+    assert not (tmp_path / "grid.db").exists()
+    # The command of the report: one trial, a thousand jobs.
+    tune_dir = tmp_path / "t"
+    code = main(
+        ["tune", "Pendulum-v1", "--trials", "1", "--jobs", "1000", "--total-steps", "1024"]
+        + ["--out-dir", str(tune_dir)]
+    )
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--jobs 1000 is more than 4 per CPU core" in err, err
+    assert not tune_dir.exists()
+
+
+def test_a_local_bench_makes_no_more_slots_than_jobs_left(tmp_path, capsys, monkeypatch):
+    import canter.orchestrate.bench_local
+    from canter.orchestrate.bench_local import run_local
+
+    settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 1000, grid=(("ppo.ent_coef", ("0", "0.01")),), jobs=6)
+    layouts = []
+
+    class Stop(Exception):
+        pass
+
+    def layout(jobs):
+        layouts.append(jobs)
+        raise Stop  # before any job starts
+
+    monkeypatch.setattr(canter.orchestrate.bench_local, "job_layout", layout)
+    with pytest.raises(Stop):
+        run_local(make_cells(settings), settings, tmp_path)
+    # Each slot's share of the cores and of a GPU's memory is cut for the 2 jobs there are, not for 6.
+    assert layouts == [2]
+
+
+def test_a_shared_bench_starts_no_more_workers_than_unfinished_jobs(tmp_path, capsys, monkeypatch):
+    import canter.orchestrate.bench_distributed as distributed
+
+    url = f"sqlite:///{tmp_path / 'grid.db'}"
+    settings = BenchSettings(
+        ("ppo",), ("Hopper-v5",), (0,), 1000, grid=(("ppo.ent_coef", ("0", "0.01", "0.02")),), jobs=6, storage_url=url
+    )
+    cells = make_cells(settings)
+    started = []
+    monkeypatch.setattr(distributed, "run_workers", lambda work, args, name: started.append(len(args)) or [])
+    monkeypatch.setattr(distributed, "_grid_worker", lambda *args: started.append(1))
+    storage, study = distributed.open_grid_study(settings, tmp_path)
+    distributed.run_distributed(cells, settings, tmp_path, storage, study)
+    assert started == [3]  # the grid's 3 jobs, not --jobs 6
+    for _ in range(2):  # two jobs finished (by a worker elsewhere): one is left
+        study.tell(study.ask(), 1.0)
+    distributed.run_distributed(cells, settings, tmp_path, storage, study)
+    assert started == [3, 1]
 
 
 def read_rows(path: Path) -> list[dict]:

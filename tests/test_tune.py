@@ -76,6 +76,31 @@ def tiny_args(tmp_path: Path) -> list[str]:
     return args
 
 
+def test_no_more_workers_start_than_the_study_lacks_trials(tmp_path, capsys, monkeypatch):
+    import canter.orchestrate.jobs
+    import canter.orchestrate.tune
+
+    monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    url = f"sqlite:///{tmp_path / 'tune' / 'Pendulum-v1__ppo' / 'study.db'}"
+    started = []
+
+    def workers(work, args, name):  # stands in for the processes, which finish 2 of the 3 trials
+        started.append(len(args))
+        study = optuna.load_study(study_name="Pendulum-v1__ppo", storage=url)
+        for _ in range(2):
+            study.add_trial(optuna.trial.create_trial(state=optuna.trial.TrialState.PRUNED))
+        return []
+
+    monkeypatch.setattr(canter.orchestrate.jobs, "run_workers", workers)
+    monkeypatch.setattr(canter.orchestrate.tune, "worker", lambda settings, job, before: started.append(1))
+    argv = ["tune", "Pendulum-v1", "--trials", "3", "--jobs", "5", *tiny_args(tmp_path)]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert main(argv) == 0, capsys.readouterr().err
+    # 3 workers for 3 trials, not --jobs 5, so no warning about 5 jobs on 3 cores; then 1 for the trial left.
+    assert started == [3, 1]
+    assert "warning" not in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------------------------------------- search spaces
 
 

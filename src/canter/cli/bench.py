@@ -64,7 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="share the grid through this Optuna storage (e.g. postgresql://user:pw@host/db)",
     )
     b.add_argument("--study", default=None, metavar="NAME", help="study name with --storage (default: --out name)")
-    b.add_argument("--heartbeat", type=int, default=60, metavar="SECONDS", help="with --storage: heartbeat interval")
+    b.add_argument(
+        "--heartbeat", type=int, default=None, metavar="SECONDS", help="with --storage: heartbeat interval (default 60)"
+    )
     add_track_args(b, "one tracker run per seed, a cell's seeds in one group; a re-run continues those it resumes")
     b.set_defaults(func=run)
 
@@ -78,6 +80,16 @@ def run(args: argparse.Namespace) -> int:
         raise CanterError(
             f"bench --eval-episodes is now --episodes (episodes of each run's final evaluation); "
             f"pass --episodes {args.eval_episodes}"
+        )
+
+    # Without a storage the bench runs on this machine alone, with no study to name and no trials to heartbeat: the
+    # flags would do nothing, and a user who gave them most likely meant to share the grid.
+    alone = [f"--{name}" for name in ("study", "heartbeat") if getattr(args, name) is not None]
+    if alone and not args.storage:
+        flags = " and ".join(alone)
+        raise CanterError(
+            f"{flags} {'go' if len(alone) > 1 else 'goes'} with --storage only (without it the bench runs on this "
+            f"machine alone, with no study); add --storage URL to share the grid, or leave out {flags}"
         )
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
@@ -101,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         eval_episodes=args.episodes,
         storage_url=args.storage,
         study_name=args.study,
-        heartbeat_seconds=args.heartbeat,
+        **({"heartbeat_seconds": args.heartbeat} if args.heartbeat is not None else {}),
         track=track_spec(args),
     )
     from canter.orchestrate.jobs import sigterm_interrupts

@@ -36,7 +36,7 @@ from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
 from canter.orchestrate.bench_local import run_local
 from canter.orchestrate.bench_results import cell_result, check_results_writable, write_results
 from canter.orchestrate.bench_runs import check_existing_runs, seeds_finished
-from canter.orchestrate.jobs import warn_if_more_jobs_than_cores
+from canter.orchestrate.jobs import check_jobs
 from canter.orchestrate.study import describe_url, normalize_url
 from canter.training.trackers import check_trackers, group_name, open_groups
 
@@ -45,6 +45,7 @@ def bench(settings: BenchSettings) -> str:
     """Check the grid, run it (locally or through the storage), and write the results; returns the markdown."""
     cells = make_cells(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any cell
+    check_jobs(settings.jobs)  # before the bench folder is made
     bench_dir = Path(settings.out_dir)
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
@@ -70,7 +71,6 @@ def _run_grid(cells: list[Cell], settings: BenchSettings, bench_dir: Path, opene
     # Each unfinished cell's tracker group (MLflow's parent run) is made here, once, not by jobs that start together.
     unfinished = [c for c in cells if not seeds_finished(c, settings.seeds, settings, bench_dir)]
     settings = replace(settings, track=open_groups(settings.track, [group_name(c.config) for c in unfinished]))
-    warn_if_more_jobs_than_cores(settings.jobs)
     if opened is not None:
         results, failures = run_distributed(cells, settings, bench_dir, *opened)
     else:

@@ -15,7 +15,15 @@ import numpy as np
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_results import CellResult, SeedRecord, combine_seeds, read_seed
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_steps, seeds_finished, start_text
-from canter.orchestrate.jobs import exit_text, failure_reason, run_workers, start_job, stop_jobs
+from canter.orchestrate.jobs import (
+    exit_text,
+    failure_reason,
+    run_workers,
+    start_job,
+    stop_jobs,
+    warn_if_more_jobs_than_cores,
+    worker_count,
+)
 from canter.orchestrate.study import claim_study, study_storage
 
 if TYPE_CHECKING:
@@ -147,20 +155,22 @@ def run_distributed(
 
     by_key = _jobs_by_key(cells, settings)
     # Queue the jobs that no trial holds yet (a first run, a job whose trial failed, or one with new settings).
-    held = {
-        trial_job(t)
-        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))
-    }
+    trials = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING, TrialState.WAITING))
+    held = {trial_job(t) for t in trials}
     for key in by_key:
         if key not in held:
             study.enqueue_trial({}, user_attrs={JOB_ATTR: key})
-    if settings.jobs == 1:
+    # A worker beyond the grid's unfinished jobs would find no trial to take.
+    complete = {trial_job(t) for t in trials if t.state == TrialState.COMPLETE}
+    workers = worker_count(settings.jobs, sum(1 for key in by_key if key not in complete))
+    warn_if_more_jobs_than_cores(settings.jobs, workers)
+    if workers == 1:
         _grid_worker(cells, settings, bench_dir)
-    elif ended := run_workers(_grid_worker, [(cells, settings, bench_dir)] * settings.jobs, "canter-bench"):
+    elif ended := run_workers(_grid_worker, [(cells, settings, bench_dir)] * workers, "canter-bench"):
         # The others retried what it held (a trial whose heartbeat stops is failed and queued again); the table
         # below holds every cell they finished, and names the rest.
         print(
-            f"canter: note: {len(ended)} of {settings.jobs} bench workers ended early ({exit_text(ended[0])}; a "
+            f"canter: note: {len(ended)} of {workers} bench workers ended early ({exit_text(ended[0])}; a "
             f"worker's own error, if it had one, is printed above)",
             file=sys.stderr,
         )

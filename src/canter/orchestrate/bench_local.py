@@ -9,11 +9,19 @@ from typing import Any
 
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_steps, seeds_finished, start_text
-from canter.orchestrate.jobs import failure_reason, job_layout, start_job, stop_jobs
+from canter.orchestrate.jobs import (
+    failure_reason,
+    job_layout,
+    start_job,
+    stop_jobs,
+    warn_if_more_jobs_than_cores,
+    worker_count,
+)
 
 
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
-    """Run the unfinished jobs, up to `jobs` child processes at once; returns {cell name: failure reason}."""
+    """Run the unfinished jobs, up to `jobs` child processes at once (no more than there are jobs left); returns
+    {cell name: failure reason}."""
     jobs = make_jobs(cells, settings.seeds)
     finished = [seeds_finished(job.cell, job.seeds, settings, bench_dir) for job in jobs]
     if any(finished):
@@ -21,7 +29,10 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     for job in itertools.compress(jobs, finished):
         print(f"skip {job.name} (finished)")
     pending = [job for job, done in zip(jobs, finished) if not done]
-    slots = job_layout(settings.jobs) if settings.jobs > 1 else [{}]
+    # Slots for the jobs left only: each slot's share of the cores and of a GPU's memory is cut for the slots there are.
+    workers = worker_count(settings.jobs, len(pending))
+    warn_if_more_jobs_than_cores(settings.jobs, workers)
+    slots = job_layout(workers) if workers > 1 else [{}]
     running: dict[int, tuple[Job, Any, float]] = {}
     failures: dict[str, str] = {}
     try:

@@ -11,9 +11,9 @@ only in their hyperparameters).
 Evaluating during training rather than training in chunks keeps the learning-rate schedule of a trial identical to
 that of a single `canter train` of the same config, so the best trial's preset reproduces what was measured.
 
-Parallel `--jobs` are spawned worker processes, each pinned to its share of the cores with XLA's thread pools
-capped; the workers share the study through its storage (SQLite in the study folder by default, or `--storage
-postgresql://...`, where any number of machines run the same command).
+Parallel `--jobs` are spawned worker processes, no more than the trials the study still lacks, each pinned to its
+share of the cores with XLA's thread pools capped; the workers share the study through its storage (SQLite in the
+study folder by default, or `--storage postgresql://...`, where any number of machines run the same command).
 
 With `--track`, each seed of a trial is a tracker run named `trial_NNNNN-sSEED`, and every trial of the study is in one
 tracker group, `tune-STUDY` (`trial_track`).
@@ -37,7 +37,7 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
 from canter.files import make_folder
-from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
+from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs, worker_count
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
     FAIL_REASON,
@@ -463,12 +463,20 @@ def progress_line(study: Any, target: int) -> str:
     return ", ".join([line, *(f"{n[state]} {word}" for state, word in words if n[state])])
 
 
+def tune_workers(study: Any, settings: TuneSettings) -> int:
+    """The worker processes to start: --jobs, but no more than the trials the study still lacks, counted as workers
+    count them (`run_worker`: finished means complete or pruned); a worker beyond those would find no trial to run."""
+    n = counts(study)
+    return worker_count(settings.jobs, settings.trials - n["COMPLETE"] - n["PRUNED"])
+
+
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
-    from canter.orchestrate.jobs import exit_text, run_workers, warn_if_more_jobs_than_cores
+    from canter.orchestrate.jobs import check_jobs, exit_text, run_workers, warn_if_more_jobs_than_cores
 
     base, space = check_settings(settings)
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
+    check_jobs(settings.jobs)  # before the study folder is made
     if settings.storage_url is None:
         make_folder(settings.study_dir)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
@@ -487,16 +495,17 @@ def tune(settings: TuneSettings) -> Any:
         )
     # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
     settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
-    warn_if_more_jobs_than_cores(settings.jobs)
+    workers = retrying(functools.partial(tune_workers, study, settings), settings.storage.url, "reading the study")
+    warn_if_more_jobs_than_cores(settings.jobs, workers)
     write = functools.partial(
         retrying, functools.partial(write_results, study, settings), settings.storage.url, "reading the results"
     )
     failed = []
     try:
-        if settings.jobs == 1:
+        if workers == 1:
             worker(settings, 0, trials_before)
         else:
-            failed = run_workers(worker, [(settings, i, trials_before) for i in range(settings.jobs)], "canter-tune")
+            failed = run_workers(worker, [(settings, i, trials_before) for i in range(workers)], "canter-tune")
     except (CanterError, KeyboardInterrupt):  # a worker that gives up, or a stop: what the study holds is written
         write()
         raise
@@ -504,7 +513,7 @@ def tune(settings: TuneSettings) -> Any:
     write()
     if failed:
         raise CanterError(
-            f"{len(failed)} of {settings.jobs} tune workers ended early ({exit_text(failed[0])}; a worker's own "
+            f"{len(failed)} of {workers} tune workers ended early ({exit_text(failed[0])}; a worker's own "
             f"error, if it had one, is printed above); the summary above holds what the study has, and the same "
             f"command goes on with it"
         )
