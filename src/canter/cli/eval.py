@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
+from canter.cli.export import check_output_path
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -71,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
         raise CanterError(f"--episodes must be >= 1, got {args.episodes}")
     if args.vary is None and args.out is not None:
         raise CanterError("--out names the --vary plot; without --vary use --json")
-    if args.json:
+    if args.json is not None:
+        check_output_path(args.json, "--json", "eval.json")
         check_writable(args.json)
     spec = None
     if args.vary is not None:
@@ -84,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
                 f"(run canter eval once per --vary)"
             )
         spec = parse_spec(args.vary[0])
+        if args.out is not None:
+            check_output_path(args.out, "--out", "robustness.png")
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
     physics = parse_physics(parse_set_args(args.set))
@@ -241,6 +245,7 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
     original = check_spec(env_id, spec)  # bad names fail here, before any evaluation
     outputs = [Path(args.out)] if args.out else [p.source / "robustness" / f"{spec.slug}.png" for p in policies]
     for path in outputs:
+        check_output_path(str(path), "--out", "robustness.png")
         check_writable(path)
         check_writable(path.with_suffix(".json"))
     series = []
@@ -282,7 +287,7 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
     for path in outputs:
         write_output(path.with_suffix(".json"), data)
         write_output(path, image)
-        print(f"wrote {path} and {path.with_suffix('.json').name}")
+        print(f"wrote {path} and {path.with_suffix('.json')}")
     if args.json:
         write_output(args.json, data)
     return 0

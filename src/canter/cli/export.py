@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from canter.cli.args import add_checkpoint_arg
+from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
 
@@ -24,9 +26,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def check_output_path(path: str, flag: str, example: str) -> None:
+    """An output path given with `flag` names a file that could be made: not empty, and not under a file (where
+    making its folder would only say "File exists"). Checked without writing anything."""
+    if not path.strip():
+        raise CanterError(f"{flag} is empty; give the file to write, e.g. {flag} {example}")
+    for folder in Path(path).parents:  # the nearest that exists decides
+        if folder.exists():
+            if not folder.is_dir():
+                raise CanterError(f"cannot write {path}: {folder} is a file, not a folder; pick another path")
+            break
+
+
 def run(args: argparse.Namespace) -> int:
     from canter.use.export import export_bytes, format_for
 
+    check_output_path(args.out, "--out", "policy.onnx")
     fmt = format_for(args.out, args.format)
     check_writable(args.out)
     write_output(args.out, export_bytes(args.run, fmt, args.checkpoint))

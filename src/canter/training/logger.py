@@ -28,6 +28,7 @@ import csv
 import gzip
 import io
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +216,13 @@ class MetricsLogger:
         if whole < self.path.stat().st_size:
             with open(self.path, "r+b") as f:
                 f.truncate(whole)
+            # A row is logged before its iteration's checkpoint, so a half-written one is of an iteration after
+            # the newest checkpoint, which the resume trains and logs again; the checkpoint holds the run's state.
+            print(
+                f"canter: note: dropped the half-written last row of {self.path} (a process stopped while writing "
+                f"it); no training is lost: the run goes on from its checkpoint, which holds its state",
+                file=sys.stderr,
+            )
 
     def _check_header(self) -> None:
         """Rows are told apart by their global_step, so a file whose first line names no such column would lose

@@ -10,7 +10,9 @@ Formats:
 - 2: config.toml holds env, run and what the algorithm reads (`canter.config.serialize`).
 
 Reading never writes: a folder of any known format reads as the same config (keys a format-1 file holds but the
-algorithm does not read are ignored). Writing to a folder (`--resume`) first migrates it to the current format.
+algorithm does not read are ignored). Writing to a folder (`--resume`) first migrates it to the current format; a
+versions.json that is missing (format 1, as a file without `run_format`) or damaged is then written again with the
+resuming session's versions and a `repaired` entry, which keeps a damaged file's text.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import json
 import os
 import platform
 import secrets
+import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -100,13 +103,28 @@ def versions() -> dict[str, Any]:
     }
 
 
-def _read_versions(run_dir: Path) -> dict[str, Any]:
+def _versions_record(run_dir: Path) -> tuple[dict[str, Any], str | None]:
+    """What versions.json holds, and what is wrong with it (None for a whole file): missing, empty, not JSON or not
+    an object. Errors other than a missing file (no permission) are raised."""
     path = Path(run_dir) / VERSIONS_FILE
     try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+        text = path.read_text(errors="replace")
+    except FileNotFoundError:
+        return {}, "missing"
+    if not text.strip():
+        return {}, "empty"
+    try:
+        data = json.loads(text)
+    except ValueError:
+        return {}, "cut short or not JSON"
+    return (data, None) if isinstance(data, dict) else ({}, f"a JSON {type(data).__name__}, not an object")
+
+
+def _read_versions(run_dir: Path) -> dict[str, Any]:
+    try:
+        return _versions_record(run_dir)[0]
+    except OSError:  # reading never stops at the version record: a folder without one reads as format 1
         return {}
-    return data if isinstance(data, dict) else {}
 
 
 def _write_versions(run_dir: Path, data: dict[str, Any]) -> None:
@@ -143,7 +161,13 @@ def read_config(run_dir: Path) -> Config:
             f"{path} is empty: the run folder is damaged; restore config.toml from a copy (eval and export still "
             f"work: each checkpoint holds the config)"
         )
-    return from_toml_text(text, str(path))
+    try:
+        return from_toml_text(text, str(path))
+    except CanterError as exc:
+        if str(path) in str(exc):
+            raise
+        # A value the validation refuses names no file, and among several run folders the damaged one must show.
+        raise CanterError(f"{exc} (in {path})") from None
 
 
 def _keys_apart(run_dir: Path, checkpoint_config: Config) -> list[str]:
@@ -169,6 +193,7 @@ def _shown_keys(keys: list[str]) -> str:
 def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
     """A checkpoint found in a run folder's checkpoints/ was written by that run: the same experiment and seed. A
     checkpoint copied in from another run is refused."""
+    run_format(run_dir)  # a newer canter's folder may keep what this one would misread, as plot and resume refuse it
     keys = _keys_apart(run_dir, checkpoint_config)
     if keys:
         raise CanterError(
@@ -181,6 +206,7 @@ def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -
 def check_given_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
     """A checkpoint file given with a run folder (`--checkpoint FILE`) is one of that run's, kept elsewhere: the
     results are labelled with the folder, so a checkpoint of another run would be reported as this one."""
+    run_format(run_dir)
     keys = _keys_apart(run_dir, checkpoint_config)
     if keys:
         raise CanterError(
@@ -210,9 +236,31 @@ def _config_reads_only(run_dir: Path) -> None:
 MIGRATIONS: dict[int, Callable[[Path], None]] = {1: _config_reads_only}
 
 
+def _repair_versions(run_dir: Path, found: int) -> None:
+    """A versions.json that is missing or damaged is written again before a resume writes to the folder, with this
+    session's versions and a `repaired` entry that says when and why, and keeps the damaged file's text whole."""
+    _, problem = _versions_record(run_dir)
+    if problem is None:
+        return
+    path = Path(run_dir) / VERSIONS_FILE
+    repaired: dict[str, Any] = {"at": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"), "reason": problem}
+    if problem != "missing":
+        repaired["text"] = path.read_text(errors="replace")
+    _write_versions(run_dir, {**versions(), "run_format": found, "repaired": repaired})
+    print(
+        f"canter: note: {path} was {problem}; wrote it with this session's versions (the versions that made the "
+        f'run are unknown) and the old text under "repaired"'
+        if problem != "missing"
+        else f"canter: note: {run_dir} had no {VERSIONS_FILE}, so it is run format {found}; wrote one with this "
+        f"session's versions (the versions that made the run are unknown)",
+        file=sys.stderr,
+    )
+
+
 def migrate(run_dir: Path) -> None:
     """Bring a folder to the current format in place, one version at a time."""
     found = run_format(run_dir)
+    _repair_versions(Path(run_dir), found)
     for version in range(found, RUN_FORMAT):
         MIGRATIONS[version](Path(run_dir))
         _write_versions(run_dir, dict(_read_versions(run_dir), run_format=version + 1))
