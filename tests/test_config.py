@@ -103,7 +103,7 @@ def test_toml_round_trip_preserves_everything():
         (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a finite number, got inf"),
         (["env.reward_scale=0.1"], "set env.normalize_reward=false or env.reward_scale=1"),
         (["run.stop_at_return=nan"], "run.stop_at_return must be a finite number, got nan"),
-        (["net.hidden=-64,-64"], "net.hidden: expected comma-separated integers, got '-64,-64'"),
+        (["net.hidden=-64,-64"], "net.hidden: layer sizes must be positive integers, such as 64,64, got '-64,-64'"),
         (["run.seed=4294967296"], "run.seed must be from 0 to 4294967295, got 4294967296"),
         (["run.seed=-1"], "run.seed must be from 0 to 4294967295, got -1"),
         (["run.stop_at_return=inf"], "run.stop_at_return must be a finite number, got inf"),

@@ -45,6 +45,7 @@ def test_parse_spec():
         ("body_mass:torso=0", "> 0"),
         ("body_mass:torso=nan", "> 0"),
         ("gravity:z=1", "takes no name"),
+        ("body_mass=1,0.5,1.0", "scale 1.0 is given twice"),
     ]:
         with pytest.raises(CanterError, match=message):
             parse_spec(bad)
@@ -115,7 +116,7 @@ def test_each_scale_starts_from_the_original_model(tiny_hopper_run):
     from canter.use.policy import load
 
     policy = load(tiny_hopper_run)
-    points = sweep(policy, parse_spec("body_mass:torso=2,2,1"), episodes=2, deterministic=True, seed=0)
+    points = sweep(policy, VarySpec("body_mass", "torso", (2.0, 2.0, 1.0)), episodes=2, deterministic=True, seed=0)
     assert points[0]["returns"] == points[1]["returns"]
     assert points[0]["value"] == pytest.approx(2 * points[2]["value"])
     assert points[0]["returns"] != points[2]["returns"]
@@ -141,6 +142,7 @@ def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
         ["eval", str(run), str(twin), "--episodes", "1", "--vary", "gravity=0.9", "--out", str(tmp_path / "g.png")]
     )
     assert code == 0
+    assert f"wrote {tmp_path / 'g.png'} and {tmp_path / 'g.json'}" in capsys.readouterr().out
     assert len(json.loads((tmp_path / "g.json").read_text())["runs"]) == 2
     assert (tmp_path / "g.png").stat().st_size > 10_000
 

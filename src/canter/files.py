@@ -56,6 +56,18 @@ def _nearest_existing(folder: Path) -> Path:
     return folder
 
 
+def _not_a_folder(path: Path, itself: str) -> str | None:
+    """Why `path` cannot be a folder when it, or a folder on the way to it, already exists as something else;
+    `itself` is what the reason calls `path` (`it`, where the message has named it)."""
+    for part in (path, *path.parents):
+        if part.is_dir():
+            return None
+        if part.exists() or part.is_symlink():
+            what = "is a file, not a folder" if part.is_file() else "is not a folder"
+            return f"{itself if part == path else part} {what}"
+    return None
+
+
 def make_folder(path: str | Path) -> None:
     """Create a user-named output folder (and its parents), with a one-line error when it cannot be."""
     try:
@@ -63,7 +75,9 @@ def make_folder(path: str | Path) -> None:
     except OSError as exc:
         if is_write_error(exc):
             raise WriteError(path, exc) from None
-        raise CanterError(f"cannot make the folder {path}: {exc.strerror or exc}; pick another path") from None
+        # mkdir says only `File exists` or `Not a directory`, without naming what is in the way.
+        why = _not_a_folder(Path(path), "it") or exc.strerror or str(exc)
+        raise CanterError(f"cannot make the folder {path}: {why}; pick another path") from None
 
 
 def is_write_error(exc: BaseException) -> bool:
@@ -150,7 +164,8 @@ def check_writable(path: str | Path) -> None:
     except OSError as exc:
         if is_write_error(exc):
             raise WriteError(path, exc) from None
-        raise CanterError(f"cannot write {path}: {exc.strerror or exc}; pick a writable path") from None
+        why = _not_a_folder(folder, str(folder))
+        raise CanterError(f"cannot write {path}: {why or exc.strerror or exc}; pick a writable path") from None
 
 
 class AppendFile:

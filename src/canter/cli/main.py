@@ -7,6 +7,7 @@ import difflib
 import errno
 import importlib
 import os
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +29,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _unrecognized(parser: argparse.ArgumentParser, command: str | None, extra: list[str]) -> CanterError:
     """argparse's 'unrecognized arguments' error, with the command's flags closest to the unknown ones."""
-    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    commands = _subcommands(parser)
     actions = commands[command]._actions if command in commands else parser._actions
     flags = [flag for action in actions for flag in action.option_strings if flag.startswith("--")]
     given = [word.split("=", 1)[0] for word in extra if word.startswith("--")]
@@ -37,6 +38,35 @@ def _unrecognized(parser: argparse.ArgumentParser, command: str | None, extra: l
     return CanterError(
         f"{command + ': ' if command else ''}unrecognized arguments: {' '.join(extra)}{hint} (see --help)"
     )
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def _join_dashed_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """`--seeds -1,2` as `--seeds=-1,2`. argparse takes a word that starts with '-' for an option unless it reads
+    as one negative number, so a list or an exponent (-1,2 or -2e2) never reached the option's own check and the
+    error was `expected one argument`; joined, the value gets that option's message (its range, say)."""
+    commands = _subcommands(parser)
+    command = next((word for word in argv if not word.startswith("-")), None)
+    if command not in commands:
+        return argv
+    takes_a_value = {
+        flag for action in commands[command]._actions if action.nargs is None for flag in action.option_strings
+    }
+    joined: list[str] = []
+    words = iter(argv)
+    for word in words:
+        if word == "--":  # what follows is positional
+            joined += [word, *words]
+            break
+        value = next(words, None) if word in takes_a_value else None
+        if value is not None and re.match(r"-\.?\d", value):
+            joined.append(f"{word}={value}")
+        else:
+            joined += [word] if value is None else [word, value]
+    return joined
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,6 +87,7 @@ def _version() -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
+        argv = _join_dashed_values(parser, list(sys.argv[1:] if argv is None else argv))
         args, extra = parser.parse_known_args(argv)
         if extra:
             raise _unrecognized(parser, args.command, extra)

@@ -24,7 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument("env", nargs="?", help="env id (Hopper-v5) or module:EnvId for a custom Gymnasium env")
     t.add_argument("--algo", default=None, help=f"algorithm: {', '.join(algorithm_names())} (default ppo)")
-    t.add_argument("--preset", default=None, help=f"preset overlay: {', '.join(preset_names())} (default fast)")
+    t.add_argument(
+        "--preset",
+        default=None,
+        help=f"preset overlay: {', '.join(preset_names())} (default: the one a --config file's run.preset names, "
+        f"else fast)",
+    )
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
@@ -149,6 +154,8 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["run.stop_at_return"] = args.stop_at_return
         if args.max_minutes is not None:  # inf is no limit, which the config holds as none
             extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
+        if args.out_dir == "":  # it would read as not given, and the run would go to runs/
+            raise CanterError("--out-dir is empty; give a folder for the run folders, or drop --out-dir")
         if args.out_dir:
             extra["run.out_dir"] = args.out_dir
         if args.video_every is not None:
@@ -159,7 +166,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
             extra["run.eval_episodes"] = args.eval_episodes
         config = build_config(
             args.env,
-            preset=args.preset or "fast",
+            preset=args.preset,
             config_file=args.config,
             sets=list(args.set),
             # A group replaces the seed by each of its own; given here, it refuses a --set run.seed all the same.

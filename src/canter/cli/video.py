@@ -29,7 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--height", type=int, default=DEFAULT_HEIGHT, help=f"frame height, 16 to 4096 (default {DEFAULT_HEIGHT})"
     )
     v.add_argument("--fps", type=int, default=DEFAULT_FPS, help=f"frames per second (default {DEFAULT_FPS})")
-    v.add_argument("--camera", default=None, help="MuJoCo camera name or index (default: the env's own view)")
+    v.add_argument(
+        "--camera",
+        default=None,
+        help="MuJoCo camera name or index, -1 for the free camera (default: the env's own view)",
+    )
     v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
     add_checkpoint_arg(v)
     v.add_argument("--seed", type=seed_arg, default=0, help="env seed of the first episode (default 0)")

@@ -12,7 +12,13 @@ from canter.config.overrides import (
     load_toml,
     parse_set_args,
 )
-from canter.config.presets import canonical_preset, note_other_env, preset_algorithm, preset_overrides
+from canter.config.presets import (
+    canonical_preset,
+    note_other_env,
+    preset_algorithm,
+    preset_names,
+    preset_overrides,
+)
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
@@ -31,9 +37,37 @@ def flag_name(key: str) -> str:
     return FLAG_NAMES.get(key) or "--" + key.partition(".")[2].replace("_", "-")
 
 
+DEFAULT_PRESET = "fast"
+
+
+def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str | None) -> str:
+    """The preset beneath the config file. run.preset records the preset a config was built from (the schema's
+    "recorded, not applied"), so it must name the preset actually laid beneath the file, as --set run.preset must:
+    a file that names one is laid over that one (so `canter train --config RUN/config.toml` reproduces a run of any
+    preset under its own name), and one that names another than --preset is refused rather than relabelled."""
+    named = file_data.get("run.preset")
+    if not isinstance(named, str):  # absent; another type is refused as a bad value when the file is applied
+        return canonical_preset(preset or DEFAULT_PRESET)
+    from_file = canonical_preset(named)
+    if from_file not in preset_names():
+        raise CanterError(
+            f"{config_file} sets run.preset = {named!r}, which is no preset; run.preset records the preset a "
+            f"config was built from: drop it from the file, or name one of {', '.join(preset_names())}"
+        )
+    if preset is None:
+        return from_file
+    preset = canonical_preset(preset)
+    if from_file != preset:  # it would misname the run
+        raise CanterError(
+            f"{config_file} sets run.preset = {named!r}, but the preset is {preset}; run.preset records the preset "
+            f"a config was built from: pass --preset {named}, or drop run.preset from the file"
+        )
+    return preset
+
+
 def build_config(
     env_id: str | None,
-    preset: str = "fast",
+    preset: str | None = None,
     config_file: str | None = None,
     sets: list[str] | None = None,
     seed: int | None = None,
@@ -43,15 +77,23 @@ def build_config(
     flags: Mapping[str, Any] | None = None,
 ) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
-    validate. The algorithm is known before the preset is applied, so presets can hold per-algorithm tables. A --set
-    key that the algorithm does not read is refused (unless `check_unread` is off), since it would change nothing.
-    `flags` holds the keys that a command's other flags set (train's `--backend` as `env.backend`, say)."""
+    validate. The preset is `preset`, else the one the config file's run.preset names, else fast. The algorithm is
+    known before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does
+    not read is refused (unless `check_unread` is off), since it would change nothing. `flags` holds the keys that a
+    command's other flags set (train's `--backend` as `env.backend`, say)."""
+    # An empty --config or --preset would otherwise read as not given.
+    if config_file == "":
+        raise CanterError("--config is empty; give a TOML file, or drop --config")
+    if preset == "":
+        raise CanterError(f"--preset is empty; give one of {', '.join(preset_names())}, or drop --preset")
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
     if not resolved_id:
         raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
-    preset = canonical_preset(preset)
+    preset = _base_preset(preset, file_data, config_file)
+    if "run.preset" in file_data and isinstance(file_data["run.preset"], str):
+        file_data["run.preset"] = preset  # an alias names its preset by the preset's own name
     if "run.preset" in set_data and canonical_preset(str(set_data["run.preset"])) != preset:  # it would misname the run
         raise CanterError(
             f"run.preset names the preset a run was built from; pass --preset {set_data['run.preset']} rather than "

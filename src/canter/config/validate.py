@@ -89,7 +89,7 @@ def _is_utf8(text: str) -> bool:
 
 
 def validate(config: Config) -> None:
-    from canter.envs.registry import backend_names
+    from canter.envs.registry import backend_names, refuse_mujoco_py
 
     env, run = config.env, config.run
     need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
@@ -104,6 +104,7 @@ def validate(config: Config) -> None:
         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}",
     )
     check_physics(env)
+    refuse_mujoco_py(env.id, env.backend)  # else Gymnasium's own error asks for a package that no longer has them
     need(env.clip_obs > 0, f"env.clip_obs must be > 0, got {env.clip_obs}")
     need(env.clip_reward > 0, f"env.clip_reward must be > 0, got {env.clip_reward}")
     need(

@@ -48,6 +48,8 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
         if isinstance(value, str):
             # "64,64" or "64-64" (the form a plot label and a tune choice take); a minus sign is not a separator
             if not re.fullmatch(r"\s*(\d+(\s*[-,]\s*\d+)*)?\s*", value):
+                if re.fullmatch(r"\s*-?\s*\d+(\s*,\s*-?\s*\d+)*\s*", value):  # well formed, but with a negative
+                    raise CanterError(f"{key}: {_tuple_entries(key)}, got {value!r}")
                 raise bad
             return tuple(int(p) for p in re.split(r"[-,]", value) if p.strip())
         if isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
@@ -81,6 +83,14 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
             return value
         raise bad
     raise bad
+
+
+def _tuple_entries(key: str) -> str:
+    """What a tuple key's entries must be: its layer sizes (every *hidden key) are positive, its indices
+    (sym.negate) are not negative."""
+    if key.endswith("hidden"):
+        return "layer sizes must be positive integers, such as 64,64"
+    return "expected integers of 0 or more, separated by commas"
 
 
 def _whole_number(value: Any, bad: CanterError) -> int:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import re
 import sys
 from collections.abc import Mapping
 from types import MappingProxyType
@@ -34,6 +35,24 @@ _BACKENDS = {
     "mjx": "canter.envs.mjx",
     "brax": "canter.envs.brax",
 }
+
+
+# Gymnasium's MuJoCo tasks. Their v2 and v3 ids are still registered but ran on mujoco-py, which Gymnasium dropped:
+# making one fails with an ImportError about a missing dependency, which no install fixes here.
+_MUJOCO_TASKS = (
+    "Ant",
+    "HalfCheetah",
+    "Hopper",
+    "Humanoid",
+    "HumanoidStandup",
+    "InvertedDoublePendulum",
+    "InvertedPendulum",
+    "Pusher",
+    "Reacher",
+    "Swimmer",
+    "Walker2d",
+)
+_MUJOCO_PY_ID = re.compile(rf"({'|'.join(_MUJOCO_TASKS)})-v[23]")
 
 
 def backend_names() -> tuple[str, ...]:
@@ -136,6 +155,30 @@ def resolve_backend(env_id: str, backend: str) -> str:
     if env_id not in ids:
         raise _elsewhere(env_id, chosen) or _unknown(env_id, sorted(ids), chosen.label)
     return chosen.name
+
+
+def refuse_mujoco_py(env_id: str, backend_name: str) -> None:
+    """A one-line error for a mujoco-py version of a Gymnasium MuJoCo task that would run on a backend of
+    Gymnasium's own envs, naming the current versions (and a backend with its own port of this id, where one is
+    installed). Other ids return at once, without importing an env library."""
+    found = _MUJOCO_PY_ID.fullmatch(env_id)
+    if found is None:
+        return
+    try:
+        backend = get_backend(resolve_backend(env_id, backend_name))
+    except CanterError:
+        return  # the trainer says why this id cannot run
+    if not backend.single_envs:
+        return
+    ids = backend.supported_ids()
+    newer = [f"{found.group(1)}-v{version}" for version in (5, 4) if f"{found.group(1)}-v{version}" in ids]
+    instead = f"{newer[0]}{f' (or {newer[1]})' if len(newer) > 1 else ''}" if newer else "its v5 or v4 version"
+    ports = [b.name for b in backends() if b is not backend and b.available() and env_id in b.supported_ids()]
+    port = f", or pass --backend {_or(ports)}, which runs its own {env_id}" if ports else ""
+    raise CanterError(
+        f"{env_id} is an old MuJoCo version that needs mujoco-py, which {backend.label} no longer runs; train "
+        f"{instead} instead{port}"
+    )
 
 
 def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None:

@@ -88,6 +88,11 @@ def load_space(path: str | Path | None, algo: str) -> SearchSpace:
 
     if path is None:
         return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space")
+    # load_toml's own messages are about --config files.
+    if Path(path).is_dir():
+        raise CanterError(f"{path} is a folder; --space takes a search space TOML file")
+    if not Path(path).is_file():
+        raise CanterError(f"search space file not found: {path}")
     return parse_space(load_toml(path), str(path))
 
 

@@ -124,6 +124,11 @@ def read_header(path: Path) -> dict[str, Any]:
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint."""
     path = Path(path)
+    if path.is_dir():
+        raise CanterError(
+            f"checkpoint {path} is a folder; --checkpoint takes {LAST}, {BEST} or a .npz file (such as a run "
+            f"folder's checkpoints/ckpt_*.npz)"
+        )
     if not path.is_file():
         named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
         raise CanterError(
@@ -228,9 +233,20 @@ def need_run_folder(run_dir: Path) -> None:
     raise CanterError(f"{run_dir} has no {CONFIG_FILE} and no checkpoint; is it a canter run folder?")
 
 
+def _need_checkpoint_folder(run_dir: Path) -> None:
+    """A run's checkpoints/ that is a file (or a link to one) would read as a run with no checkpoint yet."""
+    folder = checkpoint_dir(run_dir)
+    if (folder.exists() or folder.is_symlink()) and not folder.is_dir():
+        raise CanterError(
+            f"{folder} is not a folder, where a run keeps its checkpoints; move it away, or restore the run's "
+            f"checkpoints/ folder from a copy"
+        )
+
+
 def latest(run_dir: Path) -> Path:
     run_dir = Path(run_dir)
     need_run_folder(run_dir)
+    _need_checkpoint_folder(run_dir)
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found:
@@ -283,6 +299,7 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     need_run_folder(run_dir)
     if which != BEST:  # a file: a `Path` never equals a name
         return Path(which)
+    _need_checkpoint_folder(run_dir)
     path = best_path(run_dir)
     if not path.is_file():
         raise CanterError(

@@ -143,7 +143,8 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
                 f"{path.parent} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as "
                 f"{inside[0]}"
             )
-        raise CanterError(f"no metrics.csv in {path.parent}; plot needs a run folder written by `canter train`")
+        # plot and report both read curves here, so the message names no command.
+        raise CanterError(f"no metrics.csv in {path.parent}; pass a run folder written by `canter train`")
     header, rows = read_rows(path)  # a half-written last line is left out
     if header and "global_step" not in header:
         raise CanterError(

@@ -427,8 +427,10 @@ def build_report(
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")
     if smooth < 1:
         raise CanterError(f"--smooth must be >= 1 rows, got {smooth}")
-    plays = bool(episodes) or video
-    facts = [run_facts(r, which if plays else None) for r in run_dirs]
+    # Without a play the default `last` may be missing (an archived run kept without checkpoints); `best` or a file
+    # was asked for by name, so a run without it is refused as it is when the page plays it.
+    needs_checkpoint = bool(episodes) or video or which != checkpoint.LAST
+    facts = [run_facts(r, which if needs_checkpoint else None) for r in run_dirs]
     runs = [load_run(f.run_dir) for f in facts]  # a folder the curves cannot be read from fails now, not later
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
     # The statistics use this report's evaluation where there is one, else each run's own final score.

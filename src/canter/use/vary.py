@@ -79,6 +79,8 @@ def parse_spec(text: str) -> VarySpec:
             raise CanterError(f"--vary {text!r}: {item.strip()!r} is not a number") from None
         if not math.isfinite(scale) or scale <= 0:
             raise CanterError(f"--vary {text!r}: scales must be finite and > 0, got {item.strip()}")
+        if scale in scales:  # it would play the same episodes again and show one point twice
+            raise CanterError(f"--vary {text!r}: scale {item.strip()} is given twice; give each scale once")
         scales.append(scale)
     return VarySpec(param, name or None, tuple(scales))
 

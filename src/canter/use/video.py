@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -105,6 +106,13 @@ def _headless_in_this_process() -> bool:
 
 # -------------------------------------------------------------------------------------------------- simulators
 
+FREE_CAMERA = -1  # MuJoCo's free camera, which every model has (Gymnasium's and dm_control's renderers take it)
+
+
+def _camera_index(camera: str) -> int | None:
+    """The index a --camera value gives (-1: the free camera), or None for a camera name."""
+    return int(camera) if re.fullmatch(r"-?\d+", camera.strip()) else None
+
 
 class _GymnasiumPlayer:
     def __init__(self, env_id: str, width: int, height: int, camera: str | None) -> None:
@@ -124,7 +132,8 @@ class _GymnasiumPlayer:
         if "mujoco" in entry:
             kwargs.update(width=width, height=height)
             if camera is not None:
-                kwargs.update(camera_id=int(camera)) if camera.isdigit() else kwargs.update(camera_name=camera)
+                index = _camera_index(camera)
+                kwargs.update(camera_name=camera) if index is None else kwargs.update(camera_id=index)
         elif camera is not None:
             raise CanterError(f"--camera applies to MuJoCo envs; {env_id} has a fixed view")
         else:  # pygame draws these; its SDL would open a sound device and, headless, print an error at exit
@@ -143,11 +152,12 @@ class _GymnasiumPlayer:
 
         model = self.env.unwrapped.model
         names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) or str(i) for i in range(model.ncam)]
-        if (camera.isdigit() and int(camera) >= model.ncam) or (not camera.isdigit() and camera not in names):
+        index = _camera_index(camera)
+        if (index is not None and not FREE_CAMERA <= index < model.ncam) or (index is None and camera not in names):
             self.env.close()
             raise CanterError(
-                f"{env_id} has no camera {camera!r}; cameras: {', '.join(names) or 'none'} (omit "
-                f"--camera for the default view)"
+                f"{env_id} has no camera {camera!r}; cameras: {', '.join([*names, f'{FREE_CAMERA} (the free camera)'])}"
+                f", or omit --camera for the default view"
             )
 
     def _frame(self) -> np.ndarray:
@@ -195,7 +205,8 @@ class _DMControlPlayer:
         self._suite = suite
         self._domain, self._task = found
         self.width, self.height = width, height
-        self.camera: int | str = int(camera) if camera is not None and camera.isdigit() else (camera or 0)
+        index = None if camera is None else _camera_index(camera)
+        self.camera: int | str = index if index is not None else (camera or 0)
         self.env: Any = None  # dm_control's Environment of the current episode (dm_control has no type hints)
 
     def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:

@@ -1,0 +1,183 @@
+"""Bad input that once got a misleading or missing message: one line naming the problem and the fix, exit 2."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from canter.cli.main import main
+from canter.config.build import build_config
+from canter.errors import CanterError
+
+FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"  # an InvertedPendulum-v4 run, without best.npz
+
+
+@pytest.fixture
+def run(tmp_path):
+    folder = tmp_path / "run"
+    shutil.copytree(FIXTURE, folder)
+    return folder
+
+
+def error_line(capsys, argv) -> str:
+    """The one stderr line of a refused command, without its `canter: error: ` prefix."""
+    code = main(argv)
+    out, err = capsys.readouterr()
+    assert code == 2, (argv, out, err)
+    assert err.count("\n") == 1 and err.startswith("canter: error: ") and "Traceback" not in err, err
+    return err.removeprefix("canter: error: ").rstrip("\n")
+
+
+SEEDS_RANGE = "expected seeds from 0 to 4294967295, got '-1,2' (see --help)"
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "Hopper-v5", "--seeds", "-1,2"], f"train: argument --seeds: {SEEDS_RANGE}"),
+        (["train", "Hopper-v5", "--seeds=-1,2"], f"train: argument --seeds: {SEEDS_RANGE}"),
+        (["train", "--seeds", "-1,2", "Hopper-v5"], f"train: argument --seeds: {SEEDS_RANGE}"),
+        (["bench", "--envs", "Hopper-v5", "--seeds", "-1,2"], f"bench: argument --seeds: {SEEDS_RANGE}"),
+        (
+            ["train", "Hopper-v5", "--seed", "-1e3"],
+            "train: argument --seed: expected a whole number such as 0, got '-1e3' (see --help)",
+        ),
+    ],
+)
+def test_a_value_that_starts_with_a_minus_reaches_the_option_s_own_check(argv, message, capsys):
+    assert error_line(capsys, argv) == message
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("-4", "net.hidden: layer sizes must be positive integers, such as 64,64, got '-4'"),
+        ("64,-64", "net.hidden: layer sizes must be positive integers, such as 64,64, got '64,-64'"),
+    ],
+)
+def test_a_negative_layer_size_says_sizes_are_positive(value, message, capsys):
+    assert error_line(capsys, ["train", "Hopper-v5", "--set", f"net.hidden={value}"]) == message
+
+
+@pytest.mark.parametrize(
+    "argv, newer",
+    [
+        (["train", "Hopper-v2"], "train Hopper-v5 (or Hopper-v4) instead"),
+        (["train", "Walker2d-v3", "--backend", "gymnasium"], "train Walker2d-v5 (or Walker2d-v4) instead"),
+    ],
+)
+def test_an_old_mujoco_version_points_to_the_current_one(argv, newer, capsys):
+    line = error_line(capsys, argv)
+    assert line.startswith(f"{argv[1]} is an old MuJoCo version that needs mujoco-py") and newer in line, line
+    assert not Path("runs").exists()
+
+
+def test_an_output_folder_that_is_a_file_says_so(tmp_path, capsys):
+    (tmp_path / "empty.toml").write_text("")
+    argv = ["bench", "--envs", "Hopper-v5", "--seeds", "0", "--total-steps", "2048", "--out"]
+    assert error_line(capsys, [*argv, "empty.toml"]) == (
+        "cannot make the folder empty.toml: it is a file, not a folder; pick another path"
+    )
+    assert error_line(capsys, [*argv, "empty.toml/bench"]) == (
+        "cannot make the folder empty.toml/bench: empty.toml is a file, not a folder; pick another path"
+    )
+
+
+@pytest.mark.parametrize("command", [["report", "--episodes", "0"], ["plot", "--out", "curves.png"]])
+def test_a_run_folder_without_metrics_names_no_other_command(command, run, capsys):
+    (run / "metrics.csv").unlink()
+    line = error_line(capsys, [command[0], str(run), *command[1:]])
+    assert line == f"no metrics.csv in {run}; pass a run folder written by `canter train`"
+
+
+def test_a_checkpoint_folder_is_not_a_checkpoint(run, capsys):
+    line = error_line(capsys, ["eval", str(run), "--checkpoint", str(run / "checkpoints"), "--episodes", "1"])
+    assert line.startswith(f"checkpoint {run / 'checkpoints'} is a folder; --checkpoint takes last, best or a .npz")
+
+
+@pytest.mark.parametrize("which", ["last", "best"])
+def test_a_checkpoints_entry_that_is_a_file_is_named(which, run, capsys):
+    shutil.rmtree(run / "checkpoints")
+    (run / "checkpoints").write_text("")
+    line = error_line(capsys, ["eval", str(run), "--checkpoint", which, "--episodes", "1"])
+    assert line.startswith(f"{run / 'checkpoints'} is not a folder, where a run keeps its checkpoints; move it away")
+
+
+def test_a_missing_search_space_file_is_named_as_one(capsys):
+    assert error_line(capsys, ["tune", "Hopper-v5", "--space", "nofile.toml"]) == (
+        "search space file not found: nofile.toml"
+    )
+
+
+@pytest.mark.parametrize(
+    "flag, message",
+    [
+        ("--config", "--config is empty; give a TOML file, or drop --config"),
+        ("--preset", "--preset is empty; give one of "),
+        ("--out-dir", "--out-dir is empty; give a folder for the run folders, or drop --out-dir"),
+    ],
+)
+@pytest.mark.parametrize("form", ["apart", "joined"])
+def test_an_empty_value_is_refused(flag, message, form, capsys):
+    given = [flag, ""] if form == "apart" else [f"{flag}="]
+    assert error_line(capsys, ["train", "Hopper-v5", *given]).startswith(message)
+    assert not Path("runs").exists()
+
+
+@pytest.mark.parametrize("episodes", ["0", "1"])
+def test_report_of_a_best_checkpoint_a_run_lacks_is_refused_with_or_without_evaluation(episodes, run, capsys):
+    argv = ["report", str(run), "--checkpoint", "best", "--episodes", episodes, "--out", "r.html"]
+    assert error_line(capsys, argv).startswith(f"{run} has no best checkpoint: it never evaluated during training")
+    assert not Path("r.html").exists()
+
+
+def test_a_config_file_s_run_preset_is_the_preset_beneath_it(tmp_path):
+    file = tmp_path / "c.toml"
+    file.write_text('[run]\npreset = "cleanrl"\n')
+    config = build_config("Hopper-v5", config_file=str(file))
+    cleanrl = build_config("Hopper-v5", preset="cleanrl")
+    assert config.run.preset == "cleanrl" and config == cleanrl  # laid over cleanrl, not labelled over fast's values
+    assert build_config("Hopper-v5", preset="cleanrl", config_file=str(file)) == cleanrl
+    # as --set run.preset is refused where it would name another preset than the one applied
+    with pytest.raises(CanterError, match=r"sets run\.preset = 'cleanrl', but the preset is fast"):
+        build_config("Hopper-v5", preset="fast", config_file=str(file))
+
+
+@pytest.mark.parametrize(
+    "preset, text, message",
+    [
+        (
+            ["--preset", "fast"],
+            'preset = "cleanrl"',
+            "c.toml sets run.preset = 'cleanrl', but the preset is fast; run.preset records the preset a config was "
+            "built from: pass --preset cleanrl, or drop run.preset from the file",
+        ),
+        ([], 'preset = "mine"', "c.toml sets run.preset = 'mine', which is no preset; run.preset records the preset"),
+    ],
+)
+def test_a_config_file_s_run_preset_that_would_misname_the_run_is_refused(preset, text, message, capsys):
+    Path("c.toml").write_text(f"[run]\n{text}\n")
+    assert error_line(capsys, ["train", "Hopper-v5", "--config", "c.toml", *preset]).startswith(message)
+    assert not Path("runs").exists()
+
+
+def test_a_camera_index_of_minus_one_is_the_free_camera(run, capsys):
+    """Help says `name or index`: -1 is MuJoCo's free camera, and an index below it is refused with the choices."""
+    from canter.use.video import _GymnasiumPlayer
+
+    line = error_line(
+        capsys, ["video", str(run), "--out", "v.gif", "--camera", "-2", "--width", "32", "--height", "32"]
+    )
+    assert line == (
+        "InvertedPendulum-v4 has no camera '-2'; cameras: -1 (the free camera), or omit --camera for the default view"
+    )
+    _GymnasiumPlayer("InvertedPendulum-v4", 32, 32, "-1").close()
+
+
+@pytest.mark.slow
+def test_a_video_renders_from_the_free_camera(run, capsys):
+    argv = ["video", str(run), "--out", "v.gif", "--camera", "-1", "--width", "32", "--height", "32"]
+    assert main([*argv, "--max-steps", "3"]) == 0, capsys.readouterr().err
+    assert Path("v.gif").stat().st_size > 0
