@@ -163,6 +163,23 @@ def test_a_config_file_s_run_preset_that_would_misname_the_run_is_refused(preset
     assert not Path("runs").exists()
 
 
+@pytest.mark.parametrize(
+    ("sets", "named"),
+    [([], True), (["--set", "ppo.lr=-2"], False), (["--set", "ppo.lr=0.001"], None)],
+    ids=["file", "set-over-file", "set-mends-file"],
+)
+def test_a_value_the_config_file_gives_that_is_refused_names_the_file(sets, named, capsys):
+    """Validation runs on the whole config; a refusal that the file's own values cause names the file, one that a
+    --set over it causes does not, and a --set may mend the file."""
+    Path("c.toml").write_text("[ppo]\nlr = -1\n")
+    argv = ["train", "Hopper-v5", "--config", "c.toml", *sets]
+    if named is None:
+        build_config("Hopper-v5", config_file="c.toml", sets=["ppo.lr=0.001"])
+        return
+    line = error_line(capsys, argv)
+    assert line.startswith("ppo.lr must be > 0") and line.endswith(" (in c.toml)") == named, line
+
+
 def test_a_camera_index_of_minus_one_is_the_free_camera(run, capsys):
     """Help says `name or index`: -1 is MuJoCo's free camera, and an index below it is refused with the choices."""
     from canter.use.video import _GymnasiumPlayer

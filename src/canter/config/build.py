@@ -115,6 +115,7 @@ def build_config(
     config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
     note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))
+    from_file = config
     config = apply_overrides(config, set_data, "--set")
     if check_unread:
         for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
@@ -129,5 +130,20 @@ def build_config(
     for key in sorted(explicit.keys() & set_data.keys()):  # the flag would win, silently
         raise CanterError(f"{key} is given twice, by {flag_name(key)} and by --set {key}; give it once")
     config = apply_overrides(config, explicit, "arguments")
-    validate(config)
+    try:
+        validate(config)
+    except CanterError as exc:
+        if config_file and _refused_alike(from_file, exc):  # among several files, the one at fault must show
+            raise CanterError(f"{exc} (in {config_file})") from None
+        raise
     return config
+
+
+def _refused_alike(config: Config, refusal: CanterError) -> bool:
+    """Whether `config` (defaults < preset < config file) is refused as the whole config was: the file's values, not
+    a --set or flag over them, are what validation refuses."""
+    try:
+        validate(config)
+    except CanterError as exc:
+        return str(exc) == str(refusal)
+    return False
