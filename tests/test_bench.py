@@ -137,11 +137,11 @@ def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monke
     import canter.orchestrate.jobs
 
     monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3)
+    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3, 3)
     assert capsys.readouterr().err == (
         "canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow each other down\n"
     )
-    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(2)
+    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3, 2)
     assert capsys.readouterr().err == ""
     # A refused command prints its one-line error and nothing else, whatever --jobs says.
     code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])

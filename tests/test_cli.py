@@ -190,3 +190,24 @@ def test_quiet_is_offered_where_there_is_a_progress_bar_only(capsys):
     for argv in (["eval", "run"], ["video", "run", "--out", "a.mp4"]):
         code, _out, err = run_cli(argv + ["--quiet"], capsys)
         assert code == 2 and err.count("\n") == 1 and "unrecognized arguments: --quiet" in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--stop-at-return", "-inf"], "run.stop_at_return must be a finite number, got -inf"),
+        (["--max-minutes", "-NaN"], "run.max_minutes must be a finite number, got nan"),
+    ],
+)
+def test_a_value_that_starts_with_a_dash_reaches_its_own_check(argv, message, capsys):
+    """argparse reads `-inf` as an option, and the error was `expected one argument`."""
+    assert main(["train", "Pendulum-v1", "--total-steps", "100", *argv]) == 2
+    assert capsys.readouterr().err == f"canter: error: {message}\n"
+
+
+def test_an_out_dir_under_a_file_names_the_file(tmp_path, capsys):
+    (tmp_path / "cl.toml").write_text("x")
+    argv = ["train", "Pendulum-v1", "--total-steps", "100", "--out-dir", str(tmp_path / "cl.toml" / "x")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{tmp_path / 'cl.toml'} is a file, not a folder; pick another path" in err, err

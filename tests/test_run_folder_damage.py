@@ -194,3 +194,26 @@ def test_an_eval_json_under_a_file_says_that_it_is_a_file(run, tmp_path, capsys)
 def test_an_empty_output_path_is_refused(run, capsys, argv, flag):
     err = _one_line_error(capsys, main([part.format(run=run) for part in argv]))
     assert f"{flag} is empty; give the file to write" in err
+
+
+def test_a_damaged_versions_json_of_a_newer_canter_stays_refused(run):
+    """Cut short, the file of a newer canter read as format 1, and a resume would have migrated its folder."""
+    text = f'{{"run_format": {RUN_FORMAT + 1}, "canter": "9.0", "python": "3.1'
+    (run / "versions.json").write_text(text)
+    with pytest.raises(CanterError, match=f"has run-folder format {RUN_FORMAT + 1}, this canter reads up to"):
+        run_folder.migrate(run)
+    assert (run / "versions.json").read_text() == text
+
+
+def test_a_damaged_versions_json_keeps_the_format_it_names(run, capsys):
+    (run / "versions.json").write_text(f'{{"run_format": {RUN_FORMAT}, "canter": "0.1')
+    assert run_format(run) == RUN_FORMAT
+    run_folder.migrate(run)
+    assert json.loads((run / "versions.json").read_text())["run_format"] == RUN_FORMAT
+    assert "was cut short or not JSON" in capsys.readouterr().err
+
+
+def test_a_versions_json_of_another_json_type_is_named_as_json_names_it(run, capsys):
+    (run / "versions.json").write_text("null")
+    run_folder.migrate(run)
+    assert "was a JSON null, not an object" in capsys.readouterr().err

@@ -62,7 +62,7 @@ def _join_dashed_values(parser: argparse.ArgumentParser, argv: list[str]) -> lis
             joined += [word, *words]
             break
         value = next(words, None) if word in takes_a_value else None
-        if value is not None and re.match(r"-\.?\d", value):
+        if value is not None and re.match(r"-(\.?\d|inf|nan)", value, re.IGNORECASE):
             joined.append(f"{word}={value}")
         else:
             joined += [word] if value is None else [word, value]

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -71,7 +70,10 @@ def sharing_bench_folder(bench_dir: Path, storage_url: str) -> Iterator[None]:
         hidden = redacted(storage_url)
         command = run_lock.command_line().replace(storage_url, hidden)
         try:
-            run_lock.write_holder(fd, command=command, **{STORAGE_KEY: hidden})
+            # One live worker's record names the grid; the others leave it whole rather than write over it at once.
+            holder = run_lock.read_holder(bench_dir)
+            if STORAGE_KEY not in holder or not run_lock.alive_here(holder):
+                run_lock.write_holder(fd, command=command, **{STORAGE_KEY: hidden})
         except OSError as exc:
             if is_write_error(exc):
                 raise WriteError(bench_dir / run_lock.LOCK_FILE, exc) from None
@@ -85,19 +87,8 @@ def _share(fd: int, bench_dir: Path) -> bool:
     """Take the shared flock; False while a local bench holds the folder."""
     shared = run_lock.flock(fd, shared=True)
     if shared is None:
-        # Without flock only the record tells, and only of this host: a local bench whose process is alive.
+        # Without flock only the record tells: a local bench alive on this host, or one on another, which cannot be
+        # checked from here and counts as alive, as it does for a run folder's writer lock.
         holder = run_lock.read_holder(bench_dir)
-        return STORAGE_KEY in holder or not _alive_here(holder)
+        return STORAGE_KEY in holder or not run_lock.alive_here(holder)
     return shared
-
-
-def _alive_here(holder: dict[str, Any]) -> bool:
-    if holder.get("host") != socket.gethostname() or holder.get("pid") == os.getpid():
-        return False
-    try:
-        os.kill(int(holder["pid"]), 0)
-    except (KeyError, ValueError, TypeError, ProcessLookupError):
-        return False
-    except PermissionError:  # another user's live process
-        return True
-    return True

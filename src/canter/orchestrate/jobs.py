@@ -247,12 +247,11 @@ def worker_count(jobs: int, work: int) -> int:
     return max(1, min(jobs, work))
 
 
-def warn_if_more_jobs_than_cores(jobs: int, started: int | None = None) -> None:
-    """Warn on stderr when the processes that will run at once, `started` of the `jobs` asked for (all of them by
-    default), exceed the usable cores; called once the command has passed its checks, so that a refused command
-    prints only its error."""
+def warn_if_more_jobs_than_cores(jobs: int, started: int) -> None:
+    """Warn on stderr when the processes that will run at once, `started` of the `jobs` asked for, exceed the usable
+    cores; called once the command has passed its checks, so that a refused command prints only its error."""
     cores = len(usable_cores())
-    if (jobs if started is None else started) > cores:
+    if started > cores:
         print(
             f"canter: warning: --jobs {jobs} is more than the {cores} CPU cores; the jobs will slow each other down",
             file=sys.stderr,

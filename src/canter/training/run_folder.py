@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import secrets
 import sys
 from collections.abc import Callable
@@ -116,8 +117,15 @@ def _versions_record(run_dir: Path) -> tuple[dict[str, Any], str | None]:
     try:
         data = json.loads(text)
     except ValueError:
-        return {}, "cut short or not JSON"
-    return (data, None) if isinstance(data, dict) else ({}, f"a JSON {type(data).__name__}, not an object")
+        # The format of a damaged file still counts where it survives: one of a newer canter must stay refused.
+        found = re.search(r'"run_format"\s*:\s*(\d+)', text)
+        return ({"run_format": int(found.group(1))} if found else {}), "cut short or not JSON"
+    if isinstance(data, dict):
+        return data, None
+    return {}, f"a JSON {_JSON_TYPES.get(type(data), type(data).__name__)}, not an object"
+
+
+_JSON_TYPES = {list: "array", str: "string", int: "number", float: "number", bool: "boolean", type(None): "null"}
 
 
 def _read_versions(run_dir: Path) -> dict[str, Any]:

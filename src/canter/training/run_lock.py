@@ -33,7 +33,7 @@ from types import TracebackType
 from typing import Any
 
 from canter.errors import CanterError
-from canter.files import WriteError, is_write_error
+from canter.files import WriteError, is_write_error, make_folder
 
 LOCK_FILE = ".writer.lock"
 
@@ -82,7 +82,7 @@ def read_holder(run_dir: Path) -> dict[str, Any]:
     return found if isinstance(found, dict) else {}
 
 
-def _alive_here(holder: dict[str, Any]) -> bool:
+def alive_here(holder: dict[str, Any]) -> bool:
     """Whether the recorded holder is a live process on this host (one on another host counts as alive)."""
     if holder.get("host") != socket.gethostname():
         return bool(holder)
@@ -126,8 +126,8 @@ def open_lock_file(run_dir: Path) -> int:
     """The folder's lock file opened for writing, the folder made first where it is missing; a full or read-only
     disk is a WriteError."""
     path = Path(run_dir) / LOCK_FILE
+    make_folder(path.parent)  # a file in the way is named as such
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         return os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     except OSError as exc:
         if is_write_error(exc):
@@ -150,7 +150,7 @@ def acquire(run_dir: Path) -> None:
     try:
         locked = flock(fd)
         holder = read_holder(run_dir)
-        if locked is False or (locked is None and _alive_here(holder)):
+        if locked is False or (locked is None and alive_here(holder)):
             raise _refusal(run_dir, holder)
         write_holder(fd)
         _remove_half_written(run_dir)

@@ -2,7 +2,7 @@
 
 `canter train --track ...` enters `tracking(spec)`, which checks every tracker (`check_trackers`: a one-line
 CanterError before any env exists) and makes them the trackers of the runs trained inside it; `canter tune` and
-`canter bench` check them before their first job and each job trains inside `tracking`; `canter.training.loop` asks
+`canter bench` check them before their first job and each job trains inside `tracking`; `canter.training.seed_run` asks
 `open_for_run` for each seed's `SeedTrackers` (none outside `tracking`). The run folder stays the source of truth:
 a tracker that fails mid-run prints one warning line and is dropped, and the run goes on. Each seed's tracker run
 ids are kept in RUN/trackers.json, so that a resume continues the same tracker runs."""
