@@ -163,6 +163,105 @@ def test_a_config_file_s_run_preset_that_would_misname_the_run_is_refused(preset
     assert not Path("runs").exists()
 
 
+def test_a_config_file_whose_run_preset_is_none_names_no_preset(tmp_path):
+    """A config built with no preset (the Python API's Config, whose run.preset is none) writes run.preset as "none":
+    such a file is laid over --preset, else fast, as a file without run.preset is."""
+    from dataclasses import replace
+
+    from canter.config.schema import Config
+    from canter.config.serialize import to_toml
+
+    built = build_config("Hopper-v5")
+    none = replace(built, run=replace(built.run, preset=Config().run.preset))
+    file = tmp_path / "none.toml"
+    file.write_text(to_toml(none))
+    assert 'preset = "none"' in file.read_text()
+    assert build_config(None, config_file=str(file)) == built
+    cleanrl = build_config(None, preset="cleanrl", config_file=str(file))
+    assert cleanrl.run.preset == "cleanrl"
+    file.write_text('[run]\npreset = "None"\n')
+    assert build_config("Hopper-v5", config_file=str(file)) == built
+
+
+def test_a_preset_the_config_file_names_that_excludes_the_algorithm_names_the_file(capsys):
+    Path("c.toml").write_text('[run]\npreset = "report002-ddpg"\n')
+    line = error_line(capsys, ["train", "Hopper-v5", "--config", "c.toml", "--algo", "ppo"])
+    assert line == (
+        "preset report002-ddpg, named by c.toml's run.preset, holds settings for ddpg only, not ppo; train one of "
+        "those algorithms with it (e.g. --algo ddpg), or drop run.preset from c.toml and pass --preset fast (or "
+        "another preset)"
+    )
+    # --preset fast alone is refused, as naming another preset than the file's; dropping run.preset is what frees it
+    assert error_line(capsys, ["train", "Hopper-v5", "--config", "c.toml", "--preset", "fast"]).startswith(
+        "c.toml sets run.preset = 'report002-ddpg', but the preset is fast"
+    )
+    Path("c.toml").write_text("[run]\n")
+    assert build_config("Hopper-v5", preset="fast", config_file="c.toml", algo="ppo").run.preset == "fast"
+    # a --preset the user chose is named as before
+    with pytest.raises(CanterError, match=r"^preset report002-ddpg holds settings for ddpg only, not ppo; .* choose"):
+        build_config("Hopper-v5", preset="report002-ddpg", algo="ppo")
+    assert not Path("runs").exists()
+
+
+@pytest.fixture
+def settings_of(monkeypatch):
+    """The settings `canter tune` or `canter bench` would run with, from its arguments, without running them."""
+    import canter.orchestrate.bench
+    import canter.orchestrate.tune
+
+    given = []
+    monkeypatch.setattr(canter.orchestrate.tune, "tune", given.append)
+    monkeypatch.setattr(canter.orchestrate.bench, "bench", given.append)
+
+    def settings(argv):
+        assert main(argv) == 0
+        return given.pop()
+
+    return settings
+
+
+@pytest.mark.parametrize("preset, resolved", [([], "cleanrl"), (["--preset", "cleanrl"], "cleanrl")])
+def test_tune_and_bench_lay_a_config_file_over_the_preset_its_run_preset_names(preset, resolved, settings_of):
+    from canter.orchestrate.bench_grid import make_cells
+    from canter.orchestrate.tune import check_settings
+
+    Path("cl.toml").write_text('[run]\npreset = "cleanrl"\n')
+    cleanrl = build_config("Hopper-v5", preset="cleanrl", seed=0, total_steps=1_000_000, algo="ppo")
+    tune = settings_of(["tune", "Hopper-v5", "--config", "cl.toml", *preset])
+    base, _ = check_settings(tune)
+    assert base.run.preset == resolved and base == cleanrl
+    bench = settings_of(["bench", "--envs", "Hopper-v5", "--config", "cl.toml", "--seeds", "0", *preset])
+    (cell,) = make_cells(bench)
+    assert cell.config.run.preset == resolved and cell.config == cleanrl
+    assert cell.run_dir(Path("bench"), 0) == Path("bench/Hopper-v5__ppo__s0")
+
+
+def test_tune_and_bench_without_preset_or_config_file_use_fast(settings_of):
+    from canter.orchestrate.bench_grid import make_cells
+    from canter.orchestrate.tune import check_settings
+
+    tune = settings_of(["tune", "Hopper-v5"])
+    assert tune.preset is None and check_settings(tune)[0].run.preset == "fast"
+    bench = settings_of(["bench", "--envs", "Hopper-v5", "--seeds", "0"])
+    assert bench.preset is None and make_cells(bench)[0].config.run.preset == "fast"
+
+
+@pytest.mark.parametrize("command", [["tune", "Hopper-v5"], ["bench", "--envs", "Hopper-v5", "--seeds", "0"]])
+def test_tune_and_bench_refuse_a_preset_the_config_file_s_run_preset_contradicts(command, capsys):
+    Path("cl.toml").write_text('[run]\npreset = "cleanrl"\n')
+    line = error_line(capsys, [*command, "--config", "cl.toml", "--preset", "fast"])
+    assert "cl.toml sets run.preset = 'cleanrl', but the preset is fast" in line, line
+    assert not Path("tune").exists() and not Path("bench").exists()
+
+
+@pytest.mark.parametrize("given", [["--space", ""], ["--space="], ["--space", "  "]])
+def test_an_empty_search_space_is_refused(given, capsys):
+    assert error_line(capsys, ["tune", "Hopper-v5", *given]) == (
+        "--space is empty; give a search space TOML file, or drop --space"
+    )
+    assert not Path("tune").exists()
+
+
 @pytest.mark.parametrize(
     ("sets", "named"),
     [([], True), (["--set", "ppo.lr=-2"], False), (["--set", "ppo.lr=0.001"], None)],

@@ -17,6 +17,8 @@ def _names(text: str) -> tuple[str, ...]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from canter.config.presets import preset_names
+
     b = sub.add_parser(
         "bench",
         help="run a benchmark grid; writes results.md/.csv and plots",
@@ -45,7 +47,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed; default 1)",
     )
     b.add_argument("--out", default="bench", help="bench folder (default bench/)")
-    b.add_argument("--preset", default="fast", help="preset under the grid values (default fast)")
+    b.add_argument(
+        "--preset",
+        default=None,
+        help=f"preset under the grid values: {', '.join(preset_names())} (default: the one a --config file's "
+        "run.preset names, else fast)",
+    )
     b.add_argument("--config", default=None, help="TOML file under the grid values")
     b.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
     b.add_argument(

@@ -10,6 +10,8 @@ from canter.errors import CanterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from canter.config.presets import preset_names
+
     t = sub.add_parser(
         "tune",
         help="tune hyperparameters with Optuna",
@@ -45,7 +47,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--study-hours", type=float, default=None, help="stop starting trials after this many hours")
     t.add_argument("--space", default=None, metavar="FILE", help="search space TOML (default: the shipped one)")
     t.add_argument("--print-space", action="store_true", help="print the shipped search space of --algo and exit")
-    t.add_argument("--preset", default="fast", help="preset under the sampled values (default fast)")
+    t.add_argument(
+        "--preset",
+        default=None,
+        help=f"preset under the sampled values: {', '.join(preset_names())} (default: the one a --config file's "
+        "run.preset names, else fast)",
+    )
     t.add_argument("--config", default=None, help="TOML file under the sampled values")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
     t.add_argument("--out-dir", default="tune", help="folder of study folders (default tune/)")

@@ -40,13 +40,22 @@ def flag_name(key: str) -> str:
 DEFAULT_PRESET = "fast"
 
 
+def _file_preset(file_data: dict[str, Any]) -> str | None:
+    """The preset a config file's run.preset names, or None for none: absent, another type (refused as a bad value
+    when the file is applied) or "none", as a config built with no preset (Config's default) writes it."""
+    named = file_data.get("run.preset")
+    if not isinstance(named, str) or named.strip().lower() == "none":
+        return None
+    return named
+
+
 def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str | None) -> str:
     """The preset beneath the config file. run.preset records the preset a config was built from (the schema's
     "recorded, not applied"), so it must name the preset actually laid beneath the file, as --set run.preset must:
     a file that names one is laid over that one (so `canter train --config RUN/config.toml` reproduces a run of any
     preset under its own name), and one that names another than --preset is refused rather than relabelled."""
-    named = file_data.get("run.preset")
-    if not isinstance(named, str):  # absent; another type is refused as a bad value when the file is applied
+    named = _file_preset(file_data)
+    if named is None:
         return canonical_preset(preset or DEFAULT_PRESET)
     from_file = canonical_preset(named)
     if from_file not in preset_names():
@@ -91,6 +100,8 @@ def build_config(
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
     if not resolved_id:
         raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
+    # A preset the file chose, rather than --preset, must say so where it refuses the algorithm.
+    named_by = config_file if preset is None and _file_preset(file_data) is not None else None
     preset = _base_preset(preset, file_data, config_file)
     if "run.preset" in file_data and isinstance(file_data["run.preset"], str):
         file_data["run.preset"] = preset  # an alias names its preset by the preset's own name
@@ -112,7 +123,9 @@ def build_config(
         check_algorithm_name(str(resolved_algo))
         first["run.algo"] = resolved_algo
     config = apply_overrides(config, first, "arguments")
-    config = apply_overrides(config, preset_overrides(preset, str(resolved_id), config.run.algo), f"preset {preset}")
+    config = apply_overrides(
+        config, preset_overrides(preset, str(resolved_id), config.run.algo, named_by), f"preset {preset}"
+    )
     note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))
     from_file = config

@@ -116,16 +116,21 @@ def preset_algorithm(name: str, env_id: str) -> str | None:
     return None if algo is None else str(algo)
 
 
-def preset_overrides(name: str, env_id: str, algo: str = "ppo") -> dict[str, Any]:
+def preset_overrides(name: str, env_id: str, algo: str = "ppo", named_by: str | None = None) -> dict[str, Any]:
     """A preset's keys for this env and algorithm: for each preset in its chain, base first, that preset's file
     layer, then the algorithm's own table for it. A preset whose `algos` list names the algorithms it holds
-    settings for refuses the others, which would otherwise get the bare defaults under its name."""
+    settings for refuses the others, which would otherwise get the bare defaults under its name. `named_by` is the
+    config file whose run.preset chose the preset, where no --preset did."""
     chain = _read_chain(name)
     supported = _nearest_algorithms(chain)
     if supported and algo not in supported:
+        holds = f"holds settings for {', '.join(supported)} only, not {algo}; train one of those algorithms with it"
+        if named_by is None:
+            raise CanterError(f"preset {name} {holds} (e.g. --algo {supported[0]}) or choose another preset")
+        # --preset fast alone would be refused, as naming another preset than the file's run.preset
         raise CanterError(
-            f"preset {name} holds settings for {', '.join(supported)} only, not {algo}; train one "
-            f"of those algorithms with it (e.g. --algo {supported[0]}) or choose another preset"
+            f"preset {name}, named by {named_by}'s run.preset, {holds} (e.g. --algo {supported[0]}), or drop "
+            f"run.preset from {named_by} and pass --preset fast (or another preset)"
         )
     flat: dict[str, Any] = {}
     for link, table, _ in chain:

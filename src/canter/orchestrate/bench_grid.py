@@ -31,7 +31,7 @@ class BenchSettings:
     grid: tuple[tuple[str, tuple[str, ...]], ...] = ()  # (key, raw values) in the order given
     jobs: int = 1
     out_dir: str = "bench"
-    preset: str = "fast"
+    preset: str | None = None  # None: the one the config file's run.preset names, else fast
     config_file: str | None = None
     sets: tuple[str, ...] = ()
     eval_episodes: int = 10

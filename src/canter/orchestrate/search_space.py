@@ -88,6 +88,8 @@ def load_space(path: str | Path | None, algo: str) -> SearchSpace:
 
     if path is None:
         return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space")
+    if not str(path).strip():  # Path("") is the current folder
+        raise CanterError("--space is empty; give a search space TOML file, or drop --space")
     # load_toml's own messages are about --config files.
     if Path(path).is_dir():
         raise CanterError(f"{path} is a folder; --space takes a search space TOML file")

@@ -77,7 +77,7 @@ class TuneSettings:
     eval_episodes: int = 5  # episodes per evaluation
     trial_minutes: float | None = None
     study_hours: float | None = None
-    preset: str = "fast"
+    preset: str | None = None  # None: the one the config file's run.preset names, else fast
     config_file: str | None = None
     sets: tuple[str, ...] = ()
     space_file: str | None = None
