@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.training.logger import read_rows, run_history
-from canter.training.loop import RECENT_EPISODES
+from canter.training.seed_run import RECENT_EPISODES
 from canter.training.run_folder import metrics_file
 
 PAGE = Path(__file__).resolve().parent
