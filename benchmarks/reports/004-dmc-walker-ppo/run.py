@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 
 from canter.training.logger import read_rows, run_history
-from canter.training.seed_run import RECENT_EPISODES
 from canter.training.run_folder import metrics_file
+from canter.training.seed_run import RECENT_EPISODES
 
 PAGE = Path(__file__).resolve().parent
 sys.path.insert(0, str(PAGE.parent))  # timed.py, grids.py
