@@ -3,6 +3,7 @@ import contextlib
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -28,6 +29,16 @@ def _in_tmp_dir(tmp_path, monkeypatch):
 
 
 TINY = ["net.hidden=16,16", "run.tensorboard=false"]
+# A run folder of canter's format 1 (tests/fixtures/make_runs.py wrote it): InvertedPendulum-v4, ppo, no best.npz.
+ARCHIVED_RUN = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+
+
+@pytest.fixture
+def archived_run(tmp_path: Path) -> Path:
+    """A copy of ARCHIVED_RUN, free to damage."""
+    folder = tmp_path / "run"
+    shutil.copytree(ARCHIVED_RUN, folder)
+    return folder
 
 
 def _train_inside(folder, config):

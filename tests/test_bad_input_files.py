@@ -17,15 +17,7 @@ import pytest
 from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
-
-FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
-
-
-@pytest.fixture
-def run(tmp_path):
-    folder = tmp_path / "run"
-    shutil.copytree(FIXTURE, folder)
-    return folder
+from conftest import ARCHIVED_RUN
 
 
 def one_line(capsys, argv, expected):
@@ -34,55 +26,69 @@ def one_line(capsys, argv, expected):
     assert err.count("\n") == 1 and err.startswith("canter: error: ") and expected in err, err
 
 
-def test_an_output_never_replaces_a_file_of_a_run_folder(run, tmp_path, capsys):
-    newest = sorted((run / "checkpoints").iterdir())[-1]
-    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
-    one_line(capsys, ["export", str(run), "--out", str(newest)], "checkpoints/ belongs to the run folder")
-    one_line(capsys, ["eval", str(run), "--json", str(run / "config.toml")], "it is a file of the run folder")
+def test_an_output_never_replaces_a_file_of_a_run_folder(archived_run, tmp_path, capsys):
+    newest = sorted((archived_run / "checkpoints").iterdir())[-1]
+    before = {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file()}
+    one_line(capsys, ["export", str(archived_run), "--out", str(newest)], "checkpoints/ belongs to the run folder")
+    one_line(
+        capsys,
+        ["eval", str(archived_run), "--json", str(archived_run / "config.toml")],
+        "it is a file of the run folder",
+    )
     # eval.json is bench's cached final evaluation, which plot and report score the run by.
-    one_line(capsys, ["eval", str(run), "--json", str(run / "eval.json")], "it is a file of the run folder")
+    one_line(
+        capsys, ["eval", str(archived_run), "--json", str(archived_run / "eval.json")], "it is a file of the run folder"
+    )
     # A checkpoint given where its run folder belongs: the message says how to pick it.
-    newest_path = sorted((run / "checkpoints").iterdir())[-1]
+    newest_path = sorted((archived_run / "checkpoints").iterdir())[-1]
     one_line(capsys, ["eval", str(newest_path)], "is a file, not a run folder; pass the run folder, and --checkpoint")
-    one_line(capsys, ["report", str(run), "--episodes", "0", "--out", str(run / "metrics.csv")], "one HTML page")
-    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
+    one_line(
+        capsys,
+        ["report", str(archived_run), "--episodes", "0", "--out", str(archived_run / "metrics.csv")],
+        "one HTML page",
+    )
+    assert {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
     # A new file beside them is an ordinary output.
-    assert main(["export", str(run), "--out", str(run / "policy.npz")]) == 0
+    assert main(["export", str(archived_run), "--out", str(archived_run / "policy.npz")]) == 0
 
 
-def test_an_output_that_is_a_link_pipe_or_device_is_refused(run, tmp_path, capsys):
+def test_an_output_that_is_a_link_pipe_or_device_is_refused(archived_run, tmp_path, capsys):
     pipe = tmp_path / "p.npz"
     os.mkfifo(pipe)
-    one_line(capsys, ["export", str(run), "--out", str(pipe)], "it is not a plain file (a link, pipe or device)")
+    one_line(
+        capsys, ["export", str(archived_run), "--out", str(pipe)], "it is not a plain file (a link, pipe or device)"
+    )
     link = tmp_path / "l.npz"
     link.symlink_to(tmp_path / "elsewhere.npz")
-    one_line(capsys, ["export", str(run), "--out", str(link)], "it is not a plain file")
+    one_line(capsys, ["export", str(archived_run), "--out", str(link)], "it is not a plain file")
     assert pipe.exists() and not pipe.is_file() and link.is_symlink()
 
 
-def test_damaged_run_files_are_one_line_errors(run, tmp_path, capsys):
-    (run / "versions.json").write_text(json.dumps({"run_format": 0}))
-    one_line(capsys, ["train", "--resume", str(run), "--total-steps", "9000"], "run_format 0, not a whole number")
-    (run / "versions.json").write_text(json.dumps({"run_format": 1}))
-    rows = (run / "metrics.csv").read_bytes()
-    (run / "metrics.csv").unlink()
-    (run / "metrics.csv.gz").write_bytes(gzip.compress(rows)[:60])
-    one_line(capsys, ["train", "--resume", str(run), "--total-steps", "9000"], "is not a whole gzip file")
-    (run / "metrics.csv.gz").unlink()
-    (run / "metrics.csv").write_text("global_step,episodic_return\n1," + "9" * 200_000 + "\n")
-    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "a.png")], "metrics.csv is damaged")
-    (run / "metrics.csv").write_text("global_step\n1\n2\n")
-    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "a.png")], "no metric with values to plot")
+def test_damaged_run_files_are_one_line_errors(archived_run, tmp_path, capsys):
+    (archived_run / "versions.json").write_text(json.dumps({"run_format": 0}))
+    one_line(
+        capsys, ["train", "--resume", str(archived_run), "--total-steps", "9000"], "run_format 0, not a whole number"
+    )
+    (archived_run / "versions.json").write_text(json.dumps({"run_format": 1}))
+    rows = (archived_run / "metrics.csv").read_bytes()
+    (archived_run / "metrics.csv").unlink()
+    (archived_run / "metrics.csv.gz").write_bytes(gzip.compress(rows)[:60])
+    one_line(capsys, ["train", "--resume", str(archived_run), "--total-steps", "9000"], "is not a whole gzip file")
+    (archived_run / "metrics.csv.gz").unlink()
+    (archived_run / "metrics.csv").write_text("global_step,episodic_return\n1," + "9" * 200_000 + "\n")
+    one_line(capsys, ["plot", str(archived_run), "--out", str(tmp_path / "a.png")], "metrics.csv is damaged")
+    (archived_run / "metrics.csv").write_text("global_step\n1\n2\n")
+    one_line(capsys, ["plot", str(archived_run), "--out", str(tmp_path / "a.png")], "no metric with values to plot")
 
 
-def test_a_report_shows_damaged_summary_values_as_dashes_and_skips_dangling_links(run, tmp_path):
-    summary = json.loads((run / "summary.json").read_text())
-    (run / "summary.json").write_text(json.dumps(summary | {"wall_seconds": float("nan"), "sps": 1e400}))
-    (run / "videos").mkdir()
-    (run / "videos" / "step_000000000001.mp4").symlink_to(tmp_path / "gone.mp4")
-    (run / "robustness").mkdir()
-    (run / "robustness" / "mass.png").symlink_to(tmp_path / "gone.png")
-    assert main(["report", str(run), "--episodes", "0", "--out", str(tmp_path / "r.html")]) == 0
+def test_a_report_shows_damaged_summary_values_as_dashes_and_skips_dangling_links(archived_run, tmp_path):
+    summary = json.loads((archived_run / "summary.json").read_text())
+    (archived_run / "summary.json").write_text(json.dumps(summary | {"wall_seconds": float("nan"), "sps": 1e400}))
+    (archived_run / "videos").mkdir()
+    (archived_run / "videos" / "step_000000000001.mp4").symlink_to(tmp_path / "gone.mp4")
+    (archived_run / "robustness").mkdir()
+    (archived_run / "robustness" / "mass.png").symlink_to(tmp_path / "gone.png")
+    assert main(["report", str(archived_run), "--episodes", "0", "--out", str(tmp_path / "r.html")]) == 0
     assert "gone" not in (tmp_path / "r.html").read_text()
 
 
@@ -114,11 +120,13 @@ def test_an_in_memory_study_storage_is_refused(url, tmp_path, capsys):
     one_line(capsys, argv + ["--out-dir", str(tmp_path)], "an in-memory database, which the worker processes cannot")
 
 
-def test_video_settings_the_renderer_cannot_take(run, tmp_path, capsys, monkeypatch):
+def test_video_settings_the_renderer_cannot_take(archived_run, tmp_path, capsys, monkeypatch):
     out = str(tmp_path / "v.mp4")
-    one_line(capsys, ["video", str(run), "--out", out, "--height", "100000"], "--width and --height go up to 4096")
+    one_line(
+        capsys, ["video", str(archived_run), "--out", out, "--height", "100000"], "--width and --height go up to 4096"
+    )
     monkeypatch.setenv("MUJOCO_GL", "bogus")
-    one_line(capsys, ["video", str(run), "--out", out], "MUJOCO_GL=bogus is not one of MuJoCo's renderers")
+    one_line(capsys, ["video", str(archived_run), "--out", out], "MUJOCO_GL=bogus is not one of MuJoCo's renderers")
     from canter.use.video import configure_gl
 
     for accepted in ("glx", "EGL", "cgl"):  # MuJoCo's own names, which it reads lower-cased
@@ -136,7 +144,7 @@ def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
 def test_a_jax_platform_this_machine_lacks_is_one_line():
     code = "import sys; from canter.cli.main import main; sys.exit(main(['eval', sys.argv[1], '--episodes', '1']))"
     env = dict(os.environ, JAX_PLATFORMS="cuda")
-    done = subprocess.run([sys.executable, "-c", code, str(FIXTURE)], capture_output=True, text=True, env=env)
+    done = subprocess.run([sys.executable, "-c", code, str(ARCHIVED_RUN)], capture_output=True, text=True, env=env)
     assert done.returncode == 2
     lines = [line for line in done.stderr.splitlines() if line.startswith("canter: error:")]
     assert len(lines) == 1 and "JAX_PLATFORMS=cuda" in lines[0] and "unset JAX_PLATFORMS" in lines[0], done.stderr
@@ -144,7 +152,7 @@ def test_a_jax_platform_this_machine_lacks_is_one_line():
 
 def test_a_folder_of_run_folders_names_the_glob_that_reaches_them(tmp_path, capsys):
     bench = tmp_path / "bench"
-    shutil.copytree(FIXTURE, bench / "Hopper-v5__ppo__s0")
+    shutil.copytree(ARCHIVED_RUN, bench / "Hopper-v5__ppo__s0")
     (bench / "results.md").write_text("")
     for argv in (
         ["eval", str(bench)],
@@ -237,8 +245,8 @@ def test_one_run_that_cannot_be_evaluated_keeps_the_others_results(tmp_path, cap
     import canter.use.evaluate
 
     good, bad = tmp_path / "good", tmp_path / "bad"
-    shutil.copytree(FIXTURE, good)
-    shutil.copytree(FIXTURE, bad)
+    shutil.copytree(ARCHIVED_RUN, good)
+    shutil.copytree(ARCHIVED_RUN, bad)
     real = canter.use.evaluate.evaluate
 
     def evaluate(policy, **kwargs):
@@ -258,17 +266,17 @@ def test_one_run_that_cannot_be_evaluated_keeps_the_others_results(tmp_path, cap
     assert [row["run"] for row in json.loads(out.read_text())["runs"]] == [str(good)]
 
 
-def test_a_checkpoint_file_of_another_run_is_refused_and_one_of_its_own_is_taken(run, tmp_path, capsys):
+def test_a_checkpoint_file_of_another_run_is_refused_and_one_of_its_own_is_taken(archived_run, tmp_path, capsys):
     """Results carry the run folder's name, so `--checkpoint FILE` of another run would be reported as this run's
     (a td3 policy on InvertedPendulum once scored under a Pendulum ppo label)."""
-    other = sorted((FIXTURE.parent / "sac" / "checkpoints").iterdir())[-1]
+    other = sorted((ARCHIVED_RUN.parent / "sac" / "checkpoints").iterdir())[-1]
     for command in (["eval"], ["export", "--out", str(tmp_path / "p.onnx")]):
-        argv = [command[0], str(run), *command[1:], "--checkpoint", str(other)]
+        argv = [command[0], str(archived_run), *command[1:], "--checkpoint", str(other)]
         one_line(capsys, argv, "is a checkpoint of another run than")
     assert not (tmp_path / "p.onnx").exists()
     kept = tmp_path / "kept.npz"  # one of its own, moved out of checkpoints/
-    shutil.copy(sorted((run / "checkpoints").iterdir())[0], kept)
-    assert main(["eval", str(run), "--checkpoint", str(kept), "--episodes", "1"]) == 0
+    shutil.copy(sorted((archived_run / "checkpoints").iterdir())[0], kept)
+    assert main(["eval", str(archived_run), "--checkpoint", str(kept), "--episodes", "1"]) == 0
 
 
 @pytest.mark.parametrize("where", ["long", "missing_parent"])
@@ -283,26 +291,30 @@ def test_an_out_dir_that_is_not_utf8_is_refused_before_any_work(tmp_path, capsys
     assert not Path(out).exists()
 
 
-def test_a_bad_value_in_a_file_names_the_file(run, tmp_path, capsys):
+def test_a_bad_value_in_a_file_names_the_file(archived_run, tmp_path, capsys):
     """Among many run folders given to plot, a bad value alone did not say which config.toml holds it."""
-    text = (run / "config.toml").read_text()
-    (run / "config.toml").write_text(text.replace("clip = 0.2", 'clip = "wide"', 1))
-    one_line(capsys, ["plot", str(run), "--out", str(tmp_path / "p.png")], f"got 'wide' (in {run / 'config.toml'})")
+    text = (archived_run / "config.toml").read_text()
+    (archived_run / "config.toml").write_text(text.replace("clip = 0.2", 'clip = "wide"', 1))
+    one_line(
+        capsys,
+        ["plot", str(archived_run), "--out", str(tmp_path / "p.png")],
+        f"got 'wide' (in {archived_run / 'config.toml'})",
+    )
     given = tmp_path / "given.toml"
     given.write_text('[ppo]\nclip = "wide"\n')
     one_line(capsys, ["train", "Pendulum-v1", "--config", str(given)], f"got 'wide' (in {given})")
 
 
-def test_a_path_of_the_wrong_kind_says_what_is_wanted(run, tmp_path, capsys):
+def test_a_path_of_the_wrong_kind_says_what_is_wanted(archived_run, tmp_path, capsys):
     one_line(capsys, ["train", "Pendulum-v1", "--config", str(tmp_path)], "is a folder; --config takes a TOML file")
-    one_line(capsys, ["plot", str(run / "config.toml")], "is a file, not a run folder")
-    one_line(capsys, ["eval", str(run), "--checkpoint", "lst"], "--checkpoint takes last, best or a .npz file")
+    one_line(capsys, ["plot", str(archived_run / "config.toml")], "is a file, not a run folder")
+    one_line(capsys, ["eval", str(archived_run), "--checkpoint", "lst"], "--checkpoint takes last, best or a .npz file")
 
 
-def test_a_policy_refuses_observations_that_are_not_real_numbers(run):
+def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
     import canter
 
-    policy = canter.load(run)
+    policy = canter.load(archived_run)
     good = np.zeros((2, policy.obs_dim))
     assert policy(good).shape == (2, policy.act_dim) and policy(good.astype(int).tolist()).shape == (2, policy.act_dim)
     with pytest.raises(CanterError, match="policy expects numeric observations of shape"):

@@ -15,6 +15,7 @@ import pytest
 from canter.cli.main import main
 from canter.orchestrate.bench_grid import BenchSettings, make_cells, make_jobs, varying_keys
 from canter.orchestrate.bench_results import published_for
+from conftest import ARCHIVED_RUN
 
 TINY = [
     "--set",
@@ -727,7 +728,7 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp
     from canter.training.run_folder import read_config
 
     run = tmp_path / "run"
-    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    shutil.copytree(ARCHIVED_RUN, run)
     saved = read_config(run)
     given = replace(saved, run=replace(saved.run, total_steps=10_000, max_minutes=30.0, stop_at_return=500.0))
     calls = []
@@ -748,7 +749,7 @@ def test_a_bench_rerun_refuses_to_retrain_a_finished_run_kept_without_checkpoint
     from canter.training.run_folder import read_config
 
     run = tmp_path / "run"
-    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    shutil.copytree(ARCHIVED_RUN, run)
     shutil.rmtree(run / "checkpoints")
     (run / "summary.json").write_text(json.dumps({"global_step": 4096, "stop_reason": "budget"}))
     kept = sorted(p.name for p in run.iterdir())
@@ -864,7 +865,7 @@ def test_runs_without_a_finished_episode_get_a_note_instead_of_a_plot(tmp_path, 
     from canter.orchestrate.bench_results import plot_env
 
     run = tmp_path / "run"
-    shutil.copytree(Path(__file__).parent / "fixtures" / "runs-v1" / "ppo", run)
+    shutil.copytree(ARCHIVED_RUN, run)
     rows = list(csv.reader((run / "metrics.csv").read_text().splitlines()))
     column = rows[0].index("episodic_return")
     for row in rows[1:]:

@@ -11,15 +11,6 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
 
-FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"  # an InvertedPendulum-v4 run, without best.npz
-
-
-@pytest.fixture
-def run(tmp_path):
-    folder = tmp_path / "run"
-    shutil.copytree(FIXTURE, folder)
-    return folder
-
 
 def error_line(capsys, argv) -> str:
     """The one stderr line of a refused command, without its `canter: error: ` prefix."""
@@ -86,23 +77,29 @@ def test_an_output_folder_that_is_a_file_says_so(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("command", [["report", "--episodes", "0"], ["plot", "--out", "curves.png"]])
-def test_a_run_folder_without_metrics_names_no_other_command(command, run, capsys):
-    (run / "metrics.csv").unlink()
-    line = error_line(capsys, [command[0], str(run), *command[1:]])
-    assert line == f"no metrics.csv in {run}; pass a run folder written by `canter train`"
+def test_a_run_folder_without_metrics_names_no_other_command(command, archived_run, capsys):
+    (archived_run / "metrics.csv").unlink()
+    line = error_line(capsys, [command[0], str(archived_run), *command[1:]])
+    assert line == f"no metrics.csv in {archived_run}; pass a run folder written by `canter train`"
 
 
-def test_a_checkpoint_folder_is_not_a_checkpoint(run, capsys):
-    line = error_line(capsys, ["eval", str(run), "--checkpoint", str(run / "checkpoints"), "--episodes", "1"])
-    assert line.startswith(f"checkpoint {run / 'checkpoints'} is a folder; --checkpoint takes last, best or a .npz")
+def test_a_checkpoint_folder_is_not_a_checkpoint(archived_run, capsys):
+    line = error_line(
+        capsys, ["eval", str(archived_run), "--checkpoint", str(archived_run / "checkpoints"), "--episodes", "1"]
+    )
+    assert line.startswith(
+        f"checkpoint {archived_run / 'checkpoints'} is a folder; --checkpoint takes last, best or a .npz"
+    )
 
 
 @pytest.mark.parametrize("which", ["last", "best"])
-def test_a_checkpoints_entry_that_is_a_file_is_named(which, run, capsys):
-    shutil.rmtree(run / "checkpoints")
-    (run / "checkpoints").write_text("")
-    line = error_line(capsys, ["eval", str(run), "--checkpoint", which, "--episodes", "1"])
-    assert line.startswith(f"{run / 'checkpoints'} is not a folder, where a run keeps its checkpoints; move it away")
+def test_a_checkpoints_entry_that_is_a_file_is_named(which, archived_run, capsys):
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "checkpoints").write_text("")
+    line = error_line(capsys, ["eval", str(archived_run), "--checkpoint", which, "--episodes", "1"])
+    assert line.startswith(
+        f"{archived_run / 'checkpoints'} is not a folder, where a run keeps its checkpoints; move it away"
+    )
 
 
 def test_a_missing_search_space_file_is_named_as_one(capsys):
@@ -127,9 +124,11 @@ def test_an_empty_value_is_refused(flag, message, form, capsys):
 
 
 @pytest.mark.parametrize("episodes", ["0", "1"])
-def test_report_of_a_best_checkpoint_a_run_lacks_is_refused_with_or_without_evaluation(episodes, run, capsys):
-    argv = ["report", str(run), "--checkpoint", "best", "--episodes", episodes, "--out", "r.html"]
-    assert error_line(capsys, argv).startswith(f"{run} has no best checkpoint: it never evaluated during training")
+def test_report_of_a_best_checkpoint_a_run_lacks_is_refused_with_or_without_evaluation(episodes, archived_run, capsys):
+    argv = ["report", str(archived_run), "--checkpoint", "best", "--episodes", episodes, "--out", "r.html"]
+    assert error_line(capsys, argv).startswith(
+        f"{archived_run} has no best checkpoint: it never evaluated during training"
+    )
     assert not Path("r.html").exists()
 
 
@@ -279,12 +278,12 @@ def test_a_value_the_config_file_gives_that_is_refused_names_the_file(sets, name
     assert line.startswith("ppo.lr must be > 0") and line.endswith(" (in c.toml)") == named, line
 
 
-def test_a_camera_index_of_minus_one_is_the_free_camera(run, capsys):
+def test_a_camera_index_of_minus_one_is_the_free_camera(archived_run, capsys):
     """Help says `name or index`: -1 is MuJoCo's free camera, and an index below it is refused with the choices."""
     from canter.use.video import _GymnasiumPlayer
 
     line = error_line(
-        capsys, ["video", str(run), "--out", "v.gif", "--camera", "-2", "--width", "32", "--height", "32"]
+        capsys, ["video", str(archived_run), "--out", "v.gif", "--camera", "-2", "--width", "32", "--height", "32"]
     )
     assert line == (
         "InvertedPendulum-v4 has no camera '-2'; cameras: -1 (the free camera), or omit --camera for the default view"
@@ -293,7 +292,7 @@ def test_a_camera_index_of_minus_one_is_the_free_camera(run, capsys):
 
 
 @pytest.mark.slow
-def test_a_video_renders_from_the_free_camera(run, capsys):
-    argv = ["video", str(run), "--out", "v.gif", "--camera", "-1", "--width", "32", "--height", "32"]
+def test_a_video_renders_from_the_free_camera(archived_run, capsys):
+    argv = ["video", str(archived_run), "--out", "v.gif", "--camera", "-1", "--width", "32", "--height", "32"]
     assert main([*argv, "--max-steps", "3"]) == 0, capsys.readouterr().err
     assert Path("v.gif").stat().st_size > 0

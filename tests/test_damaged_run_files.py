@@ -6,7 +6,6 @@ from __future__ import annotations
 import errno
 import gzip
 import os
-import shutil
 import stat
 from pathlib import Path
 
@@ -19,15 +18,6 @@ from canter.files import WriteError, check_writable, write_output
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import run_format
 
-FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
-
-
-@pytest.fixture
-def run(tmp_path: Path) -> Path:
-    folder = tmp_path / "run"
-    shutil.copytree(FIXTURE, folder)
-    return folder
-
 
 def _one_line_error(capsys, code: int) -> str:
     err = capsys.readouterr().err
@@ -37,13 +27,15 @@ def _one_line_error(capsys, code: int) -> str:
 
 @pytest.mark.parametrize("command", ["plot", "report", "eval"])
 @pytest.mark.parametrize("seed", ["-1", "4294967296"])
-def test_a_seed_outside_32_bits_is_refused_before_any_work(run, tmp_path, capsys, command, seed):
+def test_a_seed_outside_32_bits_is_refused_before_any_work(archived_run, tmp_path, capsys, command, seed):
     out = {"plot": ["--out", str(tmp_path / "p.png")], "report": ["--out", str(tmp_path / "r.html")], "eval": []}
-    err = _one_line_error(capsys, main([command, str(run), str(run), f"--seed={seed}", *out[command]]))
+    err = _one_line_error(
+        capsys, main([command, str(archived_run), str(archived_run), f"--seed={seed}", *out[command]])
+    )
     assert f"argument --seed: expected a seed from 0 to 4294967295, got '{seed}'" in err
 
 
-def test_a_file_this_user_may_not_read_is_one_line(run, tmp_path, capsys, monkeypatch):
+def test_a_file_this_user_may_not_read_is_one_line(archived_run, tmp_path, capsys, monkeypatch):
     # Tests may run as root, which reads any file, so the refusal the OS would give is raised where it would be.
     read_text = Path.read_text
 
@@ -53,11 +45,11 @@ def test_a_file_this_user_may_not_read_is_one_line(run, tmp_path, capsys, monkey
         return read_text(path, *args, **kwargs)
 
     monkeypatch.setattr(Path, "read_text", refused)
-    err = _one_line_error(capsys, main(["plot", str(run), "--out", str(tmp_path / "p.png")]))
-    assert f"{run / 'config.toml'}: permission denied; give this user access to it" in err
+    err = _one_line_error(capsys, main(["plot", str(archived_run), "--out", str(tmp_path / "p.png")]))
+    assert f"{archived_run / 'config.toml'}: permission denied; give this user access to it" in err
 
 
-def test_a_checkpoint_this_user_may_not_read_is_not_called_corrupt(run, capsys, monkeypatch):
+def test_a_checkpoint_this_user_may_not_read_is_not_called_corrupt(archived_run, capsys, monkeypatch):
     load = np.load
 
     def refused(path, *args, **kwargs):
@@ -66,19 +58,19 @@ def test_a_checkpoint_this_user_may_not_read_is_not_called_corrupt(run, capsys, 
         return load(path, *args, **kwargs)
 
     monkeypatch.setattr(np, "load", refused)
-    err = _one_line_error(capsys, main(["eval", str(run), "--episodes", "1"]))
+    err = _one_line_error(capsys, main(["eval", str(archived_run), "--episodes", "1"]))
     assert "permission denied; give this user access to it" in err and "corrupt" not in err
 
 
-def test_a_damaged_metrics_archive_is_one_line(run, tmp_path, capsys):
-    (run / "metrics.csv").unlink()
-    (run / "metrics.csv.gz").write_bytes(gzip.compress(b"global_step,iteration\n1,1\n")[:-6])
-    err = _one_line_error(capsys, main(["plot", str(run), "--out", str(tmp_path / "p.png")]))
+def test_a_damaged_metrics_archive_is_one_line(archived_run, tmp_path, capsys):
+    (archived_run / "metrics.csv").unlink()
+    (archived_run / "metrics.csv.gz").write_bytes(gzip.compress(b"global_step,iteration\n1,1\n")[:-6])
+    err = _one_line_error(capsys, main(["plot", str(archived_run), "--out", str(tmp_path / "p.png")]))
     assert "metrics.csv.gz is not a whole gzip file" in err and "restore it from a copy" in err
 
 
-def test_an_unreadable_episode_count_counts_as_none(run):
-    _, rows = read_rows(run / "metrics.csv")
+def test_an_unreadable_episode_count_counts_as_none(archived_run):
+    _, rows = read_rows(archived_run / "metrics.csv")
     rows[1]["episodes"] = "nan"
     totals = [t["episodes"] for _, t in run_history(rows)]
     plain = [int(r["episodes"]) if r["episodes"] not in ("", "nan") else 0 for r in rows]
@@ -86,40 +78,42 @@ def test_an_unreadable_episode_count_counts_as_none(run):
 
 
 @pytest.mark.parametrize("value", ['"x"', "null", "0", "-1"])
-def test_a_run_format_that_is_not_a_number_is_one_line(run, value):
-    (run / "versions.json").write_text(f'{{"run_format": {value}}}')
+def test_a_run_format_that_is_not_a_number_is_one_line(archived_run, value):
+    (archived_run / "versions.json").write_text(f'{{"run_format": {value}}}')
     with pytest.raises(CanterError, match=r"versions.json has run_format .* not a whole number from 1; restore it"):
-        run_format(run)
+        run_format(archived_run)
 
 
-def test_a_summary_that_is_not_an_object_reads_as_missing(run):
+def test_a_summary_that_is_not_an_object_reads_as_missing(archived_run):
     from canter.use.report import run_facts
 
-    (run / "summary.json").write_text("null")
-    assert run_facts(run).summary == {}
+    (archived_run / "summary.json").write_text("null")
+    assert run_facts(archived_run).summary == {}
 
 
-def test_summary_values_that_are_not_numbers_show_as_dashes(run):
+def test_summary_values_that_are_not_numbers_show_as_dashes(archived_run):
     from canter.use.report import run_facts, runs_section
 
-    (run / "summary.json").write_text('{"global_step": "x", "wall_seconds": null, "sps": "zzz", "stop_reason": 3}')
-    table = runs_section([run_facts(run)])
+    (archived_run / "summary.json").write_text(
+        '{"global_step": "x", "wall_seconds": null, "sps": "zzz", "stop_reason": 3}'
+    )
+    table = runs_section([run_facts(archived_run)])
     assert table.count("<td class='num'>–</td>") == 3 and "zzz" not in table
 
 
 @pytest.mark.parametrize("damage", ["smooth", "metrics"])
-def test_a_report_refuses_what_it_cannot_draw_before_it_evaluates(run, tmp_path, capsys, monkeypatch, damage):
+def test_a_report_refuses_what_it_cannot_draw_before_it_evaluates(archived_run, tmp_path, capsys, monkeypatch, damage):
     import canter.use.report as report
 
     def evaluated(*args, **kwargs):
         raise AssertionError("the runs were evaluated before the refusal")
 
     monkeypatch.setattr(report, "evaluate_runs", evaluated)
-    argv = ["report", str(run), "--out", str(tmp_path / "r.html")]
+    argv = ["report", str(archived_run), "--out", str(tmp_path / "r.html")]
     if damage == "smooth":
         argv += ["--smooth", "0"]
     else:
-        (run / "metrics.csv").unlink()
+        (archived_run / "metrics.csv").unlink()
     err = _one_line_error(capsys, main(argv))
     assert ("--smooth must be >= 1 rows, got 0" if damage == "smooth" else "no metrics.csv in") in err
 
@@ -150,10 +144,10 @@ def test_a_refused_write_into_missing_folders_names_the_folder_that_exists(tmp_p
 
 
 @pytest.mark.parametrize("command", ["plot", "report", "eval"])
-def test_a_run_folder_given_twice_is_refused_rather_than_counted_as_two_seeds(run, tmp_path, capsys, command):
+def test_a_run_folder_given_twice_is_refused_rather_than_counted_as_two_seeds(archived_run, tmp_path, capsys, command):
     out = {"plot": ["--out", str(tmp_path / "p.png")], "report": ["--out", str(tmp_path / "r.html")], "eval": []}
-    again = run.parent / ".." / run.parent.name / run.name
-    err = _one_line_error(capsys, main([command, str(run), str(again), *out[command]]))
-    assert f"run folders '{run}' and '{again}', the same folder: each run counts once; drop the repeat" in err
-    err = _one_line_error(capsys, main([command, str(run), str(run), *out[command]]))
-    assert f"run folders '{run}' twice" in err
+    again = archived_run.parent / ".." / archived_run.parent.name / archived_run.name
+    err = _one_line_error(capsys, main([command, str(archived_run), str(again), *out[command]]))
+    assert f"run folders '{archived_run}' and '{again}', the same folder: each run counts once; drop the repeat" in err
+    err = _one_line_error(capsys, main([command, str(archived_run), str(archived_run), *out[command]]))
+    assert f"run folders '{archived_run}' twice" in err

@@ -21,7 +21,7 @@ from canter.files import WriteError
 from canter.training import checkpoint
 from canter.training.logger import MetricsLogger, read_rows, totals_until
 from canter.training.loop import training_write_error
-from conftest import TINY
+from conftest import ARCHIVED_RUN, TINY
 
 RUN_SETS = TINY + [
     "env.num_envs=4",
@@ -169,7 +169,7 @@ def _event_records(path: Path) -> list[tuple[str, int, float]]:
 
 @pytest.mark.slow
 def test_export_to_a_read_only_disk_is_one_line(tmp_path):
-    disk, run = tmp_path / "disk", Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+    disk, run = tmp_path / "disk", ARCHIVED_RUN
     disk.mkdir()
     result = _namespace_script(
         f"mount -t tmpfs -o size=1m,ro tmpfs {disk}\n"
@@ -208,7 +208,7 @@ def test_readers_skip_a_half_written_last_line_and_the_next_logger_cuts_it(tmp_p
 @pytest.mark.slow
 def test_a_video_that_does_not_fit_is_one_line_and_leaves_no_file(tmp_path):
     """ffmpeg reports a failed write only on its stderr; the video is checked before it is renamed into place."""
-    disk, run = tmp_path / "disk", Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
+    disk, run = tmp_path / "disk", ARCHIVED_RUN
     disk.mkdir()
     script = f"mount -t tmpfs -o size=4k tmpfs {disk}\n"
     for name in ("a.mp4", "a.gif"):

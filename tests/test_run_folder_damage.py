@@ -4,7 +4,6 @@ repairs what it can with a one-line note, and a folder of a newer canter is refu
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
@@ -14,16 +13,8 @@ from canter.errors import CanterError
 from canter.training import run_folder
 from canter.training.logger import MetricsLogger, read_rows
 from canter.training.run_folder import RUN_FORMAT, read_config, run_format
+from conftest import ARCHIVED_RUN
 from test_damaged_run_files import _one_line_error
-
-FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"  # an InvertedPendulum-v4 run, without best.npz
-
-
-@pytest.fixture
-def run(tmp_path):
-    folder = tmp_path / "run"
-    shutil.copytree(FIXTURE, folder)
-    return folder
 
 
 def _bad_lr(run: Path) -> None:
@@ -45,17 +36,17 @@ def _bad_lr(run: Path) -> None:
     ],
     ids=["plot", "report", "resume"],
 )
-def test_a_bad_value_in_a_run_folders_config_names_the_file(run, capsys, command):
-    _bad_lr(run)
-    err = _one_line_error(capsys, main([part.format(run=run) for part in command]))
-    assert f"ppo.lr must be > 0, got -1.0 (in {run / 'config.toml'})" in err
+def test_a_bad_value_in_a_run_folders_config_names_the_file(archived_run, capsys, command):
+    _bad_lr(archived_run)
+    err = _one_line_error(capsys, main([part.format(run=archived_run) for part in command]))
+    assert f"ppo.lr must be > 0, got -1.0 (in {archived_run / 'config.toml'})" in err
 
 
-def test_an_error_that_names_the_file_already_names_it_once(run):
-    (run / "config.toml").write_text("[ppo]\nlr = \n")
+def test_an_error_that_names_the_file_already_names_it_once(archived_run):
+    (archived_run / "config.toml").write_text("[ppo]\nlr = \n")
     with pytest.raises(CanterError) as caught:
-        read_config(run)
-    assert str(caught.value).count(str(run / "config.toml")) == 1
+        read_config(archived_run)
+    assert str(caught.value).count(str(archived_run / "config.toml")) == 1
 
 
 # -------------------------------------------------------------------------------------- a damaged versions.json
@@ -71,14 +62,14 @@ def _damage(run: Path, how: str) -> None:
 
 
 @pytest.mark.parametrize("how", ["truncated", "empty", "list", "missing"])
-def test_a_resume_rewrites_a_damaged_versions_json_with_this_sessions_versions(run, capsys, how):
-    _damage(run, how)
-    damaged = None if how == "missing" else (run / "versions.json").read_text()
-    run_folder.migrate(run)
+def test_a_resume_rewrites_a_damaged_versions_json_with_this_sessions_versions(archived_run, capsys, how):
+    _damage(archived_run, how)
+    damaged = None if how == "missing" else (archived_run / "versions.json").read_text()
+    run_folder.migrate(archived_run)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("canter: note: "), err
-    written = json.loads((run / "versions.json").read_text())
-    assert written["run_format"] == RUN_FORMAT == run_format(run)
+    written = json.loads((archived_run / "versions.json").read_text())
+    assert written["run_format"] == RUN_FORMAT == run_format(archived_run)
     current = run_folder.versions()
     assert {key: written[key] for key in current} == current
     assert written["repaired"]["text"] == damaged if damaged is not None else "text" not in written["repaired"]
@@ -86,52 +77,52 @@ def test_a_resume_rewrites_a_damaged_versions_json_with_this_sessions_versions(r
         assert "had no versions.json, so it is run format 1" in err
     else:  # nothing is lost: the old text is kept whole
         assert '"repaired"' in err
-    assert "[sac]" not in (run / "config.toml").read_text()
+    assert "[sac]" not in (archived_run / "config.toml").read_text()
 
 
-def test_a_whole_versions_json_is_kept_without_a_note(run, capsys):
-    original = json.loads((run / "versions.json").read_text())
-    run_folder.migrate(run)
+def test_a_whole_versions_json_is_kept_without_a_note(archived_run, capsys):
+    original = json.loads((archived_run / "versions.json").read_text())
+    run_folder.migrate(archived_run)
     assert capsys.readouterr().err == ""
-    assert json.loads((run / "versions.json").read_text()) == dict(original, run_format=RUN_FORMAT)
+    assert json.loads((archived_run / "versions.json").read_text()) == dict(original, run_format=RUN_FORMAT)
 
 
-def test_reading_a_damaged_versions_json_writes_nothing(run):
-    _damage(run, "truncated")
-    before = (run / "versions.json").read_bytes()
-    assert run_format(run) == 1 and read_config(run).run.algo == "ppo"
-    assert (run / "versions.json").read_bytes() == before
+def test_reading_a_damaged_versions_json_writes_nothing(archived_run):
+    _damage(archived_run, "truncated")
+    before = (archived_run / "versions.json").read_bytes()
+    assert run_format(archived_run) == 1 and read_config(archived_run).run.algo == "ppo"
+    assert (archived_run / "versions.json").read_bytes() == before
 
 
 @pytest.mark.slow
-def test_a_resume_notes_a_damaged_versions_json_and_a_half_written_row(run, capsys):
-    _damage(run, "truncated")
-    metrics = run / "metrics.csv"
+def test_a_resume_notes_a_damaged_versions_json_and_a_half_written_row(archived_run, capsys):
+    _damage(archived_run, "truncated")
+    metrics = archived_run / "metrics.csv"
     metrics.write_bytes(metrics.read_bytes()[:-40])
-    assert main(["train", "--resume", str(run), "--total-steps", "1600", "--quiet"]) == 0
+    assert main(["train", "--resume", str(archived_run), "--total-steps", "1600", "--quiet"]) == 0
     err = capsys.readouterr().err
-    assert f"canter: note: {run / 'versions.json'} was cut short or not JSON; wrote it" in err
+    assert f"canter: note: {archived_run / 'versions.json'} was cut short or not JSON; wrote it" in err
     assert f"canter: note: dropped the half-written last row of {metrics}" in err
-    assert json.loads((run / "versions.json").read_text())["run_format"] == RUN_FORMAT
+    assert json.loads((archived_run / "versions.json").read_text())["run_format"] == RUN_FORMAT
 
 
 # ------------------------------------------------------------------------------------ metrics.csv cut mid-row
 
 
-def test_a_half_written_last_row_is_dropped_with_a_note(run, capsys):
-    metrics = run / "metrics.csv"
+def test_a_half_written_last_row_is_dropped_with_a_note(archived_run, capsys):
+    metrics = archived_run / "metrics.csv"
     whole = metrics.read_bytes()
     metrics.write_bytes(whole[:-40])
-    MetricsLogger(run, (), (), tensorboard=False, resume_step=1190).close()
+    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"canter: note: dropped the half-written last row of {metrics}")
     assert "the run goes on from its checkpoint" in err
-    steps = [row["global_step"] for row in read_rows(FIXTURE / "metrics.csv")[1]]
+    steps = [row["global_step"] for row in read_rows(ARCHIVED_RUN / "metrics.csv")[1]]
     assert [row["global_step"] for row in read_rows(metrics)[1]] == steps[:-1]
 
 
-def test_a_whole_metrics_file_gives_no_note(run, capsys):
-    MetricsLogger(run, (), (), tensorboard=False, resume_step=1190).close()
+def test_a_whole_metrics_file_gives_no_note(archived_run, capsys):
+    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
     assert capsys.readouterr().err == ""
 
 
@@ -153,36 +144,36 @@ def _future(run: Path) -> None:
     ],
     ids=["eval", "export", "video", "eval-checkpoint-file"],
 )
-def test_every_reader_refuses_a_folder_of_a_newer_format(run, tmp_path, capsys, command):
-    _future(run)
-    err = _one_line_error(capsys, main([part.format(run=run) for part in command]))
-    assert f"{run} has run-folder format 9, this canter reads up to {RUN_FORMAT}; use a newer canter" in err
+def test_every_reader_refuses_a_folder_of_a_newer_format(archived_run, tmp_path, capsys, command):
+    _future(archived_run)
+    err = _one_line_error(capsys, main([part.format(run=archived_run) for part in command]))
+    assert f"{archived_run} has run-folder format 9, this canter reads up to {RUN_FORMAT}; use a newer canter" in err
     assert not [p for p in tmp_path.iterdir() if p.name != "run"]
 
 
-def test_canter_load_refuses_a_folder_of_a_newer_format(run):
+def test_canter_load_refuses_a_folder_of_a_newer_format(archived_run):
     import canter
 
-    _future(run)
+    _future(archived_run)
     with pytest.raises(CanterError, match="run-folder format 9"):
-        canter.load(run)
+        canter.load(archived_run)
 
 
 # ---------------------------------------------------------------------------------- outputs that cannot be made
 
 
-def test_an_export_under_a_file_says_that_it_is_a_file(run, tmp_path, capsys):
+def test_an_export_under_a_file_says_that_it_is_a_file(archived_run, tmp_path, capsys):
     (tmp_path / "exp").mkdir()
     (tmp_path / "exp" / "p.npz").write_bytes(b"kept")
     out = tmp_path / "exp" / "p.npz" / "x.onnx"
-    err = _one_line_error(capsys, main(["export", str(run), "--out", str(out)]))
+    err = _one_line_error(capsys, main(["export", str(archived_run), "--out", str(out)]))
     assert f"cannot write {out}: {tmp_path / 'exp' / 'p.npz'} is a file, not a folder" in err
     assert (tmp_path / "exp" / "p.npz").read_bytes() == b"kept"
 
 
-def test_an_eval_json_under_a_file_says_that_it_is_a_file(run, tmp_path, capsys):
+def test_an_eval_json_under_a_file_says_that_it_is_a_file(archived_run, tmp_path, capsys):
     (tmp_path / "a").write_text("kept")
-    err = _one_line_error(capsys, main(["eval", str(run), "--json", str(tmp_path / "a" / "e.json")]))
+    err = _one_line_error(capsys, main(["eval", str(archived_run), "--json", str(tmp_path / "a" / "e.json")]))
     assert f"{tmp_path / 'a'} is a file, not a folder" in err
 
 
@@ -191,29 +182,29 @@ def test_an_eval_json_under_a_file_says_that_it_is_a_file(run, tmp_path, capsys)
     [(["eval", "{run}", "--json", ""], "--json"), (["export", "{run}", "--out", ""], "--out")],
     ids=["eval-json", "export-out"],
 )
-def test_an_empty_output_path_is_refused(run, capsys, argv, flag):
-    err = _one_line_error(capsys, main([part.format(run=run) for part in argv]))
+def test_an_empty_output_path_is_refused(archived_run, capsys, argv, flag):
+    err = _one_line_error(capsys, main([part.format(run=archived_run) for part in argv]))
     assert f"{flag} is empty; give the file to write" in err
 
 
-def test_a_damaged_versions_json_of_a_newer_canter_stays_refused(run):
+def test_a_damaged_versions_json_of_a_newer_canter_stays_refused(archived_run):
     """Cut short, the file of a newer canter read as format 1, and a resume would have migrated its folder."""
     text = f'{{"run_format": {RUN_FORMAT + 1}, "canter": "9.0", "python": "3.1'
-    (run / "versions.json").write_text(text)
+    (archived_run / "versions.json").write_text(text)
     with pytest.raises(CanterError, match=f"has run-folder format {RUN_FORMAT + 1}, this canter reads up to"):
-        run_folder.migrate(run)
-    assert (run / "versions.json").read_text() == text
+        run_folder.migrate(archived_run)
+    assert (archived_run / "versions.json").read_text() == text
 
 
-def test_a_damaged_versions_json_keeps_the_format_it_names(run, capsys):
-    (run / "versions.json").write_text(f'{{"run_format": {RUN_FORMAT}, "canter": "0.1')
-    assert run_format(run) == RUN_FORMAT
-    run_folder.migrate(run)
-    assert json.loads((run / "versions.json").read_text())["run_format"] == RUN_FORMAT
+def test_a_damaged_versions_json_keeps_the_format_it_names(archived_run, capsys):
+    (archived_run / "versions.json").write_text(f'{{"run_format": {RUN_FORMAT}, "canter": "0.1')
+    assert run_format(archived_run) == RUN_FORMAT
+    run_folder.migrate(archived_run)
+    assert json.loads((archived_run / "versions.json").read_text())["run_format"] == RUN_FORMAT
     assert "was cut short or not JSON" in capsys.readouterr().err
 
 
-def test_a_versions_json_of_another_json_type_is_named_as_json_names_it(run, capsys):
-    (run / "versions.json").write_text("null")
-    run_folder.migrate(run)
+def test_a_versions_json_of_another_json_type_is_named_as_json_names_it(archived_run, capsys):
+    (archived_run / "versions.json").write_text("null")
+    run_folder.migrate(archived_run)
     assert "was a JSON null, not an object" in capsys.readouterr().err
