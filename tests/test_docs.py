@@ -3,6 +3,7 @@ from pathlib import Path
 import pytest
 
 from canter.docs import render
+from script_modules import BENCHMARKS, load_script
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -54,14 +55,7 @@ def test_tables_match_the_archived_runs(script):
 
 
 def _offpolicy_tables():
-    import importlib.util
-
-    path = README.parent / "benchmarks" / "offpolicy_tables.py"
-    spec = importlib.util.spec_from_file_location("offpolicy_tables", path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("offpolicy_tables", BENCHMARKS / "offpolicy_tables.py")
 
 
 def _record(seed, mean, lengths):

@@ -1,29 +1,16 @@
 """The gait study (benchmarks/ppo_speed/gait.py): its Fisher exact test against hand-computed values and SciPy, and
 its archive and page rendered from run.py's rows.json."""
 
-import importlib.util
 import json
 import random
-import sys
 from datetime import UTC, datetime
-from pathlib import Path
 
 import pytest
 from scipy.stats import fisher_exact
 
-ROOT = Path(__file__).resolve().parents[1]
+from script_modules import BENCHMARKS, load_script
 
-
-def _load(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-gait = _load("gait_study", ROOT / "benchmarks" / "ppo_speed" / "gait.py")
+gait = load_script("gait_study", BENCHMARKS / "ppo_speed" / "gait.py")
 
 
 @pytest.mark.parametrize(

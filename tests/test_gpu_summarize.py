@@ -1,21 +1,19 @@
 """benchmarks/gpu/summarize.py: the figures a GPU part brings back, from hand-made run folders and Brax records. A
 device session is too short to find a misleading table there."""
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+
+from script_modules import BENCHMARKS, load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def summarize():
-    spec = importlib.util.spec_from_file_location("gpu_summarize", ROOT / "benchmarks" / "gpu" / "summarize.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("gpu_summarize", BENCHMARKS / "gpu" / "summarize.py")
 
 
 def make_run(folder: Path, *, steps: int, wall: float, compile_s: float, stop: str, iteration: int = 3) -> Path:

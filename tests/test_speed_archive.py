@@ -2,17 +2,16 @@
 write is rendered from the archived rows.json alone, so it can be rendered again from the archive and compared."""
 
 import gzip
-import importlib.util
 import random
-import sys
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-BENCHMARKS = ROOT / "benchmarks"
+from script_modules import BENCHMARKS, load_script
+
+ROOT = BENCHMARKS.parent
 SPEED = ("ppo_speed", "td3_speed", "time_to_score", "multiseed")  # the benchmarks that archive their raw files
 STARTED = datetime(2026, 11, 22, 3, 0, tzinfo=UTC)
 MACHINE = {
@@ -28,20 +27,11 @@ MACHINE = {
 VERSIONS = {"canter": "0.1.0", "jax": "0.10.2", "envpool": "1.2.5", "mujoco": "3.6.0", "stable-baselines3": "2.9.2"}
 
 
-def _load(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up here
-    spec.loader.exec_module(module)
-    return module
-
-
 def _script(name: str):
-    return _load(f"{name}_run", BENCHMARKS / name / "run.py")
+    return load_script(f"{name}_run", BENCHMARKS / name / "run.py")
 
 
-speed_archive = _load("speed_archive", BENCHMARKS / "speed_archive.py")
+speed_archive = load_script("speed_archive", BENCHMARKS / "speed_archive.py")
 
 
 def _write(path: Path, text: str = "x") -> None:
