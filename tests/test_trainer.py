@@ -151,6 +151,42 @@ def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
     assert int(header["global_step"]) == r.global_step
 
 
+class _SignalWentToTheDefaultHandler(Exception):
+    pass
+
+
+def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint_to_resume(tmp_path, monkeypatch):
+    import os
+    import signal
+
+    from canter.training import loop
+
+    def default_handler(signum, frame):  # stands for SIGTERM's default action, which would end pytest itself
+        raise _SignalWentToTheDefaultHandler
+
+    make_env = loop._make_env
+
+    def make_env_then_sigterm(*args):
+        env = make_env(*args)
+        os.kill(os.getpid(), signal.SIGTERM)  # after the run folder exists, before the compile
+        return env
+
+    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
+    previous = signal.signal(signal.SIGTERM, default_handler)
+    try:
+        r = train(_config(total=4096, extra=[f"run.out_dir={tmp_path}"]))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert r.stop_reason == "signal" and r.global_step == 0
+    _, _, _, header = load_state(r.run_dir)
+    assert int(header["global_step"]) == 0
+    assert '"stop_reason": "signal"' in (r.run_dir / "summary.json").read_text()
+
+    monkeypatch.setattr(loop, "_make_env", make_env)
+    resumed = train(resume_config(r.run_dir, 2048), resume=r.run_dir)
+    assert resumed.stop_reason == "budget" and resumed.global_step >= 2048
+
+
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):
     config = _config(
         total=50_000,

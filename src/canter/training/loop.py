@@ -167,7 +167,6 @@ def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: 
 def _train_locked(
     configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
 ) -> list[RunResult]:
-    from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import resolve_backend
     from canter.envs.registry import note_replay
@@ -179,6 +178,23 @@ def _train_locked(
     played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
     note_replay(configs[0].env.id, backend, played)
     started = time.perf_counter()
+    # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
+    # that lands during setup or compilation stops it before its first iteration.
+    with StopFlag() as stop:
+        return _set_up_and_loop(configs, resumes, run_dirs, quiet, locks, backend, started, stop)
+
+
+def _set_up_and_loop(
+    configs: list[Config],
+    resumes: list[Any],
+    run_dirs: list[Any],
+    quiet: bool,
+    locks: run_lock.RunLocks,
+    backend: str,
+    started: float,
+    stop: StopFlag,
+) -> list[RunResult]:
+    from canter.algos import get_algorithm
 
     starts = [_start_of(c, resume, run_dir, backend, locks) for c, resume, run_dir in zip(configs, resumes, run_dirs)]
     seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
@@ -189,7 +205,7 @@ def _train_locked(
         algorithm.validate(configs[0], spec)
         states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
         carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
-        return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started)
+        return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
     except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
         error = training_write_error(exc, [start.out for start in starts])
         if error is None:
@@ -303,6 +319,7 @@ def _loop(
     starts: list[SeedStart],
     quiet: bool,
     started: float,
+    stop: StopFlag,
 ) -> list[RunResult]:
     """The host loop of a group. Every seed logs, checkpoints and stops on its own (budget, stop_at_return, a
     non-finite iteration); max_minutes and signals stop the whole group. A seed that is done keeps being computed
@@ -314,17 +331,18 @@ def _loop(
     progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
     try:
+        if stop.signal is not None:  # it came during setup or compilation
+            _stop_seeds(program, runs, "signal")
         # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
-        with StopFlag() as stop:
-            while any(run.stop_reason is None for run in runs):
-                chunk = program.call(runs)
-                steps = 0
-                for i, run in enumerate(runs):
-                    if run.stop_reason is None:
-                        steps += _take_share(program, i, run, chunk)
-                program.advance(chunk)
-                _stop_seeds(program, runs, _group_stop_reason(deadline, stop))
-                _show_progress(progress, runs, steps / chunk.elapsed)
+        while any(run.stop_reason is None for run in runs):
+            chunk = program.call(runs)
+            steps = 0
+            for i, run in enumerate(runs):
+                if run.stop_reason is None:
+                    steps += _take_share(program, i, run, chunk)
+            program.advance(chunk)
+            _stop_seeds(program, runs, _group_stop_reason(deadline, stop))
+            _show_progress(progress, runs, steps / chunk.elapsed)
     finally:
         progress.close()
         for run in runs:
