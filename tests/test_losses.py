@@ -134,7 +134,10 @@ PLAIN = PPOConfig(clip=0.2, norm_adv=False, clip_vloss=False, ent_coef=0.0, vf_c
 
 def test_rpo_shift_is_uniform_within_alpha():
     z = np.asarray(rpo_shift(jax.random.key(1), jnp.zeros((20000, 3)), 0.5))
-    assert np.abs(z).max() <= 0.5 and np.abs(z).max() > 0.49
+    assert z.min() < -0.49 and z.max() > 0.49  # the draws reach both ends of [-alpha, alpha]
+    # The shift is added to the mean: another mean, the same draws.
+    shifted = np.asarray(rpo_shift(jax.random.key(1), jnp.full((20000, 3), 3.0), 0.5))
+    np.testing.assert_allclose(shifted - 3.0, z, atol=1e-6)
     assert abs(z.mean()) < 0.01 and z.var() == pytest.approx(0.25 / 3, rel=0.03)
     # Independent per dimension.
     assert abs(np.corrcoef(z[:, 0], z[:, 1])[0, 1]) < 0.03

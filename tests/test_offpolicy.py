@@ -98,7 +98,6 @@ def test_iteration_stores_valid_transitions_with_true_final_obs_and_terminated_o
     assert got == expected
     # The truncated step stores its true final observation (4) and does not stop bootstrapping.
     assert (3, 1, 4, 4, 0.0) in got and (2, 0, 3, 3, 1.0) in got
-    assert np.all(np.abs(data.action[:size]) <= 1.0)
     assert bool(metrics["finite"]) and int(metrics["gradient_steps"]) == 0
     # An env whose episode ended on the last step restarts its OU noise at zero; the other's keeps running.
     last_done = np.asarray(metrics["finished"])[-1]
@@ -185,6 +184,143 @@ def test_the_learner_samples_rewards_times_the_fixed_reward_scale_while_the_buff
     size = int(state.buffer.size)
     data = jax.device_get(state.buffer.data)
     np.testing.assert_array_equal(data.reward[:size], data.next_obs[:size, 0])
+
+
+def acted_counters(vector_steps):
+    """Per vector step, the counters of the envs that act on it (the others are in their autoreset step), by plain
+    simulation of the counter env."""
+    t, needs_reset, steps = [0, 0], [False, False], []
+    for _ in range(vector_steps):
+        acted = []
+        for env in range(2):
+            if needs_reset[env]:
+                t[env], needs_reset[env] = 0, False
+                continue
+            acted.append((t[env], env))
+            t[env] += 1
+            needs_reset[env] = t[env] >= TERMINATE_AT[env] or t[env] >= TRUNCATE_AT[env]
+        steps.append(acted)
+    return steps
+
+
+class _CountingSpy(TD3):
+    """TD3 whose update only counts: it reports its index as critic_loss, and as actor_loss on the even ones (NaN,
+    a delayed actor step, on the odd ones)."""
+
+    def update(self, state, batch, key):
+        index = state.updates.astype(jnp.float32)
+        actor = jnp.where(state.updates % 2 == 0, index, jnp.nan)
+        return state._replace(updates=state.updates + 1), {"critic_loss": index, "actor_loss": actor, "q_mean": index}
+
+
+@pytest.mark.parametrize(
+    "vector_steps, learning_starts, train_freq, gradient_steps",
+    [
+        # 22 vector steps: learning_starts is reached exactly on step 2 (2 envs act); on step 20 both envs are in
+        # their autoreset step, which stores nothing, so it neither trains nor counts for train_freq.
+        (11, 4, 1, 1),
+        (11, 5, 2, 3),
+        (7, 7, 3, 2),  # train_freq 3 across the two calls
+        (8, 100, 1, 1),  # never trains: NaN metrics
+    ],
+)
+def test_gradient_steps_follow_a_python_simulation_of_the_schedule(
+    vector_steps, learning_starts, train_freq, gradient_steps
+):
+    """Two calls in a row (the counts carry over between them). The reference, step by step: the env steps taken
+    so far count the acting envs; a vector step counts for train_freq only if some env stored a transition; then
+    it trains `gradient_steps` times if it stored one, at least learning_starts env steps have been taken and the
+    vector steps so far are a multiple of train_freq. The metrics average the update indices of each call's
+    steps, the actor's over the even ones only."""
+    sets = ["env.num_envs=2", "env.normalize_obs=false", f"td3.steps_per_call={2 * vector_steps}"]
+    sets += [f"td3.learning_starts={learning_starts}", f"td3.train_freq={train_freq}"]
+    sets += [f"td3.gradient_steps={gradient_steps}", "td3.buffer_size=64", "td3.batch_size=4", "td3.hidden=4"]
+    config = build_config("Pendulum-v1", algo="td3", sets=sets)
+    learner = _CountingSpy(config.td3)
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    iteration = jax.jit(make_iteration(config, learner, spec, counter_env_step))
+    state = init_train_state(config, learner, 2, 1)
+    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
+
+    acted = acted_counters(2 * vector_steps)
+    assert (vector_steps < 10) or (acted[19] == [] and len(acted[1]) == 2)
+    env_steps = stored_steps = updates = 0
+    for call in range(2):
+        state, carry, metrics = iteration(state, carry, jnp.float32(1.0))
+        first = updates
+        for step in acted[call * vector_steps : (call + 1) * vector_steps]:
+            env_steps += len(step)
+            stored_steps += len(step) > 0
+            if step and env_steps >= learning_starts and stored_steps % train_freq == 0:
+                updates += gradient_steps
+        indices = list(range(first, updates))
+        assert int(metrics["gradient_steps"]) == len(indices) and int(state.learner.updates) == updates
+        assert int(state.vector_steps) == stored_steps and int(state.global_step) == env_steps
+        expected = {"critic_loss": indices, "actor_loss": [i for i in indices if i % 2 == 0]}
+        for name, values in expected.items():
+            got = float(metrics[name])
+            assert got == pytest.approx(np.mean(values)) if values else np.isnan(got), (name, call)
+    if learning_starts < 100:
+        assert updates > 0 and int(metrics["gradient_steps"]) > 0
+
+
+class _BatchSpy(TD3):
+    """TD3 whose update learns nothing and reports the four rows of its batch: the counter and env columns of the
+    observation, the counter of the next one, and the reward minus twice the action."""
+
+    update_metrics = (
+        "critic_loss",
+        *(f"{field}{i}" for i in range(4) for field in ("counter", "env", "next", "action_gap")),
+    )
+
+    def update(self, state, batch, key):
+        rows = {"critic_loss": jnp.float32(0.0)}
+        for i in range(4):
+            rows |= {f"counter{i}": batch.obs[i, 0], f"env{i}": batch.obs[i, 1], f"next{i}": batch.next_obs[i, 0]}
+            rows[f"action_gap{i}"] = batch.reward[i] - 2.0 * batch.action[i, 0]
+        return state, rows
+
+
+def test_sampled_batches_are_normalized_with_the_running_statistics_of_that_step():
+    """Train once, on the last of 9 vector steps: every row of the batch must be a stored transition normalized by
+    numpy's mean and variance of all the observations acted on so far, this step's included, pooled with the
+    statistics' prior (mean 0, variance 1, weight 1e-4): (x - mean) / sqrt(var + 1e-8). The env here rewards the
+    action it received, so the stored action is that one over the half-range 2: the unit-box action."""
+
+    def action_rewarding_env_step(state, action):
+        state, out = counter_env_step(state, action)
+        return state, out._replace(reward=jnp.where(state[0] == 0, 0.0, action[:, 0]))
+
+    acted = acted_counters(9)
+    env_steps = sum(len(step) for step in acted)
+    assert acted[-1]  # the last step stores a transition, so it trains
+    sets = ["env.num_envs=2", "env.normalize_obs=true", "env.clip_obs=1000", "env.normalize_reward=false"]
+    sets += ["td3.steps_per_call=18", f"td3.learning_starts={env_steps}", "td3.train_freq=1", "td3.gradient_steps=1"]
+    sets += ["td3.buffer_size=64", "td3.batch_size=4", "td3.hidden=4"]
+    config = build_config("Pendulum-v1", algo="td3", sets=sets)
+    learner = _BatchSpy(config.td3)
+    spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
+    state = init_train_state(config, learner, 2, 1)
+    carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
+    state, _, metrics = jax.jit(make_iteration(config, learner, spec, action_rewarding_env_step))(
+        state, carry, jnp.float32(1.0)
+    )
+    assert int(state.global_step) == env_steps and int(metrics["gradient_steps"]) == 1
+
+    seen = np.array([row for step in acted for row in step], np.float64)
+    count = len(seen) + 1e-4
+    mean = seen.sum(axis=0) / count
+    var = (1e-4 * (1.0 + mean**2) + np.sum((seen - mean) ** 2, axis=0)) / count
+    scale = np.sqrt(var + 1e-8)
+    stored = [
+        ((c - mean[0]) / scale[0], (e - mean[1]) / scale[1], (n - mean[0]) / scale[0])
+        for c, e, n, *_ in reference_transitions(9)
+    ]
+    for i in range(4):
+        row = tuple(float(metrics[f"{field}{i}"]) for field in ("counter", "env", "next"))
+        assert any(np.allclose(row, s, rtol=0, atol=1e-5) for s in stored), (row, stored)
+        assert float(metrics[f"action_gap{i}"]) == pytest.approx(0.0, abs=1e-6)
+    assert len({float(metrics[f"counter{i}"]) for i in range(4)}) > 1  # not one row drawn four times
 
 
 FIXTURE_RUNS = Path(__file__).parent / "fixtures" / "runs-v1"

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.flatten_util import ravel_pytree
 
 from canter.algos.offpolicy import losses, noise
 from canter.algos.offpolicy.ddpg import DDPG
@@ -17,6 +18,7 @@ from canter.config.build import build_config
 from canter.config.schema import Config
 from canter.core.networks import mlp
 from canter.core.replay import Transitions
+from numpy_references import Adam
 
 
 def test_td_target_takes_the_min_of_the_critics_and_stops_only_on_termination():
@@ -184,10 +186,13 @@ def test_acting_is_deterministic_on_request_and_explores_otherwise():
     actor = sac.init(jax.random.key(0), 3, 2).actor
     from canter.algos.offpolicy.networks import deterministic_action, squashed_gaussian
 
-    mean, _ = squashed_gaussian(actor, obs, "relu")
+    mean, log_std = squashed_gaussian(actor, obs, "relu")
     np.testing.assert_array_equal(sac.act(actor, obs, key, True), jnp.tanh(mean))
     sampled = sac.act(actor, obs, key, False)
-    assert not np.allclose(sampled, jnp.tanh(mean)) and np.all(np.abs(sampled) <= 1.0)
+    # A sample of the Gaussian, then tanh: with the key's standard-normal draw, tanh(mean + std * noise).
+    standard_normal = np.asarray(jax.random.normal(key, (5, 2), jnp.float32))
+    np.testing.assert_allclose(sampled, np.tanh(mean + np.exp(log_std) * standard_normal), rtol=1e-5, atol=1e-6)
+    assert not np.allclose(sampled, jnp.tanh(mean))
     # sac explores by sampling its policy; its OU state passes through untouched.
     ou = jnp.ones((5, 2))
     explored, ou_next = sac.explore(sac.init(jax.random.key(0), 3, 2), obs, ou, key)
@@ -199,7 +204,9 @@ def test_acting_is_deterministic_on_request_and_explores_otherwise():
     explored, _ = td3.explore(state, obs, ou, key)
     np.testing.assert_array_equal(explored, deterministic_action(state.actor, obs, "relu"))  # noise = none
     noisy = td3.act(state.actor, obs, key, False)
-    assert not np.allclose(noisy, explored) and np.all(np.abs(noisy) <= 1.0)
+    # Gaussian noise of noise_std (0.1) on the deterministic action, clipped to the box.
+    np.testing.assert_allclose(noisy, np.clip(explored + 0.1 * standard_normal, -1.0, 1.0), rtol=1e-5, atol=1e-6)
+    assert not np.allclose(noisy, explored)
 
 
 def test_td3_delays_the_actor_and_target_updates():
@@ -224,6 +231,95 @@ def test_td3_delays_the_actor_and_target_updates():
     assert not _changed(second.target_actor, first.target_actor)
     assert not _changed(second.target_critics, first.target_critics)
     assert np.isnan(float(diag["actor_loss"]))
+
+
+def test_td3_updates_match_a_hand_written_td3():
+    """Three td3 updates against TD3 written out here (Fujimoto et al. 2018, Algorithm 1): the target actor's action
+    smoothed by the same standard-normal draw (std target_noise, clipped to noise_clip, the action to [-1, 1]), the
+    target y = r + gamma (1 - terminated) min(Q1', Q2'), the critic loss sum_i mean (Q_i - y)^2, numpy Adam on each
+    network (its own step count), the actor loss -mean Q1(s, mu(s)) through the critics just updated, the actor and
+    the Polyak targets only on updates 0 and 2 (policy_delay 2). Gradients by jax.grad of the losses as written
+    here, in float64."""
+    cfg = replace(Config().td3, hidden=(8,), policy_delay=2, tau=0.05, gamma=0.9, target_noise=0.3, noise_clip=0.4)
+    cfg = replace(cfg, actor_lr=1e-2, critic_lr=3e-2)
+    td3 = TD3(cfg)
+    state = td3.init(jax.random.key(0), 3, 2)
+    # Targets that differ from the online nets, so that mixing them up would show.
+    state = jax.jit(
+        lambda s: s._replace(
+            target_critics=jax.tree_util.tree_map(lambda x: x + 0.1 * jnp.sign(x + 0.3), s.target_critics),
+            target_actor=jax.tree_util.tree_map(lambda x: x * 1.5 + 0.05, s.target_actor),
+        )
+    )(state)
+
+    def flat(tree):  # as ravel_pytree orders the leaves, in numpy
+        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(tree)])
+
+    unravel_actor, unravel_critics = ravel_pytree(state.actor)[1], ravel_pytree(state.critics)[1]
+    theta = {name: flat(getattr(state, name)) for name in ("actor", "critics", "target_actor", "target_critics")}
+    actor_adam = Adam(theta["actor"].size, cfg.actor_lr)
+    critic_adam = Adam(theta["critics"].size, cfg.critic_lr)
+
+    def forward(layers, x):
+        for layer in layers[:-1]:
+            x = jnp.maximum(x @ layer["w"] + layer["b"], 0.0)
+        return x @ layers[-1]["w"] + layers[-1]["b"]
+
+    def q(critics_flat, i, obs, action):
+        layers = [{"w": layer["w"][i], "b": layer["b"][i]} for layer in unravel_critics(critics_flat)]
+        return forward(layers, jnp.concatenate([obs, action], axis=-1))[:, 0]
+
+    def mu(actor_flat, obs):
+        return jnp.tanh(forward(unravel_actor(actor_flat), obs))
+
+    @jax.jit
+    def target(target_actor, target_critics, reward, next_obs, terminated, noise):
+        next_action = jnp.clip(mu(target_actor, next_obs) + jnp.clip(0.3 * noise, -0.4, 0.4), -1.0, 1.0)
+        next_q = jnp.minimum(q(target_critics, 0, next_obs, next_action), q(target_critics, 1, next_obs, next_action))
+        return reward + 0.9 * (1.0 - terminated) * next_q
+
+    @jax.jit
+    def critic_loss(critics, obs, action, y):
+        """(the loss, the mean Q of both critics, the gradient)"""
+
+        def loss(critics):
+            q1, q2 = q(critics, 0, obs, action), q(critics, 1, obs, action)
+            return jnp.mean(jnp.square(q1 - y)) + jnp.mean(jnp.square(q2 - y)), (q1.mean() + q2.mean()) / 2
+
+        (value, q_mean), grad = jax.value_and_grad(loss, has_aux=True)(critics)
+        return value, q_mean, grad
+
+    @jax.jit
+    @jax.value_and_grad
+    def actor_loss(actor, critics, obs):
+        return -jnp.mean(q(critics, 0, obs, mu(actor, obs)))
+
+    for step in range(3):
+        batch = _batch(jax.random.key(10 + step), n=16)._replace(
+            terminated=(jax.random.uniform(jax.random.key(20 + step), (16,)) < 0.3).astype(jnp.float32)
+        )
+        key = jax.random.key(30 + step)
+        state, diag = _update(td3, state, batch, key)
+        obs, action, reward, next_obs, terminated = (np.asarray(x, np.float64) for x in batch)
+        noise = np.asarray(jax.random.normal(key, (16, 2), jnp.float32), np.float64)
+        y = target(theta["target_actor"], theta["target_critics"], reward, next_obs, terminated, noise)
+        loss, q_mean, grad = critic_loss(theta["critics"], obs, action, y)
+        theta["critics"] = critic_adam.step(theta["critics"], grad)
+        assert float(diag["critic_loss"]) == pytest.approx(float(loss), rel=1e-5)
+        assert float(diag["q_mean"]) == pytest.approx(float(q_mean), rel=1e-5)
+        np.testing.assert_allclose(flat(state.critics), theta["critics"], rtol=0, atol=1e-5)
+        if step % 2 == 0:
+            loss, grad = actor_loss(theta["actor"], theta["critics"], obs)
+            theta["actor"] = actor_adam.step(theta["actor"], grad)
+            for name in ("actor", "critics"):
+                theta["target_" + name] = 0.05 * theta[name] + 0.95 * theta["target_" + name]
+            assert float(diag["actor_loss"]) == pytest.approx(float(loss), rel=1e-5)
+        else:
+            assert np.isnan(float(diag["actor_loss"]))
+        for name in ("actor", "target_actor", "target_critics"):
+            got = flat(getattr(state, name))
+            np.testing.assert_allclose(got, theta[name], rtol=0, atol=1e-5, err_msg=f"{name} after update {step}")
+    assert int(state.updates) == 3 and actor_adam.t == 2 and critic_adam.t == 3
 
 
 def test_ddpg_has_one_critic_and_updates_the_actor_every_step():

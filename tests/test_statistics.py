@@ -221,7 +221,10 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     assert set(cell["return"]) == {"runs", "tasks", "iqm", "mean", "median", "optimality_gap", "gamma"}
     assert cell["return"]["iqm"]["low"] <= cell["return"]["iqm"]["estimate"] <= cell["return"]["iqm"]["high"]
     assert cell["normalizer"]["reference_source"] == "Tianshou"
-    assert data["across_envs"][0]["normalized"]["optimality_gap"]["estimate"] >= 0
+    # The normalized scores fall short of 1 (the reference) by this much on average, a score above 1 counting as 1.
+    gap = 1.0 - np.mean(np.minimum(expected, 1.0))
+    assert gap > max(0.0, 1.0 - expected.mean())  # some runs pass the reference (capped), some fall short
+    assert data["across_envs"][0]["normalized"]["optimality_gap"]["estimate"] == pytest.approx(gap)
     assert data["bootstrap"] == {"method": "stratified, percentile", "reps": REPS, "seed": 0}
     assert data["probability_of_improvement"][0]["probability"]["estimate"] == pytest.approx((1.0 + 3 / 9) / 2)
 
