@@ -64,6 +64,28 @@ def test_the_lock_is_reentrant_and_a_folder_left_empty_is_removed(tmp_path):
     run_lock.release(run)
 
 
+def test_a_run_that_wrote_nothing_also_removes_the_out_dir_made_for_it_and_keeps_what_was_there(tmp_path):
+    out = tmp_path / "made" / "runs"
+    run_a, run_b = out / "a", out / "b"
+    with run_lock.RunLocks() as locks:
+        locks.take(run_a)  # makes made/ and made/runs/
+        locks.take(run_b)
+    assert not (tmp_path / "made").exists()
+
+    with run_lock.RunLocks() as locks:
+        locks.take(run_a)
+        locks.take(run_b)
+        (run_b / "config.toml").write_text("")
+    assert sorted(p.name for p in out.iterdir()) == ["b"], "a sibling that was written keeps the folders above"
+
+
+def test_the_cli_leaves_no_folder_behind_for_a_run_refused_at_setup(tmp_path):
+    out = tmp_path / "new" / "runs"
+    code = main(["train", "CartPole-v1", "--algo", "trpo", "--total-steps", "2048", "--out-dir", str(out)])
+    assert code == 2
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.slow
 def test_a_second_writer_is_refused_and_a_killed_holder_is_taken_over(tmp_path):
     run = tmp_path / "run"

@@ -57,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--out",
         default=None,
         metavar="PATH.png",
-        help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png (<param>.png without a name) in each run",
+        help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png (<param>.png without a name) "
+        "in each run",
     )
     e.add_argument("--seed", type=seed_arg, default=0, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)

@@ -41,7 +41,7 @@ LOCK_FILE = ".writer.lock"
 @dataclass
 class _Held:
     fd: int  # the open lock file, whose flock this process holds
-    created: Path | None  # the folder, where this process created it
+    created: list[Path]  # the folder and the folders above it that this process created, innermost first
     holds: int = 1
 
 
@@ -137,15 +137,15 @@ def open_lock_file(run_dir: Path) -> int:
 
 def acquire(run_dir: Path) -> None:
     """Hold the run folder's writer lock, or raise a one-line CanterError naming the process that holds it. A
-    folder that does not exist yet is created, and removed again at `release` if nothing but the lock was written
-    to it. Each `acquire` is matched by a `release`."""
+    folder that does not exist yet is created (with the folders above it), and removed again at `release` if
+    nothing but the lock was written to it. Each `acquire` is matched by a `release`."""
     run_dir = Path(run_dir)
     key = run_dir.resolve()
     if key in _HELD:
         _HELD[key].holds += 1
         return
     path = run_dir / LOCK_FILE
-    created = not run_dir.exists()
+    created = _missing_folders(run_dir)
     fd = open_lock_file(run_dir)
     try:
         locked = flock(fd)
@@ -160,7 +160,17 @@ def acquire(run_dir: Path) -> None:
             assert isinstance(exc, OSError)
             raise WriteError(path, exc) from None
         raise
-    _HELD[key] = _Held(fd, run_dir if created else None)
+    _HELD[key] = _Held(fd, created)
+
+
+def _missing_folders(run_dir: Path) -> list[Path]:
+    """`run_dir` and each folder above it that does not exist yet, innermost first."""
+    missing = []
+    for folder in (run_dir, *run_dir.absolute().parents):
+        if folder.exists():
+            break
+        missing.append(folder)
+    return missing
 
 
 HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp.*", "videos/.snapshot_*.npz")
@@ -181,11 +191,12 @@ def release(run_dir: Path) -> None:
     if held.holds:
         return
     del _HELD[key]
-    if held.created is not None and [p.name for p in held.created.iterdir()] == [LOCK_FILE]:
-        # A run that failed before writing anything leaves no folder behind.
-        (held.created / LOCK_FILE).unlink()
-        with contextlib.suppress(OSError):
-            held.created.rmdir()
+    if held.created and [p.name for p in held.created[0].iterdir()] == [LOCK_FILE]:
+        # A run that failed before writing anything leaves no folder behind, nor the --out-dir made for it.
+        (held.created[0] / LOCK_FILE).unlink()
+        with contextlib.suppress(OSError):  # a folder that something else has written to since stays
+            for folder in held.created:
+                folder.rmdir()
     os.close(held.fd)  # releases the flock; the file stays, so every writer locks the same file
 
 
