@@ -737,6 +737,33 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp
     assert calls == [([run], 10_000, {"max_minutes": 30.0, "stop_at_return": 500.0, "quiet": True})]
 
 
+def test_a_job_stopped_by_a_signal_trains_no_further_seeds_and_evaluates_nothing(tmp_path, monkeypatch):
+    """A signal stops the group it lands in with a checkpoint; the job's other seeds and its final evaluation wait
+    for the re-run, so that bench and tune see it stopped rather than evaluating half-trained policies."""
+    from types import SimpleNamespace
+
+    from canter.config.serialize import to_toml
+    from canter.orchestrate import jobs
+    from canter.training import loop
+    from canter.training.run_folder import read_config
+
+    run = tmp_path / "resumed"
+    shutil.copytree(ARCHIVED_RUN, run)
+    saved = read_config(run)
+    given = replace(saved, run=replace(saved.run, total_steps=10_000))
+    called = []
+    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: [SimpleNamespace(stop_reason="signal")])
+    monkeypatch.setattr(loop, "train_seeds", lambda *args, **kw: called.append("train_seeds") or [])
+    monkeypatch.setattr(jobs, "write_final_eval", lambda *args: called.append("write_final_eval") or {})
+    seeds = {saved.run.seed: str(run), saved.run.seed + 1: str(tmp_path / "fresh")}
+    jobs.run_job(jobs.JobSpec(to_toml(given), seeds, eval_episodes=5))
+    assert called == []
+
+    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: [SimpleNamespace(stop_reason="budget")])
+    jobs.run_job(jobs.JobSpec(to_toml(given), seeds, eval_episodes=5))
+    assert called == ["train_seeds", "write_final_eval", "write_final_eval"]
+
+
 def test_a_bench_rerun_refuses_to_retrain_a_finished_run_kept_without_checkpoints(tmp_path):
     """A results archive keeps a run's config, metrics, summary and evaluation without its checkpoints: a bench with
     a larger budget cannot train it on, and must not delete it to start again."""

@@ -186,6 +186,22 @@ def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint
     resumed = train(resume_config(r.run_dir, 2048), resume=r.run_dir)
     assert resumed.stop_reason == "budget" and resumed.global_step >= 2048
 
+    # A resumed run stopped in its setup is left as it was: its newest checkpoint already holds where it is, and a
+    # rewrite would record the new budget without the training toward it.
+    kept = {
+        path.name: path.read_bytes() for path in [*(r.run_dir / "checkpoints").iterdir(), r.run_dir / "summary.json"]
+    }
+    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
+    previous = signal.signal(signal.SIGTERM, default_handler)
+    try:
+        again = train(resume_config(r.run_dir, 8192), resume=r.run_dir)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert again.stop_reason == "signal" and again.global_step == resumed.global_step
+    assert {
+        path.name: path.read_bytes() for path in [*(r.run_dir / "checkpoints").iterdir(), r.run_dir / "summary.json"]
+    } == kept
+
 
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):
     config = _config(

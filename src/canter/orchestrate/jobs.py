@@ -413,23 +413,29 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                     if item.name != LOCK_FILE:
                         shutil.rmtree(item) if item.is_dir() else item.unlink()
                 fresh.append(seed)
+        results: list[Any] = []
         with tracking(spec.track):
             if partial:  # each resumes from its own newest checkpoint, together in one program
                 # ... and continues the tracker runs its trackers.json records, whether or not this re-run tracks
                 recorded = resume_spec(spec.track.names, spec.track.mlflow_uri, partial)
                 with tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)):
-                    resume_seeds(
+                    results += resume_seeds(
                         partial,
                         total,
                         max_minutes=config.run.max_minutes,
                         stop_at_return=config.run.stop_at_return,  # the target given now, or none
                         quiet=quiet,
                     )
-            if fresh:
-                train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
-        if spec.eval_episodes:
+            # A signal stops the job: the group it stopped kept a checkpoint, and the rest wait for the re-run.
+            if fresh and not _stopped_by_signal(results):
+                results += train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
+        if spec.eval_episodes and not _stopped_by_signal(results):
             for folder in spec.run_dirs.values():
                 write_final_eval(Path(folder), spec.eval_episodes)
+
+
+def _stopped_by_signal(results: list[Any]) -> bool:
+    return any(result.stop_reason == "signal" for result in results)
 
 
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:

@@ -307,7 +307,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
             return Outcome("pruned", reason=f"diverged: {reason}")
         return Outcome("fail", reason=reason)
     if not reported:
-        return Outcome("fail", reason="training finished without an evaluation")
+        return Outcome("fail", reason="training stopped before its first evaluation (a signal?)")
     if max(reported) < settings.evaluations:  # a signal stopped the training, which then exits cleanly
         return Outcome(
             "fail", reason=f"stopped before its budget, after {max(reported)} of {settings.evaluations} evaluations"

@@ -326,13 +326,13 @@ def _loop(
     inside the vmapped program until the last seed is done, but nothing of it is kept."""
     config = configs[0]
     program = GroupProgram(config, algorithm, spec, env, states, carry)
-    runs = _open_seeds(configs, spec, starts, program, started)
+    runs = _open_seeds(configs, spec, starts, program, started, stop)
     label = f"{spec.id} {config.run.algo}" + (f" x{program.group} seeds" if program.group > 1 else "")
     progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
     try:
         if stop.signal is not None:  # it came during setup or compilation
-            _stop_seeds(program, runs, "signal")
+            _stop_before_training(program, runs, starts)
         # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
         while any(run.stop_reason is None for run in runs):
             chunk = program.call(runs)
@@ -351,16 +351,21 @@ def _loop(
 
 
 def _open_seeds(
-    configs: list[Config], spec: Any, starts: list[SeedStart], program: GroupProgram, started: float
+    configs: list[Config],
+    spec: Any,
+    starts: list[SeedStart],
+    program: GroupProgram,
+    started: float,
+    stop: StopFlag,
 ) -> list[SeedRun]:
-    """Each seed's host side, then the group's program compiled. A seed's setup or the compile failing still closes
-    what the seeds before it opened (tracker runs)."""
+    """Each seed's host side, then the group's program compiled (not when a signal has already stopped the run). A
+    seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)."""
     runs: list[SeedRun] = []
     try:
         group_seeds = tuple(c.run.seed for c in configs)
         for config, start in zip(configs, starts):
             runs.append(SeedRun(config, spec, start, program.algorithm.metric_names, group_seeds, started))
-        compile_seconds = program.compile(runs)
+        compile_seconds = 0.0 if stop.signal is not None else program.compile(runs)
         # After every check that can refuse the run, so that a refusal stays one line.
         if (note := budget_rounding_note(configs[0])) is not None:
             print(f"canter: note: {note}", file=sys.stderr)
@@ -371,6 +376,16 @@ def _open_seeds(
             run.close()
         raise
     return runs
+
+
+def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: list[SeedStart]) -> None:
+    """A signal during setup or compilation: a new seed saves its initial state, so that its folder resumes; a
+    resumed seed is left as its newest checkpoint has it."""
+    for i, (run, start) in enumerate(zip(runs, starts)):
+        if not start.resumed:
+            run.finish(program.pick(program.state, i), "signal", program.env_carry(program.carry, i))
+        else:
+            run.stop_unchanged("signal")
 
 
 def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:

@@ -259,7 +259,19 @@ class SeedRun:
         self.stop_reason = reason
         self.save(train_state, env_carry)
         self.close()
-        self.result = RunResult(
+        self.result = self._result(reason)
+        self.trackers.finish(self.out, write_summary(self.result))
+
+    def stop_unchanged(self, reason: str) -> None:
+        """Stop a resumed seed before it trained a step: its newest checkpoint and summary already hold where it is,
+        so nothing is written (a rewrite would record this session's budget without its training)."""
+        self.stop_reason = reason
+        self.close()
+        self.trackers.close()
+        self.result = self._result(reason)
+
+    def _result(self, reason: str) -> RunResult:
+        return RunResult(
             run_dir=self.out,
             global_step=self.global_step,
             recent_return=self.recent_mean,
@@ -270,7 +282,6 @@ class SeedRun:
             stop_reason=reason,
             trained_with=self.trained_with,
         )
-        self.trackers.finish(self.out, write_summary(self.result))
 
     def close(self) -> None:
         if not self.closed:
