@@ -350,3 +350,43 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     # A state whose best.npz holds everything needs room for four whole ones.
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
     assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)
+
+
+def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
+    """The first Ctrl-C in a run's compilation is held until it ends; a second one means now, and lands inside the
+    compile. The interpreter's shutdown after it could then segfault (exit -11): in about half the runs here."""
+    import signal
+    import time
+
+    command = [sys.executable, "-m", "canter.cli", "train", "Hopper-v5", "--total-steps", "1e5"]
+    process = subprocess.Popen(
+        [*command, "--out-dir", str(tmp_path), "--quiet"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not any(tmp_path.glob("*/metrics.csv")) and time.monotonic() < deadline:  # the compile begins after it
+        time.sleep(0.02)
+    time.sleep(0.5)  # a signal before the compile begins skips it
+    process.send_signal(signal.SIGINT)
+    time.sleep(0.3)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and err.splitlines()[-1] == "canter: interrupted", err[-2000:]
+
+
+def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_shutdown(monkeypatch):
+    from canter import signals
+    from canter.cli import main as cli
+
+    ended = []
+    monkeypatch.setattr(cli, "main", lambda: 130)
+    monkeypatch.setattr(signals.os, "_exit", lambda code: ended.append(code))
+    with pytest.raises(SystemExit):  # os._exit returned here, so entry goes on to sys.exit
+        cli.entry()
+    assert ended == [130]
+
+    monkeypatch.setattr(cli, "main", lambda: 2)
+    with pytest.raises(SystemExit) as exited:
+        cli.entry()
+    assert exited.value.code == 2 and ended == [130]

@@ -4,13 +4,28 @@ and a stop held back until the work is in a safe state, then passed on to the ha
 from __future__ import annotations
 
 import contextlib
+import logging
+import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from types import FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
+
+
+def exit_interrupted() -> NoReturn:
+    """End an interrupted process with INTERRUPTED, skipping the interpreter's shutdown. A Ctrl-C can land inside
+    native code (an XLA compile, an env pool's threads) and leave it in a state that crashes that shutdown with a
+    segfault (exit -11 instead of 130). Every file canter writes was closed as the interrupt unwound; only logging and
+    the standard streams are flushed here."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(INTERRUPTED)
 
 
 @contextlib.contextmanager

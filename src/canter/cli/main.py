@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError
+from canter.signals import INTERRUPTED, exit_interrupted
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
 # and sets `func(args) -> exit code`.
@@ -115,7 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 # Errors of a path the user gave, not of canter: one line each, with the fix.
@@ -141,7 +142,14 @@ def _shown(path: object, limit: int = 80) -> str:
 
 
 def entry() -> None:
-    sys.exit(main())
+    try:
+        code = main()
+    except KeyboardInterrupt:  # a second Ctrl-C after the command stopped on the first one
+        print("canter: interrupted", file=sys.stderr)
+        code = INTERRUPTED
+    if code == INTERRUPTED:
+        exit_interrupted()
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
-from canter.signals import handling_stop_signals
+from canter.signals import exit_interrupted, handling_stop_signals
 from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
@@ -534,7 +534,7 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
     except KeyboardInterrupt:
-        sys.exit(130)
+        exit_interrupted()
 
 
 def main(argv: list[str]) -> int:
