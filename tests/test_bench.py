@@ -739,11 +739,14 @@ def test_a_bench_rerun_resumes_its_stopped_seeds_with_the_budget_it_is_given(tmp
 
 def test_a_job_stopped_by_a_signal_trains_no_further_seeds_and_evaluates_nothing(tmp_path, monkeypatch):
     """A signal stops the group it lands in with a checkpoint; the job's other seeds and its final evaluation wait
-    for the re-run, so that bench and tune see it stopped rather than evaluating half-trained policies."""
-    from types import SimpleNamespace
+    for the re-run, so that bench and tune see it stopped rather than evaluating half-trained policies. That holds
+    for a signal after the group's last check too, which leaves its seeds finished."""
+    import os
+    import signal
 
     from canter.config.serialize import to_toml
     from canter.orchestrate import jobs
+    from canter.signals import StopFlag
     from canter.training import loop
     from canter.training.run_folder import read_config
 
@@ -752,14 +755,20 @@ def test_a_job_stopped_by_a_signal_trains_no_further_seeds_and_evaluates_nothing
     saved = read_config(run)
     given = replace(saved, run=replace(saved.run, total_steps=10_000))
     called = []
-    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: [SimpleNamespace(stop_reason="signal")])
+
+    def resume_then_signalled(dirs, total, **kw):
+        with StopFlag():  # as the group's own does, after its last check
+            os.kill(os.getpid(), signal.SIGTERM)
+        return []
+
+    monkeypatch.setattr(loop, "resume_seeds", resume_then_signalled)
     monkeypatch.setattr(loop, "train_seeds", lambda *args, **kw: called.append("train_seeds") or [])
     monkeypatch.setattr(jobs, "write_final_eval", lambda *args: called.append("write_final_eval") or {})
     seeds = {saved.run.seed: str(run), saved.run.seed + 1: str(tmp_path / "fresh")}
     jobs.run_job(jobs.JobSpec(to_toml(given), seeds, eval_episodes=5))
     assert called == []
 
-    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: [SimpleNamespace(stop_reason="budget")])
+    monkeypatch.setattr(loop, "resume_seeds", lambda dirs, total, **kw: [])
     jobs.run_job(jobs.JobSpec(to_toml(given), seeds, eval_episodes=5))
     assert called == ["train_seeds", "write_final_eval", "write_final_eval"]
 

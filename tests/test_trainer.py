@@ -1,3 +1,4 @@
+import json
 import shutil
 
 import jax
@@ -185,12 +186,14 @@ def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint
     monkeypatch.setattr(loop, "_make_env", make_env)
     resumed = train(resume_config(r.run_dir, 2048), resume=r.run_dir)
     assert resumed.stop_reason == "budget" and resumed.global_step >= 2048
+    # ... as the run would have gone without the stop: the same env seeds, the same policy at the end.
+    uninterrupted = train(_config(total=2048, extra=[f"run.out_dir={tmp_path / 'uninterrupted'}"]))
+    assert uninterrupted.global_step == resumed.global_step
+    assert _leaves_equal(load_state(uninterrupted.run_dir)[2].params, load_state(r.run_dir)[2].params)
 
-    # A resumed run stopped in its setup is left as it was: its newest checkpoint already holds where it is, and a
-    # rewrite would record the new budget without the training toward it.
-    kept = {
-        path.name: path.read_bytes() for path in [*(r.run_dir / "checkpoints").iterdir(), r.run_dir / "summary.json"]
-    }
+    # A resumed run stopped in its setup keeps its checkpoints as they were: the newest already holds where it is,
+    # and a rewrite would record the new budget without the training toward it. Its summary says it was stopped.
+    kept = {path.name: path.read_bytes() for path in (r.run_dir / "checkpoints").iterdir()}
     monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
     previous = signal.signal(signal.SIGTERM, default_handler)
     try:
@@ -198,9 +201,9 @@ def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint
     finally:
         signal.signal(signal.SIGTERM, previous)
     assert again.stop_reason == "signal" and again.global_step == resumed.global_step
-    assert {
-        path.name: path.read_bytes() for path in [*(r.run_dir / "checkpoints").iterdir(), r.run_dir / "summary.json"]
-    } == kept
+    assert {path.name: path.read_bytes() for path in (r.run_dir / "checkpoints").iterdir()} == kept
+    summary = json.loads((r.run_dir / "summary.json").read_text())
+    assert summary["stop_reason"] == "signal" and summary["global_step"] == resumed.global_step
 
 
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):

@@ -47,6 +47,16 @@ def handling_stop_signals(handler: Callable[[int, FrameType | None], Any]) -> It
             signal.signal(sig, earlier)
 
 
+_stops_held = 0  # how many signals every StopFlag of this process has held, for work made of several such stretches
+
+
+def stops_held() -> int:
+    """How many SIGINTs and SIGTERMs StopFlags have held in this process so far: work that runs several stretches,
+    each in its own StopFlag, compares it before and after to learn of a stop that one of them took in (even one
+    that came after the stretch's last check)."""
+    return _stops_held
+
+
 class StopFlag:
     """A context in which SIGINT and SIGTERM (those `handling_stop_signals` handles) set `signal`, for work that stops
     at its next safe point: an exception raised in a handler is lost when the signal lands in a garbage-collection
@@ -61,9 +71,11 @@ class StopFlag:
         return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
+        global _stops_held
         if self.signal is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.signal = signum
+        _stops_held += 1
 
     def __exit__(self, *exc: object) -> None:
         self._handling.close()

@@ -28,7 +28,7 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
-from canter.signals import exit_interrupted, handling_stop_signals
+from canter.signals import exit_interrupted, handling_stop_signals, stops_held
 from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
@@ -413,13 +413,13 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                     if item.name != LOCK_FILE:
                         shutil.rmtree(item) if item.is_dir() else item.unlink()
                 fresh.append(seed)
-        results: list[Any] = []
+        stops_before = stops_held()
         with tracking(spec.track):
             if partial:  # each resumes from its own newest checkpoint, together in one program
                 # ... and continues the tracker runs its trackers.json records, whether or not this re-run tracks
                 recorded = resume_spec(spec.track.names, spec.track.mlflow_uri, partial)
                 with tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)):
-                    results += resume_seeds(
+                    resume_seeds(
                         partial,
                         total,
                         max_minutes=config.run.max_minutes,
@@ -427,15 +427,11 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                         quiet=quiet,
                     )
             # A signal stops the job: the group it stopped kept a checkpoint, and the rest wait for the re-run.
-            if fresh and not _stopped_by_signal(results):
-                results += train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
-        if spec.eval_episodes and not _stopped_by_signal(results):
+            if fresh and stops_held() == stops_before:
+                train_seeds(config, fresh, quiet=quiet, run_dirs=[Path(spec.run_dirs[s]) for s in fresh])
+        if spec.eval_episodes and stops_held() == stops_before:
             for folder in spec.run_dirs.values():
                 write_final_eval(Path(folder), spec.eval_episodes)
-
-
-def _stopped_by_signal(results: list[Any]) -> bool:
-    return any(result.stop_reason == "signal" for result in results)
 
 
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
@@ -545,6 +541,8 @@ def main(argv: list[str]) -> int:
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         return 2
+    except KeyboardInterrupt:  # a second Ctrl-C, which means now
+        exit_interrupted()
     return 0
 
 

@@ -380,12 +380,10 @@ def _open_seeds(
 
 def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: list[SeedStart]) -> None:
     """A signal during setup or compilation: a new seed saves its initial state, so that its folder resumes; a
-    resumed seed is left as its newest checkpoint has it."""
+    resumed seed keeps its newest checkpoint as it is. Both write summary.json, which says a signal stopped them."""
     for i, (run, start) in enumerate(zip(runs, starts)):
-        if not start.resumed:
-            run.finish(program.pick(program.state, i), "signal", program.env_carry(program.carry, i))
-        else:
-            run.stop_unchanged("signal")
+        state, carry = program.pick(program.state, i), program.env_carry(program.carry, i)
+        run.finish(state, "signal", carry, save=not start.resumed)
 
 
 def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:

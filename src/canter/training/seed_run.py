@@ -79,7 +79,8 @@ class SeedStart:
 
     def env_seeds(self, config: Config) -> list[int]:
         """Exactly the seeds its single-seed run would give its envs, wherever it sits in the group."""
-        purpose, salt = (RESUME, self.step) if self.resumed else (TRAIN, 0)
+        # A run stopped before its first iteration resumes from step 0 exactly as it would have started.
+        purpose, salt = (RESUME, self.step) if self.resumed and self.step > 0 else (TRAIN, 0)
         return env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
 
 
@@ -255,23 +256,15 @@ class SeedRun:
             return "budget"
         return group_reason
 
-    def finish(self, train_state: Any, reason: str, env_carry: Any = None) -> None:
+    def finish(self, train_state: Any, reason: str, env_carry: Any = None, *, save: bool = True) -> None:
+        """The seed's last checkpoint (unless `save` is false: a resumed seed stopped before it trained a step, whose
+        newest checkpoint already holds this state, and whose rewrite would record a budget it did not train
+        toward), then its summary.json and its tracker runs' end."""
         self.stop_reason = reason
-        self.save(train_state, env_carry)
+        if save:
+            self.save(train_state, env_carry)
         self.close()
-        self.result = self._result(reason)
-        self.trackers.finish(self.out, write_summary(self.result))
-
-    def stop_unchanged(self, reason: str) -> None:
-        """Stop a resumed seed before it trained a step: its newest checkpoint and summary already hold where it is,
-        so nothing is written (a rewrite would record this session's budget without its training)."""
-        self.stop_reason = reason
-        self.close()
-        self.trackers.close()
-        self.result = self._result(reason)
-
-    def _result(self, reason: str) -> RunResult:
-        return RunResult(
+        self.result = RunResult(
             run_dir=self.out,
             global_step=self.global_step,
             recent_return=self.recent_mean,
@@ -282,6 +275,7 @@ class SeedRun:
             stop_reason=reason,
             trained_with=self.trained_with,
         )
+        self.trackers.finish(self.out, write_summary(self.result))
 
     def close(self) -> None:
         if not self.closed:
