@@ -71,7 +71,8 @@ def _runs_folder(tmp_path, name, started, rows):
         (folder / f"{row['tool']}__s{row['seed']}").mkdir(parents=True)
         (folder / f"{row['tool']}__s{row['seed']}" / "train.log").write_text(f"seed {row['seed']}\n")
         (folder / f"{row['tool']}__s{row['seed']}" / "checkpoint.npz").write_bytes(b"left out")
-    content = gait.speed_archive.record("ppo_speed", started, {"total_steps": 1_000_000, "seeds": []}, rows)
+    settings = {"total_steps": 1_000_000, "seeds": [row["seed"] for row in rows], "tools": [rows[0]["tool"]]}
+    content = gait.speed_archive.record("ppo_speed", started, settings, rows)
     (folder / "rows.json").write_text(json.dumps(content))
     return folder
 
@@ -113,4 +114,5 @@ def test_the_archive_merges_run_folders_and_the_page_is_rendered_and_checked_fro
     assert "canter-cleanrl 0 of 2, sb3 2 of 2" in text
     assert f"p = {1 / 3:.3f}" in text  # only the observed and the reverse table: 2 x C(2,2)C(2,0) / C(4,2)
     assert "| 11 | 1,700 ± 10 | 1,600 | flipped | 5,100 ± 10 | 5,000 | fast |" in text
+    assert "2 processes side by side: " in text and "canter-cleanrl seeds 10, 11 (commit " in text
     assert gait.write(dest, check=True) == 0

@@ -97,9 +97,17 @@ def results(content: dict, machine_info: dict, logs: str) -> str:
     rows = content["rows"]
     by_key = {(row["tool"], row["seed"]): row for row in rows}
     seeds = content["settings"]["seeds"]
+    # Each run.py process records the commit it ended at; a canter run used the source of that commit.
+    sources = "; ".join(
+        f"{', '.join(source['settings']['tools'])} seeds {', '.join(map(str, source['settings']['seeds']))} "
+        f"(commit {source['commit']})"
+        for source in content["settings"]["sources"]
+    )
+    processes = len(content["settings"]["sources"])
     lines = [
-        f"Runs of {content['started'][:10]}, canter commit {content['commit']}, on {machine_info['cpu']} "
-        f"({machine_info['cores']}); raw logs: [{logs}]({logs}). Each cell: deterministic evaluation mean ± std over"
+        "",
+        f"Runs of {content['started'][:10]} on {machine_info['cpu']} ({machine_info['cores']}), {processes} processes"
+        f" side by side: {sources}; raw logs: [{logs}]({logs}). Each cell: deterministic evaluation mean ± std over"
         " 10 episodes | mean of the last 20 training episodes | gait.",
         "",
         "| seed | " + " | ".join(f"{tool} eval | train | gait" for tool in TOOLS) + " |",
