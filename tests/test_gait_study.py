@@ -116,3 +116,8 @@ def test_the_archive_merges_run_folders_and_the_page_is_rendered_and_checked_fro
     assert "| 11 | 1,700 ± 10 | 1,600 | flipped | 5,100 ± 10 | 5,000 | fast |" in text
     assert "2 processes side by side: " in text and "canter-cleanrl seeds 10, 11 (commit " in text
     assert gait.write(dest, check=True) == 0
+
+
+def test_the_committed_page_is_what_its_archive_gives():
+    (archive,) = sorted(gait.LOGS.iterdir())
+    assert gait.write(archive, check=True) == 0
