@@ -604,3 +604,46 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     for name in ("critic_loss", "actor_loss", "q_mean"):
         np.testing.assert_allclose(g[name], a[name], rtol=1e-4, atol=1e-4, err_msg=name)
     assert not np.allclose(other["critic_loss"][1:], a["critic_loss"][1:], rtol=1e-2)  # another seed really differs
+
+
+def test_a_signal_during_setup_saves_no_replay_buffer_and_the_run_resumes_as_if_uninterrupted(tmp_path, monkeypatch):
+    """At step 0 the buffer is all zeros, as reading a left-out field back gives it: a Ctrl-C in setup writes the
+    policy's few kilobytes rather than the buffer, and the resumed run is the one that was never stopped."""
+    import os
+    import signal
+
+    from canter.training import loop
+
+    class DefaultHandlerRan(Exception):
+        pass
+
+    def default_handler(signum, frame):
+        raise DefaultHandlerRan
+
+    make_env = loop._make_env
+
+    def make_env_then_sigterm(*args):
+        env = make_env(*args)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return env
+
+    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
+    previous = signal.signal(signal.SIGTERM, default_handler)
+    try:
+        stopped = train(
+            _config("sac", tmp_path / "stopped", 1500, ["sac.buffer_size=1000000", "run.compress_checkpoints=false"])
+        )
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    saved = checkpoint.latest(stopped.run_dir)
+    assert stopped.stop_reason == "signal" and saved.name == "ckpt_000000000000.npz"
+    assert saved.stat().st_size < 1_000_000  # a million transitions of Pendulum's would be about 36 MB
+    assert any(name.startswith("buffer/") for name in checkpoint.read_header(saved)["left_out"])
+
+    monkeypatch.setattr(loop, "_make_env", make_env)
+    resumed = train(resume_config(stopped.run_dir, 1500), resume=stopped.run_dir)
+    uninterrupted = train(_config("sac", tmp_path / "uninterrupted", 1500, ["sac.buffer_size=1000000"]))
+    assert resumed.global_step == uninterrupted.global_step
+    a, b = load_state(resumed.run_dir)[2], load_state(uninterrupted.run_dir)[2]
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))

@@ -381,9 +381,12 @@ def _open_seeds(
 def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: list[SeedStart]) -> None:
     """A signal during setup or compilation: a new seed saves its initial state, so that its folder resumes; a
     resumed seed keeps its newest checkpoint as it is. Both write summary.json, which says a signal stopped them."""
+    # What only further training reads (a replay buffer) is still all zeros, as reading it back gives it: leaving it
+    # out spares a Ctrl-C from writing gigabytes of zeros.
+    empty = program.algorithm.policy_checkpoint_leaves_out
     for i, (run, start) in enumerate(zip(runs, starts)):
         state, carry = program.pick(program.state, i), program.env_carry(program.carry, i)
-        run.finish(state, "signal", carry, save=not start.resumed)
+        run.finish(state, "signal", carry, save=not start.resumed, leave_out=empty)
 
 
 def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:

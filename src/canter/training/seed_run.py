@@ -157,14 +157,16 @@ class SeedRun:
             totals=self.totals(),
         )
 
-    def save(self, train_state: Any, env_carry: Any = None) -> None:
-        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None)."""
+    def save(self, train_state: Any, env_carry: Any = None, leave_out: tuple[str, ...] = ()) -> None:
+        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None). `leave_out`:
+        fields of the state that are all zeros, as reading them back gives them."""
         checkpoint.save(
             checkpoint.checkpoint_path(self.out, self.global_step),
             train_state,
             self._header(),
             compress=self.config.run.compress_checkpoints,
             env_carry=env_carry,
+            leave_out=leave_out,
         )
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
@@ -256,13 +258,21 @@ class SeedRun:
             return "budget"
         return group_reason
 
-    def finish(self, train_state: Any, reason: str, env_carry: Any = None, *, save: bool = True) -> None:
+    def finish(
+        self,
+        train_state: Any,
+        reason: str,
+        env_carry: Any = None,
+        *,
+        save: bool = True,
+        leave_out: tuple[str, ...] = (),
+    ) -> None:
         """The seed's last checkpoint (unless `save` is false: a resumed seed stopped before it trained a step, whose
         newest checkpoint already holds this state, and whose rewrite would record a budget it did not train
-        toward), then its summary.json and its tracker runs' end."""
+        toward), then its summary.json and its tracker runs' end. `leave_out`: as for `save`."""
         self.stop_reason = reason
         if save:
-            self.save(train_state, env_carry)
+            self.save(train_state, env_carry, leave_out)
         self.close()
         self.result = RunResult(
             run_dir=self.out,
