@@ -34,3 +34,32 @@ def sigterm_once_logging(out_dir: Path, runs: int):
         yield
     finally:
         finished.set()
+
+
+class SignalNotHeld(Exception):
+    """Raised by the SIGTERM handler that `sigterm_during_setup` puts in place of the default action, which would end
+    pytest itself: the signal reached it rather than canter's StopFlag."""
+
+
+@contextlib.contextmanager
+def sigterm_during_setup():
+    """SIGTERM this process each time a run has made its env, after its folder exists and before its compile."""
+    from canter.training import loop
+
+    make_env = loop._make_env
+
+    def make_env_then_sigterm(*args):
+        env = make_env(*args)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return env
+
+    def not_held(signum, frame):
+        raise SignalNotHeld
+
+    loop._make_env = make_env_then_sigterm
+    previous = signal.signal(signal.SIGTERM, not_held)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        loop._make_env = make_env

@@ -24,6 +24,7 @@ from canter.training.loop import resume_config, train
 from canter.training.restore import load_state
 from canter.use.evaluate import evaluate
 from canter.use.policy import load
+from signals import sigterm_during_setup
 
 # Env 0 terminates when its counter reaches 3; env 1 is truncated (time limit) at 4.
 TERMINATE_AT = (3, 100)
@@ -606,41 +607,18 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     assert not np.allclose(other["critic_loss"][1:], a["critic_loss"][1:], rtol=1e-2)  # another seed really differs
 
 
-def test_a_signal_during_setup_saves_no_replay_buffer_and_the_run_resumes_as_if_uninterrupted(tmp_path, monkeypatch):
+def test_a_signal_during_setup_saves_no_replay_buffer_and_the_run_resumes_as_if_uninterrupted(tmp_path):
     """At step 0 the buffer is all zeros, as reading a left-out field back gives it: a Ctrl-C in setup writes the
     policy's few kilobytes rather than the buffer, and the resumed run is the one that was never stopped."""
-    import os
-    import signal
-
-    from canter.training import loop
-
-    class DefaultHandlerRan(Exception):
-        pass
-
-    def default_handler(signum, frame):
-        raise DefaultHandlerRan
-
-    make_env = loop._make_env
-
-    def make_env_then_sigterm(*args):
-        env = make_env(*args)
-        os.kill(os.getpid(), signal.SIGTERM)
-        return env
-
-    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
-    previous = signal.signal(signal.SIGTERM, default_handler)
-    try:
+    with sigterm_during_setup():
         stopped = train(
             _config("sac", tmp_path / "stopped", 1500, ["sac.buffer_size=1000000", "run.compress_checkpoints=false"])
         )
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     saved = checkpoint.latest(stopped.run_dir)
     assert stopped.stop_reason == "signal" and saved.name == "ckpt_000000000000.npz"
     assert saved.stat().st_size < 1_000_000  # a million transitions of Pendulum's would be about 36 MB
     assert any(name.startswith("buffer/") for name in checkpoint.read_header(saved)["left_out"])
 
-    monkeypatch.setattr(loop, "_make_env", make_env)
     resumed = train(resume_config(stopped.run_dir, 1500), resume=stopped.run_dir)
     uninterrupted = train(_config("sac", tmp_path / "uninterrupted", 1500, ["sac.buffer_size=1000000"]))
     assert resumed.global_step == uninterrupted.global_step

@@ -11,7 +11,7 @@ from canter.errors import CanterError
 from canter.training.loop import resume_config, train
 from canter.training.restore import load_state
 from conftest import TINY
-from signals import sigterm_once_logging
+from signals import sigterm_during_setup, sigterm_once_logging
 
 pytestmark = pytest.mark.slow
 
@@ -152,38 +152,14 @@ def test_sigterm_writes_a_checkpoint_and_stops(tmp_path):
     assert int(header["global_step"]) == r.global_step
 
 
-class _SignalWentToTheDefaultHandler(Exception):
-    pass
-
-
-def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint_to_resume(tmp_path, monkeypatch):
-    import os
-    import signal
-
-    from canter.training import loop
-
-    def default_handler(signum, frame):  # stands for SIGTERM's default action, which would end pytest itself
-        raise _SignalWentToTheDefaultHandler
-
-    make_env = loop._make_env
-
-    def make_env_then_sigterm(*args):
-        env = make_env(*args)
-        os.kill(os.getpid(), signal.SIGTERM)  # after the run folder exists, before the compile
-        return env
-
-    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
-    previous = signal.signal(signal.SIGTERM, default_handler)
-    try:
+def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint_to_resume(tmp_path):
+    with sigterm_during_setup():
         r = train(_config(total=4096, extra=[f"run.out_dir={tmp_path}"]))
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     assert r.stop_reason == "signal" and r.global_step == 0
     _, _, _, header = load_state(r.run_dir)
     assert int(header["global_step"]) == 0
     assert '"stop_reason": "signal"' in (r.run_dir / "summary.json").read_text()
 
-    monkeypatch.setattr(loop, "_make_env", make_env)
     resumed = train(resume_config(r.run_dir, 2048), resume=r.run_dir)
     assert resumed.stop_reason == "budget" and resumed.global_step >= 2048
     # ... as the run would have gone without the stop: the same env seeds, the same policy at the end.
@@ -194,12 +170,8 @@ def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint
     # A resumed run stopped in its setup keeps its checkpoints as they were: the newest already holds where it is,
     # and a rewrite would record the new budget without the training toward it. Its summary says it was stopped.
     kept = {path.name: path.read_bytes() for path in (r.run_dir / "checkpoints").iterdir()}
-    monkeypatch.setattr(loop, "_make_env", make_env_then_sigterm)
-    previous = signal.signal(signal.SIGTERM, default_handler)
-    try:
+    with sigterm_during_setup():
         again = train(resume_config(r.run_dir, 8192), resume=r.run_dir)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     assert again.stop_reason == "signal" and again.global_step == resumed.global_step
     assert {path.name: path.read_bytes() for path in (r.run_dir / "checkpoints").iterdir()} == kept
     summary = json.loads((r.run_dir / "summary.json").read_text())
