@@ -351,6 +351,14 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
     assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)
 
+    # A checkpoint written before training began leaves the buffer out: it takes none of a whole one's room.
+    from canter.training import checkpoint
+
+    (tmp_path / "checkpoints").mkdir()
+    checkpoint.save(checkpoint.checkpoint_path(tmp_path, 0), state, {"global_step": 0}, leave_out=("buffer",))
+    monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed - 1))
+    assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config, ("buffer",))
+
 
 def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
     """The first Ctrl-C in a run's compilation is held until it ends; a second one means now, and lands inside the

@@ -8,7 +8,7 @@ import pytest
 from canter.config.algorithms import reads_key
 from canter.config.build import build_config
 from canter.errors import CanterError
-from canter.training.loop import resume_config, train
+from canter.training.loop import resume_config, train, train_seeds
 from canter.training.restore import load_state
 from conftest import TINY
 from signals import sigterm_during_setup, sigterm_once_logging
@@ -176,6 +176,31 @@ def test_sigterm_during_setup_stops_before_the_first_iteration_with_a_checkpoint
     assert {path.name: path.read_bytes() for path in (r.run_dir / "checkpoints").iterdir()} == kept
     summary = json.loads((r.run_dir / "summary.json").read_text())
     assert summary["stop_reason"] == "signal" and summary["global_step"] == resumed.global_step
+
+
+def test_only_a_checkpoint_written_before_training_resumes_with_the_seeds_of_a_fresh_start(tmp_path):
+    """A resume draws new env seeds, so that it does not replay the episodes before it; a run stopped in its setup
+    is the exception, since it has played none. A run whose first iteration was non-finite also resumes from step 0,
+    and must not replay that iteration."""
+    from canter.training.seed_run import SeedStart
+
+    config = _config()
+    fresh = SeedStart(tmp_path).env_seeds(config)
+    checkpoint_at_0 = tmp_path / "checkpoints" / "ckpt_000000000000.npz"
+    assert SeedStart(tmp_path, step=0, resumed_from=checkpoint_at_0, untrained=True).env_seeds(config) == fresh
+    assert SeedStart(tmp_path, step=0, resumed_from=checkpoint_at_0).env_seeds(config) != fresh
+
+
+def test_a_resumed_run_stopped_in_setup_keeps_the_totals_and_the_group_of_the_session_that_trained_it(tmp_path):
+    first = train_seeds(_config(total=2048, extra=[f"run.out_dir={tmp_path}"]), [0, 1])[0]
+    before = json.loads((first.run_dir / "summary.json").read_text())
+    assert before["trained_with"] == [0, 1]
+    with sigterm_during_setup():
+        again = train(resume_config(first.run_dir, 8192), resume=first.run_dir)
+    after = json.loads((first.run_dir / "summary.json").read_text())
+    assert again.stop_reason == "signal" and after["stop_reason"] == "signal"
+    # The wall time is the final checkpoint's, a moment before the first summary was written: no setup time added.
+    assert after["trained_with"] == [0, 1] and after["wall_seconds"] == pytest.approx(before["wall_seconds"], abs=0.1)
 
 
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):

@@ -91,10 +91,11 @@ def save(
     buffer). Both forms are read the same way. `env_carry`, where the env state is a pytree (JAX-native backends),
     holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them.
     `leave_out` names top-level fields of the state not to write (listed in the header's `left_out`)."""
-    arrays = _named_arrays(state)
-    left_out = [name for name in arrays if name.split("/", 1)[0] in leave_out]
-    for name in left_out:
-        del arrays[name]
+    named = [(_path_name(path), leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(state)[0]]
+    left_out = [name for name, _ in named if name.split("/", 1)[0] in leave_out]
+    kept = [(name, leaf) for name, leaf in named if name not in left_out]
+    # Only the kept leaves leave the device: a replay buffer left out stays where it is.
+    arrays = {name: np.asarray(value) for (name, _), value in zip(kept, jax.device_get([leaf for _, leaf in kept]))}
     header = dict(header, format_version=LEFT_OUT_FORMAT_VERSION if left_out else FORMAT_VERSION, leaves=list(arrays))
     if left_out:
         header["left_out"] = left_out

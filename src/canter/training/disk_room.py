@@ -52,9 +52,10 @@ def warn_if_checkpoints_will_not_fit(
 ) -> bool:
     """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
     `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
-    from canter.training.checkpoint import list_checkpoints
+    from canter.training.checkpoint import list_checkpoints, read_header
 
-    existing = len(list_checkpoints(Path(run_dir)))
+    # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
+    existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
     one = state_bytes(state)
     policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
     needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)

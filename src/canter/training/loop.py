@@ -228,7 +228,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         step = int(header["global_step"])
         _note_a_changed_backend(out, header["env"]["backend"], backend, step)
         earlier = header.get("totals") or totals_until(run_folder.metrics_file(out), step)
-        start = SeedStart(out, state, step, earlier, latest)
+        start = SeedStart(out, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
     else:
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
@@ -365,10 +365,13 @@ def _open_seeds(
         group_seeds = tuple(c.run.seed for c in configs)
         for config, start in zip(configs, starts):
             runs.append(SeedRun(config, spec, start, program.algorithm.metric_names, group_seeds, started))
-        compile_seconds = 0.0 if stop.signal is not None else program.compile(runs)
-        # After every check that can refuse the run, so that a refusal stays one line.
-        if (note := budget_rounding_note(configs[0])) is not None:
-            print(f"canter: note: {note}", file=sys.stderr)
+        if stop.signal is not None:  # stopped during setup: nothing will run
+            compile_seconds = 0.0
+        else:
+            compile_seconds = program.compile(runs)
+            # After every check that can refuse the run, so that a refusal stays one line.
+            if (note := budget_rounding_note(configs[0])) is not None:
+                print(f"canter: note: {note}", file=sys.stderr)
         for run in runs:
             run.compile_seconds = compile_seconds
     except BaseException:
@@ -385,8 +388,11 @@ def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: li
     # out spares a Ctrl-C from writing gigabytes of zeros.
     empty = program.algorithm.policy_checkpoint_leaves_out
     for i, (run, start) in enumerate(zip(runs, starts)):
-        state, carry = program.pick(program.state, i), program.env_carry(program.carry, i)
-        run.finish(state, "signal", carry, save=not start.resumed, leave_out=empty)
+        reason = run.stop_reason_after("signal") or "signal"  # a resumed seed may have met its return target
+        if start.resumed:
+            run.finish_untrained(reason)
+        else:
+            run.finish(program.pick(program.state, i), reason, program.env_carry(program.carry, i), untrained_but=empty)
 
 
 def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:

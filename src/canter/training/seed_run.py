@@ -7,7 +7,7 @@ import json
 import math
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -72,6 +72,7 @@ class SeedStart:
     # Wall seconds, training seconds, episodes and recent returns of the sessions before a resume; None: a new run.
     earlier: dict[str, Any] | None = None
     resumed_from: Path | None = None  # the checkpoint
+    untrained: bool = False  # the checkpoint was written before the run's first iteration (a stop during setup)
 
     @property
     def resumed(self) -> bool:
@@ -79,8 +80,8 @@ class SeedStart:
 
     def env_seeds(self, config: Config) -> list[int]:
         """Exactly the seeds its single-seed run would give its envs, wherever it sits in the group."""
-        # A run stopped before its first iteration resumes from step 0 exactly as it would have started.
-        purpose, salt = (RESUME, self.step) if self.resumed and self.step > 0 else (TRAIN, 0)
+        # A run stopped before its first iteration resumes exactly as it would have started.
+        purpose, salt = (RESUME, self.step) if self.resumed and not self.untrained else (TRAIN, 0)
         return env_seeds(config.run.seed, config.env.num_envs, purpose, salt)
 
 
@@ -157,16 +158,19 @@ class SeedRun:
             totals=self.totals(),
         )
 
-    def save(self, train_state: Any, env_carry: Any = None, leave_out: tuple[str, ...] = ()) -> None:
-        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None). `leave_out`:
-        fields of the state that are all zeros, as reading them back gives them."""
+    def save(self, train_state: Any, env_carry: Any = None, *, untrained_but: tuple[str, ...] | None = None) -> None:
+        """`env_carry`: the episodes in flight, for a backend that can resume them exactly (else None).
+        `untrained_but`: for a state that has not trained yet, the fields only training fills (a replay buffer), all
+        zeros still, as reading them back gives them; the header marks the checkpoint `untrained`, so that a resume
+        starts the run as it would have started."""
+        header = self._header() if untrained_but is None else dict(self._header(), untrained=True)
         checkpoint.save(
             checkpoint.checkpoint_path(self.out, self.global_step),
             train_state,
-            self._header(),
+            header,
             compress=self.config.run.compress_checkpoints,
             env_carry=env_carry,
-            leave_out=leave_out,
+            leave_out=untrained_but or (),
         )
         checkpoint.prune(self.out, self.config.run.keep_checkpoints)
 
@@ -259,22 +263,29 @@ class SeedRun:
         return group_reason
 
     def finish(
-        self,
-        train_state: Any,
-        reason: str,
-        env_carry: Any = None,
-        *,
-        save: bool = True,
-        leave_out: tuple[str, ...] = (),
+        self, train_state: Any, reason: str, env_carry: Any = None, untrained_but: tuple[str, ...] | None = None
     ) -> None:
-        """The seed's last checkpoint (unless `save` is false: a resumed seed stopped before it trained a step, whose
-        newest checkpoint already holds this state, and whose rewrite would record a budget it did not train
-        toward), then its summary.json and its tracker runs' end. `leave_out`: as for `save`."""
+        """The seed's last checkpoint, then its summary.json and its tracker runs' end. `untrained_but`: as for
+        `save`, for a new seed stopped before its first iteration."""
         self.stop_reason = reason
-        if save:
-            self.save(train_state, env_carry, leave_out)
+        self.save(train_state, env_carry, untrained_but=untrained_but)
+        self._end(self._result(reason))
+
+    def finish_untrained(self, reason: str) -> None:
+        """End a resumed seed that this session stopped before it trained a step. Its newest checkpoint already
+        holds its state, and a rewrite would record a budget it did not train toward, so only summary.json is
+        written, with the totals of the sessions that trained it."""
+        self.stop_reason = reason
+        trained_with = _summary_trained_with(self.out) or self.trained_with
+        self._end(replace(self._result(reason), wall_seconds=self.earlier_wall, trained_with=trained_with))
+
+    def _end(self, result: RunResult) -> None:
         self.close()
-        self.result = RunResult(
+        self.result = result
+        self.trackers.finish(self.out, write_summary(result))
+
+    def _result(self, reason: str) -> RunResult:
+        return RunResult(
             run_dir=self.out,
             global_step=self.global_step,
             recent_return=self.recent_mean,
@@ -285,7 +296,6 @@ class SeedRun:
             stop_reason=reason,
             trained_with=self.trained_with,
         )
-        self.trackers.finish(self.out, write_summary(self.result))
 
     def close(self) -> None:
         if not self.closed:
@@ -307,6 +317,15 @@ class SeedRun:
             f"non-finite observation, reward or parameter during the iteration after step "
             f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
         )
+
+
+def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
+    """The seeds that summary.json says trained with this one in its last session; None where it says nothing."""
+    try:
+        seeds = json.loads((run_dir / run_folder.SUMMARY_FILE).read_text()).get("trained_with")
+        return tuple(int(seed) for seed in seeds) if isinstance(seeds, list) else None
+    except (OSError, ValueError, AttributeError, TypeError):  # missing or damaged: this session's group stands
+        return None
 
 
 def best_return(run_dir: Path) -> float | None:
