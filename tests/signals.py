@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -63,3 +64,17 @@ def sigterm_during_setup():
     finally:
         signal.signal(signal.SIGTERM, previous)
         loop._make_env = make_env
+
+
+# Runs a command with SIGINT ignored or not (SIG_IGN or SIG_DFL, as a number), whatever this process has: exec keeps
+# both. A preexec_fn would do it too, but JAX warns of the fork. (A test run from a script's background job starts
+# with SIGINT ignored, and so would every process it starts.)
+WITH_SIGINT = (
+    "import os, signal, sys; signal.signal(signal.SIGINT, signal.Handlers(int(sys.argv[1]))); "
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
+
+
+def with_sigint(argv: list[str], sigint: signal.Handlers = signal.SIG_DFL) -> list[str]:
+    """`argv` (its first item an executable's path) started with SIGINT handled as `sigint`."""
+    return [sys.executable, "-c", WITH_SIGINT, str(int(sigint)), *argv]

@@ -22,6 +22,7 @@ from canter.training import checkpoint
 from canter.training.logger import MetricsLogger, read_rows, totals_until
 from canter.training.loop import training_write_error
 from conftest import ARCHIVED_RUN, TINY
+from signals import with_sigint
 
 RUN_SETS = TINY + [
     "env.num_envs=4",
@@ -369,9 +370,7 @@ def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
 
     command = [sys.executable, "-m", "canter.cli", "train", "Hopper-v5", "--total-steps", "1e5"]
     process = subprocess.Popen(
-        [*command, "--out-dir", str(tmp_path), "--quiet"],
-        stderr=subprocess.PIPE,
-        text=True,
+        with_sigint([*command, "--out-dir", str(tmp_path), "--quiet"]), stderr=subprocess.PIPE, text=True
     )
     deadline = time.monotonic() + 120
     while not any(tmp_path.glob("*/metrics.csv")) and time.monotonic() < deadline:  # the compile begins after it

@@ -15,6 +15,7 @@ import pytest
 from canter.cli.main import main
 from canter.use import video
 from canter.use.report import run_facts
+from signals import with_sigint
 
 KILLED_RENDER = (
     ".step_000000001427.5gma70b4.tmp.mp4"  # the name in the fault report: a renderer killed with its trainer
@@ -70,20 +71,12 @@ def _renders_to(path: Path) -> list[int]:
     return found
 
 
-# Runs a command with SIGINT ignored or not (SIG_IGN or SIG_DFL, as a number), whatever this process has: exec keeps
-# both. A preexec_fn would do it too, but JAX warns of the fork.
-WITH_SIGINT = (
-    "import os, signal, sys; signal.signal(signal.SIGINT, signal.Handlers(int(sys.argv[1]))); "
-    "os.execv(sys.argv[2], sys.argv[2:])"
-)
-
-
 def _rendering(argv: list[str], folder: Path, pattern: str, env: dict | None = None, sigint=signal.SIG_DFL):
     """Start `argv` with SIGINT handled as `sigint` (SIG_IGN: as a job that a script starts with `&`; SIG_DFL,
     whatever this test process was started with) and return it once a temp file matching `pattern` appears under
     `folder`: a render that has just begun, the moment a signal was once lost in."""
-    launch = [sys.executable, "-c", WITH_SIGINT, str(int(sigint))]
-    process = subprocess.Popen([*launch, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    command = with_sigint(argv, sigint)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         deadline = time.monotonic() + 600
         while not list(folder.glob(pattern)):
