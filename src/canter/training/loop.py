@@ -167,6 +167,7 @@ def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: 
 def _train_locked(
     configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
 ) -> list[RunResult]:
+    from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
     from canter.envs import resolve_backend
     from canter.envs.registry import note_replay
@@ -181,38 +182,23 @@ def _train_locked(
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
     with StopFlag() as stop:
-        return _set_up_and_loop(configs, resumes, run_dirs, quiet, locks, backend, started, stop)
-
-
-def _set_up_and_loop(
-    configs: list[Config],
-    resumes: list[Any],
-    run_dirs: list[Any],
-    quiet: bool,
-    locks: run_lock.RunLocks,
-    backend: str,
-    started: float,
-    stop: StopFlag,
-) -> list[RunResult]:
-    from canter.algos import get_algorithm
-
-    starts = [_start_of(c, resume, run_dir, backend, locks) for c, resume, run_dir in zip(configs, resumes, run_dirs)]
-    seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
-    env = _make_env(configs[0], backend, seeds)
-    spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
-    algorithm = get_algorithm(configs[0].run.algo)
-    try:
-        algorithm.validate(configs[0], spec)
-        states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
-        carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
-        return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
-    except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
-        error = training_write_error(exc, [start.out for start in starts])
-        if error is None:
-            raise
-        raise error from None
-    finally:
-        env.close()
+        starts = [_start_of(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
+        seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
+        env = _make_env(configs[0], backend, seeds)
+        spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
+        algorithm = get_algorithm(configs[0].run.algo)
+        try:
+            algorithm.validate(configs[0], spec)
+            states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
+            carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
+            return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
+        except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
+            error = training_write_error(exc, [start.out for start in starts])
+            if error is None:
+                raise
+            raise error from None
+        finally:
+            env.close()
 
 
 def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> SeedStart:
