@@ -13,6 +13,7 @@ from canter.errors import CanterError
 from canter.use.vary import (
     VarySpec,
     apply_scale,
+    counting_instabilities,
     object_names,
     original_value,
     parse_spec,
@@ -108,6 +109,37 @@ def test_unknown_name_lists_the_valid_names():
     with pytest.raises(CanterError, match="valid actuator names: thigh_joint, leg_joint, foot_joint"):
         original_value(model, parse_spec("actuator_gear:hip=1"))
     env.close()
+
+
+def test_instability_warnings_are_counted_not_printed(capfd):
+    """Gravity 1e30 makes MuJoCo reset the state mid-episode and warn; the warnings are counted, not printed, and
+    the previous handler (MuJoCo's own printing) is back afterwards."""
+    env, model, data = hopper()
+    env.reset(seed=0)
+    apply_scale(model, data, parse_spec("gravity=1e30"), 1e30)
+    with counting_instabilities() as unstable:
+        for _ in range(3):
+            mujoco.mj_step(model, data)
+    assert len(unstable) >= 3 and all("unstable" in text for text in unstable)
+    assert mujoco.get_mju_user_warning() is None
+    assert "Nan, Inf or huge value" not in "".join(capfd.readouterr())
+    env.close()
+
+
+@pytest.mark.slow
+def test_cli_vary_marks_diverged_physics_unstable(tiny_hopper_run, tmp_path, capfd):
+    """MuJoCo's resets of diverged physics earn returns of 1e37; such a point says so instead of showing them."""
+    code = main(
+        ["eval", str(tiny_hopper_run), "--episodes", "2", "--vary", "gravity=1e30,1", "--out", str(tmp_path / "g.png")]
+    )
+    out, err = capfd.readouterr()
+    assert code == 0, err
+    assert "Nan, Inf or huge value" not in out + err
+    rows = [line for line in out.splitlines() if line.startswith("ppo/")]
+    assert "1e+30 unstable: MuJoCo reset diverged physics" in rows[0] and "±" not in rows[0], out
+    assert "unstable" not in rows[1] and "±" in rows[1], out
+    points = json.loads((tmp_path / "g.json").read_text())["runs"][0]["points"]
+    assert points[0]["unstable_resets"] > 0 and points[1]["unstable_resets"] == 0
 
 
 @pytest.mark.slow

@@ -237,7 +237,7 @@ def _labels(policies: list) -> list[str]:
 
 
 def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int:
-    from canter.use.vary import check_spec, plot, sweep
+    from canter.use.vary import check_spec, is_unstable, plot, sweep
 
     env_ids = {args.env or p.facts.env_id for p in policies}
     if len(env_ids) > 1:
@@ -259,6 +259,12 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
         points = sweep(policy, spec, args.episodes, not args.stochastic, seed, env_id)
         series.append((label, points))
         for p in points:
+            if is_unstable(p):
+                print(
+                    f"{_short(label, 40):<40} {p['scale']:>6.3g} unstable: MuJoCo reset diverged physics "
+                    f"{p['unstable_resets']} times, so these episodes have no meaningful return"
+                )
+                continue
             print(
                 f"{_short(label, 40):<40} {p['scale']:>6.3g} {p['return_mean']:>11.1f} ± {p['return_std']:<7.1f}"
                 f" {p['length_mean']:>6.1f} ± {p['length_std']:<6.1f} {p['eval_seconds']:>6.1f}s"

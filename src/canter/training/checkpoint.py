@@ -74,9 +74,14 @@ def _digest(arrays: dict[str, np.ndarray], header: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
-def _named_arrays(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
-    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(tree))[0]
-    return {prefix + _path_name(p): np.asarray(v) for p, v in leaves}
+def _named_leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """A pytree's leaves, named by their paths, where they are (nothing moves off the device)."""
+    return [(prefix + _path_name(p), leaf) for p, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]]
+
+
+def _to_host(named: list[tuple[str, Any]]) -> dict[str, np.ndarray]:
+    """Named leaves as host arrays, fetched from the device in one transfer."""
+    return {name: np.asarray(value) for (name, _), value in zip(named, jax.device_get([leaf for _, leaf in named]))}
 
 
 def save(
@@ -91,16 +96,15 @@ def save(
     buffer). Both forms are read the same way. `env_carry`, where the env state is a pytree (JAX-native backends),
     holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them.
     `leave_out` names top-level fields of the state not to write (listed in the header's `left_out`)."""
-    named = [(_path_name(path), leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(state)[0]]
+    named = _named_leaves(state)
     left_out = [name for name, _ in named if name.split("/", 1)[0] in leave_out]
-    kept = [(name, leaf) for name, leaf in named if name not in left_out]
     # Only the kept leaves leave the device: a replay buffer left out stays where it is.
-    arrays = {name: np.asarray(value) for (name, _), value in zip(kept, jax.device_get([leaf for _, leaf in kept]))}
+    arrays = _to_host([(name, leaf) for name, leaf in named if name not in left_out])
     header = dict(header, format_version=LEFT_OUT_FORMAT_VERSION if left_out else FORMAT_VERSION, leaves=list(arrays))
     if left_out:
         header["left_out"] = left_out
     if env_carry is not None:
-        carry = _named_arrays(env_carry, ENV_CARRY)
+        carry = _to_host(_named_leaves(env_carry, ENV_CARRY))
         arrays.update(carry)
         header["env_carry_leaves"] = list(carry)
     header["sha256"] = _digest(arrays, header)

@@ -304,15 +304,18 @@ def robustness_table(path: Path) -> str:
         data = json.loads(path.read_text())
         runs = data["runs"]
         scales = [p["scale"] for p in runs[0]["points"]]
-        rows = [
-            [f"{scale:g}"] + [f"{r['points'][j]['return_mean']:.1f} ± {r['points'][j]['return_std']:.1f}" for r in runs]
-            for j, scale in enumerate(scales)
-        ]
+        rows = [[f"{scale:g}"] + [_robustness_cell(r["points"][j]) for r in runs] for j, scale in enumerate(scales)]
         header = ["scale"] + [f"return: {r['label']}" for r in runs]
         note = f"{data['env']}, {data['vary']}, {data['episodes']} episodes per value"
     except (OSError, ValueError, KeyError, TypeError, IndexError):
         return ""
     return f"<p class='note'>{_e(note)}</p>" + _table(header, rows)
+
+
+def _robustness_cell(point: dict[str, Any]) -> str:
+    if point.get("unstable_resets"):
+        return f"unstable ({point['unstable_resets']} MuJoCo resets)"
+    return f"{point['return_mean']:.1f} ± {point['return_std']:.1f}"
 
 
 STYLE = """

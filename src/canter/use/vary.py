@@ -3,12 +3,19 @@
 A spec reads `PARAM[:NAME]=S1,S2,...`, e.g. `body_mass:torso=0.5,1,1.5`. Every scale is applied to the value the
 freshly built model had (never to an already scaled one), and the model's derived constants are recomputed with
 `mj_setConst`, so that, for example, a heavier torso also has a heavier subtree and a new mass matrix at qpos0.
+
+A scale can make the physics diverge (gravity scaled by 1e30). MuJoCo then resets the state in the middle of the
+episode and goes on, and the step that diverged can earn a reward of 1e37; such a point is marked unstable, with
+the number of resets, and left out of the tables' returns and the plot.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -168,10 +175,43 @@ def _make_gymnasium(env_id: str) -> Any:
     return backend.make_single(env_id)
 
 
+# The text of MuJoCo's warnings for a NaN, Inf or huge qpos, qvel or qacc, after which it resets the state.
+_UNSTABLE = "The simulation is unstable"
+
+
+@contextmanager
+def counting_instabilities() -> Iterator[list[str]]:
+    """MuJoCo's instability warnings while the block runs, collected (not printed) in the list it yields; any other
+    warning goes where it went before."""
+    import mujoco
+
+    previous = mujoco.get_mju_user_warning()
+    unstable: list[str] = []
+
+    def warn(text: str) -> None:
+        if _UNSTABLE in text:
+            unstable.append(text)
+        elif previous is not None:
+            previous(text)
+        else:
+            print(f"MuJoCo warning: {text}", file=sys.stderr)
+
+    mujoco.set_mju_user_warning(warn)
+    try:
+        yield unstable
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def is_unstable(point: dict[str, Any]) -> bool:
+    return bool(point.get("unstable_resets"))
+
+
 def sweep(
     policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int, env_id: str | None = None
 ) -> list[dict[str, Any]]:
-    """Evaluate `policy` at every scale on fresh Gymnasium envs; one summary dict per scale."""
+    """Evaluate `policy` at every scale on fresh Gymnasium envs; one summary dict per scale, with the number of times
+    MuJoCo reset diverged physics (`unstable_resets`; a point with any has no meaningful return)."""
     from canter.use.evaluate import evaluate
 
     env_id = env_id or policy.facts.env_id
@@ -183,11 +223,12 @@ def sweep(
             model, data = mujoco_handles(env, env_id)
             apply_scale(model, data, spec, scale)
 
-        result = evaluate(
-            policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, prepare_env=prepare
-        )
+        with counting_instabilities() as unstable:
+            result = evaluate(
+                policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, prepare_env=prepare
+            )
         value = original * scale
-        points.append(dict(scale=scale, value=value.tolist(), **result.summary()))
+        points.append(dict(scale=scale, value=value.tolist(), unstable_resets=len(unstable), **result.summary()))
     return points
 
 
@@ -203,9 +244,13 @@ def plot(series: list[tuple[str, list[dict[str, Any]]]], spec: VarySpec, origina
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     try:
         for label, points in series:
-            x = np.array([p["scale"] for p in points])
-            mean = np.array([p["return_mean"] for p in points])
-            std = np.array([p["return_std"] for p in points])
+            stable = [p for p in points if not is_unstable(p)]
+            x = np.array([p["scale"] for p in stable])
+            mean = np.array([p["return_mean"] for p in stable])
+            std = np.array([p["return_std"] for p in stable])
+            left_out = [f"{p['scale']:g}" for p in points if is_unstable(p)]
+            if left_out:
+                label += f" (unstable physics at {', '.join(left_out)}: not shown)"
             (line,) = ax.plot(x, mean, marker="o", label=label)
             ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         ax.axvline(1.0, color="grey", lw=0.8, ls="--")
