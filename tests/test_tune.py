@@ -414,6 +414,7 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monke
     preset = study_dir / "best.toml"
     assert f"best trial {best.number}" in preset.read_text()
     assert "canter train --config best.toml --seed 1  (a seed the study did not tune on;" in preset.read_text()
+    assert "the best of 3 on the seeds that chose it, so it overstates" in preset.read_text()
     loaded = build_config(None, config_file=str(preset))
     trained = build_config(None, config_file=str(Path(best.user_attrs["trial_dir"]) / "s0" / "config.toml"))
     assert experiment_key(loaded) == experiment_key(trained)

@@ -585,7 +585,8 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
     header = (
         f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
         f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
-        f"{', '.join(map(str, settings.seeds))}\n"
+        f"{', '.join(map(str, settings.seeds))}; the best of {len(complete)} on the seeds that chose it, so it "
+        f"overstates what the preset scores on new seeds\n"
         f"train with: canter train --config {BEST_FILE} --seed {max(settings.seeds) + 1}  (a seed the study did "
         f"not tune on; --seed {settings.seeds[0]} repeats the best trial's first run)"
     )
