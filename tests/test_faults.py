@@ -383,6 +383,24 @@ def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
         time.sleep(0.1)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130 and err.splitlines()[-1] == "canter: interrupted", err[-2000:]
+    # The first one said at once what it does (the compile can take many seconds more), and only the first.
+    notice = "canter: SIGINT: stopping at the next safe point, with a checkpoint to resume from; Ctrl-C again stops"
+    assert err.count(notice) == 1, err[-2000:]
+
+
+def test_a_stop_flag_says_once_what_the_first_signal_does(capfd):
+    import signal
+
+    from canter.signals import StopFlag
+
+    with StopFlag(notice="stopping soon") as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert stop.signal == signal.SIGTERM
+    assert capfd.readouterr().err == "canter: SIGTERM: stopping soon\n"  # no Ctrl-C hint for a SIGTERM
+    with StopFlag() as quiet:
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert quiet.signal == signal.SIGTERM and capfd.readouterr().err == ""
 
 
 def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_shutdown(monkeypatch):

@@ -60,10 +60,14 @@ def stops_held() -> int:
 class StopFlag:
     """A context in which SIGINT and SIGTERM (those `handling_stop_signals` handles) set `signal`, for work that stops
     at its next safe point: an exception raised in a handler is lost when the signal lands in a garbage-collection
-    callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt."""
+    callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt.
 
-    def __init__(self) -> None:
+    `notice`, where given, is printed to stderr when the first signal lands: the next safe point can be many seconds
+    away (the end of an XLA compile), and a stop that says nothing until then looks ignored."""
+
+    def __init__(self, notice: str | None = None) -> None:
         self.signal: int | None = None
+        self._notice = notice
         self._handling = contextlib.ExitStack()
 
     def __enter__(self) -> StopFlag:
@@ -74,6 +78,10 @@ class StopFlag:
         global _stops_held
         if self.signal is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
+        if self.signal is None and self._notice:
+            again = "; Ctrl-C again stops at once" if signum == signal.SIGINT else ""
+            # os.write, not print: the handler may have cut into a print, and a buffered stream refuses re-entry.
+            os.write(sys.stderr.fileno(), f"canter: {signal.Signals(signum).name}: {self._notice}{again}\n".encode())
         self.signal = signum
         _stops_held += 1
 

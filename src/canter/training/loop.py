@@ -181,7 +181,7 @@ def _train_locked(
     started = time.perf_counter()
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
-    with StopFlag() as stop:
+    with StopFlag(notice="stopping at the next safe point, with a checkpoint to resume from") as stop:
         starts = [_start_of(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
         seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
         env = _make_env(configs[0], backend, seeds)
