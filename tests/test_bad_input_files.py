@@ -258,7 +258,10 @@ def test_one_run_that_cannot_be_evaluated_keeps_the_others_results(tmp_path, cap
     out = tmp_path / "eval.json"
     assert main(["eval", str(bad), str(good), "--episodes", "1", "--json", str(out)]) == 2
     captured = capsys.readouterr()
-    assert "good last" in captured.out and "bad last" not in captured.out
+    # A row is the run's path, cut to its column when long, then the checkpoint: match the path's end and `last`.
+    rows = [line.split() for line in captured.out.splitlines()]
+    assert any(row[0].endswith("good") and row[1] == "last" for row in rows if len(row) > 1), captured.out
+    assert not any(row[0].endswith("bad") for row in rows if row), captured.out
     assert captured.err == (
         f"canter: error: 1 of 2 runs could not be evaluated ({bad}: cannot import module 'my_pkg.envs'); the other 1 "
         f"are above and in {out}\n"
