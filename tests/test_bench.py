@@ -344,7 +344,8 @@ def test_grid_table_and_resume_after_an_interruption(tmp_path, capsys, monkeypat
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "skip InvertedPendulum-v4__ppo__ppo.ent_coef=0.01" in captured.out
-    assert "resume InvertedPendulum-v4__ppo__ppo.ent_coef=0.0 (seeds 0,1): seed 0 from step " in captured.out
+    # Seed 0 finished: it is done, not resumed; seed 1 goes on from its first checkpoint.
+    assert "resume InvertedPendulum-v4__ppo__ppo.ent_coef=0.0 (seeds 0,1): seed 0 done at step " in captured.out
     assert f", seed 1 from step {first:,}\n" in captured.out
     assert all(p.stat().st_mtime_ns == t for p, t in untouched.items())  # finished runs were not retrained
     summary = json.loads((cut / "summary.json").read_text())

@@ -141,7 +141,7 @@ def test_a_bench_rerun_over_damaged_files_writes_them_again_and_says_what_it_res
     assert main(argv) == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert f"evaluate {damaged} (seeds 0,1; trained to the budget)" in printed
-    resumed = f"seed 0 from step {newest:,}, seed 1 from step {checkpoint.step_of(kept):,}"
+    resumed = f"seed 0 done at step {newest:,}, seed 1 from step {checkpoint.step_of(kept):,}"  # seed 0 finished
     assert f"resume {cut} (seeds 0,1): {resumed}" in printed
     for seed in (0, 1):
         assert isinstance(json.loads((out / f"{damaged}__s{seed}" / "eval.json").read_text())["mean"], float)
@@ -279,17 +279,59 @@ def test_a_results_path_that_cannot_be_written_is_refused_before_any_job(tmp_pat
 
 
 def test_a_jobs_start_line_says_whether_it_trains_anew_resumes_or_evaluates():
-    from canter.orchestrate.bench_runs import start_text
+    from canter.orchestrate.bench_runs import SeedProgress, start_text
 
     _, cell = _one_cell((0, 1))
     [job] = make_jobs([cell], (0, 1))
-    assert start_text(job, [None, None], BUDGET) == "start Hopper-v5__ppo (seeds 0,1)"
-    assert start_text(job, [1024, 1024], BUDGET) == "resume Hopper-v5__ppo (seeds 0,1) from step 1,024"
+    new, done = SeedProgress(None, False), SeedProgress(BUDGET, True)
+    assert start_text(job, [new, new], BUDGET) == "start Hopper-v5__ppo (seeds 0,1)"
+    stopped = SeedProgress(1024, False)
+    assert start_text(job, [stopped, stopped], BUDGET) == "resume Hopper-v5__ppo (seeds 0,1) from step 1,024"
     assert (
-        start_text(job, [1024, None], BUDGET)
+        start_text(job, [stopped, new], BUDGET)
         == "resume Hopper-v5__ppo (seeds 0,1): seed 0 from step 1,024, seed 1 anew"
     )
-    assert start_text(job, [2048, 2000], BUDGET) == "evaluate Hopper-v5__ppo (seeds 0,1; trained to the budget)"
+    assert (
+        start_text(job, [SeedProgress(2048, True), done], BUDGET)
+        == "evaluate Hopper-v5__ppo (seeds 0,1; trained to the budget)"
+    )
+    # Stopped at its return target before the budget: done, and evaluated.
+    assert start_text(job, [SeedProgress(1024, True), done], BUDGET) == (
+        "evaluate Hopper-v5__ppo (seeds 0,1; done training)"
+    )
+
+
+def test_a_start_line_says_resume_only_of_seeds_that_go_on_training():
+    """A seed added to a finished bench: the finished seeds are done, not resumed; a stopped one resumes."""
+    from canter.orchestrate.bench_runs import SeedProgress, start_text
+
+    _, cell = _one_cell((0, 1, 2))
+    [job] = make_jobs([cell], (0, 1, 2))
+    done0, done1, new = SeedProgress(5746, True), SeedProgress(5763, True), SeedProgress(None, False)
+    assert start_text(job, [done0, done1, new], BUDGET) == (
+        "start Hopper-v5__ppo (seeds 0,1,2): seed 0 done at step 5,746, seed 1 done at step 5,763, seed 2 anew"
+    )
+    assert start_text(job, [done0, SeedProgress(1024, False), new], BUDGET) == (
+        "resume Hopper-v5__ppo (seeds 0,1,2): seed 0 done at step 5,746, seed 1 from step 1,024, seed 2 anew"
+    )
+    # A done seed and a stopped one at the same step do not share a `from step`.
+    assert start_text(job, [SeedProgress(1024, True), SeedProgress(1024, False), new], BUDGET) == (
+        "resume Hopper-v5__ppo (seeds 0,1,2): seed 0 done at step 1,024, seed 1 from step 1,024, seed 2 anew"
+    )
+
+
+def test_a_jobs_seed_progress_reads_which_seeds_are_done_from_their_run_folders(tmp_path):
+    from canter.orchestrate.bench_runs import SeedProgress, seed_progress
+
+    settings, cell = _one_cell((0, 1, 2))
+    [job] = make_jobs([cell], (0, 1, 2))
+    _finished_run(cell, tmp_path, 0)
+    _save_checkpoint(cell, cell.run_dir(tmp_path, 1), 512)
+    assert seed_progress(job, settings, tmp_path) == [
+        SeedProgress(BUDGET, True),
+        SeedProgress(512, False),
+        SeedProgress(None, False),
+    ]
 
 
 def test_a_rerun_counts_the_jobs_already_done_and_names_the_step_each_resumes_from(tmp_path, capsys, monkeypatch):

@@ -14,7 +14,7 @@ import numpy as np
 
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_results import CellResult, SeedRecord, combine_seeds, read_seed
-from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_steps, seeds_finished, start_text
+from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
 from canter.orchestrate.jobs import (
     exit_text,
     failure_reason,
@@ -71,7 +71,8 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
             return Outcome("fail", reason=f"duplicate: trial {other.number} has this job")
     job = jobs[key]
     folder = bench_dir / ".cells" / job.name
-    print(f"{start_text(job, seed_steps(job, bench_dir), settings.total_steps)}; trial {trial.number}", flush=True)
+    progress = seed_progress(job, settings, bench_dir)
+    print(f"{start_text(job, progress, settings.total_steps)}; trial {trial.number}", flush=True)
     started = time.monotonic()
     proc = start_job(job_spec(job, settings, bench_dir), folder)
     try:

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
-from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_steps, seeds_finished, start_text
+from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
 from canter.orchestrate.jobs import (
     failure_reason,
     job_layout,
@@ -40,7 +40,8 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
             for slot, caps in enumerate(slots):
                 if slot not in running and pending:
                     job = pending.pop(0)
-                    line = start_text(job, seed_steps(job, bench_dir), settings.total_steps)  # before the job saves any
+                    progress = seed_progress(job, settings, bench_dir)  # before the job saves any
+                    line = start_text(job, progress, settings.total_steps)
                     proc = start_job(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
                     running[slot] = (job, proc, time.monotonic())
                     print(line, flush=True)

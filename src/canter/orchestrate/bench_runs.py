@@ -3,7 +3,7 @@ were trained with this bench's settings, and the line a job's start prints."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from canter.config.serialize import to_toml
@@ -76,25 +76,50 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
 STOPPED_EARLY = "stopped before its budget (a signal or run.max_minutes); it is checkpointed and a re-run resumes it"
 
 
-def seed_steps(job: Job, bench_dir: Path) -> list[int | None]:
-    """Each seed's newest checkpoint step, which its job goes on from; None for a seed that trains anew."""
+@dataclass(frozen=True)
+class SeedProgress:
+    """Where a seed of a job stands before the job starts."""
+
+    step: int | None  # its newest checkpoint's step; None where it has none (a seed that trains anew)
+    done: bool  # done training (to the budget, or to its return target): the job only evaluates it
+
+
+def seed_progress(job: Job, settings: BenchSettings, bench_dir: Path) -> list[SeedProgress]:
+    """Each seed's newest checkpoint step, which a stopped seed goes on from, and whether it is done training, as
+    the job (`canter.orchestrate.jobs.run_job`) decides it."""
     from canter.training import checkpoint
 
-    found = [checkpoint.list_checkpoints(job.cell.run_dir(bench_dir, seed)) for seed in job.seeds]
-    return [checkpoint.step_of(f[-1]) if f else None for f in found]
+    progress = []
+    for seed in job.seeds:
+        run_dir = job.cell.run_dir(bench_dir, seed)
+        found = checkpoint.list_checkpoints(run_dir)
+        try:
+            status = run_status(run_dir, settings.total_steps, job.cell.config.run.stop_at_return)
+        except CanterError:  # refused: the job says why
+            status = "refused"
+        progress.append(SeedProgress(checkpoint.step_of(found[-1]) if found else None, status in ("done", "ended")))
+    return progress
 
 
-def start_text(job: Job, steps: list[int | None], total_steps: int) -> str:
+def start_text(job: Job, progress: list[SeedProgress], total_steps: int) -> str:
     """The line a job's start prints: whether it trains anew, resumes checkpointed runs (from which step), or only
-    evaluates runs trained to the budget."""
+    evaluates runs done training; where its seeds differ, what each one does. It says `resume` only where a seed
+    goes on training from a checkpoint: a seed done training is evaluated, not resumed."""
     seeds = f"seeds {','.join(map(str, job.seeds))}"
-    if all(step is None for step in steps):
+    steps = [p.step for p in progress]
+    if all(p.done for p in progress):
+        if all(step is not None and step >= total_steps for step in steps):
+            return f"evaluate {job.name} ({seeds}; trained to the budget)"
+        return f"evaluate {job.name} ({seeds}; done training)"  # a seed stopped at its return target
+    if all(step is None and not p.done for step, p in zip(steps, progress)):
         return f"start {job.name} ({seeds})"
-    if all(step is not None and step >= total_steps for step in steps):
-        return f"evaluate {job.name} ({seeds}; trained to the budget)"
-    if len(set(steps)) == 1:
+    if not any(p.done for p in progress) and len(set(steps)) == 1:
         return f"resume {job.name} ({seeds}) from step {steps[0]:,}"
-    each = [
-        f"seed {seed} " + ("anew" if step is None else f"from step {step:,}") for seed, step in zip(job.seeds, steps)
-    ]
-    return f"resume {job.name} ({seeds}): {', '.join(each)}"
+
+    def one(seed: int, p: SeedProgress) -> str:
+        if p.done:
+            return f"seed {seed} done" + ("" if p.step is None else f" at step {p.step:,}")
+        return f"seed {seed} " + ("anew" if p.step is None else f"from step {p.step:,}")
+
+    verb = "resume" if any(p.step is not None and not p.done for p in progress) else "start"
+    return f"{verb} {job.name} ({seeds}): {', '.join(one(s, p) for s, p in zip(job.seeds, progress))}"
