@@ -206,18 +206,21 @@ def test_a_budget_far_from_whole_iterations_is_noted():
     # brax preset: 4,096 envs x 80 steps = 327,680 env steps per iteration, so 4,096 steps train a whole iteration.
     config = build_config("ant", preset="brax", total_steps=4096)
     assert algorithm_spec("ppo").iteration_steps(config) == 4096 * 80
+    # It advises no multiple: autoreset steps do not count, so a multiple trains one iteration more where episodes
+    # end (test_a_budget_of_whole_iterations_trains_one_more_where_episodes_end).
     assert budget_rounding_note(config) == (
-        "ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80), so this "
-        "run.total_steps=4,096 run trains about 327,680; give a multiple of 327,680, or smaller env.num_envs / "
-        "ppo.n_steps"
+        "ppo trains in whole iterations of 327,680 env steps (env.num_envs 4,096 x ppo.n_steps 80), to the end of "
+        "the one that reaches the budget, so this run.total_steps=4,096 run trains about 327,680; autoreset steps "
+        "(one per episode end) do not count, so where episodes end it can take one more iteration, even with a "
+        "multiple of 327,680; for a finer budget give smaller env.num_envs / ppo.n_steps"
     )
     # td3: 16 envs and 1,000 steps per call are 62 vector steps, 992 env steps; 1,500 train 1,984.
     td3 = build_config("Hopper-v5", algo="td3", total_steps=1500, sets=["env.num_envs=16"])
     assert algorithm_spec("td3").iteration_steps(td3) == 992
-    assert (
-        "992 env steps (td3.steps_per_call 1,000), so this run.total_steps=1,500 run trains about 1,984; give a "
-        "multiple of 992, or smaller td3.steps_per_call" in budget_rounding_note(td3)
-    )
+    note = budget_rounding_note(td3)
+    assert "992 env steps (td3.steps_per_call 1,000), to the end of the one that reaches the budget, so this " in note
+    assert "run.total_steps=1,500 run trains about 1,984; autoreset steps" in note
+    assert note.endswith("even with a multiple of 992; for a finer budget give smaller td3.steps_per_call")
     # Within 10% of the budget, or a whole number of iterations, says nothing.
     fast = build_config("Hopper-v5", total_steps=1_000_000)
     assert 0 < 1_000_000 % algorithm_spec("ppo").iteration_steps(fast) < 10_000
@@ -233,6 +236,22 @@ def test_the_rounded_budget_note_comes_from_training_after_its_checks(tmp_path, 
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert "canter: note: ppo trains in whole iterations of 2,048 env steps" in err, err
+
+
+@pytest.mark.slow
+def test_a_budget_of_whole_iterations_trains_one_more_where_episodes_end(tmp_path):
+    """What the budget note says instead of advising a multiple: Pendulum's 200-step episodes end within the first
+    iteration of 4 x 256 env steps, their autoreset steps do not count, so a budget of exactly one iteration takes
+    two (and no note is printed for it)."""
+    from canter.config.algorithms import algorithm_spec, budget_rounding_note
+    from canter.training.loop import train
+
+    sets = ["net.hidden=16,16", "run.tensorboard=false", "env.num_envs=4", "ppo.n_steps=256"]
+    config = build_config("Pendulum-v1", total_steps=1024, sets=sets + ["ppo.minibatch_size=256", "ppo.epochs=1"])
+    config = replace(config, run=replace(config.run, out_dir=str(tmp_path)))
+    assert algorithm_spec("ppo").iteration_steps(config) == 1024 and budget_rounding_note(config) is None
+    result = train(config)
+    assert 1024 < result.global_step < 2048  # two iterations, less the autoreset steps after the episode ends
 
 
 def test_a_v4_id_asked_for_on_purpose_makes_no_deprecation_warning():

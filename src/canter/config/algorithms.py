@@ -92,9 +92,10 @@ def unused_metrics(config: Any) -> tuple[str, ...]:
 
 def budget_rounding_note(config: Any) -> str | None:
     """A note when the run's budget is far from a whole number of its iterations: it trains until the iteration
-    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 10%. (Where
-    episodes end, autoreset steps, which do not count, can add one more iteration; how many a run has depends on
-    its episodes, so that is documented rather than guessed at here.)"""
+    that reaches run.total_steps ends, so a budget below one iteration trains a whole one. None within 10%. The
+    budget counts no autoreset steps (one after each episode end), so where episodes end a run can take another
+    iteration, and a budget of whole iterations always does: the note says so rather than advise a multiple that
+    would not end on an iteration boundary (how many autoreset steps a run has depends on its episodes)."""
     spec = algorithm_spec(config.run.algo)
     per_iteration = spec.iteration_steps(config)
     budget = config.run.total_steps
@@ -103,9 +104,10 @@ def budget_rounding_note(config: Any) -> str | None:
         return None
     sizes = " x ".join(f"{key} {_read(config, key):,}" for key in spec.iteration_keys)
     return (
-        f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes}), so this "
-        f"run.total_steps={budget:,} run trains about {trained:,}; give a multiple of {per_iteration:,}, or "
-        f"smaller {' / '.join(spec.iteration_keys)}"
+        f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes}), to the end of the one "
+        f"that reaches the budget, so this run.total_steps={budget:,} run trains about {trained:,}; autoreset steps "
+        f"(one per episode end) do not count, so where episodes end it can take one more iteration, even with a "
+        f"multiple of {per_iteration:,}; for a finer budget give smaller {' / '.join(spec.iteration_keys)}"
     )
 
 
