@@ -203,6 +203,20 @@ def test_a_resumed_run_stopped_in_setup_keeps_the_totals_and_the_group_of_the_se
     assert after["trained_with"] == [0, 1] and after["wall_seconds"] == pytest.approx(before["wall_seconds"], abs=0.1)
 
 
+def test_summary_names_the_run_folder_by_its_absolute_path_when_given_a_relative_one(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    first = train(_config(total=2048, extra=["run.out_dir=rel"]))
+    assert not first.run_dir.is_absolute()
+    expected = str((tmp_path / first.run_dir).resolve())
+    assert json.loads((first.run_dir / "summary.json").read_text())["run_dir"] == expected
+    # `canter train --resume rel/RUN`: a resume stopped in its setup writes its summary too, without training.
+    (first.run_dir / "summary.json").unlink()
+    with sigterm_during_setup():
+        again = train(resume_config(first.run_dir, 8192), resume=first.run_dir)
+    assert again.stop_reason == "signal"
+    assert json.loads((first.run_dir / "summary.json").read_text())["run_dir"] == expected
+
+
 def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(tmp_path):
     config = _config(
         total=50_000,

@@ -55,7 +55,10 @@ def env_header(spec: Any) -> dict[str, Any]:
 
 
 def write_summary(result: RunResult) -> dict[str, Any]:
+    """Write the run's summary.json, whose run_dir is absolute (resolved) whether the run was started or resumed
+    from a relative path; returns the summary."""
     summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
+    summary["run_dir"] = str(Path(result.run_dir).resolve())
     atomic_write_bytes(
         result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
     )
