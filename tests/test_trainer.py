@@ -223,11 +223,27 @@ def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(t
         env="canter_test_envs:NaNAfter-v0",
         extra=[f"run.out_dir={tmp_path}", "env.num_envs=1", "ppo.n_steps=128", "ppo.minibatch_size=64"],
     )
-    with pytest.raises(CanterError, match=r"non-finite .* after step \d+"):
+    with pytest.raises(CanterError, match=r"non-finite .* after step \d+") as stopped:
         train(config)
+    assert "first suspects, the settings changed from preset fast: " in str(stopped.value)
     run_dir = next(tmp_path.iterdir())
     _, _, state, _header = load_state(run_dir)
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
+
+
+def test_a_diverged_run_names_the_settings_it_changed_from_its_preset():
+    from canter.training.seed_run import divergence_hint
+
+    assert divergence_hint(build_config("Hopper-v5")) == (
+        "it diverged with its preset's own settings: lower its learning rate before resuming"
+    )
+    changed = divergence_hint(build_config("Hopper-v5", sets=["ppo.lr=1e30", "ppo.clip=0.3"], total_steps=5000))
+    assert changed.endswith("the settings changed from preset fast: ppo.lr=1e+30, ppo.clip=0.3"), changed
+    many = [
+        f"{key}={value}" for key, value in [("ppo.lr", 1), ("ppo.clip", 0.5), ("ppo.epochs", 3), ("ppo.gamma", 0.9)]
+    ]
+    hint = divergence_hint(build_config("Hopper-v5", sets=many + ["ppo.ent_coef=0.5", "ppo.vf_coef=0.1"]))
+    assert hint.endswith(" and 2 more"), hint
 
 
 def test_trpo_resume_is_deterministic_and_continues(tmp_path):

@@ -318,8 +318,33 @@ class SeedRun:
         self.close()
         self.error = (
             f"non-finite observation, reward or parameter during the iteration after step "
-            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}"
+            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}; "
+            f"{divergence_hint(self.config)}"
         )
+
+
+def divergence_hint(config: Config) -> str:
+    """What to change before resuming a diverged run: the same settings would diverge again from its last good
+    state, and the settings it changed from its preset are the first suspects."""
+    from canter.config.build import build_config
+    from canter.config.experiment import flat_config
+
+    try:
+        preset = flat_config(build_config(config.env.id, preset=config.run.preset, algo=config.run.algo))
+    except CanterError:  # a preset this canter no longer has: nothing to compare with
+        preset = {}
+    changed = [
+        f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}"
+        for key, value in flat_config(config).items()
+        if key in preset and preset[key] != value and not key.startswith("run.")
+    ]
+    if not changed:
+        return "it diverged with its preset's own settings: lower its learning rate before resuming"
+    more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
+    return (
+        f"resuming with the same settings would diverge again; first suspects, the settings changed from preset "
+        f"{config.run.preset}: {', '.join(changed[:4])}{more}"
+    )
 
 
 def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
