@@ -345,3 +345,17 @@ def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
         policy(good + 1j)
     with pytest.raises(CanterError, match=rf"observations of shape \(batch, {policy.obs_dim}\), got \(2, 1\)"):
         policy(np.zeros((2, 1)))
+
+
+@pytest.mark.parametrize(
+    "sets, message",
+    [
+        (["run.out_dir="], "run.out_dir is empty; give a folder for the run folders"),
+        (["run.out_dir=  "], "run.out_dir is empty"),
+        (["env.backend=gymnasium", "env.envpool_shards=2"], "env.envpool_shards applies to the envpool backend only"),
+    ],
+)
+def test_settings_that_would_do_nothing_or_write_into_the_current_folder_are_refused(sets, message):
+    with pytest.raises(CanterError, match=message):
+        build_config("Hopper-v5", sets=sets)
+    assert build_config("Hopper-v5", sets=["env.backend=envpool", "env.envpool_shards=2"]).env.envpool_shards == 2

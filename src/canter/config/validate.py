@@ -89,7 +89,7 @@ def _is_utf8(text: str) -> bool:
 
 
 def validate(config: Config) -> None:
-    from canter.envs.registry import backend_names, refuse_mujoco_py
+    from canter.envs.registry import AUTO, backend_names, get_backend, pooled_backends, refuse_mujoco_py
 
     env, run = config.env, config.run
     need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
@@ -102,6 +102,11 @@ def validate(config: Config) -> None:
     need(
         0 <= env.envpool_shards <= env.num_envs,
         f"env.envpool_shards must be 0 (auto) to env.num_envs {env.num_envs}, got {env.envpool_shards}",
+    )
+    need(
+        env.envpool_shards == 0 or env.backend == AUTO or get_backend(env.backend).pools,
+        f"env.envpool_shards applies to the {' and '.join(pooled_backends())} backend only, and this run steps on "
+        f"{env.backend}; drop it",
     )
     check_physics(env)
     refuse_mujoco_py(env.id, env.backend)  # else Gymnasium's own error asks for a package that no longer has them
@@ -121,6 +126,7 @@ def validate(config: Config) -> None:
         check_section(name, config.section(name))
     spec.validate(config)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
+    need(bool(run.out_dir.strip()), "run.out_dir is empty; give a folder for the run folders (the default is runs)")
     need(
         _is_utf8(run.out_dir),
         f"run.out_dir {run.out_dir.encode('utf-8', 'backslashreplace').decode()} is not valid UTF-8, which the run's "

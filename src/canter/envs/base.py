@@ -107,6 +107,8 @@ class Backend(Protocol):
     jax_native: bool = False
     # Takes env.solver_iterations, env.solver_ls_iterations and env.contacts (`make` gets them as keyword arguments).
     solver_options: bool = False
+    # Splits its envs over concurrent pools, as many as env.envpool_shards asks (`make` gets it as `shards`).
+    pools: bool = False
     # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
     # on it and on the env it trained on only.
     own_observations: bool = False

@@ -204,6 +204,11 @@ def solver_backends() -> list[str]:
     return [backend.name for backend in backends() if backend.solver_options]
 
 
+def pooled_backends() -> list[str]:
+    """The backends that split their envs over pools as env.envpool_shards asks."""
+    return [backend.name for backend in backends() if backend.pools]
+
+
 def env_options(env: Any, backend: str) -> dict[str, Any]:
     """What an env section asks of the backend that steps it, as `make`'s keyword arguments: the physics settings
     where the backend takes them and they change the model (solver iterations 0 and contacts `all` leave its own)."""

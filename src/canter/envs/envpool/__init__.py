@@ -42,6 +42,7 @@ _CONTINUOUS_IDS = (
 class EnvPoolBackend(Backend):
     name = NAME
     label = "EnvPool"
+    pools = True
 
     def available(self) -> bool:
         return loads(lambda: importlib.import_module("envpool"))
