@@ -66,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from canter.config.overrides import parse_set_args
+    from canter.envs.registry import single_env_backend
     from canter.use.evaluate import check_eval_env, eval_physics, eval_target, parse_physics
     from canter.use.policy import load
 
@@ -94,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
     physics = parse_physics(parse_set_args(args.set))
     if physics and spec is not None:
         raise CanterError("--vary sweeps the Gymnasium env, which takes no --set; run the sweep and --set apart")
+    if spec is not None and args.backend not in (None, single_env_backend().name):
+        raise CanterError(
+            f"--vary sweeps the {single_env_backend().label} env, whose MuJoCo model it edits; drop --backend "
+            f"{args.backend}"
+        )
     check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
     policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
