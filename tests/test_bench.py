@@ -864,7 +864,7 @@ def test_a_failure_reason_is_read_from_the_newest_start_of_the_job(tmp_path):
     # The earlier session's error is not why this one failed: a kill left only its progress line.
     assert (
         failure_reason(tmp_path, -9)
-        == "training process failed (killed by signal 9 (SIGKILL)): Hopper-v5 ppo 12,000/20,000"
+        == "training process failed (killed by signal 9 (SIGKILL, probably out of memory)): Hopper-v5 ppo 12,000/20,000"
     )
     log.write_text(log.read_text() + "canter: error: no space left\n")
     assert failure_reason(tmp_path, 2) == "training process failed (exit 2): canter: error: no space left"

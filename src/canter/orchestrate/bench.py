@@ -31,12 +31,12 @@ from typing import Any
 from canter.errors import CanterError
 from canter.files import make_folder
 from canter.orchestrate.bench_distributed import open_grid_study, run_distributed
-from canter.orchestrate.bench_folder import holding_bench_folder, sharing_bench_folder
+from canter.orchestrate.bench_folder import holding_bench_folder, refuse_run_folder, sharing_bench_folder
 from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
 from canter.orchestrate.bench_local import run_local
 from canter.orchestrate.bench_results import cell_result, check_results_writable, write_results
 from canter.orchestrate.bench_runs import check_existing_runs, seeds_finished
-from canter.orchestrate.jobs import check_jobs
+from canter.orchestrate.jobs import check_jobs, needs_a_fix
 from canter.orchestrate.study import describe_url, normalize_url
 from canter.training.trackers import check_trackers, group_name, open_groups
 
@@ -49,6 +49,7 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
+    refuse_run_folder(bench_dir)
     existed = bench_dir.exists()
     make_folder(bench_dir)  # first: a SQLite storage may live in it
     try:
@@ -80,8 +81,15 @@ def _run_grid(cells: list[Cell], settings: BenchSettings, bench_dir: Path, opene
     markdown = write_results(finished, results, settings, bench_dir) if results else ""
     print(markdown, end="")
     if failures:
-        raise CanterError(
-            f"{len(failures)} of {len(cells)} cells failed ({next(iter(failures.values()))}); "
-            f"re-run the same command to retry them"
-        )
+        raise CanterError(failures_text(failures, len(cells)))
     return markdown
+
+
+def failures_text(failures: dict[str, str], cells: int) -> str:
+    """The bench's error for its failed cells: the reason of the first, and a retry only where one can help; a job
+    that refused its input (`needs_a_fix`) fails the same way until that is fixed, so its reason comes first."""
+    fixes = [reason for reason in failures.values() if needs_a_fix(reason)]
+    if fixes:
+        return f"{len(failures)} of {cells} cells failed ({fixes[0]}); a retry fails the same way: do what it says"
+    first = next(iter(failures.values()))
+    return f"{len(failures)} of {cells} cells failed ({first}); re-run the same command to retry them"

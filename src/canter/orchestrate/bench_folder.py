@@ -24,6 +24,24 @@ from canter.training import run_lock
 STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid, not a local bench
 
 
+def refuse_run_folder(bench_dir: Path) -> None:
+    """Refuse a run folder given as --out: the bench would write its tables and job folders among the run's files, and
+    take over the writer lock of the run (its own lock file, `canter.training.run_lock`)."""
+    from canter.training.checkpoint import checkpoint_dir
+    from canter.training.run_folder import CONFIG_FILE
+
+    held = [
+        name
+        for name, found in ((CONFIG_FILE, bench_dir / CONFIG_FILE), ("checkpoints/", checkpoint_dir(bench_dir)))
+        if found.exists()
+    ]
+    if held:
+        raise CanterError(
+            f"--out {bench_dir} is a run folder (it holds {' and '.join(held)}), not a bench folder; give a new "
+            f"--out, in which the bench makes a run folder for each cell and seed"
+        )
+
+
 def _who(holder: dict[str, Any]) -> str:
     return f" (process {holder.get('pid')} on {holder.get('host')}: {holder.get('command')})" if holder else ""
 

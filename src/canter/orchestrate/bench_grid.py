@@ -14,6 +14,7 @@ from canter.config.overrides import all_keys
 from canter.config.schema import Config
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
+from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.study import check_at_least
 from canter.training.trackers import TrackSpec
 
@@ -165,6 +166,8 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             )
         if key in known and algos and not any(reads_key(algo, key) for algo in algos):
             raise CanterError(f"--set {unread_key_error(algos[0], key)}")
+        if key in seen:  # the grid's value would replace it in every cell
+            raise CanterError(f"{key} is given by both --grid and --set; keep --grid {key}=... or --set {key}=...")
     for env_id in envs:
         resolve_backend(env_id, "auto")
     cells = []
@@ -187,6 +190,8 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
                 where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
                 raise CanterError(f"cell ({where}): {exc}") from None
             cells.append(Cell(algo, env_id, pairs, config))
+    for env_id, backend in dict.fromkeys((cell.env_id, cell.config.env.backend) for cell in cells):
+        check_continuous(env_id, backend)  # last: it makes an env
     return cells
 
 

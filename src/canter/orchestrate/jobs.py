@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -319,29 +320,50 @@ def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) ->
         raise
 
 
+# The exit status of a child that refused its input with a one-line error (`main`): a retry meets the same refusal.
+INPUT_ERROR = 2
+_FAILED = "training process failed"
+
+# What a signal's end most likely means, which the process's last line cannot say: the kernel's out-of-memory killer
+# sends SIGKILL, which canter and schedulers send only after a SIGTERM went unheeded.
+_SIGNAL_NOTES = {signal.SIGKILL: "probably out of memory"}
+
+# Lines a crash's log ends with that say nothing of the error: JAX's note that it filtered the traceback above, and
+# the rule it draws before the note.
+_TRAILERS = (re.compile(r"-+"), re.compile(r"For simplicity, JAX has removed its internal frames.*"))
+
+
 def exit_text(returncode: int) -> str:
-    """'exit 2', or 'killed by signal 9 (SIGKILL)' for a process a signal ended (a negative return code)."""
+    """'exit 2', or 'killed by signal 9 (SIGKILL, probably out of memory)' for a process a signal ended (a negative
+    return code)."""
     if returncode >= 0:
         return f"exit {returncode}"
     try:
-        name = f" ({signal.Signals(-returncode).name})"
+        sig = signal.Signals(-returncode)
     except ValueError:
-        name = ""
-    return f"killed by signal {-returncode}{name}"
+        return f"killed by signal {-returncode}"
+    note = _SIGNAL_NOTES.get(sig)
+    return f"killed by signal {-returncode} ({sig.name}{f', {note}' if note else ''})"
 
 
 def failure_reason(folder: Path, returncode: int) -> str:
     """The child's one-line error (`canter: error: ...`), whole, since its fix comes last; else the last line of its
-    log (cut short: a crash's last line can be any length), with the exit status. Only the output of the newest
-    start counts: the log is appended to, and an earlier session's error is not this one's."""
+    log that says something (cut short: a crash's last line can be any length), with the exit status. Only the
+    output of the newest start counts: the log is appended to, and an earlier session's error is not this one's."""
     lines = []
     with contextlib.suppress(OSError):
         lines = [line for line in (folder / "train.log").read_text(errors="replace").splitlines() if line.strip()]
     starts = [i for i, line in enumerate(lines) if line.startswith(JOB_START)]
     lines = lines[starts[-1] + 1 :] if starts else lines
     errors = [line for line in lines if line.startswith("canter: error:")]
-    last = errors[-1] if errors else (lines[-1][:300] if lines else "no output")
-    return f"training process failed ({exit_text(returncode)}): {last.strip()}"
+    said = [line for line in lines if not any(t.fullmatch(line.strip()) for t in _TRAILERS)]
+    last = errors[-1] if errors else (said[-1][:300] if said else "no output")
+    return f"{_FAILED} ({exit_text(returncode)}): {last.strip()}"
+
+
+def needs_a_fix(reason: str) -> bool:
+    """Whether a `failure_reason` is a job's refusal of its input, which a retry alone meets again."""
+    return reason.startswith(f"{_FAILED} ({exit_text(INPUT_ERROR)})")
 
 
 # A job told to stop finishes its iteration, or the evaluation under way, and writes its checkpoint; a long
@@ -540,7 +562,7 @@ def main(argv: list[str]) -> int:
         run_job(JobSpec.from_json(Path(argv[0]).read_text()))
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
-        return 2
+        return INPUT_ERROR
     except KeyboardInterrupt:  # a second Ctrl-C, which means now
         exit_interrupted()
     return 0

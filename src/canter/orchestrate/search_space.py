@@ -14,6 +14,7 @@
 An integer key with a range samples integers (`step` optional), a float key floats; `choices` work for any key,
 including tuples written as strings ("64-64"). A file is checked in full before any trial: every key must be a
 config key, every value must have the key's type and pass the key's own validation, and a range must not be empty.
+The keys the caller sets itself (`fixed`: tune's env, algorithm, seeds, budget and run keys) cannot be searched.
 canter ships one space per algorithm, in its folder (`AlgorithmSpec.search_space`); `--space FILE` takes an edited copy.
 """
 
@@ -21,9 +22,11 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from canter.config.algorithms import algorithm_spec
@@ -34,6 +37,7 @@ from canter.config.values import coerce, field_types
 from canter.errors import CanterError
 
 _RANGE_KEYS = {"low", "high", "log", "step"}
+_NONE_FIXED: Mapping[str, str] = MappingProxyType({})
 
 
 @dataclass(frozen=True)
@@ -83,11 +87,12 @@ def default_space_text(algo: str) -> str:
     return resources.files(package).joinpath(name).read_text()
 
 
-def load_space(path: str | Path | None, algo: str) -> SearchSpace:
+def load_space(path: str | Path | None, algo: str, fixed: Mapping[str, str] = _NONE_FIXED) -> SearchSpace:
+    """The space of `path`, or the one `algo` ships; `fixed`: key -> what sets it instead (`parse_space`)."""
     import tomllib
 
     if path is None:
-        return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space")
+        return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space", fixed)
     if not str(path).strip():  # Path("") is the current folder
         raise CanterError("--space is empty; give a search space TOML file, or drop --space")
     # load_toml's own messages are about --config files.
@@ -95,7 +100,7 @@ def load_space(path: str | Path | None, algo: str) -> SearchSpace:
         raise CanterError(f"{path} is a folder; --space takes a search space TOML file")
     if not Path(path).is_file():
         raise CanterError(f"search space file not found: {path}")
-    return parse_space(load_toml(path), str(path))
+    return parse_space(load_toml(path), str(path), fixed)
 
 
 def _optuna_value(value: Any) -> Any:
@@ -113,7 +118,18 @@ def _check_alone(key: str, value: Any, source: str) -> None:
             raise CanterError(f"{source}: {key} = {value!r} is invalid: {exc}") from None
 
 
-def parse_space(data: dict[str, Any], source: str) -> SearchSpace:
+def _coerced(key: str, raw: Any, source: str) -> Any:
+    """The raw value as the key's type; an error names the file, as the space's other errors do."""
+    section, _, name = key.partition(".")
+    try:
+        return coerce(key, field_types(section)[name], raw)
+    except CanterError as exc:
+        raise CanterError(f"{source}: {exc}") from None
+
+
+def parse_space(data: dict[str, Any], source: str, fixed: Mapping[str, str] = _NONE_FIXED) -> SearchSpace:
+    """The space a TOML file's tables describe. `fixed` maps the keys the caller sets in every trial to what sets
+    them: a sampled value of one would be overridden, yet shown as the trial's, or would change what is tuned."""
     known = set(all_keys())
     params: list[Param] = []
     for section, table in data.items():
@@ -125,6 +141,10 @@ def parse_space(data: dict[str, Any], source: str) -> SearchSpace:
                 close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
                 hint = f"; did you mean {', '.join(close)}?" if close else "; keys are config keys like ppo.lr"
                 raise CanterError(f"{source}: unknown hyperparameter '{key}'{hint}")
+            if key in fixed:
+                raise CanterError(
+                    f"{source}: [{key}] cannot be searched: it is set by {fixed[key]}; drop it from the space"
+                )
             if not isinstance(spec, dict):
                 raise CanterError(f"{source}: [{key}] must be a table with choices = [...] or low/high")
             params.append(_param(key, spec, source))
@@ -142,14 +162,11 @@ def _check_ties(params: list[Param], source: str) -> None:
         other = by_key.get(p.same_as)
         if other is None or other.same_as is not None:
             raise CanterError(f"{source}: [{p.key}] same_as = {p.same_as!r} must name a sampled key of this space")
-        section, _, name = p.key.partition(".")
         for value in other.choices or (other.low, other.high):
-            _check_alone(p.key, coerce(p.key, field_types(section)[name], value), source)
+            _check_alone(p.key, _coerced(p.key, value, source), source)
 
 
 def _param(key: str, spec: dict[str, Any], source: str) -> Param:
-    section, _, name = key.partition(".")
-    field_type = field_types(section)[name]
     extra = set(spec) - _RANGE_KEYS - {"choices", "same_as"}
     if extra:
         raise CanterError(
@@ -167,7 +184,7 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
             raise CanterError(f"{source}: [{key}] has an empty list of choices")
         values = []
         for raw in choices:
-            value = coerce(key, field_type, raw)
+            value = _coerced(key, raw, source)
             _check_alone(key, value, source)
             values.append(_optuna_value(value))
         if len(set(map(repr, values))) != len(values):
@@ -175,7 +192,7 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
         return Param(key, choices=tuple(values))
     if "low" not in spec or "high" not in spec:
         raise CanterError(f"{source}: [{key}] needs choices = [...] or both low and high")
-    low, high = coerce(key, field_type, spec["low"]), coerce(key, field_type, spec["high"])
+    low, high = _coerced(key, spec["low"], source), _coerced(key, spec["high"], source)
     if not isinstance(low, (int, float)) or isinstance(low, bool) or low is None or high is None:
         raise CanterError(f"{source}: [{key}] is not numeric; give it choices = [...]")
     if not (math.isfinite(low) and math.isfinite(high)) or not low < high:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -37,6 +38,7 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
 from canter.files import make_folder
+from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs, worker_count
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
@@ -107,6 +109,8 @@ class TuneSettings:
         ):
             if limit is not None and not limit > 0:
                 raise CanterError(f"{name} must be > 0, got {limit:g}")
+        if self.study_name is not None:
+            check_study_name(self.study_name)
 
     @property
     def name(self) -> str:
@@ -124,6 +128,28 @@ class TuneSettings:
     @property
     def eval_interval(self) -> int:
         return max(1, math.ceil(self.total_steps / self.evaluations))
+
+
+# A study's folder is OUT_DIR/STUDY: a name with a path in it would put the study elsewhere, or nest it.
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9._-]+")
+
+
+def check_study_name(name: str) -> None:
+    if not _PLAIN_NAME.fullmatch(name) or name in (".", ".."):
+        raise CanterError(
+            f"--study {name!r} is not a plain name; give one of letters, digits, '-', '_' and '.' (not '.' or '..'), "
+            f"since the study's folder is --out-dir/STUDY"
+        )
+
+
+def seeds_text(seeds: tuple[int, ...], shown: int = 5) -> str:
+    """Seeds as a message shows them: '0-99999' for a run of consecutive seeds, else the first few and the count;
+    a study of many seeds per trial would otherwise fill a screen."""
+    if len(seeds) > 2 and list(seeds) == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"{seeds[0]}-{seeds[-1]}"
+    if len(seeds) > shown:
+        return f"{', '.join(map(str, seeds[:shown]))}, ... ({len(seeds)} seeds)"
+    return ", ".join(map(str, seeds))
 
 
 def base_config(settings: TuneSettings) -> Config:
@@ -153,6 +179,22 @@ def owned_keys(settings: TuneSettings, trial_dir: Path) -> dict[str, tuple[Any, 
     }
 
 
+# The keys that make a study what it is, each with what sets it: a search space that sampled one would train other
+# envs, algorithms, seeds or budgets under this study's name, in trials that no longer compare.
+STUDY_KEYS = {
+    "env.id": "tune's ENV argument (a study tunes one env; tune another in a study of its own)",
+    "run.algo": "tune's --algo (a study tunes one algorithm)",
+    "run.seed": "tune's --seed and --seeds-per-trial (every trial trains the same seeds)",
+    "run.total_steps": "tune's --total-steps (every trial trains the same budget)",
+    "run.preset": "tune's --preset (the base config under the sampled values)",
+}
+
+
+def fixed_keys(settings: TuneSettings) -> dict[str, str]:
+    """The keys a search space cannot sample, each with what sets it instead."""
+    return STUDY_KEYS | {key: what for key, (_, what) in owned_keys(settings, Path()).items()}
+
+
 def check_owned_keys(settings: TuneSettings) -> None:
     """Refuse a --set of a key tune sets in every trial: it would be dropped. A --config file may give them (a run
     folder's config.toml gives them all), and tune's values win, as a command's own flags beat a file."""
@@ -169,13 +211,25 @@ def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:
     from canter.envs import resolve_backend
 
     resolve_backend(config.env.id, config.env.backend)
-    space = load_space(settings.space_file, config.run.algo)
+    space = load_space(settings.space_file, config.run.algo, fixed_keys(settings))
     from canter.config.algorithms import reads_key, unread_key_error
 
     for key in space.keys:
         if not reads_key(config.run.algo, key):
             raise CanterError(f"search space {space.source}: {unread_key_error(config.run.algo, key)}")
+    check_sets_not_sampled(settings.sets, space)
+    check_continuous(config.env.id, config.env.backend)  # last: it makes an env
     return config, space
+
+
+def check_sets_not_sampled(sets: tuple[str, ...], space: SearchSpace) -> None:
+    """Refuse a --set of a key the space samples: the sampled value would replace it in every trial."""
+    for key in parse_set_args(list(sets)):
+        if key in space.keys:
+            raise CanterError(
+                f"{key} is given by --set and sampled by the search space too ({space.source}); drop --set {key} "
+                f"to search it, or drop [{key}] from the space to fix its value"
+            )
 
 
 def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:
@@ -442,10 +496,22 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
     missing = "(not set)"
     for name in dict.fromkeys([*stored, *wanted]):
         if stored.get(name, missing) != wanted.get(name, missing):
+            was, now = (setting_text(str(found.get(name, missing))) for found in (stored, wanted))
             raise CanterError(
-                f"study '{study.study_name}' was run with {name} {stored.get(name, missing)}, but this command gives "
-                f"{wanted.get(name, missing)}; its trials would not compare: use the same settings, or a new --study"
+                f"study '{study.study_name}' was run with {name} {was}, but this command gives {now}; its trials "
+                f"would not compare: use the same settings, or a new --study"
             )
+
+
+_SEED_LIST = re.compile(r"[0-9]+(,[0-9]+)*")
+
+
+def setting_text(value: str, limit: int = 200) -> str:
+    """A study setting as an error shows it: a list of seeds as `seeds_text` shows it, and any other value cut at
+    `limit` characters, so that the error stays a line."""
+    if _SEED_LIST.fullmatch(value):
+        return seeds_text(tuple(map(int, value.split(","))))
+    return value if len(value) <= limit else f"{value[:limit]}... ({len(value):,} characters)"
 
 
 def progress_line(study: Any, target: int) -> str:
@@ -585,7 +651,7 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
     header = (
         f"canter tune: best trial {best.number} of study '{study.study_name}' ({len(complete)} complete)\n"
         f"objective {best.value:.2f}: deterministic evaluation return, mean over seeds "
-        f"{', '.join(map(str, settings.seeds))}; the best of {len(complete)} on the seeds that chose it, so it "
+        f"{seeds_text(settings.seeds)}; the best of {len(complete)} on the seeds that chose it, so it "
         f"overstates what the preset scores on new seeds\n"
         f"train with: canter train --config {BEST_FILE} --seed {max(settings.seeds) + 1}  (a seed the study did "
         f"not tune on; --seed {settings.seeds[0]} repeats the best trial's first run)"
