@@ -51,7 +51,10 @@ def parse_set_args(items: list[str]) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise CanterError(f"--set expects section.key=value, got {item!r}")
-        overrides[key.strip()] = value.strip()
+        key, value = key.strip(), value.strip()
+        if key in overrides:  # the last would silently win, and a sweep script that appends one hides its mistake
+            raise CanterError(f"--set {key} is given twice ({overrides[key]!r}, then {value!r}); keep one")
+        overrides[key] = value
     return overrides
 
 
@@ -71,6 +74,10 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if path.is_dir():
         raise CanterError(f"{path} is a folder; --config takes a TOML file, such as a run folder's config.toml")
+    if path.exists() and not path.is_file():  # a device or a pipe: /dev/zero would be read without end
+        raise CanterError(
+            f"{path} is not a regular file; --config takes a TOML file, such as a run folder's config.toml"
+        )
     if not path.is_file():
         raise CanterError(f"config file not found: {path}")
     try:

@@ -7,6 +7,7 @@ import re
 import types
 import typing
 from dataclasses import fields
+from decimal import Decimal
 from typing import Any
 
 from canter.config.schema import section_type
@@ -116,10 +117,21 @@ INT_LIMIT = 2**31
 STEP_KEYS = frozenset({"run.total_steps", "run.checkpoint_every", "run.eval_every", "run.video_every", "run.seed"})
 
 
+SHORT_FORM_DIGITS = 20  # past this an integer in a message is written as 1e+300, not 301 digits
+
+
+def short_int(number: int) -> str:
+    """`number` with thousands separators, or in e-notation (three significant digits) when it is too long to read."""
+    if abs(number) < 10**SHORT_FORM_DIGITS:
+        return f"{number:,}"
+    mantissa, _, exponent = f"{Decimal(number):.2e}".partition("e")  # Decimal: a float overflows past 1e308
+    return f"{mantissa.rstrip('0').rstrip('.')}e{exponent}"
+
+
 def _within_int_limit(key: str, number: int) -> int:
     limit = 2**53 if key in STEP_KEYS else INT_LIMIT
     if abs(number) >= limit:
-        raise CanterError(f"{key} must be below {limit:,} in size, got {number:,}")
+        raise CanterError(f"{key} must be below {limit:,} in size, got {short_int(number)}")
     return number
 
 

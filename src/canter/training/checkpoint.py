@@ -45,8 +45,11 @@ def _damaged_fix(path: Path) -> str:
     file, so without it the one before is used, if there is one."""
     if path.parent.name != checkpoint_dir(Path()).name or not (_NAME.match(path.name) or path.name == BEST_FILE):
         return "pass a sound one (a run folder's checkpoints/ckpt_*.npz)"
-    if path.name == BEST_FILE:
-        return f"use --checkpoint {LAST}, or move it away; the next evaluation during training writes a new one"
+    if path.name == BEST_FILE:  # read by train --resume too, which takes no --checkpoint: the advice fits both
+        return (
+            f"move it out of its folder (training's next evaluation writes a new one); eval, video, export and "
+            f"report can take --checkpoint {LAST} instead"
+        )
     if len(list_checkpoints(path.parent.parent)) > 1:
         return (
             "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "

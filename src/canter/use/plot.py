@@ -307,6 +307,7 @@ def moving_average(y: np.ndarray, window: int) -> np.ndarray:
     if window < 1:
         raise CanterError(f"--smooth must be >= 1 rows, got {window}")
     y = np.asarray(y, float)
+    window = min(window, max(len(y), 1))  # a longer window is the whole series, and must not size an array
     valid = ~np.isnan(y)
     sums = np.cumsum(np.where(valid, y, 0.0))
     counts = np.cumsum(valid)

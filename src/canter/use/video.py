@@ -19,13 +19,15 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import platform
 import re
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +45,12 @@ DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
 MUJOCO_GL_VALUES = frozenset(
     {"egl", "osmesa", "glfw", "glx", "cgl", "wgl", "enable", "on", "true", "1", "disable", "off", "false", "0"}
 )
+# Values under which MuJoCo's GLContext is GLFW's on Linux (its default, `enable` and the like), which opens an X11 or
+# Wayland connection: headless, it fails only at the first frame, deep inside Gymnasium's renderer.
+_DISPLAY_GL = frozenset({"glfw", "glx", "enable", "on", "true", "1"})
+_NO_GL = frozenset({"disable", "off", "false", "0"})
+_PLATFORM_GL = {"cgl": "Darwin", "wgl": "Windows", "glx": "Linux", "egl": "Linux", "osmesa": "Linux"}
+_HEADLESS_FIX = "unset MUJOCO_GL to let canter choose, or set egl or osmesa (headless)"
 MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL context
 # A caller stopped by a signal waits this long for its render subprocess to stop: a frame, then the encoder's end.
 _STOP_SECONDS = 30
@@ -97,6 +105,26 @@ def configure_gl() -> str:
     raise CanterError(unavailable_message(list(GL_PACKAGES)))
 
 
+def renderer_problem(chosen: str, system: str, environ: Mapping[str, str]) -> str | None:
+    """Why MUJOCO_GL=`chosen` cannot render on this `system` (platform.system()) with these environment variables,
+    or None. Kept apart from `configure_gl`, which accepts every name MuJoCo knows, whatever the machine."""
+    value = chosen.lower().strip()
+    if value in _NO_GL:
+        return f"MUJOCO_GL={chosen} turns MuJoCo's rendering off; {_HEADLESS_FIX}"
+    if _PLATFORM_GL.get(value, system) != system:
+        return f"MUJOCO_GL={chosen} is MuJoCo's renderer on {_PLATFORM_GL[value]}, not {system}; {_HEADLESS_FIX}"
+    if system == "Linux" and value in _DISPLAY_GL and not (environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY")):
+        return f"MUJOCO_GL={chosen} needs a display, and DISPLAY is not set; {_HEADLESS_FIX}"
+    return None
+
+
+def check_renderer() -> None:
+    """Refuse, in one line and before any rendering, a MUJOCO_GL that cannot render here."""
+    problem = renderer_problem(os.environ.get("MUJOCO_GL", ""), platform.system(), os.environ)
+    if problem:
+        raise CanterError(problem)
+
+
 def _headless_in_this_process() -> bool:
     """True when MuJoCo in this process renders (or will render) through EGL or OSMesa."""
     if "mujoco" not in sys.modules:
@@ -112,6 +140,14 @@ FREE_CAMERA = -1  # MuJoCo's free camera, which every model has (Gymnasium's and
 def _camera_index(camera: str) -> int | None:
     """The index a --camera value gives (-1: the free camera), or None for a camera name."""
     return int(camera) if re.fullmatch(r"-?\d+", camera.strip()) else None
+
+
+def gl_failure(env_id: str, gl: str, error: str, warned: Sequence[str]) -> str:
+    """The one line for MuJoCo's FatalError at the first frame: the first warning the glfw package gave as it
+    failed (such as `X11: Failed to open display :1`) names the cause better than MuJoCo's own message."""
+    # glfw formats its errors as `(code) b'text'`.
+    reason = re.sub(r"^\(\d+\) b(['\"])(.*)\1$", r"\2", warned[0]) if warned else error.partition(",")[0]
+    return f"cannot render {env_id} with MUJOCO_GL={gl}: {reason}; {_HEADLESS_FIX}"
 
 
 class _GymnasiumPlayer:
@@ -161,14 +197,27 @@ class _GymnasiumPlayer:
             )
 
     def _frame(self) -> np.ndarray:
-        try:
-            frame = self.env.render()
-        except ValueError as exc:  # Gymnasium's MuJoCo renderer reports a bad camera name here
-            raise CanterError(f"cannot render: {exc}") from None
-        except RuntimeError as exc:  # pygame.error: an SDL driver from the environment that this machine lacks
-            driver = os.environ.get("SDL_VIDEODRIVER", "dummy")
-            fix = f"; SDL_VIDEODRIVER={driver} asks for it: unset it, or set it to dummy" if driver != "dummy" else ""
-            raise CanterError(f"cannot render {self.env_id}: {exc}{fix}") from None
+        import mujoco
+
+        # Warnings are held until the frame renders: the glfw package warns as it fails to open a display, and then
+        # the first of them goes into the error's one line instead.
+        with warnings.catch_warnings(record=True) as caught:
+            try:
+                frame = self.env.render()
+            except mujoco.FatalError as exc:  # an OpenGL context that MuJoCo could not make
+                warned = [str(w.message) for w in caught if type(w.message).__name__ == "GLFWError"]
+                gl = os.environ.get("MUJOCO_GL", "")
+                raise CanterError(gl_failure(self.env_id, gl, str(exc), warned)) from None
+            except ValueError as exc:  # Gymnasium's MuJoCo renderer reports a bad camera name here
+                raise CanterError(f"cannot render: {exc}") from None
+            except RuntimeError as exc:  # pygame.error: an SDL driver from the environment that this machine lacks
+                driver = os.environ.get("SDL_VIDEODRIVER", "dummy")
+                fix = (
+                    f"; SDL_VIDEODRIVER={driver} asks for it: unset it, or set it to dummy" if driver != "dummy" else ""
+                )
+                raise CanterError(f"cannot render {self.env_id}: {exc}{fix}") from None
+        for w in caught:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         return _resize(np.asarray(frame), self.size)
 
     def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
@@ -400,6 +449,8 @@ def record_video(
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
 
+    if not str(out_path).strip():  # Path("") is ".", which the suffix check would name instead
+        raise CanterError("--out is empty; give the file to write, e.g. --out policy.mp4 (or .gif)")
     out = Path(out_path)
     check_video_args(out, episodes, width, height, fps, max_steps)
     header = read_header(resolve(Path(run_dir), checkpoint))
@@ -418,6 +469,7 @@ def record_video(
     from canter.use.policy import load
 
     configure_gl()
+    check_renderer()
     policy = load(run_dir, checkpoint)
     task = dm_control_task(policy.facts.env_id)
     player = (

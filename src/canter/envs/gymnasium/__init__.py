@@ -45,6 +45,13 @@ class GymnasiumBackend(Backend):
                 f"cannot import module '{module}' for env '{env_id}' ({exc}); check that it is "
                 f"installed or on PYTHONPATH"
             ) from None
+        except Exception as exc:  # the module's own code: a syntax error, or anything it raises as it runs
+            from canter.envs.gymnasium.single import raised
+
+            raise CanterError(
+                f"importing module '{module}' for env '{env_id}' raised {raised(exc)}; see the full traceback "
+                f'with: python -c "import {module}"'
+            ) from None
         if name not in self.supported_ids():
             raise CanterError(
                 f"module '{module}' did not register '{name}' with gymnasium; "

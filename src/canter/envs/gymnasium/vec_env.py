@@ -12,7 +12,7 @@ import numpy as np
 
 from canter.envs.base import IGNORED_INFO_KEYS, EnvSpec, StepOutput
 from canter.envs.gymnasium import NAME
-from canter.envs.gymnasium.single import make_single
+from canter.envs.gymnasium.single import check_observation, make_single, user_code
 
 
 class GymnasiumVecEnv:
@@ -24,14 +24,20 @@ class GymnasiumVecEnv:
         first = self._envs[0]
         self._num_envs = num_envs
         self._needs_reset = np.zeros(num_envs, bool)
-        observations, _infos = zip(*(env.reset(seed=int(seed)) for env, seed in zip(self._envs, seeds)))
+        with user_code(env_id, "reset"):
+            observations, _infos = zip(*(env.reset(seed=int(seed)) for env, seed in zip(self._envs, seeds)))
+        check_observation(env_id, first.observation_space, observations[0], "reset")
         self._first_obs = np.stack([np.asarray(o, np.float32).reshape(-1) for o in observations])
         # Probe one throwaway step on a separate env so the info keys are known before training starts.
         probe = make_single(env_id, **kwargs)
-        probe.reset(seed=0)
         space = probe.action_space  # 0, or the bound nearest it: an env may refuse an action outside its bounds
-        _, _, _, _, probe_info = probe.step(np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype))
+        with user_code(env_id, "reset or step"):
+            probe.reset(seed=0)
+            probe_obs, _, _, _, probe_info = probe.step(
+                np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype)
+            )
         probe.close()
+        check_observation(env_id, first.observation_space, probe_obs, "step")
         self._info_keys = tuple(
             sorted(
                 k
