@@ -283,7 +283,10 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
 
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")
-    one_line(["plot", str(truncated), "--out", str(tmp_path / "d.png")], "metrics.csv has no logged rows")
+    one_line(
+        ["plot", str(truncated), "--out", str(tmp_path / "d.png")],
+        "metrics.csv has no logged rows: the run has not finished an iteration",
+    )
     renamed = folder("renamed_header")  # once told to "train for at least one iteration"
     text = (renamed / "metrics.csv").read_text()
     (renamed / "metrics.csv").write_text(text.replace("global_step,", "step,", 1))

@@ -152,7 +152,11 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
             f"was edited or damaged; restore it from a copy"
         )
     if not header or not rows:
-        raise CanterError(f"{path} has no logged rows yet; train for at least one iteration")
+        # A run stopped in setup or in its first iteration (a signal, a non-finite start) has only the header too.
+        raise CanterError(
+            f"{path} has no logged rows: the run has not finished an iteration (it is compiling, or it stopped "
+            f"before its first one); leave it out, or train it on with canter train --resume {path.parent}"
+        )
     for row in rows:
         if not _is_number(row.get("global_step") or ""):
             raise CanterError(
