@@ -359,3 +359,8 @@ def test_settings_that_would_do_nothing_or_write_into_the_current_folder_are_ref
     with pytest.raises(CanterError, match=message):
         build_config("Hopper-v5", sets=sets)
     assert build_config("Hopper-v5", sets=["env.backend=envpool", "env.envpool_shards=2"]).env.envpool_shards == 2
+
+
+def test_an_empty_algo_is_refused_rather_than_read_as_the_default():
+    with pytest.raises(CanterError, match=r"^--algo is empty; give one of ppo, .*, or drop --algo$"):
+        build_config("Hopper-v5", algo="")

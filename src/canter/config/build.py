@@ -5,7 +5,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from canter.config.algorithms import check_algorithm_name, check_ignored_keys, reads_key, unread_key_error
+from canter.config.algorithms import (
+    algorithm_names,
+    check_algorithm_name,
+    check_ignored_keys,
+    reads_key,
+    unread_key_error,
+)
 from canter.config.overrides import (
     apply_overrides,
     flatten_toml,
@@ -95,6 +101,8 @@ def build_config(
         raise CanterError("--config is empty; give a TOML file, or drop --config")
     if preset == "":
         raise CanterError(f"--preset is empty; give one of {', '.join(preset_names())}, or drop --preset")
+    if algo == "":
+        raise CanterError(f"--algo is empty; give one of {', '.join(algorithm_names())}, or drop --algo")
     file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
