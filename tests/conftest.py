@@ -29,6 +29,15 @@ def _in_tmp_dir(tmp_path, monkeypatch):
 
 
 TINY = ["net.hidden=16,16", "run.tensorboard=false"]
+
+
+def over(base: list[str], extra: list[str]) -> list[str]:
+    """`--set` items of `base` with those of `extra` laid over them: a key in both keeps `extra`'s value (canter
+    refuses a key given twice)."""
+    keyed = {item.partition("=")[0]: item for item in [*base, *extra]}
+    return list(keyed.values())
+
+
 # A run folder of canter's format 1 (tests/fixtures/make_runs.py wrote it): InvertedPendulum-v4, ppo, no best.npz.
 ARCHIVED_RUN = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
 

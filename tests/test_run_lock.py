@@ -131,3 +131,50 @@ def test_a_second_resume_is_refused_with_one_line_while_readers_go_on(tmp_path, 
         first.wait(120)
     # Stopped while training (a checkpoint and exit 0) or still setting up (SIGTERM's default action).
     assert first.returncode in (0, -signal.SIGTERM), first.stderr.read() if first.stderr else ""
+
+
+OUT_OF_FILES = """
+import os, resource, sys
+from pathlib import Path
+from canter.errors import CanterError
+from canter.training import run_lock
+
+out, case = Path(sys.argv[1]), sys.argv[2]
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+spare = []
+try:
+    with run_lock.RunLocks() as locks:
+        for i in range(200 if case == "take" else 3):
+            locks.take(out / f"run{i}")
+        while case == "release":  # the locks are released with no descriptor free
+            spare.append(os.open(os.devnull, os.O_RDONLY))
+except CanterError as exc:
+    print(exc)
+except OSError:
+    for fd in spare:
+        os.close(fd)
+print("left:", sorted(p.name for p in out.parent.iterdir()))
+"""
+
+
+@pytest.mark.slow
+def test_running_out_of_open_files_while_locking_is_one_line_and_removes_the_folders_made(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-c", OUT_OF_FILES, str(tmp_path / "runs"), "take"], capture_output=True, text=True
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    error, left = done.stdout.strip().splitlines()
+    assert error.startswith("this process ran out of open files after locking ")
+    assert error.endswith(
+        "(ulimit -n is 64); use fewer at once (fewer seeds), or raise the limit first, e.g. `ulimit -n 128`"
+    )
+    assert left == "left: []", "no run folder, nor the runs/ folder made for them, is left"
+
+
+@pytest.mark.slow
+def test_locks_released_with_no_descriptor_free_still_remove_the_folders_they_made(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-c", OUT_OF_FILES, str(tmp_path / "runs"), "release"], capture_output=True, text=True
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert done.stdout.strip() == "left: []"

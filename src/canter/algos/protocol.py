@@ -16,7 +16,7 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
   to the action bounds; `policy_params(state)` picks what it needs out of the train state.
 - `export_actor(config, state, spec)` describes the deterministic actor as plain arrays (`ExportedActor`), for ONNX and
   npz export.
-- `donate_state`, `policy_checkpoint_leaves_out`: see the fields' comments.
+- `donate_state`, `policy_checkpoint_leaves_out`, `size_keys`: see the fields' comments.
 - `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts;
   the trainer passes the env's `EnvSpec`.
 
@@ -78,6 +78,9 @@ class Algorithm:
     # ever read for their policy (best.npz, a video's snapshot) leave them out, which for td3 at a 1M buffer keeps
     # some 170 MB from being written at every better evaluation.
     policy_checkpoint_leaves_out: tuple[str, ...] = ()
+    # The config key that sets the size of each large field of the train state (("buffer", "td3.buffer_size"), ...):
+    # a train state too large for the memory is refused naming the key behind most of it (canter.algos.state_size).
+    size_keys: tuple[tuple[str, str], ...] = ()
 
 
 def export_mlp_actor(

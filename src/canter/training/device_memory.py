@@ -2,7 +2,10 @@
 
 The largest arrays of a JAX-native run grow with env.num_envs (the envs' physics state, the rollout), so that is the
 setting the error names. Where the device reports its memory (GPUs do; the CPU does not), the check runs after the
-compile and before any training; an allocation that still fails later gets the same message."""
+compile and before any training; an allocation that still fails later gets the same message. On the CPU, what the
+program needs beyond its arguments (the train state and the envs, in memory already by then) is compared with the
+machine's available memory: its rollout, batches and activations grow with env.num_envs, the rollout and batch
+sizes and the hidden layer sizes."""
 
 from __future__ import annotations
 
@@ -44,10 +47,34 @@ def too_many_envs(num_envs: int, need: int | None = None, free: int | None = Non
     )
 
 
+def too_large_for_the_host(more: int, available: int) -> CanterError:
+    from canter.training.host_memory import size_text
+
+    return CanterError(
+        f"the training program needs about {size_text(more)} of memory beyond its train state and envs (its "
+        f"rollout, batches and activations), but {size_text(available)} are available; lower env.num_envs, the "
+        f"rollout or batch sizes, or the hidden layer sizes"
+    )
+
+
 def check_fits(compiled: Any, num_envs: int) -> None:
     need, free = required_bytes(compiled), free_bytes()
-    if need is not None and free is not None and need > free:
-        raise too_many_envs(num_envs, need, free)
+    if need is None:
+        return
+    if free is not None:
+        if need > free:
+            raise too_many_envs(num_envs, need, free)
+        return
+    import jax
+
+    from canter.training import host_memory
+
+    if jax.devices()[0].platform != "cpu":
+        return
+    available = host_memory.available_bytes()
+    more = need - int(getattr(compiled.memory_analysis(), "argument_size_in_bytes", 0) or 0)
+    if available is not None and more > host_memory.HEADROOM * available:
+        raise too_large_for_the_host(more, available)
 
 
 def is_out_of_memory(exc: BaseException) -> bool:

@@ -5,7 +5,11 @@ env, about 0.5 MB for Hopper), so `env.num_envs=200000` would take about 100 GB,
 killer would end the process with no message. For large env counts, the memory of a few envs is measured (the
 process's resident size before and after making them, after a first env has paid the one-time costs of the
 library, in a process of its own), scaled to the run's count and compared with what the machine has available.
-JAX-native backends are checked on the compiled program instead (`canter.training.device_memory`)."""
+JAX-native backends are checked on the compiled program instead (`canter.training.device_memory`).
+
+The train state (a replay buffer, the networks and their optimizer's moments) is checked the same way before it is
+built, from its shapes (`canter.algos.state_size`), against the device's free memory where the device reports it
+(a GPU) and the machine's otherwise: a td3.buffer_size of a billion would take 41 GiB at once."""
 
 from __future__ import annotations
 
@@ -14,14 +18,22 @@ import os
 import subprocess
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from canter.errors import CanterError
 
+if TYPE_CHECKING:
+    from canter.algos.protocol import Algorithm
+    from canter.algos.state_size import StateSize
+    from canter.config.schema import Config
+
 CHECK_ABOVE = 1024  # envs; smaller runs are not measured (a handful of MB per env at most)
 PROBE_ENVS = 8
-HEADROOM = 0.9  # of the available memory that the envs may take
+HEADROOM = 0.9  # of the available memory that the envs, a train state or a program may take
 GIB = 1024**3
+# The least an env takes on any backend, measured or not: its seed in the list the trainer makes of them (a Python
+# int and the list's pointer to it, and the uint32 it is drawn as), so that a count no machine holds is refused.
+MIN_BYTES_PER_ENV = 48
 
 
 def available_bytes() -> int | None:
@@ -57,17 +69,29 @@ def bytes_per_env(make: Callable[[int], Any]) -> float | None:
     return max(after - before, 0) / PROBE_ENVS
 
 
-def refusal(num_envs: int, per_env: float, available: int) -> CanterError | None:
-    """The one-line error when `num_envs` envs of `per_env` bytes do not fit in `available` bytes, else None."""
-    need = per_env * num_envs
-    if need <= HEADROOM * available:
+def refusal(num_envs: int, per_env: float, available: int, group: int = 1, measured: bool = True) -> CanterError | None:
+    """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (`measured`, or the least an
+    env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is fewer seeds at a
+    time, not fewer envs."""
+    total = num_envs * group
+    need = per_env * total
+    room = HEADROOM * available
+    if need <= room:
         return None
-    fits = max(int(HEADROOM * available / per_env), 1) if per_env > 0 else num_envs
-    return CanterError(
-        f"env.num_envs={num_envs} needs about {need / GIB:.1f} GiB of memory for its envs ({per_env / 2**20:.2f} "
-        f"MiB each, measured), but {available / GIB:.1f} GiB are available; lower it, e.g. "
-        f"--set env.num_envs={fits}"
-    )
+    fits = max(int(room / per_env), 1) if per_env > 0 else total
+    amount = f"about {size_text(need)} of memory"
+    if group > 1:
+        what = f"{group} seeds of env.num_envs={num_envs} ({total} envs) need {amount} for their"
+    else:
+        what = f"env.num_envs={num_envs} needs {amount} for its"
+    each = f"{per_env / 2**20:.2f} MiB each, measured" if measured else f"at least {per_env:.0f} bytes each"
+    if not measured:  # a count that fits this floor can still be far too many envs
+        fix = "lower it by far (an env takes much more than its seed)"
+    elif group > 1 and num_envs <= fits:
+        fix = fewer_seeds(fits // num_envs)
+    else:
+        fix = f"lower it, e.g. --set env.num_envs={fits}" + (", with one seed at a time" if group > 1 else "")
+    return CanterError(f"{what} envs ({each}), but {size_text(available)} are available; {fix}")
 
 
 _PROBE = """
@@ -101,16 +125,90 @@ def bytes_per_env_apart(env_id: str, backend: str, options: dict[str, Any]) -> f
     return float(measured) if measured is not None else None
 
 
-def check_envs_fit(env_id: str, backend: str, options: dict[str, Any], num_envs: int) -> None:
-    """Refuse, before creating them, `num_envs` envs that the machine's memory cannot hold."""
-    if num_envs <= CHECK_ABOVE:
+def check_envs_fit(
+    env_id: str, backend: str, options: dict[str, Any], num_envs: int, group: int = 1, measure: bool = True
+) -> None:
+    """Refuse, before creating them (and before listing their seeds), `group` seeds' `num_envs` envs each that the
+    machine's memory cannot hold. With `measure`, as envs stepped on the host are, each a simulator of its own, an
+    env's memory is measured; any env takes at least MIN_BYTES_PER_ENV."""
+    if num_envs * group <= CHECK_ABOVE:
         return
     available = available_bytes()
     if available is None:
         return
-    per_env = bytes_per_env_apart(env_id, backend, options)
+    per_env = bytes_per_env_apart(env_id, backend, options) if measure else None
     if per_env is None:
-        return
-    error = refusal(num_envs, per_env, available)
+        error = refusal(num_envs, MIN_BYTES_PER_ENV, available, group, measured=False)
+    else:
+        error = refusal(num_envs, max(per_env, MIN_BYTES_PER_ENV), available, group)
     if error is not None:
         raise error
+
+
+def state_copies(group: int) -> int:
+    """The train states a group holds at its peak: one per seed and, while they are stacked onto a seed axis
+    (`canter.training.seedgroup.stack`), the stacked copy."""
+    return 1 if group == 1 else 2 * group
+
+
+def seeds_that_fit(per_seed: int, room: float) -> int:
+    """The largest group whose train states, of `per_seed` bytes each, fit in `room` bytes (0: not even one)."""
+    pairs = int(room // (2 * per_seed)) if per_seed > 0 else 2
+    return pairs if pairs >= 2 else int(per_seed <= room)
+
+
+def _setting(value: Any) -> str:
+    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
+def size_text(size: float) -> str:
+    return f"{size / GIB:.1f} GiB" if size >= GIB else f"{size / 2**20:.1f} MiB"
+
+
+def fewer_seeds(fits: int) -> str:
+    return "train one seed at a time" if fits == 1 else f"train at most {fits} seeds at a time"
+
+
+def state_refusal(
+    size: StateSize, value: Any, group: int, available: int, where: str, smaller: Any | None = None
+) -> CanterError | None:
+    """The one-line error when `group` train states of `size` (whose key has `value`) do not fit in `available` bytes
+    of `where`, else None; `smaller` is a value of the key that would fit."""
+    need = size.total * state_copies(group)
+    if need <= HEADROOM * available:
+        return None
+    amounts = f"about {size_text(need)} of {where}"
+    have = f"but {size_text(available)} are available"
+    if group > 1 and (fits := seeds_that_fit(size.total, HEADROOM * available)) >= 1:
+        return CanterError(
+            f"the train states of {group} seeds need {amounts} ({size_text(size.total)} each, and as much again "
+            f"while they are stacked), {have}; {fewer_seeds(fits)}"
+        )
+    whose = f"the train states of {group} seeds need" if group > 1 else "the train state needs"
+    if size.key is None:
+        return CanterError(f"{whose} {amounts}, {have}")
+    fix = f"lower {size.key}" + (f", e.g. --set {size.key}={_setting(smaller)}" if smaller is not None else "")
+    share = size_text(size.share * state_copies(group))
+    return CanterError(f"{whose} {amounts}, {share} of it for {size.key}={_setting(value)}, {have}; {fix}")
+
+
+def check_state_fits(algorithm: Algorithm, config: Config, spec: Any, group: int, free: int | None) -> None:
+    """Refuse, before it is built, a train state for each of `group` seeds that the memory it goes to cannot hold:
+    the device's where it reports its `free` memory (a GPU: `device_memory.free_bytes`), else the machine's."""
+    from canter.algos.state_size import key_value, smaller_value, state_size
+
+    available, where = (free, "the device's memory") if free is not None else (available_bytes(), "memory")
+    if available is None:
+        return
+    size = state_size(algorithm, config, spec)
+    value = key_value(config, size.key) if size.key is not None else None
+    if state_refusal(size, value, group, available, where) is None:
+        return
+    smaller = None
+    if size.key is not None and (group == 1 or seeds_that_fit(size.total, HEADROOM * available) == 0):
+        smaller = smaller_value(
+            algorithm, config, spec, size.key, lambda total: total * state_copies(group) <= HEADROOM * available
+        )
+    error = state_refusal(size, value, group, available, where, smaller)
+    assert error is not None
+    raise error

@@ -20,7 +20,7 @@ from canter.config.validate import validate
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import WriteError, is_write_error
 from canter.signals import StopFlag
-from canter.training import checkpoint, disk_room, host_memory, run_folder, run_lock, trackers
+from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram
 from canter.training.logger import Progress, totals_until
@@ -74,18 +74,8 @@ def resume_seeds(
     its budget already (a seed of the group that finished before a signal stopped the others) is left out with a
     note; the results are those of the folders resumed."""
     configs = [resume_config(Path(d), total_steps, max_minutes, stop_at_return) for d in run_dirs]
-    seeds = [c.run.seed for c in configs]
-    if len(set(seeds)) != len(seeds):
-        raise CanterError(
-            f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct seeds"
-        )
-    reference = replace(configs[0].run, seed=0)
-    for run_dir, config in zip(run_dirs, configs):
-        if replace(config, run=replace(config.run, seed=0)) != replace(configs[0], run=reference):
-            raise CanterError(
-                f"{run_dir} has a config that differs from {run_dirs[0]} in more than run.seed; resume "
-                f"folders with different configs one at a time"
-            )
+    # Checked before the seeds: two runs of different experiments repeat seeds too, which would hide the cause.
+    _check_one_group(run_dirs, configs)
     finished = [_has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
     if len(run_dirs) > 1 and any(finished) and not all(finished):
         for run_dir in (d for d, done in zip(run_dirs, finished) if done):
@@ -96,6 +86,42 @@ def resume_seeds(
         run_dirs = [d for d, done in zip(run_dirs, finished) if not done]
         configs = [c for c, done in zip(configs, finished) if not done]
     return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
+
+
+def _check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> None:
+    """Folders resume together as one group when they are distinct runs of one config that differ in run.seed."""
+    from canter.config.experiment import differing_keys, flat_config
+
+    seen: dict[Path, str | Path] = {}
+    for run_dir in run_dirs:
+        if (folder := Path(run_dir).resolve()) in seen:
+            other = f" (as {seen[folder]})" if str(seen[folder]) != str(run_dir) else ""
+            raise CanterError(
+                f"the run folders to resume together have repeated seeds: {run_dir} is given twice{other}; give "
+                f"each run folder once"
+            )
+        seen[folder] = run_dir
+    reference = replace(configs[0], run=replace(configs[0].run, seed=0))
+    for run_dir, config in zip(run_dirs, configs):
+        if replace(config, run=replace(config.run, seed=0)) != reference:
+            keys = [k for k in differing_keys([configs[0], config], key_of=flat_config) if k != "run.seed"]
+            keys.sort(key=lambda k: k not in ("env.id", "run.algo"))  # what tells two experiments apart first
+            named = ", ".join(keys[:4]) + (f" and {len(keys) - 4} more keys" if len(keys) > 4 else "")
+            if differing_keys([configs[0], config]):
+                fix = "they are runs of different experiments, which resume one at a time"
+            elif keys == ["run.total_steps"]:
+                fix = "pass --total-steps to give them one budget, or resume them one at a time"
+            else:
+                fix = "resume them one at a time"
+            raise CanterError(
+                f"{run_dir} differs from {run_dirs[0]} in more than run.seed{f' ({named})' if named else ''}; {fix}"
+            )
+    seeds = [c.run.seed for c in configs]
+    if len(set(seeds)) != len(seeds):
+        raise CanterError(
+            f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct seeds: resume "
+            f"the folders of one seed one at a time"
+        )
 
 
 def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path) -> None:
@@ -178,6 +204,7 @@ def _train_locked(
         validate(config)
     played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
     note_replay(configs[0].env.id, backend, played)
+    _check_resources(configs, backend)  # before a folder is made, and before the envs' seed lists are
     started = time.perf_counter()
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
@@ -189,6 +216,8 @@ def _train_locked(
         algorithm = get_algorithm(configs[0].run.algo)
         try:
             algorithm.validate(configs[0], spec)
+            if all(start.state is None for start in starts):  # a resumed state was checked when its run started
+                host_memory.check_state_fits(algorithm, configs[0], spec, len(configs), device_memory.free_bytes())
             states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
             carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
@@ -199,6 +228,18 @@ def _train_locked(
             raise error from None
         finally:
             env.close()
+
+
+def _check_resources(configs: list[Config], backend: str) -> None:
+    """Refuse a group that the process's open files or the machine's memory cannot hold, before anything is made:
+    the list of env seeds alone grows with the envs."""
+    from canter.envs.registry import env_options, get_backend
+
+    run_lock.check_open_files(len(configs))
+    env = configs[0].env
+    # JAX envs are not measured: their memory is checked on the compiled program (canter.training.device_memory).
+    measure = not get_backend(backend).jax_native
+    host_memory.check_envs_fit(env.id, backend, env_options(env, backend), env.num_envs, len(configs), measure)
 
 
 def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> SeedStart:
@@ -230,12 +271,10 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
 def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
     """The group's vector env: one env per seed in `seeds`, the seeds of a group one block after another."""
     from canter.envs import make_vec_env
-    from canter.envs.registry import env_options, get_backend
+    from canter.envs.registry import env_options
 
     options = env_options(config.env, backend)
     try:
-        if not get_backend(backend).jax_native:  # JAX envs are checked on the compiled program instead
-            host_memory.check_envs_fit(config.env.id, backend, options, len(seeds))
         return make_vec_env(config.env.id, backend, len(seeds), seeds, config.env.envpool_shards, **options)
     except DiscreteActionsError as exc:
         raise CanterError(
@@ -312,6 +351,8 @@ def _loop(
     inside the vmapped program until the last seed is done, but nothing of it is kept."""
     config = configs[0]
     program = GroupProgram(config, algorithm, spec, env, states, carry)
+    # A group's program holds the seeds' states stacked: their own copies would double its memory for the whole run.
+    states.clear()
     runs = _open_seeds(configs, spec, starts, program, started, stop)
     label = f"{spec.id} {config.run.algo}" + (f" x{program.group} seeds" if program.group > 1 else "")
     progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)

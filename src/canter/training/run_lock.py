@@ -15,6 +15,10 @@ folder then, so none of them is being written.
 
 Locks are re-entrant within a process: a bench job holds its folders while it trains and evaluates them, and the
 trainer it calls takes them again.
+
+Each lock holds a file open for as long as its run, so a group of thousands of seeds can exceed the process's limit
+of open files (`ulimit -n`): the trainer refuses such a group before it makes a folder (`check_open_files`), and
+running out of files while locking is one line too, the folders made for the locks removed again.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import errno
 import fcntl
 import json
 import os
+import resource
 import socket
 import sys
 from dataclasses import dataclass
@@ -36,6 +41,9 @@ from canter.errors import CanterError
 from canter.files import WriteError, is_write_error, make_folder
 
 LOCK_FILE = ".writer.lock"
+OUT_OF_FILES = (errno.EMFILE, errno.ENFILE)  # the process's or the system's table of open files is full
+FILES_PER_RUN = 3  # what a training run keeps open: its writer lock, metrics.csv and TensorBoard's events
+SPARE_FILES = 32  # what a process opens beyond its runs': envs, evaluations, a video's encoder, the libraries
 
 
 @dataclass
@@ -138,7 +146,8 @@ def open_lock_file(run_dir: Path) -> int:
 def acquire(run_dir: Path) -> None:
     """Hold the run folder's writer lock, or raise a one-line CanterError naming the process that holds it. A
     folder that does not exist yet is created (with the folders above it), and removed again at `release` if
-    nothing but the lock was written to it. Each `acquire` is matched by a `release`."""
+    nothing but the lock was written to it, or at once if taking the lock fails. Each `acquire` is matched by a
+    `release`."""
     run_dir = Path(run_dir)
     key = run_dir.resolve()
     if key in _HELD:
@@ -146,7 +155,11 @@ def acquire(run_dir: Path) -> None:
         return
     path = run_dir / LOCK_FILE
     created = _missing_folders(run_dir)
-    fd = open_lock_file(run_dir)
+    try:
+        fd = open_lock_file(run_dir)
+    except BaseException:
+        _remove_created(created)
+        raise
     try:
         locked = flock(fd)
         holder = read_holder(run_dir)
@@ -156,11 +169,24 @@ def acquire(run_dir: Path) -> None:
         _remove_half_written(run_dir)
     except BaseException as exc:
         os.close(fd)
+        if isinstance(exc, OSError):  # not a refusal, where another process may have the lock file open
+            _remove_created(created)
         if is_write_error(exc):
             assert isinstance(exc, OSError)
             raise WriteError(path, exc) from None
         raise
     _HELD[key] = _Held(fd, created)
+
+
+def _remove_created(created: list[Path]) -> None:
+    """Remove the folders (innermost first) that a failed `acquire` made, with the lock file it left in them. Neither
+    needs a file descriptor, which a process that ran out of them has none of."""
+    if not created:
+        return
+    with contextlib.suppress(OSError):
+        (created[0] / LOCK_FILE).unlink(missing_ok=True)
+        for folder in created:
+            folder.rmdir()
 
 
 def _missing_folders(run_dir: Path) -> list[Path]:
@@ -191,13 +217,70 @@ def release(run_dir: Path) -> None:
     if held.holds:
         return
     del _HELD[key]
-    if held.created and [p.name for p in held.created[0].iterdir()] == [LOCK_FILE]:
+    fd: int | None = held.fd
+    try:
+        unwritten = bool(held.created) and _holds_only_the_lock(held.created[0])
+    except OSError as exc:
+        if exc.errno not in OUT_OF_FILES:
+            os.close(held.fd)
+            raise
+        # Listing the folder takes a descriptor, which a process that ran out of them gets by closing this lock's.
+        os.close(held.fd)
+        fd = None
+        unwritten = _holds_only_the_lock(held.created[0])
+    if unwritten:
         # A run that failed before writing anything leaves no folder behind, nor the --out-dir made for it.
         (held.created[0] / LOCK_FILE).unlink()
         with contextlib.suppress(OSError):  # a folder that something else has written to since stays
             for folder in held.created:
                 folder.rmdir()
-    os.close(held.fd)  # releases the flock; the file stays, so every writer locks the same file
+    if fd is not None:
+        os.close(fd)  # releases the flock; the file stays, so every writer locks the same file
+
+
+def _holds_only_the_lock(folder: Path) -> bool:
+    return [p.name for p in folder.iterdir()] == [LOCK_FILE]
+
+
+def open_files_refusal(runs: int, per_run: int, open_now: int, limit: int, hard: int) -> CanterError | None:
+    """The one-line error when `runs` run folders that keep `per_run` files open each, in a process with `open_now`
+    files open already, exceed its limit of open files (`limit`, at most `hard`; RLIM_INFINITY: none), else None."""
+    need = open_now + SPARE_FILES + runs * per_run
+    if limit == resource.RLIM_INFINITY or need <= limit:
+        return None
+    fits = (limit - open_now - SPARE_FILES) // per_run
+    raised = 1 << (need - 1).bit_length()  # a round number, as ulimit -n values go
+    if hard != resource.RLIM_INFINITY:
+        raised = min(raised, hard)
+    fixes = [f"train at most {fits} seeds at a time" if fits > 1 else "train one seed at a time"] if fits >= 1 else []
+    if raised >= need:
+        fixes.append(f"raise the limit first, e.g. `ulimit -n {raised}`")
+    else:
+        fixes.append(f"have the hard limit (ulimit -Hn, now {hard}) raised to {need} or more")
+    return CanterError(
+        f"{runs} runs at once keep about {runs * per_run} files open ({per_run} each: its lock, metrics.csv, "
+        f"TensorBoard's events), but this process may open only {limit} (ulimit -n); {', or '.join(fixes)}"
+    )
+
+
+def check_open_files(runs: int, per_run: int = FILES_PER_RUN) -> None:
+    """Refuse, before any run folder is made, a group whose open files the process's limit cannot hold."""
+    limit, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    try:
+        open_now = len(os.listdir("/proc/self/fd"))
+    except OSError:  # no /proc: SPARE_FILES stands in for them
+        open_now = 0
+    error = open_files_refusal(runs, per_run, open_now, limit, hard)
+    if error is not None:
+        raise error
+
+
+def out_of_files(locked: int) -> CanterError:
+    limit = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    return CanterError(
+        f"this process ran out of open files after locking {locked} run folders (ulimit -n is {limit}); "
+        f"use fewer at once (fewer seeds), or raise the limit first, e.g. `ulimit -n {2 * limit}`"
+    )
 
 
 class RunLocks(contextlib.AbstractContextManager["RunLocks"]):
@@ -207,7 +290,13 @@ class RunLocks(contextlib.AbstractContextManager["RunLocks"]):
         self._held: list[Path] = []
 
     def take(self, run_dir: Path) -> None:
-        acquire(run_dir)
+        """Lock `run_dir` too; out of open files, a one-line error, and the folders made for the locks go on exit."""
+        try:
+            acquire(run_dir)
+        except OSError as exc:
+            if exc.errno in OUT_OF_FILES:
+                raise out_of_files(len(self._held)) from None
+            raise
         self._held.append(Path(run_dir))
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:

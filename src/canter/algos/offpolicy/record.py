@@ -48,6 +48,7 @@ def offpolicy_algorithm(
         validate=validate,
         donate_state=True,
         policy_checkpoint_leaves_out=("buffer",),
+        size_keys=(("buffer", f"{name}.buffer_size"), ("learner", f"{name}.hidden"), ("ou_state", "env.num_envs")),
     )
 
 

@@ -27,6 +27,10 @@ PPO_METRICS = (
 )
 
 
+# The actor's and the critic's layers, and Adam's two moments of each.
+GAUSSIAN_SIZE_KEYS = (("params", "net.hidden"), ("opt_state", "net.hidden"))
+
+
 def _init_state(config: Config, spec: Any) -> Any:
     from canter.algos.ppo.iteration import init_train_state
 
@@ -93,6 +97,7 @@ ALGORITHMS = {
         policy_params=gaussian_policy_params,
         export_actor=export_gaussian_actor,
         validate=validate_continuous,
+        size_keys=GAUSSIAN_SIZE_KEYS,
     ),
     "rpo": Algorithm(
         name="rpo",
@@ -103,5 +108,6 @@ ALGORITHMS = {
         policy_params=gaussian_policy_params,
         export_actor=export_gaussian_actor,
         validate=validate_continuous,
+        size_keys=GAUSSIAN_SIZE_KEYS,
     ),
 }

@@ -56,5 +56,6 @@ ALGORITHMS = {
         policy_params=gaussian_policy_params,
         export_actor=export_gaussian_actor,
         validate=_nothing_to_check,
+        size_keys=(("params", "net.hidden"), ("critic_opt_state", "net.hidden")),
     ),
 }
