@@ -38,6 +38,17 @@ def over(base: list[str], extra: list[str]) -> list[str]:
     return list(keyed.values())
 
 
+def error_line(capsys, argv) -> str:
+    """The one stderr line of a refused command, without its `canter: error: ` prefix."""
+    from canter.cli.main import main
+
+    code = main(argv)
+    out, err = capsys.readouterr()
+    assert code == 2, (argv, out, err)
+    assert err.count("\n") == 1 and err.startswith("canter: error: ") and "Traceback" not in err, err
+    return err.removeprefix("canter: error: ").rstrip("\n")
+
+
 # A run folder of canter's format 1 (tests/fixtures/make_runs.py wrote it): InvertedPendulum-v4, ppo, no best.npz.
 ARCHIVED_RUN = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
 

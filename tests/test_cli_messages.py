@@ -10,16 +10,7 @@ import pytest
 from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
-
-
-def error_line(capsys, argv) -> str:
-    """The one stderr line of a refused command, without its `canter: error: ` prefix."""
-    code = main(argv)
-    out, err = capsys.readouterr()
-    assert code == 2, (argv, out, err)
-    assert err.count("\n") == 1 and err.startswith("canter: error: ") and "Traceback" not in err, err
-    return err.removeprefix("canter: error: ").rstrip("\n")
-
+from conftest import error_line
 
 SEEDS_RANGE = "expected seeds from 0 to 4294967295, got '-1,2' (see --help)"
 
