@@ -111,6 +111,15 @@ def check_sym(sym: SymConfig, name: str) -> None:
     need(sym.compare in ("mean", "log_prob"), f"{name}.compare must be mean or log_prob, got '{sym.compare}'")
     pairs = parse_groups(sym.groups, sym.negate)
     need(sym.coef == 0 or bool(pairs), f"{name}.coef > 0 needs {name}.groups, e.g. {name}.groups=3:7=7:11")
+    # A dimension compared with itself adds nothing to the loss, unless its mean is compared with its own negation
+    # (a joint on the plane of symmetry, which the loss then pushes towards 0).
+    for pair in pairs:
+        for index, mirror, sign in zip(pair.first, pair.mirror, pair.signs):
+            need(
+                index != mirror or (sign < 0 and sym.compare == "mean"),
+                f"{name}.groups pairs dimension {index} with itself, which adds nothing to the loss; drop it, or "
+                f"(with {name}.compare=mean) list it in {name}.negate to push that dimension's mean towards 0",
+            )
 
 
 ROLLOUT_KEYS = ("env.num_envs", "ppo.n_steps")
