@@ -31,13 +31,6 @@ def _in_tmp_dir(tmp_path, monkeypatch):
 TINY = ["net.hidden=16,16", "run.tensorboard=false"]
 
 
-def over(base: list[str], extra: list[str]) -> list[str]:
-    """`--set` items of `base` with those of `extra` laid over them: a key in both keeps `extra`'s value (canter
-    refuses a key given twice)."""
-    keyed = {item.partition("=")[0]: item for item in [*base, *extra]}
-    return list(keyed.values())
-
-
 def error_line(capsys, argv) -> str:
     """The one stderr line of a refused command, without its `canter: error: ` prefix."""
     from canter.cli.main import main

@@ -31,7 +31,7 @@ from canter.training.loop import resume_config, resume_seeds, train, train_seeds
 from canter.training.restore import load_state
 from canter.training.run_folder import read_config
 from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
-from conftest import TINY, over
+from conftest import TINY
 from signals import sigterm_once_logging
 
 ATOL = 1e-5  # losses and parameters
@@ -47,7 +47,7 @@ SMALL = TINY + [
 
 
 def _config(out, env="Hopper-v5", total=2048, extra=(), seed=None):
-    return build_config(env, total_steps=total, seed=seed, sets=over(SMALL, [f"run.out_dir={out}", *extra]))
+    return build_config(env, total_steps=total, seed=seed, sets=SMALL + [f"run.out_dir={out}"] + list(extra))
 
 
 def _rows(run_dir):

@@ -107,9 +107,9 @@ def test_bench_refuses_a_set_of_a_key_its_grid_gives(key, grid):
         make_cells(_bench(grid=((key, grid),), sets=(f"{key}=0.2",)))
 
 
-def test_bench_refuses_a_set_key_given_twice():
-    with pytest.raises(CanterError, match=r"^--set ppo.clip is given twice \('0.1', then '0.2'\); keep one$"):
-        make_cells(_bench(sets=("ppo.clip=0.1", "ppo.clip=0.2")))
+def test_bench_takes_the_last_of_a_set_key_given_twice():
+    (cell,) = make_cells(_bench(sets=("ppo.clip=0.1", "ppo.clip=0.2")))
+    assert cell.config.ppo.clip == 0.2
 
 
 # -------------------------------------------------------------------------------------------- where things go

@@ -10,7 +10,7 @@ from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training.loop import resume_config, train, train_seeds
 from canter.training.restore import load_state
-from conftest import TINY, over
+from conftest import TINY
 from signals import sigterm_during_setup, sigterm_once_logging
 
 pytestmark = pytest.mark.slow
@@ -25,7 +25,7 @@ SMALL = TINY + [
 
 
 def _config(total=4096, env="Pendulum-v1", extra=()):
-    return build_config(env, total_steps=total, sets=over(SMALL, list(extra)))
+    return build_config(env, total_steps=total, sets=SMALL + list(extra))
 
 
 def _leaves_equal(a, b):

@@ -95,6 +95,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command is None:
             parser.print_help()
             return 2
+        from canter.config.overrides import repeated_set_note
+
+        note = repeated_set_note(getattr(args, "set", None) or [])
+        if note:
+            print(f"canter: note: {note}", file=sys.stderr)
         return args.func(args)
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr)

@@ -51,11 +51,23 @@ def parse_set_args(items: list[str]) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise CanterError(f"--set expects section.key=value, got {item!r}")
-        key, value = key.strip(), value.strip()
-        if key in overrides:  # the last would silently win, and a sweep script that appends one hides its mistake
-            raise CanterError(f"--set {key} is given twice ({overrides[key]!r}, then {value!r}); keep one")
-        overrides[key] = value
+        overrides[key.strip()] = value.strip()  # the last wins: a script lays its own --set over a shared list
     return overrides
+
+
+def repeated_set_note(items: list[str]) -> str | None:
+    """A note naming the keys that `items` (`--set` values) give more than once with different values, of which the
+    last wins: meant where a script lays one over another, a slip where a key was copied; None if there are none."""
+    values: dict[str, list[str]] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if sep and key.strip():
+            values.setdefault(key.strip(), []).append(value.strip())
+    repeated = [(key, given) for key, given in values.items() if len(set(given)) > 1]
+    if not repeated:
+        return None
+    named = "; ".join(f"{key} ({', then '.join(map(repr, given))})" for key, given in repeated)
+    return f"--set gives {named}: the last of each is used"
 
 
 def flatten_toml(data: dict[str, Any], source: str) -> dict[str, Any]:

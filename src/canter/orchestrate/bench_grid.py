@@ -10,7 +10,7 @@ from typing import Any
 
 from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
-from canter.config.overrides import all_keys, parse_set_args
+from canter.config.overrides import all_keys
 from canter.config.schema import Config
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
@@ -158,7 +158,6 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             if not reads_key(algo, key):
                 raise CanterError(f"--grid {key}: {unread_key_error(algo, key)}, or bench {algo} in a bench of its own")
     # A --set applies to the cells whose algorithm reads it, so one bench can carry td3.* and sac.* settings.
-    parse_set_args(list(settings.sets))  # refuses a key given twice, which the table below would keep the last of
     set_keys = {item.partition("=")[0].strip(): item for item in settings.sets}
     for key in set_keys:
         if key in _FORBIDDEN:  # the bench's own value would replace it
