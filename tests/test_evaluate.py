@@ -180,8 +180,9 @@ def test_cli_eval_set_and_vary_are_two_commands(tmp_path, capsys):
     assert code == 2 and "--vary sweeps the Gymnasium env, which takes no --set" in err, err
     assert main(["eval", str(tmp_path), "--vary", "gravity=0.5,1", "--backend", "mjx"]) == 2
     assert "--vary sweeps the Gymnasium env, whose MuJoCo model it edits; drop --backend mjx" in capsys.readouterr().err
-    assert main(["eval", str(tmp_path), "--vary", "gravity=0.5,1", "--backend", "gymnasium"]) == 2
-    assert "drop --backend" not in capsys.readouterr().err  # the backend it sweeps anyway (then: not a run folder)
+    for backend in ("gymnasium", "auto"):  # the backend it sweeps, as auto picks it (then: not a run folder)
+        assert main(["eval", str(tmp_path), "--vary", "gravity=0.5,1", "--backend", backend]) == 2
+        assert "drop --backend" not in capsys.readouterr().err
 
 
 @pytest.mark.slow

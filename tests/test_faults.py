@@ -7,6 +7,7 @@ user namespaces); where that is not allowed they skip.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import errno
 import io
@@ -405,6 +406,10 @@ def test_a_stop_flag_says_once_what_the_first_signal_does(capfd):
     with StopFlag() as quiet:
         os.kill(os.getpid(), signal.SIGTERM)
     assert quiet.signal == signal.SIGTERM and capfd.readouterr().err == ""
+    # Where stderr is no file (redirected to a StringIO), the notice is dropped and the stop still held.
+    with contextlib.redirect_stderr(io.StringIO()), StopFlag(notice="stopping soon") as redirected:
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert redirected.signal == signal.SIGTERM
 
 
 def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_shutdown(monkeypatch):

@@ -130,19 +130,28 @@ def test_bench_refuses_a_run_folder_as_its_out_folder(tmp_path, capsys):
     assert sorted(p.name for p in run.iterdir()) == before and (run / ".writer.lock").read_text() == "the run's own\n"
     refuse_run_folder(tmp_path / "new")  # a folder to make, or a bench folder, is what --out takes
     refuse_run_folder(tmp_path)
+    own = tmp_path / "own"  # a folder holding the user's base config for the bench is no run folder
+    own.mkdir()
+    (own / "config.toml").write_text("[ppo]\nclip = 0.1\n")
+    refuse_run_folder(own)
+    (own / "metrics.csv").write_text("global_step\n")
+    with pytest.raises(CanterError, match=r"it holds config.toml and metrics.csv\)"):
+        refuse_run_folder(own)
 
 
-@pytest.mark.parametrize("name", ["../../etc", "a/b", "/tmp/x", ".", "..", "", "a b", "x\ny"])
+@pytest.mark.parametrize("name", ["../../etc", "a/b", "/tmp/x", ".", "..", "", "a\\b", "x\ny"])
 def test_a_study_name_must_be_a_plain_name(tmp_path, capsys, name):
-    with pytest.raises(CanterError, match=r"is not a plain name; give one of letters, digits"):
+    with pytest.raises(CanterError, match=r"is not a plain name; give one without '/', "):
         TuneSettings(env_id=ENV, study_name=name)
     assert main(["tune", ENV, "--study", name, "--out-dir", str(tmp_path / "t")]) == 2
     assert "is not a plain name" in _one_line_error(capsys)
     assert not (tmp_path / "t").exists()
 
 
-def test_a_plain_study_name_is_a_folder_of_the_out_dir():
-    assert TuneSettings(env_id=ENV, study_name="hopper-ppo_2.b").study_dir == Path("tune/hopper-ppo_2.b")
+@pytest.mark.parametrize("name", ["hopper-ppo_2.b", "hopper lr sweep", "ppo+sym", "exp=3", "études"])
+def test_a_plain_study_name_is_a_folder_of_the_out_dir(name):
+    """Any name without a path in it: studies made before names were checked must still resume."""
+    assert TuneSettings(env_id=ENV, study_name=name).study_dir == Path("tune") / name
 
 
 # ---------------------------------------------------------------------------------- an env no job can train
@@ -164,7 +173,7 @@ def test_a_bench_does_not_advise_a_retry_that_fails_the_same_way():
     refused = "training process failed (exit 2): canter: error: CartPole-v1 has discrete actions; choose another env"
     crashed = "training process failed (exit 1): RuntimeError: oops"
     text = failures_text({"a": crashed, "b": refused}, 3)
-    assert text == f"2 of 3 cells failed ({refused}); a retry fails the same way: do what it says"
+    assert text == f"2 of 3 cells failed ({refused}); do what it says, then re-run: a retry alone fails the same way"
     assert "retry them" not in text
     assert failures_text({"a": crashed}, 3) == f"1 of 3 cells failed ({crashed}); re-run the same command to retry them"
 

@@ -191,13 +191,13 @@ def test_report_records_a_video_with_canter_video(tiny_run, tmp_path, capsys):
 def test_robustness_table_shows_an_unstable_point_as_such(tmp_path):
     from canter.use.report import robustness_table
 
-    stable = {"scale": 1.0, "return_mean": 214.8, "return_std": 1.1, "unstable_resets": 0}
-    diverged = {"scale": 1e30, "return_mean": 1.5e37, "return_std": 0.0, "unstable_resets": 14}
+    stable = {"scale": 1.0, "return_mean": 214.8, "return_std": 1.1, "unstable_warnings": 0}
+    diverged = {"scale": 1e30, "return_mean": 1.5e37, "return_std": 0.0, "unstable_warnings": 14}
     path = tmp_path / "gravity.json"
     runs = [{"label": "ppo s0", "points": [diverged, stable]}]
     path.write_text(json.dumps({"env": "Hopper-v5", "vary": "gravity=1e+30,1", "episodes": 2, "runs": runs}))
     cells = parse(robustness_table(path)).cells
-    assert cells[cells.index("1e+30") + 1] == "unstable (14 MuJoCo resets)"
+    assert cells[cells.index("1e+30") + 1] == "unstable (14 MuJoCo warnings)"
     assert cells[cells.index("1") + 1] == "214.8 ± 1.1"
 
 

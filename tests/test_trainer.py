@@ -1,5 +1,6 @@
 import json
 import shutil
+from dataclasses import replace
 
 import jax
 import numpy as np
@@ -231,7 +232,7 @@ def test_non_finite_observation_stops_with_step_and_keeps_last_good_checkpoint(t
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree_util.tree_leaves(state.params))
 
 
-def test_a_diverged_run_names_the_settings_it_changed_from_its_preset():
+def test_a_diverged_run_names_the_settings_it_changed_from_its_preset(capsys):
     from canter.training.seed_run import divergence_hint
 
     assert divergence_hint(build_config("Hopper-v5")) == (
@@ -244,6 +245,12 @@ def test_a_diverged_run_names_the_settings_it_changed_from_its_preset():
     ]
     hint = divergence_hint(build_config("Hopper-v5", sets=many + ["ppo.ent_coef=0.5", "ppo.vf_coef=0.1"]))
     assert hint.endswith(" and 2 more"), hint
+    # Mid-training it prints nothing: not the note of a preset made for another env.
+    humanoid = build_config("Hopper-v5", preset="humanoid", sets=["ppo.clip=0.5"])
+    capsys.readouterr()
+    assert divergence_hint(humanoid).endswith("preset humanoid: ppo.clip=0.5") and capsys.readouterr().err == ""
+    gone = replace(humanoid, run=replace(humanoid.run, preset="no-such-preset"))
+    assert "(preset no-such-preset could not be built to compare with)" in divergence_hint(gone)
 
 
 def test_trpo_resume_is_deterministic_and_continues(tmp_path):

@@ -57,6 +57,14 @@ def stops_held() -> int:
     return _stops_held
 
 
+def _write_stderr(text: str) -> None:
+    """Write to the process's stderr from a signal handler: os.write, not print, as the handler may have cut into a
+    print and a buffered stream refuses re-entry; nothing, where stderr is no file (a StringIO) or a closed pipe."""
+    # io.UnsupportedOperation (no fileno) is both an OSError and a ValueError; a closed pipe is an OSError.
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        os.write(sys.stderr.fileno(), text.encode())
+
+
 class StopFlag:
     """A context in which SIGINT and SIGTERM (those `handling_stop_signals` handles) set `signal`, for work that stops
     at its next safe point: an exception raised in a handler is lost when the signal lands in a garbage-collection
@@ -78,12 +86,12 @@ class StopFlag:
         global _stops_held
         if self.signal is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
-        if self.signal is None and self._notice:
-            again = "; Ctrl-C again stops at once" if signum == signal.SIGINT else ""
-            # os.write, not print: the handler may have cut into a print, and a buffered stream refuses re-entry.
-            os.write(sys.stderr.fileno(), f"canter: {signal.Signals(signum).name}: {self._notice}{again}\n".encode())
-        self.signal = signum
+        first = self.signal is None
+        self.signal = signum  # before the notice: a notice that cannot be written must not lose the stop
         _stops_held += 1
+        if first and self._notice:
+            again = "; Ctrl-C again stops at once" if signum == signal.SIGINT else ""
+            _write_stderr(f"canter: {signal.Signals(signum).name}: {self._notice}{again}\n")
 
     def __exit__(self, *exc: object) -> None:
         self._handling.close()

@@ -66,7 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from canter.config.overrides import parse_set_args
-    from canter.envs.registry import single_env_backend
+    from canter.envs.registry import AUTO, single_env_backend
     from canter.use.evaluate import check_eval_env, eval_physics, eval_target, parse_physics
     from canter.use.policy import load
 
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     physics = parse_physics(parse_set_args(args.set))
     if physics and spec is not None:
         raise CanterError("--vary sweeps the Gymnasium env, which takes no --set; run the sweep and --set apart")
-    if spec is not None and args.backend not in (None, single_env_backend().name):
+    if spec is not None and args.backend not in (None, AUTO, single_env_backend().name):
         raise CanterError(
             f"--vary sweeps the {single_env_backend().label} env, whose MuJoCo model it edits; drop --backend "
             f"{args.backend}"
@@ -267,8 +267,8 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
         for p in points:
             if is_unstable(p):
                 print(
-                    f"{_short(label, 40):<40} {p['scale']:>6.3g} unstable: MuJoCo reset diverged physics "
-                    f"{p['unstable_resets']} times, so these episodes have no meaningful return"
+                    f"{_short(label, 40):<40} {p['scale']:>6.3g} unstable: MuJoCo warned of diverged physics "
+                    f"{p['unstable_warnings']} times, so these episodes have no meaningful return"
                 )
                 continue
             print(

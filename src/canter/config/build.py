@@ -90,12 +90,14 @@ def build_config(
     algo: str | None = None,
     check_unread: bool = True,
     flags: Mapping[str, Any] | None = None,
+    notes: bool = True,
 ) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
     validate. The preset is `preset`, else the one the config file's run.preset names, else fast. The algorithm is
     known before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does
     not read is refused (unless `check_unread` is off), since it would change nothing. `flags` holds the keys that a
-    command's other flags set (train's `--backend` as `env.backend`, say)."""
+    command's other flags set (train's `--backend` as `env.backend`, say). `notes` off keeps its notes (a preset made
+    for other envs) off stderr, for a config built to compare with rather than to train."""
     # An empty --config or --preset would otherwise read as not given.
     if config_file == "":
         raise CanterError("--config is empty; give a TOML file, or drop --config")
@@ -134,7 +136,8 @@ def build_config(
     config = apply_overrides(
         config, preset_overrides(preset, str(resolved_id), config.run.algo, named_by), f"preset {preset}"
     )
-    note_other_env(preset, str(resolved_id))
+    if notes:
+        note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))
     from_file = config
     config = apply_overrides(config, set_data, "--set")

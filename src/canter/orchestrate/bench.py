@@ -90,6 +90,9 @@ def failures_text(failures: dict[str, str], cells: int) -> str:
     that refused its input (`needs_a_fix`) fails the same way until that is fixed, so its reason comes first."""
     fixes = [reason for reason in failures.values() if needs_a_fix(reason)]
     if fixes:
-        return f"{len(failures)} of {cells} cells failed ({fixes[0]}); a retry fails the same way: do what it says"
+        return (
+            f"{len(failures)} of {cells} cells failed ({fixes[0]}); do what it says, then re-run: a retry alone fails "
+            f"the same way"
+        )
     first = next(iter(failures.values()))
     return f"{len(failures)} of {cells} cells failed ({first}); re-run the same command to retry them"

@@ -28,14 +28,12 @@ def refuse_run_folder(bench_dir: Path) -> None:
     """Refuse a run folder given as --out: the bench would write its tables and job folders among the run's files, and
     take over the writer lock of the run (its own lock file, `canter.training.run_lock`)."""
     from canter.training.checkpoint import checkpoint_dir
-    from canter.training.run_folder import CONFIG_FILE
+    from canter.training.run_folder import CONFIG_FILE, METRICS_FILE
 
-    held = [
-        name
-        for name, found in ((CONFIG_FILE, bench_dir / CONFIG_FILE), ("checkpoints/", checkpoint_dir(bench_dir)))
-        if found.exists()
-    ]
-    if held:
+    marks = ((CONFIG_FILE, bench_dir / CONFIG_FILE), (METRICS_FILE, bench_dir / METRICS_FILE))
+    held = [name for name, found in (*marks, ("checkpoints/", checkpoint_dir(bench_dir))) if found.exists()]
+    # A config.toml alone may be the user's own base config for the bench (--config OUT/config.toml).
+    if "checkpoints/" in held or {CONFIG_FILE, METRICS_FILE} <= set(held):
         raise CanterError(
             f"--out {bench_dir} is a run folder (it holds {' and '.join(held)}), not a bench folder; give a new "
             f"--out, in which the bench makes a run folder for each cell and seed"

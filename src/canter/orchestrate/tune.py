@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import re
 import time
 from collections.abc import Callable
@@ -130,15 +131,16 @@ class TuneSettings:
         return max(1, math.ceil(self.total_steps / self.evaluations))
 
 
-# A study's folder is OUT_DIR/STUDY: a name with a path in it would put the study elsewhere, or nest it.
-_PLAIN_NAME = re.compile(r"[A-Za-z0-9._-]+")
+# A study's folder is OUT_DIR/STUDY: a name with a path in it would put the study elsewhere, or nest it. Any other
+# name is kept, since studies already made under it must still resume.
+_PATH_CHARACTERS = tuple(c for c in ("/", "\\", os.sep, os.altsep, "\0") if c)
 
 
 def check_study_name(name: str) -> None:
-    if not _PLAIN_NAME.fullmatch(name) or name in (".", ".."):
+    if not name or name in (".", "..") or any(c in name for c in _PATH_CHARACTERS) or any(c < " " for c in name):
         raise CanterError(
-            f"--study {name!r} is not a plain name; give one of letters, digits, '-', '_' and '.' (not '.' or '..'), "
-            f"since the study's folder is --out-dir/STUDY"
+            f"--study {name!r} is not a plain name; give one without '/', '\\' or control characters (and not '.' "
+            f"or '..'), since the study's folder is --out-dir/STUDY"
         )
 
 

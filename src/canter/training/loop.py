@@ -219,6 +219,9 @@ def _train_locked(
             if all(start.state is None for start in starts):  # a resumed state was checked when its run started
                 host_memory.check_state_fits(algorithm, configs[0], spec, len(configs), device_memory.free_bytes())
             states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
+            # The resumed states read from the checkpoints live on in `states` alone (a replay buffer twice over
+            # for the whole run otherwise).
+            starts = [replace(start, state=None) for start in starts]
             carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on

@@ -330,9 +330,12 @@ def divergence_hint(config: Config) -> str:
     from canter.config.experiment import flat_config
 
     try:
-        preset = flat_config(build_config(config.env.id, preset=config.run.preset, algo=config.run.algo))
-    except CanterError:  # a preset this canter no longer has: nothing to compare with
-        preset = {}
+        preset = flat_config(build_config(config.env.id, preset=config.run.preset, algo=config.run.algo, notes=False))
+    except CanterError:  # a preset this canter no longer has, or that no longer builds for this env
+        return (
+            f"resuming with the same settings would diverge again; lower its learning rate or undo the settings it "
+            f"changed (preset {config.run.preset} could not be built to compare with)"
+        )
     changed = [
         f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}"
         for key, value in flat_config(config).items()

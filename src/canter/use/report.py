@@ -313,8 +313,8 @@ def robustness_table(path: Path) -> str:
 
 
 def _robustness_cell(point: dict[str, Any]) -> str:
-    if point.get("unstable_resets"):
-        return f"unstable ({point['unstable_resets']} MuJoCo resets)"
+    if point.get("unstable_warnings"):
+        return f"unstable ({point['unstable_warnings']} MuJoCo warnings)"
     return f"{point['return_mean']:.1f} ± {point['return_std']:.1f}"
 
 

@@ -6,7 +6,7 @@ freshly built model had (never to an already scaled one), and the model's derive
 
 A scale can make the physics diverge (gravity scaled by 1e30). MuJoCo then resets the state in the middle of the
 episode and goes on, and the step that diverged can earn a reward of 1e37; such a point is marked unstable, with
-the number of resets, and left out of the tables' returns and the plot.
+the number of MuJoCo's warnings, and left out of the tables' returns and the plot.
 """
 
 from __future__ import annotations
@@ -204,14 +204,15 @@ def counting_instabilities() -> Iterator[list[str]]:
 
 
 def is_unstable(point: dict[str, Any]) -> bool:
-    return bool(point.get("unstable_resets"))
+    return bool(point.get("unstable_warnings"))
 
 
 def sweep(
     policy: Any, spec: VarySpec, episodes: int, deterministic: bool, seed: int, env_id: str | None = None
 ) -> list[dict[str, Any]]:
     """Evaluate `policy` at every scale on fresh Gymnasium envs; one summary dict per scale, with the number of times
-    MuJoCo reset diverged physics (`unstable_resets`; a point with any has no meaningful return)."""
+    MuJoCo warned of diverged physics (`unstable_warnings`, at most one per episode and kind until the
+    state is reset; a point with any has no meaningful return)."""
     from canter.use.evaluate import evaluate
 
     env_id = env_id or policy.facts.env_id
@@ -228,7 +229,7 @@ def sweep(
                 policy, episodes=episodes, deterministic=deterministic, seed=seed, env_id=env_id, prepare_env=prepare
             )
         value = original * scale
-        points.append(dict(scale=scale, value=value.tolist(), unstable_resets=len(unstable), **result.summary()))
+        points.append(dict(scale=scale, value=value.tolist(), unstable_warnings=len(unstable), **result.summary()))
     return points
 
 

@@ -50,7 +50,18 @@ MUJOCO_GL_VALUES = frozenset(
 _DISPLAY_GL = frozenset({"glfw", "glx", "enable", "on", "true", "1"})
 _NO_GL = frozenset({"disable", "off", "false", "0"})
 _PLATFORM_GL = {"cgl": "Darwin", "wgl": "Windows", "glx": "Linux", "egl": "Linux", "osmesa": "Linux"}
-_HEADLESS_FIX = "unset MUJOCO_GL to let canter choose, or set egl or osmesa (headless)"
+# What to set instead, by platform.system(): canter chooses between the headless EGL and OSMesa on Linux only.
+_GL_FIX = {
+    "Linux": "unset MUJOCO_GL to let canter choose, or set egl or osmesa (headless)",
+    "Darwin": "set MUJOCO_GL=cgl, or glfw with a display",
+    "Windows": "set MUJOCO_GL=wgl, or glfw with a display",
+}
+
+
+def gl_fix(system: str | None = None) -> str:
+    return _GL_FIX.get(system or platform.system(), _GL_FIX["Linux"])
+
+
 MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL context
 # A caller stopped by a signal waits this long for its render subprocess to stop: a frame, then the encoder's end.
 _STOP_SECONDS = 30
@@ -110,11 +121,11 @@ def renderer_problem(chosen: str, system: str, environ: Mapping[str, str]) -> st
     or None. Kept apart from `configure_gl`, which accepts every name MuJoCo knows, whatever the machine."""
     value = chosen.lower().strip()
     if value in _NO_GL:
-        return f"MUJOCO_GL={chosen} turns MuJoCo's rendering off; {_HEADLESS_FIX}"
+        return f"MUJOCO_GL={chosen} turns MuJoCo's rendering off; {gl_fix(system)}"
     if _PLATFORM_GL.get(value, system) != system:
-        return f"MUJOCO_GL={chosen} is MuJoCo's renderer on {_PLATFORM_GL[value]}, not {system}; {_HEADLESS_FIX}"
+        return f"MUJOCO_GL={chosen} is MuJoCo's renderer on {_PLATFORM_GL[value]}, not {system}; {gl_fix(system)}"
     if system == "Linux" and value in _DISPLAY_GL and not (environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY")):
-        return f"MUJOCO_GL={chosen} needs a display, and DISPLAY is not set; {_HEADLESS_FIX}"
+        return f"MUJOCO_GL={chosen} needs a display, and DISPLAY is not set; {gl_fix(system)}"
     return None
 
 
@@ -147,7 +158,7 @@ def gl_failure(env_id: str, gl: str, error: str, warned: Sequence[str]) -> str:
     failed (such as `X11: Failed to open display :1`) names the cause better than MuJoCo's own message."""
     # glfw formats its errors as `(code) b'text'`.
     reason = re.sub(r"^\(\d+\) b(['\"])(.*)\1$", r"\2", warned[0]) if warned else error.partition(",")[0]
-    return f"cannot render {env_id} with MUJOCO_GL={gl}: {reason}; {_HEADLESS_FIX}"
+    return f"cannot render {env_id} with MUJOCO_GL={gl}: {reason}; {gl_fix()}"
 
 
 class _GymnasiumPlayer:
@@ -164,6 +175,7 @@ class _GymnasiumPlayer:
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
         self.env_id = env_id
         self.size = (width, height)
+        self._rendered = False
         kwargs: dict[str, Any] = {"render_mode": "rgb_array"}
         if "mujoco" in entry:
             kwargs.update(width=width, height=height)
@@ -199,9 +211,13 @@ class _GymnasiumPlayer:
     def _frame(self) -> np.ndarray:
         import mujoco
 
-        # Warnings are held until the frame renders: the glfw package warns as it fails to open a display, and then
-        # the first of them goes into the error's one line instead.
-        with warnings.catch_warnings(record=True) as caught:
+        # The first frame's warnings are held until it renders: the glfw package warns as it fails to open a display,
+        # and then the first of them goes into the error's one line instead. Later frames warn as usual (held and
+        # shown again, a warning would be shown at every frame).
+        holding: contextlib.AbstractContextManager[Any] = (
+            warnings.catch_warnings(record=True) if not self._rendered else contextlib.nullcontext([])
+        )
+        with holding as caught:
             try:
                 frame = self.env.render()
             except mujoco.FatalError as exc:  # an OpenGL context that MuJoCo could not make
@@ -216,8 +232,9 @@ class _GymnasiumPlayer:
                     f"; SDL_VIDEODRIVER={driver} asks for it: unset it, or set it to dummy" if driver != "dummy" else ""
                 )
                 raise CanterError(f"cannot render {self.env_id}: {exc}{fix}") from None
-        for w in caught:
+        for w in caught or ():
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        self._rendered = True
         return _resize(np.asarray(frame), self.size)
 
     def episode(self, policy: Any, seed: int, max_steps: int, on_frame: Callable[[np.ndarray], None]) -> float:
