@@ -223,8 +223,8 @@ def test_a_preset_that_extends_another_lays_its_keys_over_the_others(monkeypatch
         (["sym.groups=3:7=7:10"], "pairs 4 with 3 dimensions"),
         (["sym.groups=0:2=2:4", "sym.negate=1"], "sym.negate: indices [1]"),
         (["sym.compare=std"], "sym.compare must be mean or log_prob"),
-        (["sym.groups=0=0"], "sym.groups pairs dimension 0 with itself, which adds nothing to the loss"),
-        (["sym.groups=0=0", "sym.negate=0", "sym.compare=log_prob"], "pairs dimension 0 with itself"),
+        (["sym.coef=0.1", "sym.groups=0=0"], "sym.groups pairs dimension 0 with itself, which adds nothing to the"),
+        (["sym.coef=0.1", "sym.groups=0=0", "sym.negate=0", "sym.compare=log_prob"], "pairs dimension 0 with itself"),
     ],
 )
 def test_bad_onpolicy_variant_settings_are_refused(sets, message):
@@ -236,6 +236,7 @@ def test_bad_onpolicy_variant_settings_are_refused(sets, message):
 def test_a_dimension_mirrored_onto_its_own_negation_is_a_plane_of_symmetry():
     config = build_config("Hopper-v5", sets=["sym.coef=0.1", "sym.groups=0=0", "sym.negate=0"])
     assert config.sym.groups == "0=0" and config.sym.negate == (0,)
+    assert build_config("Hopper-v5", sets=["sym.groups=0=0"]).sym.coef == 0  # with the loss off, groups are unread
 
 
 def test_onpolicy_variant_keys_round_trip():

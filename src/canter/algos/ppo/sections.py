@@ -112,8 +112,8 @@ def check_sym(sym: SymConfig, name: str) -> None:
     pairs = parse_groups(sym.groups, sym.negate)
     need(sym.coef == 0 or bool(pairs), f"{name}.coef > 0 needs {name}.groups, e.g. {name}.groups=3:7=7:11")
     # A dimension compared with itself adds nothing to the loss, unless its mean is compared with its own negation
-    # (a joint on the plane of symmetry, which the loss then pushes towards 0).
-    for pair in pairs:
+    # (a joint on the plane of symmetry, which the loss then pushes towards 0). With the loss off, groups are unread.
+    for pair in pairs if sym.coef > 0 else ():
         for index, mirror, sign in zip(pair.first, pair.mirror, pair.signs):
             need(
                 index != mirror or (sign < 0 and sym.compare == "mean"),
