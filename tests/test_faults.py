@@ -264,7 +264,6 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
 
     empty = folder("empty_config")
     (empty / "config.toml").write_text("")
-    one_line(["train", "--resume", str(empty), "--total-steps", "5000"], "config.toml is empty")
     one_line(["plot", str(empty), "--out", str(tmp_path / "a.png")], "config.toml is empty")
 
     foreign = folder("foreign")
@@ -311,6 +310,28 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     (unknown / "checkpoints" / "notes.txt").write_text("mine")
     assert main(["export", str(unknown), "--out", str(tmp_path / "e.onnx")]) == 0
     assert capsys.readouterr().err.count("canter: note: skipping ") == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("damage", ["", "[run\nalgo = 'ppo'\n", None])
+def test_a_resume_writes_a_damaged_config_toml_again_from_the_checkpoint(archived_run, capsys, damage):
+    """Each checkpoint holds the run's whole config, so an empty, truncated or missing config.toml loses nothing: the
+    resume says so in a note, trains from the config of its newest checkpoint and writes config.toml again. (The
+    archived run is of format 1, so its migration runs after config.toml is written back.)"""
+    from canter.cli.main import main
+    from canter.config.serialize import from_toml_text
+    from canter.training.run_folder import read_config
+
+    newest = checkpoint.latest(archived_run)
+    saved = from_toml_text(checkpoint.read_header(newest)["config"], str(newest))
+    path = archived_run / "config.toml"
+    path.unlink() if damage is None else path.write_text(damage)
+    assert main(["train", "--resume", str(archived_run), "--total-steps", "2048", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert f"canter: note: {path} cannot be read (" in err and f"the config saved in {newest.name}" in err, err
+    resumed = read_config(archived_run)
+    assert resumed.run.total_steps == 2048 and resumed.replace(run=saved.run) == saved.replace(run=saved.run)
+    assert resumed.run.seed == saved.run.seed and resumed.run.algo == saved.run.algo
 
 
 def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path):

@@ -291,8 +291,9 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any) -
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.out.mkdir(parents=True, exist_ok=True)
     if start.resumed:
-        run_folder.migrate(start.out)
+        # config.toml before the migrations, which read it: a damaged one is replaced by the config the resume read.
         run_folder.write_config(start.out, config)
+        run_folder.migrate(start.out)
     else:
         run_folder.create(start.out, config)
     disk_room.warn_if_checkpoints_will_not_fit(start.out, state, config, algorithm.policy_checkpoint_leaves_out)
@@ -486,6 +487,47 @@ def _results(runs: list[SeedRun]) -> list[RunResult]:
     return results
 
 
+def _saved_config(run_dir: Path) -> Config:
+    """The run's config.toml; where it is missing, empty or not TOML, the config its newest checkpoint holds (each
+    holds the run's whole config), with a note: the resume writes config.toml again, so the run loses nothing. A
+    file that reads but holds a value canter refuses stays an error: it was edited, and is not overwritten."""
+    from canter.config.serialize import from_toml_text
+
+    run_folder.run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
+    try:
+        return run_folder.read_config(run_dir)
+    except CanterError as damaged:
+        if not (checkpoint.list_checkpoints(run_dir) and _unreadable(run_dir / run_folder.CONFIG_FILE)):
+            raise
+        newest = checkpoint.latest(run_dir)
+        config = from_toml_text(checkpoint.read_header(newest)["config"], str(newest))
+        print(
+            f"canter: note: {run_dir / run_folder.CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
+            f"the config saved in {newest.name}, which this resume writes back to config.toml",
+            file=sys.stderr,
+        )
+        return config
+
+
+def _unreadable(path: Path) -> bool:
+    """Missing, empty or not TOML: damaged, where a file that parses was written or edited as it is."""
+    import tomllib
+
+    if not path.is_file():
+        return True
+    text = path.read_text(errors="replace")
+    try:
+        tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        return True
+    return not text.strip()
+
+
+def _reason(error: CanterError) -> str:
+    """The cause in a config error, without the advice that follows it (here the resume is the fix)."""
+    return str(error).split("; ")[0]
+
+
 def resume_config(
     run_dir: Path,
     total_steps: int | None,
@@ -495,11 +537,9 @@ def resume_config(
     """The saved config of a run, with only its budget changed: the step budget, the wall-minute limit of the
     resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run), and
     the return target (a bench re-run gives its own; None: no target)."""
-    from canter.training.run_folder import read_config
-
     if not Path(run_dir).is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
-    config = read_config(Path(run_dir))
+    config = _saved_config(Path(run_dir))
     if total_steps is not None:
         config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
     if max_minutes is not None:  # inf lifts a saved limit: the config holds no limit as None, which TOML can omit

@@ -166,8 +166,8 @@ def read_config(run_dir: Path) -> Config:
     text = path.read_text(errors="replace")
     if not text.strip():
         raise CanterError(
-            f"{path} is empty: the run folder is damaged; restore config.toml from a copy (eval and export still "
-            f"work: each checkpoint holds the config)"
+            f"{path} is empty: the run folder is damaged; restore config.toml from a copy, or let canter train "
+            f"--resume write it again (eval and export still work: each checkpoint holds the config)"
         )
     try:
         return from_toml_text(text, str(path))
