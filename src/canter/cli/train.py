@@ -108,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
+    from canter.config.overrides import parse_set_args
 
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
@@ -178,6 +179,10 @@ def _train(args: argparse.Namespace) -> list[Any]:
         if args.eval_episodes is not None and not config.run.eval_every:
             raise CanterError(
                 "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
+            )
+        if "run.eval_backend" in parse_set_args(list(args.set)) and not config.run.eval_every:
+            raise CanterError(
+                "run.eval_backend sets where the evaluations during training play; also pass --eval-every N"
             )
         from canter.training.loop import train, train_seeds
 
