@@ -5,13 +5,13 @@ memory is refused naming the key to lower (`canter.training.host_memory.check_st
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from canter.algos.protocol import Algorithm
+from canter.config.algorithms import key_value
 from canter.config.schema import Config
 from canter.errors import CanterError
 
@@ -48,16 +48,6 @@ def state_size(algorithm: Algorithm, config: Config, spec: Any) -> StateSize:
     return StateSize(sum(fields.values()), key, shares[key] if key is not None else 0)
 
 
-def key_value(config: Config, key: str) -> Any:
-    section, _, name = key.partition(".")
-    return getattr(config.section(section), name)
-
-
-def with_value(config: Config, key: str, value: Any) -> Config:
-    section, _, name = key.partition(".")
-    return config.replace(**{section: dataclasses.replace(config.section(section), **{name: value})})
-
-
 def smaller_value(algorithm: Algorithm, config: Config, spec: Any, key: str, fits: Callable[[int], bool]) -> int | None:
     """The first halving of the count `key` (a buffer's capacity) whose train state's total bytes `fits`, among values
     the config accepts (a buffer no smaller than its batch); None where there is none. Layer sizes get none: a state
@@ -71,7 +61,8 @@ def smaller_value(algorithm: Algorithm, config: Config, spec: Any, key: str, fit
         value //= 2
         if value < 1:
             return None
-        smaller = with_value(config, key, value)
+        section, _, name = key.partition(".")
+        smaller = config.with_values(section, **{name: value})
         try:
             validate(smaller)
         except CanterError:

@@ -102,7 +102,7 @@ def budget_rounding_note(config: Any) -> str | None:
     trained = -(-budget // per_iteration) * per_iteration
     if trained - budget <= budget / 10:
         return None
-    sizes = " x ".join(f"{key} {_read(config, key):,}" for key in spec.iteration_keys)
+    sizes = " x ".join(f"{key} {key_value(config, key):,}" for key in spec.iteration_keys)
     return (
         f"{spec.name} trains in whole iterations of {per_iteration:,} env steps ({sizes}), to the end of the one "
         f"that reaches the budget, so this run.total_steps={budget:,} run trains about {trained:,}; autoreset steps "
@@ -111,7 +111,8 @@ def budget_rounding_note(config: Any) -> str | None:
     )
 
 
-def _read(config: Any, key: str) -> Any:
+def key_value(config: Any, key: str) -> Any:
+    """The value of `section.key` in a config."""
     section, _, name = key.partition(".")
     return getattr(getattr(config, section), name)
 

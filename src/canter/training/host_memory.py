@@ -195,7 +195,8 @@ def state_refusal(
 def check_state_fits(algorithm: Algorithm, config: Config, spec: Any, group: int, free: int | None) -> None:
     """Refuse, before it is built, a train state for each of `group` seeds that the memory it goes to cannot hold:
     the device's where it reports its `free` memory (a GPU: `device_memory.free_bytes`), else the machine's."""
-    from canter.algos.state_size import key_value, smaller_value, state_size
+    from canter.algos.state_size import smaller_value, state_size
+    from canter.config.algorithms import key_value
 
     available, where = (free, "the device's memory") if free is not None else (available_bytes(), "memory")
     if available is None:

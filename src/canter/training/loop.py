@@ -154,7 +154,6 @@ def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any],
 def summarize_ended_run(run_dir: Path) -> RunResult:
     """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
     between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
-    from canter.config.serialize import from_toml_text
 
     newest = checkpoint.latest(run_dir)
     header = checkpoint.read_header(newest)
@@ -162,7 +161,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     totals = header.get("totals") or totals_until(run_folder.metrics_file(run_dir), step)
     recent = totals.get("recent_returns") or []
     train_seconds = float(totals.get("train_seconds", 0.0))
-    config = from_toml_text(header["config"], str(newest))
+    config = _header_config(header, newest)
     target = config.run.stop_at_return
     reached = target is not None and bool(recent) and float(np.mean(recent)) >= target
     result = RunResult(
@@ -491,7 +490,6 @@ def _saved_config(run_dir: Path) -> Config:
     """The run's config.toml; where it is missing, empty or not TOML, the config its newest checkpoint holds (each
     holds the run's whole config), with a note: the resume writes config.toml again, so the run loses nothing. A
     file that reads but holds a value canter refuses stays an error: it was edited, and is not overwritten."""
-    from canter.config.serialize import from_toml_text
 
     run_folder.run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
     try:
@@ -500,13 +498,20 @@ def _saved_config(run_dir: Path) -> Config:
         if not (checkpoint.list_checkpoints(run_dir) and _unreadable(run_dir / run_folder.CONFIG_FILE)):
             raise
         newest = checkpoint.latest(run_dir)
-        config = from_toml_text(checkpoint.read_header(newest)["config"], str(newest))
+        config = _header_config(checkpoint.read_header(newest), newest)
         print(
             f"canter: note: {run_dir / run_folder.CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
             f"the config saved in {newest.name}, which this resume writes back to config.toml",
             file=sys.stderr,
         )
         return config
+
+
+def _header_config(header: dict[str, Any], path: Path) -> Config:
+    """The run's whole config, as a checkpoint's header holds it."""
+    from canter.config.serialize import from_toml_text
+
+    return from_toml_text(header["config"], str(path))
 
 
 def _unreadable(path: Path) -> bool:
