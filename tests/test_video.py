@@ -282,3 +282,16 @@ def test_a_pygame_env_renders_headless_without_an_error_line(tiny_run, tmp_path)
     done = subprocess.run(argv + ["--max-steps", "3"], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert "SDL_VIDEODRIVER=nosuchdriver asks for it: unset it, or set it to dummy" in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("name", "fps", "refused"),
+    [("a.gif", 50, False), ("a.gif", 51, True), ("a.mp4", 240, False), ("a.mp4", 241, True), ("a.mp4", 0, True)],
+)
+def test_a_frame_rate_the_format_cannot_play_is_refused(tmp_path, name, fps, refused):
+    out = tmp_path / name
+    if refused:
+        with pytest.raises(CanterError, match="--fps"):
+            video.check_video_args(out, 1, 480, 360, fps)
+    else:
+        video.check_video_args(out, 1, 480, 360, fps)

@@ -179,8 +179,9 @@ def acquire(run_dir: Path) -> None:
 
 
 def _remove_created(created: list[Path]) -> None:
-    """Remove the folders (innermost first) that a failed `acquire` made, with the lock file it left in them. Neither
-    needs a file descriptor, which a process that ran out of them has none of."""
+    """Remove the folders (innermost first) that `acquire` made, with the lock file in them; a folder that something
+    else has written to since stays. Neither needs a file descriptor, which a process that ran out of them has none
+    of."""
     if not created:
         return
     with contextlib.suppress(OSError):
@@ -228,12 +229,8 @@ def release(run_dir: Path) -> None:
         os.close(held.fd)
         fd = None
         unwritten = _holds_only_the_lock(held.created[0])
-    if unwritten:
-        # A run that failed before writing anything leaves no folder behind, nor the --out-dir made for it.
-        (held.created[0] / LOCK_FILE).unlink()
-        with contextlib.suppress(OSError):  # a folder that something else has written to since stays
-            for folder in held.created:
-                folder.rmdir()
+    if unwritten:  # a run that failed before writing anything leaves no folder behind, nor the --out-dir made for it
+        _remove_created(held.created)
     if fd is not None:
         os.close(fd)  # releases the flock; the file stays, so every writer locks the same file
 

@@ -41,6 +41,12 @@ from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
 DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_FPS = 480, 360, 30
+# GIF frame delays are whole hundredths of a second, and browsers play delays under 0.02 s at 0.1 s; faster MP4s
+# than screens refresh only drop frames in the player.
+FPS_LIMITS = {
+    ".gif": (50, "its frame delays are hundredths of a second, and browsers slow shorter ones down"),
+    ".mp4": (240, "faster than screens show"),
+}
 # What MuJoCo's own GL context reads from MUJOCO_GL (lower-cased): its renderers and its switches.
 MUJOCO_GL_VALUES = frozenset(
     {"egl", "osmesa", "glfw", "glx", "cgl", "wgl", "enable", "on", "true", "1", "disable", "off", "false", "0"}
@@ -423,6 +429,9 @@ def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int
         raise CanterError(f"--max-steps must be >= 0 (0: whole episodes), got {max_steps}")
     if width < 16 or height < 16 or fps < 1:
         raise CanterError(f"need --width and --height >= 16 and --fps >= 1, got {width}x{height} at {fps} fps")
+    fastest, why = FPS_LIMITS[out.suffix.lower()]
+    if fps > fastest:
+        raise CanterError(f"--fps goes up to {fastest} for {out.suffix.lower()} ({why}), got {fps}")
     if max(width, height) > MAX_SIDE:
         raise CanterError(
             f"--width and --height go up to {MAX_SIDE} (OpenGL's offscreen buffers), got {width}x{height}"
