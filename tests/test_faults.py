@@ -334,6 +334,24 @@ def test_a_resume_writes_a_damaged_config_toml_again_from_the_checkpoint(archive
     assert resumed.run.seed == saved.run.seed and resumed.run.algo == saved.run.algo
 
 
+def test_a_finished_run_s_damaged_config_toml_is_written_again_by_the_resume_its_error_names(archived_run, capsys):
+    """plot and report read config.toml, and their error names the resume that repairs it; a run that has its budget
+    is refused by that resume, after config.toml is written again, as its note says."""
+    from canter.cli.main import main
+    from canter.config.serialize import from_toml_text
+    from canter.training.run_folder import read_config
+
+    newest = checkpoint.latest(archived_run)
+    saved = from_toml_text(checkpoint.read_header(newest)["config"], str(newest))
+    (archived_run / "config.toml").write_text("[run\nalgo = 'ppo'\n")
+    assert main(["plot", str(archived_run), "--out", "curves.png"]) == 2
+    assert f"let canter train --resume {archived_run} write it again" in capsys.readouterr().err
+    assert main(["train", "--resume", str(archived_run)]) == 2
+    assert "already has 1190 of run.total_steps=1024" in capsys.readouterr().err
+    assert read_config(archived_run) == saved
+    assert main(["plot", str(archived_run), "--out", "curves.png"]) == 0
+
+
 def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path):
     run = tmp_path / "run"
     (run / "tb").mkdir(parents=True)  # a training run's folders exist when its writes fail

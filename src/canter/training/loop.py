@@ -261,6 +261,9 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
     else:
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
+        if resume is not None and _unreadable(start.out / run_folder.CONFIG_FILE):
+            # `_saved_config` promised it: a finished run repaired by a resume that trains nothing
+            run_folder.write_config(start.out, saved)
         raise CanterError(
             f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
             f"steps; pass --total-steps larger than {start.step} to extend it"

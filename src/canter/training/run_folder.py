@@ -158,6 +158,12 @@ def run_format(run_dir: Path) -> int:
     return found
 
 
+DAMAGED_CONFIG_FIX = (
+    "the run folder is damaged; restore config.toml from a copy, or let canter train --resume {run_dir} write it "
+    "again from the newest checkpoint (a run short of its budget also trains on; eval and export work as it is)"
+)
+
+
 def read_config(run_dir: Path) -> Config:
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
@@ -165,13 +171,12 @@ def read_config(run_dir: Path) -> Config:
     run_format(run_dir)
     text = path.read_text(errors="replace")
     if not text.strip():
-        raise CanterError(
-            f"{path} is empty: the run folder is damaged; restore config.toml from a copy, or let canter train "
-            f"--resume write it again (eval and export still work: each checkpoint holds the config)"
-        )
+        raise CanterError(f"{path} is empty: {DAMAGED_CONFIG_FIX.format(run_dir=run_dir)}")
     try:
         return from_toml_text(text, str(path))
     except CanterError as exc:
+        if str(exc).startswith("malformed TOML"):
+            raise CanterError(f"{exc}; {DAMAGED_CONFIG_FIX.format(run_dir=run_dir)}") from None
         if str(path) in str(exc):
             raise
         # A value the validation refuses names no file, and among several run folders the damaged one must show.
