@@ -92,15 +92,32 @@ def _score(row: dict) -> str:
     return f"{row['eval_mean']:,.0f} ± {row['eval_std']:,.0f} | {row['train_return']:,.0f} | {gait}"
 
 
+def _seeds_by_commit(source: dict, by_key: dict) -> str:
+    """`source`'s seeds grouped by the commit each ran at. A run.py process records the commit it ended at, and
+    commits can land while its runs go on, so a canter run is named by the commit in its own versions.json (which
+    run.py copies into the row). A run that records none (SB3's) is named by the process's commit."""
+    groups: dict[str, list[int]] = {}
+    for seed in source["settings"]["seeds"]:
+        for tool in source["settings"]["tools"]:
+            versions = by_key.get((tool, seed), {}).get("extra", {}).get("versions", {})
+            if versions.get("canter_commit"):
+                modified = ", src modified" if versions.get("canter_dirty") else ""
+                label = f"commit {versions['canter_commit'][:7]}{modified}"
+            else:
+                label = f"commit {source['commit']} when the process ended"
+            seeds = groups.setdefault(label, [])
+            if seed not in seeds:
+                seeds.append(seed)
+    return ", ".join(f"seeds {', '.join(map(str, seeds))} ({label})" for label, seeds in groups.items())
+
+
 def results(content: dict, machine_info: dict, logs: str) -> str:
     """gait.md's results: one row per seed, the counts and the test, with the machine and the archive."""
     rows = content["rows"]
     by_key = {(row["tool"], row["seed"]): row for row in rows}
     seeds = content["settings"]["seeds"]
-    # Each run.py process records the commit it ended at; a canter run used the source of that commit.
     sources = "; ".join(
-        f"{', '.join(source['settings']['tools'])} seeds {', '.join(map(str, source['settings']['seeds']))} "
-        f"(commit {source['commit']})"
+        f"{', '.join(source['settings']['tools'])} {_seeds_by_commit(source, by_key)}"
         for source in content["settings"]["sources"]
     )
     processes = len(content["settings"]["sources"])
