@@ -276,7 +276,7 @@ def test_bad_input_is_one_line(tmp_path, capsys):
             ["train", "--resume", str(tmp_path), "--eval-every", "1000"],
             "only --total-steps, --max-minutes, --quiet, --track and",
         ),
-        (["bench", "--envs", "Pendulum-v1", "--eval-episodes", "2"], "bench --eval-episodes is now --episodes"),
+        (["bench", "--envs", "Pendulum-v1", "--eval-episodes", "2"], "final evaluation with --episodes"),
         (["eval", str(tmp_path / "a"), str(tmp_path / "b"), "--checkpoint", "x.npz"], "pass one run folder"),
         (["eval", str(run), "--checkpoint", str(tmp_path / "x.npz")], "checkpoint not found"),
         (["export", str(tmp_path / "none"), "--checkpoint", "best", "--out", "a.npz"], "run folder not found"),

@@ -5,8 +5,10 @@ from scipy.stats import norm
 
 from canter.core.netconfig import NetConfig
 from canter.core.networks import (
+    all_finite,
     gaussian_entropy,
     gaussian_log_prob,
+    gaussian_log_prob_per_dim,
     init_params,
     policy_dist,
     value,
@@ -20,6 +22,8 @@ def test_log_prob_and_entropy_match_scipy():
     action = rng.normal(size=(5, 3)).astype(np.float32)
     expected = norm.logpdf(action, mean, np.exp(log_std)).sum(-1)
     np.testing.assert_allclose(np.asarray(gaussian_log_prob(mean, log_std, action)), expected, rtol=1e-5)
+    per_dim = norm.logpdf(action, mean, np.exp(log_std))
+    np.testing.assert_allclose(np.asarray(gaussian_log_prob_per_dim(mean, log_std, action)), per_dim, rtol=1e-5)
     np.testing.assert_allclose(
         np.asarray(gaussian_entropy(log_std)), norm.entropy(mean, np.exp(log_std)).sum(-1), rtol=1e-5
     )
@@ -49,3 +53,11 @@ def test_orthogonal_init_gains():
     w = np.asarray(params["actor"][1]["w"])
     np.testing.assert_allclose(w.T @ w, 2.0 * np.eye(64), atol=1e-4)
     assert np.linalg.norm(np.asarray(params["actor"][-1]["w"]), axis=0).max() < 0.011
+
+
+def test_all_finite_checks_every_floating_leaf_and_passes_integer_counters():
+    tree = {"w": jnp.ones((2, 3)), "b": [jnp.zeros(3), jnp.float32(1.0)], "count": jnp.int32(7)}
+    assert bool(all_finite(tree))
+    for bad in (jnp.nan, jnp.inf, -jnp.inf):
+        assert not bool(all_finite({**tree, "b": [jnp.zeros(3).at[1].set(bad), jnp.float32(1.0)]}))
+    assert not bool(jax.jit(all_finite)((jnp.ones(2), jnp.float32(jnp.nan))))

@@ -1,7 +1,14 @@
 import numpy as np
 
-from canter.config.schema import EnvConfig
-from canter.core.normalize import init_stats, learning_reward, normalize, scale_reward, update_stats
+from canter.config.schema import Config, EnvConfig
+from canter.core.normalize import (
+    init_stats,
+    learning_reward,
+    normalize,
+    normalize_obs,
+    scale_reward,
+    update_stats,
+)
 
 
 def test_running_stats_match_numpy_over_masked_batches():
@@ -48,3 +55,13 @@ def test_learning_reward_is_the_normalized_reward_or_the_raw_reward_times_a_fixe
     np.testing.assert_array_equal(np.asarray(unscaled), reward)
     normalized = learning_reward(reward, stats, _env(normalize_reward=True, clip_reward=1.0, reward_scale=1.0))
     np.testing.assert_allclose(np.asarray(normalized), [1.0, -2.0 / 2.0, 0.0], rtol=1e-5)
+
+
+def test_policies_see_observations_normalized_and_clipped_only_when_env_normalize_obs():
+    stats = update_stats(init_stats((2,)), np.array([[0.0, 1.0], [2.0, 3.0]], np.float32), np.ones(2, bool))
+    obs = np.array([[1.0, 1e6]], np.float32)
+    on = normalize_obs(Config(env=_env(normalize_obs=True, clip_obs=5.0)), stats, obs)
+    np.testing.assert_array_equal(np.asarray(on), np.asarray(normalize(stats, obs, 5.0)))
+    assert float(on[0, 1]) == 5.0
+    off = normalize_obs(Config(env=_env(normalize_obs=False, clip_obs=5.0)), stats, obs)
+    np.testing.assert_array_equal(np.asarray(off), obs)

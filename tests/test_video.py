@@ -187,7 +187,8 @@ def test_a_renderer_ends_with_its_trainer(tmp_path):
     import time
 
     child = (
-        "import os, sys, time; from canter.use.video import _end_with; _end_with(int(sys.argv[1])); "
+        "import os, signal, sys, time; from canter.signals import die_with_parent; "
+        "die_with_parent(signal.SIGKILL, int(sys.argv[1])); "
         "print(os.getpid(), flush=True); time.sleep(120)"
     )
     parent = (

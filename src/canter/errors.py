@@ -15,3 +15,10 @@ class DiscreteActionsError(CanterError):
     def __init__(self, env_id: str, space: object) -> None:
         super().__init__(f"{env_id}: action space {space} is not continuous; canter trains Box actions")
         self.env_id, self.space = env_id, space
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, or its type's name where the message is empty: a library's error
+    can run to a page (a traceback from a server, a SQL statement), and a one-line message quotes only its start."""
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__

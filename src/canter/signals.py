@@ -28,6 +28,22 @@ def exit_interrupted() -> NoReturn:
     os._exit(INTERRUPTED)
 
 
+def die_with_parent(sig: int, parent: int | None = None) -> None:
+    """Ask Linux to send this process `sig` when its parent dies (elsewhere nothing changes). A parent that died
+    before the request took hold never sends it, so the process gets `sig` at once when its parent id is not
+    `parent` (where the caller knows it) or, without one, is init's."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, sig)
+    orphaned = os.getppid() == 1 if parent is None else os.getppid() != parent
+    if orphaned:
+        os.kill(os.getpid(), sig)
+
+
 @contextlib.contextmanager
 def handling_stop_signals(handler: Callable[[int, FrameType | None], Any]) -> Iterator[dict[signal.Signals, Any]]:
     """Within it, `handler` handles SIGINT and SIGTERM; yields the handlers it replaced, by signal, put back at the

@@ -18,12 +18,13 @@ from canter.core.counters import count_dtype
 from canter.core.gae import compute_gae
 from canter.core.networks import (
     Params,
+    all_finite,
     gaussian_log_prob,
     policy_dist,
     sample_action,
     value,
 )
-from canter.core.normalize import RunningStats, learning_reward, normalize, update_stats
+from canter.core.normalize import RunningStats, learning_reward, normalize_obs, update_stats
 from canter.envs.base import StepOutput
 from canter.envs.episodes import EnvCarry, track_episodes
 
@@ -39,10 +40,6 @@ class Transition(NamedTuple):
     episode_return: jnp.ndarray
     episode_length: jnp.ndarray
     episode_info: dict
-
-
-def normalize_obs(config: Config, stats: RunningStats, obs: jnp.ndarray) -> jnp.ndarray:
-    return normalize(stats, obs, config.env.clip_obs) if config.env.normalize_obs else obs
 
 
 def collect(
@@ -117,14 +114,9 @@ def estimate_advantages(
 def rollout_report(tr: Transition, params: Params) -> dict[str, Any]:
     """What every on-policy iteration reports of its rollout: the env steps it took (autoreset steps excluded),
     whether the rollout and the updated parameters are all finite, and the episodes that finished in it."""
-    finite = (
-        jnp.all(jnp.isfinite(tr.obs))
-        & jnp.all(jnp.isfinite(tr.reward))
-        & jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(params)]))
-    )
     return dict(
         steps=tr.valid.sum().astype(count_dtype()),
-        finite=finite,
+        finite=all_finite((tr.obs, tr.reward, params)),
         finished=tr.done,
         episode_return=tr.episode_return,
         episode_length=tr.episode_length,

@@ -63,10 +63,14 @@ def add_checkpoint_arg(parser: argparse.ArgumentParser) -> None:
 
 def check_one_run_for_a_file(checkpoint: str, runs: list[str]) -> None:
     """A checkpoint file is one run's; `last` and `best` name one checkpoint in each run folder."""
-    if checkpoint not in ("last", "best") and len(runs) > 1:
+    # Imported here, not at the top: checkpoint imports JAX, which parsing must not (eval and report have imported
+    # it by the time they check).
+    from canter.training.checkpoint import BEST, LAST
+
+    if checkpoint not in (LAST, BEST) and len(runs) > 1:
         raise CanterError(
             f"--checkpoint {checkpoint} is one checkpoint file, but {len(runs)} run folders are given; "
-            f"pass one run folder, or --checkpoint last or best"
+            f"pass one run folder, or --checkpoint {LAST} or {BEST}"
         )
 
 

@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=10,
         help="deterministic episodes of each run's final evaluation, as in canter eval (default 10)",
     )
-    # `--eval-episodes` means episodes per evaluation during training (train, tune); bench's final evaluation was
-    # renamed to `--episodes`, and the old spelling is refused with the new one.
+    # `--eval-episodes` means episodes per evaluation during training (train, tune), not bench's final evaluation,
+    # so bench refuses it and names `--episodes`.
     b.add_argument("--eval-episodes", type=int, default=None, help=argparse.SUPPRESS)
     b.add_argument(
         "--storage",
@@ -85,8 +85,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.eval_episodes is not None:
         raise CanterError(
-            f"bench --eval-episodes is now --episodes (episodes of each run's final evaluation); "
-            f"pass --episodes {args.eval_episodes}"
+            f"bench sets the episodes of each run's final evaluation with --episodes (--eval-episodes is train's "
+            f"and tune's count per evaluation during training); pass --episodes {args.eval_episodes}"
         )
 
     # Without a storage the bench runs on this machine alone, with no study to name and no trials to heartbeat: the

@@ -197,7 +197,10 @@ def _short(text: str, width: int) -> str:
 
 
 def _checkpoint_label(checkpoint: str) -> str:
-    return checkpoint if checkpoint in ("last", "best") else "file"
+    # checkpoint imports JAX, which parsing must not; here the policies have loaded it already.
+    from canter.training.checkpoint import BEST, LAST
+
+    return checkpoint if checkpoint in (LAST, BEST) else "file"
 
 
 def _print_table(rows: list[dict[str, Any]], groups: list[dict[str, Any]]) -> None:

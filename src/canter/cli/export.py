@@ -11,6 +11,9 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    # It imports JAX and onnx only inside its functions, so parsing stays fast.
+    from canter.use.export import FORMATS
+
     p = sub.add_parser(
         "export",
         help="export the deterministic policy (ONNX or npz)",
@@ -20,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run", help="run folder")
     add_checkpoint_arg(p)
     p.add_argument(
-        "--format", choices=("onnx", "npz"), default=None, help="file format (default: from the --out extension)"
+        "--format", choices=tuple(FORMATS), default=None, help="file format (default: from the --out extension)"
     )
     p.add_argument("--out", required=True, help="output file, e.g. policy.onnx or policy.npz")
     p.set_defaults(func=run)

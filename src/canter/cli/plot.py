@@ -10,16 +10,21 @@ from canter.files import check_writable, write_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    # Neither module imports JAX or matplotlib at import time, so parsing stays fast.
+    from canter.use.plot import CONFIDENCE, X_AXES
+    from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
+
     p = sub.add_parser(
         "plot",
         help="learning curves and diagnostics of run folders (PNG/SVG)",
         description="Plot learning curves and diagnostics. Runs whose configs differ only in the seed are drawn as "
-        "one mean line with a band: the range of the runs below 5 runs, a 95% bootstrap interval from 5 on; groups "
-        "are labelled by the config keys in which they differ.",
+        f"one mean line with a band: the range of the runs below {MIN_RUNS_FOR_INTERVAL} runs, a {CONFIDENCE:.0%} "
+        f"bootstrap interval from {MIN_RUNS_FOR_INTERVAL} on; groups are labelled by the config keys in which they "
+        "differ.",
     )
     p.add_argument("runs", nargs="+", help="run folders")
     p.add_argument("--out", default="curves.png", help="output image; .png, .svg or .pdf (default curves.png)")
-    p.add_argument("--x", choices=("steps", "wall"), default="steps", help="x axis: env steps or wall time")
+    p.add_argument("--x", choices=tuple(X_AXES), default="steps", help="x axis: env steps or wall time")
     p.add_argument(
         "--smooth",
         type=int,

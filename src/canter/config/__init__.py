@@ -6,11 +6,3 @@ the section registry), `algorithms` (what each algorithm declares), `values` (ty
 (config.toml), `experiment` (which runs are seeds of one experiment) and `reference` (the README's key table).
 This package never imports an algorithm: algorithms register their sections and specs with it.
 """
-
-from canter.config.build import build_config
-from canter.config.experiment import experiment_key
-from canter.config.schema import Config
-from canter.config.serialize import from_toml_text, to_toml
-from canter.config.validate import validate
-
-__all__ = ["Config", "build_config", "experiment_key", "from_toml_text", "to_toml", "validate"]

@@ -12,10 +12,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from canter.config.schema import field_names
+from canter.config.schema import CORE_SECTIONS, field_names
 from canter.errors import CanterError
-
-CORE_READS = ("env", "run")
 
 
 @dataclass(frozen=True)
@@ -121,7 +119,7 @@ def reads_key(algo: str, key: str) -> bool:
     """Whether `algo` reads `section.key` (or the whole section when `key` is a section name)."""
     reads = algorithm_spec(algo).reads
     section = key.partition(".")[0]
-    return section in CORE_READS or section in reads or key in reads
+    return section in CORE_SECTIONS or section in reads or key in reads
 
 
 def read_sections(algo: str) -> list[tuple[str, tuple[str, ...] | None]]:

@@ -19,12 +19,9 @@ BUDGET = "budget"
 OUTPUT = "output"
 
 
-def setting(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, role: str = LEARNING) -> Any:
+def setting(doc: str, *, default: Any = MISSING, role: str = LEARNING) -> Any:
     """A dataclass field with its one-line documentation (the README's key table) and its role."""
-    metadata = {"doc": doc, "role": role}
-    if default_factory is not MISSING:
-        return field(default_factory=default_factory, metadata=metadata)
-    return field(default=default, metadata=metadata)
+    return field(default=default, metadata={"doc": doc, "role": role})
 
 
 def role_of(f: Field) -> str:

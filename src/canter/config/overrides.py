@@ -18,8 +18,13 @@ def all_keys() -> list[str]:
     return [f"{s}.{name}" for s in section_names() for name in field_names(s)]
 
 
+def close_keys(key: str) -> list[str]:
+    """The config keys that `key` may be a misspelling of, closest first."""
+    return difflib.get_close_matches(key, all_keys(), n=3, cutoff=0.5)
+
+
 def unknown_key_error(key: str, source: str) -> CanterError:
-    close = difflib.get_close_matches(key, all_keys(), n=3, cutoff=0.5)
+    close = close_keys(key)
     hint = f"; did you mean {', '.join(close)}?" if close else f"; sections are {', '.join(section_names())}"
     return CanterError(f"unknown config key '{key}' in {source}{hint}")
 

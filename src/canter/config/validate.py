@@ -27,9 +27,9 @@ CONTACTS = ("all", "floor")
 def check_physics(env: Any) -> None:
     """The env section's physics settings (env.solver_*, env.contacts): in range, and only on a backend that takes
     them."""
-    from canter.envs.registry import get_backend, solver_backends
+    from canter.envs.registry import AUTO, get_backend, solver_backends
 
-    takes = env.backend != "auto" and get_backend(env.backend).solver_options
+    takes = env.backend != AUTO and get_backend(env.backend).solver_options
 
     def only_there(key: str, default: bool) -> None:
         if not (default or takes):
@@ -61,15 +61,13 @@ def _physics_fix(env_id: str, key: str) -> str:
 
 
 def _check_eval_backend(backend: str, eval_backend: str) -> None:
-    from canter.envs.registry import backend_choices, get_backend
+    from canter.envs.registry import AUTO, backend_choices, describe_backend_choices, get_backend
 
-    choices = backend_choices()
     need(
-        eval_backend in ("", *choices),
-        f"run.eval_backend must be empty (the run's own) or {', '.join(choices[:-1])} or {choices[-1]}, "
-        f"got '{eval_backend}'",
+        eval_backend in ("", *backend_choices()),
+        f"run.eval_backend must be empty (the run's own) or {describe_backend_choices()}, got '{eval_backend}'",
     )
-    if eval_backend in ("", backend) or backend == "auto":
+    if eval_backend in ("", backend) or backend == AUTO:
         return
     trained_on = get_backend(backend)
     need(
@@ -89,14 +87,20 @@ def _is_utf8(text: str) -> bool:
 
 
 def validate(config: Config) -> None:
-    from canter.envs.registry import AUTO, backend_names, get_backend, pooled_backends, refuse_mujoco_py
+    from canter.envs.registry import (
+        AUTO,
+        backend_choices,
+        describe_backend_choices,
+        get_backend,
+        pooled_backends,
+        refuse_mujoco_py,
+    )
 
     env, run = config.env, config.run
     need(bool(env.id), "env.id is empty; pass an env id such as Hopper-v5")
-    backends = ("auto", *backend_names())
     need(
-        env.backend in backends,
-        f"env.backend must be {', '.join(backends[:-1])} or {backends[-1]}, got '{env.backend}'",
+        env.backend in backend_choices(),
+        f"env.backend must be {describe_backend_choices()}, got '{env.backend}'",
     )
     need(env.num_envs >= 1, f"env.num_envs must be >= 1, got {env.num_envs}")
     need(

@@ -75,14 +75,29 @@ def value(params: Params, obs: jnp.ndarray, net: NetConfig) -> jnp.ndarray:
     return mlp(params["critic"], obs, net.activation)[..., 0]
 
 
+def gaussian_log_prob_per_dim(mean: jnp.ndarray, log_std: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
+    """Log density of each action dimension of the diagonal Gaussian."""
+    z = (action - mean) * jnp.exp(-log_std)
+    return -0.5 * jnp.square(z) - log_std - 0.5 * LOG_2PI
+
+
 def gaussian_log_prob(mean: jnp.ndarray, log_std: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
     """Log density summed over action dimensions."""
-    z = (action - mean) * jnp.exp(-log_std)
-    return jnp.sum(-0.5 * jnp.square(z) - log_std - 0.5 * LOG_2PI, axis=-1)
+    return jnp.sum(gaussian_log_prob_per_dim(mean, log_std, action), axis=-1)
 
 
 def gaussian_entropy(log_std: jnp.ndarray) -> jnp.ndarray:
     return jnp.sum(log_std + 0.5 * (1.0 + LOG_2PI), axis=-1)
+
+
+def all_finite(tree: Any) -> jnp.ndarray:
+    """Whether every floating-point leaf of a pytree (parameters, optimizer moments, a rollout) is finite; integer
+    leaves such as step counters cannot be anything else."""
+    return jnp.all(
+        jnp.stack(
+            [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
+        )
+    )
 
 
 def sample_action(key: jax.Array, mean: jnp.ndarray, log_std: jnp.ndarray) -> jnp.ndarray:

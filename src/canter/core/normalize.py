@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import jax.numpy as jnp
 
 if TYPE_CHECKING:
-    from canter.config.schema import EnvConfig
+    from canter.config.schema import Config, EnvConfig
 
 EPSILON = 1e-8  # added to variances before the square root
 
@@ -49,6 +49,11 @@ def update_stats(stats: RunningStats, batch: jnp.ndarray, mask: jnp.ndarray) -> 
 
 def normalize(stats: RunningStats, x: jnp.ndarray, clip: float, eps: float = EPSILON) -> jnp.ndarray:
     return jnp.clip((x - stats.mean) / jnp.sqrt(stats.var + eps), -clip, clip)
+
+
+def normalize_obs(config: Config, stats: RunningStats, obs: jnp.ndarray) -> jnp.ndarray:
+    """The observation a policy sees: normalized by the running statistics when `env.normalize_obs`, else raw."""
+    return normalize(stats, obs, config.env.clip_obs) if config.env.normalize_obs else obs
 
 
 def scale_reward(stats: RunningStats, reward: jnp.ndarray, clip: float, eps: float = EPSILON) -> jnp.ndarray:

@@ -7,7 +7,7 @@ import os
 import sys
 from typing import Any
 
-from canter.errors import CanterError
+from canter.errors import CanterError, first_line
 
 _platform_chosen = False
 _cpu_notice_given = False
@@ -49,10 +49,9 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     try:
         jax.default_backend()  # starts the platform: a missing one fails here, in one line
     except (RuntimeError, AssertionError, ValueError) as exc:  # JAX_PLATFORMS names a platform this machine lacks
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise CanterError(
             f"JAX could not start the platform JAX_PLATFORMS={os.environ.get('JAX_PLATFORMS', '')} asks for "
-            f"({first}); unset JAX_PLATFORMS, or install JAX for that device"
+            f"({first_line(exc)}); unset JAX_PLATFORMS, or install JAX for that device"
         ) from None
     if announce:
         announce_physics(backend)
@@ -60,9 +59,9 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
 
 def _steps_in_jax(backend: str | None) -> bool:
     """Whether `backend` steps its physics inside the JAX program (MJX, Brax); None and `auto` are host-stepped."""
-    from canter.envs.registry import get_backend
+    from canter.envs.registry import AUTO, get_backend
 
-    return backend is not None and backend != "auto" and get_backend(backend).jax_native
+    return backend is not None and backend != AUTO and get_backend(backend).jax_native
 
 
 def announce_physics(backend: str | None) -> None:

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-from canter.envs.base import EnvSpec, StepOutput, VecEnv, is_summed_info
-from canter.envs.registry import known_ids, make_vec_env, resolve_backend
+from canter.envs.registry import make_vec_env, resolve_backend
 
-__all__ = ["EnvSpec", "StepOutput", "VecEnv", "is_summed_info", "known_ids", "make_vec_env", "resolve_backend"]
+__all__ = ["make_vec_env", "resolve_backend"]

@@ -7,6 +7,9 @@ The learner's side is expressed in JAX types only: the learner never imports an 
 - `host_step(action)`: the same step from plain numpy, for evaluation loops;
 - `close()`.
 
+An env whose state is itself JAX arrays (`canter.envs.functional`) is also a `JaxVecEnv`, which training checks for
+by type: its runs resume their episodes exactly, seed groups vmap it, and evaluations play inside one program.
+
 Episode semantics (every backend): the step that ends an episode returns the true final observation and its flags.
 The next step of that env is an autoreset step: it ignores its action and returns the reset observation and both
 flags false. Its reward means nothing (0 for EnvPool's gym-style envs, the previous step's again for its DM Control
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -55,6 +58,17 @@ class VecEnv(Protocol):
     def host_step(self, action: np.ndarray) -> StepOutput: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class JaxVecEnv(VecEnv, Protocol):
+    """A `VecEnv` whose whole env state is a pytree of arrays with the envs on the leading axis, stepped by pure JAX
+    functions (`canter.envs.functional`). So, unlike a handle on envs outside JAX (EnvPool's, Gymnasium's):
+    - a checkpoint holds its episodes in flight, and a resumed run continues them exactly;
+    - a seed group vmaps its step as it vmaps the learner, each seed stepping its own slice of the envs;
+    - an evaluation plays its episodes inside one jitted program (`play_episodes`)."""
+
+    def play_episodes(self, act: Callable[[Any, Any], Any], args: Any, quota: np.ndarray) -> tuple: ...
 
 
 # Info entries that are bookkeeping, not measurements.

@@ -7,8 +7,8 @@ and adds what every canter backend shares: the step limit (truncation), and EnvP
 observation, reward 0 and both flags false.
 
 Unlike EnvPool's handle, the whole env state (`FunctionalState`) is a pytree of arrays with the envs on the leading
-axis. So it can be checkpointed, and a resumed run continues its episodes in flight exactly (`resumes_exactly`); and
-several seeds' envs train under a plain `jax.vmap` (`vmappable`), each seed holding its own slice.
+axis. So it can be checkpointed, and a resumed run continues its episodes in flight exactly; and several seeds'
+envs train under a plain `jax.vmap`, each seed holding its own slice (`canter.envs.base.JaxVecEnv`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from canter.envs.base import EnvSpec, StepOutput
+from canter.envs.base import EnvSpec, JaxVecEnv, StepOutput
 
 
 @dataclass(frozen=True)
@@ -113,12 +113,9 @@ def _split(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
     return pairs[:, 0], pairs[:, 1]
 
 
-class FunctionalVecEnv:
+class FunctionalVecEnv(JaxVecEnv):
     """`num_envs` copies of a `FunctionalEnv`. The jitted program steps them with `jax_step`; evaluation loops step
     them from numpy with `host_step`, which keeps its own state."""
-
-    vmappable = True
-    resumes_exactly = True
 
     def __init__(self, env: FunctionalEnv, env_id: str, backend: str, num_envs: int, seeds: list[int]) -> None:
         if len(seeds) != num_envs:

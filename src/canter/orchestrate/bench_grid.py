@@ -10,7 +10,7 @@ from typing import Any
 
 from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
-from canter.config.overrides import all_keys
+from canter.config.overrides import all_keys, unknown_key_error
 from canter.config.schema import Config
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
@@ -138,12 +138,7 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             envs = list(raw)
             continue
         if key not in known:
-            import difflib
-
-            close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.5)
-            raise CanterError(
-                f"--grid: unknown config key '{key}'" + (f"; did you mean {', '.join(close)}?" if close else "")
-            )
+            raise unknown_key_error(key, "--grid")
         section, _, name = key.partition(".")
         values = [canonical(coerce(key, field_types(section)[name], v)) for v in raw]
         if len(set(values)) != len(values):

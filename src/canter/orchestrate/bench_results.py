@@ -19,7 +19,7 @@ from canter.files import check_writable
 from canter.orchestrate.bench_grid import BenchSettings, Cell, safe_name, varying_keys
 from canter.orchestrate.jobs import EVAL_FILE, is_number, read_object, read_summary
 from canter.training.run_folder import CONFIG_FILE, METRICS_FILE
-from canter.use.reference_scores import published_scores
+from canter.use.reference_scores import REFERENCE_STEPS, env_base, published_scores
 
 if TYPE_CHECKING:
     from canter.use.scoreboard import Scoreboard
@@ -190,12 +190,13 @@ def _cell_results(results: Sequence[CellResult | Mapping[str, Any]]) -> list[Cel
 
 
 def published_for(algo: str, env_id: str, total_steps: int, data: dict[str, Any] | None = None) -> str:
-    """'CR 2383±272, TS 2609±701' for this algo and env at the bench's budget (else at 1M steps, marked)."""
+    """'CR 2383±272, TS 2609±701' for this algo and env at the bench's budget (else at REFERENCE_STEPS, marked:
+    ' @1M')."""
     data = data or published_scores()
-    base = env_id.split(":")[-1].rsplit("-v", 1)[0]
-    rows = [s for s in data["score"] if s["algo"] == algo and s["env"] == base]
+    rows = [s for s in data["score"] if s["algo"] == algo and s["env"] == env_base(env_id)]
     at_budget = [s for s in rows if s["steps"] == total_steps]
-    chosen, mark = (at_budget, "") if at_budget else ([s for s in rows if s["steps"] == 1_000_000], " @1M")
+    at_reference = [s for s in rows if s["steps"] == REFERENCE_STEPS]
+    chosen, mark = (at_budget, "") if at_budget else (at_reference, f" @{REFERENCE_STEPS / 1e6:g}M")
     parts = [f"{s['source']} {s['mean']:.0f}" + (f"±{s['std']:.0f}" if "std" in s else "") for s in chosen]
     return ", ".join(parts) + mark if parts else ""
 

@@ -3,7 +3,7 @@ were trained with this bench's settings, and the line a job's start prints."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from canter.config.serialize import to_toml
@@ -15,7 +15,7 @@ from canter.training.run_folder import CONFIG_FILE
 
 def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
     cell = job.cell
-    config = replace(cell.config, run=replace(cell.config.run, out_dir=str(bench_dir)))
+    config = cell.config.with_values("run", out_dir=str(bench_dir))
     return JobSpec(
         to_toml(config),
         {s: str(cell.run_dir(bench_dir, s).resolve()) for s in job.seeds},

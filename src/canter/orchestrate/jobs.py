@@ -29,7 +29,7 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
-from canter.signals import exit_interrupted, handling_stop_signals, stops_held
+from canter.signals import die_with_parent, exit_interrupted, handling_stop_signals, stops_held
 from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
@@ -386,21 +386,6 @@ def stop_jobs(procs: Iterable[subprocess.Popen], grace_seconds: float = STOP_GRA
             proc.wait()
 
 
-def die_with_parent() -> None:
-    """Ask Linux to send this process SIGTERM when its parent dies (a no-op elsewhere)."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    pr_set_pdeathsig = 1
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
-    except (OSError, AttributeError):
-        return
-    if os.getppid() == 1:  # the parent died before prctl took effect
-        os.kill(os.getpid(), signal.SIGTERM)
-
-
 def run_job(spec: JobSpec, quiet: bool = True) -> None:
     """Skip finished seeds, resume stopped ones (and their tracker runs), train the rest (as one seed group), each seed
     with its own tracker runs, then evaluate the final policies."""
@@ -542,7 +527,7 @@ def sigterm_interrupts() -> Iterator[None]:
 
 
 def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: dict[str, str]) -> None:
-    die_with_parent()  # a killed parent takes its workers along; their trials are retried by heartbeat
+    die_with_parent(signal.SIGTERM)  # a killed parent takes its workers along; their trials are retried by heartbeat
     os.environ.update(thread_caps)
     apply_cpu_pinning()
     try:
@@ -556,7 +541,7 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
 
 
 def main(argv: list[str]) -> int:
-    die_with_parent()
+    die_with_parent(signal.SIGTERM)
     apply_cpu_pinning()
     try:
         run_job(JobSpec.from_json(Path(argv[0]).read_text()))

@@ -237,7 +237,7 @@ def check_sets_not_sampled(sets: tuple[str, ...], space: SearchSpace) -> None:
 def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings: TuneSettings) -> Config:
     config = apply_sample(base, values)
     owned = {key.partition(".")[2]: value for key, (value, _) in owned_keys(settings, trial_dir).items()}
-    return replace(config, run=replace(config.run, **owned))
+    return config.with_values("run", **owned)
 
 
 # ------------------------------------------------------------------------------------------------- the config file

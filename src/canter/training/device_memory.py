@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 from canter.errors import CanterError
-
-GIB = 1024**3
+from canter.training import host_memory
+from canter.training.host_memory import size_text
 
 
 def required_bytes(compiled: Any) -> int | None:
@@ -40,7 +40,7 @@ def free_bytes() -> int | None:
 
 
 def too_many_envs(num_envs: int, need: int | None = None, free: int | None = None) -> CanterError:
-    amounts = f" (needs about {need / GIB:.1f} GiB, {free / GIB:.1f} GiB free);" if need and free else ";"
+    amounts = f" (needs about {size_text(need)}, {size_text(free)} free);" if need and free else ";"
     return CanterError(
         f"env.num_envs={num_envs} does not fit in the device's memory{amounts} lower it, "
         f"e.g. --set env.num_envs={max(num_envs // 2, 1)}"
@@ -48,8 +48,6 @@ def too_many_envs(num_envs: int, need: int | None = None, free: int | None = Non
 
 
 def too_large_for_the_host(more: int, available: int) -> CanterError:
-    from canter.training.host_memory import size_text
-
     return CanterError(
         f"the training program needs about {size_text(more)} of memory beyond its train state and envs (its "
         f"rollout, batches and activations), but {size_text(available)} are available; lower env.num_envs, the "
@@ -66,8 +64,6 @@ def check_fits(compiled: Any, num_envs: int) -> None:
             raise too_many_envs(num_envs, need, free)
         return
     import jax
-
-    from canter.training import host_memory
 
     if jax.devices()[0].platform != "cpu":
         return

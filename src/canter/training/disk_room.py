@@ -39,20 +39,14 @@ def checkpoints_at_once(config: Config, existing: int) -> int:
     return max(config.run.keep_checkpoints + 1 - existing, 1)
 
 
-def human_bytes(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB"):
-        if n < 1000:
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000
-    return f"{n:.1f} TB"
-
-
 def warn_if_checkpoints_will_not_fit(
     run_dir: Path, state: Any, config: Config, policy_leaves_out: tuple[str, ...] = ()
 ) -> bool:
     """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
     `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
+    from canter.algos.registry import get_algorithm
     from canter.training.checkpoint import list_checkpoints, read_header
+    from canter.training.host_memory import size_text
 
     # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
     existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
@@ -62,14 +56,15 @@ def warn_if_checkpoints_will_not_fit(
     free = shutil.disk_usage(run_dir).free
     if free >= needed:
         return False
-    how = "lower run.keep_checkpoints"
-    if hasattr(getattr(config, config.run.algo, None), "buffer_size"):  # an off-policy algorithm's section
-        how += f" or {config.run.algo}.buffer_size"
+    # The fields that only further training reads (a replay buffer) are the bulk of a checkpoint that has any, so
+    # the keys that size them (the algorithm's `size_keys`) are the other way to make room.
+    sizing = [key for name, key in get_algorithm(config.run.algo).size_keys if name in policy_leaves_out]
+    how = " or ".join(["lower run.keep_checkpoints", *sizing])
     if not config.run.compress_checkpoints:
         how += ", or set run.compress_checkpoints=true"
     print(
-        f"canter: warning: a checkpoint of this run takes {human_bytes(one)} and it needs room for "
-        f"{human_bytes(needed)} of them, but {run_dir} has {human_bytes(free)} free; free space, {how}",
+        f"canter: warning: a checkpoint of this run takes {size_text(one)} and it needs room for "
+        f"{size_text(needed)} of them, but {run_dir} has {size_text(free)} free; free space, {how}",
         file=sys.stderr,
     )
     return True

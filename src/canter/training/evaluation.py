@@ -23,7 +23,9 @@ from typing import Any
 import numpy as np
 
 from canter.core.seeding import EVAL, env_seeds
+from canter.envs.base import JaxVecEnv
 from canter.errors import CanterError
+from canter.training.cadence import Cadence
 
 MAX_EVAL_ENVS = 32  # envs stepped from the host
 # JAX-native envs: one env per episode, so the program steps one episode's length, not several one after another
@@ -124,7 +126,7 @@ def run_episodes(
                 f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
                 f"policy expects {sizes[0]}/{sizes[1]}; pick a matching --env"
             )
-        if traced_act is not None and hasattr(env, "play_episodes"):
+        if traced_act is not None and isinstance(env, JaxVecEnv):
             played = env.play_episodes(traced_act.fn, traced_act.args, quota)
             wall = time.perf_counter() - started
             return EvalResult(np.asarray(played[0]), np.asarray(played[1]), wall, env.spec.backend, physics)
@@ -184,7 +186,6 @@ class TrainingEvaluation:
 
         from canter.algos import get_algorithm
 
-        self.every = config.run.eval_every
         self.episodes = config.run.eval_episodes
         self.total_steps = config.run.total_steps
         from canter.envs.registry import env_options
@@ -192,7 +193,7 @@ class TrainingEvaluation:
         self.env_id = spec.id
         self.backend = evaluation_backend(spec.id, config.run.eval_backend, spec.backend)
         self.env_options = env_options(config.env, self.backend)
-        self.next_step = (start_step // self.every + 1) * self.every
+        self.cadence = Cadence(config.run.eval_every, start_step)
         self.best_return = -math.inf if best_return is None else best_return
         algorithm = get_algorithm(config.run.algo)
         self._policy_params = algorithm.policy_params
@@ -202,11 +203,11 @@ class TrainingEvaluation:
         self._key = jax.random.key(0)
 
     def due(self, step: int) -> bool:
-        return step >= self.next_step or step >= self.total_steps
+        return self.cadence.due(step) or step >= self.total_steps
 
     def evaluate(self, train_state: Any, step: int) -> EvalResult:
         """The deterministic evaluation of `train_state` (its policy and frozen normalizer statistics)."""
-        self.next_step = (step // self.every + 1) * self.every
+        self.cadence = self.cadence.advance(step)
         params, obs_stats = self._policy_params(train_state), train_state.obs_stats
 
         def act(obs: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from canter.config.schema import Config
+from canter.envs.base import JaxVecEnv
 from canter.training import device_memory
 from canter.training.seed_run import SeedRun
 
@@ -61,11 +62,11 @@ class GroupProgram:
 
             state = seedgroup.stack(states)
             # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
-            vmaps = getattr(env, "vmappable", False)
+            vmaps = isinstance(env, JaxVecEnv)
             env_step = env.jax_step if vmaps else seedgroup.group_step(env.jax_step, self.group)
             self.iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
             self.pick = seedgroup.unstack
-        self.keeps_carry = getattr(env, "resumes_exactly", False)
+        self.keeps_carry = isinstance(env, JaxVecEnv)
         if algorithm.donate_state:
             state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
         self.state = state

@@ -19,7 +19,7 @@ the middle of a line (an older canter, or a disk that failed during the write) c
 readers skip it (`read_rows`), and the next logger cuts it off.
 
 Values computed in float32 are written as the shortest decimal that reads back as the same float32 (`logged`):
-float64's repr of a float32 carries eight or nine more digits, all noise, which doubled the file.
+float64's repr of a float32 carries eight or nine more digits, all noise, which would double the file.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ import numpy as np
 from canter.config.algorithms import budget_rounding_note
 from canter.config.schema import Config
 from canter.config.validate import validate
+from canter.envs.base import JaxVecEnv
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import WriteError, is_write_error
 from canter.signals import StopFlag
@@ -55,7 +56,7 @@ def train_seeds(
         raise CanterError(f"seeds repeat in {seeds}; each seed of a group must be different")
     if run_dirs is not None and len(run_dirs) != len(seeds):
         raise CanterError(f"{len(run_dirs)} run folders given for {len(seeds)} seeds")
-    configs = [replace(config, run=replace(config.run, seed=seed)) for seed in seeds]
+    configs = [config.with_values("run", seed=seed) for seed in seeds]
     dirs: list[str | Path | None] = list(run_dirs) if run_dirs is not None else [None] * len(seeds)
     return _train_group(configs, [None] * len(seeds), dirs, quiet)
 
@@ -101,9 +102,9 @@ def _check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> N
                 f"each run folder once"
             )
         seen[folder] = run_dir
-    reference = replace(configs[0], run=replace(configs[0].run, seed=0))
+    reference = configs[0].with_values("run", seed=0)
     for run_dir, config in zip(run_dirs, configs):
-        if replace(config, run=replace(config.run, seed=0)) != reference:
+        if config.with_values("run", seed=0) != reference:
             keys = [k for k in differing_keys([configs[0], config], key_of=flat_config) if k != "run.seed"]
             keys.sort(key=lambda k: k not in ("env.id", "run.algo"))  # what tells two experiments apart first
             named = ", ".join(keys[:4]) + (f" and {len(keys) - 4} more keys" if len(keys) > 4 else "")
@@ -327,12 +328,12 @@ def _initial_carry(env: Any, spec: Any, resumed_from: list[Path | None]) -> Any:
 
     group = len(resumed_from)
     first_obs = seedgroup.split_first_obs(env.reset(), group)
-    if group > 1 and getattr(env, "vmappable", False):
+    if group > 1 and isinstance(env, JaxVecEnv):
         handles = seedgroup.split_env_state(env.initial_state(), group)
     else:
         handles = [env.initial_state()] * group
     carries = [init_env_carry(handle, obs, spec.info_keys) for handle, obs in zip(handles, first_obs)]
-    if getattr(env, "resumes_exactly", False):
+    if isinstance(env, JaxVecEnv):
         carries = [
             checkpoint.restore_env_carry(fresh, path) if path is not None else fresh
             for fresh, path in zip(carries, resumed_from)
@@ -549,10 +550,10 @@ def resume_config(
         raise CanterError(f"run folder not found: {run_dir}")
     config = _saved_config(Path(run_dir))
     if total_steps is not None:
-        config = replace(config, run=replace(config.run, total_steps=int(total_steps)))
+        config = config.with_values("run", total_steps=int(total_steps))
     if max_minutes is not None:  # inf lifts a saved limit: the config holds no limit as None, which TOML can omit
         lifted = math.isinf(max_minutes) and max_minutes > 0
-        config = replace(config, run=replace(config.run, max_minutes=None if lifted else float(max_minutes)))
+        config = config.with_values("run", max_minutes=None if lifted else float(max_minutes))
     if not isinstance(stop_at_return, Saved):
-        config = replace(config, run=replace(config.run, stop_at_return=stop_at_return))
+        config = config.with_values("run", stop_at_return=stop_at_return)
     return config

@@ -20,6 +20,7 @@ from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
 from canter.training import checkpoint, run_folder, trackers
+from canter.training.cadence import Cadence
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
 from canter.training.logger import MetricsLogger, logged
 from canter.training.videos import TrainingVideos
@@ -117,8 +118,7 @@ class SeedRun:
         self.run_seconds = float(earlier.get("train_seconds", 0.0))
         self.compile_seconds = 0.0  # this session's, once compiled
         self.trained_with = trained_with  # the seeds of this process's group, its own included
-        every = config.run.checkpoint_every
-        self.next_checkpoint = (start.step // every + 1) * every if every else None
+        self.checkpoints = Cadence(config.run.checkpoint_every, start.step)
         self.header_base = {"config": to_toml(config), "env": env_header(spec), "algo": config.run.algo}
         self.logger = MetricsLogger(
             out,
@@ -226,17 +226,12 @@ class SeedRun:
         return row
 
     def checkpoint_due(self) -> bool:
-        return (
-            self.next_checkpoint is not None
-            and self.global_step >= self.next_checkpoint
-            and self.global_step < self.config.run.total_steps
-        )
+        return self.checkpoints.due(self.global_step) and self.global_step < self.config.run.total_steps
 
     def save_periodic(self, train_state: Any, env_carry: Any = None) -> None:
         """The checkpoint that run.checkpoint_every asks for at this step."""
         self.save(train_state, env_carry)
-        every = self.config.run.checkpoint_every
-        self.next_checkpoint = (self.global_step // every + 1) * every
+        self.checkpoints = self.checkpoints.advance(self.global_step)
 
     def save_snapshot(self, path: Path, train_state: Any) -> None:
         """The policy state that a video of this step is rendered from (`canter.training.videos`)."""

@@ -16,6 +16,8 @@ import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from canter.training.cadence import Cadence
+
 _FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
 
 
@@ -46,8 +48,7 @@ class TrainingVideos:
         """every == 0 switches videos off. A resumed run drops the videos of steps after its checkpoint, as the
         logger drops their metrics: they showed training that was lost with the process, and are redone."""
         self.folder = Path(run_dir) / "videos"
-        self.every = every
-        self.next_step = (start_step // every + 1) * every if every else None
+        self.cadence = Cadence(every, start_step)
         self._job: tuple[subprocess.Popen, Path, int] | None = None
         if resumed and self.folder.is_dir():
             for video in self.folder.glob("step_*.mp4"):
@@ -56,9 +57,9 @@ class TrainingVideos:
                     video.unlink()
 
     def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
-        if self.next_step is None or step < self.next_step:
+        if not self.cadence.due(step):
             return
-        self.next_step = (step // self.every + 1) * self.every
+        self.cadence = self.cadence.advance(step)
         self._finish()
         self.folder.mkdir(parents=True, exist_ok=True)
         snapshot = self.folder / f".snapshot_{step:012d}.npz"

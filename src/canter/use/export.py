@@ -8,7 +8,7 @@ squash onto the action bounds, and the final clip to the bounds. Everything is f
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,6 @@ import numpy as np
 from canter.algos import ExportedActor
 from canter.errors import CanterError
 
-FORMATS = ("onnx", "npz")
 # Opset 17 (IR version 8) is read by every onnxruntime since 1.13 and by most other ONNX consumers.
 ONNX_OPSET = 17
 ONNX_IR_VERSION = 8
@@ -25,11 +24,12 @@ ONNX_IR_VERSION = 8
 ONNX_ACTIVATIONS = {"tanh": "Tanh", "relu": "Relu", "elu": "Elu"}
 
 
-def load_actor(run_dir: str | Path, checkpoint: str | Path = "last") -> tuple[ExportedActor, dict[str, str]]:
+def load_actor(run_dir: str | Path, checkpoint: str | Path) -> tuple[ExportedActor, dict[str, str]]:
     """The exported actor of a run's checkpoint (`last`, `best` or a file), and facts about it for the file's
     metadata."""
     from canter import __version__
     from canter.algos import get_algorithm
+    from canter.training.checkpoint import BEST, LAST
     from canter.training.restore import load_state
 
     config, facts, state, _ = load_state(Path(run_dir), checkpoint)
@@ -38,7 +38,7 @@ def load_actor(run_dir: str | Path, checkpoint: str | Path = "last") -> tuple[Ex
         "producer": f"canter {__version__}",
         "env_id": facts.env_id,
         "algo": config.run.algo,
-        "checkpoint": checkpoint if checkpoint in ("last", "best") else Path(checkpoint).name,
+        "checkpoint": checkpoint if checkpoint in (LAST, BEST) else Path(checkpoint).name,
         "global_step": str(facts.global_step),
         "obs_dim": str(facts.obs_dim),
         "act_dim": str(facts.act_dim),
@@ -58,7 +58,8 @@ def format_for(path: str | Path, requested: str | None) -> str:
             )
         return requested
     if suffix not in FORMATS:
-        raise CanterError(f"cannot tell the export format of {path}; pass --format onnx or --format npz")
+        passes = " or ".join(f"--format {name}" for name in FORMATS)
+        raise CanterError(f"cannot tell the export format of {path}; pass {passes}")
     return suffix
 
 
@@ -204,6 +205,10 @@ def onnx_bytes(actor: ExportedActor, meta: Mapping[str, str] | None = None) -> b
     return onnx_model(actor, meta).SerializeToString()
 
 
-def export_bytes(run_dir: str | Path, fmt: str, checkpoint: str | Path = "last") -> bytes:
+# Each format's writer, keyed by the name that --format and the file's extension give.
+FORMATS: dict[str, Callable[[ExportedActor, Mapping[str, str] | None], bytes]] = {"onnx": onnx_bytes, "npz": npz_bytes}
+
+
+def export_bytes(run_dir: str | Path, fmt: str, checkpoint: str | Path) -> bytes:
     actor, meta = load_actor(run_dir, checkpoint)
-    return onnx_bytes(actor, meta) if fmt == "onnx" else npz_bytes(actor, meta)
+    return FORMATS[fmt](actor, meta)

@@ -163,7 +163,7 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
                 f"{path} has a row whose global_step is {row.get('global_step')!r}, not a step: the file was edited "
                 f"or damaged; delete that row or restore the file from a copy"
             )
-    if "global_step" in header and "iteration" in header:
+    if "iteration" in header:
         rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
     columns: dict[str, np.ndarray] = {}
     for name in header:
@@ -172,8 +172,6 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
             columns[name] = np.array([float(c) if c.strip() else math.nan for c in cells])
         except ValueError:
             continue
-    if "global_step" not in columns:
-        raise CanterError(f"{path} has no global_step column; is it a canter metrics file?")
     return columns
 
 
@@ -685,11 +683,10 @@ def render(
     x_axis: str = "steps",
     smooth: int = 1,
     seed: int = 0,
-    scores: dict[Path, tuple[float, str]] | None = None,
 ) -> bytes:
-    """Read runs, group them, draw the chosen panels and the statistics of their final scores (`scores` by run
-    folder where given, else each run's `final_score`); the image file's bytes."""
-    return render_runs([load_run(r) for r in run_dirs], fmt, metrics, x_axis, smooth, seed, scores)[0]
+    """Read runs, group them, draw the chosen panels and the statistics of their final scores (each run's
+    `final_score`); the image file's bytes."""
+    return render_runs([load_run(r) for r in run_dirs], fmt, metrics, x_axis, smooth, seed)[0]
 
 
 def render_runs(
@@ -701,7 +698,8 @@ def render_runs(
     seed: int = 0,
     scores: dict[Path, tuple[float, str]] | None = None,
 ) -> tuple[bytes, Scoreboard | None]:
-    """`render` of runs already read, and the scoreboard it drew."""
+    """`render` of runs already read, their final scores `scores` by run folder where given (`scoreboard_of`), and
+    the scoreboard it drew."""
     groups = experiments_of(runs)
     board = scoreboard_of(groups, scores, seed)
     fig = draw(groups, choose_metrics(runs, metrics), x_axis, smooth, seed, board=board)

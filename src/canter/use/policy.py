@@ -10,6 +10,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.errors import CanterError
+from canter.training.checkpoint import LAST
 from canter.training.evaluation import TracedAct, deterministic_act
 from canter.training.restore import PolicyFacts, load_state
 
@@ -27,7 +28,7 @@ class Policy:
         params: Any,
         obs_stats: Any,
         source: Path,
-        checkpoint: str = "last",
+        checkpoint: str = LAST,
         selection: dict[str, Any] | None = None,
     ) -> None:
         import jax
@@ -85,7 +86,7 @@ class Policy:
         return action[0] if single else action
 
 
-def load(run_dir: str | Path, checkpoint: str | Path = "last") -> Policy:
+def load(run_dir: str | Path, checkpoint: str | Path = LAST) -> Policy:
     """Load a checkpoint of a run folder as a `Policy`: `last` (the newest), `best` (the best evaluated during
     training) or a checkpoint file."""
     import jax

@@ -6,8 +6,8 @@ with the command that wrote it:
     python -m canter.use.random_score --episodes 100 --out src/canter/data/random.toml
 
 Actions are drawn uniformly between the action bounds from `np.random.default_rng(seed)`, one per env per step.
-Every env runs a fixed quota of episodes to their end (termination or the time limit), as `canter eval` does, so
-short episodes are not over-represented.
+The episodes are played as `canter eval` plays them (`canter.training.evaluation.run_episodes`): every env runs a
+fixed quota of episodes to their end (termination or the time limit), so short episodes are not over-represented.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import numpy as np
 from canter.core.seeding import EVAL, SEED_LIMIT, env_seeds
 from canter.errors import CanterError
 
-MAX_ENVS = 32
 # The published environments (canter/data/published.toml) in both MuJoCo versions canter trains on.
 PUBLISHED_BASES = (
     "HalfCheetah",
@@ -43,38 +42,25 @@ DEFAULT_ENVS = tuple(f"{base}-v{version}" for base in PUBLISHED_BASES for versio
 def random_returns(env_id: str, episodes: int, seed: int = 0, backend: str = "auto") -> tuple[np.ndarray, str]:
     """(returns of `episodes` episodes of uniformly random actions, the backend that ran them)."""
     from canter.envs.registry import make_vec_env, resolve_backend
+    from canter.training.evaluation import run_episodes
 
     if episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {episodes}")
     backend = resolve_backend(env_id, backend)
-    num_envs = min(episodes, MAX_ENVS)
-    quota = np.full(num_envs, episodes // num_envs)
-    quota[: episodes % num_envs] += 1
-    rng = np.random.default_rng(seed)
-    env = make_vec_env(env_id, backend, num_envs, env_seeds(seed, num_envs, EVAL))
+    # run_episodes makes its own envs and shows `act` only their observations, so the bounds come from one env
+    # made to read them.
+    probe = make_vec_env(env_id, backend, 1, env_seeds(seed, 1, EVAL))
     try:
-        low = np.asarray(env.spec.action_low, np.float32)
-        high = np.asarray(env.spec.action_high, np.float32)
-        env.reset()
-        done_count = np.zeros(num_envs, int)
-        running = np.zeros(num_envs)
-        prev_done = np.zeros(num_envs, bool)
-        returns: list[float] = []
-        while (done_count < quota).any():
-            action = rng.uniform(low, high, size=(num_envs, low.size)).astype(np.float32)
-            out = env.host_step(action)
-            valid = ~prev_done  # the step after a done is an autoreset step: it ignores the action, reward 0
-            running += np.asarray(out.reward) * valid
-            done = (np.asarray(out.terminated) | np.asarray(out.truncated)) & valid
-            for i in np.flatnonzero(done):
-                if done_count[i] < quota[i]:
-                    returns.append(float(running[i]))
-                done_count[i] += 1
-            running[done] = 0.0
-            prev_done = done
+        low = np.asarray(probe.spec.action_low, np.float32)
+        high = np.asarray(probe.spec.action_high, np.float32)
     finally:
-        env.close()
-    return np.asarray(returns), backend
+        probe.close()
+    rng = np.random.default_rng(seed)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return rng.uniform(low, high, size=(len(obs), low.size)).astype(np.float32)
+
+    return run_episodes(act, env_id, backend, episodes, seed).returns, backend
 
 
 def random_toml(rows: Sequence[tuple[str, np.ndarray, str]], command: str, seed: int) -> str:

@@ -36,7 +36,7 @@ import numpy as np
 from canter.envs.dm_control_tasks import suite_task
 from canter.errors import CanterError
 from canter.files import OUTPUT_FILE_MODE, check_writable
-from canter.signals import StopFlag
+from canter.signals import INTERRUPTED, StopFlag, die_with_parent
 from canter.training.videos import child_env, quiet_fork
 
 GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
@@ -609,27 +609,15 @@ def _wait_for_renderer(process: subprocess.Popen, stop: StopFlag) -> tuple[str, 
                 process.kill()
 
 
-def _end_with(parent: int) -> None:
-    """A renderer of videos during training ends with its trainer: killed, the trainer leaves its run folder to the
-    next resume, which must not find an old renderer still writing into it (Linux; elsewhere it renders on)."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    pr_set_pdeathsig = 1
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
-    if os.getppid() != parent:  # the trainer died before the request took hold
-        os._exit(1)
-
-
 def _main(argv: list[str]) -> int:
     """Entry point of the render subprocesses (`_record_in_subprocess`, `canter.training.videos`): one JSON request;
     prints the returns as JSON."""
     request = json.loads(argv[0])
     parent = request.pop("parent", None)
     if parent is not None:
-        _end_with(parent)
+        # Killed, a trainer leaves its run folder to the next resume, which must not find an old renderer still
+        # writing into it (Linux; elsewhere it renders on).
+        die_with_parent(signal.SIGKILL, parent)
     nice = request.pop("nice", 0)
     if nice:
         os.nice(nice)
@@ -641,7 +629,7 @@ def _main(argv: list[str]) -> int:
         return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     print(f"{request['out_path']}: returns {returns} in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     print(json.dumps(returns))
     return 0

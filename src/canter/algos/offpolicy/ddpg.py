@@ -83,12 +83,9 @@ class DDPG:
         next_q = q_values(learner.target_critics, batch.next_obs, next_action, act)
         target = jax.lax.stop_gradient(losses.td_target(batch.reward, batch.terminated, next_q, cfg.gamma))
 
-        def critic_objective(critics):
-            q = q_values(critics, batch.obs, batch.action, act)
-            return losses.critic_loss(q, target), q
-
-        (critic_loss, q), grads = jax.value_and_grad(critic_objective, has_aux=True)(learner.critics)
-        critics, critic_opt = adam_step(learner.critics, learner.critic_opt, grads, cfg.critic_lr)
+        critics, critic_opt, critic_loss, q = losses.critic_step(
+            learner.critics, learner.critic_opt, batch, target, act, cfg.critic_lr
+        )
 
         def actor_objective(actor):
             return losses.deterministic_actor_loss(

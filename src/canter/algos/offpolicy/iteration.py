@@ -24,11 +24,12 @@ from canter.algos.offpolicy.learner import OffPolicyLearner
 from canter.algos.offpolicy.sections import vector_steps
 from canter.config.schema import Config
 from canter.core.counters import count_dtype
+from canter.core.networks import all_finite
 from canter.core.normalize import (
     RunningStats,
     init_stats,
     learning_reward,
-    normalize,
+    normalize_obs,
     update_stats,
 )
 from canter.core.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
@@ -85,14 +86,6 @@ def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, ac
     )
 
 
-def _all_finite(tree: Any) -> jnp.ndarray:
-    return jnp.all(
-        jnp.stack(
-            [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
-        )
-    )
-
-
 def make_iteration(
     config: Config, learner: OffPolicyLearner, spec: Any, env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]
 ) -> Callable[[OffPolicyState, EnvCarry, jnp.ndarray], tuple[OffPolicyState, EnvCarry, dict[str, Any]]]:
@@ -107,13 +100,11 @@ def make_iteration(
     names = learner.update_metrics
 
     def prepare(batch: Transitions, obs_stats: RunningStats, return_stats: RunningStats) -> Transitions:
-        if env_cfg.normalize_obs:
-            batch = batch._replace(
-                obs=normalize(obs_stats, batch.obs, env_cfg.clip_obs),
-                next_obs=normalize(obs_stats, batch.next_obs, env_cfg.clip_obs),
-            )
-        reward = learning_reward(batch.reward, return_stats, env_cfg)
-        return batch._replace(reward=reward)
+        return batch._replace(
+            obs=normalize_obs(config, obs_stats, batch.obs),
+            next_obs=normalize_obs(config, obs_stats, batch.next_obs),
+            reward=learning_reward(batch.reward, return_stats, env_cfg),
+        )
 
     def train(learner_state, buffer, obs_stats, return_stats, key):
         """`gradient_steps` updates; returns the learner state and per-metric (sums, counts) over them."""
@@ -138,7 +129,7 @@ def make_iteration(
         valid = ~carry.prev_done
         if env_cfg.normalize_obs:
             obs_stats = update_stats(obs_stats, carry.obs, valid)
-        policy_obs = normalize(obs_stats, carry.obs, env_cfg.clip_obs) if env_cfg.normalize_obs else carry.obs
+        policy_obs = normalize_obs(config, obs_stats, carry.obs)
         policy_action, next_ou = learner.explore(loop.learner_state, policy_obs, loop.ou_state, explore_key)
         random_action = jax.random.uniform(random_key, policy_action.shape, jnp.float32, -1.0, 1.0)
         action = jnp.where(global_step < cfg.learning_starts, random_action, policy_action)
@@ -217,7 +208,7 @@ def make_iteration(
             counts=zeros,
         )
         final, records = jax.lax.scan(env_loop_step, start, jax.random.split(loop_key, num_steps))
-        finite = final.healthy & _all_finite(final.learner_state)
+        finite = final.healthy & all_finite(final.learner_state)
         new_state = OffPolicyState(
             final.learner_state,
             final.buffer,

@@ -1,4 +1,5 @@
-"""The off-policy targets and losses as pure functions of arrays, each small enough to check by hand."""
+"""The off-policy targets and losses as pure functions of arrays, each small enough to check by hand, and the
+critic step that td3, ddpg and sac share."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from canter.algos.offpolicy.networks import adam_step, q_values
 from canter.core.networks import gaussian_log_prob
 
 LOG_2 = math.log(2.0)
@@ -35,6 +37,21 @@ def smoothed_target_action(
 def critic_loss(q: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
     """Sum over critics of the mean squared TD error; q is [num_critics, B]."""
     return jnp.sum(jnp.mean(jnp.square(q - target[None]), axis=-1))
+
+
+def critic_step(
+    critics: Any, critic_opt: Any, batch: Any, target: jnp.ndarray, activation: str, lr: float
+) -> tuple[Any, Any, jnp.ndarray, jnp.ndarray]:
+    """One Adam step of the critics on `critic_loss` of their Q at the batch's (obs, action) against `target` [B].
+    Returns (critics, critic_opt, the loss, q [num_critics, B]), the loss and q from before the step."""
+
+    def objective(critics):
+        q = q_values(critics, batch.obs, batch.action, activation)
+        return critic_loss(q, target), q
+
+    (loss, q), grads = jax.value_and_grad(objective, has_aux=True)(critics)
+    critics, critic_opt = adam_step(critics, critic_opt, grads, lr)
+    return critics, critic_opt, loss, q
 
 
 def polyak(target: Any, online: Any, tau: float) -> Any:

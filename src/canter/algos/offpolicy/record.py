@@ -56,7 +56,7 @@ def _make_act(config: Config, learner: OffPolicyLearner, spec: Any) -> Callable[
     """`act(actor, obs_stats, raw_obs, key, deterministic)`: the learner's action mapped onto the action bounds."""
     import jax.numpy as jnp
 
-    from canter.algos.onpolicy_rollout import normalize_obs
+    from canter.core.normalize import normalize_obs
 
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)

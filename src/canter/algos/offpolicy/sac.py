@@ -106,12 +106,9 @@ class SAC:
             losses.td_target(batch.reward, batch.terminated, next_q, cfg.gamma, -alpha * next_log_prob)
         )
 
-        def critic_objective(critics):
-            q = q_values(critics, batch.obs, batch.action, act)
-            return losses.critic_loss(q, target), q
-
-        (critic_loss, q), grads = jax.value_and_grad(critic_objective, has_aux=True)(learner.critics)
-        critics, critic_opt = adam_step(learner.critics, learner.critic_opt, grads, cfg.critic_lr)
+        critics, critic_opt, critic_loss, q = losses.critic_step(
+            learner.critics, learner.critic_opt, batch, target, act, cfg.critic_lr
+        )
         target_critics = losses.polyak(learner.target_critics, critics, cfg.tau)
 
         def actor_objective(actor):
@@ -166,12 +163,14 @@ class SAC:
         import jax
         import jax.numpy as jnp
 
+        from canter.algos.offpolicy import losses
         from canter.algos.offpolicy.networks import squashed_gaussian
 
         mean, log_std = squashed_gaussian(actor, obs, self.cfg.activation)
         if deterministic:
             return jnp.tanh(mean)
-        return jnp.tanh(mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, jnp.float32))
+        action, _ = losses.squashed_sample(mean, log_std, jax.random.normal(key, mean.shape, jnp.float32))
+        return action
 
 
 def _learner(config: Config, spec: Any) -> SAC:

@@ -53,8 +53,8 @@ def make_gaussian_act(config: Config, spec: Any) -> Callable[..., Any]:
     """`act(params, obs_stats, raw_obs, key, deterministic)` for the diagonal Gaussian actor of ppo and its kin."""
     import jax.numpy as jnp
 
-    from canter.algos.onpolicy_rollout import normalize_obs
     from canter.core.networks import policy_dist, sample_action
+    from canter.core.normalize import normalize_obs
 
     low = jnp.asarray(spec.action_low, jnp.float32)
     high = jnp.asarray(spec.action_high, jnp.float32)

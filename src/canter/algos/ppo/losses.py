@@ -14,10 +14,10 @@ from canter.algos.ppo.symmetry import MirrorPair, parse_groups, symmetric_loss
 from canter.config.schema import Config
 from canter.core.netconfig import NetConfig
 from canter.core.networks import (
-    LOG_2PI,
     Params,
     gaussian_entropy,
     gaussian_log_prob,
+    gaussian_log_prob_per_dim,
     policy_dist,
     value,
 )
@@ -66,11 +66,6 @@ def gaussian_kl(
     """KL(p || q) of diagonal Gaussians, summed over the last axis."""
     var_p, var_q = jnp.exp(2.0 * log_std_p), jnp.exp(2.0 * log_std_q)
     return jnp.sum(log_std_q - log_std_p + (var_p + jnp.square(mean_p - mean_q)) / (2.0 * var_q) - 0.5, axis=-1)
-
-
-def gaussian_log_prob_per_dim(mean: jnp.ndarray, log_std: jnp.ndarray, action: jnp.ndarray) -> jnp.ndarray:
-    z = (action - mean) * jnp.exp(-log_std)
-    return -0.5 * jnp.square(z) - log_std - 0.5 * LOG_2PI
 
 
 def rpo_shift(key: jax.Array, mean: jnp.ndarray, alpha: float) -> jnp.ndarray:

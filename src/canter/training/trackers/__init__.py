@@ -2,9 +2,8 @@
 folder stays the source of truth. See `canter.training.trackers.session`."""
 
 from canter.training.trackers.base import TrackSpec
-from canter.training.trackers.registry import get_tracker, register_tracker, tracker_names
+from canter.training.trackers.registry import register_tracker, tracker_names
 from canter.training.trackers.session import (
-    SeedTrackers,
     check_trackers,
     group_name,
     open_for_run,
@@ -14,10 +13,8 @@ from canter.training.trackers.session import (
 )
 
 __all__ = [
-    "SeedTrackers",
     "TrackSpec",
     "check_trackers",
-    "get_tracker",
     "group_name",
     "open_for_run",
     "open_groups",

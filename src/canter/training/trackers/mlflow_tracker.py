@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from canter.errors import CanterError
+from canter.errors import CanterError, first_line
 from canter.training.run_folder import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
@@ -57,7 +57,7 @@ def _open_client(spec: TrackSpec) -> Any:
     except Exception as exc:
         where = f"--mlflow-uri {spec.mlflow_uri}" if spec.mlflow_uri else "MLflow's default tracking store"
         raise CanterError(
-            f"{where} cannot be opened ({_first_line(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
+            f"{where} cannot be opened ({first_line(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
         ) from None
     return client
 
@@ -71,7 +71,7 @@ class MlflowTracker:
         try:
             return _parent_run_id(client, _experiment_id(client), group)
         except Exception as exc:
-            raise CanterError(f"--track mlflow could not make the parent run of {group}: {_first_line(exc)}") from None
+            raise CanterError(f"--track mlflow could not make the parent run of {group}: {first_line(exc)}") from None
 
     def start(self, context: RunContext, run_id: str | None) -> _MlflowRun:
         from mlflow.entities import Param
@@ -98,7 +98,7 @@ class MlflowTracker:
             for i in range(0, len(params), MAX_PARAMS_PER_BATCH):
                 client.log_batch(run.info.run_id, params=params[i : i + MAX_PARAMS_PER_BATCH])
         except Exception as exc:
-            raise CanterError(f"--track mlflow could not start an MLflow run: {_first_line(exc)}") from None
+            raise CanterError(f"--track mlflow could not start an MLflow run: {first_line(exc)}") from None
         return _MlflowRun(client, run.info.run_id)
 
 
@@ -195,8 +195,3 @@ class _MlflowRun:
 
     def close(self) -> None:
         self._client.set_terminated(self.run_id, "FAILED")
-
-
-def _first_line(exc: Exception) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__

@@ -22,7 +22,7 @@ from typing import Any
 
 from canter.config.experiment import experiment_key, flat_config
 from canter.config.schema import Config
-from canter.errors import CanterError
+from canter.errors import CanterError, first_line
 from canter.files import atomic_write_bytes
 from canter.training.trackers.base import RunContext, TrackerRun, TrackSpec
 from canter.training.trackers.registry import get_tracker
@@ -151,9 +151,8 @@ class SeedTrackers:
                 call(run)
             except Exception as exc:
                 del self._runs[name]
-                text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
                 print(
-                    f"canter: warning: tracker {name} failed while {doing} ({text}); training goes on without it, "
-                    f"the run folder has everything",
+                    f"canter: warning: tracker {name} failed while {doing} ({first_line(exc)}); training goes on "
+                    f"without it, the run folder has everything",
                     file=sys.stderr,
                 )

@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from canter.errors import CanterError
+from canter.errors import CanterError, first_line
 from canter.training.run_folder import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
@@ -70,7 +70,7 @@ class WandbTracker:
                 settings=settings,
             )
         except Exception as exc:
-            raise CanterError(f"--track wandb could not start a W&B run: {_first_line(exc)}") from None
+            raise CanterError(f"--track wandb could not start a W&B run: {first_line(exc)}") from None
         return _WandbRun(run)
 
 
@@ -93,8 +93,3 @@ class _WandbRun:
 
     def close(self) -> None:
         self._run.finish(exit_code=1)
-
-
-def _first_line(exc: Exception) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
