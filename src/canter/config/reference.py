@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import fields
 
 from canter.config.schema import section_names, section_type
-from canter.config.values import field_types, type_name
+from canter.config.values import field_types, set_text, type_name
 
 
 def docs_table() -> str:
@@ -14,18 +14,7 @@ def docs_table() -> str:
         types_ = field_types(section)
         defaults = section_type(section)()
         for f in fields(defaults):
-            default = getattr(defaults, f.name)
-            shown = (
-                "none"
-                if default is None
-                else (
-                    ",".join(map(str, default))
-                    if isinstance(default, tuple)
-                    else str(default).lower()
-                    if isinstance(default, bool)
-                    else str(default)
-                )
-            )
+            shown = set_text(getattr(defaults, f.name))
             rows.append(
                 f"| `{section}.{f.name}` | {type_name(types_[f.name])} | `{shown or '(empty)'}` "
                 f"| {f.metadata.get('doc', '')} |"

@@ -159,3 +159,15 @@ def toml_value(value: Any) -> str:
         escaped = re.sub(r'[\\"\x00-\x1f\x7f]', _escape_toml_char, value)
         return f'"{escaped}"'
     raise TypeError(value)
+
+
+def set_text(value: Any) -> str:
+    """A config value as `--set` text, the form `coerce` reads back and the README's key table shows: a tuple's
+    entries joined by commas, None as none, a bool as true or false."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return ",".join(map(str, value))
+    return str(value)

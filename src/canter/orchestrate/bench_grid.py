@@ -98,6 +98,9 @@ def safe_name(text: str) -> str:
 
 
 def canonical(value: Any) -> str:
+    """A grid value as it names its cell's run folders (`Cell.name`): `set_text`'s form, but a tuple's entries
+    joined by dashes. Kept apart from `set_text` on purpose: archived benches and report pages find their run
+    folders by these names, so they must not change when the --set text does."""
     if isinstance(value, tuple):
         return "-".join(map(str, value))
     if isinstance(value, bool):

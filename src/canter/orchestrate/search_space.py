@@ -103,7 +103,8 @@ def load_space(path: str | Path | None, algo: str, fixed: Mapping[str, str] = _N
 
 
 def _optuna_value(value: Any) -> Any:
-    """Optuna categoricals hold None, bool, int, float and str: tuples become '64-64'."""
+    """Optuna categoricals hold None, bool, int, float and str: tuples become '64-64' and the rest stay as they are
+    (not text, as `set_text` makes them), since stored studies keep these choices and a resumed study compares them."""
     return "-".join(map(str, value)) if isinstance(value, tuple) else value
 
 

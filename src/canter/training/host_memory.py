@@ -20,6 +20,7 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from canter.config.values import set_text
 from canter.errors import CanterError
 
 if TYPE_CHECKING:
@@ -157,10 +158,6 @@ def seeds_that_fit(per_seed: int, room: float) -> int:
     return pairs if pairs >= 2 else int(per_seed <= room)
 
 
-def _setting(value: Any) -> str:
-    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
-
-
 def size_text(size: float) -> str:
     return f"{size / GIB:.1f} GiB" if size >= GIB else f"{size / 2**20:.1f} MiB"
 
@@ -187,9 +184,9 @@ def state_refusal(
     whose = f"the train states of {group} seeds need" if group > 1 else "the train state needs"
     if size.key is None:
         return CanterError(f"{whose} {amounts}, {have}")
-    fix = f"lower {size.key}" + (f", e.g. --set {size.key}={_setting(smaller)}" if smaller is not None else "")
+    fix = f"lower {size.key}" + (f", e.g. --set {size.key}={set_text(smaller)}" if smaller is not None else "")
     share = size_text(size.share * state_copies(group))
-    return CanterError(f"{whose} {amounts}, {share} of it for {size.key}={_setting(value)}, {have}; {fix}")
+    return CanterError(f"{whose} {amounts}, {share} of it for {size.key}={set_text(value)}, {have}; {fix}")
 
 
 def check_state_fits(algorithm: Algorithm, config: Config, spec: Any, group: int, free: int | None) -> None:

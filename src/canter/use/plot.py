@@ -48,6 +48,7 @@ from canter.config.experiment import (
     repeated_seed_note,
 )
 from canter.config.schema import Config
+from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.training.logger import read_rows, run_history
 from canter.training.run_folder import metrics_file, read_config
@@ -191,9 +192,7 @@ def load_run(run_dir: str | Path) -> RunCurves:
 
 
 def _show(key: str, value: Any) -> str:
-    name = SHORT_NAMES.get(key, key)
-    shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
-    return f"{name}={shown}"
+    return f"{SHORT_NAMES.get(key, key)}={set_text(value)}"
 
 
 def _label_keys(flats: Sequence[dict[str, Any]], configs: Sequence[Config]) -> list[list[str]]:

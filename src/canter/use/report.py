@@ -22,6 +22,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.config.serialize import to_toml
+from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.signals import StopFlag
 from canter.training import checkpoint
@@ -171,7 +172,7 @@ def config_section(facts: Sequence[RunFacts]) -> str:
     if len(facts) > 1:
         differing = [k for k in keys if any(fl.get(k) != flats[0].get(k) for fl in flats[1:]) and k != "run.out_dir"]
         if differing:
-            rows = [[k] + [_show_value(fl.get(k)) for fl in flats] for k in differing]
+            rows = [[k] + [set_text(fl.get(k)) for fl in flats] for k in differing]
             parts.append(
                 "<p>Keys that differ between the runs:</p>"
                 + _table(["key"] + [f"run {i + 1}" for i in range(len(facts))], rows, numeric_from=99)
@@ -184,12 +185,6 @@ def config_section(facts: Sequence[RunFacts]) -> str:
             f"<pre>{_e(to_toml(f.config))}</pre></details>"
         )
     return "\n".join(parts)
-
-
-def _show_value(value: Any) -> str:
-    if value is None:
-        return "none"
-    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
 def experiment_of_each(facts: Sequence[RunFacts]) -> list[str]:
