@@ -90,7 +90,9 @@ def main() -> None:
         sys.exit(f"CANTER_PRECISION={precision}: use float32 or float64")
     # float64 physics separate the port's errors from float32 rounding (the observation is still returned as float32).
     jax.config.update("jax_enable_x64", precision == "float64")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    # A copy of the work tree without .git, as a device machine may get, has no commit to name here.
+    git_head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    commit = git_head or "unknown (no git checkout)"
     solver = (
         f"env.solver_iterations={iterations}, env.solver_ls_iterations={ls_iterations} (C MuJoCo: the XML's)"
         if iterations or ls_iterations
