@@ -7,7 +7,7 @@ import pytest
 from canter.algos.ppo.iteration import init_train_state
 from canter.config.build import build_config
 from canter.errors import CanterError
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 
 
 def _state(seed=0):
@@ -92,7 +92,7 @@ def test_prune_keeps_newest(tmp_path):
     for step in (10, 20, 30, 40):
         checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})
     checkpoint.prune(tmp_path, 2)
-    assert [p.name for p in checkpoint.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz", "ckpt_000000000040.npz"]
+    assert [p.name for p in run_folder.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz", "ckpt_000000000040.npz"]
     assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"
     empty = tmp_path / "empty_run"
     empty.mkdir()

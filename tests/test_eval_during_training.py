@@ -16,7 +16,7 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.core.seeding import HELD_OUT
 from canter.errors import CanterError
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 from canter.training.evaluation import EVAL_COLUMNS, EvalResult, run_episodes
 from canter.training.loop import train
 from canter.use.evaluate import seed_stream
@@ -100,7 +100,7 @@ def test_eval_columns_appear_at_the_right_steps(eval_run):
 def test_an_evaluation_during_training_is_canter_eval_of_that_checkpoint(eval_run):
     _, rows = read_rows(eval_run.run_dir)
     by_step = {int(r["global_step"]): r for r in rows if r["eval/return_mean"]}
-    kept = checkpoint.list_checkpoints(eval_run.run_dir)
+    kept = run_folder.list_checkpoints(eval_run.run_dir)
     compared = 0
     for path in kept:
         step = int(path.stem.split("_")[1])
@@ -139,7 +139,7 @@ def test_best_checkpoint_survives_pruning_and_loads(eval_run):
     _, rows = read_rows(eval_run.run_dir)
     evaluations = [(int(r["global_step"]), float(r["eval/return_mean"])) for r in rows if r["eval/return_mean"]]
     best_step, best_return = max(evaluations, key=lambda e: e[1])
-    assert len(checkpoint.list_checkpoints(eval_run.run_dir)) == 2  # keep_checkpoints pruned the older ones
+    assert len(run_folder.list_checkpoints(eval_run.run_dir)) == 2  # keep_checkpoints pruned the older ones
     path = checkpoint.best_path(eval_run.run_dir)
     _, header = checkpoint.read(path)  # atomic and hashed like every checkpoint
     assert header["global_step"] == best_step
@@ -212,7 +212,7 @@ def test_eval_checkpoint_option_and_json(eval_run, tmp_path, capsys):
     assert main(["eval", run, "--episodes", "2", "--seed", "5", "--json", str(out)]) == 0
     row = json.loads(out.read_text())["runs"][0]
     assert row["checkpoint"] == "last" and row["seed_stream"] == "eval" and row["eval_seed"] == 5
-    older = checkpoint.list_checkpoints(eval_run.run_dir)[0]
+    older = run_folder.list_checkpoints(eval_run.run_dir)[0]
     assert main(["eval", run, "--checkpoint", str(older), "--episodes", "2", "--json", str(out)]) == 0
     row = json.loads(out.read_text())["runs"][0]
     assert row["checkpoint"] == str(older) and row["global_step"] == int(older.stem.split("_")[1])

@@ -12,6 +12,7 @@ import csv
 import errno
 import io
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from canter.files import WriteError
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 from canter.training.logger import MetricsLogger, read_rows, totals_until
 from canter.training.loop import training_write_error
 from conftest import ARCHIVED_RUN
@@ -93,7 +94,7 @@ def test_a_disk_that_fills_during_training_stops_with_one_line_and_the_run_resum
     run = next(saved.iterdir())
     assert "No space left on device" in line and f"free space in {disk}" in line
     assert f"`canter train --resume {disk / run.name}`" in line
-    kept = checkpoint.list_checkpoints(run)
+    kept = run_folder.list_checkpoints(run)
     assert kept, "the scenario needs a checkpoint written before the disk filled"
     for path in kept:
         checkpoint.read(path)  # whole and passing its hash
@@ -246,7 +247,6 @@ def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo):
 
 
 def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped_with_a_notice(tmp_path, capsys):
-    import shutil
 
     from canter.cli.main import main
 
@@ -278,7 +278,7 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     elsewhere = tmp_path / "elsewhere.npz"
     elsewhere.write_bytes(b"not a checkpoint")
     one_line(["eval", str(corrupt), "--checkpoint", str(elsewhere)], "corrupt or truncated; pass a sound one")
-    for older in checkpoint.list_checkpoints(corrupt)[:-1]:
+    for older in run_folder.list_checkpoints(corrupt)[:-1]:
         older.unlink()
     one_line(["eval", str(corrupt)], "it is the run's only one, so move it away and start the run again with")
 
@@ -350,6 +350,16 @@ def test_a_finished_run_s_damaged_config_toml_is_written_again_by_the_resume_its
     assert "already has 1190 of run.total_steps=1024" in capsys.readouterr().err
     assert read_config(archived_run) == saved
     assert main(["plot", str(archived_run), "--out", "curves.png"]) == 0
+
+
+def test_a_damaged_config_toml_without_a_checkpoint_is_not_sent_to_the_resume(archived_run, capsys):
+    from canter.cli.main import main
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "config.toml").write_text("[run\n")
+    assert main(["plot", str(archived_run), "--out", "curves.png"]) == 2
+    err = capsys.readouterr().err
+    assert "has no checkpoint that holds its config; restore config.toml from a copy" in err and "--resume" not in err
 
 
 def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path):

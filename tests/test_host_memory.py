@@ -53,3 +53,18 @@ def test_two_hundred_thousand_hoppers_are_refused_before_they_exist(tmp_path, ca
     assert code == 2
     assert err.startswith("canter: error: env.num_envs=200000 needs about") and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("size", "text"),
+    [
+        (0, "0.0 KiB"),
+        (52_000, "50.8 KiB"),
+        (2**20, "1.0 MiB"),
+        (3.4e6, "3.2 MiB"),
+        (2**30, "1.0 GiB"),
+        (11.4e9, "10.6 GiB"),
+    ],
+)
+def test_sizes_read_in_the_largest_binary_unit_they_fill(size, text):
+    assert host_memory.size_text(size) == text

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from canter.training import checkpoint, run_lock
+from canter.training import checkpoint, run_folder, run_lock
 from canter.training.logger import read_rows
 
 pytestmark = pytest.mark.slow
@@ -79,7 +79,7 @@ for line in sys.stdin:
 def _check_after_a_kill(run: Path) -> tuple[int, bool]:
     """The newest checkpoint's step, and whether the kill left a half-written file, after checking the folder."""
     half_written = any(run.glob("checkpoints/.*.tmp")) or any(run.glob(".*.tmp"))
-    listed = checkpoint.list_checkpoints(run)
+    listed = run_folder.list_checkpoints(run)
     assert listed, "the first checkpoint is never lost"
     for path in listed:
         checkpoint.read(path)  # loads and passes its hash check

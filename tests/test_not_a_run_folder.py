@@ -10,7 +10,7 @@ import pytest
 
 from canter.cli.main import build_parser, main
 from canter.errors import CanterError
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 
 FIXTURE = Path(__file__).parent / "fixtures" / "runs-v1" / "ppo"
 NOT_A_RUN = "has no config.toml and no checkpoint; is it a canter run folder?"
@@ -32,7 +32,7 @@ def test_every_checkpoint_form_on_a_folder_that_is_no_run_says_so(tmp_path, caps
     folder = tmp_path / "not-a-run"
     folder.mkdir()
     kept = tmp_path / "kept.npz"
-    shutil.copy(checkpoint.list_checkpoints(FIXTURE)[-1], kept)
+    shutil.copy(run_folder.list_checkpoints(FIXTURE)[-1], kept)
     picked = str(kept) if which == "file" else which
     for argv in _commands(folder, tmp_path):
         code = main([*argv, "--checkpoint", picked])
@@ -54,7 +54,7 @@ def test_a_run_folder_that_lost_its_config_still_gives_its_checkpoints(tmp_path)
     run = tmp_path / "run"
     shutil.copytree(FIXTURE, run)
     (run / "config.toml").unlink()
-    newest = checkpoint.list_checkpoints(run)[-1]
+    newest = run_folder.list_checkpoints(run)[-1]
     assert checkpoint.resolve(run, "last") == newest
     assert checkpoint.resolve(run, newest) == newest
     with pytest.raises(CanterError, match="never evaluated during training"):

@@ -28,14 +28,14 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
     """Each seed trained to the budget, with its final evaluation of its newest checkpoint (one left from a smaller
     budget, whose extension stopped before the evaluations, does not count; a run restored from a results archive
     keeps its evaluation and no checkpoint)."""
-    from canter.training import checkpoint
+    from canter.training import run_folder
 
     for seed in seeds:
         run_dir = cell.run_dir(bench_dir, seed)
         if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
             return False
         evaluation = read_object(run_dir / EVAL_FILE) or {}  # a damaged one is evaluated again
-        newest = checkpoint.list_checkpoints(run_dir)  # none in a run restored from a results archive
+        newest = run_folder.list_checkpoints(run_dir)  # none in a run restored from a results archive
         if (
             evaluation.get("episodes") != settings.eval_episodes
             or (newest and evaluation.get("checkpoint") != newest[-1].name)
@@ -87,12 +87,12 @@ class SeedProgress:
 def seed_progress(job: Job, settings: BenchSettings, bench_dir: Path) -> list[SeedProgress]:
     """Each seed's newest checkpoint step, which a stopped seed goes on from, and whether it is done training, as
     the job (`canter.orchestrate.jobs.run_job`) decides it."""
-    from canter.training import checkpoint
+    from canter.training import checkpoint, run_folder
 
     progress = []
     for seed in job.seeds:
         run_dir = job.cell.run_dir(bench_dir, seed)
-        found = checkpoint.list_checkpoints(run_dir)
+        found = run_folder.list_checkpoints(run_dir)
         try:
             status = run_status(run_dir, settings.total_steps, job.cell.config.run.stop_at_return)
         except CanterError:  # refused: the job says why

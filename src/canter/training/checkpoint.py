@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import sys
 import zipfile
 from collections.abc import Sequence
@@ -28,13 +27,12 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
-from canter.training.run_folder import CONFIG_FILE
+from canter.training.run_folder import CHECKPOINT_NAME, CONFIG_FILE, checkpoint_dir, list_checkpoints
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
 # it for a checkpoint of another config, so it says which canter reads it instead.
 LEFT_OUT_FORMAT_VERSION = 2
-_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
@@ -43,7 +41,9 @@ LAST, BEST = "last", "best"
 def _damaged_fix(path: Path) -> str:
     """What to do about a damaged checkpoint, by where it is: of a run folder's periodic ones, `last` is the newest
     file, so without it the one before is used, if there is one."""
-    if path.parent.name != checkpoint_dir(Path()).name or not (_NAME.match(path.name) or path.name == BEST_FILE):
+    if path.parent.name != checkpoint_dir(Path()).name or not (
+        CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE
+    ):
         return "pass a sound one (a run folder's checkpoints/ckpt_*.npz)"
     if path.name == BEST_FILE:  # read by train --resume too, which takes no --checkpoint: the advice fits both
         return (
@@ -197,27 +197,16 @@ def restore_env_carry(fresh: Any, path: Path) -> Any:
     return restore(fresh, arrays, path, ENV_CARRY)
 
 
-def checkpoint_dir(run_dir: Path) -> Path:
-    return Path(run_dir) / "checkpoints"
-
-
 def checkpoint_path(run_dir: Path, step: int) -> Path:
     return checkpoint_dir(run_dir) / f"ckpt_{step:012d}.npz"
 
 
 def step_of(path: Path) -> int:
     """The env step in a `ckpt_<step>.npz` name."""
-    found = _NAME.match(Path(path).name)
+    found = CHECKPOINT_NAME.match(Path(path).name)
     if found is None:
         raise ValueError(f"{path} is not named ckpt_<step>.npz")
     return int(found.group(1))
-
-
-def list_checkpoints(run_dir: Path) -> list[Path]:
-    folder = checkpoint_dir(run_dir)
-    if not folder.is_dir():
-        return []
-    return sorted(p for p in folder.iterdir() if _NAME.match(p.name))
 
 
 def need_run_folder(run_dir: Path) -> None:
@@ -288,7 +277,7 @@ def _note_foreign_files(run_dir: Path) -> None:
         return
     for path in sorted(folder.iterdir()):
         hidden = path.name.startswith(".")  # a temp file of a write, removed by the next writer
-        if hidden or _NAME.match(path.name) or path.name == BEST_FILE or path in _NOTED:
+        if hidden or CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE or path in _NOTED:
             continue
         _NOTED.add(path)
         print(f"canter: note: skipping {path}: not a checkpoint name canter writes (ckpt_<step>.npz)", file=sys.stderr)

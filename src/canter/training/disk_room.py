@@ -45,8 +45,9 @@ def warn_if_checkpoints_will_not_fit(
     """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
     `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
     from canter.algos.registry import get_algorithm
-    from canter.training.checkpoint import list_checkpoints, read_header
+    from canter.training.checkpoint import read_header
     from canter.training.host_memory import size_text
+    from canter.training.run_folder import list_checkpoints
 
     # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
     existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))

@@ -159,7 +159,10 @@ def seeds_that_fit(per_seed: int, room: float) -> int:
 
 
 def size_text(size: float) -> str:
-    return f"{size / GIB:.1f} GiB" if size >= GIB else f"{size / 2**20:.1f} MiB"
+    for unit, scale in (("GiB", GIB), ("MiB", 2**20)):
+        if size >= scale:
+            return f"{size / scale:.1f} {unit}"
+    return f"{size / 2**10:.1f} KiB"
 
 
 def fewer_seeds(fits: int) -> str:

@@ -141,7 +141,7 @@ def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path)
 
 
 def _has_its_budget(run_dir: Path, config: Config) -> bool:
-    newest = checkpoint.list_checkpoints(run_dir)
+    newest = run_folder.list_checkpoints(run_dir)
     return bool(newest) and int(checkpoint.read_header(newest[-1]).get("global_step", 0)) >= config.run.total_steps
 
 
@@ -315,7 +315,7 @@ def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError
         return None
     if error.path.name == run_folder.SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
         return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
-    if all(checkpoint.list_checkpoints(d) for d in run_dirs):
+    if all(run_folder.list_checkpoints(d) for d in run_dirs):
         return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
     return error.resumable("train again (no checkpoint was written to resume from)")
 
@@ -499,7 +499,7 @@ def _saved_config(run_dir: Path) -> Config:
     try:
         return run_folder.read_config(run_dir)
     except CanterError as damaged:
-        if not (checkpoint.list_checkpoints(run_dir) and _unreadable(run_dir / run_folder.CONFIG_FILE)):
+        if not (run_folder.list_checkpoints(run_dir) and _unreadable(run_dir / run_folder.CONFIG_FILE)):
             raise
         newest = checkpoint.latest(run_dir)
         config = _header_config(checkpoint.read_header(newest), newest)

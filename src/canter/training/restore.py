@@ -36,7 +36,7 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(header["config"], str(path))
-    if path.resolve().parent == checkpoint.checkpoint_dir(run_dir).resolve():  # one of the folder's own
+    if path.resolve().parent == run_folder.checkpoint_dir(run_dir).resolve():  # one of the folder's own
         run_folder.check_own_checkpoint(run_dir, config, path)
     else:
         run_folder.check_given_checkpoint(run_dir, config, path)

@@ -158,10 +158,29 @@ def run_format(run_dir: Path) -> int:
     return found
 
 
-DAMAGED_CONFIG_FIX = (
-    "the run folder is damaged; restore config.toml from a copy, or let canter train --resume {run_dir} write it "
-    "again from the newest checkpoint (a run short of its budget also trains on; eval and export work as it is)"
-)
+CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
+
+
+def checkpoint_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def list_checkpoints(run_dir: Path) -> list[Path]:
+    folder = checkpoint_dir(run_dir)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if CHECKPOINT_NAME.match(p.name))
+
+
+def damaged_config_fix(run_dir: Path) -> str:
+    """What restores a damaged config.toml: each checkpoint holds the run's config, so with one the resume writes it
+    again."""
+    if not list_checkpoints(run_dir):
+        return "the run folder is damaged and has no checkpoint that holds its config; restore config.toml from a copy"
+    return (
+        f"the run folder is damaged; restore config.toml from a copy, or let canter train --resume {run_dir} write it "
+        f"again from the newest checkpoint (a run short of its budget also trains on; eval and export work as it is)"
+    )
 
 
 def read_config(run_dir: Path) -> Config:
@@ -171,12 +190,12 @@ def read_config(run_dir: Path) -> Config:
     run_format(run_dir)
     text = path.read_text(errors="replace")
     if not text.strip():
-        raise CanterError(f"{path} is empty: {DAMAGED_CONFIG_FIX.format(run_dir=run_dir)}")
+        raise CanterError(f"{path} is empty: {damaged_config_fix(run_dir)}")
     try:
         return from_toml_text(text, str(path))
     except CanterError as exc:
         if str(exc).startswith("malformed TOML"):
-            raise CanterError(f"{exc}; {DAMAGED_CONFIG_FIX.format(run_dir=run_dir)}") from None
+            raise CanterError(f"{exc}; {damaged_config_fix(run_dir)}") from None
         if str(path) in str(exc):
             raise
         # A value the validation refuses names no file, and among several run folders the damaged one must show.

@@ -8,6 +8,8 @@ with the command that wrote it:
 Actions are drawn uniformly between the action bounds from `np.random.default_rng(seed)`, one per env per step.
 The episodes are played as `canter eval` plays them (`canter.training.evaluation.run_episodes`): every env runs a
 fixed quota of episodes to their end (termination or the time limit), so short episodes are not over-represented.
+On a JAX backend (mjx, brax) that means up to 1024 envs at once, as `canter eval` plays them there, where EnvPool and
+Gymnasium play at most 32.
 """
 
 from __future__ import annotations

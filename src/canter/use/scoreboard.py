@@ -359,7 +359,7 @@ def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOU
 def _of_newest_checkpoint(run_dir: Path, evaluated: Any) -> bool:
     """Whether an eval.json of `evaluated` (a checkpoint's name) is of the run's newest checkpoint; an archived run
     kept without checkpoints has only its eval.json to go by."""
-    from canter.training import checkpoint
+    from canter.training import run_folder
 
-    found = checkpoint.list_checkpoints(run_dir)
+    found = run_folder.list_checkpoints(run_dir)
     return not found or found[-1].name == evaluated
