@@ -247,7 +247,6 @@ def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo):
 
 
 def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped_with_a_notice(tmp_path, capsys):
-
     from canter.cli.main import main
 
     fixtures = Path(__file__).parent / "fixtures" / "runs-v1"
