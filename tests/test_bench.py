@@ -804,7 +804,7 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
 
     from canter.config.serialize import to_toml
     from canter.orchestrate.bench_runs import seeds_finished
-    from canter.training import checkpoint
+    from canter.training import checkpoint, run_folder
 
     settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), 2000, eval_episodes=3)
     [cell] = make_cells(settings)
@@ -814,7 +814,7 @@ def test_a_final_evaluation_of_an_older_checkpoint_does_not_finish_a_seed(tmp_pa
             "global_step": step,
             "config": to_toml(replace(cell.config, run=replace(cell.config.run, total_steps=2000))),
         }
-        checkpoint.save(checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
+        checkpoint.save(run_folder.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
     (run / "summary.json").write_text(json.dumps({"global_step": 2000}))
     (run / "eval.json").write_text(json.dumps({"checkpoint": "ckpt_000000001000.npz", "episodes": 3, "mean": 1.0}))
     assert not seeds_finished(cell, (0,), settings, tmp_path)

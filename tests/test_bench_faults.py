@@ -21,7 +21,7 @@ from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells, make_
 from canter.orchestrate.bench_results import read_seed
 from canter.orchestrate.bench_runs import seeds_finished
 from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 from test_bench import TINY
 
 BUDGET = 2000
@@ -31,7 +31,7 @@ EVAL = {"checkpoint": f"ckpt_{BUDGET:012d}.npz", "episodes": 3, "mean": 1.0, "re
 def _save_checkpoint(cell: Cell, run: Path, step: int) -> None:
     config = replace(cell.config, run=replace(cell.config.run, total_steps=BUDGET))
     checkpoint.save(
-        checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, {"global_step": step, "config": to_toml(config)}
+        run_folder.checkpoint_path(run, step), {"x": np.zeros(1)}, {"global_step": step, "config": to_toml(config)}
     )
 
 
@@ -136,12 +136,12 @@ def test_a_bench_rerun_over_damaged_files_writes_them_again_and_says_what_it_res
     *_, kept, final = sorted((interrupted / "checkpoints").glob("ckpt_*.npz"))
     for path in (final, interrupted / "summary.json", interrupted / "eval.json"):
         path.unlink()
-    newest = checkpoint.step_of(sorted((out / f"{cut}__s0" / "checkpoints").glob("ckpt_*.npz"))[-1])
+    newest = run_folder.step_of(sorted((out / f"{cut}__s0" / "checkpoints").glob("ckpt_*.npz"))[-1])
 
     assert main(argv) == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert f"evaluate {damaged} (seeds 0,1; trained to the budget)" in printed
-    resumed = f"seed 0 done at step {newest:,}, seed 1 from step {checkpoint.step_of(kept):,}"  # seed 0 finished
+    resumed = f"seed 0 done at step {newest:,}, seed 1 from step {run_folder.step_of(kept):,}"  # seed 0 finished
     assert f"resume {cut} (seeds 0,1): {resumed}" in printed
     for seed in (0, 1):
         assert isinstance(json.loads((out / f"{damaged}__s{seed}" / "eval.json").read_text())["mean"], float)

@@ -24,7 +24,7 @@ def _equal(a, b):
 
 def test_round_trip_is_exact_and_leaves_no_temp_files(tmp_path):
     state = _state()
-    path = checkpoint.checkpoint_path(tmp_path, 1234)
+    path = run_folder.checkpoint_path(tmp_path, 1234)
     checkpoint.save(path, state, {"global_step": 1234, "config": "", "env": {}})
     arrays, header = checkpoint.read(path)
     assert header["global_step"] == 1234 and header["format_version"] == checkpoint.FORMAT_VERSION
@@ -90,7 +90,7 @@ def test_left_out_fields_are_not_written_and_read_back_as_zeros(tmp_path):
 
 def test_prune_keeps_newest(tmp_path):
     for step in (10, 20, 30, 40):
-        checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})
+        checkpoint.save(run_folder.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, {})
     checkpoint.prune(tmp_path, 2)
     assert [p.name for p in run_folder.list_checkpoints(tmp_path)] == ["ckpt_000000000030.npz", "ckpt_000000000040.npz"]
     assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"

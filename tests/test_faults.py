@@ -266,7 +266,7 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     one_line(["plot", str(empty), "--out", str(tmp_path / "a.png")], "config.toml is empty")
 
     foreign = folder("foreign")
-    shutil.copy(checkpoint.latest(fixtures / "rpo"), checkpoint.checkpoint_path(foreign, 10**6))
+    shutil.copy(checkpoint.latest(fixtures / "rpo"), run_folder.checkpoint_path(foreign, 10**6))
     one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "if the checkpoint came from another run")
 
     corrupt = folder("corrupt")
@@ -413,7 +413,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     from canter.training import checkpoint
 
     (tmp_path / "checkpoints").mkdir()
-    checkpoint.save(checkpoint.checkpoint_path(tmp_path, 0), state, {"global_step": 0}, leave_out=("buffer",))
+    checkpoint.save(run_folder.checkpoint_path(tmp_path, 0), state, {"global_step": 0}, leave_out=("buffer",))
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed - 1))
     assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config, ("buffer",))
 

@@ -8,7 +8,7 @@ import pytest
 
 import canter.use.evaluate
 from canter.orchestrate.jobs import write_final_eval
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 
 pytestmark = pytest.mark.slow  # tiny_run trains
 
@@ -114,7 +114,7 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
         config = build_config("Hopper-v5", total_steps=budget)
         totals = {"wall_seconds": 30.0, "train_seconds": 20.0, "episodes": 7, "recent_returns": [1.0, 3.0]}
         header = {"global_step": step, "config": to_toml(config), "totals": totals | {"compile_seconds": 5.0}}
-        checkpoint.save(checkpoint.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, header)
+        checkpoint.save(run_folder.checkpoint_path(tmp_path, step), {"x": np.zeros(1)}, header)
 
     saved(1000, 2000)
     assert run_status(tmp_path, 2000) == "partial"

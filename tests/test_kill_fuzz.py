@@ -34,7 +34,7 @@ ZYGOTE = r"""
 import os, sys, warnings
 from pathlib import Path
 warnings.simplefilter("ignore")
-from canter.training import checkpoint, run_lock
+from canter.training import checkpoint, run_folder, run_lock
 from canter.training.logger import MetricsLogger
 from canter.algos import get_algorithm
 from canter.training.restore import load_state
@@ -55,7 +55,7 @@ def write_forever():
             logger.log(dict(global_step=step, iteration=step // 100, wall_time=step / 1000, sps=1000.0,
                             episodes=1, episodic_return=step / 100, episodic_length=100.0))
         totals = dict(wall_seconds=step / 1000, train_seconds=step / 1000, episodes=step // 100)
-        checkpoint.save(checkpoint.checkpoint_path(run, step), state, dict(header, global_step=step, totals=totals))
+        checkpoint.save(run_folder.checkpoint_path(run, step), state, dict(header, global_step=step, totals=totals))
         checkpoint.prune(run, 2)
 
 

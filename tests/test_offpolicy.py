@@ -19,7 +19,7 @@ from canter.config.build import build_config
 from canter.envs.base import StepOutput
 from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
-from canter.training import checkpoint
+from canter.training import checkpoint, run_folder
 from canter.training.loop import resume_config, train
 from canter.training.restore import load_state
 from canter.use.evaluate import evaluate
@@ -412,7 +412,7 @@ def test_best_checkpoint_holds_the_policy_without_the_replay_buffer(tmp_path):
     arrays, header = checkpoint.read(best)
     assert header["left_out"] and all(name.startswith("buffer/") for name in header["left_out"])
     assert not any(name.startswith("buffer/") for name in arrays)
-    full_path = checkpoint.checkpoint_path(result.run_dir, header["global_step"])
+    full_path = run_folder.checkpoint_path(result.run_dir, header["global_step"])
     full, _ = checkpoint.read(full_path)
     buffer_bytes = 20000 * (3 + 1 + 1 + 3 + 1) * 4  # obs, action, reward, next obs, terminated
     assert best.stat().st_size + buffer_bytes <= full_path.stat().st_size

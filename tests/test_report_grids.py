@@ -164,11 +164,11 @@ def test_a_pack_carries_a_run_that_ended_without_its_summary_and_skips_one_train
 
     from canter.config.build import build_config
     from canter.config.serialize import to_toml
-    from canter.training import checkpoint
+    from canter.training import checkpoint, run_folder
 
     def saved(run, step, budget):
         header = {"global_step": step, "config": to_toml(build_config("Hopper-v5", total_steps=budget))}
-        checkpoint.save(checkpoint.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
+        checkpoint.save(run_folder.checkpoint_path(run, step), {"x": np.zeros(1)}, header)
 
     ended, past = tmp_path / "ended", tmp_path / "past"
     saved(ended, 512, 512)  # its final checkpoint, and no summary.json

@@ -87,7 +87,7 @@ class SeedProgress:
 def seed_progress(job: Job, settings: BenchSettings, bench_dir: Path) -> list[SeedProgress]:
     """Each seed's newest checkpoint step, which a stopped seed goes on from, and whether it is done training, as
     the job (`canter.orchestrate.jobs.run_job`) decides it."""
-    from canter.training import checkpoint, run_folder
+    from canter.training import run_folder
 
     progress = []
     for seed in job.seeds:
@@ -97,7 +97,7 @@ def seed_progress(job: Job, settings: BenchSettings, bench_dir: Path) -> list[Se
             status = run_status(run_dir, settings.total_steps, job.cell.config.run.stop_at_return)
         except CanterError:  # refused: the job says why
             status = "refused"
-        progress.append(SeedProgress(checkpoint.step_of(found[-1]) if found else None, status in ("done", "ended")))
+        progress.append(SeedProgress(run_folder.step_of(found[-1]) if found else None, status in ("done", "ended")))
     return progress
 
 

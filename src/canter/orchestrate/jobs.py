@@ -44,11 +44,11 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     `ended` (its final checkpoint at this budget is saved, its summary.json is not), `partial` (stopped after a
     checkpoint) or `new` (nothing usable). A run trained on past this budget since is refused: its checkpoint at
     the budget may be gone, and evaluating a later one would report another budget's policy."""
-    from canter.training import checkpoint, run_folder
+    from canter.training import run_folder
 
     summary = read_summary(run_dir) or {}
     found = run_folder.list_checkpoints(run_dir)
-    newest = checkpoint.step_of(found[-1]) if found else None
+    newest = run_folder.step_of(found[-1]) if found else None
     summarized = summary.get("global_step")
     stale = newest is not None and (not isinstance(summarized, int) or newest > summarized)  # a resume since
     if newest is not None and newest >= total_steps:

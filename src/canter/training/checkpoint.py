@@ -27,7 +27,12 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
-from canter.training.run_folder import CHECKPOINT_NAME, CONFIG_FILE, checkpoint_dir, list_checkpoints
+from canter.training.run_folder import (
+    CHECKPOINT_NAME,
+    CONFIG_FILE,
+    checkpoint_dir,
+    list_checkpoints,
+)
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -195,18 +200,6 @@ def restore_env_carry(fresh: Any, path: Path) -> Any:
     if not header.get("env_carry_leaves"):
         return fresh
     return restore(fresh, arrays, path, ENV_CARRY)
-
-
-def checkpoint_path(run_dir: Path, step: int) -> Path:
-    return checkpoint_dir(run_dir) / f"ckpt_{step:012d}.npz"
-
-
-def step_of(path: Path) -> int:
-    """The env step in a `ckpt_<step>.npz` name."""
-    found = CHECKPOINT_NAME.match(Path(path).name)
-    if found is None:
-        raise ValueError(f"{path} is not named ckpt_<step>.npz")
-    return int(found.group(1))
 
 
 def need_run_folder(run_dir: Path) -> None:

@@ -165,6 +165,18 @@ def checkpoint_dir(run_dir: Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
+def checkpoint_path(run_dir: Path, step: int) -> Path:
+    return checkpoint_dir(run_dir) / f"ckpt_{step:012d}.npz"
+
+
+def step_of(path: Path) -> int:
+    """The env step in a `ckpt_<step>.npz` name."""
+    found = CHECKPOINT_NAME.match(Path(path).name)
+    if found is None:
+        raise ValueError(f"{path} is not named ckpt_<step>.npz")
+    return int(found.group(1))
+
+
 def list_checkpoints(run_dir: Path) -> list[Path]:
     folder = checkpoint_dir(run_dir)
     if not folder.is_dir():

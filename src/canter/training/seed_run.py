@@ -168,7 +168,7 @@ class SeedRun:
         starts the run as it would have started."""
         header = self._header() if untrained_but is None else dict(self._header(), untrained=True)
         checkpoint.save(
-            checkpoint.checkpoint_path(self.out, self.global_step),
+            run_folder.checkpoint_path(self.out, self.global_step),
             train_state,
             header,
             compress=self.config.run.compress_checkpoints,
@@ -308,7 +308,7 @@ class SeedRun:
         self.stop_reason = "non_finite"
         # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
         # (an off-policy buffer keeps the finite transitions of the failed call).
-        if not checkpoint.checkpoint_path(self.out, self.global_step).is_file():
+        if not run_folder.checkpoint_path(self.out, self.global_step).is_file():
             self.save(last_good_state, env_carry)
         self.close()
         self.error = (
