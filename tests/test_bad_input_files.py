@@ -186,18 +186,44 @@ def test_a_relative_mlflow_store_is_recorded_absolute(tmp_path, monkeypatch):
     assert {uri: absolute_store(uri) for uri in cases} == cases
 
 
-def test_an_off_policy_budget_within_learning_starts_is_noted(capsys):
-    from canter.cli import train as train_cli
+def test_an_off_policy_budget_within_learning_starts_is_noted():
+    from canter.config.algorithms import warm_up_note
 
-    config = build_config("Hopper-v5", algo="td3", total_steps=4096)
-    train_cli._note_a_budget_without_updates(config)
-    assert capsys.readouterr().err == (
-        "canter: note: td3 acts at random for its first td3.learning_starts=25,000 steps and updates nothing before "
-        "them, so this 4,096-step run will not learn; give a larger --total-steps or --set td3.learning_starts=N\n"
+    assert warm_up_note(build_config("Hopper-v5", algo="td3", total_steps=4096)) == (
+        "td3 acts at random for its first td3.learning_starts=25,000 steps and updates nothing before them, so this "
+        "4,096-step run will not learn; give a larger --total-steps or --set td3.learning_starts=N"
     )
-    train_cli._note_a_budget_without_updates(build_config("Hopper-v5", algo="td3", total_steps=50_000))
-    train_cli._note_a_budget_without_updates(build_config("Hopper-v5", total_steps=4096))  # ppo has no such phase
-    assert capsys.readouterr().err == ""
+    assert warm_up_note(build_config("Hopper-v5", algo="sac", total_steps=5000)).startswith(
+        "sac acts at random for its first sac.learning_starts=5,000 steps"
+    )
+    assert warm_up_note(build_config("Hopper-v5", algo="td3", total_steps=25_001)) is None
+    assert warm_up_note(build_config("Hopper-v5", total_steps=4096)) is None  # ppo has no such phase
+
+
+def test_an_algorithm_declares_its_warm_up_exactly_when_its_section_has_learning_starts():
+    from canter.config.algorithms import algorithm_names, algorithm_spec
+    from canter.config.schema import field_names
+
+    for name in algorithm_names():
+        spec = algorithm_spec(name)
+        sections = [section for section in spec.reads if "." not in section]
+        having = [section for section in sections if "learning_starts" in field_names(section)]
+        assert spec.warm_up_key == (f"{having[0]}.learning_starts" if having else None), name
+
+
+def test_train_prints_the_warm_up_note_before_it_trains(monkeypatch, capsys, tmp_path):
+    from canter.training import loop
+
+    class Trained(Exception):
+        pass
+
+    def stand_in(config, quiet):
+        raise Trained(config.run.algo)
+
+    monkeypatch.setattr(loop, "train", stand_in)
+    with pytest.raises(Trained, match="td3"):
+        main(["train", "Pendulum-v1", "--algo", "td3", "--total-steps", "200", "--out-dir", str(tmp_path)])
+    assert "canter: note: td3 acts at random for its first td3.learning_starts=" in capsys.readouterr().err
 
 
 def test_a_budget_far_from_whole_iterations_is_noted():

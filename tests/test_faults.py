@@ -479,3 +479,39 @@ def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_
     with pytest.raises(SystemExit) as exited:
         cli.entry()
     assert exited.value.code == 2 and ended == [130]
+
+
+def test_a_slow_call_is_noted_once_and_a_stop_then_says_how_long_it_waits(tmp_path, monkeypatch, capfd):
+    """A call of the jitted program can take minutes (a td3 batch of 100,000), and a signal only waits for it: the
+    first slow call says so and names the keys that shorten it, and a later stop says how long each call takes."""
+    import signal
+
+    from canter.config.build import build_config
+    from canter.training import loop
+    from conftest import TINY
+
+    monkeypatch.setattr(loop, "SLOW_CALL_SECONDS", 0.0)
+    calls = []
+
+    def progress_then_a_signal(progress, runs, sps):
+        calls.append(sps)
+        if len(calls) == 1:  # after the stop checks of call 1: the run stops after call 2
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(loop, "_show_progress", progress_then_a_signal)
+    config = build_config(
+        "Pendulum-v1",
+        preset="fast",
+        total_steps=4096,
+        sets=TINY + [f"run.out_dir={tmp_path}", "env.num_envs=4", "ppo.n_steps=64", "ppo.minibatch_size=256"],
+    )
+    result = loop.train(config)
+    err = capfd.readouterr().err
+    assert result.stop_reason == "signal" and len(calls) == 2
+    notes = [line for line in err.splitlines() if "one call of the training program took" in line]
+    assert len(notes) == 1, err
+    assert notes[0].startswith("canter: note: ") and notes[0].endswith(
+        "give a smaller env.num_envs / ppo.n_steps (now env.num_envs=4, ppo.n_steps=64)"
+    )
+    assert "canter: SIGTERM: stopping when the current call ends (each takes about " in err
+    assert run_folder.list_checkpoints(result.run_dir)  # it stopped with a checkpoint to resume from

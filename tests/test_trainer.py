@@ -245,6 +245,9 @@ def test_a_diverged_run_names_the_settings_it_changed_from_its_preset(capsys):
     ]
     hint = divergence_hint(build_config("Hopper-v5", sets=many + ["ppo.ent_coef=0.5", "ppo.vf_coef=0.1"]))
     assert hint.endswith(" and 2 more"), hint
+    # Values read as --set gives them, so that the hint can be pasted back.
+    shaped = divergence_hint(build_config("Hopper-v5", sets=["env.normalize_obs=false", "net.hidden=128,64"]))
+    assert shaped.endswith("preset fast: env.normalize_obs=false, net.hidden=128,64"), shaped
     # Mid-training it prints nothing: not the note of a preset made for another env.
     humanoid = build_config("Hopper-v5", preset="humanoid", sets=["ppo.clip=0.5"])
     capsys.readouterr()

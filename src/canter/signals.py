@@ -87,11 +87,12 @@ class StopFlag:
     callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt.
 
     `notice`, where given, is printed to stderr when the first signal lands: the next safe point can be many seconds
-    away (the end of an XLA compile), and a stop that says nothing until then looks ignored."""
+    away (the end of an XLA compile), and a stop that says nothing until then looks ignored. The work may change it
+    once it knows how far apart its safe points are."""
 
     def __init__(self, notice: str | None = None) -> None:
         self.signal: int | None = None
-        self._notice = notice
+        self.notice = notice
         self._handling = contextlib.ExitStack()
 
     def __enter__(self) -> StopFlag:
@@ -105,9 +106,9 @@ class StopFlag:
         first = self.signal is None
         self.signal = signum  # before the notice: a notice that cannot be written must not lose the stop
         _stops_held += 1
-        if first and self._notice:
+        if first and self.notice:
             again = "; Ctrl-C again stops at once" if signum == signal.SIGINT else ""
-            _write_stderr(f"canter: {signal.Signals(signum).name}: {self._notice}{again}\n")
+            _write_stderr(f"canter: {signal.Signals(signum).name}: {self.notice}{again}\n")
 
     def __exit__(self, *exc: object) -> None:
         self._handling.close()

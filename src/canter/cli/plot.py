@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "plot",
-        help="learning curves and diagnostics of run folders (PNG/SVG)",
+        help="learning curves and diagnostics of run folders (PNG/SVG/PDF)",
         description="Plot learning curves and diagnostics. Runs whose configs differ only in the seed are drawn as "
         f"one mean line with a band: the range of the runs below {MIN_RUNS_FOR_INTERVAL} runs, a {CONFIDENCE:.0%} "
         f"bootstrap interval from {MIN_RUNS_FOR_INTERVAL} on; groups are labelled by the config keys in which they "

@@ -184,9 +184,11 @@ def _train(args: argparse.Namespace) -> list[Any]:
             raise CanterError(
                 "run.eval_backend sets where the evaluations during training play; also pass --eval-every N"
             )
+        from canter.config.algorithms import warm_up_note
         from canter.training.loop import train, train_seeds
 
-        _note_a_budget_without_updates(config)
+        if (note := warm_up_note(config)) is not None:
+            print(f"canter: note: {note}", file=sys.stderr)
         if args.seeds is not None:
             if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
                 print(
@@ -198,19 +200,6 @@ def _train(args: argparse.Namespace) -> list[Any]:
         else:
             results = [train(config, quiet=args.quiet)]
     return results
-
-
-def _note_a_budget_without_updates(config: Any) -> None:
-    """An off-policy run acts at random for its first learning_starts steps: a budget within them learns nothing."""
-    starts = getattr(getattr(config, config.run.algo, None), "learning_starts", None)
-    if starts is not None and config.run.total_steps <= starts:
-        algo = config.run.algo
-        print(
-            f"canter: note: {algo} acts at random for its first {algo}.learning_starts={starts:,} steps and updates "
-            f"nothing before them, so this {config.run.total_steps:,}-step run will not learn; give a larger "
-            f"--total-steps or --set {algo}.learning_starts=N",
-            file=sys.stderr,
-        )
 
 
 def _report(results: list[Any]) -> None:

@@ -10,7 +10,7 @@ from canter.cli.args import add_checkpoint_arg, seed_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from canter.use.video import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH
+    from canter.use.video import DEFAULT_FPS, DEFAULT_HEIGHT, DEFAULT_WIDTH, FPS_LIMITS
 
     v = sub.add_parser(
         "video",
@@ -28,7 +28,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument(
         "--height", type=int, default=DEFAULT_HEIGHT, help=f"frame height, 16 to 4096 (default {DEFAULT_HEIGHT})"
     )
-    v.add_argument("--fps", type=int, default=DEFAULT_FPS, help=f"frames per second (default {DEFAULT_FPS})")
+    fps_limits = ", ".join(f"{limit} for {suffix}" for suffix, (limit, _) in FPS_LIMITS.items())
+    v.add_argument(
+        "--fps",
+        type=int,
+        default=DEFAULT_FPS,
+        help=f"frames per second (default {DEFAULT_FPS}; at most {fps_limits})",
+    )
     v.add_argument(
         "--camera",
         default=None,

@@ -48,6 +48,8 @@ class AlgorithmSpec:
     unused_metrics: Callable[[Any], tuple[str, ...]] = lambda config: ()
     # Keys of its section that it never reads (inherited by the section), with why: `check_ignored_keys`.
     ignores: Mapping[str, str] = field(default_factory=dict)
+    # The key of the env steps it acts at random before its first update ("td3.learning_starts"), if it has them.
+    warm_up_key: str | None = None
 
 
 _REGISTERED: dict[str, AlgorithmSpec] = {}
@@ -106,6 +108,33 @@ def budget_rounding_note(config: Any) -> str | None:
         f"that reaches the budget, so this run.total_steps={budget:,} run trains about {trained:,}; autoreset steps "
         f"(one per episode end) do not count, so where episodes end it can take one more iteration, even with a "
         f"multiple of {per_iteration:,}; for a finer budget give smaller {' / '.join(spec.iteration_keys)}"
+    )
+
+
+def slow_call_note(config: Any, seconds: float) -> str:
+    """The note for a run whose jitted calls are long: it logs, checkpoints and stops on a signal only between them."""
+    spec = algorithm_spec(config.run.algo)
+    sizes = ", ".join(f"{key}={key_value(config, key):,}" for key in spec.iteration_keys)
+    keys = " / ".join(spec.iteration_keys)
+    return (
+        f"one call of the training program took {seconds:,.0f} s, and the run logs, checkpoints and stops on Ctrl-C "
+        f"or SIGTERM only between calls; to do those sooner give a smaller {keys} (now {sizes})"
+    )
+
+
+def warm_up_note(config: Any) -> str | None:
+    """A note when the whole budget falls within the steps an algorithm acts at random before its first update:
+    such a run learns nothing. None otherwise, and for an algorithm with no such phase."""
+    key = algorithm_spec(config.run.algo).warm_up_key
+    if key is None:
+        return None
+    starts = key_value(config, key)
+    budget = config.run.total_steps
+    if budget > starts:
+        return None
+    return (
+        f"{config.run.algo} acts at random for its first {key}={starts:,} steps and updates nothing before them, so "
+        f"this {budget:,}-step run will not learn; give a larger --total-steps or --set {key}=N"
     )
 
 

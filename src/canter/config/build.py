@@ -163,6 +163,16 @@ def build_config(
     return config
 
 
+def preset_config(config: Config) -> Config | None:
+    """The config that a run's preset alone gives its env and algorithm, to tell the settings the run changed from
+    those it was given; None where this canter cannot build it (a preset it no longer ships, or that no longer builds
+    for this env)."""
+    try:
+        return build_config(config.env.id, preset=config.run.preset, algo=config.run.algo, notes=False)
+    except CanterError:
+        return None
+
+
 def _refused_alike(config: Config, refusal: CanterError) -> bool:
     """Whether `config` (defaults < preset < config file) is refused as the whole config was: the file's values, not
     a --set or flag over them, are what validation refuses."""

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from canter.config.serialize import to_toml
+from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job
 from canter.orchestrate.jobs import EVAL_FILE, JobSpec, is_number, read_object, run_status
@@ -68,8 +69,8 @@ def check_existing_runs(cells: list[Cell], settings: BenchSettings, bench_dir: P
                 key = differing[0]
                 more = f" and {len(differing) - 1} more keys" if len(differing) > 1 else ""
                 raise CanterError(
-                    f"{saved.parent} was trained with {key}={found.get(key)!r}{more}, but this bench "
-                    f"gives {key}={expected[key]!r}; use a new --out, or delete that folder to retrain it"
+                    f"{saved.parent} was trained with {key}={set_text(found.get(key))}{more}, but this bench "
+                    f"gives {key}={set_text(expected[key])}; use a new --out, or delete that folder to retrain it"
                 )
 
 

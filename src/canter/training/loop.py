@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from canter.config.algorithms import budget_rounding_note
+from canter.config.algorithms import budget_rounding_note, slow_call_note
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.envs.base import JaxVecEnv
@@ -26,6 +26,11 @@ from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram
 from canter.training.logger import Progress, totals_until
 from canter.training.seed_run import RunResult, SeedRun, SeedStart, write_summary
+
+STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
+# A call of the jitted program this long gets a note: until it returns, a signal only waits (a td3 batch of 100,000
+# makes a call of 1,000 updates last many minutes).
+SLOW_CALL_SECONDS = 60.0
 
 
 class Saved(Enum):
@@ -208,7 +213,7 @@ def _train_locked(
     started = time.perf_counter()
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
-    with StopFlag(notice="stopping at the next safe point, with a checkpoint to resume from") as stop:
+    with StopFlag(notice=STOP_NOTICE) as stop:
         starts = [_start_of(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
         seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
         env = _make_env(configs[0], backend, seeds)
@@ -370,6 +375,7 @@ def _loop(
         # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
         while any(run.stop_reason is None for run in runs):
             chunk = program.call(runs)
+            _note_a_slow_call(config, chunk.elapsed, stop)
             steps = 0
             for i, run in enumerate(runs):
                 if run.stop_reason is None:
@@ -449,6 +455,16 @@ def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> in
     # Seed i's part of the group's state is picked out only when a video is due.
     run.videos.maybe_record(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
     return int(metrics["steps"])
+
+
+def _note_a_slow_call(config: Config, seconds: float, stop: StopFlag) -> None:
+    """The first call that takes SLOW_CALL_SECONDS or more is noted, and a stop's notice says how long it will wait."""
+    if seconds < SLOW_CALL_SECONDS or stop.notice != STOP_NOTICE:
+        return
+    print(f"canter: note: {slow_call_note(config, seconds)}", file=sys.stderr)
+    stop.notice = (
+        f"stopping when the current call ends (each takes about {seconds:,.0f} s), with a checkpoint to resume from"
+    )
 
 
 def _group_stop_reason(deadline: float | None, stop: StopFlag) -> str | None:

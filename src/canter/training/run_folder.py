@@ -191,7 +191,8 @@ def damaged_config_fix(run_dir: Path) -> str:
         return "the run folder is damaged and has no checkpoint that holds its config; restore config.toml from a copy"
     return (
         f"the run folder is damaged; restore config.toml from a copy, or let canter train --resume {run_dir} write it "
-        f"again from the newest checkpoint (a run short of its budget also trains on; eval and export work as it is)"
+        f"again from the newest checkpoint (a run short of its budget also trains on; eval, video and export work as "
+        f"it is)"
     )
 
 

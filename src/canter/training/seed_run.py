@@ -321,18 +321,19 @@ class SeedRun:
 def divergence_hint(config: Config) -> str:
     """What to change before resuming a diverged run: the same settings would diverge again from its last good
     state, and the settings it changed from its preset are the first suspects."""
-    from canter.config.build import build_config
+    from canter.config.build import preset_config
     from canter.config.experiment import flat_config
+    from canter.config.values import set_text
 
-    try:
-        preset = flat_config(build_config(config.env.id, preset=config.run.preset, algo=config.run.algo, notes=False))
-    except CanterError:  # a preset this canter no longer has, or that no longer builds for this env
+    built = preset_config(config)
+    if built is None:
         return (
             f"resuming with the same settings would diverge again; lower its learning rate or undo the settings it "
             f"changed (preset {config.run.preset} could not be built to compare with)"
         )
+    preset = flat_config(built)
     changed = [
-        f"{key}={value:g}" if isinstance(value, float) else f"{key}={value}"
+        f"{key}={value:g}" if isinstance(value, float) else f"{key}={set_text(value)}"
         for key, value in flat_config(config).items()
         if key in preset and preset[key] != value and not key.startswith("run.")
     ]

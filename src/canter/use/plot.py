@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from canter.config.algorithms import all_plot_labels, unused_metrics
+from canter.config.build import preset_config
 from canter.config.experiment import (
     BUDGET_KEY,
     comparison_key,
@@ -222,21 +223,6 @@ def experiment_labels(configs: Sequence[Config]) -> list[str]:
     ]
 
 
-def _preset_values(config: Config) -> dict[str, Any]:
-    """The keys the run's preset alone gives its env and algorithm; empty where that cannot be rebuilt (a preset
-    this canter does not ship)."""
-    from canter.config.overrides import apply_overrides
-    from canter.config.presets import preset_overrides
-
-    first = {"env.id": config.env.id, "run.algo": config.run.algo, "run.preset": config.run.preset}
-    try:
-        base = apply_overrides(Config(), first, "the run")
-        base = apply_overrides(base, preset_overrides(config.run.preset, config.env.id, config.run.algo), "preset")
-    except CanterError:
-        return {}
-    return flat_config(base)
-
-
 def method_keys(configs: Sequence[Config]) -> list[tuple[tuple[str, Any], ...]]:
     """What each run's method is on any env: its algorithm, preset and budget, the learning keys that some runs of
     one algorithm and preset on one env set to different values (a grid's keys: every run names its value), and
@@ -249,7 +235,8 @@ def method_keys(configs: Sequence[Config]) -> list[tuple[tuple[str, Any], ...]]:
     missing = object()
     keys = []
     for config in configs:
-        base = _preset_values(config)
+        preset = preset_config(config)
+        base = flat_config(preset) if preset is not None else {}  # every key it sets counts as its own then
         changed = [
             (k, v) for k, v in experiment_key(config) if k != "env.id" and (k in varied or base.get(k, missing) != v)
         ]

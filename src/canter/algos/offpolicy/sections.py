@@ -173,6 +173,7 @@ def _spec(
         plot_labels=labels,
         seeds_train_apart=True,
         ignores=ignores or {},
+        warm_up_key=f"{name}.learning_starts",
     )
 
 
