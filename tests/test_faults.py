@@ -21,7 +21,7 @@ import pytest
 
 from canter.files import WriteError
 from canter.training import checkpoint, run_folder
-from canter.training.logger import MetricsLogger, read_rows, totals_until
+from canter.training.logger import MetricsLogger, Totals, read_rows, totals_until
 from canter.training.loop import training_write_error
 from conftest import ARCHIVED_RUN
 from signals import with_sigint
@@ -197,7 +197,7 @@ def test_readers_skip_a_half_written_last_line_and_the_next_logger_cuts_it(tmp_p
     )
     header, rows = read_rows(metrics)
     assert header[0] == "global_step" and [r["global_step"] for r in rows] == ["100", "200"]
-    assert totals_until(metrics, 10_000) == {"wall_seconds": 2.0, "train_seconds": 2.0, "episodes": 3}
+    assert totals_until(metrics, 10_000) == Totals(wall_seconds=2.0, train_seconds=2.0, episodes=3)
 
     from canter.use.plot import read_metrics
 

@@ -1,10 +1,11 @@
 import csv
+import json
 import math
 
 import pytest
 
 from canter.errors import CanterError
-from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, totals_until
+from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, Totals, totals_until
 
 
 def read_rows(path):
@@ -136,17 +137,13 @@ def _old_style_rows(tmp_path):
 
 def test_totals_of_old_style_rows_leave_out_the_lost_iteration(tmp_path):
     path = _old_style_rows(tmp_path)
-    assert totals_until(path, 10_000) == {
-        "wall_seconds": pytest.approx(22 + 7 + 10),
-        "train_seconds": pytest.approx(10 + 10 + 15 + 5 + 2 + 3),
-        "episodes": 1 + 2 + 1 + 1 + 3,
-    }
-    assert totals_until(path, 650) == {
-        "wall_seconds": pytest.approx(35.0),
-        "train_seconds": pytest.approx(42.0),
-        "episodes": 5,
-    }
-    assert totals_until(path, 99)["episodes"] == 0
+    whole = totals_until(path, 10_000)
+    assert whole.wall_seconds == pytest.approx(22 + 7 + 10)
+    assert whole.train_seconds == pytest.approx(10 + 10 + 15 + 5 + 2 + 3)
+    assert whole.episodes == 1 + 2 + 1 + 1 + 3
+    until_650 = totals_until(path, 650)
+    assert (until_650.wall_seconds, until_650.train_seconds, until_650.episodes) == pytest.approx((35.0, 42.0, 5))
+    assert totals_until(path, 99) == Totals()
 
 
 def test_resuming_old_style_rows_rewrites_them_as_one_history(tmp_path):
@@ -199,3 +196,17 @@ def test_tensorboard_files_progress_under_charts_and_the_update_under_losses(tmp
     tags = {tag for events in (tmp_path / "tb").glob("events.*") for tag, _, _ in _event_records(events)}
     assert {"charts/wall_time", "charts/sps", "charts/gradient_steps", "losses/approx_kl", "info/reward_run"} <= tags
     assert not {"losses/wall_time", "losses/gradient_steps"} & tags
+
+
+def test_totals_go_through_a_checkpoint_header_unchanged_and_fill_what_an_older_header_left_out(tmp_path):
+    from canter.training.logger import checkpoint_totals
+
+    totals = Totals(wall_seconds=12.5, train_seconds=9.25, episodes=7, recent_returns=(1.5, -2.0), compile_seconds=3.0)
+    header = totals.header()
+    assert list(header) == ["wall_seconds", "train_seconds", "episodes", "recent_returns", "compile_seconds"]
+    assert json.loads(json.dumps(header)) == header and Totals.from_header(header) == totals
+    assert Totals.from_header({"wall_seconds": 4, "episodes": 2.0}) == Totals(wall_seconds=4.0, episodes=2)
+    # A format-1 checkpoint holds none: metrics.csv gives them up to its step.
+    path = _old_style_rows(tmp_path)
+    assert checkpoint_totals({"global_step": 650}, path) == totals_until(path, 650)
+    assert checkpoint_totals({"global_step": 650, "totals": header}, path) == totals

@@ -75,8 +75,8 @@ def read_seed(run_dir: Path, seed: int) -> SeedRecord:
     metrics = metrics_file(run_dir)
     if "global_step" in summary and metrics.is_file():
         totals = totals_until(metrics, int(summary["global_step"]))
-        if totals["train_seconds"] > 0:
-            wall, sps = totals["wall_seconds"], int(summary["global_step"]) / totals["train_seconds"]
+        if totals.train_seconds > 0:
+            wall, sps = totals.wall_seconds, int(summary["global_step"]) / totals.train_seconds
     trained_with = summary.get("trained_with")
     return SeedRecord(
         seed,

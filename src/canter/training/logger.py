@@ -29,6 +29,8 @@ import gzip
 import io
 import math
 import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -134,17 +136,57 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
     return kept
 
 
-def totals_until(path: Path, step: int) -> dict[str, float]:
+@dataclass(frozen=True)
+class Totals:
+    """What the sessions of a run add up to at a checkpoint, whose header holds them so that a resume carries them
+    on: wall seconds (compile included), training seconds, episodes, the recent returns that stop_at_return and
+    the result average, and the last session's compile seconds."""
+
+    wall_seconds: float = 0.0
+    train_seconds: float = 0.0
+    episodes: int = 0
+    recent_returns: tuple[float, ...] = ()
+    compile_seconds: float = 0.0
+
+    def header(self) -> dict[str, Any]:
+        """As a checkpoint header holds them."""
+        return {
+            "wall_seconds": self.wall_seconds,
+            "train_seconds": self.train_seconds,
+            "episodes": self.episodes,
+            "recent_returns": list(self.recent_returns),
+            "compile_seconds": self.compile_seconds,
+        }
+
+    @classmethod
+    def from_header(cls, saved: Mapping[str, Any]) -> Totals:
+        """From a checkpoint header's `totals`, where an older canter may have left some out."""
+        return cls(
+            wall_seconds=float(saved.get("wall_seconds", 0.0)),
+            train_seconds=float(saved.get("train_seconds", 0.0)),
+            episodes=int(saved.get("episodes", 0)),
+            recent_returns=tuple(float(x) for x in saved.get("recent_returns") or ()),
+            compile_seconds=float(saved.get("compile_seconds", 0.0)),
+        )
+
+
+def totals_until(path: Path, step: int) -> Totals:
     """Wall seconds, training seconds and episodes of a run up to its checkpoint at `step`. A resume reads these
     from the checkpoint; this rebuilds them from metrics.csv for a format-1 checkpoint that does not hold them."""
     _, rows = read_rows(Path(path))
     history = [totals for _, totals in run_history(rows) if totals["global_step"] <= step]
-    last = history[-1] if history else {"wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
-    return {
-        "wall_seconds": last["wall_seconds"],
-        "train_seconds": last["train_seconds"],
-        "episodes": int(last["episodes"]),
-    }
+    if not history:
+        return Totals()
+    last = history[-1]
+    return Totals(
+        wall_seconds=last["wall_seconds"], train_seconds=last["train_seconds"], episodes=int(last["episodes"])
+    )
+
+
+def checkpoint_totals(header: Mapping[str, Any], metrics: Path) -> Totals:
+    """The totals a checkpoint's header holds, or for a format-1 checkpoint, those metrics.csv gives up to its step."""
+    saved = header.get("totals")
+    return Totals.from_header(saved) if saved else totals_until(metrics, int(header["global_step"]))
 
 
 # TensorBoard sections, as CleanRL names them: progress under charts/, what the update computes under losses/.

@@ -24,7 +24,7 @@ from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram
-from canter.training.logger import Progress, totals_until
+from canter.training.logger import Progress, checkpoint_totals
 from canter.training.seed_run import RunResult, SeedRun, SeedStart, write_summary
 
 STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
@@ -164,9 +164,9 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     newest = checkpoint.latest(run_dir)
     header = checkpoint.read_header(newest)
     step = int(header["global_step"])
-    totals = header.get("totals") or totals_until(run_folder.metrics_file(run_dir), step)
-    recent = totals.get("recent_returns") or []
-    train_seconds = float(totals.get("train_seconds", 0.0))
+    totals = checkpoint_totals(header, run_folder.metrics_file(run_dir))
+    recent = totals.recent_returns
+    train_seconds = totals.train_seconds
     config = _header_config(header, newest)
     target = config.run.stop_at_return
     reached = target is not None and bool(recent) and float(np.mean(recent)) >= target
@@ -174,9 +174,9 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
         run_dir=Path(run_dir),
         global_step=step,
         recent_return=float(np.mean(recent)) if recent else None,
-        episodes=int(totals.get("episodes", 0)),
-        wall_seconds=float(totals.get("wall_seconds", 0.0)),
-        compile_seconds=float(totals.get("compile_seconds", 0.0)),
+        episodes=totals.episodes,
+        wall_seconds=totals.wall_seconds,
+        compile_seconds=totals.compile_seconds,
         sps=step / train_seconds if train_seconds > 0 else 0.0,
         stop_reason="stop_at_return" if reached else "budget",  # the loop's order: the target, then the budget
     )
@@ -262,7 +262,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         _check_only_the_budget_differs(saved, config, out)
         step = int(header["global_step"])
         _note_a_changed_backend(out, header["env"]["backend"], backend, step)
-        earlier = header.get("totals") or totals_until(run_folder.metrics_file(out), step)
+        earlier = checkpoint_totals(header, run_folder.metrics_file(out))
         start = SeedStart(out, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
     else:
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))

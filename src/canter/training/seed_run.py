@@ -7,7 +7,7 @@ import json
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -22,7 +22,7 @@ from canter.files import atomic_write_bytes
 from canter.training import checkpoint, run_folder, trackers
 from canter.training.cadence import Cadence
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
-from canter.training.logger import MetricsLogger, logged
+from canter.training.logger import MetricsLogger, Totals, logged
 from canter.training.videos import TrainingVideos
 
 RECENT_EPISODES = 20
@@ -73,8 +73,7 @@ class SeedStart:
     out: Path
     state: Any = None  # None: the algorithm's initial state
     step: int = 0
-    # Wall seconds, training seconds, episodes and recent returns of the sessions before a resume; None: a new run.
-    earlier: dict[str, Any] | None = None
+    earlier: Totals = field(default_factory=Totals)  # what the sessions before a resume add up to
     resumed_from: Path | None = None  # the checkpoint
     untrained: bool = False  # the checkpoint was written before the run's first iteration (a stop during setup)
 
@@ -110,12 +109,12 @@ class SeedRun:
         self.metric_names = metric_names
         self.global_step = start.step
         self.started = started
-        earlier = start.earlier or {}
-        self.earlier_wall = float(earlier.get("wall_seconds", 0.0))
-        self.episodes = int(earlier.get("episodes", 0))
+        earlier = start.earlier
+        self.earlier_wall = earlier.wall_seconds
+        self.episodes = earlier.episodes
         # Carried over a resume, so that stop_at_return and recent_return mean what an uncut run's would.
-        self.recent: deque[float] = deque(map(float, earlier.get("recent_returns", ())), maxlen=RECENT_EPISODES)
-        self.run_seconds = float(earlier.get("train_seconds", 0.0))
+        self.recent: deque[float] = deque(earlier.recent_returns, maxlen=RECENT_EPISODES)
+        self.run_seconds = earlier.train_seconds
         self.compile_seconds = 0.0  # this session's, once compiled
         self.trained_with = trained_with  # the seeds of this process's group, its own included
         self.checkpoints = Cadence(config.run.checkpoint_every, start.step)
@@ -144,21 +143,21 @@ class SeedRun:
     def recent_mean(self) -> float | None:
         return float(np.mean(self.recent)) if self.recent else None
 
-    def totals(self) -> dict[str, Any]:
-        return {
-            "wall_seconds": self.earlier_wall + time.perf_counter() - self.started,
-            "train_seconds": self.run_seconds,
-            "episodes": self.episodes,
-            "recent_returns": list(self.recent),
-            "compile_seconds": self.compile_seconds,
-        }
+    def totals(self) -> Totals:
+        return Totals(
+            wall_seconds=self.earlier_wall + time.perf_counter() - self.started,
+            train_seconds=self.run_seconds,
+            episodes=self.episodes,
+            recent_returns=tuple(self.recent),
+            compile_seconds=self.compile_seconds,
+        )
 
     def _header(self) -> dict[str, Any]:
         return dict(
             self.header_base,
             global_step=self.global_step,
             saved_at=datetime.now().isoformat(timespec="seconds"),
-            totals=self.totals(),
+            totals=self.totals().header(),
         )
 
     def save(self, train_state: Any, env_carry: Any = None, *, untrained_but: tuple[str, ...] | None = None) -> None:
