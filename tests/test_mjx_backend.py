@@ -422,27 +422,23 @@ def test_contacts_setting_is_checked_and_reaches_the_mjx_env_only():
 def test_evaluation_in_one_program_plays_the_host_loops_episodes(monkeypatch):
     """A JAX env plays an evaluation's episodes inside one jitted program (`play_episodes`); it keeps the host loop's
     bookkeeping: the same episodes, returns and lengths, each env its quota."""
-    import functools
-
     from canter.algos import get_algorithm
     from canter.envs.registry import make_vec_env
-    from canter.training.evaluation import TracedAct, deterministic_act, run_episodes
+    from canter.training.evaluation import CompiledAct, run_episodes
 
     _evaluate_on_two_envs(monkeypatch)
     config = build_config("InvertedPendulum-v5", sets=PENDULUM)
     env = make_vec_env("InvertedPendulum-v5", "mjx", 2, [0, 1])
     algorithm = get_algorithm("ppo")
     state = algorithm.init_state(config, env.spec)
-    pure = algorithm.make_act(config, env.spec)
-    key = jax.random.key(0)
-    args = (algorithm.policy_params(state), state.obs_stats, key)
-    act = jax.jit(pure, static_argnums=(4,))
+    params, obs_stats = algorithm.policy_params(state), state.obs_stats
+    act = CompiledAct(config, env.spec)
 
     def host_act(obs):
-        return np.asarray(act(args[0], args[1], jnp.asarray(obs, jnp.float32), key, True))
+        return act(params, obs_stats, obs)
 
     host = run_episodes(host_act, "InvertedPendulum-v5", "mjx", EVAL_EPISODES, seed=3)
-    traced = TracedAct(functools.partial(deterministic_act, pure), args)
+    traced = act.traced(params, obs_stats)
     jitted = run_episodes(host_act, "InvertedPendulum-v5", "mjx", EVAL_EPISODES, seed=3, traced_act=traced)
     assert jitted.returns.size == host.returns.size == EVAL_EPISODES
     np.testing.assert_allclose(np.sort(jitted.returns), np.sort(host.returns), rtol=1e-5)

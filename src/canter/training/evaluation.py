@@ -83,11 +83,35 @@ class TracedAct:
     args: Any
 
 
-def deterministic_act(act: Callable[..., Any], args: Any, obs: Any) -> Any:
+def _deterministic_act(act: Callable[..., Any], args: Any, obs: Any) -> Any:
     """`act(params, obs_stats, obs, key, deterministic)` of `Algorithm.make_act`, with args = (params, obs_stats,
     key), acting deterministically."""
     params, obs_stats, key = args
     return act(params, obs_stats, obs, key, True)
+
+
+class CompiledAct:
+    """An algorithm's act for one config and env, jitted for calls from the host, and as the pure deterministic
+    function that a JAX env traces into the program that plays its episodes (`traced`)."""
+
+    def __init__(self, config: Any, spec: Any) -> None:
+        import jax
+
+        from canter.algos import get_algorithm
+
+        pure_act = get_algorithm(config.run.algo).make_act(config, spec)
+        self._jitted = jax.jit(pure_act, static_argnums=(4,))
+        self._traced = functools.partial(_deterministic_act, pure_act)
+        self._key = jax.random.key(0)  # what a deterministic act is given: it draws nothing from it
+
+    def __call__(
+        self, params: Any, obs_stats: Any, obs: np.ndarray, key: Any = None, deterministic: bool = True
+    ) -> np.ndarray:
+        key = self._key if key is None else key
+        return np.asarray(self._jitted(params, obs_stats, np.asarray(obs, np.float32), key, deterministic))
+
+    def traced(self, params: Any, obs_stats: Any) -> TracedAct:
+        return TracedAct(self._traced, (params, obs_stats, self._key))
 
 
 def eval_env_count(backend: str, episodes: int) -> int:
@@ -182,8 +206,6 @@ class TrainingEvaluation:
     budget; a run stopped early (signal, max_minutes, stop_at_return) ends without one."""
 
     def __init__(self, config: Any, spec: Any, start_step: int, best_return: float | None) -> None:
-        import jax
-
         from canter.algos import get_algorithm
 
         self.episodes = config.run.eval_episodes
@@ -195,12 +217,8 @@ class TrainingEvaluation:
         self.env_options = env_options(config.env, self.backend)
         self.cadence = Cadence(config.run.eval_every, start_step)
         self.best_return = -math.inf if best_return is None else best_return
-        algorithm = get_algorithm(config.run.algo)
-        self._policy_params = algorithm.policy_params
-        pure_act = algorithm.make_act(config, spec)
-        self._act = jax.jit(pure_act, static_argnums=(4,))
-        self._traced = functools.partial(deterministic_act, pure_act)
-        self._key = jax.random.key(0)
+        self._policy_params = get_algorithm(config.run.algo).policy_params
+        self._act = CompiledAct(config, spec)
 
     def due(self, step: int) -> bool:
         return self.cadence.due(step) or step >= self.total_steps
@@ -209,18 +227,14 @@ class TrainingEvaluation:
         """The deterministic evaluation of `train_state` (its policy and frozen normalizer statistics)."""
         self.cadence = self.cadence.advance(step)
         params, obs_stats = self._policy_params(train_state), train_state.obs_stats
-
-        def act(obs: np.ndarray) -> np.ndarray:
-            return np.asarray(self._act(params, obs_stats, np.asarray(obs, np.float32), self._key, True))
-
         return run_episodes(
-            act,
+            lambda obs: self._act(params, obs_stats, obs),
             self.env_id,
             self.backend,
             self.episodes,
             DURING_TRAINING_SEED,
             env_kwargs=self.env_options,
-            traced_act=TracedAct(self._traced, (params, obs_stats, self._key)),
+            traced_act=self._act.traced(params, obs_stats),
         )
 
     def improves(self, result: EvalResult) -> bool:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +10,7 @@ import numpy as np
 from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.training.checkpoint import LAST
-from canter.training.evaluation import TracedAct, deterministic_act
+from canter.training.evaluation import CompiledAct, TracedAct
 from canter.training.restore import PolicyFacts, load_state
 
 
@@ -33,18 +32,14 @@ class Policy:
     ) -> None:
         import jax
 
-        from canter.algos import get_algorithm
-
         self.config, self.facts, self.params, self.obs_stats, self.source = config, facts, params, obs_stats, source
         self.checkpoint, self.selection = checkpoint, selection
-        pure_act = get_algorithm(config.run.algo).make_act(config, facts)
-        self._act = jax.jit(pure_act, static_argnums=(4,))
-        self._key = jax.random.key(0)
-        self._traced = functools.partial(deterministic_act, pure_act)
+        self._act = CompiledAct(config, facts)
+        self._key = jax.random.key(0)  # advanced by each stochastic call
 
     def traced(self) -> TracedAct:
         """The deterministic policy as a pure JAX function, for envs that play whole episodes in one program."""
-        return TracedAct(self._traced, (self.params, self.obs_stats, self._key))
+        return self._act.traced(self.params, self.obs_stats)
 
     @property
     def chosen_by_evaluation(self) -> bool:
@@ -82,7 +77,7 @@ class Policy:
             if seed is not None:
                 self._key = jax.random.key(seed)
             self._key, key = jax.random.split(self._key)
-        action = np.asarray(self._act(self.params, self.obs_stats, obs, key, deterministic))
+        action = self._act(self.params, self.obs_stats, obs, key, deterministic)
         return action[0] if single else action
 
 
