@@ -187,15 +187,23 @@ def config_section(facts: Sequence[RunFacts]) -> str:
     return "\n".join(parts)
 
 
-def experiment_of_each(facts: Sequence[RunFacts]) -> list[str]:
-    """For each run, the label of its group (runs that differ only in seed share one), as `canter plot` draws it."""
-    from canter.config.experiment import comparison_key
+def experiment_groups(facts: Sequence[RunFacts]) -> list[tuple[str, list[int]]]:
+    """The runs' groups (runs that differ only in seed share one), each with its label as `canter plot` draws it and
+    its runs' indices, in order of first appearance."""
+    from canter.config.experiment import group_by_experiment
     from canter.use.plot import experiment_labels
 
-    keys = list(dict.fromkeys(comparison_key(f.config) for f in facts))
-    first = [next(f.config for f in facts if comparison_key(f.config) == k) for k in keys]
-    labels = dict(zip(keys, experiment_labels(first)))
-    return [labels[comparison_key(f.config)] for f in facts]
+    groups = group_by_experiment([f.config for f in facts])
+    return list(zip(experiment_labels([facts[members[0]].config for members in groups]), groups))
+
+
+def experiment_of_each(facts: Sequence[RunFacts]) -> list[str]:
+    """For each run, the label of its group."""
+    of_each = [""] * len(facts)
+    for label, members in experiment_groups(facts):
+        for i in members:
+            of_each[i] = label
+    return of_each
 
 
 def runs_section(facts: Sequence[RunFacts]) -> str:
@@ -234,10 +242,7 @@ def eval_section(facts: Sequence[RunFacts], rows: Sequence[EvalRow]) -> str:
         ]
         for i, r in enumerate(rows)
     ]
-    groups: dict[str, list[int]] = {}
-    for i, label in enumerate(experiment_of_each(facts)):
-        groups.setdefault(label, []).append(i)
-    for label, members in groups.items():
+    for label, members in experiment_groups(facts):
         if len(members) > 1:
             means = np.array([rows[i].return_mean for i in members])
             lengths = np.array([rows[i].length_mean for i in members])
