@@ -138,8 +138,14 @@ def _bad_inputs(tmp_path, run):
         (["train", "canter_test_envs:DiscreteObs-v0"], "Box or a Dict of Boxes"),
         (["train", "--resume", str(tmp_path / "missing")], "run folder not found"),
         (["train", "--resume", str(empty)], "no config.toml"),
-        (["train", "--resume", str(run), "--seed", "4"], "only --total-steps, --max-minutes, --quiet, --track and"),
-        (["train", "--resume", str(run), "--seed", "0"], "only --total-steps, --max-minutes, --quiet, --track and"),
+        (
+            ["train", "--resume", str(run), "--seed", "4"],
+            "only --total-steps, --max-minutes, --stop-at-return, --quiet,",
+        ),
+        (
+            ["train", "--resume", str(run), "--seed", "0"],
+            "only --total-steps, --max-minutes, --stop-at-return, --quiet,",
+        ),
         (["train", "Hopper-v5", "--seed", "-1"], "argument --seed: expected a seed from 0 to 4294967295"),
         (["train", "--resume", str(corrupt), "--total-steps", "9999"], "corrupt or truncated"),
         (["eval", str(tmp_path / "missing")], "run folder not found"),
@@ -211,3 +217,20 @@ def test_an_out_dir_under_a_file_names_the_file(tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{tmp_path / 'cl.toml'} is a file, not a folder; pick another path" in err, err
+
+
+@pytest.mark.parametrize(("given", "target"), [(None, "keep"), ("inf", None), ("-50", -50.0)])
+def test_a_resume_takes_a_return_target_and_inf_lifts_it(given, target, monkeypatch, tmp_path):
+    from canter.training import loop
+
+    class Resumed(Exception):
+        pass
+
+    def stand_in(run_dir, total_steps, max_minutes=None, stop_at_return=loop.Saved.KEEP):
+        raise Resumed(stop_at_return)
+
+    monkeypatch.setattr(loop, "resume_config", stand_in)
+    flags = [] if given is None else ["--stop-at-return", given]
+    with pytest.raises(Resumed) as resumed:
+        main(["train", "--resume", str(tmp_path), *flags])
+    assert resumed.value.args[0] == (loop.Saved.KEEP if target == "keep" else target)

@@ -274,7 +274,7 @@ def test_bad_input_is_one_line(tmp_path, capsys):
         (["train", "Pendulum-v1", "--eval-every", "0"], "expected a positive whole step count"),
         (
             ["train", "--resume", str(tmp_path), "--eval-every", "1000"],
-            "only --total-steps, --max-minutes, --quiet, --track and",
+            "only --total-steps, --max-minutes, --stop-at-return, --quiet,",
         ),
         (["bench", "--envs", "Pendulum-v1", "--eval-episodes", "2"], "final evaluation with --episodes"),
         (["eval", str(tmp_path / "a"), str(tmp_path / "b"), "--checkpoint", "x.npz"], "pass one run folder"),

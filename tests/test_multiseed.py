@@ -282,7 +282,7 @@ def test_bad_seed_lists_are_refused(tmp_path):
         (["--seeds", "1,2,1"], "each seed may appear once"),
         (["--seeds", ""], "expected whole numbers"),
         (["--seeds", "0,1", "--seed", "3"], "--seed and --seeds exclude each other"),
-        (["--resume", "a", "b", "--seeds", "0,1"], "only --total-steps, --max-minutes, --quiet, --track and"),
+        (["--resume", "a", "b", "--seeds", "0,1"], "only --total-steps, --max-minutes, --stop-at-return, --quiet,"),
     ],
 )
 def test_bad_seeds_flag_is_a_one_line_error(argv, message, capsys):

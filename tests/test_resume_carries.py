@@ -22,17 +22,26 @@ PENDULUM = TINY + ["env.num_envs=4", "ppo.n_steps=128", "ppo.minibatch_size=256"
 
 
 @pytest.mark.slow
-def test_a_resumed_run_stops_at_its_return_target_as_the_uncut_run_would(tmp_path):
-    config = build_config("Pendulum-v1", sets=PENDULUM + [f"run.out_dir={tmp_path}"], total_steps=4096)
-    first = train(config)
+def test_a_run_that_reached_its_return_target_resumes_only_with_a_higher_one(tmp_path):
+    """Every return passes the target, so the run stops once it has its 20 episodes. Its last 20 returns are carried
+    in the checkpoint: a resume with the same target would stop again after one iteration, so it is refused, and a
+    resume without a target trains on to the budget."""
+    sets = PENDULUM + [f"run.out_dir={tmp_path}", "run.stop_at_return=-1e9"]
+    first = train(build_config("Pendulum-v1", sets=sets, total_steps=8192))
+    assert first.stop_reason == "stop_at_return" and first.global_step < 8192
     header = checkpoint.read_header(checkpoint.latest(first.run_dir))
     recent = header["totals"]["recent_returns"]
     assert len(recent) == RECENT_EPISODES and first.recent_return == pytest.approx(np.mean(recent))
 
-    # Every return passes this target, so the run stops after its first resumed iteration: its last 20 episodes
-    # came before the resume. Counting only the episodes after it, it would train on to about 8192 steps.
-    resumed = train(resume_config(first.run_dir, 8192, stop_at_return=-1e9), resume=first.run_dir)
-    assert resumed.stop_reason == "stop_at_return" and resumed.global_step <= first.global_step + 512
+    with pytest.raises(CanterError) as refused:
+        train(resume_config(first.run_dir, None), resume=first.run_dir)
+    assert str(refused.value) == (
+        f"{first.run_dir} has reached its return target run.stop_at_return=-1e+09 (the mean of its last training "
+        f"episodes is {np.mean(recent):.1f}), so it would stop again after one iteration; to train it on, pass "
+        "--stop-at-return with a higher target, or inf for none"
+    )
+    resumed = train(resume_config(first.run_dir, None, stop_at_return=None), resume=first.run_dir)
+    assert resumed.stop_reason == "budget" and resumed.global_step >= 8192
 
 
 @pytest.mark.slow

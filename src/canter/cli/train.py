@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--stop-at-return",
         type=float,
         default=None,
-        help="stop once the mean of the last 20 training episodes reaches this",
+        help="stop once the mean of the last 20 training episodes reaches this (inf: no target, which lifts a resumed "
+        "run's)",
     )
     t.add_argument(
         "--max-minutes",
@@ -124,7 +125,6 @@ def _train(args: argparse.Namespace) -> list[Any]:
                 ("--seed", args.seed),
                 ("--seeds", args.seeds),
                 ("--backend", args.backend),
-                ("--stop-at-return", args.stop_at_return),
                 ("--out-dir", args.out_dir),
                 ("--video-every", args.video_every),
                 ("--eval-every", args.eval_every),
@@ -134,25 +134,31 @@ def _train(args: argparse.Namespace) -> list[Any]:
         ]
         if changed:
             raise CanterError(
-                f"--resume uses the saved config; only --total-steps, --max-minutes, --quiet, --track and "
-                f"--mlflow-uri may be given (got {', '.join(changed)})"
+                f"--resume uses the saved config; only --total-steps, --max-minutes, --stop-at-return, --quiet, "
+                f"--track and --mlflow-uri may be given (got {', '.join(changed)})"
             )
         # The trainer imports JAX, so it comes after the checks that need only the config.
-        from canter.training.loop import resume_config, resume_seeds, train
+        from canter.training.loop import Saved, resume_config, resume_seeds, train
+
+        target = Saved.KEEP if args.stop_at_return is None else _return_target(args.stop_at_return)
 
         if len(args.resume) > 1:
             results = resume_seeds(
-                [Path(d) for d in args.resume], args.total_steps, max_minutes=args.max_minutes, quiet=args.quiet
+                [Path(d) for d in args.resume],
+                args.total_steps,
+                max_minutes=args.max_minutes,
+                stop_at_return=target,
+                quiet=args.quiet,
             )
         else:
-            config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes)
+            config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes, target)
             results = [train(config, resume=args.resume[0], quiet=args.quiet)]
     else:
         extra: dict[str, Any] = {}
         if args.backend:
             extra["env.backend"] = args.backend
         if args.stop_at_return is not None:
-            extra["run.stop_at_return"] = args.stop_at_return
+            extra["run.stop_at_return"] = _return_target(args.stop_at_return)
         if args.max_minutes is not None:  # inf is no limit, which the config holds as none
             extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
         if args.out_dir == "":  # it would read as not given, and the run would go to runs/
@@ -200,6 +206,11 @@ def _train(args: argparse.Namespace) -> list[Any]:
         else:
             results = [train(config, quiet=args.quiet)]
     return results
+
+
+def _return_target(value: float) -> float | None:
+    """--stop-at-return as run.stop_at_return: inf is no target (none), as --max-minutes inf is no limit."""
+    return None if value == math.inf else value
 
 
 def _report(results: list[Any]) -> None:

@@ -25,7 +25,7 @@ from canter.training import checkpoint, device_memory, disk_room, host_memory, r
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram
 from canter.training.logger import Progress, checkpoint_totals
-from canter.training.seed_run import RunResult, SeedRun, SeedStart, write_summary
+from canter.training.seed_run import RunResult, SeedRun, SeedStart, reached_target, write_summary
 
 STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
 # A call of the jitted program this long gets a note: until it returns, a signal only waits (a td3 batch of 100,000
@@ -168,8 +168,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     recent = totals.recent_returns
     train_seconds = totals.train_seconds
     config = _header_config(header, newest)
-    target = config.run.stop_at_return
-    reached = target is not None and bool(recent) and float(np.mean(recent)) >= target
+    reached = reached_target(recent, config.run.stop_at_return)
     result = RunResult(
         run_dir=Path(run_dir),
         global_step=step,
@@ -273,6 +272,13 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         raise CanterError(
             f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
             f"steps; pass --total-steps larger than {start.step} to extend it"
+        )
+    if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
+        mean = float(np.mean(start.earlier.recent_returns))
+        raise CanterError(
+            f"{start.out} has reached its return target run.stop_at_return={config.run.stop_at_return:g} (the mean of "
+            f"its last training episodes is {mean:.1f}), so it would stop again after one iteration; to train it on, "
+            "pass --stop-at-return with a higher target, or inf for none"
         )
     if resume is None:
         locks.take(start.out)  # before anything is written to it

@@ -7,6 +7,7 @@ import json
 import math
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
@@ -64,6 +65,12 @@ def write_summary(result: RunResult) -> dict[str, Any]:
         result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
     )
     return summary
+
+
+def reached_target(recent: Sequence[float], target: float | None) -> bool:
+    """Whether the mean of a run's last RECENT_EPISODES training episodes has reached its return target (never
+    before it has that many)."""
+    return target is not None and len(recent) >= RECENT_EPISODES and float(np.mean(recent[-RECENT_EPISODES:])) >= target
 
 
 @dataclass(frozen=True)
@@ -248,12 +255,7 @@ class SeedRun:
         group (max_minutes, a signal). A seed whose budget is spent is complete even when the deadline or a signal
         comes in the same iteration: marked stopped early, a resume would find nothing left to train."""
         run = self.config.run
-        if (
-            run.stop_at_return is not None
-            and len(self.recent) >= RECENT_EPISODES
-            and (mean := self.recent_mean) is not None
-            and mean >= run.stop_at_return
-        ):
+        if reached_target(tuple(self.recent), run.stop_at_return):
             return "stop_at_return"
         if self.global_step >= run.total_steps:
             return "budget"
