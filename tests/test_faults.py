@@ -283,9 +283,18 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
 
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")
+    newest = run_folder.step_of(checkpoint.latest(truncated))
     one_line(
         ["plot", str(truncated), "--out", str(tmp_path / "d.png")],
-        "metrics.csv has no logged rows: the run has not finished an iteration",
+        f"metrics.csv has no logged rows, though the run has a checkpoint at step {newest:,}: the file was emptied "
+        "or damaged; restore it from a copy",
+    )
+    for path in run_folder.list_checkpoints(truncated):  # a run stopped before its first iteration has none
+        path.unlink()
+    one_line(
+        ["plot", str(truncated), "--out", str(tmp_path / "d.png")],
+        "metrics.csv has no logged rows: the run has not finished an iteration (it is compiling, or it stopped "
+        "before its first one); leave it out, or train it again",
     )
     renamed = folder("renamed_header")  # once told to "train for at least one iteration"
     text = (renamed / "metrics.csv").read_text()
@@ -295,6 +304,13 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     with open(appended / "metrics.csv", "a") as f:
         f.write("abc,def,###\n")
     one_line(["plot", str(appended), "--out", str(tmp_path / "d.png")], "has a row whose global_step is 'abc'")
+    not_finite = folder("nan_step")
+    lines = (not_finite / "metrics.csv").read_text().splitlines(keepends=True)
+    lines[2] = "nan" + lines[2][lines[2].index(",") :]
+    (not_finite / "metrics.csv").write_text("".join(lines))
+    one_line(
+        ["plot", str(not_finite), "--out", str(tmp_path / "d.png")], "has a row whose global_step is 'nan' (line 3)"
+    )
 
     locked = folder("lock_is_a_folder")
     (locked / ".writer.lock").mkdir()

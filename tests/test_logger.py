@@ -55,6 +55,23 @@ def test_a_resume_drops_rows_after_its_checkpoint(tmp_path):
     assert [r["global_step"] for r in read_rows(tmp_path / "metrics.csv")] == ["10", "20", "30"]
 
 
+def test_a_resume_notes_the_rows_it_drops_because_their_step_is_damaged(tmp_path, capsys):
+    logger = MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False)
+    for iteration in (1, 2, 3):
+        logger.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 10 * iteration, "iteration": iteration})
+    logger.close()
+    path = tmp_path / "metrics.csv"
+    path.write_text(path.read_text().replace("\n10,", "\nabc,", 1))
+    MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=30).close()
+    assert [r["global_step"] for r in read_rows(path)] == ["20", "30"]
+    assert capsys.readouterr().err == (
+        f"canter: note: dropped the rows of {path} whose global_step is not a step (line 2: 'abc'); the run's state "
+        "is in its checkpoint, and only those rows' metrics are lost\n"
+    )
+    MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=30).close()  # nothing to drop now
+    assert capsys.readouterr().err == ""
+
+
 def test_a_resume_of_a_folder_archived_with_gzipped_metrics_continues_them(tmp_path):
     import gzip
 

@@ -104,6 +104,16 @@ def _number(text: str | None) -> float:
         return math.nan
 
 
+def unreadable_steps(rows: list[dict[str, str]]) -> list[tuple[int, str]]:
+    """(line number, cell) of each row whose global_step is not a finite number: an edited or damaged file, whose
+    rows canter can neither place nor plot."""
+    return [
+        (line, row.get("global_step") or "")
+        for line, row in enumerate(rows, start=2)
+        if not math.isfinite(_number(row.get("global_step")))
+    ]
+
+
 def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[str, float]]]:
     """The rows of the training a run kept, each with its run totals so far (wall seconds, training seconds,
     episodes), `wall_time` rewritten to count from the run's start.
@@ -281,6 +291,14 @@ class MetricsLogger:
         kept = [row for row, totals in run_history(rows) if totals["global_step"] <= step]
         if not header or kept == rows:
             return
+        if damaged := unreadable_steps(rows):
+            line, cell = damaged[0]
+            more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
+            print(
+                f"canter: note: dropped the rows of {self.path} whose global_step is not a step (line {line}: "
+                f"{cell!r}{more}); the run's state is in its checkpoint, and only those rows' metrics are lost",
+                file=sys.stderr,
+            )
         self._rewrite(header, kept)
 
     def _widen_header(self) -> None:

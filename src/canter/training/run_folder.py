@@ -243,8 +243,8 @@ def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -
     if keys:
         raise CanterError(
             f"{path} does not match {run_dir / CONFIG_FILE} in {_shown_keys(keys)}: if config.toml was edited, put "
-            f"back what the checkpoint holds (`--resume` changes only the budget: --total-steps, --max-minutes, --stop-at-return); if the "
-            f"checkpoint came from another run, move it out of {path.parent}"
+            f"back what the checkpoint holds (`--resume` changes only the budget: --total-steps, --max-minutes, "
+            f"--stop-at-return); if the checkpoint came from another run, move it out of {path.parent}"
         )
 
 

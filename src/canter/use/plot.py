@@ -51,8 +51,8 @@ from canter.config.experiment import (
 from canter.config.schema import Config
 from canter.config.values import set_text
 from canter.errors import CanterError
-from canter.training.logger import read_rows, run_history
-from canter.training.run_folder import metrics_file, read_config
+from canter.training.logger import read_rows, run_history, unreadable_steps
+from canter.training.run_folder import list_checkpoints, metrics_file, read_config, step_of
 from canter.use import score_plot
 from canter.use.scoreboard import (
     DIVERGED,
@@ -125,12 +125,22 @@ class Band:
 # ------------------------------------------------------------------------------------------------------ reading
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+def _no_rows(path: Path) -> str:
+    """Why a metrics.csv without rows has none, and what to do: a run that trained an iteration has logged one."""
+    run = path.parent
+    checkpoints = list_checkpoints(run)
+    newest = step_of(checkpoints[-1]) if checkpoints else 0
+    if newest > 0:
+        return (
+            f"{path} has no logged rows, though the run has a checkpoint at step {newest:,}: the file was emptied or "
+            f"damaged; restore it from a copy"
+        )
+    # A run stopped in setup or in its first iteration (a signal, a non-finite start) has at most a step-0 checkpoint.
+    go_on = f"train it on with canter train --resume {run}" if checkpoints else "train it again"
+    return (
+        f"{path} has no logged rows: the run has not finished an iteration (it is compiling, or it stopped before its "
+        f"first one); leave it out, or {go_on}"
+    )
 
 
 def read_metrics(path: Path) -> dict[str, np.ndarray]:
@@ -154,17 +164,13 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
             f"was edited or damaged; restore it from a copy"
         )
     if not header or not rows:
-        # A run stopped in setup or in its first iteration (a signal, a non-finite start) has only the header too.
+        raise CanterError(_no_rows(path))
+    if damaged := unreadable_steps(rows):
+        line, cell = damaged[0]
         raise CanterError(
-            f"{path} has no logged rows: the run has not finished an iteration (it is compiling, or it stopped "
-            f"before its first one); leave it out, or train it on with canter train --resume {path.parent}"
+            f"{path} has a row whose global_step is {cell!r} (line {line}), not a step: the file was edited or "
+            f"damaged; delete that row or restore the file from a copy"
         )
-    for row in rows:
-        if not _is_number(row.get("global_step") or ""):
-            raise CanterError(
-                f"{path} has a row whose global_step is {row.get('global_step')!r}, not a step: the file was edited "
-                f"or damaged; delete that row or restore the file from a copy"
-            )
     if "iteration" in header:
         rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
     columns: dict[str, np.ndarray] = {}
