@@ -156,6 +156,33 @@ def test_a_program_too_large_for_the_host_is_refused_after_the_compile(memory):
         device_memory.check_fits(compiled, 1)
 
 
+def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_no_run_folder(
+    monkeypatch, tmp_path, capsys
+):
+    """The compiled program is measured only once the run folder is made: its refusal removes the folder again,
+    which nothing could have resumed (no checkpoint) or plotted (no row)."""
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
+    monkeypatch.setattr(device_memory, "required_bytes", lambda compiled: 2**50)
+    out = tmp_path / "runs"
+    argv = ["train", "Pendulum-v1", "--total-steps", "2048", "--out-dir", str(out), "--quiet"]
+    assert main([*argv, "--set", "net.hidden=16,16", "--set", "ppo.n_steps=64"]) == 2
+    err = _one_line_error(capsys)
+    assert "canter: error: the training program needs about " in err
+    assert err.endswith(
+        "lower what sizes one call (env.num_envs=16, ppo.n_steps=64), the batch sizes, or the hidden layer sizes"
+    ), err
+    assert not out.exists()
+    # A resumed run keeps its folder whole: its checkpoints hold what it trained.
+    monkeypatch.undo()
+    shutil.copytree(ARCHIVED_RUN, tmp_path / "resumed")
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
+    monkeypatch.setattr(device_memory, "required_bytes", lambda compiled: 2**50)
+    before = sorted(p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*"))
+    assert main(["train", "--resume", str(tmp_path / "resumed"), "--total-steps", "1e6", "--quiet"]) == 2
+    assert "lower what sizes one call" in _one_line_error(capsys)
+    assert set(before) <= {p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*")}
+
+
 def test_too_many_seeds_for_the_open_files_are_refused_before_a_folder_is_made(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(run_lock.resource, "getrlimit", lambda which: (256, 4096))
 

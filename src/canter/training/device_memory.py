@@ -47,15 +47,18 @@ def too_many_envs(num_envs: int, need: int | None = None, free: int | None = Non
     )
 
 
-def too_large_for_the_host(more: int, available: int) -> CanterError:
+def too_large_for_the_host(more: int, available: int, sizes: str) -> CanterError:
+    """`sizes`: the keys that size one call of the program, with their values ("env.num_envs=16, ppo.n_steps=64")."""
     return CanterError(
         f"the training program needs about {size_text(more)} of memory beyond its train state and envs (its "
-        f"rollout, batches and activations), but {size_text(available)} are available; lower env.num_envs, the "
-        f"rollout or batch sizes, or the hidden layer sizes"
+        f"rollout, batches and activations), but {size_text(available)} are available; lower what sizes one call "
+        f"({sizes}), the batch sizes, or the hidden layer sizes"
     )
 
 
-def check_fits(compiled: Any, num_envs: int) -> None:
+def check_fits(compiled: Any, num_envs: int, sizes: str | None = None) -> None:
+    """Refuse a compiled program the device (or on the CPU, the host) cannot hold. `sizes`: the keys that size one
+    call, as the host refusal names them (default env.num_envs alone)."""
     need, free = required_bytes(compiled), free_bytes()
     if need is None:
         return
@@ -70,7 +73,7 @@ def check_fits(compiled: Any, num_envs: int) -> None:
     available = host_memory.available_bytes()
     more = need - int(getattr(compiled.memory_analysis(), "argument_size_in_bytes", 0) or 0)
     if available is not None and more > host_memory.HEADROOM * available:
-        raise too_large_for_the_host(more, available)
+        raise too_large_for_the_host(more, available, sizes or f"env.num_envs={num_envs:,}")
 
 
 def is_out_of_memory(exc: BaseException) -> bool:

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.config.algorithms import algorithm_spec, key_value
 from canter.config.schema import Config
 from canter.envs.base import JaxVecEnv
 from canter.training import device_memory
@@ -51,6 +52,10 @@ class GroupProgram:
         self.group = len(states)
         self.total = config.run.total_steps
         self.envs = config.env.num_envs
+        # The keys that size one call, as a refusal of a program too large for the memory names them.
+        self.call_sizes = ", ".join(
+            f"{key}={key_value(config, key):,}" for key in algorithm_spec(config.run.algo).iteration_keys
+        )
         donate = (0,) if algorithm.donate_state else ()
         self.pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
         if self.group == 1:
@@ -89,7 +94,7 @@ class GroupProgram:
         start = time.perf_counter()
         with fewer_envs_when_out_of_device_memory(self.envs):
             self.compiled = self.iteration.lower(self.state, self.carry, self.lr_fractions(runs)).compile()
-        device_memory.check_fits(self.compiled, self.envs)
+        device_memory.check_fits(self.compiled, self.envs, self.call_sizes)
         return time.perf_counter() - start
 
     def call(self, runs: list[SeedRun]) -> Chunk:

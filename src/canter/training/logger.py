@@ -39,7 +39,7 @@ import numpy as np
 from canter.errors import CanterError
 from canter.files import AppendFile, atomic_write_bytes
 from canter.training.evaluation import EVAL_COLUMNS
-from canter.training.run_folder import METRICS_FILE
+from canter.training.run_folder import METRICS_FILE, TENSORBOARD_FOLDER
 
 BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
 
@@ -244,7 +244,7 @@ class MetricsLogger:
             from canter.training.tensorboard import EventFile
 
             purge = None if resume_step is None else resume_step + 1
-            self._tb = EventFile(Path(run_dir) / "tb", purge_step=purge)
+            self._tb = EventFile(Path(run_dir) / TENSORBOARD_FOLDER, purge_step=purge)
 
     def _line(self, row: dict[str, Any]) -> bytes:
         text = io.StringIO(newline="")

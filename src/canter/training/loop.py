@@ -420,9 +420,13 @@ def _open_seeds(
                 print(f"canter: note: {note}", file=sys.stderr)
         for run in runs:
             run.compile_seconds = compile_seconds
-    except BaseException:
+    except BaseException as exc:
         for run in runs:
             run.close()
+        if isinstance(exc, CanterError) and not isinstance(exc, WriteError):  # refused: the program does not fit
+            for start in starts:
+                if not start.resumed:
+                    run_folder.discard_unstarted(start.out)
         raise
     return runs
 

@@ -22,6 +22,7 @@ import os
 import platform
 import re
 import secrets
+import shutil
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -39,6 +40,7 @@ CONFIG_FILE = "config.toml"
 SUMMARY_FILE = "summary.json"
 VERSIONS_FILE = "versions.json"
 METRICS_FILE = "metrics.csv"
+TENSORBOARD_FOLDER = "tb"
 
 
 def metrics_file(run_dir: Path) -> Path:
@@ -271,6 +273,20 @@ def create(run_dir: Path, config: Config) -> None:
     write_config(run_dir, config)
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     _write_versions(run_dir, dict(versions(), created=created, run_format=RUN_FORMAT))
+
+
+def discard_unstarted(run_dir: Path) -> None:
+    """Remove what a new run wrote before its first iteration (config.toml, versions.json, a metrics.csv without rows,
+    TensorBoard's folder) when a refusal stops it there: no folder is left that nothing can resume or plot. A run with
+    a checkpoint or a logged row is left whole; what else is in the folder stays."""
+    from canter.training.logger import read_rows
+
+    run_dir = Path(run_dir)
+    if list_checkpoints(run_dir) or read_rows(run_dir / METRICS_FILE)[1]:
+        return
+    for name in (CONFIG_FILE, VERSIONS_FILE, METRICS_FILE):
+        (run_dir / name).unlink(missing_ok=True)
+    shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
 
 
 def _config_reads_only(run_dir: Path) -> None:
