@@ -390,3 +390,34 @@ def test_settings_that_would_do_nothing_or_write_into_the_current_folder_are_ref
 def test_an_empty_algo_is_refused_rather_than_read_as_the_default():
     with pytest.raises(CanterError, match=r"^--algo is empty; give one of ppo, .*, or drop --algo$"):
         build_config("Hopper-v5", algo="")
+
+
+def test_new_runs_benches_and_studies_are_refused_inside_a_runs_own_folders(tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(ARCHIVED_RUN, run)
+    before = sorted(run.rglob("*"))
+    inside = run / "checkpoints" / "more"
+    cases = [
+        (["train", "Pendulum-v1", "--out-dir", str(run / "checkpoints")], "--out-dir", run / "checkpoints"),
+        (["train", "Pendulum-v1", "--set", f"run.out_dir={inside}"], "--out-dir", inside),
+        (["bench", "--envs", "Pendulum-v1", "--seeds", "0", "--out", str(inside)], "--out", inside),
+        (["tune", "Pendulum-v1", "--trials", "1", "--out-dir", str(run / "tb")], "--out-dir", run / "tb"),
+    ]
+    for argv, flag, folder in cases:
+        assert main([*argv, "--total-steps", "2048"]) == 2, argv
+        err = capsys.readouterr().err
+        owner = "checkpoints" if "checkpoints" in str(folder) else "tb"
+        assert err == (
+            f"canter: error: {flag} {folder} is inside {owner}/ of the run folder {run}, which holds that run's own "
+            f"files; give another {flag}\n"
+        ), err
+    assert sorted(run.rglob("*")) == before
+
+
+def test_an_empty_bench_or_study_folder_is_refused(capsys):
+    for argv, flag, what in (
+        (["bench", "--envs", "Pendulum-v1", "--out", ""], "--out", "a folder for the bench, or drop --out"),
+        (["tune", "Pendulum-v1", "--out-dir", ""], "--out-dir", "a folder for the study folders, or drop --out-dir"),
+    ):
+        assert main(argv) == 2
+        assert capsys.readouterr().err == f"canter: error: {flag} is empty; give {what}\n"

@@ -125,6 +125,18 @@ def _is_run_folder(folder: Path) -> bool:
     )
 
 
+def refuse_inside_run_own_folder(folder: str | Path, flag: str) -> None:
+    """Refuse a folder for new run or bench folders that lies inside a run folder's own folder (checkpoints/, tb/):
+    the run's listings would then meet foreign folders among its checkpoints or events."""
+    resolved = Path(folder).resolve()
+    for inner in (resolved, *resolved.parents):
+        if inner.name in RUN_OWN_FOLDERS and _is_run_folder(inner.parent):
+            raise CanterError(
+                f"{flag} {folder} is inside {inner.name}/ of the run folder {inner.parent}, which holds that run's own "
+                f"files; give another {flag}"
+            )
+
+
 def refuse_protected_target(path: str | Path) -> None:
     """A user-named output that is not a plain file (a symlink, pipe or device, which the atomic rename would
     replace), or that is one of a run folder's own files, is refused in one line."""

@@ -50,6 +50,8 @@ class BenchSettings:
                 ("--heartbeat (heartbeat_seconds)", self.heartbeat_seconds, 1),
             ]
         )
+        if not self.out_dir:  # an empty path is the working folder, where the bench would scatter its files
+            raise CanterError("--out is empty; give a folder for the bench, or drop --out")
 
 
 @dataclass(frozen=True)

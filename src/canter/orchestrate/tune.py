@@ -38,7 +38,7 @@ from canter.config.overrides import parse_set_args
 from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
-from canter.files import make_folder
+from canter.files import make_folder, refuse_inside_run_own_folder
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs, worker_count
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
@@ -112,6 +112,8 @@ class TuneSettings:
                 raise CanterError(f"{name} must be > 0, got {limit:g}")
         if self.study_name is not None:
             check_study_name(self.study_name)
+        if not self.out_dir:  # an empty path is the working folder, where the study would scatter its files
+            raise CanterError("--out-dir is empty; give a folder for the study folders, or drop --out-dir")
 
     @property
     def name(self) -> str:
@@ -543,6 +545,7 @@ def tune(settings: TuneSettings) -> Any:
     from canter.orchestrate.jobs import check_jobs, exit_text, run_workers, warn_if_more_jobs_than_cores
 
     base, space = check_settings(settings)
+    refuse_inside_run_own_folder(settings.out_dir, "--out-dir")
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     check_jobs(settings.jobs)  # before the study folder is made
     if settings.storage_url is None:

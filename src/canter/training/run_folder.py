@@ -32,7 +32,7 @@ from typing import Any
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
-from canter.files import atomic_write_bytes
+from canter.files import atomic_write_bytes, refuse_inside_run_own_folder
 from canter.training import provenance
 
 RUN_FORMAT = 2
@@ -55,6 +55,8 @@ def _safe(text: str) -> str:
 
 
 def new_run_dir(config: Config) -> Path:
+    """A new run folder's path in run.out_dir, named by its env, algorithm, preset, seed and start time."""
+    refuse_inside_run_own_folder(config.run.out_dir, "--out-dir")
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     name = (
         f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
