@@ -265,6 +265,21 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     (empty / "config.toml").write_text("")
     one_line(["plot", str(empty), "--out", str(tmp_path / "a.png")], "config.toml is empty")
 
+    edited = folder("edited_config")
+    text = (edited / "config.toml").read_text()
+    (edited / "config.toml").write_text(text.replace("num_envs = ", 'num_envs = "sixteen" #', 1))
+    refused = (
+        f"env.num_envs: expected an integer, got 'sixteen' (in {edited / 'config.toml'}); correct it, or move "
+        f"config.toml away and let canter train --resume {edited} write it again from the newest checkpoint"
+    )
+    one_line(["plot", str(edited), "--out", str(tmp_path / "a.png")], refused)
+    one_line(["train", "--resume", str(edited), "--total-steps", "1e6"], refused)  # edited: not overwritten unasked
+    for path in run_folder.list_checkpoints(edited):
+        path.unlink()
+    one_line(
+        ["plot", str(edited), "--out", str(tmp_path / "a.png")], "; correct it, or restore config.toml from a copy"
+    )
+
     foreign = folder("foreign")
     shutil.copy(checkpoint.latest(fixtures / "rpo"), run_folder.checkpoint_path(foreign, 10**6))
     one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "if the checkpoint came from another run")

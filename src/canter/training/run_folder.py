@@ -213,10 +213,17 @@ def read_config(run_dir: Path) -> Config:
     except CanterError as exc:
         if str(exc).startswith("malformed TOML"):
             raise CanterError(f"{exc}; {damaged_config_fix(run_dir)}") from None
+        # A file that reads but holds what canter refuses was edited: a resume does not overwrite it unasked.
+        fix = (
+            f"correct it, or move config.toml away and let canter train --resume {run_dir} write it again from the "
+            "newest checkpoint"
+            if list_checkpoints(run_dir)
+            else "correct it, or restore config.toml from a copy"
+        )
         if str(path) in str(exc):
-            raise
+            raise CanterError(f"{exc}; {fix}") from None
         # A value the validation refuses names no file, and among several run folders the damaged one must show.
-        raise CanterError(f"{exc} (in {path})") from None
+        raise CanterError(f"{exc} (in {path}); {fix}") from None
 
 
 def _keys_apart(run_dir: Path, checkpoint_config: Config) -> list[str]:
