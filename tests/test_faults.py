@@ -280,6 +280,13 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
         ["plot", str(edited), "--out", str(tmp_path / "a.png")], "; correct it, or restore config.toml from a copy"
     )
 
+    folder_named = folder("checkpoint_is_a_folder")
+    newest = checkpoint.latest(folder_named)
+    newest.unlink()
+    newest.mkdir()
+    for argv in (["video", str(folder_named), "--out", str(tmp_path / "v.gif")], ["eval", str(folder_named)]):
+        one_line(argv, f"checkpoint {newest} is a folder")
+
     foreign = folder("foreign")
     shutil.copy(checkpoint.latest(fixtures / "rpo"), run_folder.checkpoint_path(foreign, 10**6))
     one_line(["export", str(foreign), "--out", str(tmp_path / "b.onnx")], "if the checkpoint came from another run")

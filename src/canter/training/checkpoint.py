@@ -123,8 +123,23 @@ def save(
     atomic_write_bytes(Path(path), lambda f: writer(f, **payload))  # type: ignore[arg-type]
 
 
+def _refuse_not_a_file(path: Path) -> None:
+    """A folder or a missing path named as a checkpoint, told apart from a damaged file."""
+    if path.is_dir():
+        raise CanterError(
+            f"checkpoint {path} is a folder; --checkpoint takes {LAST}, {BEST} or a .npz file (such as a run "
+            f"folder's checkpoints/ckpt_*.npz)"
+        )
+    if not path.is_file():
+        named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
+        raise CanterError(
+            f"checkpoint not found: {path}" + (f"; --checkpoint takes {LAST}, {BEST} or a .npz file" if named else "")
+        )
+
+
 def read_header(path: Path) -> dict[str, Any]:
     """The header alone, unverified (the arrays are not read); a one-line CanterError for an unreadable file."""
+    _refuse_not_a_file(Path(path))
     try:
         with np.load(path, allow_pickle=False) as data:
             return json.loads(bytes(data["header"]).decode())
@@ -137,16 +152,7 @@ def read_header(path: Path) -> dict[str, Any]:
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint."""
     path = Path(path)
-    if path.is_dir():
-        raise CanterError(
-            f"checkpoint {path} is a folder; --checkpoint takes {LAST}, {BEST} or a .npz file (such as a run "
-            f"folder's checkpoints/ckpt_*.npz)"
-        )
-    if not path.is_file():
-        named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
-        raise CanterError(
-            f"checkpoint not found: {path}" + (f"; --checkpoint takes {LAST}, {BEST} or a .npz file" if named else "")
-        )
+    _refuse_not_a_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(bytes(data["header"]).decode())
