@@ -3,6 +3,7 @@
 import json
 import math
 import shutil
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import replace
 from pathlib import Path
@@ -39,14 +40,25 @@ from canter.use.plot import (
 from canter.use.scoreboard import EVAL_SOURCE, TRAINING_SOURCE, RunScore, build_scoreboard
 
 
-def test_moving_average_matches_a_loop_with_nans():
-    y = np.array([1.0, np.nan, 3.0, 4.0, np.nan, np.nan, np.nan, 8.0, 9.0, 10.0])
+@pytest.mark.parametrize(
+    "y",
+    [
+        [1.0, np.nan, 3.0, 4.0, np.nan, np.nan, np.nan, 8.0, 9.0, 10.0],
+        # Infinite rows (a diverged or damaged run) spoil only the windows that hold them.
+        [1.0, np.inf, 3.0, 4.0, np.nan, -np.inf, 7.0, 8.0, np.inf, -np.inf, 11.0, 12.0, 13.0],
+    ],
+)
+def test_moving_average_matches_a_loop_with_nans(y):
+    y = np.array(y)
     for window in (1, 2, 3, 5, 20):
         expected = []
         for i in range(len(y)):
-            chunk = [v for v in y[max(0, i - window + 1) : i + 1] if not math.isnan(v)]
+            chunk = [float(v) for v in y[max(0, i - window + 1) : i + 1] if not math.isnan(v)]
             expected.append(sum(chunk) / len(chunk) if chunk else math.nan)
-        np.testing.assert_allclose(moving_average(y, window), expected, rtol=1e-12, equal_nan=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no numpy warning either
+            smoothed = moving_average(y, window)
+        np.testing.assert_allclose(smoothed, expected, rtol=1e-12, equal_nan=True)
     np.testing.assert_array_equal(moving_average(y, 1), y)
     with pytest.raises(CanterError, match="--smooth"):
         moving_average(y, 0)

@@ -2,6 +2,7 @@
 
 import json
 import shutil
+import warnings
 
 import gymnasium as gym
 import mujoco
@@ -202,3 +203,22 @@ def test_cli_vary_bad_inputs(tiny_hopper_run, tmp_path, capsys):
         _out, err = capsys.readouterr()
         assert code != 0 and message in err and err.count("\n") == 1, (argv, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing partial left behind
+
+
+def test_an_overflowing_observation_of_diverged_physics_prints_no_numpy_warning(archived_run, tmp_path, capfd):
+    """InvertedPendulum's observation is its raw state, which a diverged model pushes past float32's range."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        argv = [
+            "eval",
+            str(archived_run),
+            "--episodes",
+            "1",
+            "--vary",
+            "gravity=1e30",
+            "--out",
+            str(tmp_path / "g.png"),
+        ]
+        assert main(argv) == 0
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in caught]
+    assert "unstable: MuJoCo warned of diverged physics" in capfd.readouterr().out

@@ -303,12 +303,21 @@ def moving_average(y: np.ndarray, window: int) -> np.ndarray:
     y = np.asarray(y, float)
     window = min(window, max(len(y), 1))  # a longer window is the whole series, and must not size an array
     valid = ~np.isnan(y)
-    sums = np.cumsum(np.where(valid, y, 0.0))
-    counts = np.cumsum(valid)
-    window_sums = sums - np.concatenate([np.zeros(window), sums[:-window]])[: len(y)]
-    window_counts = counts - np.concatenate([np.zeros(window), counts[:-window]])[: len(y)]
+
+    def in_window(values: np.ndarray) -> np.ndarray:
+        sums = np.cumsum(values)
+        return sums - np.concatenate([np.zeros(window), sums[:-window]])[: len(y)]
+
+    # Infinite rows (a diverged or damaged run) are counted apart: summed in, they would make every later window
+    # inf - inf, and a window holding one is what a plain mean of it gives (inf, -inf, or NaN for both).
+    finite = np.isfinite(y)
+    window_sums = in_window(np.where(finite, y, 0.0))
+    window_counts = in_window(valid.astype(float))
+    above, below = in_window((y == np.inf).astype(float)), in_window((y == -np.inf).astype(float))
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(window_counts > 0, window_sums / np.maximum(window_counts, 1), np.nan)
+        mean = np.where(window_counts > 0, window_sums / np.maximum(window_counts, 1), np.nan)
+    mean = np.where(above > 0, np.inf, np.where(below > 0, -np.inf, mean))
+    return np.where((above > 0) & (below > 0), np.nan, mean)
 
 
 def logging_interval(x: np.ndarray) -> float:
