@@ -2,6 +2,7 @@
 dir, neither the half-written video nor the folder it renders into."""
 
 import os
+import shutil
 import sys
 
 import pytest
@@ -38,3 +39,18 @@ def test_a_stopped_canter_report_video_leaves_no_temp_folder(tiny_run, tmp_path,
     ended = _signal_once_rendering([*argv, "--out", str(out)], temp, moment, sig, env)
     _check_stopped(ended, code, said)  # SIGTERM: the process ended by the signal, 143 in a shell
     assert list(temp.glob("canter-report-*")) == [] and not out.exists()
+
+
+def test_a_report_that_plays_nothing_still_tells_a_missing_folder_and_a_benchs(tmp_path, capsys):
+    from canter.cli.main import main
+    from conftest import ARCHIVED_RUN
+
+    bench = tmp_path / "bench"
+    shutil.copytree(ARCHIVED_RUN, bench / "a")
+    out = str(tmp_path / "r.html")
+    for folder, expected in (
+        (tmp_path / "missing", f"run folder not found: {tmp_path / 'missing'}"),
+        (bench, f"{bench} is not a run folder but holds 1 (a bench's?): pass them, such as {bench / 'a'}"),
+    ):
+        assert main(["report", str(folder), "--episodes", "0", "--out", out]) == 2
+        assert capsys.readouterr().err == f"canter: error: {expected}\n"

@@ -67,6 +67,8 @@ def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFa
     run_dir = Path(run_dir)
     if which is not None:
         checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
+    else:
+        checkpoint.need_run_folder(run_dir)  # a missing folder, or a bench's, told as such
     config = read_config(run_dir)
     try:
         summary = json.loads((run_dir / SUMMARY_FILE).read_text())
