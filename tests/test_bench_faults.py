@@ -363,3 +363,28 @@ def test_a_rerun_counts_the_jobs_already_done_and_names_the_step_each_resumes_fr
         f"resume {partial.name} (seeds 0,1): seed 0 from step 512, seed 1 anew",
     ]
     assert started == [tmp_path / ".cells" / partial.name]
+
+
+def test_a_damaged_checkpoint_of_a_bench_seed_gets_the_bench_s_own_fix(archived_run):
+    from canter.orchestrate.jobs import bench_advice_for_damaged_checkpoints
+    from canter.training import checkpoint, run_folder
+
+    newest = run_folder.list_checkpoints(archived_run)[-1]
+    newest.write_bytes(newest.read_bytes()[:1000])
+    with pytest.raises(CanterError) as refused, bench_advice_for_damaged_checkpoints():
+        checkpoint.read(newest)
+    assert str(refused.value) == (
+        f"checkpoint {newest} is corrupt or truncated; move it out of {newest.parent}, and the re-run resumes the "
+        "seed from the checkpoint before it"
+    )
+    for path in run_folder.list_checkpoints(archived_run)[:-1]:
+        path.unlink()
+    with pytest.raises(CanterError) as refused, bench_advice_for_damaged_checkpoints():
+        checkpoint.read(newest)
+    assert str(refused.value) == (
+        f"checkpoint {newest} is corrupt or truncated; it is the seed's only one: move the folder {archived_run} "
+        "away, and the re-run trains that seed anew"
+    )
+    # Train's own advice, outside a bench: start the run again with its config.
+    with pytest.raises(checkpoint.DamagedCheckpoint, match="start the run again with canter train --config"):
+        checkpoint.read(newest)

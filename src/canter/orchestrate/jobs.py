@@ -386,6 +386,26 @@ def stop_jobs(procs: Iterable[subprocess.Popen], grace_seconds: float = STOP_GRA
             proc.wait()
 
 
+@contextlib.contextmanager
+def bench_advice_for_damaged_checkpoints() -> Iterator[None]:
+    """A damaged periodic checkpoint of a seed the job resumes, with what fixes it for a re-run of the bench: moved
+    away, the seed resumes from the checkpoint before it; a seed with no other is trained anew once its folder is
+    moved away (its summary.json would otherwise mark it finished)."""
+    from canter.training import checkpoint, run_folder
+
+    try:
+        yield
+    except checkpoint.DamagedCheckpoint as exc:
+        run_dir = exc.path.parent.parent
+        if exc.path.parent != run_folder.checkpoint_dir(run_dir) or not run_folder.CHECKPOINT_NAME.match(exc.path.name):
+            raise  # best.npz, whose own advice fits
+        if len(run_folder.list_checkpoints(run_dir)) > 1:
+            fix = f"move it out of {exc.path.parent}, and the re-run resumes the seed from the checkpoint before it"
+        else:
+            fix = f"it is the seed's only one: move the folder {run_dir} away, and the re-run trains that seed anew"
+        raise CanterError(f"checkpoint {exc.path} {exc.what}; {fix}") from None
+
+
 def run_job(spec: JobSpec, quiet: bool = True) -> None:
     """Skip finished seeds, resume stopped ones (and their tracker runs), train the rest (as one seed group), each seed
     with its own tracker runs, then evaluate the final policies."""
@@ -425,7 +445,10 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
             if partial:  # each resumes from its own newest checkpoint, together in one program
                 # ... and continues the tracker runs its trackers.json records, whether or not this re-run tracks
                 recorded = resume_spec(spec.track.names, spec.track.mlflow_uri, partial)
-                with tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)):
+                with (
+                    tracking(replace(spec.track, names=recorded.names, mlflow_uri=recorded.mlflow_uri)),
+                    bench_advice_for_damaged_checkpoints(),
+                ):
                     resume_seeds(
                         partial,
                         total,

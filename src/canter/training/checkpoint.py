@@ -43,6 +43,16 @@ ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 
 
+class DamagedCheckpoint(CanterError):
+    """A checkpoint file that cannot be read as one: `what` is wrong with it, and the message says what to do about
+    it where it lies. A caller that knows better advice (a bench, which trains a moved seed anew) reads `path`."""
+
+    def __init__(self, path: Path, what: str) -> None:
+        super().__init__(f"checkpoint {path} {what}; {_damaged_fix(path)}")
+        self.path = path
+        self.what = what
+
+
 def _damaged_fix(path: Path) -> str:
     """What to do about a damaged checkpoint, by where it is: of a run folder's periodic ones, `last` is the newest
     file, so without it the one before is used, if there is one."""
@@ -146,7 +156,7 @@ def read_header(path: Path) -> dict[str, Any]:
     except PermissionError:
         raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_damaged_fix(Path(path))}") from None
+        raise DamagedCheckpoint(Path(path), "is corrupt or truncated") from None
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -160,7 +170,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     except PermissionError:
         raise
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
-        raise CanterError(f"checkpoint {path} is corrupt or truncated; {_damaged_fix(path)}") from None
+        raise DamagedCheckpoint(path, "is corrupt or truncated") from None
     version = header.get("format_version")
     if version not in (FORMAT_VERSION, LEFT_OUT_FORMAT_VERSION):
         raise CanterError(
@@ -169,7 +179,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         )
     expected = header.pop("sha256", None)
     if expected != _digest(arrays, header):
-        raise CanterError(f"checkpoint {path} fails its content hash (corrupt); {_damaged_fix(path)}")
+        raise DamagedCheckpoint(path, "fails its content hash (corrupt)")
     header["sha256"] = expected
     return arrays, header
 
