@@ -421,3 +421,16 @@ def test_an_empty_bench_or_study_folder_is_refused(capsys):
     ):
         assert main(argv) == 2
         assert capsys.readouterr().err == f"canter: error: {flag} is empty; give {what}\n"
+
+
+def test_a_projects_own_checkpoints_folder_beside_its_config_is_no_run_folder(tmp_path, monkeypatch):
+    """A user's folder with a config.toml and an output folder named checkpoints/ holds no run: runs may go there."""
+    from canter.files import refuse_inside_run_own_folder, refuse_protected_target
+
+    (tmp_path / "config.toml").write_text("[run]\n")
+    (tmp_path / "checkpoints" / "Pendulum-v1__ppo__fast__s0__x").mkdir(parents=True)
+    refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")
+    refuse_protected_target(tmp_path / "checkpoints" / "actor.onnx")
+    (tmp_path / "versions.json").write_text("{}")  # now it is a run's
+    with pytest.raises(CanterError, match="is inside checkpoints/ of the run folder"):
+        refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")

@@ -388,3 +388,16 @@ def test_a_damaged_checkpoint_of_a_bench_seed_gets_the_bench_s_own_fix(archived_
     # Train's own advice, outside a bench: start the run again with its config.
     with pytest.raises(checkpoint.DamagedCheckpoint, match="start the run again with canter train --config"):
         checkpoint.read(newest)
+
+
+def test_a_bench_job_that_resumes_a_damaged_seed_gives_the_bench_s_fix(archived_run):
+    from canter.config.serialize import to_toml
+    from canter.orchestrate.jobs import JobSpec, run_job
+    from canter.training import run_folder
+
+    newest = run_folder.list_checkpoints(archived_run)[-1]
+    newest.write_bytes(newest.read_bytes()[:1000])
+    config = run_folder.read_config(archived_run)
+    spec = JobSpec(to_toml(config.with_values("run", total_steps=10**6)), {config.run.seed: str(archived_run)})
+    with pytest.raises(CanterError, match=r"move it out of .*, and the re-run resumes the seed from the checkpoint"):
+        run_job(spec)

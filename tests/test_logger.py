@@ -61,12 +61,12 @@ def test_a_resume_notes_the_rows_it_drops_because_their_step_is_damaged(tmp_path
         logger.log(dict.fromkeys(BASE_COLUMNS, 1.0) | {"global_step": 10 * iteration, "iteration": iteration})
     logger.close()
     path = tmp_path / "metrics.csv"
-    path.write_text(path.read_text().replace("\n10,", "\nabc,", 1))
+    path.write_text(path.read_text().replace("\n10,", "\nabc,", 1).replace("\n20,", "\n-inf,", 1))
     MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=30).close()
-    assert [r["global_step"] for r in read_rows(path)] == ["20", "30"]
+    assert [r["global_step"] for r in read_rows(path)] == ["30"]
     assert capsys.readouterr().err == (
-        f"canter: note: dropped the rows of {path} whose global_step is not a step (line 2: 'abc'); the run's state "
-        "is in its checkpoint, and only those rows' metrics are lost\n"
+        f"canter: note: dropped the rows of {path} whose global_step is not a step (line 2: 'abc' and 1 more); the "
+        "run's state is in its checkpoint, and only those rows' metrics are lost\n"
     )
     MetricsLogger(tmp_path, ("policy_loss",), (), tensorboard=False, resume_step=30).close()  # nothing to drop now
     assert capsys.readouterr().err == ""

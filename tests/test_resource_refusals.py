@@ -228,3 +228,11 @@ def test_runs_of_different_experiments_resumed_together_are_told_so_not_that_the
     assert "they are runs of different experiments, which resume one at a time" in err
     assert main(["train", "--resume", str(ppo), f"{ppo}/.", "--total-steps", "1e6", "--quiet"]) == 2
     assert f"repeated seeds: {ppo} is given twice; give each run folder once" in _one_line_error(capsys)
+
+
+def test_a_programs_memory_is_named_by_the_rollout_on_policy_and_by_the_batch_off_policy():
+    from canter.config.algorithms import algorithm_spec
+
+    assert algorithm_spec("ppo").memory_keys() == ("env.num_envs", "ppo.n_steps")
+    for name in ("td3", "ddpg", "sac"):
+        assert algorithm_spec(name).memory_keys() == ("env.num_envs", f"{name}.batch_size")

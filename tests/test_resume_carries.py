@@ -22,10 +22,12 @@ PENDULUM = TINY + ["env.num_envs=4", "ppo.n_steps=128", "ppo.minibatch_size=256"
 
 
 @pytest.mark.slow
-def test_a_run_that_reached_its_return_target_resumes_only_with_a_higher_one(tmp_path):
+def test_a_run_that_reached_its_return_target_stops_after_one_resumed_iteration_unless_given_a_higher_one(
+    tmp_path, capsys
+):
     """Every return passes the target, so the run stops once it has its 20 episodes. Its last 20 returns are carried
-    in the checkpoint: a resume with the same target would stop again after one iteration, so it is refused, and a
-    resume without a target trains on to the budget."""
+    in the checkpoint: a resume with the same target stops after one iteration, as the uncut run would have, and
+    says so first; a resume without a target trains on to the budget."""
     sets = PENDULUM + [f"run.out_dir={tmp_path}", "run.stop_at_return=-1e9"]
     first = train(build_config("Pendulum-v1", sets=sets, total_steps=8192))
     assert first.stop_reason == "stop_at_return" and first.global_step < 8192
@@ -33,13 +35,14 @@ def test_a_run_that_reached_its_return_target_resumes_only_with_a_higher_one(tmp
     recent = header["totals"]["recent_returns"]
     assert len(recent) == RECENT_EPISODES and first.recent_return == pytest.approx(np.mean(recent))
 
-    with pytest.raises(CanterError) as refused:
-        train(resume_config(first.run_dir, None), resume=first.run_dir)
-    assert str(refused.value) == (
-        f"{first.run_dir} has reached its return target run.stop_at_return=-1e+09 (the mean of its last training "
-        f"episodes is {np.mean(recent):.1f}), so it would stop again after one iteration; to train it on, pass "
-        "--stop-at-return with a higher target, or inf for none"
-    )
+    capsys.readouterr()
+    again = train(resume_config(first.run_dir, None), resume=first.run_dir)
+    assert again.stop_reason == "stop_at_return" and again.global_step <= first.global_step + 512
+    assert (
+        f"canter: note: {first.run_dir} has reached its return target run.stop_at_return=-1e+09 already (the mean "
+        f"of its last training episodes is {np.mean(recent):.1f}), so it stops after one iteration; to train it on, "
+        "pass --stop-at-return with a higher target, or inf for none\n"
+    ) in capsys.readouterr().err
     resumed = train(resume_config(first.run_dir, None, stop_at_return=None), resume=first.run_dir)
     assert resumed.stop_reason == "budget" and resumed.global_step >= 8192
 

@@ -301,7 +301,7 @@ class _RecordsItsEnd(_InMemoryTracker):
 def test_a_run_that_fails_before_its_first_iteration_closes_its_tracker_runs(tmp_path, monkeypatch):
     import canter.training.device_memory as device_memory
 
-    def too_big(compiled, envs):
+    def too_big(compiled, envs, sizes):
         raise CanterError(f"env.num_envs={envs} does not fit in the device's memory; lower env.num_envs")
 
     monkeypatch.setattr(device_memory, "check_fits", too_big)
@@ -492,3 +492,18 @@ def test_a_resume_from_a_checkpoint_at_step_0_continues_its_tracker_runs(tmp_pat
         with pytest.raises(CanterError, match="non-finite"):
             train(resume_config(run, 1024), resume=run)
     assert recorded.continued == [None, "in-memory-1"]
+
+
+def test_a_tracked_run_refused_after_its_compile_leaves_no_folder(tmp_path, monkeypatch, capsys):
+    """The tracker run has started by the compile, and trackers.json records it: a refusal there removes that too,
+    so the lock's folder goes, and the tracker run ends as failed."""
+    from canter.training import device_memory
+
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
+    monkeypatch.setattr(device_memory, "required_bytes", lambda compiled: 2**50)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    argv = ["train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs"), "--track", "mlflow"]
+    assert main([*argv, "--mlflow-uri", uri, *TINY_PPO]) == 2
+    assert "of memory beyond its train state and envs" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()

@@ -120,9 +120,14 @@ RUN_OWN_FOLDERS = frozenset({"checkpoints", "tb"})
 
 
 def _is_run_folder(folder: Path) -> bool:
-    return (folder / "config.toml").is_file() and any(
-        (folder / name).exists() for name in ("checkpoints", "metrics.csv", "metrics.csv.gz")
-    )
+    """A run's config.toml with its metrics, its versions or a checkpoint: a folder named checkpoints/ beside a
+    config.toml may be a user's own folder of outputs, so its name alone proves nothing."""
+    if not (folder / "config.toml").is_file():
+        return False
+    if any((folder / name).is_file() for name in ("metrics.csv", "metrics.csv.gz", "versions.json")):
+        return True
+    checkpoints = folder / "checkpoints"
+    return checkpoints.is_dir() and any(checkpoints.glob("ckpt_*.npz"))
 
 
 def refuse_inside_run_own_folder(folder: str | Path, flag: str) -> None:

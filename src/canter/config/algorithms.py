@@ -50,6 +50,12 @@ class AlgorithmSpec:
     ignores: Mapping[str, str] = field(default_factory=dict)
     # The key of the env steps it acts at random before its first update ("td3.learning_starts"), if it has them.
     warm_up_key: str | None = None
+    # The keys that size one call's memory beyond the train state, which the refusal of a program too large for the
+    # memory names; empty: `iteration_keys` (an on-policy rollout is its memory, an off-policy call's is its batch).
+    call_memory_keys: tuple[str, ...] = ()
+
+    def memory_keys(self) -> tuple[str, ...]:
+        return self.call_memory_keys or self.iteration_keys
 
 
 _REGISTERED: dict[str, AlgorithmSpec] = {}

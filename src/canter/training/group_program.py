@@ -52,9 +52,9 @@ class GroupProgram:
         self.group = len(states)
         self.total = config.run.total_steps
         self.envs = config.env.num_envs
-        # The keys that size one call, as a refusal of a program too large for the memory names them.
+        # The keys that size one call's memory, as a refusal of a program too large for it names them.
         self.call_sizes = ", ".join(
-            f"{key}={key_value(config, key):,}" for key in algorithm_spec(config.run.algo).iteration_keys
+            f"{key}={key_value(config, key):,}" for key in algorithm_spec(config.run.algo).memory_keys()
         )
         donate = (0,) if algorithm.donate_state else ()
         self.pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed

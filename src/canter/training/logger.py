@@ -288,10 +288,12 @@ class MetricsLogger:
 
     def _drop_rows_after(self, step: int) -> None:
         header, rows = read_rows(self.path)
-        kept = [row for row, totals in run_history(rows) if totals["global_step"] <= step]
+        damaged = unreadable_steps(rows)
+        placed = [row for row in rows if math.isfinite(_number(row.get("global_step")))]
+        kept = [row for row, totals in run_history(placed) if totals["global_step"] <= step]
         if not header or kept == rows:
             return
-        if damaged := unreadable_steps(rows):
+        if damaged:
             line, cell = damaged[0]
             more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
             print(

@@ -274,11 +274,13 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
             f"steps; pass --total-steps larger than {start.step} to extend it"
         )
     if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
+        # Not refused: a bench re-run given a target resumes such a seed so that it ends there, as an uncut run would.
         mean = float(np.mean(start.earlier.recent_returns))
-        raise CanterError(
-            f"{start.out} has reached its return target run.stop_at_return={config.run.stop_at_return:g} (the mean of "
-            f"its last training episodes is {mean:.1f}), so it would stop again after one iteration; to train it on, "
-            "pass --stop-at-return with a higher target, or inf for none"
+        print(
+            f"canter: note: {start.out} has reached its return target run.stop_at_return="
+            f"{config.run.stop_at_return:g} already (the mean of its last training episodes is {mean:.1f}), so it "
+            "stops after one iteration; to train it on, pass --stop-at-return with a higher target, or inf for none",
+            file=sys.stderr,
         )
     if resume is None:
         locks.take(start.out)  # before anything is written to it
@@ -407,6 +409,7 @@ def _open_seeds(
     """Each seed's host side, then the group's program compiled (not when a signal has already stopped the run). A
     seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)."""
     runs: list[SeedRun] = []
+    compiling = False
     try:
         group_seeds = tuple(c.run.seed for c in configs)
         for config, start in zip(configs, starts):
@@ -414,7 +417,9 @@ def _open_seeds(
         if stop.signal is not None:  # stopped during setup: nothing will run
             compile_seconds = 0.0
         else:
+            compiling = True
             compile_seconds = program.compile(runs)
+            compiling = False
             # After every check that can refuse the run, so that a refusal stays one line.
             if (note := budget_rounding_note(configs[0])) is not None:
                 print(f"canter: note: {note}", file=sys.stderr)
@@ -423,7 +428,7 @@ def _open_seeds(
     except BaseException as exc:
         for run in runs:
             run.close()
-        if isinstance(exc, CanterError) and not isinstance(exc, WriteError):  # refused: the program does not fit
+        if compiling and isinstance(exc, CanterError):  # refused: the program does not fit the memory
             for start in starts:
                 if not start.resumed:
                     run_folder.discard_unstarted(start.out)

@@ -41,6 +41,7 @@ SUMMARY_FILE = "summary.json"
 VERSIONS_FILE = "versions.json"
 METRICS_FILE = "metrics.csv"
 TENSORBOARD_FOLDER = "tb"
+TRACKERS_FILE = "trackers.json"  # the tracker runs a run logs to (canter.training.trackers.session)
 
 
 def metrics_file(run_dir: Path) -> Path:
@@ -220,10 +221,11 @@ def read_config(run_dir: Path) -> Config:
             if list_checkpoints(run_dir)
             else "correct it, or restore config.toml from a copy"
         )
-        if str(path) in str(exc):
-            raise CanterError(f"{exc}; {fix}") from None
         # A value the validation refuses names no file, and among several run folders the damaged one must show.
-        raise CanterError(f"{exc} (in {path}); {fix}") from None
+        refusal = str(exc) if str(path) in str(exc) else f"{exc} (in {path})"
+        # A refusal may end in its own question ("did you mean ...?"), which the fix follows as a new sentence.
+        joined = f"{refusal} {fix[0].upper()}{fix[1:]}" if refusal.endswith("?") else f"{refusal}; {fix}"
+        raise CanterError(joined) from None
 
 
 def _keys_apart(run_dir: Path, checkpoint_config: Config) -> list[str]:
@@ -285,15 +287,20 @@ def create(run_dir: Path, config: Config) -> None:
 
 
 def discard_unstarted(run_dir: Path) -> None:
-    """Remove what a new run wrote before its first iteration (config.toml, versions.json, a metrics.csv without rows,
-    TensorBoard's folder) when a refusal stops it there: no folder is left that nothing can resume or plot. A run with
-    a checkpoint or a logged row is left whole; what else is in the folder stays."""
+    """Remove what a new run wrote before its first iteration (config.toml, versions.json, trackers.json, a
+    metrics.csv without rows, TensorBoard's folder) when a refusal stops it there: no folder is left that nothing can
+    resume or plot. A folder with a checkpoint, a logged row or an archived metrics file is left whole, as is one
+    whose metrics cannot be read; what else is in it stays."""
     from canter.training.logger import read_rows
 
     run_dir = Path(run_dir)
-    if list_checkpoints(run_dir) or read_rows(run_dir / METRICS_FILE)[1]:
+    try:
+        logged = read_rows(run_dir / METRICS_FILE)[1]
+    except CanterError:  # damaged: not this session's, which wrote a header at most
         return
-    for name in (CONFIG_FILE, VERSIONS_FILE, METRICS_FILE):
+    if list_checkpoints(run_dir) or logged or (run_dir / f"{METRICS_FILE}.gz").exists():
+        return
+    for name in (CONFIG_FILE, VERSIONS_FILE, TRACKERS_FILE, METRICS_FILE):
         (run_dir / name).unlink(missing_ok=True)
     shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
 

@@ -174,6 +174,7 @@ def _spec(
         seeds_train_apart=True,
         ignores=ignores or {},
         warm_up_key=f"{name}.learning_starts",
+        call_memory_keys=("env.num_envs", f"{name}.batch_size"),
     )
 
 
