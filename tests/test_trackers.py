@@ -496,7 +496,7 @@ def test_a_resume_from_a_checkpoint_at_step_0_continues_its_tracker_runs(tmp_pat
 
 def test_a_tracked_run_refused_after_its_compile_leaves_no_folder(tmp_path, monkeypatch, capsys):
     """The tracker run has started by the compile, and trackers.json records it: a refusal there removes that too,
-    so the lock's folder goes, and the tracker run ends as failed."""
+    so that the folder the lock made goes with it."""
     from canter.training import device_memory
 
     monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
