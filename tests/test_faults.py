@@ -519,6 +519,7 @@ def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_
     assert exited.value.code == 2 and ended == [130]
 
 
+@pytest.mark.slow
 def test_a_slow_call_is_noted_once_and_a_stop_then_says_how_long_it_waits(tmp_path, monkeypatch, capfd):
     """A call of the jitted program can take minutes (a td3 batch of 100,000), and a signal only waits for it: the
     first slow call says so and names the keys that shorten it, and a later stop says how long each call takes."""

@@ -156,6 +156,7 @@ def test_a_program_too_large_for_the_host_is_refused_after_the_compile(memory):
         device_memory.check_fits(compiled, 1)
 
 
+@pytest.mark.slow
 def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_no_run_folder(
     monkeypatch, tmp_path, capsys
 ):

@@ -494,6 +494,7 @@ def test_a_resume_from_a_checkpoint_at_step_0_continues_its_tracker_runs(tmp_pat
     assert recorded.continued == [None, "in-memory-1"]
 
 
+@pytest.mark.slow
 def test_a_tracked_run_refused_after_its_compile_leaves_no_folder(tmp_path, monkeypatch, capsys):
     """The tracker run has started by the compile, and trackers.json records it: a refusal there removes that too,
     so that the folder the lock made goes with it."""
