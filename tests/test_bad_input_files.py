@@ -371,6 +371,39 @@ def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
         policy(good + 1j)
     with pytest.raises(CanterError, match=rf"observations of shape \(batch, {policy.obs_dim}\), got \(2, 1\)"):
         policy(np.zeros((2, 1)))
+    with pytest.raises(CanterError, match="policy expects numeric observations of shape"):
+        policy([[1.0, 2.0, 3.0], [1.0, 2.0]])  # ragged
+
+
+@pytest.mark.parametrize("seed", [1.5, "7", True, -1, 2**70])
+def test_the_python_api_refuses_a_seed_that_is_not_one(archived_run, seed):
+    import canter
+
+    policy = canter.load(archived_run)
+    obs = np.zeros((1, policy.obs_dim))
+    with pytest.raises(CanterError, match=r"seed must be a whole number from 0 to 4294967295, got "):
+        policy(obs, deterministic=False, seed=seed)
+    with pytest.raises(CanterError, match=r"seed must be a whole number from 0 to 4294967295, got "):
+        canter.evaluate(policy, episodes=1, seed=seed)
+
+
+def test_the_python_api_refuses_arguments_of_the_wrong_kind_in_one_line(archived_run, tmp_path):
+    import canter
+
+    policy = canter.load(archived_run)
+    for episodes in (2.5, True, "3", 0):
+        with pytest.raises(CanterError, match=r"episodes must be a whole number >= 1, got "):
+            canter.evaluate(policy, episodes=episodes)
+    with pytest.raises(CanterError, match="physics must be a mapping of settings to values, got list"):
+        canter.evaluate(policy, episodes=1, physics=[("solver_iterations", 4)])
+    for which in (None, 5):
+        with pytest.raises(CanterError, match=r"checkpoint must be 'last', 'best' or a checkpoint file's path, got "):
+            canter.load(archived_run, checkpoint=which)
+    newest = sorted((archived_run / "checkpoints").glob("ckpt_*.npz"))[-1]
+    with pytest.raises(CanterError, match=rf"checkpoint not found: {newest.name}; the run's own is {newest}: pass"):
+        canter.load(archived_run, checkpoint=newest.name)
+    with pytest.raises(CanterError, match=r"metrics.csv is a file, not a run folder; pass the folder that holds it$"):
+        canter.load(archived_run / "metrics.csv")
 
 
 @pytest.mark.parametrize(
@@ -434,3 +467,17 @@ def test_a_projects_own_checkpoints_folder_beside_its_config_is_no_run_folder(tm
     (tmp_path / "versions.json").write_text("{}")  # now it is a run's
     with pytest.raises(CanterError, match="is inside checkpoints/ of the run folder"):
         refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")
+
+
+def test_a_new_run_given_a_folder_that_holds_a_run_is_refused(archived_run):
+    import canter
+
+    before = sorted(archived_run.rglob("*"))
+    config = canter.build_config("Pendulum-v1", total_steps=2048)
+    with pytest.raises(CanterError) as refused:
+        canter.train(config, run_dir=archived_run)
+    assert str(refused.value) == (
+        f"{archived_run} already holds a run (config.toml, metrics.csv, checkpoints); resume it (canter train "
+        "--resume, or train(config, resume=...)), or give a new run folder"
+    )
+    assert sorted(archived_run.rglob("*")) == before

@@ -6,6 +6,7 @@ import json
 import math
 import os
 import struct
+import time
 from pathlib import Path
 
 import pytest
@@ -192,6 +193,12 @@ def test_a_tracker_that_cannot_start_is_one_line_before_training(tmp_path, monke
     assert main(argv + ["--track", "mlflow", "--mlflow-uri", "nope://nowhere"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("canter: error: --mlflow-uri nope://nowhere cannot be opened") and "\n" not in err
+    # A database it cannot open: MLflow would retry it for about 100 s, a warning each time.
+    started = time.monotonic()
+    assert main(argv + ["--track", "mlflow", "--mlflow-uri", "sqlite:////proc/no.db"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("canter: error: --mlflow-uri sqlite:////proc/no.db cannot be opened") and "\n" not in err
+    assert time.monotonic() - started < 20
     # Online with no key anywhere (no WANDB_API_KEY, an empty netrc): refused before an env or folder is made.
     for name in ("WANDB_MODE", "WANDB_API_KEY", "WANDB_IDENTITY_TOKEN_FILE", "WANDB_BASE_URL"):
         monkeypatch.delenv(name, raising=False)

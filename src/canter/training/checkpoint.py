@@ -223,9 +223,11 @@ def need_run_folder(run_dir: Path) -> None:
     names its checkpoint, not its run; a folder with checkpoints but no config.toml is still one, as each checkpoint
     holds the config."""
     if run_dir.is_file():
+        if run_dir.suffix != ".npz":
+            raise CanterError(f"{run_dir} is a file, not a run folder; pass the folder that holds it")
         raise CanterError(
-            f"{run_dir} is a file, not a run folder; pass the run folder, and --checkpoint {run_dir} to pick this "
-            f"checkpoint"
+            f"{run_dir} is a file, not a run folder; pass the run folder, and --checkpoint {run_dir} (checkpoint= "
+            f"from Python) to pick this checkpoint"
         )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
@@ -300,11 +302,17 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     """The checkpoint file that `which` names for a run folder: `last` (the newest), `best` (the best evaluated
     state) or a checkpoint file (any path; a `Path` is always a file)."""
     run_dir = Path(run_dir)
+    if not isinstance(which, str | Path):
+        raise CanterError(f"checkpoint must be {LAST!r}, {BEST!r} or a checkpoint file's path, got {which!r}")
     if which == LAST:
         return latest(run_dir)
     need_run_folder(run_dir)
     if which != BEST:  # a file: a `Path` never equals a name
-        return Path(which)
+        path = Path(which)
+        inside = checkpoint_dir(run_dir) / path.name
+        if not path.exists() and len(path.parts) == 1 and inside.is_file():  # a name read from the run's listing
+            raise CanterError(f"checkpoint not found: {path}; the run's own is {inside}: pass that path")
+        return path
     _need_checkpoint_folder(run_dir)
     path = best_path(run_dir)
     if not path.is_file():

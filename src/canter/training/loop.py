@@ -141,7 +141,8 @@ def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path)
     if differing:
         raise CanterError(
             f"the config to resume {run_dir} with differs from the run's in {', '.join(differing)}; a resume may "
-            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return): use resume_config"
+            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return): build it with "
+            f"canter.training.loop.resume_config({str(run_dir)!r}, total_steps)"
         )
 
 
@@ -264,6 +265,8 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         earlier = checkpoint_totals(header, run_folder.metrics_file(out))
         start = SeedStart(out, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
     else:
+        if run_dir is not None:
+            _refuse_a_run_in(Path(run_dir))
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
         if resume is not None and _unreadable(start.out / run_folder.CONFIG_FILE):
@@ -271,7 +274,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
             run_folder.write_config(start.out, saved)
         raise CanterError(
             f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
-            f"steps; pass --total-steps larger than {start.step} to extend it"
+            f"steps; pass --total-steps (total_steps in resume_config) larger than {start.step} to extend it"
         )
     if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
         # Not refused: a bench re-run given a target resumes such a seed so that it ends there, as an uncut run would.
@@ -285,6 +288,18 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
     if resume is None:
         locks.take(start.out)  # before anything is written to it
     return start
+
+
+def _refuse_a_run_in(run_dir: Path) -> None:
+    """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
+    held = [name for name in (run_folder.CONFIG_FILE, run_folder.METRICS_FILE) if (run_dir / name).exists()]
+    if run_folder.list_checkpoints(run_dir):
+        held.append("checkpoints")
+    if held:
+        raise CanterError(
+            f"{run_dir} already holds a run ({', '.join(held)}); resume it (canter train --resume, or "
+            "train(config, resume=...)), or give a new run folder"
+        )
 
 
 def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:

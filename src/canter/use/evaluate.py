@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from canter.core.runtime import announce_physics
-from canter.core.seeding import EVAL, HELD_OUT
+from canter.core.seeding import EVAL, HELD_OUT, check_seed
 from canter.errors import CanterError
 from canter.training.evaluation import EvalResult, run_episodes
 from canter.training.restore import PolicyFacts
@@ -115,8 +115,11 @@ def evaluate(
     without it they are the run's own on its env where the backend takes them, else the model's own."""
     from canter.envs.registry import note_replay, single_env_backend
 
-    if episodes < 1:
-        raise CanterError(f"--episodes must be >= 1, got {episodes}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int | np.integer) or episodes < 1:
+        raise CanterError(f"episodes must be a whole number >= 1, got {episodes!r}")
+    seed = check_seed(seed)
+    if physics is not None and not isinstance(physics, Mapping):
+        raise CanterError(f"physics must be a mapping of settings to values, got {type(physics).__name__}")
     check_eval_env(policy.facts, env_id, backend, varied=prepare_env is not None)
     env_id, backend = eval_target(policy, env_id, backend)
     changes = parse_physics(physics or {})

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from canter.config.schema import Config
+from canter.core.seeding import check_seed
 from canter.errors import CanterError
 from canter.training.checkpoint import LAST
 from canter.training.evaluation import CompiledAct, TracedAct
@@ -56,9 +57,9 @@ class Policy:
     def __call__(self, obs_batch: np.ndarray, deterministic: bool = True, seed: int | None = None) -> np.ndarray:
         import jax
 
-        if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
-            raise CanterError("policy expects real-valued observations, got complex numbers")
         try:
+            if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
+                raise CanterError("policy expects real-valued observations, got complex numbers")
             obs = np.asarray(obs_batch, np.float32)
         except (TypeError, ValueError):
             raise CanterError(
@@ -75,7 +76,7 @@ class Policy:
         key = self._key
         if not deterministic:
             if seed is not None:
-                self._key = jax.random.key(seed)
+                self._key = jax.random.key(check_seed(seed))
             self._key, key = jax.random.split(self._key)
         action = self._act(self.params, self.obs_stats, obs, key, deterministic)
         return action[0] if single else action

@@ -41,16 +41,22 @@ def _client(spec: TrackSpec) -> Any:
 # logs synchronously: a store that went away would stall training that long before the tracker is dropped. These
 # bound it to a few seconds, unless the user set them.
 _RETRY_BOUNDS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_TIMEOUT": "20"}
+# A database store it cannot open (an unwritable SQLite path, a database server that is down) MLflow tries 10 times
+# with backoff, about 100 s of warnings, and no setting bounds it: 3 tries take half a second.
+DATABASE_TRIES = 3
 
 
 def _open_client(spec: TrackSpec) -> Any:
     for name, value in _RETRY_BOUNDS.items():
         os.environ.setdefault(name, value)
     try:
+        import mlflow.store.db.utils as database
         from mlflow.tracking import MlflowClient
     except ImportError:
         raise CanterError("--track mlflow needs the MLflow client; install canter[mlflow]") from None
+    database.MAX_RETRY_COUNT = min(database.MAX_RETRY_COUNT, DATABASE_TRIES)
     logging.getLogger("mlflow").setLevel(logging.WARNING)  # not its notes on creating a store's tables
+    logging.getLogger("mlflow.store.db.utils").setLevel(logging.ERROR)  # not a warning per retry: the error says it
     try:
         client = MlflowClient(tracking_uri=spec.mlflow_uri)
         client.search_experiments(max_results=1)  # opens the store: a bad URI fails here, before training
