@@ -481,3 +481,14 @@ def test_a_new_run_given_a_folder_that_holds_a_run_is_refused(archived_run):
         "--resume, or train(config, resume=...)), or give a new run folder"
     )
     assert sorted(archived_run.rglob("*")) == before
+
+
+def test_seeds_given_as_text_and_an_empty_mlflow_store_are_refused(capsys):
+    import canter
+
+    config = canter.build_config("Pendulum-v1", total_steps=2048)
+    with pytest.raises(CanterError, match=r"seeds must be a list of whole numbers, e.g. \[0, 1, 2\], got '01'"):
+        canter.train_seeds(config, "01")
+    with pytest.raises(CanterError, match=r"seed must be a whole number from 0 to 4294967295, got 1.5"):
+        canter.train_seeds(config, [0, 1.5])
+    one_line(capsys, ["train", "Pendulum-v1", "--track", "mlflow", "--mlflow-uri", ""], "--mlflow-uri is empty; give")

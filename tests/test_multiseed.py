@@ -205,7 +205,9 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path,
         in capsys.readouterr().err
     )
     with pytest.raises(
-        CanterError, match=r"s0 already has \d+ of run.total_steps=4096 steps; pass --total-steps larger"
+        CanterError,
+        match=r"s0 already has \d+ of run.total_steps=4096 steps; pass --total-steps \(total_steps in resume_config\) "
+        r"larger",
     ):
         resume_seeds(folders, 4096)
 

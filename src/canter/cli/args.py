@@ -105,6 +105,8 @@ def track_spec(args: argparse.Namespace, resumed: Sequence[Path] = ()) -> TrackS
     from canter.training.trackers import TrackSpec, resume_spec
 
     names = tuple(dict.fromkeys(args.track))
+    if args.mlflow_uri == "":  # it would read as not given, and MLflow would pick its default store
+        raise CanterError("--mlflow-uri is empty; give a store such as sqlite:///mlflow.db, or drop --mlflow-uri")
     spec = resume_spec(names, args.mlflow_uri, resumed) if resumed else TrackSpec(names, args.mlflow_uri)
     if args.mlflow_uri and "mlflow" not in spec.names:
         raise CanterError("--mlflow-uri sets the store of --track mlflow; also pass --track mlflow")

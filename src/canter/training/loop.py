@@ -10,13 +10,14 @@ from collections.abc import Sequence
 from dataclasses import replace
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from canter.config.algorithms import budget_rounding_note, slow_call_note
 from canter.config.schema import Config
 from canter.config.validate import validate
+from canter.core.seeding import check_seed
 from canter.envs.base import JaxVecEnv
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import WriteError, is_write_error
@@ -54,7 +55,9 @@ def train_seeds(
     """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is
     replaced by each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and
     follows the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
-    seeds = [int(s) for s in seeds]
+    if isinstance(cast(object, seeds), str):  # "012" would train seeds 0, 1 and 2
+        raise CanterError(f"seeds must be a list of whole numbers, e.g. [0, 1, 2], got {seeds!r}")
+    seeds = [check_seed(s) for s in seeds]
     if not seeds:
         raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
     if len(set(seeds)) != len(seeds):
