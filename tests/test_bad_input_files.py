@@ -394,6 +394,9 @@ def test_the_python_api_refuses_arguments_of_the_wrong_kind_in_one_line(archived
     for episodes in (2.5, True, "3", 0):
         with pytest.raises(CanterError, match=r"episodes must be a whole number >= 1, got "):
             canter.evaluate(policy, episodes=episodes)
+    for name in ("env_id", "backend"):
+        with pytest.raises(CanterError, match=f"{name} is empty; give one, or leave it out"):
+            canter.evaluate(policy, episodes=1, **{name: ""})
     with pytest.raises(CanterError, match="physics must be a mapping of settings to values, got list"):
         canter.evaluate(policy, episodes=1, physics=[("solver_iterations", 4)])
     for which in (None, 5):
@@ -492,3 +495,4 @@ def test_seeds_given_as_text_and_an_empty_mlflow_store_are_refused(capsys):
     with pytest.raises(CanterError, match=r"seed must be a whole number from 0 to 4294967295, got 1.5"):
         canter.train_seeds(config, [0, 1.5])
     one_line(capsys, ["train", "Pendulum-v1", "--track", "mlflow", "--mlflow-uri", ""], "--mlflow-uri is empty; give")
+    one_line(capsys, ["eval", str(ARCHIVED_RUN), "--env", ""], "--env is empty; give an env id, or drop --env")

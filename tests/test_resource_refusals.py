@@ -237,3 +237,28 @@ def test_a_programs_memory_is_named_by_the_rollout_on_policy_and_by_the_batch_of
     assert algorithm_spec("ppo").memory_keys() == ("env.num_envs", "ppo.n_steps")
     for name in ("td3", "ddpg", "sac"):
         assert algorithm_spec(name).memory_keys() == ("env.num_envs", f"{name}.batch_size")
+
+
+def test_only_a_new_run_that_logged_nothing_is_discarded(tmp_path):
+    from canter.training import run_folder
+
+    def folder(name, metrics="global_step,iteration\n", extra=None):
+        run = tmp_path / name
+        run.mkdir()
+        for file in ("config.toml", "versions.json", "trackers.json"):
+            (run / file).write_text("x")
+        (run / "metrics.csv").write_text(metrics)
+        (run / "tb").mkdir()
+        if extra:
+            (run / extra).parent.mkdir(parents=True, exist_ok=True)
+            (run / extra).write_text("x")
+        run_folder.discard_unstarted(run)
+        return sorted(p.name for p in run.iterdir())
+
+    assert folder("header_only") == []
+    kept = ["config.toml", "metrics.csv", "tb", "trackers.json", "versions.json"]
+    assert folder("a_row", "global_step,iteration\n128,1\n") == kept
+    assert folder("half_a_row", "global_step,iteration\n12") == kept  # not this session's: it logged nothing
+    assert folder("archived", extra="metrics.csv.gz") == sorted([*kept, "metrics.csv.gz"])
+    assert folder("checkpointed", extra="checkpoints/ckpt_000000000000.npz") == sorted([*kept, "checkpoints"])
+    assert folder("users_own", extra="notes.txt") == ["notes.txt"]

@@ -72,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise CanterError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.env == "":  # it would read as not given
+        raise CanterError("--env is empty; give an env id, or drop --env for the run's own")
     if args.vary is None and args.out is not None:
         raise CanterError("--out names the --vary plot; without --vary use --json")
     if args.json is not None:

@@ -289,14 +289,13 @@ def create(run_dir: Path, config: Config) -> None:
 def discard_unstarted(run_dir: Path) -> None:
     """Remove what a new run wrote before its first iteration (config.toml, versions.json, trackers.json, a
     metrics.csv without rows, TensorBoard's folder) when a refusal stops it there: no folder is left that nothing can
-    resume or plot. A folder with a checkpoint, a logged row or an archived metrics file is left whole, as is one
-    whose metrics cannot be read; what else is in it stays."""
-    from canter.training.logger import read_rows
-
+    resume or plot. A folder with a checkpoint, a line of metrics after the header (whole or not) or an archived
+    metrics file is left whole; what else is in it stays."""
     run_dir = Path(run_dir)
+    metrics = run_dir / METRICS_FILE
     try:
-        logged = read_rows(run_dir / METRICS_FILE)[1]
-    except CanterError:  # damaged: not this session's, which wrote a header at most
+        logged = metrics.is_file() and metrics.read_bytes().rstrip(b"\n").count(b"\n") > 0
+    except OSError:  # unreadable: not this session's, which wrote a header at most
         return
     if list_checkpoints(run_dir) or logged or (run_dir / f"{METRICS_FILE}.gz").exists():
         return

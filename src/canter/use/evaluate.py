@@ -118,6 +118,9 @@ def evaluate(
     if isinstance(episodes, bool) or not isinstance(episodes, int | np.integer) or episodes < 1:
         raise CanterError(f"episodes must be a whole number >= 1, got {episodes!r}")
     seed = check_seed(seed)
+    for name, value in (("env_id", env_id), ("backend", backend)):
+        if value == "":  # it would read as not given
+            raise CanterError(f"{name} is empty; give one, or leave it out (None) for the run's own")
     if physics is not None and not isinstance(physics, Mapping):
         raise CanterError(f"physics must be a mapping of settings to values, got {type(physics).__name__}")
     check_eval_env(policy.facts, env_id, backend, varied=prepare_env is not None)
