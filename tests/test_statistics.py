@@ -269,3 +269,19 @@ def test_run_score_prefers_the_final_evaluation(tmp_path):
     assert run_score(tmp_path)[0] == 12.5
     (tmp_path / "eval.json").write_text(json.dumps({"mean": 20.0, "checkpoint": "ckpt_000000002000.npz"}))
     assert run_score(tmp_path)[0] == 20.0
+
+
+def test_a_published_reference_without_a_random_score_still_gives_the_optimality_gap_but_no_normalized_score():
+    from canter.use.scoreboard import RunScore, build_scoreboard
+
+    returns = [2000.0, 2500.0, 3000.0, 2200.0, 2800.0]
+    scores = [RunScore("ppo", "Hopper-v3", "ppo", r, f"s{i}") for i, r in enumerate(returns)]
+    board = build_scoreboard(scores, "test", reps=200)
+    cell = board.cells[0]
+    assert cell.normalizer is None and cell.reference == (2609.3, "Tianshou")
+    expected_gap = np.mean([max(2609.3 - r, 0.0) for r in returns])  # a plain loop over the runs
+    assert cell.returns.optimality_gap is not None
+    assert cell.returns.optimality_gap.estimate == pytest.approx(expected_gap)
+    rows = board.tables()[0].rows
+    assert rows[0][-1] == "2,609.3 (Tianshou); no random score, not normalized"
+    assert not board.methods  # nothing to normalize across envs

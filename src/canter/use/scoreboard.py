@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from canter.use import statistics
-from canter.use.reference_scores import Normalizer, normalizer_for, random_command
+from canter.use.reference_scores import Normalizer, normalizer_for, random_command, reference_score
 from canter.use.statistics import Aggregates, Interval, Profile
 
 # Thresholds of the performance profile, in normalized score.
@@ -54,6 +54,8 @@ class CellStats:
     scores: tuple[float, ...]
     returns: Aggregates  # optimality gap below the reference return, when there is one
     normalizer: Normalizer | None
+    # The published return of the algorithm on the env and its source, also where no random score normalizes it.
+    reference: tuple[float, str] | None = None
 
 
 @dataclass(frozen=True)
@@ -123,7 +125,7 @@ class Scoreboard:
                         c.returns.mean.show(runs=c.returns.runs),
                         c.returns.median.show(runs=c.returns.runs),
                         c.returns.optimality_gap.show(runs=c.returns.runs) if c.returns.optimality_gap else "–",
-                        f"{c.normalizer.reference:,.1f} ({c.normalizer.source})" if c.normalizer else "none published",
+                        _reference_cell(c),
                     )
                     for c in self.cells
                 ),
@@ -137,8 +139,8 @@ class Scoreboard:
                     "(measured by canter), 1 the published 1M-step figure of the same algorithm: Tianshou's best "
                     "10-seed average during training (MuJoCo v3; v2 for Reacher and the pendulums) where it has "
                     "one, else CleanRL's training return (v4), another protocol and env version than these runs', so "
-                    "a yardstick rather than a ranking. Mean and median are of the per-env means; IQM and optimality "
-                    "gap (γ = 1) pool every run.",
+                    "a yardstick rather than a ranking. Mean and median are of the per-env means (for one env, of its "
+                    "runs); IQM and optimality gap (γ = 1) pool every run.",
                     ("method", "envs", "n per env", "IQM", "mean", "median", "optimality gap"),
                     tuple(
                         (
@@ -270,6 +272,15 @@ def _normalized_matrix(cells: Sequence[CellStats]) -> tuple[np.ndarray, int]:
     return np.stack(columns, axis=1), sum(len(c.scores) - runs for c in cells)
 
 
+def _reference_cell(cell: CellStats) -> str:
+    """The reference column: the published return and its source; where canter has no random score for the env, it
+    still gives the optimality gap, but normalizes nothing."""
+    if cell.reference is None:
+        return "none published"
+    value, source = cell.reference
+    return f"{value:,.1f} ({source})" + ("" if cell.normalizer else "; no random score, not normalized")
+
+
 def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None = None, seed: int = 0) -> Scoreboard:
     """All the statistics of the runs' scores, from `reps` bootstrap resamples (default `statistics.REPS`, read at
     each call). Cells and methods keep the order in which they first appear."""
@@ -281,8 +292,9 @@ def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None =
     for (method, env_id), members in grouped.items():
         algo = members[0].algo
         normalizer = normalizer_for(algo, env_id)
+        reference = reference_score(algo, env_id)
         values = np.array([[m.score] for m in members])
-        gamma = normalizer.reference if normalizer else None
+        gamma = reference[0] if reference else None
         cells.append(
             CellStats(
                 method,
@@ -291,6 +303,7 @@ def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None =
                 tuple(float(v) for v in values[:, 0]),
                 statistics.aggregates(values, gamma, reps, seed),
                 normalizer,
+                reference,
             )
         )
     method_names = list(dict.fromkeys(c.method for c in cells))

@@ -25,7 +25,8 @@ import numpy as np
 
 CONFIDENCE = 0.95
 # Bootstrap resamples of every interval. rliable's own default (50,000) takes minutes for a grid; 2,000 puts the
-# 2.5% and 97.5% quantiles within about a percent of their limit.
+# 2.5% and 97.5% quantiles near their limit. Over a few runs the resampled estimates take few distinct values, so a
+# bound can land on either of two neighbours from one resampling seed to the next.
 REPS = 2000
 # Fewer runs than this get no interval in what canter prints: a bootstrap over two or three runs only restates
 # their spread (with 3 runs the 95% interval of the mean is their min and max), so it reads as a precision the runs
