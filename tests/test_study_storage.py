@@ -194,3 +194,33 @@ def test_a_worker_says_what_it_waits_for_when_a_trial_runs_elsewhere(tmp_path, c
     )
     states = [t.state for t in study.trials]
     assert states[0] == optuna.trial.TrialState.FAIL and optuna.trial.TrialState.COMPLETE in states
+
+
+def test_a_stop_while_the_storage_is_away_is_recorded_once_it_is_back(postgres_url, capsys):  # noqa: F811
+    """Ctrl-C or SIGTERM during an outage: the worker says it waits, and once the server is back fails the trial and
+    queues its copy. It used to give up at once, leaving the trial running, which every worker then waited for."""
+    import threading
+
+    import optuna
+    from optuna.trial import TrialState
+
+    from canter.orchestrate.study import FAIL_REASON, run_worker
+
+    url = _new_database(postgres_url, "stopaway")
+    storage = open_storage(StorageSettings(url, heartbeat_seconds=1, grace_seconds=3))
+    study = optuna.create_study(storage=storage, study_name="stopaway", direction="maximize")
+
+    def stopped_during_an_outage(trial):
+        trial.suggest_float("x", 0.0, 1.0)
+        pg_server.stop_server()
+        threading.Timer(3.0, pg_server.start_server).start()
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_worker(study, storage, 2, stopped_during_an_outage, heartbeat_seconds=1, poll_seconds=0.1)
+    trials = study.get_trials(deepcopy=False)
+    assert [t.state for t in trials] == [TrialState.FAIL, TrialState.WAITING]
+    assert trials[0].user_attrs[FAIL_REASON] == "interrupted" and trials[1].params == trials[0].params
+    err = capsys.readouterr().err
+    assert "canter: note: lost the postgresql+psycopg2 storage at " in err
+    assert "while recording the stopped trial; retrying for up to 5 min" in err

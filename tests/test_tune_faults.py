@@ -18,6 +18,7 @@ from optuna.trial import TrialState
 from canter.cli.main import main
 from canter.orchestrate.study import FAIL_REASON, Outcome, StorageSettings, open_storage, run_worker
 from canter.orchestrate.tune import PRESET_ATTR
+from signals import with_sigint
 from test_tune import tiny_args, tiny_settings
 
 STUDY = "Pendulum-v1__ppo"
@@ -394,3 +395,27 @@ def test_seeds_per_trial_below_one_is_refused_with_the_value_given(tmp_path, cap
     """`--seeds-per-trial -3` said "got 0": the settings only saw the empty range of seeds it made."""
     code = main(["tune", "Pendulum-v1", "--seeds-per-trial", "-3", *tiny_args(tmp_path)])
     assert code == 2 and capsys.readouterr().err.strip() == "canter: error: --seeds-per-trial must be >= 1, got -3"
+
+
+def test_two_stop_signals_landing_together_interrupt_once_without_a_race_error():
+    """Ctrl-C to the process group and the parent's SIGTERM reach a worker together: the first interrupts, and the
+    second, already pending, must find a handler, not SIG_IGN (Python then raises "Signal 15 ignored due to race
+    condition" out of the cleanup)."""
+    program = (
+        "import os, signal\n"
+        "from canter.orchestrate.jobs import sigterm_interrupts\n"
+        "both = {signal.SIGINT, signal.SIGTERM}\n"
+        "try:\n"
+        "    with sigterm_interrupts():\n"
+        "        signal.pthread_sigmask(signal.SIG_BLOCK, both)\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        signal.pthread_sigmask(signal.SIG_UNBLOCK, both)\n"
+        "        for _ in range(10000):\n"
+        "            pass\n"
+        "except KeyboardInterrupt:\n"
+        "    total = sum(range(10000))  # Python runs the pending handler here, in the cleanup\n"
+        "    print('interrupted once')\n"
+    )
+    done = subprocess.run(with_sigint([sys.executable, "-c", program]), capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (0, "interrupted once\n", ""), done.stderr

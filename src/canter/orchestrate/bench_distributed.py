@@ -3,6 +3,7 @@ on this machine or another, takes and trains."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import sys
@@ -24,7 +25,7 @@ from canter.orchestrate.jobs import (
     warn_if_more_jobs_than_cores,
     worker_count,
 )
-from canter.orchestrate.study import claim_study, study_storage
+from canter.orchestrate.study import claim_study, retrying, study_storage
 
 if TYPE_CHECKING:
     from canter.orchestrate.study import Outcome
@@ -90,7 +91,12 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
     print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
     # The records travel with the trial, so any machine can build the table from the storage alone.
     records = [read_seed(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
-    trial.set_user_attr("records", [r.to_json() for r in records])
+    # Waits out an outage of the storage, as every other storage call of a worker does: the cell is trained.
+    retrying(
+        functools.partial(trial.set_user_attr, "records", [r.to_json() for r in records]),
+        str(settings.storage_url),
+        "recording a cell's results",
+    )
     evals = [r.eval_mean for r in records if r.eval_mean is not None and math.isfinite(r.eval_mean)]
     if len(evals) < len(records):  # Optuna would store a NaN value as a failure, with no reason
         return Outcome(

@@ -532,6 +532,10 @@ def run_workers(work: Callable[..., None], worker_args: list[tuple[Any, ...]], n
     return [p.exitcode for p in processes if p.exitcode]
 
 
+def _ignore(signum: int, frame: Any) -> None:
+    """A stop signal after the first, while the cleanup it started runs."""
+
+
 @contextlib.contextmanager
 def sigterm_interrupts() -> Iterator[None]:
     """Within it, SIGTERM (a scheduler, `kill`, a dying parent) stops the process as Ctrl-C does, so that a bench or
@@ -541,8 +545,11 @@ def sigterm_interrupts() -> Iterator[None]:
     (`stop_jobs`: its grace, then SIGKILL). A signal the process ignores stays ignored (`handling_stop_signals`)."""
 
     def interrupt(signum: int, frame: Any) -> None:
+        # A handler that does nothing, not SIG_IGN: a second signal that landed with the first (Ctrl-C to the group,
+        # and the parent's SIGTERM) is still pending in Python, which raises "Signal N ignored due to race condition"
+        # for a pending signal whose handler became SIG_IGN.
         for sig in handled:
-            signal.signal(sig, signal.SIG_IGN)
+            signal.signal(sig, _ignore)
         raise KeyboardInterrupt
 
     with handling_stop_signals(interrupt) as handled:

@@ -268,7 +268,7 @@ def _lost_storage(exc: BaseException) -> bool:
 def retrying(call: Callable[[], T], url: str, what: str, patience: float = OUTAGE_SECONDS) -> T:
     """`call()`, retried with backoff while the storage at `url` is away, for up to `patience` seconds; then a
     one-line CanterError. Trials already told are in the database and stay there."""
-    started, delay = time.monotonic(), 0.5
+    started, delay, said = time.monotonic(), 0.5, False
     while True:
         try:
             return call()
@@ -276,6 +276,15 @@ def retrying(call: Callable[[], T], url: str, what: str, patience: float = OUTAG
             if not _lost_storage(exc):
                 raise
             waited = time.monotonic() - started
+            if not said:  # a worker waiting on its storage says so, rather than look hung
+                driver, host = describe_url(normalize_url(url))
+                print(
+                    f"canter: note: lost the {driver} storage at {host} while {what}; retrying for up to "
+                    f"{patience / 60:.0f} min",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                said = True
             if waited >= patience:
                 driver, host = describe_url(normalize_url(url))
                 raise CanterError(
@@ -619,7 +628,8 @@ def run_worker(
             # run again); after an error, such as a storage gone for good, the trial is left to its heartbeat.
             if asked and not isinstance(exc, Exception):
                 with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
-                    _stop_interrupted(study, asked[0], target if ask_new else None)
+                    stopped = functools.partial(_stop_interrupted, study, asked[0], target if ask_new else None)
+                    call("recording the stopped trial", stopped)
             raise
         _tell(study, trial, outcome, states[outcome.state], call)
 
