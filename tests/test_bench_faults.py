@@ -401,3 +401,53 @@ def test_a_bench_job_that_resumes_a_damaged_seed_gives_the_bench_s_fix(archived_
     spec = JobSpec(to_toml(config.with_values("run", total_steps=10**6)), {config.run.seed: str(archived_run)})
     with pytest.raises(CanterError, match=r"move it out of .*, and the re-run resumes the seed from the checkpoint"):
         run_job(spec)
+
+
+def test_a_bench_plot_leaves_out_a_seed_folder_that_logged_nothing(archived_run, tmp_path, capsys):
+    """On a machine whose job was killed before it logged, a cell another machine trained since still has that
+    folder here: the plot goes on without it, and says so."""
+    import shutil
+
+    from canter.orchestrate.bench_results import plot_env
+
+    killed = tmp_path / "killed"
+    killed.mkdir()
+    shutil.copy(archived_run / "config.toml", killed / "config.toml")
+    (killed / "metrics.csv").write_text("global_step,iteration\n")
+    plot_env([archived_run, killed], tmp_path / "plot_x.png")
+    assert (tmp_path / "plot_x.png").stat().st_size > 0
+    assert capsys.readouterr().err.startswith("canter: note: plot_x.png leaves out killed: ")
+
+
+def test_a_job_whose_run_folder_another_process_writes_exits_busy_not_as_a_refusal(archived_run, tmp_path):
+    """A killed bench's job may still be writing its checkpoint when the bench runs again: that job's folder is busy
+    for a while, which a later try finds free, so the job does not exit as a refusal that a retry meets again."""
+    from canter.config.serialize import to_toml
+    from canter.orchestrate import jobs
+    from canter.training import run_folder
+
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"from canter.training import run_lock; run_lock.acquire({str(archived_run)!r}); "
+            "print('held', flush=True); import time; time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline() == "held\n"
+        config = run_folder.read_config(archived_run)
+        spec = jobs.JobSpec(to_toml(config.with_values("run", total_steps=10**6)), {config.run.seed: str(archived_run)})
+        (tmp_path / "job.json").write_text(spec.to_json())
+        job = subprocess.run(
+            [sys.executable, "-m", "canter.orchestrate.jobs", str(tmp_path / "job.json")],
+            capture_output=True,
+            text=True,
+        )
+        assert job.returncode == jobs.BUSY and "is being written by process" in job.stderr, job.stderr
+        assert not jobs.needs_a_fix(jobs.failure_reason(tmp_path, jobs.BUSY))
+    finally:
+        holder.kill()
+        holder.wait()

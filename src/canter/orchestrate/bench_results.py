@@ -286,7 +286,15 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     from canter.files import write_output
     from canter.use.plot import load_run, render_runs
 
-    runs = [load_run(d) for d in run_dirs]
+    runs = []
+    for run_dir in run_dirs:
+        # A folder whose job was killed before it logged (its cell trained on another machine since) has no curve.
+        try:
+            runs.append(load_run(run_dir))
+        except CanterError as exc:
+            print(f"canter: note: {path.name} leaves out {run_dir.name}: {exc}", file=sys.stderr)
+    if not runs:
+        return
     returns = [run.columns.get("episodic_return") for run in runs]
     if not any(r is not None and np.isfinite(r).any() for r in returns):
         print(

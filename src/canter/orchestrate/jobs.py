@@ -322,6 +322,8 @@ def start_job(spec: JobSpec, folder: Path, env: dict[str, str] | None = None) ->
 
 # The exit status of a child that refused its input with a one-line error (`main`): a retry meets the same refusal.
 INPUT_ERROR = 2
+# The exit status of a child whose run folder another process writes (sysexits' EX_TEMPFAIL): a later try can work.
+BUSY = 75
 _FAILED = "training process failed"
 
 # What a signal's end most likely means, which the process's last line cannot say: the kernel's out-of-memory killer
@@ -571,10 +573,15 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
 
 
 def main(argv: list[str]) -> int:
+    from canter.training.run_lock import RunFolderBusy
+
     die_with_parent(signal.SIGTERM)
     apply_cpu_pinning()
     try:
         run_job(JobSpec.from_json(Path(argv[0]).read_text()))
+    except RunFolderBusy as exc:  # a job of a killed bench still stopping, say: a later try finds the folder free
+        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        return BUSY
     except CanterError as exc:
         print(f"canter: error: {exc}", file=sys.stderr, flush=True)
         return INPUT_ERROR

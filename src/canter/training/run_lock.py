@@ -105,12 +105,16 @@ def alive_here(holder: dict[str, Any]) -> bool:
     return True
 
 
+class RunFolderBusy(CanterError):
+    """Another process writes the run folder: a refusal that a later try meets no more once it has finished."""
+
+
 def _refusal(run_dir: Path, holder: dict[str, Any]) -> CanterError:
     who = "another process"
     if holder:
         who = f"process {holder.get('pid')} on {holder.get('host')}"
         who += f" (since {holder.get('started')}: {holder.get('command')})"
-    return CanterError(
+    return RunFolderBusy(
         f"{run_dir} is being written by {who}; one process writes a run folder at a time: wait for it to "
         f"finish or stop it, then run the command again"
     )
