@@ -451,3 +451,17 @@ def test_a_job_whose_run_folder_another_process_writes_exits_busy_not_as_a_refus
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_seed_stopped_before_its_first_iteration_starts_anew_in_the_start_line(tmp_path):
+    """A stop during the warm-up leaves a checkpoint at step 0, from which the seed starts as a new one does."""
+    from canter.orchestrate.bench_runs import seed_progress, start_text
+
+    settings, cell = _one_cell((0, 1))
+    [job] = make_jobs([cell], (0, 1))
+    for seed, step in ((0, 0), (1, 0)):
+        folder = cell.run_dir(tmp_path, seed) / "checkpoints"
+        folder.mkdir(parents=True)
+        (folder / f"ckpt_{step:012d}.npz").write_bytes(b"")
+    progress = seed_progress(job, settings, tmp_path)
+    assert start_text(job, progress, BUDGET) == "start Hopper-v5__ppo (seeds 0,1)"

@@ -98,7 +98,9 @@ def seed_progress(job: Job, settings: BenchSettings, bench_dir: Path) -> list[Se
             status = run_status(run_dir, settings.total_steps, job.cell.config.run.stop_at_return)
         except CanterError:  # refused: the job says why
             status = "refused"
-        progress.append(SeedProgress(run_folder.step_of(found[-1]) if found else None, status in ("done", "ended")))
+        # A checkpoint at step 0 was written by a stop before the first iteration: the seed starts as a new one does.
+        step = run_folder.step_of(found[-1]) if found else 0
+        progress.append(SeedProgress(step or None, status in ("done", "ended")))
     return progress
 
 
