@@ -189,8 +189,8 @@ def test_a_worker_says_what_it_waits_for_when_a_trial_runs_elsewhere(tmp_path, c
     out = capsys.readouterr().out
     assert out.count("waiting for") == 1, out
     assert (
-        "waiting for trial 0 (node7:4242), running elsewhere; a trial whose worker died is failed and retried after 2 s"
-        in out
+        "waiting for trial 0 (node7:4242), which another worker runs; a trial whose worker died is failed and retried "
+        "after 2 s" in out
     )
     states = [t.state for t in study.trials]
     assert states[0] == optuna.trial.TrialState.FAIL and optuna.trial.TrialState.COMPLETE in states

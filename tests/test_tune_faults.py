@@ -221,7 +221,7 @@ run_worker(study, storage, 1, hangs, heartbeat_seconds=60)
 @pytest.mark.slow
 def test_a_trial_whose_worker_on_this_machine_was_killed_is_retried_at_once(tmp_path, capsys):
     """After kill -9 with the default --heartbeat 60, the rerun waited 180 s for the trial of a process that it could
-    see was gone, and said the trial was running elsewhere."""
+    see was gone, and said another worker ran the trial."""
     settings = _sqlite(tmp_path, heartbeat_seconds=60)
     killed = subprocess.Popen(
         [sys.executable, "-c", textwrap.dedent(HANGING_WORKER), settings.url], stdout=subprocess.PIPE, text=True
@@ -250,7 +250,7 @@ def test_a_trial_whose_worker_on_this_machine_was_killed_is_retried_at_once(tmp_
         f"trial 0: its worker {trials[0].user_attrs[WORKER_ATTR]} on this machine is gone, so the trial is failed now"
         in out
     )
-    assert "running elsewhere" not in out
+    assert "which another worker runs" not in out
 
 
 def _stopped(trial):

@@ -355,16 +355,17 @@ def _running(study: Any) -> tuple[tuple[int, str], ...]:
 
 
 def _say_waiting(running: tuple[tuple[int, str], ...], grace: float | None) -> None:
-    """One line when a worker starts waiting on trials that run elsewhere: after a kill, a stale trial is failed and
-    retried only once its heartbeat is older than the grace period, minutes in which nothing else is printed."""
+    """One line when a worker starts waiting on trials that other workers run (of this command or another): after a
+    kill, a stale trial is failed and retried only once its heartbeat is older than the grace period, minutes in which
+    nothing else is printed."""
     if not running:
         return
     shown = ", ".join(f"trial {number}" + (f" ({worker})" if worker != "?" else "") for number, worker in running[:3])
     more = f" and {len(running) - 3} more" if len(running) > 3 else ""
     retried = f"{grace:.0f} s" if grace else "its grace period"
     print(
-        f"waiting for {shown}{more}, running elsewhere; a trial whose worker died is failed and retried after "
-        f"{retried} without a heartbeat",
+        f"waiting for {shown}{more}, which another worker runs; a trial whose worker died is failed and retried "
+        f"after {retried} without a heartbeat",
         flush=True,
     )
 
