@@ -69,3 +69,14 @@ def test_a_database_of_another_optuna_is_one_line_naming_its_fix(tmp_path, versi
         connection.execute("update alembic_version set version_num=?", (version,))
     with pytest.raises(CanterError, match=message):
         open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}"))
+
+
+def test_a_tune_refused_a_benchs_study_leaves_no_study_folder(tmp_path, capsys):
+    from canter.cli.main import main
+
+    claim_study(_study(tmp_path), "bench")
+    out = tmp_path / "tune"
+    argv = ["tune", "Pendulum-v1", "--storage", f"sqlite:///{tmp_path / 'study.db'}", "--study", "S"]
+    assert main([*argv, "--out-dir", str(out), "--trials", "1", "--total-steps", "2048"]) == 2
+    assert "study 'S' holds a canter bench's jobs; give this tune another --study" in capsys.readouterr().err
+    assert not (out / "S").exists()

@@ -551,13 +551,19 @@ def tune(settings: TuneSettings) -> Any:
     if settings.storage_url is None:
         make_folder(settings.study_dir)  # the SQLite file's folder
     storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
+    made = settings.storage_url is not None and not settings.study_dir.exists()
     if settings.storage_url is not None:
         make_folder(settings.study_dir)  # the trials' folders, once the storage is reached, before a trial is stored
     study = make_study(settings, storage)
     trials_before = len(study.get_trials(deepcopy=False))  # one count for every worker's sampler seed
     wanted = study_settings(settings, base, space)
     check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
-    retrying(check, settings.storage.url, "reading the study")
+    try:
+        retrying(check, settings.storage.url, "reading the study")
+    except CanterError:  # another command's study, or other settings: a refused command leaves no folder behind
+        if made and not any(settings.study_dir.iterdir()):
+            settings.study_dir.rmdir()
+        raise
     if trials_before:
         print(
             retrying(
