@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from canter.orchestrate.bench_results import seed_record
+from canter.run_layout import METRICS_FILE
 from canter.training import checkpoint
-from canter.training.run_folder import METRICS_FILE
 
 ROOT = Path(__file__).resolve().parent.parent
 # What an archive keeps of a bench run: everything behind its table row, and no checkpoints.

@@ -472,6 +472,23 @@ def test_a_projects_own_checkpoints_folder_beside_its_config_is_no_run_folder(tm
         refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")
 
 
+def test_a_folder_s_run_files_count_checkpoints_only_when_one_is_there(tmp_path):
+    from canter.run_layout import run_files_in, surely_a_run
+
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "ckpt_12.npz").write_bytes(b"")  # not a checkpoint's name: 12 digits are
+    (tmp_path / "config.toml").write_text("[run]\n")
+    assert run_files_in(tmp_path) == {"config.toml"}
+    assert not surely_a_run(tmp_path)
+    (tmp_path / "checkpoints" / "ckpt_000000002048.npz").write_bytes(b"")
+    assert run_files_in(tmp_path) == {"config.toml", "checkpoints"}
+    assert surely_a_run(tmp_path)
+    (tmp_path / "config.toml").unlink()
+    (tmp_path / "metrics.csv.gz").write_bytes(b"")
+    assert run_files_in(tmp_path) == {"metrics.csv.gz", "checkpoints"}
+    assert not surely_a_run(tmp_path)  # without its config.toml nothing here is surely a run's
+
+
 def test_a_new_run_given_a_folder_that_holds_a_run_is_refused(archived_run):
     import canter
 

@@ -20,7 +20,8 @@ from canter.orchestrate.tune import (
     owned_keys,
     trial_config,
 )
-from canter.training.run_folder import CONFIG_FILE, METRICS_FILE, read_config
+from canter.run_layout import CONFIG_FILE, METRICS_FILE
+from canter.training.run_folder import read_config
 
 
 def _tune_settings(tmp_path: Path, **kwargs) -> TuneSettings:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from canter.errors import CanterError
+from canter.run_layout import RUN_OWN_FILES, RUN_OWN_FOLDERS, surely_a_run
 
 # A full disk or quota, where freeing space is the fix; the other write errors need a writable path or device.
 _NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
@@ -112,30 +113,12 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
         raise
 
 
-# What a run folder holds of its own (canter.training.run_folder): a user-named output never replaces one of them.
-RUN_OWN_FILES = frozenset(
-    {"config.toml", "metrics.csv", "metrics.csv.gz", "summary.json", "versions.json", "trackers.json", "eval.json"}
-)
-RUN_OWN_FOLDERS = frozenset({"checkpoints", "tb"})
-
-
-def _is_run_folder(folder: Path) -> bool:
-    """A run's config.toml with its metrics, its versions or a checkpoint: a folder named checkpoints/ beside a
-    config.toml may be a user's own folder of outputs, so its name alone proves nothing."""
-    if not (folder / "config.toml").is_file():
-        return False
-    if any((folder / name).is_file() for name in ("metrics.csv", "metrics.csv.gz", "versions.json")):
-        return True
-    checkpoints = folder / "checkpoints"
-    return checkpoints.is_dir() and any(checkpoints.glob("ckpt_*.npz"))
-
-
 def refuse_inside_run_own_folder(folder: str | Path, flag: str) -> None:
     """Refuse a folder for new run or bench folders that lies inside a run folder's own folder (checkpoints/, tb/):
     the run's listings would then meet foreign folders among its checkpoints or events."""
     resolved = Path(folder).resolve()
     for inner in (resolved, *resolved.parents):
-        if inner.name in RUN_OWN_FOLDERS and _is_run_folder(inner.parent):
+        if inner.name in RUN_OWN_FOLDERS and surely_a_run(inner.parent):
             raise CanterError(
                 f"{flag} {folder} is inside {inner.name}/ of the run folder {inner.parent}, which holds that run's own "
                 f"files; give another {flag}"
@@ -149,9 +132,9 @@ def refuse_protected_target(path: str | Path) -> None:
     if target.is_symlink() or (target.exists() and not target.is_file()):
         raise CanterError(f"cannot write {path}: it is not a plain file (a link, pipe or device); give a file path")
     resolved = target.resolve()
-    if resolved.name in RUN_OWN_FILES and _is_run_folder(resolved.parent):
+    if resolved.name in RUN_OWN_FILES and surely_a_run(resolved.parent):
         raise CanterError(f"cannot write {path}: it is a file of the run folder {resolved.parent}; give another path")
-    if resolved.parent.name in RUN_OWN_FOLDERS and _is_run_folder(resolved.parent.parent):
+    if resolved.parent.name in RUN_OWN_FOLDERS and surely_a_run(resolved.parent.parent):
         raise CanterError(
             f"cannot write {path}: {resolved.parent.name}/ belongs to the run folder {resolved.parent.parent}; "
             f"give another path"

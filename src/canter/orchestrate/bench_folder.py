@@ -27,7 +27,8 @@ STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid,
 def refuse_run_folder(bench_dir: Path) -> None:
     """Refuse a run folder given as --out: the bench would write its tables and job folders among the run's files, and
     take over the writer lock of the run (its own lock file, `canter.training.run_lock`)."""
-    from canter.training.run_folder import CONFIG_FILE, METRICS_FILE, checkpoint_dir
+    from canter.run_layout import CONFIG_FILE, METRICS_FILE
+    from canter.training.run_folder import checkpoint_dir
 
     marks = ((CONFIG_FILE, bench_dir / CONFIG_FILE), (METRICS_FILE, bench_dir / METRICS_FILE))
     held = [name for name, found in (*marks, ("checkpoints/", checkpoint_dir(bench_dir))) if found.exists()]

@@ -11,7 +11,7 @@ from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job
 from canter.orchestrate.jobs import EVAL_FILE, JobSpec, is_number, read_object, run_status
-from canter.training.run_folder import CONFIG_FILE
+from canter.run_layout import CONFIG_FILE
 
 
 def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:

@@ -29,8 +29,8 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
+from canter.run_layout import CHECKPOINT_NAME, SUMMARY_FILE
 from canter.signals import die_with_parent, exit_interrupted, handling_stop_signals, stops_held
-from canter.training.run_folder import SUMMARY_FILE
 from canter.training.trackers.base import TrackSpec
 
 EVAL_FILE = "eval.json"
@@ -399,7 +399,7 @@ def bench_advice_for_damaged_checkpoints() -> Iterator[None]:
         yield
     except checkpoint.DamagedCheckpoint as exc:
         run_dir = exc.path.parent.parent
-        if exc.path.parent != run_folder.checkpoint_dir(run_dir) or not run_folder.CHECKPOINT_NAME.match(exc.path.name):
+        if exc.path.parent != run_folder.checkpoint_dir(run_dir) or not CHECKPOINT_NAME.match(exc.path.name):
             raise  # best.npz, whose own advice fits
         if len(run_folder.list_checkpoints(run_dir)) > 1:
             fix = f"move it out of {exc.path.parent}, and the re-run resumes the seed from the checkpoint before it"

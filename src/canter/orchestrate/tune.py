@@ -57,8 +57,8 @@ from canter.orchestrate.study import (
     run_worker,
     study_storage,
 )
+from canter.run_layout import METRICS_FILE
 from canter.training.logger import read_rows
-from canter.training.run_folder import METRICS_FILE
 from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
 DB_FILE = "study.db"

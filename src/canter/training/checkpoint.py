@@ -27,12 +27,8 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
-from canter.training.run_folder import (
-    CHECKPOINT_NAME,
-    CONFIG_FILE,
-    checkpoint_dir,
-    list_checkpoints,
-)
+from canter.run_layout import CHECKPOINT_FOLDER, CHECKPOINT_NAME, CONFIG_FILE, run_files_in
+from canter.training.run_folder import checkpoint_dir, list_checkpoints
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -231,7 +227,7 @@ def need_run_folder(run_dir: Path) -> None:
         )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
-    if (run_dir / CONFIG_FILE).is_file() or list_checkpoints(run_dir):
+    if run_files_in(run_dir) & {CONFIG_FILE, CHECKPOINT_FOLDER}:
         return
     inside = runs_inside(run_dir)
     if inside:

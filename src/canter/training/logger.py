@@ -38,8 +38,8 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import AppendFile, atomic_write_bytes
+from canter.run_layout import METRICS_FILE, TENSORBOARD_FOLDER
 from canter.training.evaluation import EVAL_COLUMNS
-from canter.training.run_folder import METRICS_FILE, TENSORBOARD_FOLDER
 
 BASE_COLUMNS = ("global_step", "iteration", "wall_time", "sps", "episodes", "episodic_return", "episodic_length")
 

@@ -21,6 +21,14 @@ from canter.core.seeding import check_seed
 from canter.envs.base import JaxVecEnv
 from canter.errors import CanterError, DiscreteActionsError
 from canter.files import WriteError, is_write_error
+from canter.run_layout import (
+    ARCHIVED_METRICS_FILE,
+    CHECKPOINT_FOLDER,
+    CONFIG_FILE,
+    METRICS_FILE,
+    SUMMARY_FILE,
+    run_files_in,
+)
 from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
@@ -272,7 +280,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
             _refuse_a_run_in(Path(run_dir))
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
-        if resume is not None and _unreadable(start.out / run_folder.CONFIG_FILE):
+        if resume is not None and _unreadable(start.out / CONFIG_FILE):
             # `_saved_config` promised it: a finished run repaired by a resume that trains nothing
             run_folder.write_config(start.out, saved)
         raise CanterError(
@@ -295,9 +303,8 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
 
 def _refuse_a_run_in(run_dir: Path) -> None:
     """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
-    held = [name for name in (run_folder.CONFIG_FILE, run_folder.METRICS_FILE) if (run_dir / name).exists()]
-    if run_folder.list_checkpoints(run_dir):
-        held.append("checkpoints")
+    present = run_files_in(run_dir)
+    held = [name for name in (CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, CHECKPOINT_FOLDER) if name in present]
     if held:
         raise CanterError(
             f"{run_dir} already holds a run ({', '.join(held)}); resume it (canter train --resume, or "
@@ -344,7 +351,7 @@ def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError
         error = WriteError(exc.filename or run_dirs[0], exc)
     else:
         return None
-    if error.path.name == run_folder.SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
+    if error.path.name == SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
         return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
     if all(run_folder.list_checkpoints(d) for d in run_dirs):
         return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
@@ -548,12 +555,12 @@ def _saved_config(run_dir: Path) -> Config:
     try:
         return run_folder.read_config(run_dir)
     except CanterError as damaged:
-        if not (run_folder.list_checkpoints(run_dir) and _unreadable(run_dir / run_folder.CONFIG_FILE)):
+        if not (run_folder.list_checkpoints(run_dir) and _unreadable(run_dir / CONFIG_FILE)):
             raise
         newest = checkpoint.latest(run_dir)
         config = _header_config(checkpoint.read_header(newest), newest)
         print(
-            f"canter: note: {run_dir / run_folder.CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
+            f"canter: note: {run_dir / CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
             f"the config saved in {newest.name}, which this resume writes back to config.toml",
             file=sys.stderr,
         )

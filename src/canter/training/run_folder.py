@@ -33,15 +33,19 @@ from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes, refuse_inside_run_own_folder
+from canter.run_layout import (
+    CHECKPOINT_FOLDER,
+    CHECKPOINT_NAME,
+    CONFIG_FILE,
+    METRICS_FILE,
+    TENSORBOARD_FOLDER,
+    TRACKERS_FILE,
+    VERSIONS_FILE,
+    checkpoints_in,
+)
 from canter.training import provenance
 
 RUN_FORMAT = 2
-CONFIG_FILE = "config.toml"
-SUMMARY_FILE = "summary.json"
-VERSIONS_FILE = "versions.json"
-METRICS_FILE = "metrics.csv"
-TENSORBOARD_FOLDER = "tb"
-TRACKERS_FILE = "trackers.json"  # the tracker runs a run logs to (canter.training.trackers.session)
 
 
 def metrics_file(run_dir: Path) -> Path:
@@ -163,11 +167,8 @@ def run_format(run_dir: Path) -> int:
     return found
 
 
-CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
-
-
 def checkpoint_dir(run_dir: Path) -> Path:
-    return Path(run_dir) / "checkpoints"
+    return Path(run_dir) / CHECKPOINT_FOLDER
 
 
 def checkpoint_path(run_dir: Path, step: int) -> Path:
@@ -183,10 +184,7 @@ def step_of(path: Path) -> int:
 
 
 def list_checkpoints(run_dir: Path) -> list[Path]:
-    folder = checkpoint_dir(run_dir)
-    if not folder.is_dir():
-        return []
-    return sorted(p for p in folder.iterdir() if CHECKPOINT_NAME.match(p.name))
+    return checkpoints_in(run_dir)
 
 
 def damaged_config_fix(run_dir: Path) -> str:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from canter import run_layout
 from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.core.seeding import RESUME, TRAIN, env_seeds
@@ -62,7 +63,7 @@ def write_summary(result: RunResult) -> dict[str, Any]:
     summary = {k: (str(v) if isinstance(v, Path) else v) for k, v in result.__dict__.items()}
     summary["run_dir"] = str(Path(result.run_dir).resolve())
     atomic_write_bytes(
-        result.run_dir / run_folder.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
+        result.run_dir / run_layout.SUMMARY_FILE, lambda f: f.write(json.dumps(summary, indent=2).encode())
     )
     return summary
 
@@ -350,7 +351,7 @@ def divergence_hint(config: Config) -> str:
 def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
     """The seeds that summary.json says trained with this one in its last session; None where it says nothing."""
     try:
-        seeds = json.loads((run_dir / run_folder.SUMMARY_FILE).read_text()).get("trained_with")
+        seeds = json.loads((run_dir / run_layout.SUMMARY_FILE).read_text()).get("trained_with")
         return tuple(int(seed) for seed in seeds) if isinstance(seeds, list) else None
     except (OSError, ValueError, AttributeError, TypeError):  # missing or damaged: this session's group stands
         return None

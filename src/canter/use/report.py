@@ -62,7 +62,8 @@ def _natural_key(path: Path) -> list:
 def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFacts:
     """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names (None:
     the page plays none, as an archived run kept without checkpoints allows)."""
-    from canter.training.run_folder import SUMMARY_FILE, read_config
+    from canter.run_layout import SUMMARY_FILE
+    from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
     if which is not None:

@@ -24,7 +24,7 @@ from canter.config.experiment import experiment_key, flat_config
 from canter.config.schema import Config
 from canter.errors import CanterError, first_line
 from canter.files import atomic_write_bytes
-from canter.training.run_folder import TRACKERS_FILE
+from canter.run_layout import TRACKERS_FILE
 from canter.training.trackers.base import RunContext, TrackerRun, TrackSpec
 from canter.training.trackers.registry import get_tracker
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError, first_line
-from canter.training.run_folder import CONFIG_FILE, SUMMARY_FILE
+from canter.run_layout import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
 

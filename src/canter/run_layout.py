@@ -1,0 +1,49 @@
+"""The names of a run folder's own files and folders, and which of them a folder holds.
+
+They sit below every layer because the safe-write guards (canter.files) must know them too: a user-named output
+never replaces a run's own file. Each caller asks its own question of `run_files_in`: a new run refuses a folder
+with any sign of a run, while an output guard refuses only a folder that is surely one.
+"""
+
+import re
+from pathlib import Path
+
+CONFIG_FILE = "config.toml"
+METRICS_FILE = "metrics.csv"
+ARCHIVED_METRICS_FILE = METRICS_FILE + ".gz"
+SUMMARY_FILE = "summary.json"
+VERSIONS_FILE = "versions.json"
+TRACKERS_FILE = "trackers.json"  # the tracker runs a run logs to (canter.training.trackers.session)
+EVAL_FILE = "eval.json"
+CHECKPOINT_FOLDER = "checkpoints"
+TENSORBOARD_FOLDER = "tb"
+CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
+
+RUN_OWN_FILES = frozenset(
+    {CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, VERSIONS_FILE, TRACKERS_FILE, EVAL_FILE}
+)
+RUN_OWN_FOLDERS = frozenset({CHECKPOINT_FOLDER, TENSORBOARD_FOLDER})
+
+
+def checkpoints_in(folder: Path) -> list[Path]:
+    """The `ckpt_<step>.npz` files in the run folder's checkpoints/, oldest first."""
+    checkpoints = Path(folder) / CHECKPOINT_FOLDER
+    if not checkpoints.is_dir():
+        return []
+    return sorted(p for p in checkpoints.iterdir() if CHECKPOINT_NAME.match(p.name))
+
+
+def run_files_in(folder: Path) -> frozenset[str]:
+    """The run's own files that `folder` holds, by name, with checkpoints/ counted only when it holds a checkpoint."""
+    folder = Path(folder)
+    held = {name for name in RUN_OWN_FILES if (folder / name).is_file()}
+    if checkpoints_in(folder):
+        held.add(CHECKPOINT_FOLDER)
+    return frozenset(held)
+
+
+def surely_a_run(folder: Path) -> bool:
+    """A config.toml with the run's metrics, versions or a checkpoint: a config.toml beside a checkpoints/ folder of
+    other files may be a user's project with its own outputs, so a name alone proves nothing."""
+    held = run_files_in(folder)
+    return CONFIG_FILE in held and bool(held & {METRICS_FILE, ARCHIVED_METRICS_FILE, VERSIONS_FILE, CHECKPOINT_FOLDER})
