@@ -184,6 +184,20 @@ def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_
     assert set(before) <= {p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*")}
 
 
+def test_a_refusal_while_the_program_is_built_leaves_no_run_folder(monkeypatch, tmp_path, capsys):
+    """Any one-line refusal between a new run's folder and its first iteration removes the folder again."""
+
+    def refuse(*args, **kwargs):
+        raise CanterError("refused while the program is built")
+
+    monkeypatch.setattr(loop, "GroupProgram", refuse)
+    out = tmp_path / "runs"
+    argv = ["train", "Pendulum-v1", "--total-steps", "2048", "--out-dir", str(out), "--quiet"]
+    assert main([*argv, "--seeds", "0,1", "--set", "net.hidden=16,16", "--set", "ppo.n_steps=64"]) == 2
+    assert _one_line_error(capsys) == "canter: error: refused while the program is built"
+    assert not out.exists() or not list(out.rglob("*.*")), sorted(out.rglob("*"))
+
+
 def test_too_many_seeds_for_the_open_files_are_refused_before_a_folder_is_made(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(run_lock.resource, "getrlimit", lambda which: (256, 4096))
 

@@ -241,6 +241,10 @@ def _train_locked(
             carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
+            if isinstance(exc, CanterError):  # refused before it trained: no folder is left that holds nothing
+                for start in starts:
+                    if not start.resumed:
+                        run_folder.discard_unstarted(start.out)
             error = training_write_error(exc, [start.out for start in starts])
             if error is None:
                 raise
@@ -434,7 +438,6 @@ def _open_seeds(
     """Each seed's host side, then the group's program compiled (not when a signal has already stopped the run). A
     seed's setup or the compile failing still closes what the seeds before it opened (tracker runs)."""
     runs: list[SeedRun] = []
-    compiling = False
     try:
         group_seeds = tuple(c.run.seed for c in configs)
         for config, start in zip(configs, starts):
@@ -442,21 +445,15 @@ def _open_seeds(
         if stop.signal is not None:  # stopped during setup: nothing will run
             compile_seconds = 0.0
         else:
-            compiling = True
             compile_seconds = program.compile(runs)
-            compiling = False
             # After every check that can refuse the run, so that a refusal stays one line.
             if (note := budget_rounding_note(configs[0])) is not None:
                 print(f"canter: note: {note}", file=sys.stderr)
         for run in runs:
             run.compile_seconds = compile_seconds
-    except BaseException as exc:
+    except BaseException:
         for run in runs:
             run.close()
-        if compiling and isinstance(exc, CanterError):  # refused: the program does not fit the memory
-            for start in starts:
-                if not start.resumed:
-                    run_folder.discard_unstarted(start.out)
         raise
     return runs
 

@@ -17,6 +17,7 @@ resuming session's versions and a `repaired` entry, which keeps a damaged file's
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -298,7 +299,8 @@ def discard_unstarted(run_dir: Path) -> None:
     if list_checkpoints(run_dir) or logged or (run_dir / f"{METRICS_FILE}.gz").exists():
         return
     for name in (CONFIG_FILE, VERSIONS_FILE, TRACKERS_FILE, METRICS_FILE):
-        (run_dir / name).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # an unwritable folder: the refusal that brought us here is what to tell
+            (run_dir / name).unlink(missing_ok=True)
     shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
 
 
