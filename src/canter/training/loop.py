@@ -406,13 +406,14 @@ def _loop(
     label = f"{spec.id} {config.run.algo}" + (f" x{program.group} seeds" if program.group > 1 else "")
     progress = Progress(config.run.total_steps, min(start.step for start in starts), quiet, label)
     deadline = started + config.run.max_minutes * 60 if config.run.max_minutes else None
+    slow_call_noted = False
     try:
         if stop.signal is not None:  # it came during setup or compilation
             _stop_before_training(program, runs, starts)
         # SIGINT and SIGTERM stop the run at the next iteration boundary, with a checkpoint written.
         while any(run.stop_reason is None for run in runs):
             chunk = program.call(runs)
-            _note_a_slow_call(config, chunk.elapsed, stop)
+            slow_call_noted = slow_call_noted or _note_a_slow_call(config, chunk.elapsed, stop)
             steps = 0
             for i, run in enumerate(runs):
                 if run.stop_reason is None:
@@ -494,14 +495,16 @@ def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> in
     return int(metrics["steps"])
 
 
-def _note_a_slow_call(config: Config, seconds: float, stop: StopFlag) -> None:
-    """The first call that takes SLOW_CALL_SECONDS or more is noted, and a stop's notice says how long it will wait."""
-    if seconds < SLOW_CALL_SECONDS or stop.notice != STOP_NOTICE:
-        return
+def _note_a_slow_call(config: Config, seconds: float, stop: StopFlag) -> bool:
+    """A call that takes SLOW_CALL_SECONDS or more is noted, and from then on a stop's notice says how long it will
+    wait. Returns whether it noted one, as the run notes only the first."""
+    if seconds < SLOW_CALL_SECONDS:
+        return False
     print(f"canter: note: {slow_call_note(config, seconds)}", file=sys.stderr)
     stop.notice = (
         f"stopping when the current call ends (each takes about {seconds:,.0f} s), with a checkpoint to resume from"
     )
+    return True
 
 
 def _group_stop_reason(deadline: float | None, stop: StopFlag) -> str | None:
