@@ -425,6 +425,29 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monke
     assert replace(under_cleanrl, run=replace(under_cleanrl.run, preset="fast")) == loaded
 
 
+@pytest.mark.slow
+def test_a_worker_that_ended_early_fails_the_command_only_when_trials_are_missing(tmp_path, capsys, monkeypatch):
+    from canter.orchestrate import jobs
+
+    def first_runs_all_then_second_is_killed(work, worker_args, name):
+        work(*worker_args[0])  # it runs until the study has its trials, so the second finds none left
+        return [-9]
+
+    monkeypatch.setattr(jobs, "run_workers", first_runs_all_then_second_is_killed)
+    argv = ["tune", "Pendulum-v1", "--trials", "2", "--jobs", "2"] + tiny_args(tmp_path)
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert (
+        "canter: note: 1 of 2 tune workers ended early (killed by signal 9 (SIGKILL, probably out of memory)), but the "
+        "others finished the study's 2 trials"
+    ) in err
+
+    monkeypatch.setattr(jobs, "run_workers", lambda work, worker_args, name: [-9, -9])
+    assert main(["tune", "Pendulum-v1", "--trials", "4", "--jobs", "2"] + tiny_args(tmp_path)) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("canter: error: 2 of 2 tune workers ended early (killed by signal 9"), err
+
+
 # ------------------------------------------------------------------------ PostgreSQL: a worker killed mid-trial
 
 

@@ -25,6 +25,7 @@ import functools
 import math
 import os
 import re
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -533,6 +534,12 @@ def progress_line(study: Any, target: int) -> str:
     return ", ".join([line, *(f"{n[state]} {word}" for state, word in words if n[state])])
 
 
+def _finished(study: Any, settings: TuneSettings) -> bool:
+    """Whether the study has its --trials finished, counted as workers count them (complete or pruned)."""
+    n = retrying(functools.partial(counts, study), settings.storage.url, "reading the study")
+    return n["COMPLETE"] + n["PRUNED"] >= settings.trials
+
+
 def tune_workers(study: Any, settings: TuneSettings) -> int:
     """The worker processes to start: --jobs, but no more than the trials the study still lacks, counted as workers
     count them (`run_worker`: finished means complete or pruned); a worker beyond those would find no trial to run."""
@@ -588,7 +595,13 @@ def tune(settings: TuneSettings) -> Any:
         raise
     # What the study holds is written even when a worker ended early: the others may have finished its trials.
     write()
-    if failed:
+    if failed and _finished(study, settings):
+        print(
+            f"canter: note: {len(failed)} of {workers} tune workers ended early ({exit_text(failed[0])}), but the "
+            f"others finished the study's {settings.trials} trials",
+            file=sys.stderr,
+        )
+    elif failed:
         raise CanterError(
             f"{len(failed)} of {workers} tune workers ended early ({exit_text(failed[0])}; a worker's own "
             f"error, if it had one, is printed above); the summary above holds what the study has, and the same "
