@@ -124,10 +124,11 @@ def test_shipped_random_scores_carry_their_command_and_cover_the_published_envs(
             entry = data["env"][f"{base}-v{version}"]
             assert entry["episodes"] >= 100 and np.isfinite(entry["mean"])
     # Tianshou where it has a 1M figure, else CleanRL; none for rpo at 1M.
-    assert reference_score("ppo", "Hopper-v5") == (2609.3, "Tianshou")
-    assert reference_score("ppo", "Pusher-v4") == (-40.38, "CleanRL")
+    assert reference_score("ppo", "Hopper-v5") == (2609.3, "Tianshou", "Hopper-v3")
+    assert reference_score("ppo", "Pusher-v4") == (-40.38, "CleanRL", "Pusher-v4")
+    assert reference_score("ppo", "InvertedPendulum-v5") == (1000.0, "Tianshou", "InvertedPendulum-v2")
     assert reference_score("rpo", "Hopper-v5") is None
-    assert reference_score("td3", "Humanoid-v5") == (5189.5, "Tianshou")  # Tianshou's where it has one
+    assert reference_score("td3", "Humanoid-v5") == (5189.5, "Tianshou", "Humanoid-v3")  # Tianshou's where it has one
     hopper = normalizer_for("ppo", "Hopper-v5")
     assert hopper.random == data["env"]["Hopper-v5"]["mean"] and hopper.reference == 2609.3
     assert normalizer_for("ppo", "Pendulum-v1") is None
@@ -207,7 +208,7 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     for text in (
         "### Final return per env",
         "| Hopper-v5 | ppo | 3 | ",
-        "2,609.3 (Tianshou)",
+        "2,609.3 (Tianshou, Hopper-v3)",
         "### Across envs, normalized",
         "### Performance profile",
         "### Probability of improvement",
@@ -221,6 +222,7 @@ def test_scoreboard_tables_and_json_hold_every_aggregate_with_its_interval():
     assert set(cell["return"]) == {"runs", "tasks", "iqm", "mean", "median", "optimality_gap", "gamma"}
     assert cell["return"]["iqm"]["low"] <= cell["return"]["iqm"]["estimate"] <= cell["return"]["iqm"]["high"]
     assert cell["normalizer"]["reference_source"] == "Tianshou"
+    assert cell["normalizer"]["reference_env"] == "Hopper-v3"
     # The normalized scores fall short of 1 (the reference) by this much on average, a score above 1 counting as 1.
     gap = 1.0 - np.mean(np.minimum(expected, 1.0))
     assert gap > max(0.0, 1.0 - expected.mean())  # some runs pass the reference (capped), some fall short
@@ -278,10 +280,10 @@ def test_a_published_reference_without_a_random_score_still_gives_the_optimality
     scores = [RunScore("ppo", "Hopper-v3", "ppo", r, f"s{i}") for i, r in enumerate(returns)]
     board = build_scoreboard(scores, "test", reps=200)
     cell = board.cells[0]
-    assert cell.normalizer is None and cell.reference == (2609.3, "Tianshou")
+    assert cell.normalizer is None and cell.reference == (2609.3, "Tianshou", "Hopper-v3")
     expected_gap = np.mean([max(2609.3 - r, 0.0) for r in returns])  # a plain loop over the runs
     assert cell.returns.optimality_gap is not None
     assert cell.returns.optimality_gap.estimate == pytest.approx(expected_gap)
     rows = board.tables()[0].rows
-    assert rows[0][-1] == "2,609.3 (Tianshou); no random score, not normalized"
+    assert rows[0][-1] == "2,609.3 (Tianshou, Hopper-v3); no random score, not normalized"
     assert not board.methods  # nothing to normalize across envs

@@ -28,11 +28,12 @@ class Normalizer:
     random: float
     reference: float
     source: str  # the reference's source, by name ("Tianshou")
+    reference_env: str  # the env id the source measured, whose version may differ from env_id's ("Hopper-v3")
 
     def describe(self) -> str:
         return (
             f"{self.env_id} {self.algo}: random {self.random:,.1f}, reference {self.reference:,.1f} "
-            f"({self.source} {self.algo}, 1M steps)"
+            f"({self.source} {self.algo} on {self.reference_env}, 1M steps)"
         )
 
     def as_dict(self) -> dict[str, Any]:
@@ -42,6 +43,7 @@ class Normalizer:
             "random": self.random,
             "reference": self.reference,
             "reference_source": self.source,
+            "reference_env": self.reference_env,
         }
 
 
@@ -66,16 +68,22 @@ def env_base(env_id: str) -> str:
     return env_id.split(":")[-1].rsplit("-v", 1)[0]
 
 
-def reference_score(algo: str, env_id: str) -> tuple[float, str] | None:
-    """(the published 1M-step mean of `algo` on the env, its source's name), or None when none is published."""
+def measured_env(source: dict[str, Any], env: str) -> str:
+    """The env id a published source measured for the env named without its version: Hopper -> Hopper-v3."""
+    return f"{env}-{source.get('older', {}).get(env, source['version'])}"
+
+
+def reference_score(algo: str, env_id: str) -> tuple[float, str, str] | None:
+    """(the published 1M-step mean of `algo` on the env, its source's name, the env id it measured), or None when
+    none is published."""
     data = published_scores()
-    rows = [
-        s for s in data["score"] if s["algo"] == algo and s["env"] == env_base(env_id) and s["steps"] == REFERENCE_STEPS
-    ]
+    base = env_base(env_id)
+    rows = [s for s in data["score"] if s["algo"] == algo and s["env"] == base and s["steps"] == REFERENCE_STEPS]
     for key in REFERENCE_SOURCES:
         for row in rows:
             if row["source"] == key:
-                return float(row["mean"]), data["sources"][key]["name"]
+                source = data["sources"][key]
+                return float(row["mean"]), source["name"], measured_env(source, base)
     return None
 
 
@@ -90,7 +98,7 @@ def normalizer_for(algo: str, env_id: str) -> Normalizer | None:
     reference = reference_score(algo, env_id)
     if random is None or reference is None or reference[0] <= random:
         return None
-    return Normalizer(env_id, algo, random, reference[0], reference[1])
+    return Normalizer(env_id, algo, random, *reference)
 
 
 def random_command() -> str:

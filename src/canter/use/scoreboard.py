@@ -55,7 +55,7 @@ class CellStats:
     returns: Aggregates  # optimality gap below the reference return, when there is one
     normalizer: Normalizer | None
     # The published return of the algorithm on the env and its source, also where no random score normalizes it.
-    reference: tuple[float, str] | None = None
+    reference: tuple[float, str, str] | None = None  # (return, source, the env id it measured)
 
 
 @dataclass(frozen=True)
@@ -277,8 +277,8 @@ def _reference_cell(cell: CellStats) -> str:
     still gives the optimality gap, but normalizes nothing."""
     if cell.reference is None:
         return "none published"
-    value, source = cell.reference
-    return f"{value:,.1f} ({source})" + ("" if cell.normalizer else "; no random score, not normalized")
+    value, source, measured = cell.reference
+    return f"{value:,.1f} ({source}, {measured})" + ("" if cell.normalizer else "; no random score, not normalized")
 
 
 def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None = None, seed: int = 0) -> Scoreboard:
