@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import sys
+import tomllib
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -168,6 +169,14 @@ SECTIONS = (
     ),
 )
 
+# The report's ablation 3 is one figure with PPO and RPO overlaid; the bench draws one plot per grid, so the two
+# grids' archived runs are drawn together by canter plot (the bench's own metric and smoothing).
+OVERLAY = PAGE / "ppo_vs_rpo_HumanoidStandup-v4.png"
+OVERLAY_COMMAND = (
+    f"canter plot {PAGE.relative_to(ROOT)}/runs/hs-ppo/{HS}__ppo__s* {PAGE.relative_to(ROOT)}/runs/hs-rpo-sym/"
+    f"{HS}__rpo__s* --metrics episodic_return --smooth 5 --out {OVERLAY.relative_to(ROOT)}"
+)
+
 LIMBS_TITLE = "### HumanoidStandup-v4: does the symmetric loss make the humanoid use both sides?"
 LIMBS_COMMAND = f"python {PAGE.relative_to(ROOT)}/limbs.py"
 LIMBS_NOTE = (
@@ -186,6 +195,12 @@ SEED0_RUNS = (
     ("rpo", "rpo", "rpo", "RPO, coef 0.5 (yellow): **better than PPO**"),
     ("rpo + sym 0.02", "rposym", "rposym", REPORT["hs-rpo-sym"]["rpo + sym 0.02"]),
 )
+# How each was trained (benchmarks/results/README.md): the preset's seed, 0, and its 5M steps.
+SEED0_COMMANDS = {
+    "ppo": f"canter train {HS} --preset {HS_PRESET} --algo ppo --set sym.coef=0",
+    "rpo": f"canter train {HS} --preset {HS_PRESET} --set sym.coef=0",
+    "rpo + sym 0.02": f"canter train {HS} --preset {HS_PRESET}",
+}
 
 # HumanoidStandup's reward_linup is the torso's height over the physics timestep: Gymnasium's humanoidstandup_v4.py
 # (and v5, whose uph_cost_weight is 1) has uph_cost = qpos[2] / model.opt.timestep, 0.003 s in humanoidstandup.xml
@@ -229,6 +244,17 @@ def commands_table() -> str:
         )
     total = sum(estimate_seconds(g) for g in GRIDS.values())
     lines.append(f"| all | `python {PAGE.relative_to(ROOT)}/run.py` | | {_duration(total)} | |")
+    # run.py does not train the seed-0 runs (they are archived in benchmarks/results), so their commands, which
+    # that folder's README gives, are repeated here for the page to say how every row of it was made.
+    for variant, folder, _, _ in SEED0_RUNS:
+        [run] = (SEED0 / "run-folders" / folder).iterdir()
+        config = tomllib.loads((run / "config.toml").read_text())["run"]
+        lines.append(
+            f"| seed 0, {variant} | `{SEED0_COMMANDS[variant]}`, then `canter eval RUN --episodes 10` | "
+            f"{config['total_steps'] / 1e6:g}M | | yes, in [`{SEED0.relative_to(ROOT)}`](../../results/"
+            f"humanoidstandup-5m/) (its config.toml names the preset `{config['preset']}`, now an alias of "
+            f"`{HS_PRESET}`) |"
+        )
     return "\n".join(lines)
 
 
@@ -460,6 +486,12 @@ def results_text() -> str:
         plots = [curves(PAGE, GRIDS[name]) for name in names]
         images = " ".join(f"![{p.parent.name}]({p.relative_to(PAGE)})" for p in plots if p.is_file())
         parts.append(text + (f"\n\n{note}" if note else "") + (f"\n\n{images}" if images else ""))
+        if "hs-ppo" in names and OVERLAY.is_file():
+            parts.append(
+                f"The two grids' seeds 100-102 in one figure, as the report's ablation 3 draws PPO and RPO (this "
+                f"RPO has the symmetric loss 0.02):\n\n```\n{OVERLAY_COMMAND}\n```\n\n"
+                f"![ppo against rpo + sym 0.02]({OVERLAY.relative_to(PAGE)})"
+            )
         if "hs-sym" in names:
             parts.append(f"{LIMBS_TITLE}\n\n```\n{LIMBS_COMMAND}\n```\n\n{limbs.table()}\n\n{LIMBS_NOTE}")
             parts.append(heights_text())

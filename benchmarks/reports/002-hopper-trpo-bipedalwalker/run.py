@@ -65,6 +65,7 @@ WALKER_EPISODES = 100  # the report's evaluation
 # beside the rerun without them.
 FIRST_ATTEMPT = "first-attempt-normalized"
 FIRST_CURVES = "curves_ppo_first_attempt.png"
+FIRST_ATTEMPT_SET = "env.normalize_reward=true"  # the preset's value then; its observation normalization is on still
 
 # The report's own search spaces and its runtime settings (table 3), cut from 50 trials to 10 (and from 10 random
 # startup trials to 5, from 4 jobs to 1): per trial the report's 1M steps and 20 evaluations of 5 episodes.
@@ -175,6 +176,13 @@ def walker_train_args(algo: str, seed: int) -> list[str]:
     return [*walker_args(algo, seed), "--stop-at-return", "300"]
 
 
+def walker_command(algo: str, seed: int, folder: str = "", sets: tuple[str, ...] = ()) -> str:
+    """The train command as a person would type it: run.py adds --out-dir (timed_train), so the shown command names
+    the same folder, which the page's archive is copied from."""
+    out = f"{WORK}/{folder}{walker_name(algo, seed)}"
+    return "canter train " + " ".join([*walker_train_args(algo, seed), *sets, "--out-dir", out])
+
+
 def tune_args(algo: str) -> list[str]:
     preset, space = WALKER_PRESETS[algo], str(PAGE_PATH / space_file(algo).name)
     return ["tune", WALKER, "--algo", algo, "--preset", preset, "--space", space, *TUNE_SETTINGS, "--out-dir", WORK]
@@ -246,8 +254,7 @@ STEPS = {
 for _algo in WALKER_PRESETS:
     STEPS[f"walker-{_algo}"] = Step(
         partial(run_walker, _algo),
-        [*("canter train " + " ".join(walker_train_args(_algo, seed)) for seed in SEEDS)]
-        + ["canter " + " ".join(curves_args(_algo))],
+        [walker_command(_algo, seed) for seed in SEEDS] + ["canter " + " ".join(curves_args(_algo))],
         len(SEEDS) * float(WALKER_STEPS) / SPS[_algo],
     )
 for _algo in WALKER_PRESETS:
@@ -407,7 +414,13 @@ def walker_text() -> str:
     lines += [
         "",
         f"PPO's first attempt, with canter's observation and reward normalization on (archived in "
-        f"[`runs/{FIRST_ATTEMPT}/`](runs/{FIRST_ATTEMPT}/), curves in [{FIRST_CURVES}]({FIRST_CURVES})):",
+        f"[`runs/{FIRST_ATTEMPT}/`](runs/{FIRST_ATTEMPT}/), curves in [{FIRST_CURVES}]({FIRST_CURVES})). It ran "
+        f"before the preset turned reward normalization off, so today it takes `--set {FIRST_ATTEMPT_SET}` (its "
+        "archived config.toml differs from the rerun's in `normalize_reward` alone):",
+        "",
+        "```",
+        *(walker_command("ppo", seed, FIRST_ATTEMPT + "/", ("--set", FIRST_ATTEMPT_SET)) for seed in SEEDS),
+        "```",
         "",
         *lines[:2],
         *first,

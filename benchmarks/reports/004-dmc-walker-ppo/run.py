@@ -282,9 +282,14 @@ def grids_table(grids: tuple[Grid, ...], step: str) -> str:
                 lines.append(f"{who} not run yet (`{step}`) | | | | |")
                 continue
             per_seed = ", ".join(f"{r['eval_mean']:,.0f}" for r in result["runs"])
+            # A cell whose seeds trained apart (sac's, one process each) has the bench's per-seed mean, not the
+            # time of one process that trained them all, as the other rows; the row says which it is.
+            wall = f"{result['wall_minutes']:.0f} min" + (
+                f" per seed (mean of {len(result['runs'])} processes)" if result["per_seed"] else ""
+            )
             lines.append(
                 f"{who} {eval_text(result)} | {per_seed} | "
-                f"{result['train_return']:,.0f} | {result['wall_minutes']:.0f} min | "
+                f"{result['train_return']:,.0f} | {wall} | "
                 f"[curves](runs/{grid.name}/plot_{ENV}.png) |"
             )
     commands = "\n".join(grid.command("runs/report004") for grid in grids)
