@@ -40,7 +40,7 @@ def test_the_refusal_names_the_setting_and_a_count_that_fits():
     assert host_memory.refusal(1000, 2**20, 2 * 2**30) is None
     error = host_memory.refusal(200_000, 2**20, 10 * 2**30)
     assert str(error) == (
-        "env.num_envs=200000 needs about 195.3 GiB of memory for its envs (1.00 MiB each, measured), but 10.0 GiB "
+        "env.num_envs=200000 needs about 195.3 GiB of memory for its envs (1.0 MiB each, measured), but 10.0 GiB "
         "are available; lower it, e.g. --set env.num_envs=9216"
     )
 

@@ -5,6 +5,7 @@ allocated, so a refusal that regressed cannot take the machine down."""
 from __future__ import annotations
 
 import math
+import re
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -127,16 +128,55 @@ def test_the_env_count_is_checked_before_the_envs_seeds_are_listed_or_a_folder_i
     assert not (tmp_path / "runs").exists()
 
 
-def test_an_env_count_no_machine_holds_is_refused_also_where_the_envs_are_not_measured(memory):
+def test_an_env_count_no_machine_holds_is_refused_also_where_the_envs_cannot_be_measured(memory, monkeypatch):
     memory(16 * GIB)
+    monkeypatch.setattr(host_memory, "bytes_per_env_apart", lambda *args: None)
     with pytest.raises(CanterError, match=r"at least 48 bytes each\), but 16\.0 GiB are available; lower it by far"):
-        host_memory.check_envs_fit("InvertedPendulum-v5", "mjx", {}, 2_000_000_000, measure=False)
+        host_memory.check_envs_fit("InvertedPendulum-v5", "envpool", {}, 2_000_000_000)
+
+
+def test_jax_envs_whose_state_cannot_fit_are_refused_before_they_are_reset(memory, monkeypatch, tmp_path, capsys):
+    """Resetting 10^8 MJX envs on the CPU ran for minutes before anything could refuse it; their state's shapes say
+    at once that it cannot fit."""
+    from canter.envs.functional import FunctionalVecEnv
+
+    memory(16 * GIB)
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
+    monkeypatch.setattr(FunctionalVecEnv, "_start", lambda self: pytest.fail("the envs were reset"))
+    out = tmp_path / "runs"
+    argv = ["train", "InvertedPendulum-v5", "--backend", "mjx", "--out-dir", str(out), "--quiet"]
+    assert main([*argv, "--set", "env.num_envs=100000000"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]  # after the line that says there is no GPU
+    assert re.fullmatch(
+        r"canter: error: env\.num_envs=100000000 needs about [\d.]+ GiB of memory for its envs \([\d.]+ KiB each, "
+        r"from its state's shapes\), but 16\.0 GiB are available; lower it, e\.g\. --set env\.num_envs=\d+",
+        err,
+    ), err
+    assert not out.exists()
+    # Envs that pass the check but that the device cannot reset after all are refused in one line too.
+    monkeypatch.undo()
+    memory(16 * GIB)
+
+    def out_of_memory(self):
+        raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 123.45GiB.")
+
+    monkeypatch.setattr(FunctionalVecEnv, "_start", out_of_memory)
+    assert main([*argv, "--set", "env.num_envs=64"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "canter: error: env.num_envs=64 does not fit in the device's memory; lower it, e.g. --set env.num_envs=32"
+    )
+    assert not out.exists() or not list(out.rglob("*.*"))
+    # On a GPU the device's free memory bounds them, and one seed's envs that fit make the fix fewer seeds.
+    monkeypatch.setattr(device_memory, "free_bytes", lambda: 64 * GIB)
+    per_env = 4 * 1024
+    with pytest.raises(CanterError, match=r"\(4\.0 KiB each, from its state's shapes\), but 64\.0 GiB are available"):
+        host_memory.check_jax_envs_fit(lambda: per_env, 2**22, 8, device_memory.free_bytes())
 
 
 def test_the_env_refusal_of_a_group_counts_envs_per_seed_and_suggests_fewer_seeds():
     error = host_memory.refusal(16, 2**20, 10 * GIB, group=5000)
     assert str(error) == (
-        "5000 seeds of env.num_envs=16 (80000 envs) need about 78.1 GiB of memory for their envs (1.00 MiB each, "
+        "5000 seeds of env.num_envs=16 (80000 envs) need about 78.1 GiB of memory for their envs (1.0 MiB each, "
         "measured), but 10.0 GiB are available; train at most 576 seeds at a time"
     )
     error = host_memory.refusal(20_000, 2**20, 10 * GIB, group=2)

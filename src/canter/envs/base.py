@@ -70,6 +70,10 @@ class JaxVecEnv(VecEnv, Protocol):
 
     def play_episodes(self, act: Callable[[Any, Any], Any], args: Any, quota: np.ndarray) -> tuple: ...
 
+    def state_bytes(self) -> int:
+        """The memory its envs' state takes, known from shapes alone, before the envs are reset."""
+        ...
+
 
 # Info entries that are bookkeeping, not measurements.
 IGNORED_INFO_KEYS = frozenset(

@@ -115,7 +115,8 @@ def _split(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 class FunctionalVecEnv(JaxVecEnv):
     """`num_envs` copies of a `FunctionalEnv`. The jitted program steps them with `jax_step`; evaluation loops step
-    them from numpy with `host_step`, which keeps its own state."""
+    them from numpy with `host_step`, which keeps its own state. The envs are reset when first asked for, so that
+    `state_bytes` can size them before any memory is taken."""
 
     def __init__(self, env: FunctionalEnv, env_id: str, backend: str, num_envs: int, seeds: list[int]) -> None:
         if len(seeds) != num_envs:
@@ -132,19 +133,32 @@ class FunctionalVecEnv(JaxVecEnv):
             max_episode_steps=env.max_episode_steps,
             info_keys=env.info_keys,
         )
-        self._state, self._first_obs = _jitted(env).reset(initial_keys(seeds))
+        self._keys = initial_keys(seeds)
+        self._started: tuple[FunctionalState, jnp.ndarray] | None = None
+
+    def _start(self) -> tuple[FunctionalState, jnp.ndarray]:
+        if self._started is None:
+            self._started = _jitted(self.env).reset(self._keys)
+        return self._started
+
+    def state_bytes(self) -> int:
+        """The memory the envs' state and first observations take, read from their shapes: nothing is computed."""
+        shapes = jax.eval_shape(_jitted(self.env).reset, self._keys)
+        return sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
 
     def reset(self) -> np.ndarray:
-        return np.asarray(self._first_obs)
+        return np.asarray(self._start()[1])
 
     def initial_state(self) -> FunctionalState:
-        return self._state
+        return self._start()[0]
 
     def jax_step(self, state: FunctionalState, action: jnp.ndarray) -> tuple[FunctionalState, StepOutput]:
         return vector_step(self.env, state, action)
 
     def host_step(self, action: np.ndarray) -> StepOutput:
-        self._state, out = _jitted(self.env).step(self._state, jnp.asarray(action, jnp.float32))
+        state, first_obs = self._start()
+        state, out = _jitted(self.env).step(state, jnp.asarray(action, jnp.float32))
+        self._started = (state, first_obs)
         return jax.tree.map(np.asarray, out)
 
     def play_episodes(self, act: Callable[[Any, jnp.ndarray], jnp.ndarray], args: Any, quota: np.ndarray) -> tuple:
@@ -153,7 +167,8 @@ class FunctionalVecEnv(JaxVecEnv):
         Stepping from the host costs a device call per step; this costs one per evaluation."""
         quota = np.asarray(quota, np.int32)
         play = _jitted_play(self.env, act, int(quota.max()))
-        returns, lengths = jax.device_get(play(args, self._state, jnp.asarray(self._first_obs), jnp.asarray(quota)))
+        state, first_obs = self._start()
+        returns, lengths = jax.device_get(play(args, state, jnp.asarray(first_obs), jnp.asarray(quota)))
         kept = [(i, j) for i in range(len(quota)) for j in range(quota[i])]
         return [float(returns[i, j]) for i, j in kept], [int(lengths[i, j]) for i, j in kept]
 

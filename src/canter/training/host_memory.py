@@ -5,7 +5,8 @@ env, about 0.5 MB for Hopper), so `env.num_envs=200000` would take about 100 GB,
 killer would end the process with no message. For large env counts, the memory of a few envs is measured (the
 process's resident size before and after making them, after a first env has paid the one-time costs of the
 library, in a process of its own), scaled to the run's count and compared with what the machine has available.
-JAX-native backends are checked on the compiled program instead (`canter.training.device_memory`).
+JAX-native backends are sized from the shapes of one env's state, against the device's free memory where it reports
+it (a GPU), and checked again on the compiled program (`canter.training.device_memory`).
 
 The train state (a replay buffer, the networks and their optimizer's moments) is checked the same way before it is
 built, from its shapes (`canter.algos.state_size`), against the device's free memory where the device reports it
@@ -70,10 +71,12 @@ def bytes_per_env(make: Callable[[int], Any]) -> float | None:
     return max(after - before, 0) / PROBE_ENVS
 
 
-def refusal(num_envs: int, per_env: float, available: int, group: int = 1, measured: bool = True) -> CanterError | None:
-    """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (`measured`, or the least an
-    env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is fewer seeds at a
-    time, not fewer envs."""
+def refusal(
+    num_envs: int, per_env: float, available: int, group: int = 1, measured: bool = True, how: str = "measured"
+) -> CanterError | None:
+    """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (`measured`, `how` it was,
+    or the least an env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is
+    fewer seeds at a time, not fewer envs."""
     total = num_envs * group
     need = per_env * total
     room = HEADROOM * available
@@ -85,7 +88,7 @@ def refusal(num_envs: int, per_env: float, available: int, group: int = 1, measu
         what = f"{group} seeds of env.num_envs={num_envs} ({total} envs) need {amount} for their"
     else:
         what = f"env.num_envs={num_envs} needs {amount} for its"
-    each = f"{per_env / 2**20:.2f} MiB each, measured" if measured else f"at least {per_env:.0f} bytes each"
+    each = f"{size_text(per_env)} each, {how}" if measured else f"at least {per_env:.0f} bytes each"
     if not measured:  # a count that fits this floor can still be far too many envs
         fix = "lower it by far (an env takes much more than its seed)"
     elif group > 1 and num_envs <= fits:
@@ -126,22 +129,34 @@ def bytes_per_env_apart(env_id: str, backend: str, options: dict[str, Any]) -> f
     return float(measured) if measured is not None else None
 
 
-def check_envs_fit(
-    env_id: str, backend: str, options: dict[str, Any], num_envs: int, group: int = 1, measure: bool = True
-) -> None:
+def check_envs_fit(env_id: str, backend: str, options: dict[str, Any], num_envs: int, group: int = 1) -> None:
     """Refuse, before creating them (and before listing their seeds), `group` seeds' `num_envs` envs each that the
-    machine's memory cannot hold. With `measure`, as envs stepped on the host are, each a simulator of its own, an
-    env's memory is measured; any env takes at least MIN_BYTES_PER_ENV."""
+    machine's memory cannot hold. Each env stepped on the host is a simulator of its own, whose memory is measured;
+    where it cannot be, any env takes at least MIN_BYTES_PER_ENV."""
     if num_envs * group <= CHECK_ABOVE:
         return
     available = available_bytes()
     if available is None:
         return
-    per_env = bytes_per_env_apart(env_id, backend, options) if measure else None
+    per_env = bytes_per_env_apart(env_id, backend, options)
     if per_env is None:
         error = refusal(num_envs, MIN_BYTES_PER_ENV, available, group, measured=False)
     else:
         error = refusal(num_envs, max(per_env, MIN_BYTES_PER_ENV), available, group)
+    if error is not None:
+        raise error
+
+
+def check_jax_envs_fit(per_env: Callable[[], int], num_envs: int, group: int, device_free: int | None) -> None:
+    """Refuse JAX envs whose state alone, `per_env()` bytes each (read from its shapes), does not fit in the device's
+    free memory (the machine's on the CPU): the program that steps them is checked only after its compile, and
+    resetting so many envs first can take minutes and then fail with XLA's own error."""
+    if num_envs * group <= CHECK_ABOVE:
+        return
+    available = device_free if device_free is not None else available_bytes()
+    if available is None:
+        return
+    error = refusal(num_envs, max(per_env(), MIN_BYTES_PER_ENV), available, group, how="from its state's shapes")
     if error is not None:
         raise error
 

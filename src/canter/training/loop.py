@@ -3,6 +3,7 @@ and handle stop conditions and signals."""
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -32,7 +33,7 @@ from canter.run_layout import (
 from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
-from canter.training.group_program import Chunk, GroupProgram
+from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
 from canter.training.logger import Progress, checkpoint_totals
 from canter.training.seed_run import RunResult, SeedRun, SeedStart, reached_target, write_summary
 
@@ -238,7 +239,8 @@ def _train_locked(
             # The resumed states read from the checkpoints live on in `states` alone (a replay buffer twice over
             # for the whole run otherwise).
             starts = [replace(start, state=None) for start in starts]
-            carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
+            with fewer_envs_when_out_of_device_memory(configs[0].env.num_envs):  # the first reset of JAX envs
+                carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
             if isinstance(exc, CanterError):  # refused before it trained: no folder is left that holds nothing
@@ -260,9 +262,20 @@ def _check_resources(configs: list[Config], backend: str) -> None:
 
     run_lock.check_open_files(len(configs))
     env = configs[0].env
-    # JAX envs are not measured: their memory is checked on the compiled program (canter.training.device_memory).
-    measure = not get_backend(backend).jax_native
-    host_memory.check_envs_fit(env.id, backend, env_options(env, backend), env.num_envs, len(configs), measure)
+    options = env_options(env, backend)
+    chosen = get_backend(backend)
+    if chosen.jax_native:  # sized from one env's shapes; the compiled program is checked as well
+        one_env = functools.partial(_one_env_state_bytes, chosen, env.id, options)
+        host_memory.check_jax_envs_fit(one_env, env.num_envs, len(configs), device_memory.free_bytes())
+    else:
+        host_memory.check_envs_fit(env.id, backend, options, env.num_envs, len(configs))
+
+
+def _one_env_state_bytes(backend: Any, env_id: str, options: dict[str, Any]) -> int:
+    """The memory one env's state takes on a JAX backend, from its shapes (the env is never reset)."""
+    env = backend.make(env_id, 1, [0], **options)
+    assert isinstance(env, JaxVecEnv)
+    return env.state_bytes()
 
 
 def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> SeedStart:
