@@ -442,7 +442,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     assert warning.count("canter: warning:") == 1
     # The key that sizes the field best.npz leaves out, as td3's size_keys names it, is the other way to make room.
     assert "lower run.keep_checkpoints or td3.buffer_size, or set run.compress_checkpoints=true" in warning
-    assert "a checkpoint of this run takes 1.0 MiB and it needs room for 3.1 MiB of them" in warning
+    assert "a checkpoint of this run takes 990.2 KiB and it needs room for 2.9 MiB of them" in warning
     # A state whose best.npz holds everything needs room for four whole ones.
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
     assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)

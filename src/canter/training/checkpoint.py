@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sys
 import zipfile
 from collections.abc import Sequence
@@ -88,7 +89,7 @@ def _digest(arrays: dict[str, np.ndarray], header: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
-def _named_leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
+def named_leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
     """A pytree's leaves, named by their paths, where they are (nothing moves off the device)."""
     return [(prefix + _path_name(p), leaf) for p, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]]
 
@@ -110,7 +111,7 @@ def save(
     buffer). Both forms are read the same way. `env_carry`, where the env state is a pytree (JAX-native backends),
     holds the episodes in flight under names starting with `env_carry/`, so that a resumed run continues them.
     `leave_out` names top-level fields of the state not to write (listed in the header's `left_out`)."""
-    named = _named_leaves(state)
+    named = named_leaves(state)
     left_out = [name for name, _ in named if name.split("/", 1)[0] in leave_out]
     # Only the kept leaves leave the device: a replay buffer left out stays where it is.
     arrays = _to_host([(name, leaf) for name, leaf in named if name not in left_out])
@@ -118,7 +119,7 @@ def save(
     if left_out:
         header["left_out"] = left_out
     if env_carry is not None:
-        carry = _to_host(_named_leaves(env_carry, ENV_CARRY))
+        carry = _to_host(named_leaves(env_carry, ENV_CARRY))
         arrays.update(carry)
         header["env_carry_leaves"] = list(carry)
     header["sha256"] = _digest(arrays, header)
@@ -131,10 +132,24 @@ def save(
 
 def _refuse_not_a_file(path: Path) -> None:
     """A folder or a missing path named as a checkpoint, told apart from a damaged file."""
+    if (
+        path.is_dir()
+        and path.parent.name == CHECKPOINT_FOLDER
+        and (CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE)
+    ):
+        # Found by its name in a run's checkpoints/, where no --checkpoint need have been given.
+        raise CanterError(
+            f"checkpoint {path} is a folder where a checkpoint file should be; move it out of {path.parent}"
+        )
     if path.is_dir():
         raise CanterError(
             f"checkpoint {path} is a folder; --checkpoint takes {LAST}, {BEST} or a .npz file (such as a run "
             f"folder's checkpoints/ckpt_*.npz)"
+        )
+    if path.is_symlink() and not path.exists():
+        raise CanterError(
+            f"checkpoint {path} is a link to a missing file ({os.readlink(path)}); remove the link, or restore "
+            f"its target"
         )
     if not path.is_file():
         named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
@@ -227,8 +242,14 @@ def need_run_folder(run_dir: Path) -> None:
         )
     if not run_dir.is_dir():
         raise CanterError(f"run folder not found: {run_dir}")
-    if run_files_in(run_dir) & {CONFIG_FILE, CHECKPOINT_FOLDER}:
+    held = run_files_in(run_dir)
+    if held & {CONFIG_FILE, CHECKPOINT_FOLDER}:
         return
+    if held:  # a run's metrics or summary, left where its config and checkpoints were lost: no question of a run
+        raise CanterError(
+            f"{run_dir} has {', '.join(sorted(held))} but no {CONFIG_FILE} and no checkpoint: the run folder is "
+            f"damaged; restore its {CONFIG_FILE} and {CHECKPOINT_FOLDER}/ from a copy"
+        )
     inside = runs_inside(run_dir)
     if inside:
         raise CanterError(
@@ -311,6 +332,8 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
         return path
     _need_checkpoint_folder(run_dir)
     path = best_path(run_dir)
+    if path.exists() or path.is_symlink():
+        _refuse_not_a_file(path)  # a folder or a broken link with its name is no sign that the run never evaluated
     if not path.is_file():
         raise CanterError(
             f"{run_dir} has no best checkpoint: it never evaluated during training (train with --eval-every N, "

@@ -43,6 +43,7 @@ from canter.run_layout import (
     TRACKERS_FILE,
     VERSIONS_FILE,
     checkpoints_in,
+    run_files_in,
 )
 from canter.training import provenance
 
@@ -203,6 +204,10 @@ def damaged_config_fix(run_dir: Path) -> str:
 def read_config(run_dir: Path) -> Config:
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
+        # A folder with a run's own files (checkpoints, metrics) is a run that lost its config, which a checkpoint
+        # can give back; only a folder with none of them may be no run at all.
+        if run_files_in(run_dir):
+            raise CanterError(f"{run_dir} has no config.toml: {damaged_config_fix(run_dir)}")
         raise CanterError(f"{run_dir} has no config.toml; is it a canter run folder?")
     run_format(run_dir)
     text = path.read_text(errors="replace")

@@ -146,6 +146,8 @@ def _no_rows(path: Path) -> str:
 def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
+    if path.is_dir():  # a run folder with its file's name taken: sending the user to another run folder misleads
+        raise CanterError(f"{path} is a folder, not a file; move it away and restore {path.name} from a copy")
     if not path.is_file():
         from canter.training.checkpoint import runs_inside
 
