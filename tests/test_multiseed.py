@@ -206,7 +206,7 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path,
     )
     with pytest.raises(
         CanterError,
-        match=r"s0 already has \d+ of run.total_steps=4096 steps; pass --total-steps \(total_steps in resume_config\) "
+        match=r"s0 already has \d+ of run.total_steps=4096 steps; pass a --total-steps \(total_steps= from Python\) "
         r"larger",
     ):
         resume_seeds(folders, 4096)

@@ -208,3 +208,42 @@ def test_a_versions_json_of_another_json_type_is_named_as_json_names_it(archived
     (archived_run / "versions.json").write_text("null")
     run_folder.migrate(archived_run)
     assert "was a JSON null, not an object" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("summary", ["missing", "stale"])
+def test_a_resume_of_a_run_stopped_before_its_summary_writes_it_and_trains_nothing(archived_run, capsys, summary):
+    """A kill between the final checkpoint and summary.json left a finished run that job scripts never saw finish;
+    its resume used to refuse it as finished, with the summary still missing."""
+    path = archived_run / "summary.json"
+    if summary == "missing":
+        path.unlink()
+    else:  # a summary of an earlier stop, before a resume trained the rest
+        path.write_text(json.dumps({**json.loads(path.read_text()), "global_step": 714, "stop_reason": "signal"}))
+    checkpoints = sorted((archived_run / "checkpoints").iterdir())
+    assert main(["train", "--resume", str(archived_run), "--quiet"]) == 0
+    assert (
+        f"canter: note: {archived_run} had trained its budget (1,190 steps) but stopped before writing its "
+        "summary.json, which is written now from its final checkpoint"
+    ) in capsys.readouterr().err
+    written = json.loads(path.read_text())
+    assert written["global_step"] == 1190 and written["stop_reason"] == "budget" and written["episodes"] == 91
+    assert sorted((archived_run / "checkpoints").iterdir()) == checkpoints  # nothing trained
+    # With its summary written it is a finished run, which a resume refuses as before.
+    assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
+    assert "already has 1190 of run.total_steps=1024 steps; pass a --total-steps" in capsys.readouterr().err
+
+
+def test_a_group_resume_writes_the_missing_summaries_of_its_finished_seeds(tmp_path, capsys):
+    import shutil
+
+    folders = []
+    for seed in (0, 1):
+        folder = tmp_path / f"s{seed}"
+        shutil.copytree(ARCHIVED_RUN.parent / f"ppo-group-s{seed}", folder)
+        (folder / "summary.json").unlink()
+        folders.append(str(folder))
+    assert main(["train", "--resume", *folders, "--quiet"]) == 0
+    err = capsys.readouterr().err
+    for folder in folders:
+        assert f"canter: note: {folder} had trained its budget" in err
+        assert json.loads((Path(folder) / "summary.json").read_text())["stop_reason"] == "budget"

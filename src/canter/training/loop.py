@@ -4,6 +4,7 @@ and handle stop conditions and signals."""
 from __future__ import annotations
 
 import functools
+import json
 import math
 import sys
 import time
@@ -55,6 +56,9 @@ def train(
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in its budget: run.total_steps (the learning-rate schedule is stretched to the new total) and
     run.max_minutes."""
+    ended = resume is not None and _has_its_budget(Path(resume), config)
+    if ended and (summarized := _summarize_if_it_ended(Path(str(resume)))) is not None:
+        return summarized
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
 
@@ -95,6 +99,9 @@ def resume_seeds(
     # Checked before the seeds: two runs of different experiments repeat seeds too, which would hide the cause.
     _check_one_group(run_dirs, configs)
     finished = [_has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
+    summarized = [_summarize_if_it_ended(Path(d)) for d, done in zip(run_dirs, finished) if done]
+    if all(finished) and any(summarized):  # what was left to do is done; a finished run is refused only otherwise
+        return [result for result in summarized if result is not None]
     if len(run_dirs) > 1 and any(finished) and not all(finished):
         for run_dir in (d for d, done in zip(run_dirs, finished) if done):
             print(
@@ -161,6 +168,27 @@ def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path)
 def _has_its_budget(run_dir: Path, config: Config) -> bool:
     newest = run_folder.list_checkpoints(run_dir)
     return bool(newest) and int(checkpoint.read_header(newest[-1]).get("global_step", 0)) >= config.run.total_steps
+
+
+def _summarize_if_it_ended(run_dir: Path) -> RunResult | None:
+    """Write summary.json of a run that trained its budget but stopped before its summary (a kill between the two
+    writes), as `summarize_ended_run` does for a bench, and say so; None for a run whose summary is there."""
+    with run_lock.RunLocks() as locks:
+        locks.take(run_dir)
+        step = run_folder.step_of(run_folder.list_checkpoints(run_dir)[-1])
+        try:
+            summarized = json.loads((run_dir / SUMMARY_FILE).read_text()).get("global_step")
+        except (OSError, ValueError, AttributeError):
+            summarized = None
+        if isinstance(summarized, int) and summarized >= step:
+            return None
+        result = summarize_ended_run(run_dir)
+    print(
+        f"canter: note: {run_dir} had trained its budget ({step:,} steps) but stopped before writing its "
+        f"{SUMMARY_FILE}, which is written now from its final checkpoint",
+        file=sys.stderr,
+    )
+    return result
 
 
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
@@ -302,7 +330,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
             run_folder.write_config(start.out, saved)
         raise CanterError(
             f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
-            f"steps; pass --total-steps (total_steps in resume_config) larger than {start.step} to extend it"
+            f"steps; pass a --total-steps (total_steps= from Python) larger than {start.step} to extend it"
         )
     if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
         # Not refused: a bench re-run given a target resumes such a seed so that it ends there, as an uncut run would.
