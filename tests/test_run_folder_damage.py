@@ -247,3 +247,25 @@ def test_a_group_resume_writes_the_missing_summaries_of_its_finished_seeds(tmp_p
     for folder in folders:
         assert f"canter: note: {folder} had trained its budget" in err
         assert json.loads((Path(folder) / "summary.json").read_text())["stop_reason"] == "budget"
+
+
+@pytest.mark.parametrize("damage", ["emptied", "header_cut", "rows_gone"])
+def test_a_resume_refuses_a_metrics_csv_that_lost_its_rows_until_it_is_restored_or_moved_away(
+    archived_run, capsys, damage
+):
+    """A resume used to write a new header after the emptied file and log on from the checkpoint, after which plot
+    drew the run as if it had begun there."""
+    metrics = archived_run / "metrics.csv"
+    header = metrics.read_text().splitlines()[0]
+    metrics.write_text({"emptied": "", "header_cut": header[:20], "rows_gone": header + "\n"}[damage])
+    before = metrics.read_bytes()
+    argv = ["train", "--resume", str(archived_run), "--total-steps", "1500", "--quiet"]
+    assert _one_line_error(capsys, main(argv)) == (
+        f"canter: error: {metrics} has no logged rows, though the run has a checkpoint at step 1,190: the file was "
+        f"emptied or damaged; restore it from a copy, or move it away to resume with rows from step 1,190 on\n"
+    )
+    assert metrics.read_bytes() == before
+    metrics.rename(archived_run / "metrics.csv.damaged")
+    assert main(argv) == 0
+    steps = [int(row["global_step"]) for row in read_rows(metrics)[1]]
+    assert steps and min(steps) > 1190

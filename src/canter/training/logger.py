@@ -66,6 +66,15 @@ def _whole_lines(path: Path) -> bytes:
     return data[: data.rfind(b"\n") + 1]
 
 
+def lost_rows(path: Path, step: int) -> str:
+    """Why the metrics.csv of a run with a checkpoint at `step` > 0 has no rows, though each iteration logs one before
+    its checkpoint: it was emptied or damaged. Only a copy gives its history back."""
+    return (
+        f"{path} has no logged rows, though the run has a checkpoint at step {step:,}: the file was emptied or "
+        f"damaged; restore it from a copy"
+    )
+
+
 def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     """The header and the rows of a metrics.csv or an archived metrics.csv.gz (none for a missing file), without a
     half-written last line."""
@@ -230,6 +239,8 @@ class MetricsLogger:
         self.path = Path(run_dir) / METRICS_FILE
         self.columns = columns_for(metric_names, info_keys, evaluates)
         self._unpack_archived()
+        if resume_step:
+            self._refuse_a_lost_history(resume_step)
         self._cut_half_written_line()
         self._check_header()
         if resume_step is not None:
@@ -260,6 +271,14 @@ class MetricsLogger:
         rows = _whole_lines(packed)
         atomic_write_bytes(self.path, lambda f: f.write(rows))
         packed.unlink()
+
+    def _refuse_a_lost_history(self, step: int) -> None:
+        """A file without a row, of a run that trained to a checkpoint, lost its history: appending to it would hide
+        that. A file moved away on purpose starts again at the checkpoint."""
+        if self.path.is_file() and _whole_lines(self.path).count(b"\n") < 2:  # the header and a row at least
+            raise CanterError(
+                f"{lost_rows(self.path, step)}, or move it away to resume with rows from step {step:,} on"
+            )
 
     def _cut_half_written_line(self) -> None:
         if not self.path.is_file():

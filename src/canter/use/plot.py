@@ -51,7 +51,7 @@ from canter.config.experiment import (
 from canter.config.schema import Config
 from canter.config.values import set_text
 from canter.errors import CanterError
-from canter.training.logger import read_rows, run_history, unreadable_steps
+from canter.training.logger import lost_rows, read_rows, run_history, unreadable_steps
 from canter.training.run_folder import list_checkpoints, metrics_file, read_config, step_of
 from canter.use import score_plot
 from canter.use.scoreboard import (
@@ -131,10 +131,7 @@ def _no_rows(path: Path) -> str:
     checkpoints = list_checkpoints(run)
     newest = step_of(checkpoints[-1]) if checkpoints else 0
     if newest > 0:
-        return (
-            f"{path} has no logged rows, though the run has a checkpoint at step {newest:,}: the file was emptied or "
-            f"damaged; restore it from a copy"
-        )
+        return lost_rows(path, newest)
     # A run stopped in setup or in its first iteration (a signal, a non-finite start) has at most a step-0 checkpoint.
     go_on = f"train it on with canter train --resume {run}" if checkpoints else "train it again"
     return (
