@@ -179,6 +179,29 @@ def test_resume_keeps_the_best_so_far(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_best_saved_after_the_resumed_checkpoint_is_replaced_not_kept(tmp_path, capsys):
+    """A process killed between an evaluation's best.npz and its iteration's checkpoint left a best state of training
+    that the resume drops and does again: it kept serving --checkpoint best and set the bar for the run."""
+    from canter.training.restore import load_state
+
+    first = train(eval_config(tmp_path, total_steps=2048))
+    path = checkpoint.best_path(first.run_dir)
+    config, _, state, header = load_state(first.run_dir, "best")
+    resumed_at = first.global_step
+    header = {k: v for k, v in header.items() if k not in ("sha256", "format_version", "leaves")}
+    orphan = dict(header, global_step=resumed_at + 512, evaluation=dict(header["evaluation"], return_mean=1e9))
+    checkpoint.save(path, state, orphan)
+    capsys.readouterr()
+    train(replace(config, run=replace(config.run, total_steps=4096)), resume=first.run_dir)
+    assert (
+        f"canter: note: removed {path} (step {resumed_at + 512:,}, return 1000000000.0): it was saved after the "
+        f"checkpoint this resume starts from (step {resumed_at:,})"
+    ) in capsys.readouterr().err
+    best = checkpoint.read_header(path)
+    assert resumed_at < best["global_step"] <= 4096 + 2048 and best["evaluation"]["return_mean"] < 1e9
+
+
+@pytest.mark.slow
 def test_seeds_of_a_group_evaluate_each_on_their_own(tmp_path):
     results = canter.train_seeds(eval_config(tmp_path, total_steps=2048), [0, 1])
     means = []

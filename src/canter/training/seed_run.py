@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -136,7 +137,7 @@ class SeedRun:
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
-            TrainingEvaluation(config, spec, start.step, best_return(out) if resumed else None)
+            TrainingEvaluation(config, spec, start.step, best_return(out, start.step) if resumed else None)
             if config.run.eval_every
             else None
         )
@@ -357,15 +358,29 @@ def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
         return None
 
 
-def best_return(run_dir: Path) -> float | None:
-    """The score of the run's best.npz, so that a resumed run keeps its best state until a better one comes."""
+def best_return(run_dir: Path, resume_step: int) -> float | None:
+    """The score of the run's best.npz, so that a run resumed at `resume_step` keeps its best state until a better
+    one comes. A best.npz saved after that checkpoint (an evaluation comes before its iteration's checkpoint) is of
+    training that the resume does again, whose rows it drops: it is removed, and the next evaluation saves one."""
     path = checkpoint.best_path(run_dir)
     if not path.is_file():
         return None
     try:
-        return float(checkpoint.read_header(path)["evaluation"]["return_mean"])
+        header = checkpoint.read_header(path)
+        score = float(header["evaluation"]["return_mean"])
     except (KeyError, TypeError, ValueError):
         raise CanterError(
             f"{path} holds no evaluation score, so it is not a best checkpoint of this run; move it out of the "
             f"folder, then resume"
         ) from None
+    saved_at = int(header.get("global_step", 0))
+    if saved_at <= resume_step:
+        return score
+    path.unlink()
+    print(
+        f"canter: note: removed {path} (step {saved_at:,}, return {score:.1f}): it was saved after the checkpoint "
+        f"this resume starts from (step {resume_step:,}), by training the resume does again; the next evaluation "
+        f"saves a new one",
+        file=sys.stderr,
+    )
+    return None
