@@ -23,6 +23,7 @@ MJX compiles take about 25 s per task on this CPU, so `make test` runs InvertedP
 import csv
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import jax
@@ -35,7 +36,7 @@ from canter.core.runtime import setup_jax
 from canter.envs.functional import FunctionalVecEnv
 from canter.envs.registry import resolve_backend
 from canter.errors import CanterError
-from conftest import TINY
+from conftest import TINY, error_line
 
 pytestmark = pytest.mark.slow
 
@@ -254,9 +255,10 @@ def _rows(run_dir):
 
 
 def test_a_resumed_run_continues_its_episodes_exactly(tmp_path):
-    """Two iterations straight, against one iteration, a stop and a resume: every metrics row and every parameter
-    are the same, so the episodes in flight at the stop (their state, step counts, running returns and reset keys)
-    were restored, not restarted."""
+    """Three iterations straight, against two, a stop and a resume for the third (an iteration counts fewer env
+    steps than ITERATION, as reset steps do not count: the budgets of ITERATION and 2 x ITERATION steps end after
+    two and three): every metrics row and every parameter are the same, so the episodes in flight at the stop (their
+    state, step counts, running returns and reset keys) were restored, not restarted."""
     from canter.training.loop import train
     from canter.training.restore import load_state
 
@@ -271,6 +273,30 @@ def test_a_resumed_run_continues_its_episodes_exactly(tmp_path):
     a, b = load_state(straight.run_dir)[2], load_state(resumed.run_dir)[2]
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_diverged_mjx_run_stops_with_its_last_good_state_and_env_carry(tmp_path, capsys):
+    """A learning rate of 100 takes InvertedPendulum's policy to NaN in its second iteration. The run stops with one
+    line naming the last good step; the newest checkpoint is that step's, whose parameters and episodes in flight
+    (the env carry that a resume continues) are finite; and a resume diverges again, with the same line."""
+    from canter.training import checkpoint
+    from canter.training.restore import load_state
+
+    sets = ["ppo.lr=100", "env.num_envs=4", "ppo.n_steps=16", "ppo.minibatch_size=32", "run.checkpoint_every=64"]
+    sets += TINY + [f"run.out_dir={tmp_path / 'runs'}"]
+    argv = ["train", "InvertedPendulum-v5", "--backend", "mjx", "--total-steps", "3000"]
+    stopped = error_line(capsys, argv + [arg for item in sets for arg in ("--set", item)])
+    found = re.match(r"non-finite .* after step (\d+); stopped, last good state saved in ", stopped)
+    assert found, stopped
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    arrays, header = checkpoint.read(checkpoint.resolve(run_dir))
+    assert header["global_step"] == int(found.group(1)) > 0
+    params = load_state(run_dir)[2].params
+    assert all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(params))
+    carry = {name: arrays[name] for name in header["env_carry_leaves"]}
+    assert "env_carry/obs" in carry and "env_carry/env_state/physics/qpos" in carry
+    assert [name for name, leaf in carry.items() if leaf.dtype.kind == "f" and not np.isfinite(leaf).all()] == []
+    assert error_line(capsys, ["train", "--resume", str(run_dir)]) == stopped
 
 
 def test_ppo_learns_on_mjx_and_the_policy_moves_to_cpu_mujoco(tmp_path, monkeypatch, capsys):

@@ -48,6 +48,10 @@ exec > >(
     trap '' TERM
     exec tee -a "$OUT/$part.log"
 ) 2>&1
+# bash does not wait for a process substitution: at exit, end tee's input and wait for it to write the last lines,
+# so that session.sh, packing the log as soon as this exits, has all of it.
+tee_pid=$!
+trap 'exec >&- 2>&-; wait "$tee_pid"' EXIT
 
 if compgen -G ".whl/*.whl" >/dev/null && [ "${CANTER_GPU_INSTALL:-1}" = 1 ]; then
     if "$PY" -m pip --version >/dev/null 2>&1; then

@@ -15,6 +15,7 @@
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 began=$(date +%s)
+PY=${PYTHON:-python3} # the interpreter run.sh runs the parts with
 KILL_AFTER=${KILL_AFTER:-60}
 PACKING=20 # seconds for the last summary and tar
 final=${OUT:-benchmarks/gpu/out}
@@ -25,10 +26,14 @@ exec > >(
     trap '' TERM
     exec tee -a "$final/session.log"
 ) 2>&1
+# At exit, end tee's input and wait for it: bash does not wait for a process substitution, and the log's last lines
+# would be lost to a device call that returns as soon as this exits.
+tee_pid=$!
+trap 'exec >&- 2>&-; wait "$tee_pid"' EXIT
 work=$(mktemp -d /tmp/canter-gpu.XXXX)
 if compgen -G ".whl/*.whl" >/dev/null; then
     # A wheel that does not install would fail every part at its first import: stop before the parts.
-    if ! python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+    if ! "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
         .whl/*.whl; then
         echo "session.sh: the wheels in .whl/ did not install (above); run benchmarks/gpu/wheels.sh again here"
         exit 1
@@ -59,7 +64,7 @@ for item in "$@"; do
     echo "== $part exit $status ($(date -u +%T))"
     if [ $status -ne 0 ]; then
         find "$work/runs" -type d -name checkpoints -prune -exec rm -rf {} + 2>/dev/null
-        python3 benchmarks/gpu/summarize.py "$part" "$work" || true
+        "$PY" benchmarks/gpu/summarize.py "$part" "$work" || true
     fi
     # Packed after every part, so a call cut short still brings back the parts that finished.
     cat "$work"/*.md >"$final/session.md" 2>/dev/null

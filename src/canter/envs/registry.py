@@ -148,10 +148,7 @@ def resolve_backend(env_id: str, backend: str) -> str:
         raise CanterError(f"{chosen.label} is not installed on this platform; use --backend {_or(others)}")
     ids = chosen.supported_ids()
     if env_id not in ids and chosen.jax_native:
-        raise CanterError(
-            f"{env_id} has no {chosen.label} version; --backend {chosen.name} runs {_or(sorted(ids))}, or drop "
-            f"--backend to run {env_id} on the CPU"
-        )
+        raise _not_ported(env_id, chosen, sorted(ids))
     if env_id not in ids:
         raise _elsewhere(env_id, chosen) or _unknown(env_id, sorted(ids), chosen.label)
     return chosen.name
@@ -192,6 +189,35 @@ def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None
         labels = _or([get_backend(name).label for name in where])
         return CanterError(f"'{env_id}' is an env id of {labels}; pass --backend {_or(where)}")
     return CanterError(f"{chosen.label} does not run {env_id}; pass --backend {_or(where)}, or drop --backend")
+
+
+def _not_ported(env_id: str, chosen: Backend, ids: list[str]) -> CanterError:
+    """The error for an id that a JAX-native backend does not run, with the ids it runs (few, unlike a CPU
+    backend's): the backends that run it, and the chosen one's id of the same task, which backends spell differently
+    (hopper, Hopper-v5); for an id none runs, its nearest ids."""
+    runs = f"--backend {chosen.name} runs {_or(ids)}"
+    others = [b for b in backends() if b is not chosen and b.available() and env_id in b.supported_ids()]
+    if not others:
+        lowered = {known.lower(): known for known in ids}
+        close = [lowered[match] for match in difflib.get_close_matches(env_id.lower(), list(lowered), n=3, cutoff=0.6)]
+        hint = f"did you mean {', '.join(close)}? ({runs})" if close else runs
+        return CanterError(f"unknown env id '{env_id}' for {chosen.label}; {hint}")
+    fixes = []
+    native = [b.name for b in others if b.jax_native]
+    if native:
+        fixes.append(f"pass --backend {_or(native)}")
+    if len(native) < len(others):  # `auto` finds it on a backend that steps it on the host
+        fixes.append("drop --backend to run it on the CPU")
+    same_task = [known for known in ids if _task(known) == _task(env_id)]
+    if same_task:
+        fixes.append(f"use {_or(same_task)} with --backend {chosen.name}")
+    advice = fixes[0] if len(fixes) == 1 else f"{', '.join(fixes[:-1])}, or {fixes[-1]}"
+    return CanterError(f"{chosen.label} does not run {env_id} ({runs}); {advice}")
+
+
+def _task(env_id: str) -> str:
+    """An id without its version, case or underscores: hopper, Hopper-v5 and Hopper-v4 are one task."""
+    return re.sub(r"-v\d+$", "", env_id).replace("_", "").lower()
 
 
 def make_vec_env(env_id: str, backend: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
