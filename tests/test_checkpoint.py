@@ -99,7 +99,7 @@ def test_prune_keeps_newest(tmp_path):
     (empty / "config.toml").write_text("")  # a run stopped before its first checkpoint: it can start again
     with pytest.raises(
         CanterError,
-        match=r"no checkpoint in .* yet: .* one stopped before that starts again with canter train --config ",
+        match=r"no checkpoint in .* yet: .* canter train --resume .* trains one stopped before that again from step 0",
     ):
         checkpoint.latest(empty)
     with pytest.raises(CanterError, match="run folder not found"):

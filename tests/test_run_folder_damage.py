@@ -269,3 +269,49 @@ def test_a_resume_refuses_a_metrics_csv_that_lost_its_rows_until_it_is_restored_
     assert main(argv) == 0
     steps = [int(row["global_step"]) for row in read_rows(metrics)[1]]
     assert steps and min(steps) > 1190
+
+
+@pytest.mark.slow
+def test_a_run_killed_before_its_first_checkpoint_resumes_by_training_again_in_its_folder(
+    archived_run, tmp_path, capsys
+):
+    """Such a run used to be refused by --resume, with advice to train a new one in another folder; a seed of a group
+    killed between the seeds' first checkpoints was stranded the same way."""
+    import shutil
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "summary.json").unlink()
+    logged = len(read_rows(archived_run / "metrics.csv")[1])
+    assert main(["train", "--resume", str(archived_run), "--quiet"]) == 0
+    assert (
+        f"canter: note: {archived_run} stopped before its first checkpoint, so it trains again from step 0 in its "
+        f"folder (the {logged} metrics rows it had logged are dropped)"
+    ) in capsys.readouterr().err
+    assert json.loads((archived_run / "summary.json").read_text())["stop_reason"] == "budget"
+    assert run_folder.list_checkpoints(archived_run)
+    # It trained as it first started: the same rows as a run of its config in a new folder.
+    fresh = tmp_path / "fresh"
+    assert main(["train", "--config", str(archived_run / "config.toml"), "--out-dir", str(fresh), "--quiet"]) == 0
+    [fresh_run] = fresh.iterdir()
+    columns = ("global_step", "episodes", "episodic_return", "policy_loss")
+    again, new = (read_rows(folder / "metrics.csv")[1] for folder in (archived_run, fresh_run))
+    assert [[r[c] for c in columns] for r in again] == [[r[c] for c in columns] for r in new]
+
+
+@pytest.mark.slow
+def test_a_seed_of_a_group_with_no_checkpoint_trains_again_beside_the_others(tmp_path, capsys):
+    import shutil
+
+    folders = []
+    for seed in (0, 1):
+        folder = tmp_path / f"s{seed}"
+        shutil.copytree(ARCHIVED_RUN.parent / f"ppo-group-s{seed}", folder)
+        folders.append(folder)
+    shutil.rmtree(folders[1] / "checkpoints")
+    (folders[1] / "summary.json").unlink()
+    steps = json.loads((folders[0] / "summary.json").read_text())["global_step"]
+    argv = ["train", "--resume", *map(str, folders), "--total-steps", str(steps + 256), "--quiet"]
+    assert main(argv) == 0
+    assert f"canter: note: {folders[1]} stopped before its first checkpoint" in capsys.readouterr().err
+    for folder in folders:
+        assert json.loads((folder / "summary.json").read_text())["global_step"] >= steps + 256

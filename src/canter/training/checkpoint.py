@@ -276,9 +276,9 @@ def latest(run_dir: Path) -> Path:
     _note_foreign_files(run_dir)
     if not found:
         raise CanterError(
-            f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and one stopped "
-            f"before that starts again with canter train --config {run_dir / CONFIG_FILE}; or pass the run folder "
-            f"that holds checkpoints/ckpt_*.npz"
+            f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and "
+            f"canter train --resume {run_dir} trains one stopped before that again from step 0; or pass the run "
+            f"folder that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
 

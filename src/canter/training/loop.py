@@ -35,7 +35,7 @@ from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
-from canter.training.logger import Progress, checkpoint_totals
+from canter.training.logger import Progress, checkpoint_totals, read_rows
 from canter.training.seed_run import RunResult, SeedRun, SeedStart, reached_target, write_summary
 
 STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
@@ -273,7 +273,7 @@ def _train_locked(
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
             if isinstance(exc, CanterError):  # refused before it trained: no folder is left that holds nothing
                 for start in starts:
-                    if not start.resumed:
+                    if not (start.resumed or start.restarted):  # a restarted run keeps its config to resume again
                         run_folder.discard_unstarted(start.out)
             error = training_write_error(exc, [start.out for start in starts])
             if error is None:
@@ -313,6 +313,9 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
 
         out = Path(resume)
         locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
+        if _never_checkpointed(out):
+            _check_only_the_budget_differs(_saved_config(out), config, out)
+            return _start_over(out)
         latest = checkpoint.latest(out)
         saved, _, state, header = load_state(out, latest)
         _check_only_the_budget_differs(saved, config, out)
@@ -344,6 +347,30 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
     if resume is None:
         locks.take(start.out)  # before anything is written to it
     return start
+
+
+def _never_checkpointed(run_dir: Path) -> bool:
+    """A run folder with its config.toml, stopped before its first checkpoint (a kill while it compiled or before
+    run.checkpoint_every steps; a seed of a group killed between the seeds' first checkpoints)."""
+    folder = run_folder.checkpoint_dir(run_dir)
+    whole = folder.is_dir() or not (folder.exists() or folder.is_symlink())  # else latest() names what is wrong
+    return whole and not run_folder.list_checkpoints(run_dir) and (run_dir / CONFIG_FILE).is_file()
+
+
+def _start_over(run_dir: Path) -> SeedStart:
+    """Such a run has nothing to resume from, so it starts again at step 0 in its own folder, as it first started:
+    what it logged of the training it lost is cleared first, so that its folder reads as one run."""
+    try:
+        rows = len(read_rows(run_folder.metrics_file(run_dir))[1])
+    except CanterError:  # a damaged file: it is cleared all the same
+        rows = 0
+    run_folder.clear_for_a_restart(run_dir)
+    print(
+        f"canter: note: {run_dir} stopped before its first checkpoint, so it trains again from step 0 in its "
+        f"folder" + (f" (the {rows} metrics rows it had logged are dropped)" if rows else ""),
+        file=sys.stderr,
+    )
+    return SeedStart(run_dir, restarted=True)
 
 
 def _refuse_a_run_in(run_dir: Path) -> None:

@@ -35,10 +35,13 @@ from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes, refuse_inside_run_own_folder
 from canter.run_layout import (
+    ARCHIVED_METRICS_FILE,
     CHECKPOINT_FOLDER,
     CHECKPOINT_NAME,
     CONFIG_FILE,
+    EVAL_FILE,
     METRICS_FILE,
+    SUMMARY_FILE,
     TENSORBOARD_FOLDER,
     TRACKERS_FILE,
     VERSIONS_FILE,
@@ -307,6 +310,17 @@ def discard_unstarted(run_dir: Path) -> None:
         with contextlib.suppress(OSError):  # an unwritable folder: the refusal that brought us here is what to tell
             (run_dir / name).unlink(missing_ok=True)
     shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
+
+
+def clear_for_a_restart(run_dir: Path) -> None:
+    """Remove what a run logged before it stopped short of its first checkpoint (its metrics, events, videos, summary,
+    tracker runs, a best.npz), keeping its config.toml and anything canter does not write: it trains again from step
+    0, and its folder then holds that run alone."""
+    run_dir = Path(run_dir)
+    for name in (METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, TRACKERS_FILE, EVAL_FILE):
+        (run_dir / name).unlink(missing_ok=True)
+    for folder in (TENSORBOARD_FOLDER, "videos", CHECKPOINT_FOLDER):
+        shutil.rmtree(run_dir / folder, ignore_errors=True)
 
 
 def _config_reads_only(run_dir: Path) -> None:

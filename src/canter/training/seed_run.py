@@ -85,6 +85,7 @@ class SeedStart:
     earlier: Totals = field(default_factory=Totals)  # what the sessions before a resume add up to
     resumed_from: Path | None = None  # the checkpoint
     untrained: bool = False  # the checkpoint was written before the run's first iteration (a stop during setup)
+    restarted: bool = False  # a resume of a run with no checkpoint, which trains again from step 0 in its folder
 
     @property
     def resumed(self) -> bool:
