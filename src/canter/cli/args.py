@@ -111,3 +111,29 @@ def track_spec(args: argparse.Namespace, resumed: Sequence[Path] = ()) -> TrackS
     if args.mlflow_uri and "mlflow" not in spec.names:
         raise CanterError("--mlflow-uri sets the store of --track mlflow; also pass --track mlflow")
     return spec
+
+
+def add_backend_arg(parser: argparse.ArgumentParser) -> None:
+    """`--backend NAME`, as env.backend, with one meaning in train, tune and bench."""
+    from canter.envs.registry import backend_choices
+
+    parser.add_argument(
+        "--backend",
+        choices=backend_choices(),
+        default=None,
+        help="env backend, as env.backend (default: the config's, normally auto, the first CPU backend that has the "
+        "env; README 'Environments' lists them, docs/gpu.md the ones whose step is JAX)",
+    )
+
+
+def sets_with_backend(args: argparse.Namespace) -> tuple[str, ...]:
+    """`--set` values with `--backend X` laid over them as `--set env.backend=X` would be (tune and bench hand their
+    `--set` values to every trial or cell); refuses both given, as train does, since one of the two would be ignored."""
+    from canter.config.overrides import parse_set_args
+
+    sets = tuple(args.set)
+    if args.backend is None:
+        return sets
+    if "env.backend" in parse_set_args(list(sets)):
+        raise CanterError("env.backend is given twice, by --backend and by --set env.backend; give it once")
+    return (*sets, f"env.backend={args.backend}")

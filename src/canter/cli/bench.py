@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_track_args, seeds_arg, steps_arg, track_spec
+from canter.cli.args import add_backend_arg, add_track_args, seeds_arg, sets_with_backend, steps_arg, track_spec
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -55,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--config", default=None, help="TOML file under the grid values")
     b.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
+    add_backend_arg(b)
     b.add_argument(
         "--episodes",
         type=int,
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
     grid_keys = {key for key, _ in grid}
-    for key, flag in (("run.algo", "--algos"), ("env.id", "--envs")):
+    for key, flag in (("run.algo", "--algos"), ("env.id", "--envs"), ("env.backend", "--backend")):
         if key in grid_keys and getattr(args, flag[2:]) is not None:
             raise CanterError(f"give the {key} values either with {flag} or with --grid {key}=..., not both")
     if args.envs is None and "env.id" not in grid_keys:
@@ -116,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         out_dir=args.out,
         preset=args.preset,
         config_file=args.config,
-        sets=tuple(args.set),
+        sets=sets_with_backend(args),
         eval_episodes=args.episodes,
         storage_url=args.storage,
         study_name=args.study,

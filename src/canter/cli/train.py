@@ -8,14 +8,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_track_args, seed_arg, seeds_arg, steps_arg, track_spec
+from canter.cli.args import add_backend_arg, add_track_args, seed_arg, seeds_arg, steps_arg, track_spec
 from canter.errors import CanterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from canter.algos import algorithm_names
     from canter.config.presets import preset_names
-    from canter.envs.registry import backend_choices
 
     t = sub.add_parser(
         "train",
@@ -33,13 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--config", default=None, help="TOML file with [section] key = value")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="override one key")
     t.add_argument("--total-steps", type=steps_arg, default=None, help="env steps (1e6 works)")
-    t.add_argument(
-        "--backend",
-        choices=backend_choices(),
-        default=None,
-        help="env backend, as env.backend (default: the config's, normally auto, the first CPU backend that has the "
-        "env; README 'Environments' lists them, docs/gpu.md the ones whose step is JAX)",
-    )
+    add_backend_arg(t)
     t.add_argument(
         "--stop-at-return",
         type=float,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_track_args, seed_arg, steps_arg, track_spec
+from canter.cli.args import add_backend_arg, add_track_args, seed_arg, sets_with_backend, steps_arg, track_spec
 from canter.core.seeding import SEED_LIMIT
 from canter.errors import CanterError
 
@@ -55,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument("--config", default=None, help="TOML file under the sampled values")
     t.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help="fixed override")
+    add_backend_arg(t)
     t.add_argument("--out-dir", default="tune", help="folder of study folders (default tune/)")
     t.add_argument("--study", default=None, metavar="NAME", help="study name (default ENV__ALGO)")
     t.add_argument(
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         study_hours=args.study_hours,
         preset=args.preset,
         config_file=args.config,
-        sets=tuple(args.set),
+        sets=sets_with_backend(args),
         space_file=args.space,
         out_dir=args.out_dir,
         study_name=args.study,

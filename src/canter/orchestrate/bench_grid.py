@@ -168,8 +168,6 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             raise CanterError(f"--set {unread_key_error(algos[0], key)}")
         if key in seen:  # the grid's value would replace it in every cell
             raise CanterError(f"{key} is given by both --grid and --set; keep --grid {key}=... or --set {key}=...")
-    for env_id in envs:
-        resolve_backend(env_id, "auto")
     cells = []
     for algo, env_id in itertools.product(algos, envs):
         for combo in itertools.product(*(values for _, values in axes)):
@@ -191,6 +189,7 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
                 raise CanterError(f"cell ({where}): {exc}") from None
             cells.append(Cell(algo, env_id, pairs, config))
     for env_id, backend in dict.fromkeys((cell.env_id, cell.config.env.backend) for cell in cells):
+        resolve_backend(env_id, backend)  # on the backend the cell runs it on (--backend, --set or a --grid axis)
         check_continuous(env_id, backend)  # last: it makes an env
     return cells
 
