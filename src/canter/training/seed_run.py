@@ -322,9 +322,18 @@ class SeedRun:
         )
 
 
+# Settings that change where or how the envs are stepped, never the updates: no suspects of a divergence.
+NOT_SUSPECTS = frozenset({"env.backend", "env.envpool_shards"})
+
+
+def _suspicion(key: str) -> int:
+    """Learning rates come first among the suspects: the most common cause, and what the fix lowers."""
+    return 0 if key.partition(".")[2].endswith("lr") else 1
+
+
 def divergence_hint(config: Config) -> str:
     """What to change before resuming a diverged run: the same settings would diverge again from its last good
-    state, and the settings it changed from its preset are the first suspects."""
+    state, and the settings it changed from its preset are the first suspects, learning rates first."""
     from canter.config.build import preset_config
     from canter.config.experiment import flat_config
     from canter.config.values import set_text
@@ -336,10 +345,16 @@ def divergence_hint(config: Config) -> str:
             f"changed (preset {config.run.preset} could not be built to compare with)"
         )
     preset = flat_config(built)
+    suspects = sorted(
+        (
+            (key, value)
+            for key, value in flat_config(config).items()
+            if key in preset and preset[key] != value and not key.startswith("run.") and key not in NOT_SUSPECTS
+        ),
+        key=lambda item: _suspicion(item[0]),
+    )
     changed = [
-        f"{key}={value:g}" if isinstance(value, float) else f"{key}={set_text(value)}"
-        for key, value in flat_config(config).items()
-        if key in preset and preset[key] != value and not key.startswith("run.")
+        f"{key}={value:g}" if isinstance(value, float) else f"{key}={set_text(value)}" for key, value in suspects
     ]
     if not changed:
         return "it diverged with its preset's own settings: lower its learning rate before resuming"
