@@ -2,6 +2,7 @@
 
 import os
 import re
+import shutil
 import sys
 
 import imageio.v2 as imageio
@@ -11,6 +12,7 @@ import pytest
 from canter.cli.main import main
 from canter.envs.registry import dm_control_task
 from canter.errors import CanterError
+from canter.training import run_lock
 from canter.training.videos import TrainingVideos, quiet_fork
 from canter.use import video
 from conftest import TINY
@@ -296,3 +298,19 @@ def test_a_frame_rate_the_format_cannot_play_is_refused(tmp_path, name, fps, ref
             video.check_video_args(out, 1, 480, 360, fps)
     else:
         video.check_video_args(out, 1, 480, 360, fps)
+
+
+@pytest.mark.slow
+def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(archived_run):
+    """The lock used to delete such a snapshot as half-written, and that video was never made."""
+    folder = archived_run / "videos"
+    folder.mkdir()
+    snapshot = folder / ".snapshot_000000000714.npz"
+    shutil.copy(archived_run / "checkpoints" / "ckpt_000000000714.npz", snapshot)
+    after = folder / ".snapshot_000000001500.npz"  # of training past the checkpoint, which the resume does again
+    shutil.copy(snapshot, after)
+    with run_lock.RunLocks() as locks:
+        locks.take(archived_run)  # as a resume takes it first
+        TrainingVideos(archived_run, every=500, start_step=1190, resumed=True).close()
+    assert sorted(p.name for p in folder.iterdir() if not p.name.startswith("render")) == ["step_000000000714.mp4"]
+    assert len(frames_of(folder / "step_000000000714.mp4")) > 1

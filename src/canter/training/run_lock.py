@@ -10,8 +10,8 @@ Readers (eval, plot, report, export, video) never take the lock: a run folder's 
 (checkpoints atomically, metrics.csv a whole line at a time), so a reader sees a consistent folder at any moment.
 
 Taking the lock also removes what a killed writer left half-written: the temp files of atomic writes
-(`.NAME.*.tmp`, `.NAME.*.tmp.mp4`) and video snapshots (`videos/.snapshot_*.npz`). No other process writes the
-folder then, so none of them is being written.
+(`.NAME.*.tmp`, `.NAME.*.tmp.mp4`). No other process writes the folder then, so none of them is being written. A
+video snapshot (`videos/.snapshot_*.npz`) is whole, and a resume renders the video it was taken for.
 
 Locks are re-entrant within a process: a bench job holds its folders while it trains and evaluates them, and the
 trainer it calls takes them again.
@@ -204,7 +204,8 @@ def _missing_folders(run_dir: Path) -> list[Path]:
     return missing
 
 
-HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp.*", "videos/.snapshot_*.npz")
+# Video snapshots are whole (written atomically): a resume renders those its videos still lack (canter.training.videos).
+HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp.*")
 
 
 def _remove_half_written(run_dir: Path) -> None:

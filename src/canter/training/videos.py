@@ -46,7 +46,9 @@ class TrainingVideos:
 
     def __init__(self, run_dir: Path, every: int, start_step: int, resumed: bool = False) -> None:
         """every == 0 switches videos off. A resumed run drops the videos of steps after its checkpoint, as the
-        logger drops their metrics: they showed training that was lost with the process, and are redone."""
+        logger drops their metrics: they showed training that was lost with the process, and are redone. A video of
+        a step up to the checkpoint whose render the process took with it is rendered now from its snapshot, which
+        is whole (it is written atomically before its render starts)."""
         self.folder = Path(run_dir) / "videos"
         self.cadence = Cadence(every, start_step)
         self._job: tuple[subprocess.Popen, Path, int] | None = None
@@ -55,6 +57,16 @@ class TrainingVideos:
                 step = video.stem.removeprefix("step_")
                 if step.isdigit() and int(step) > start_step:
                     video.unlink()
+            for snapshot in sorted(self.folder.glob(".snapshot_*.npz")):
+                step = snapshot.stem.removeprefix(".snapshot_")
+                if every and step.isdigit() and int(step) <= start_step and not self._video(int(step)).exists():
+                    self._finish()
+                    self._render(snapshot, int(step))
+                else:
+                    snapshot.unlink()
+
+    def _video(self, step: int) -> Path:
+        return self.folder / f"step_{step:012d}.mp4"
 
     def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
         if not self.cadence.due(step):
@@ -64,9 +76,13 @@ class TrainingVideos:
         self.folder.mkdir(parents=True, exist_ok=True)
         snapshot = self.folder / f".snapshot_{step:012d}.npz"
         save_snapshot(snapshot)
+        self._render(snapshot, step)
+
+    def _render(self, snapshot: Path, step: int) -> None:
+        """Start the child that renders the video of `step` from its snapshot, which it removes when done."""
         request = dict(
             run_dir=str(self.folder.parent),
-            out_path=str(self.folder / f"step_{step:012d}.mp4"),
+            out_path=str(self._video(step)),
             checkpoint=str(snapshot),
             episodes=1,
             nice=10,
