@@ -113,12 +113,25 @@ def test_a_half_written_last_row_is_dropped_with_a_note(archived_run, capsys):
     metrics = archived_run / "metrics.csv"
     whole = metrics.read_bytes()
     metrics.write_bytes(whole[:-40])
-    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
+    steps = [row["global_step"] for row in read_rows(ARCHIVED_RUN / "metrics.csv")[1]]
+    # Killed while logging the row after its checkpoint at step 714 (steps: 240, 477, 714, 954, 1190).
+    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=714).close()
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"canter: note: dropped the half-written last row of {metrics}")
-    assert "the run goes on from its checkpoint" in err
-    steps = [row["global_step"] for row in read_rows(ARCHIVED_RUN / "metrics.csv")[1]]
-    assert [row["global_step"] for row in read_rows(metrics)[1]] == steps[:-1]
+    assert "no training is lost: the run goes on from its checkpoint" in err
+    assert [row["global_step"] for row in read_rows(metrics)[1]] == steps[:3]  # and the rows after 714 are redone
+
+
+def test_a_file_cut_back_past_its_checkpoints_row_is_said_to_have_lost_rows(archived_run, capsys):
+    """Only outside damage cuts the row of the checkpoint a run goes on from: that row is not logged again."""
+    metrics = archived_run / "metrics.csv"
+    metrics.write_bytes(metrics.read_bytes()[:-40])
+    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
+    assert capsys.readouterr().err == (
+        f"canter: note: dropped the half-written last row of {metrics}; the file ends before the row of step 1,190, "
+        f"which the checkpoint the run goes on from follows, so the rows after step 954 are lost: restore the file "
+        f"from a copy to keep them\n"
+    )
 
 
 def test_a_whole_metrics_file_gives_no_note(archived_run, capsys):

@@ -241,7 +241,7 @@ class MetricsLogger:
         self._unpack_archived()
         if resume_step:
             self._refuse_a_lost_history(resume_step)
-        self._cut_half_written_line()
+        self._cut_half_written_line(resume_step)
         self._check_header()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
@@ -280,20 +280,32 @@ class MetricsLogger:
                 f"{lost_rows(self.path, step)}, or move it away to resume with rows from step {step:,} on"
             )
 
-    def _cut_half_written_line(self) -> None:
+    def _cut_half_written_line(self, resume_step: int | None) -> None:
         if not self.path.is_file():
             return
         whole = len(_whole_lines(self.path))
-        if whole < self.path.stat().st_size:
-            with open(self.path, "r+b") as f:
-                f.truncate(whole)
-            # A row is logged before its iteration's checkpoint, so a half-written one is of an iteration after
-            # the newest checkpoint, which the resume trains and logs again; the checkpoint holds the run's state.
+        if whole >= self.path.stat().st_size:
+            return
+        with open(self.path, "r+b") as f:
+            f.truncate(whole)
+        # A row is logged before its iteration's checkpoint, so a process stopped while writing one stopped after the
+        # newest checkpoint, which the resume goes on from, logging that row again. A file cut back past the
+        # checkpoint's own row was cut by something else, and the rows it lost are not logged again.
+        steps = [_number(row.get("global_step")) for row in read_rows(self.path)[1]]
+        last = max((step for step in steps if math.isfinite(step)), default=0.0)
+        if resume_step is not None and last < resume_step:
             print(
-                f"canter: note: dropped the half-written last row of {self.path} (a process stopped while writing "
-                f"it); no training is lost: the run goes on from its checkpoint, which holds its state",
+                f"canter: note: dropped the half-written last row of {self.path}; the file ends before the row of step "
+                f"{resume_step:,}, which the checkpoint the run goes on from follows, so the rows after step "
+                f"{last:,.0f} are lost: restore the file from a copy to keep them",
                 file=sys.stderr,
             )
+            return
+        print(
+            f"canter: note: dropped the half-written last row of {self.path} (a process stopped while writing "
+            f"it); no training is lost: the run goes on from its checkpoint, which holds its state",
+            file=sys.stderr,
+        )
 
     def _check_header(self) -> None:
         """Rows are told apart by their global_step, so a file whose first line names no such column would lose
