@@ -31,6 +31,8 @@ smoke | ppo-brax | humanoid | seeds | offpolicy | precision) ;;
     ;;
 esac
 PY=${PYTHON:-python3}
+# shellcheck source=benchmarks/gpu/carried.sh
+source benchmarks/gpu/carried.sh # the cd above put us in the repository root
 SMOKE=${CANTER_GPU_SMOKE:-0}
 OUT=${OUT:-benchmarks/gpu/out}
 mkdir -p "$OUT"
@@ -54,11 +56,7 @@ tee_pid=$!
 trap 'exec >&- 2>&-; wait "$tee_pid"' EXIT
 
 if compgen -G ".whl/*.whl" >/dev/null && [ "${CANTER_GPU_INSTALL:-1}" = 1 ]; then
-    if "$PY" -m pip --version >/dev/null 2>&1; then
-        "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
-    else # a wheel is a zip of its files: without pip, unpacking it installs it as --target would
-        for wheel in .whl/*.whl; do "$PY" -m zipfile -e "$wheel" /tmp/site; done
-    fi
+    install_carried_wheels
     export PYTHONPATH=/tmp/site:$PWD/src
 else
     export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH}

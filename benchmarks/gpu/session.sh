@@ -16,6 +16,8 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 began=$(date +%s)
 PY=${PYTHON:-python3} # the interpreter run.sh runs the parts with
+# shellcheck source=benchmarks/gpu/carried.sh
+source benchmarks/gpu/carried.sh # the cd above put us in the repository root
 KILL_AFTER=${KILL_AFTER:-60}
 PACKING=20 # seconds for the last summary and tar
 final=${OUT:-benchmarks/gpu/out}
@@ -33,8 +35,7 @@ trap 'exec >&- 2>&-; wait "$tee_pid"' EXIT
 work=$(mktemp -d /tmp/canter-gpu.XXXX)
 if compgen -G ".whl/*.whl" >/dev/null; then
     # A wheel that does not install would fail every part at its first import: stop before the parts.
-    if ! "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
-        .whl/*.whl; then
+    if ! install_carried_wheels; then
         echo "session.sh: the wheels in .whl/ did not install (above); run benchmarks/gpu/wheels.sh again here"
         exit 1
     fi
