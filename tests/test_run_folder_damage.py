@@ -328,3 +328,79 @@ def test_a_seed_of_a_group_with_no_checkpoint_trains_again_beside_the_others(tmp
     assert f"canter: note: {folders[1]} stopped before its first checkpoint" in capsys.readouterr().err
     for folder in folders:
         assert json.loads((folder / "summary.json").read_text())["global_step"] >= steps + 256
+
+
+def test_a_missing_summary_is_written_only_for_a_run_that_reached_its_own_budget_with_its_own_config(
+    archived_run, capsys
+):
+    """A lower --total-steps than the run's own, or a Python config that differs from the run's, is refused as
+    before: neither may pass for a finished run."""
+    import canter
+
+    (archived_run / "checkpoints" / "ckpt_000000001190.npz").unlink()  # killed at 714 on its way to 1024
+    stale = {**json.loads((archived_run / "summary.json").read_text()), "global_step": 240, "stop_reason": "signal"}
+    (archived_run / "summary.json").write_text(json.dumps(stale))
+    assert main(["train", "--resume", str(archived_run), "--total-steps", "500", "--quiet"]) == 2
+    assert "already has 714 of run.total_steps=500 steps" in capsys.readouterr().err
+    assert json.loads((archived_run / "summary.json").read_text()) == stale
+    from canter.training.loop import resume_config
+
+    differing = resume_config(archived_run, 500).with_values("ppo", lr=0.1)
+    with pytest.raises(CanterError, match=r"ppo\.lr"):
+        canter.train(differing, resume=archived_run)
+    assert json.loads((archived_run / "summary.json").read_text()) == stale
+
+
+def test_a_python_resume_with_another_config_is_refused_before_a_missing_summary_is_written(archived_run):
+    import canter
+    from canter.training.loop import resume_config
+
+    (archived_run / "summary.json").unlink()
+    with pytest.raises(CanterError, match=r"ppo\.lr"):
+        canter.train(resume_config(archived_run, None).with_values("ppo", lr=0.1), resume=archived_run)
+    assert not (archived_run / "summary.json").exists()
+
+
+def test_a_resume_refuses_an_archive_of_a_finished_run_and_keeps_it_whole(archived_run, capsys):
+    """A finished run kept without its checkpoints is no run stopped before its first: it is not trained again."""
+    import shutil
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "eval.json").write_text("{}")
+    before = sorted(p.relative_to(archived_run) for p in archived_run.rglob("*"))
+    assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
+    assert _one_line_error(capsys, 2) == (
+        f"canter: error: {archived_run} holds a finished run without its checkpoints (an archive?): it has no policy "
+        f"to load or train on; plot and report read its metrics, and a new run trains it again\n"
+    )
+    assert sorted(p.relative_to(archived_run) for p in archived_run.rglob("*") if p.name != ".writer.lock") == before
+
+
+def test_a_restart_clears_only_what_canter_wrote_before_a_checkpoint(archived_run):
+    import shutil
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "summary.json").unlink()
+    for name in ("checkpoints/best.npz", "checkpoints/my_notes.txt", "videos/step_000000000240.mp4", "videos/a.txt"):
+        (archived_run / name).parent.mkdir(exist_ok=True)
+        (archived_run / name).write_text("x")
+    run_folder.clear_for_a_restart(archived_run)
+    left = sorted(str(p.relative_to(archived_run)) for p in archived_run.rglob("*"))
+    assert left == ["checkpoints", "checkpoints/my_notes.txt", "config.toml", "versions.json", "videos", "videos/a.txt"]
+
+
+def test_a_seed_to_train_again_is_not_cleared_when_another_seed_of_its_group_is_refused(tmp_path, capsys):
+    import shutil
+
+    folders = [tmp_path / f"s{seed}" for seed in (0, 1)]
+    for seed, folder in enumerate(folders):
+        shutil.copytree(ARCHIVED_RUN.parent / f"ppo-group-s{seed}", folder)
+    shutil.rmtree(folders[0] / "checkpoints")
+    (folders[0] / "summary.json").unlink()
+    newest = run_folder.list_checkpoints(folders[1])[-1]
+    newest.write_bytes(newest.read_bytes()[:100])
+    rows = (folders[0] / "metrics.csv").read_bytes()
+    argv = ["train", "--resume", *map(str, folders), "--total-steps", "4096", "--quiet"]
+    assert main(argv) == 2
+    assert str(newest) in capsys.readouterr().err
+    assert (folders[0] / "metrics.csv").read_bytes() == rows

@@ -17,7 +17,9 @@ TRACKERS_FILE = "trackers.json"  # the tracker runs a run logs to (canter.traini
 EVAL_FILE = "eval.json"
 CHECKPOINT_FOLDER = "checkpoints"
 TENSORBOARD_FOLDER = "tb"
+VIDEOS_FOLDER = "videos"  # videos rendered while a run trains (canter.training.videos)
 CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
+BEST_FILE = "best.npz"  # in checkpoints/: the state of the best evaluation during training
 
 RUN_OWN_FILES = frozenset(
     {CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, VERSIONS_FILE, TRACKERS_FILE, EVAL_FILE}
@@ -40,6 +42,13 @@ def run_files_in(folder: Path) -> frozenset[str]:
     if checkpoints_in(folder):
         held.add(CHECKPOINT_FOLDER)
     return frozenset(held)
+
+
+def finished_without_checkpoints(folder: Path) -> bool:
+    """A run's summary, evaluation or archived metrics beside no checkpoint: a finished run kept without them (an
+    archive), never one stopped before its first checkpoint, which writes none of these."""
+    held = run_files_in(folder)
+    return CHECKPOINT_FOLDER not in held and bool(held & {SUMMARY_FILE, EVAL_FILE, ARCHIVED_METRICS_FILE})
 
 
 def surely_a_run(folder: Path) -> bool:

@@ -28,14 +28,20 @@ import numpy as np
 
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
-from canter.run_layout import CHECKPOINT_FOLDER, CHECKPOINT_NAME, CONFIG_FILE, run_files_in
+from canter.run_layout import (
+    BEST_FILE,
+    CHECKPOINT_FOLDER,
+    CHECKPOINT_NAME,
+    CONFIG_FILE,
+    finished_without_checkpoints,
+    run_files_in,
+)
 from canter.training.run_folder import checkpoint_dir, list_checkpoints
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
 # it for a checkpoint of another config, so it says which canter reads it instead.
 LEFT_OUT_FORMAT_VERSION = 2
-BEST_FILE = "best.npz"
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 
@@ -274,6 +280,11 @@ def latest(run_dir: Path) -> Path:
     _need_checkpoint_folder(run_dir)
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
+    if not found and finished_without_checkpoints(run_dir):
+        raise CanterError(
+            f"{run_dir} holds a finished run without its checkpoints (an archive?): it has no policy to load or "
+            f"train on; plot and report read its metrics, and a new run trains it again"
+        )
     if not found:
         raise CanterError(
             f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and "

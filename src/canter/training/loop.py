@@ -29,6 +29,7 @@ from canter.run_layout import (
     CONFIG_FILE,
     METRICS_FILE,
     SUMMARY_FILE,
+    finished_without_checkpoints,
     run_files_in,
 )
 from canter.signals import StopFlag
@@ -56,9 +57,10 @@ def train(
     """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
     differ in its budget: run.total_steps (the learning-rate schedule is stretched to the new total) and
     run.max_minutes."""
-    ended = resume is not None and _has_its_budget(Path(resume), config)
-    if ended and (summarized := _summarize_if_it_ended(Path(str(resume)))) is not None:
-        return summarized
+    if resume is not None and _has_its_budget(Path(resume), config):
+        _check_only_the_budget_differs(_saved_config(Path(resume)), config, Path(resume))
+        if (summarized := _summarize_if_it_ended(Path(resume))) is not None:
+            return summarized
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
 
@@ -171,11 +173,15 @@ def _has_its_budget(run_dir: Path, config: Config) -> bool:
 
 
 def _summarize_if_it_ended(run_dir: Path) -> RunResult | None:
-    """Write summary.json of a run that trained its budget but stopped before its summary (a kill between the two
-    writes), as `summarize_ended_run` does for a bench, and say so; None for a run whose summary is there."""
+    """Write summary.json of a run that trained its own budget (the one its newest checkpoint was trained toward)
+    but stopped before its summary (a kill between the two writes), as `summarize_ended_run` does for a bench, and
+    say so; None for a run whose summary is there, or that stopped short of its own budget."""
     with run_lock.RunLocks() as locks:
         locks.take(run_dir)
-        step = run_folder.step_of(run_folder.list_checkpoints(run_dir)[-1])
+        newest = run_folder.list_checkpoints(run_dir)[-1]
+        step = run_folder.step_of(newest)
+        if step < _header_config(checkpoint.read_header(newest), newest).run.total_steps:
+            return None  # a lower --total-steps than the run's own: refused as it was
         try:
             summarized = json.loads((run_dir / SUMMARY_FILE).read_text()).get("global_step")
         except (OSError, ValueError, AttributeError):
@@ -315,7 +321,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
         if _never_checkpointed(out):
             _check_only_the_budget_differs(_saved_config(out), config, out)
-            return _start_over(out)
+            return SeedStart(out, restarted=True)
         latest = checkpoint.latest(out)
         saved, _, state, header = load_state(out, latest)
         _check_only_the_budget_differs(saved, config, out)
@@ -351,15 +357,22 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
 
 def _never_checkpointed(run_dir: Path) -> bool:
     """A run folder with its config.toml, stopped before its first checkpoint (a kill while it compiled or before
-    run.checkpoint_every steps; a seed of a group killed between the seeds' first checkpoints)."""
+    run.checkpoint_every steps; a seed of a group killed between the seeds' first checkpoints). An archive, a
+    finished run kept without its checkpoints, is not one: `checkpoint.latest` refuses it."""
     folder = run_folder.checkpoint_dir(run_dir)
     whole = folder.is_dir() or not (folder.exists() or folder.is_symlink())  # else latest() names what is wrong
-    return whole and not run_folder.list_checkpoints(run_dir) and (run_dir / CONFIG_FILE).is_file()
+    return (
+        whole
+        and not run_folder.list_checkpoints(run_dir)
+        and (run_dir / CONFIG_FILE).is_file()
+        and not finished_without_checkpoints(run_dir)
+    )
 
 
-def _start_over(run_dir: Path) -> SeedStart:
+def _start_over(run_dir: Path) -> None:
     """Such a run has nothing to resume from, so it starts again at step 0 in its own folder, as it first started:
-    what it logged of the training it lost is cleared first, so that its folder reads as one run."""
+    what it logged of the training it lost is cleared first (once every seed of the group has been checked), so that
+    its folder reads as one run."""
     try:
         rows = len(read_rows(run_folder.metrics_file(run_dir))[1])
     except CanterError:  # a damaged file: it is cleared all the same
@@ -370,7 +383,6 @@ def _start_over(run_dir: Path) -> SeedStart:
         f"folder" + (f" (the {rows} metrics rows it had logged are dropped)" if rows else ""),
         file=sys.stderr,
     )
-    return SeedStart(run_dir, restarted=True)
 
 
 def _refuse_a_run_in(run_dir: Path) -> None:
@@ -403,6 +415,8 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any) -
     """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.out.mkdir(parents=True, exist_ok=True)
+    if start.restarted:
+        _start_over(start.out)
     if start.resumed:
         # config.toml before the migrations, which read it: a damaged one is replaced by the config the resume read.
         run_folder.write_config(start.out, config)

@@ -36,15 +36,15 @@ from canter.errors import CanterError
 from canter.files import atomic_write_bytes, refuse_inside_run_own_folder
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
+    BEST_FILE,
     CHECKPOINT_FOLDER,
     CHECKPOINT_NAME,
     CONFIG_FILE,
-    EVAL_FILE,
     METRICS_FILE,
-    SUMMARY_FILE,
     TENSORBOARD_FOLDER,
     TRACKERS_FILE,
     VERSIONS_FILE,
+    VIDEOS_FOLDER,
     checkpoints_in,
     run_files_in,
 )
@@ -304,7 +304,7 @@ def discard_unstarted(run_dir: Path) -> None:
         logged = metrics.is_file() and metrics.read_bytes().rstrip(b"\n").count(b"\n") > 0
     except OSError:  # unreadable: not this session's, which wrote a header at most
         return
-    if list_checkpoints(run_dir) or logged or (run_dir / f"{METRICS_FILE}.gz").exists():
+    if list_checkpoints(run_dir) or logged or (run_dir / ARCHIVED_METRICS_FILE).exists():
         return
     for name in (CONFIG_FILE, VERSIONS_FILE, TRACKERS_FILE, METRICS_FILE):
         with contextlib.suppress(OSError):  # an unwritable folder: the refusal that brought us here is what to tell
@@ -312,15 +312,28 @@ def discard_unstarted(run_dir: Path) -> None:
     shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
 
 
+# What a run writes before its first checkpoint, by folder: a restart removes these and nothing else.
+WRITTEN_BEFORE_A_CHECKPOINT = {
+    ".": (METRICS_FILE, TRACKERS_FILE),
+    TENSORBOARD_FOLDER: ("events.out.tfevents.*",),
+    VIDEOS_FOLDER: ("step_*.mp4", ".snapshot_*.npz", ".*.tmp*", "render.log"),
+    CHECKPOINT_FOLDER: (BEST_FILE, ".*.tmp"),
+}
+
+
 def clear_for_a_restart(run_dir: Path) -> None:
-    """Remove what a run logged before it stopped short of its first checkpoint (its metrics, events, videos, summary,
-    tracker runs, a best.npz), keeping its config.toml and anything canter does not write: it trains again from step
-    0, and its folder then holds that run alone."""
+    """Remove what a run logged before it stopped short of its first checkpoint (its metrics, events, videos,
+    tracker runs, a best.npz), keeping its config.toml and every file canter does not write: it trains again from
+    step 0, and its folder then holds that run alone. Folders left empty go too."""
     run_dir = Path(run_dir)
-    for name in (METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, TRACKERS_FILE, EVAL_FILE):
-        (run_dir / name).unlink(missing_ok=True)
-    for folder in (TENSORBOARD_FOLDER, "videos", CHECKPOINT_FOLDER):
-        shutil.rmtree(run_dir / folder, ignore_errors=True)
+    for folder, patterns in WRITTEN_BEFORE_A_CHECKPOINT.items():
+        for pattern in patterns:
+            for path in (run_dir / folder).glob(pattern):
+                if path.is_file() or path.is_symlink():
+                    path.unlink()
+        if folder != ".":
+            with contextlib.suppress(OSError):  # not empty, or not there: left as it is
+                (run_dir / folder).rmdir()
 
 
 def _config_reads_only(run_dir: Path) -> None:
