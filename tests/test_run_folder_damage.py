@@ -97,6 +97,7 @@ def test_reading_a_damaged_versions_json_writes_nothing(archived_run):
 @pytest.mark.slow
 def test_a_resume_notes_a_damaged_versions_json_and_a_half_written_row(archived_run, capsys):
     _damage(archived_run, "truncated")
+    (archived_run / "checkpoints" / "ckpt_000000001190.npz").unlink()  # killed while it logged the row after 714
     metrics = archived_run / "metrics.csv"
     metrics.write_bytes(metrics.read_bytes()[:-40])
     assert main(["train", "--resume", str(archived_run), "--total-steps", "1600", "--quiet"]) == 0
@@ -122,16 +123,21 @@ def test_a_half_written_last_row_is_dropped_with_a_note(archived_run, capsys):
     assert [row["global_step"] for row in read_rows(metrics)[1]] == steps[:3]  # and the rows after 714 are redone
 
 
-def test_a_file_cut_back_past_its_checkpoints_row_is_said_to_have_lost_rows(archived_run, capsys):
-    """Only outside damage cuts the row of the checkpoint a run goes on from: that row is not logged again."""
+@pytest.mark.parametrize("cut", ["mid_row", "at_a_row"])
+def test_a_file_cut_back_past_its_checkpoints_row_is_refused_untouched(archived_run, cut):
+    """Only outside damage cuts the row of the checkpoint a run goes on from: those rows are not logged again, and
+    appending after them would hide the gap."""
     metrics = archived_run / "metrics.csv"
-    metrics.write_bytes(metrics.read_bytes()[:-40])
-    MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
-    assert capsys.readouterr().err == (
-        f"canter: note: dropped the half-written last row of {metrics}; the file ends before the row of step 1,190, "
-        f"which the checkpoint the run goes on from follows, so the rows after step 954 are lost: restore the file "
-        f"from a copy to keep them\n"
+    lines = metrics.read_bytes().splitlines(keepends=True)
+    metrics.write_bytes(b"".join(lines[:3]) + (lines[3][:20] if cut == "mid_row" else b""))  # rows 240 and 477
+    before = metrics.read_bytes()
+    with pytest.raises(CanterError) as refused:
+        MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190)
+    assert str(refused.value) == (
+        f"{metrics} ends at step 477, before the row of step 1,190 that the checkpoint the run goes on from follows: "
+        f"the file was cut back; restore it from a copy, or move it away to resume with rows from step 1,190 on"
     )
+    assert metrics.read_bytes() == before
 
 
 def test_a_whole_metrics_file_gives_no_note(archived_run, capsys):

@@ -223,6 +223,9 @@ TENSORBOARD_CHARTS = frozenset(
 )
 
 
+_MOVE_IT_AWAY = "move it away to resume with rows from step {step:,} on"
+
+
 class MetricsLogger:
     """Appends to metrics.csv and TensorBoard. A resumed run passes `resume_step`: rows and events logged after
     that checkpoint belong to training that was lost with the process, so they are dropped and redone."""
@@ -241,8 +244,10 @@ class MetricsLogger:
         self._unpack_archived()
         if resume_step:
             self._refuse_a_lost_history(resume_step)
-        self._cut_half_written_line(resume_step)
         self._check_header()
+        if resume_step:
+            self._refuse_rows_cut_back(resume_step)  # before the half-written line goes: a refused file stays as it is
+        self._cut_half_written_line()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
         self._widen_header()
@@ -273,14 +278,26 @@ class MetricsLogger:
         packed.unlink()
 
     def _refuse_a_lost_history(self, step: int) -> None:
-        """A file without a row, of a run that trained to a checkpoint, lost its history: appending to it would hide
-        that. A file moved away on purpose starts again at the checkpoint."""
+        """A file without the rows up to the checkpoint at `step` (each iteration logs its row before its checkpoint)
+        lost them to something other than a stopped process: appending to it would hide that. A file moved away on
+        purpose starts again at the checkpoint."""
         if self.path.is_file() and _whole_lines(self.path).count(b"\n") < 2:  # the header and a row at least
+            raise CanterError(f"{lost_rows(self.path, step)}, or {_MOVE_IT_AWAY.format(step=step)}")
+
+    def _refuse_rows_cut_back(self, step: int) -> None:
+        """A file whose last row comes before the checkpoint's own row was cut back by something else than a stopped
+        process (which stops after the row it had logged before its checkpoint): the rows it lost are not logged
+        again, and appending after them would hide the gap. Rows with unreadable steps are noted when dropped."""
+        rows = read_rows(self.path)[1]
+        last = max((s for s in (_number(row.get("global_step")) for row in rows) if math.isfinite(s)), default=0.0)
+        if rows and last < step and not unreadable_steps(rows):
             raise CanterError(
-                f"{lost_rows(self.path, step)}, or move it away to resume with rows from step {step:,} on"
+                f"{self.path} ends at step {last:,.0f}, before the row of step {step:,} that the checkpoint the run "
+                f"goes on from follows: the file was cut back; restore it from a copy, or "
+                f"{_MOVE_IT_AWAY.format(step=step)}"
             )
 
-    def _cut_half_written_line(self, resume_step: int | None) -> None:
+    def _cut_half_written_line(self) -> None:
         if not self.path.is_file():
             return
         whole = len(_whole_lines(self.path))
@@ -289,18 +306,8 @@ class MetricsLogger:
         with open(self.path, "r+b") as f:
             f.truncate(whole)
         # A row is logged before its iteration's checkpoint, so a process stopped while writing one stopped after the
-        # newest checkpoint, which the resume goes on from, logging that row again. A file cut back past the
-        # checkpoint's own row was cut by something else, and the rows it lost are not logged again.
-        steps = [_number(row.get("global_step")) for row in read_rows(self.path)[1]]
-        last = max((step for step in steps if math.isfinite(step)), default=0.0)
-        if resume_step is not None and last < resume_step:
-            print(
-                f"canter: note: dropped the half-written last row of {self.path}; the file ends before the row of step "
-                f"{resume_step:,}, which the checkpoint the run goes on from follows, so the rows after step "
-                f"{last:,.0f} are lost: restore the file from a copy to keep them",
-                file=sys.stderr,
-            )
-            return
+        # newest checkpoint, which the resume goes on from, logging that row again (`_refuse_a_lost_history` refused
+        # a file cut back further).
         print(
             f"canter: note: dropped the half-written last row of {self.path} (a process stopped while writing "
             f"it); no training is lost: the run goes on from its checkpoint, which holds its state",
