@@ -249,6 +249,8 @@ def test_a_diverged_run_names_the_settings_it_changed_from_its_preset(capsys):
     gpu = ["env.backend=mjx", "env.num_envs=4", "ppo.n_steps=16", "ppo.minibatch_size=32", "ppo.epochs=3", "ppo.lr=100"]
     hint = divergence_hint(build_config("Hopper-v5", sets=gpu))
     assert hint.endswith("preset fast: ppo.lr=100, env.num_envs=4, ppo.n_steps=16, ppo.minibatch_size=32 and 1 more")
+    switched = divergence_hint(build_config("Hopper-v5", sets=["ppo.anneal_lr=false", "ppo.clip=0.3", "ppo.lr=1"]))
+    assert switched.endswith("preset fast: ppo.lr=1, ppo.anneal_lr=false, ppo.clip=0.3"), switched
     # Values read as --set gives them, so that the hint can be pasted back.
     shaped = divergence_hint(build_config("Hopper-v5", sets=["env.normalize_obs=false", "net.hidden=128,64"]))
     assert shaped.endswith("preset fast: env.normalize_obs=false, net.hidden=128,64"), shaped

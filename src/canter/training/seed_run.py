@@ -326,9 +326,11 @@ class SeedRun:
 NOT_SUSPECTS = frozenset({"env.backend", "env.envpool_shards"})
 
 
-def _suspicion(key: str) -> int:
-    """Learning rates come first among the suspects: the most common cause, and what the fix lowers."""
-    return 0 if key.partition(".")[2].endswith("lr") else 1
+def _suspicion(key: str, value: Any) -> int:
+    """Learning rates come first among the suspects: the most common cause, and what the fix lowers. They are the
+    float settings named lr or *_lr (ppo.anneal_lr, a switch, is none)."""
+    name = key.partition(".")[2]
+    return 0 if isinstance(value, float) and (name == "lr" or name.endswith("_lr")) else 1
 
 
 def divergence_hint(config: Config) -> str:
@@ -351,7 +353,7 @@ def divergence_hint(config: Config) -> str:
             for key, value in flat_config(config).items()
             if key in preset and preset[key] != value and not key.startswith("run.") and key not in NOT_SUSPECTS
         ),
-        key=lambda item: _suspicion(item[0]),
+        key=lambda item: _suspicion(*item),
     )
     changed = [
         f"{key}={value:g}" if isinstance(value, float) else f"{key}={set_text(value)}" for key, value in suspects
