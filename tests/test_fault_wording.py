@@ -93,3 +93,24 @@ def test_a_run_that_lost_its_config_and_checkpoints_is_not_asked_whether_it_is_o
         f"{archived_run} has metrics.csv, summary.json, versions.json but no config.toml and no checkpoint: the run "
         f"folder is damaged; restore its config.toml and checkpoints/ from a copy"
     )
+
+
+@pytest.mark.slow
+def test_the_disk_warning_counts_the_episodes_in_flight_of_a_jax_env(tmp_path):
+    """A checkpoint of an mjx run also holds its envs' physics state, which on a GPU's thousands of envs outweighs
+    the train state: the estimate counts it from the env's shapes."""
+    from canter.envs import make_vec_env
+    from canter.envs.episodes import init_env_carry
+    from canter.training.disk_room import state_bytes
+    from canter.training.restore import load_state
+
+    env = make_vec_env("InvertedPendulum-v5", "mjx", 64, list(range(64)))
+    carry = init_env_carry(env.initial_state(), env.reset(), env.spec.info_keys)
+    _, _, state, _ = load_state(ARCHIVED_RUN)
+    saved = checkpoint.read_header(checkpoint.latest(ARCHIVED_RUN))
+    header = {key: value for key, value in saved.items() if key not in ("format_version", "leaves", "sha256")}
+    written = tmp_path / "ckpt_000000000001.npz"
+    checkpoint.save(written, state, header, env_carry=carry)
+    estimate = state_bytes(state) + state_bytes(env.state_shapes())
+    assert env.state_bytes() > state_bytes(state)  # 64 envs' physics already outweigh a small policy
+    assert abs(estimate / written.stat().st_size - 1) < 0.1, (estimate, written.stat().st_size)

@@ -70,8 +70,12 @@ class JaxVecEnv(VecEnv, Protocol):
 
     def play_episodes(self, act: Callable[[Any, Any], Any], args: Any, quota: np.ndarray) -> tuple: ...
 
+    def state_shapes(self) -> Any:
+        """The shapes and dtypes of its envs' state, known before the envs are reset."""
+        ...
+
     def state_bytes(self) -> int:
-        """The memory its envs' state takes, known from shapes alone, before the envs are reset."""
+        """The memory its envs' state takes, from `state_shapes`."""
         ...
 
 

@@ -141,10 +141,13 @@ class FunctionalVecEnv(JaxVecEnv):
             self._started = _jitted(self.env).reset(self._keys)
         return self._started
 
+    def state_shapes(self) -> Any:
+        """The shapes and dtypes of the envs' state and first observations: nothing is computed."""
+        return jax.eval_shape(_jitted(self.env).reset, self._keys)
+
     def state_bytes(self) -> int:
-        """The memory the envs' state and first observations take, read from their shapes: nothing is computed."""
-        shapes = jax.eval_shape(_jitted(self.env).reset, self._keys)
-        return sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(shapes))
+        """The memory the envs' state and first observations take, read from their shapes."""
+        return sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(self.state_shapes()))
 
     def reset(self) -> np.ndarray:
         return np.asarray(self._start()[1])

@@ -45,7 +45,7 @@ def state_bytes(state: Any) -> int:
     """Bytes of the checkpoint file of `state` written uncompressed, from its leaves' shapes (nothing leaves the
     device): each leaf's entry, and the JSON header, which lists every leaf's name. It counts what is written, not
     a padded allowance, so a warning quotes the size the files will have. The episodes in flight that a JAX-native
-    backend adds are not counted (training warns before it has any)."""
+    backend adds are counted by the caller, from the env's shapes (`warn_if_checkpoints_will_not_fit`)."""
     import json
 
     import numpy as np
@@ -74,10 +74,12 @@ def checkpoints_at_once(config: Config, existing: int) -> int:
 
 
 def warn_if_checkpoints_will_not_fit(
-    run_dir: Path, state: Any, config: Config, policy_leaves_out: tuple[str, ...] = ()
+    run_dir: Path, state: Any, config: Config, policy_leaves_out: tuple[str, ...] = (), env_carry_bytes: int = 0
 ) -> bool:
     """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
-    `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out."""
+    `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out. `env_carry_bytes`: the
+    episodes in flight each checkpoint of a JAX-native backend also holds (its envs' whole physics state, which on
+    a GPU's thousands of envs outweighs the train state)."""
     from canter.algos.registry import get_algorithm
     from canter.training.checkpoint import read_header
     from canter.training.host_memory import size_text
@@ -85,7 +87,7 @@ def warn_if_checkpoints_will_not_fit(
 
     # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
     existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
-    one = state_bytes(state)
+    one = state_bytes(state) + env_carry_bytes
     policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
     needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)
     free = shutil.disk_usage(run_dir).free

@@ -269,7 +269,12 @@ def _train_locked(
             algorithm.validate(configs[0], spec)
             if all(start.state is None for start in starts):  # a resumed state was checked when its run started
                 host_memory.check_state_fits(algorithm, configs[0], spec, len(configs), device_memory.free_bytes())
-            states = [_prepare_seed(config, start, algorithm, spec) for config, start in zip(configs, starts)]
+            # Each checkpoint of a JAX env also holds its envs' state, the episodes in flight.
+            jax_env = isinstance(env, JaxVecEnv)
+            carry_bytes = disk_room.state_bytes(env.state_shapes()) // len(configs) if jax_env else 0
+            states = [
+                _prepare_seed(config, start, algorithm, spec, carry_bytes) for config, start in zip(configs, starts)
+            ]
             # The resumed states read from the checkpoints live on in `states` alone (a replay buffer twice over
             # for the whole run otherwise).
             starts = [replace(start, state=None) for start in starts]
@@ -411,7 +416,7 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
         ) from None
 
 
-def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any) -> Any:
+def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, carry_bytes: int) -> Any:
     """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.out.mkdir(parents=True, exist_ok=True)
@@ -423,7 +428,9 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any) -
         run_folder.migrate(start.out)
     else:
         run_folder.create(start.out, config)
-    disk_room.warn_if_checkpoints_will_not_fit(start.out, state, config, algorithm.policy_checkpoint_leaves_out)
+    disk_room.warn_if_checkpoints_will_not_fit(
+        start.out, state, config, algorithm.policy_checkpoint_leaves_out, carry_bytes
+    )
     return state
 
 
