@@ -1,4 +1,5 @@
 import json
+import shutil
 
 import jax
 import numpy as np
@@ -8,6 +9,7 @@ from canter.algos.ppo.iteration import init_train_state
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training import checkpoint, run_folder
+from conftest import ARCHIVED_RUN
 
 
 def _state(seed=0):
@@ -96,7 +98,7 @@ def test_prune_keeps_newest(tmp_path):
     assert checkpoint.latest(tmp_path).name == "ckpt_000000000040.npz"
     empty = tmp_path / "empty_run"
     empty.mkdir()
-    (empty / "config.toml").write_text("")  # a run stopped before its first checkpoint: it can start again
+    shutil.copy(ARCHIVED_RUN / "config.toml", empty)  # a run stopped before its first checkpoint: it can start again
     with pytest.raises(
         CanterError,
         match=r"no checkpoint in .* yet: .* canter train --resume .* trains one stopped before that again from step 0",

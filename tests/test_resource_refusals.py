@@ -165,7 +165,7 @@ def test_jax_envs_whose_state_cannot_fit_are_refused_before_they_are_reset(memor
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         "canter: error: env.num_envs=64 does not fit in the device's memory; lower it, e.g. --set env.num_envs=32"
     )
-    assert not out.exists() or not list(out.rglob("*.*"))
+    assert not out.exists() or not any(out.iterdir()), sorted(out.rglob("*"))
     # On a GPU the device's free memory bounds them, and one seed's envs that fit make the fix fewer seeds.
     monkeypatch.setattr(device_memory, "free_bytes", lambda: 64 * GIB)
     per_env = 4 * 1024
@@ -235,7 +235,7 @@ def test_a_refusal_while_the_program_is_built_leaves_no_run_folder(monkeypatch, 
     argv = ["train", "Pendulum-v1", "--total-steps", "2048", "--out-dir", str(out), "--quiet"]
     assert main([*argv, "--seeds", "0,1", "--set", "net.hidden=16,16", "--set", "ppo.n_steps=64"]) == 2
     assert _one_line_error(capsys) == "canter: error: refused while the program is built"
-    assert not out.exists() or not list(out.rglob("*.*")), sorted(out.rglob("*"))
+    assert not out.exists() or not any(out.iterdir()), sorted(out.rglob("*"))
 
 
 def test_too_many_seeds_for_the_open_files_are_refused_before_a_folder_is_made(monkeypatch, tmp_path, capsys):

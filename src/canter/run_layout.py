@@ -44,11 +44,15 @@ def run_files_in(folder: Path) -> frozenset[str]:
     return frozenset(held)
 
 
+def has_finished(folder: Path) -> bool:
+    """A run's summary, evaluation or archived metrics: written once a run has stopped, never by one stopped before
+    its first checkpoint."""
+    return bool(run_files_in(folder) & {SUMMARY_FILE, EVAL_FILE, ARCHIVED_METRICS_FILE})
+
+
 def finished_without_checkpoints(folder: Path) -> bool:
-    """A run's summary, evaluation or archived metrics beside no checkpoint: a finished run kept without them (an
-    archive), never one stopped before its first checkpoint, which writes none of these."""
-    held = run_files_in(folder)
-    return CHECKPOINT_FOLDER not in held and bool(held & {SUMMARY_FILE, EVAL_FILE, ARCHIVED_METRICS_FILE})
+    """A finished run kept without its checkpoints (an archive): not one stopped before its first checkpoint."""
+    return not checkpoints_in(folder) and has_finished(folder)
 
 
 def surely_a_run(folder: Path) -> bool:

@@ -34,6 +34,7 @@ from canter.run_layout import (
     CHECKPOINT_NAME,
     CONFIG_FILE,
     finished_without_checkpoints,
+    has_finished,
     run_files_in,
 )
 from canter.training.run_folder import checkpoint_dir, list_checkpoints
@@ -73,9 +74,14 @@ def _damaged_fix(path: Path) -> str:
             "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "
             "--checkpoint FILE)"
         )
+    run_dir = path.parent.parent
+    if has_finished(run_dir):  # without its checkpoints a finished run is an archive, which no resume trains
+        return (
+            f"it is the run's only one, so move it away and start the run again with canter train --config "
+            f"{run_dir / CONFIG_FILE}"
+        )
     return (
-        f"it is the run's only one, so move it away and start the run again with canter train --config "
-        f"{path.parent.parent / CONFIG_FILE}"
+        f"it is the run's only one: move it away, and canter train --resume {run_dir} trains the run again from step 0"
     )
 
 

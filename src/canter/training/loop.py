@@ -282,7 +282,7 @@ def _train_locked(
                 carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
-            if isinstance(exc, CanterError):  # refused before it trained: no folder is left that holds nothing
+            if isinstance(exc, CanterError):  # a new folder that holds no checkpoint and no row goes
                 for start in starts:
                     if not (start.resumed or start.restarted):  # a restarted run keeps its config to resume again
                         run_folder.discard_unstarted(start.out)
