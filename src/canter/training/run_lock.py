@@ -11,7 +11,8 @@ Readers (eval, plot, report, export, video) never take the lock: a run folder's 
 
 Taking the lock also removes what a killed writer left half-written: the temp files of atomic writes
 (`.NAME.*.tmp`, `.NAME.*.tmp.mp4`). No other process writes the folder then, so none of them is being written. A
-video snapshot (`videos/.snapshot_*.npz`) is whole, and a resume renders the video it was taken for.
+video snapshot (`videos/.snapshot_*.npz`) is whole: a resume renders the video of one up to its checkpoint and
+removes one past it (`canter.training.videos`).
 
 Locks are re-entrant within a process: a bench job holds its folders while it trains and evaluates them, and the
 trainer it calls takes them again.
