@@ -148,7 +148,7 @@ def test_report_bad_input(tiny_run, tmp_path, capsys):
     shutil.copytree(tiny_run.run_dir, no_checkpoint, ignore=shutil.ignore_patterns("checkpoints"))
     assert main(["report", str(no_checkpoint), "--out", str(tmp_path / "r.html")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "no checkpoint" in err
+    assert err.count("\n") == 1 and "without its checkpoints" in err and "report does with --episodes 0" in err
     # Without an evaluation or a video the page plays nothing, so an archived run kept without checkpoints will do.
     assert main(["report", str(no_checkpoint), "--episodes", "0", "--out", str(tmp_path / "archived.html")]) == 0
     assert "Not evaluated" in (tmp_path / "archived.html").read_text()

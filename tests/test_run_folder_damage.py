@@ -377,7 +377,8 @@ def test_a_resume_refuses_an_archive_of_a_finished_run_and_keeps_it_whole(archiv
     assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
     assert _one_line_error(capsys, 2) == (
         f"canter: error: {archived_run} holds a finished run without its checkpoints (an archive?): it has no policy "
-        f"to load or train on; plot and report read its metrics, and a new run trains it again\n"
+        f"to load or train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it "
+        f"again\n"
     )
     assert sorted(p.relative_to(archived_run) for p in archived_run.rglob("*") if p.name != ".writer.lock") == before
 

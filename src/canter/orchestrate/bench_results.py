@@ -17,8 +17,8 @@ import numpy as np
 from canter.errors import CanterError
 from canter.files import check_writable
 from canter.orchestrate.bench_grid import BenchSettings, Cell, safe_name, varying_keys
-from canter.orchestrate.jobs import EVAL_FILE, is_number, read_object, read_summary
-from canter.run_layout import CONFIG_FILE, METRICS_FILE
+from canter.orchestrate.jobs import is_number, read_object, read_summary
+from canter.run_layout import CONFIG_FILE, EVAL_FILE, METRICS_FILE
 from canter.use.reference_scores import REFERENCE_STEPS, env_base, published_scores
 
 if TYPE_CHECKING:

@@ -29,12 +29,9 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
-from canter.run_layout import CHECKPOINT_NAME, SUMMARY_FILE
+from canter.run_layout import CHECKPOINT_NAME, EVAL_FILE, SUMMARY_FILE
 from canter.signals import die_with_parent, exit_interrupted, handling_stop_signals, stops_held
 from canter.training.trackers.base import TrackSpec
-
-EVAL_FILE = "eval.json"
-
 
 # ------------------------------------------------------------------------------------------------ run folder status
 

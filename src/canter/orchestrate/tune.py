@@ -534,17 +534,17 @@ def progress_line(study: Any, target: int) -> str:
     return ", ".join([line, *(f"{n[state]} {word}" for state, word in words if n[state])])
 
 
-def _finished(study: Any, settings: TuneSettings) -> bool:
-    """Whether the study has its --trials finished, counted as workers count them (complete or pruned)."""
+def _trials_lacking(study: Any, settings: TuneSettings) -> int:
+    """The trials the study still lacks of --trials, counted as workers count them (`run_worker`: finished means
+    complete or pruned)."""
     n = retrying(functools.partial(counts, study), settings.storage.url, "reading the study")
-    return n["COMPLETE"] + n["PRUNED"] >= settings.trials
+    return settings.trials - n["COMPLETE"] - n["PRUNED"]
 
 
 def tune_workers(study: Any, settings: TuneSettings) -> int:
-    """The worker processes to start: --jobs, but no more than the trials the study still lacks, counted as workers
-    count them (`run_worker`: finished means complete or pruned); a worker beyond those would find no trial to run."""
-    n = counts(study)
-    return worker_count(settings.jobs, settings.trials - n["COMPLETE"] - n["PRUNED"])
+    """The worker processes to start: --jobs, but no more than the trials the study still lacks; a worker beyond
+    those would find no trial to run."""
+    return worker_count(settings.jobs, _trials_lacking(study, settings))
 
 
 def tune(settings: TuneSettings) -> Any:
@@ -579,7 +579,7 @@ def tune(settings: TuneSettings) -> Any:
         )
     # The study's tracker group (MLflow's parent run) is made here, once, not by trials that start together.
     settings = replace(settings, track=open_groups(settings.track, [study_group(settings)]))
-    workers = retrying(functools.partial(tune_workers, study, settings), settings.storage.url, "reading the study")
+    workers = tune_workers(study, settings)
     warn_if_more_jobs_than_cores(settings.jobs, workers)
     write = functools.partial(
         retrying, functools.partial(write_results, study, settings), settings.storage.url, "reading the results"
@@ -595,7 +595,7 @@ def tune(settings: TuneSettings) -> Any:
         raise
     # What the study holds is written even when a worker ended early: the others may have finished its trials.
     write()
-    if failed and _finished(study, settings):
+    if failed and _trials_lacking(study, settings) <= 0:
         print(
             f"canter: note: {len(failed)} of {workers} tune workers ended early ({exit_text(failed[0])}), but the "
             f"others finished the study's {settings.trials} trials",

@@ -289,7 +289,7 @@ def latest(run_dir: Path) -> Path:
     if not found and finished_without_checkpoints(run_dir):
         raise CanterError(
             f"{run_dir} holds a finished run without its checkpoints (an archive?): it has no policy to load or "
-            f"train on; plot and report read its metrics, and a new run trains it again"
+            f"train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it again"
         )
     if not found:
         raise CanterError(

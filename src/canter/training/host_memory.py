@@ -72,11 +72,11 @@ def bytes_per_env(make: Callable[[int], Any]) -> float | None:
 
 
 def refusal(
-    num_envs: int, per_env: float, available: int, group: int = 1, measured: bool = True, how: str = "measured"
+    num_envs: int, per_env: float, available: int, group: int = 1, how: str | None = "measured"
 ) -> CanterError | None:
-    """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (`measured`, `how` it was,
-    or the least an env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is
-    fewer seeds at a time, not fewer envs."""
+    """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (found `how`, or None: the
+    least an env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is fewer seeds
+    at a time, not fewer envs."""
     total = num_envs * group
     need = per_env * total
     room = HEADROOM * available
@@ -88,8 +88,8 @@ def refusal(
         what = f"{group} seeds of env.num_envs={num_envs} ({total} envs) need {amount} for their"
     else:
         what = f"env.num_envs={num_envs} needs {amount} for its"
-    each = f"{size_text(per_env)} each, {how}" if measured else f"at least {per_env:.0f} bytes each"
-    if not measured:  # a count that fits this floor can still be far too many envs
+    each = f"{size_text(per_env)} each, {how}" if how else f"at least {per_env:.0f} bytes each"
+    if how is None:  # a count that fits this floor can still be far too many envs
         fix = "lower it by far (an env takes much more than its seed)"
     elif group > 1 and num_envs <= fits:
         fix = fewer_seeds(fits // num_envs)
@@ -140,7 +140,7 @@ def check_envs_fit(env_id: str, backend: str, options: dict[str, Any], num_envs:
         return
     per_env = bytes_per_env_apart(env_id, backend, options)
     if per_env is None:
-        error = refusal(num_envs, MIN_BYTES_PER_ENV, available, group, measured=False)
+        error = refusal(num_envs, MIN_BYTES_PER_ENV, available, group, how=None)
     else:
         error = refusal(num_envs, max(per_env, MIN_BYTES_PER_ENV), available, group)
     if error is not None:

@@ -16,6 +16,7 @@ import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from canter.run_layout import VIDEOS_FOLDER
 from canter.training.cadence import Cadence
 
 _FORK_WARNING = r"os\.fork\(\) was called"  # JAX warns about any fork; ours (GL probe, ffmpeg, renderer) exec
@@ -49,7 +50,7 @@ class TrainingVideos:
         logger drops their metrics: they showed training that was lost with the process, and are redone. A video of
         a step up to the checkpoint whose render the process took with it is rendered now from its snapshot, which
         is whole (it is written atomically before its render starts)."""
-        self.folder = Path(run_dir) / "videos"
+        self.folder = Path(run_dir) / VIDEOS_FOLDER
         self.cadence = Cadence(every, start_step)
         self._job: tuple[subprocess.Popen, Path, int] | None = None
         if resumed and self.folder.is_dir():

@@ -24,6 +24,7 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.config.values import set_text
 from canter.errors import CanterError
+from canter.run_layout import VIDEOS_FOLDER
 from canter.signals import StopFlag
 from canter.training import checkpoint
 from canter.use.scoreboard import Scoreboard
@@ -82,7 +83,7 @@ def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFa
         if (run_dir / "robustness").is_dir()
         else ()
     )
-    videos_dir = run_dir / "videos"
+    videos_dir = run_dir / VIDEOS_FOLDER
     videos = (
         tuple(
             sorted(

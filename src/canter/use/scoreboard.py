@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from canter.run_layout import EVAL_FILE, SUMMARY_FILE
 from canter.use import statistics
 from canter.use.reference_scores import Normalizer, normalizer_for, random_command, reference_score
 from canter.use.statistics import Aggregates, Interval, Profile
@@ -346,7 +347,7 @@ def _runs_by_env(columns: Sequence[tuple[float, ...]]) -> np.ndarray:
     return np.array([list(c[:runs]) for c in columns]).T
 
 
-SCORE_FILES = {EVAL_SOURCE: ("eval.json", "mean"), TRAINING_SOURCE: ("summary.json", "recent_return")}
+SCORE_FILES = {EVAL_SOURCE: (EVAL_FILE, "mean"), TRAINING_SOURCE: (SUMMARY_FILE, "recent_return")}
 
 
 def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOURCE)) -> tuple[float, str] | None:
