@@ -31,6 +31,12 @@ def test_a_run_without_config_or_checkpoints_is_sent_to_a_copy(archived_run, cap
         f"{archived_run} has no config.toml: the run folder is damaged and has no checkpoint that holds its config; "
         f"restore config.toml from a copy"
     )
+    # Nor is it asked whether it is a run where a reader needs its checkpoints too.
+    line = error_line(capsys, ["report", str(archived_run), "--episodes", "0"])
+    assert line == (
+        f"{archived_run} has metrics.csv, summary.json, versions.json but no config.toml and no checkpoint: the run "
+        f"folder is damaged; restore its config.toml and checkpoints/ from a copy"
+    )
 
 
 def test_a_folder_with_no_run_file_is_still_asked_whether_it_is_a_run(tmp_path):
@@ -83,16 +89,6 @@ def test_the_disk_warnings_checkpoint_size_is_the_size_written(algo, tmp_path):
     checkpoint.save(written, state, header)
     size = written.stat().st_size
     assert abs(state_bytes(state) / size - 1) < 0.03, (state_bytes(state), size)
-
-
-def test_a_run_that_lost_its_config_and_checkpoints_is_not_asked_whether_it_is_one(archived_run, capsys):
-    (archived_run / "config.toml").unlink()
-    shutil.rmtree(archived_run / "checkpoints")
-    line = error_line(capsys, ["report", str(archived_run), "--episodes", "0"])
-    assert line == (
-        f"{archived_run} has metrics.csv, summary.json, versions.json but no config.toml and no checkpoint: the run "
-        f"folder is damaged; restore its config.toml and checkpoints/ from a copy"
-    )
 
 
 @pytest.mark.slow
