@@ -303,7 +303,11 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
         older.unlink()
     one_line(["eval", str(corrupt)], "it is the run's only one, so move it away and start the run again with")
     (corrupt / "summary.json").unlink()  # a run stopped before it finished: its resume trains it again in place
-    one_line(["eval", str(corrupt)], f"it is the run's only one: move it away, and canter train --resume {corrupt}")
+    one_line(
+        ["eval", str(corrupt)],
+        f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and canter "
+        f"train --resume {corrupt} trains the run again from step 0",
+    )
 
     truncated = folder("truncated_metrics")
     (truncated / "metrics.csv").write_text("global_step,iter")

@@ -269,25 +269,32 @@ def test_a_group_resume_writes_the_missing_summaries_of_its_finished_seeds(tmp_p
 
 
 @pytest.mark.parametrize("damage", ["emptied", "header_cut", "rows_gone"])
-def test_a_resume_refuses_a_metrics_csv_that_lost_its_rows_until_it_is_restored_or_moved_away(
-    archived_run, capsys, damage
-):
-    """A resume used to write a new header after the emptied file and log on from the checkpoint, after which plot
-    drew the run as if it had begun there."""
+def test_a_resume_notes_a_metrics_csv_without_rows_and_logs_on_from_its_checkpoint(archived_run, capsys, damage):
+    """A resume used to log on after an emptied file without a word, after which plot drew the run as if it had begun
+    at its checkpoint. Refusing it would refuse a file canter leaves itself (a resume killed before its first row,
+    after the file was moved away), so it is a note."""
     metrics = archived_run / "metrics.csv"
     header = metrics.read_text().splitlines()[0]
     metrics.write_text({"emptied": "", "header_cut": header[:20], "rows_gone": header + "\n"}[damage])
-    before = metrics.read_bytes()
     argv = ["train", "--resume", str(archived_run), "--total-steps", "1500", "--quiet"]
-    assert _one_line_error(capsys, main(argv)) == (
-        f"canter: error: {metrics} has no logged rows, though the run has a checkpoint at step 1,190: the file was "
-        f"emptied or damaged; restore it from a copy, or move it away to resume with rows from step 1,190 on\n"
-    )
-    assert metrics.read_bytes() == before
-    metrics.rename(archived_run / "metrics.csv.damaged")
     assert main(argv) == 0
+    assert (
+        f"canter: note: {metrics} has no logged rows, though the run has a checkpoint at step 1,190: the file was "
+        f"emptied or damaged; restore it from a copy to keep the rows before step 1,190; the resume logs its rows "
+        f"from there"
+    ) in capsys.readouterr().err
     steps = [int(row["global_step"]) for row in read_rows(metrics)[1]]
     assert steps and min(steps) > 1190
+
+
+def _killed_before_its_first_checkpoint(run: Path) -> None:
+    """The folder of a run killed while it wrote its first checkpoint: its rows up to that iteration's (714, the first
+    past run.checkpoint_every=512), no checkpoint and no summary."""
+    import shutil
+
+    shutil.rmtree(run / "checkpoints")
+    (run / "summary.json").unlink()
+    _killed_before_its_first_checkpoint_rows(run)
 
 
 @pytest.mark.slow
@@ -296,10 +303,7 @@ def test_a_run_killed_before_its_first_checkpoint_resumes_by_training_again_in_i
 ):
     """Such a run used to be refused by --resume, with advice to train a new one in another folder; a seed of a group
     killed between the seeds' first checkpoints was stranded the same way."""
-    import shutil
-
-    shutil.rmtree(archived_run / "checkpoints")
-    (archived_run / "summary.json").unlink()
+    _killed_before_its_first_checkpoint(archived_run)
     logged = len(read_rows(archived_run / "metrics.csv")[1])
     assert main(["train", "--resume", str(archived_run), "--quiet"]) == 0
     assert (
@@ -326,8 +330,7 @@ def test_a_seed_of_a_group_with_no_checkpoint_trains_again_beside_the_others(tmp
         folder = tmp_path / f"s{seed}"
         shutil.copytree(ARCHIVED_RUN.parent / f"ppo-group-s{seed}", folder)
         folders.append(folder)
-    shutil.rmtree(folders[1] / "checkpoints")
-    (folders[1] / "summary.json").unlink()
+    _killed_before_its_first_checkpoint(folders[1])
     steps = json.loads((folders[0] / "summary.json").read_text())["global_step"]
     argv = ["train", "--resume", *map(str, folders), "--total-steps", str(steps + 256), "--quiet"]
     assert main(argv) == 0
@@ -402,8 +405,7 @@ def test_a_seed_to_train_again_is_not_cleared_when_another_seed_of_its_group_is_
     folders = [tmp_path / f"s{seed}" for seed in (0, 1)]
     for seed, folder in enumerate(folders):
         shutil.copytree(ARCHIVED_RUN.parent / f"ppo-group-s{seed}", folder)
-    shutil.rmtree(folders[0] / "checkpoints")
-    (folders[0] / "summary.json").unlink()
+    _killed_before_its_first_checkpoint(folders[0])
     newest = run_folder.list_checkpoints(folders[1])[-1]
     newest.write_bytes(newest.read_bytes()[:100])
     rows = (folders[0] / "metrics.csv").read_bytes()
@@ -411,3 +413,61 @@ def test_a_seed_to_train_again_is_not_cleared_when_another_seed_of_its_group_is_
     assert main(argv) == 2
     assert str(newest) in capsys.readouterr().err
     assert (folders[0] / "metrics.csv").read_bytes() == rows
+
+
+@pytest.mark.parametrize("kept", ["rows", "best"])
+def test_a_run_that_lost_its_checkpoints_is_refused_not_trained_again(archived_run, capsys, kept):
+    """Its rows past the first checkpoint, or its best.npz, show that it had checkpoints: training it again would throw
+    away what they held."""
+    import shutil
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "summary.json").unlink()
+    if kept == "best":
+        _killed_before_its_first_checkpoint_rows(archived_run)
+        (archived_run / "checkpoints").mkdir()
+        shutil.copy(ARCHIVED_RUN / "checkpoints" / "ckpt_000000000714.npz", archived_run / "checkpoints" / "best.npz")
+    before = {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file()}
+    assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
+    err = _one_line_error(capsys, 2)
+    if kept == "rows":
+        assert err == (
+            f"canter: error: {archived_run} has no checkpoint but has logged rows up to step 1,190, past its first "
+            f"checkpoint (run.checkpoint_every=512): its checkpoints were lost; restore them from a copy, or move its "
+            f"metrics.csv away to train it again from step 0\n"
+        )
+    else:
+        assert "has no checkpoint but has best.npz, the best policy its evaluations found" in err
+    assert {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
+
+
+def _killed_before_its_first_checkpoint_rows(run: Path) -> None:
+    lines = (run / "metrics.csv").read_bytes().splitlines(keepends=True)
+    (run / "metrics.csv").write_bytes(b"".join(lines[:4]))
+
+
+def test_a_refused_new_run_keeps_a_users_own_files_in_its_tb_folder(tmp_path, capsys):
+    import canter
+
+    run = tmp_path / "project"
+    (run / "tb").mkdir(parents=True)
+    (run / "tb" / "notes.txt").write_text("mine")
+    config = canter.build_config("Pendulum-v1", total_steps=2048, sets=["sym.coef=0.5", "sym.groups=0:1=3:4"])
+    with pytest.raises(CanterError):
+        canter.train(config, run_dir=run)
+    assert (run / "tb" / "notes.txt").read_text() == "mine"
+
+
+def test_only_a_summary_of_a_finished_run_marks_a_folder_without_checkpoints_as_an_archive(tmp_path):
+    """A stop (a signal, even during the compile, or --max-minutes) writes a summary too: such a run can still be
+    trained again once its only checkpoint is moved away."""
+    from canter.run_layout import finished_without_checkpoints
+
+    (tmp_path / "config.toml").write_text("")
+    for reason, finished in [("signal", False), ("max_minutes", False), ("budget", True), ("stop_at_return", True)]:
+        (tmp_path / "summary.json").write_text(json.dumps({"global_step": 0, "stop_reason": reason}))
+        assert finished_without_checkpoints(tmp_path) is finished, reason
+    (tmp_path / "summary.json").write_text("[not a summary")
+    assert not finished_without_checkpoints(tmp_path)
+    (tmp_path / "eval.json").write_text("{}")  # only a bench evaluates a run that has finished
+    assert finished_without_checkpoints(tmp_path)

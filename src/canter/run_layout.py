@@ -5,6 +5,7 @@ never replaces a run's own file. Each caller asks its own question of `run_files
 with any sign of a run, while an output guard refuses only a folder that is surely one.
 """
 
+import json
 import re
 from pathlib import Path
 
@@ -45,9 +46,16 @@ def run_files_in(folder: Path) -> frozenset[str]:
 
 
 def has_finished(folder: Path) -> bool:
-    """A run's summary, evaluation or archived metrics: written once a run has stopped, never by one stopped before
-    its first checkpoint."""
-    return bool(run_files_in(folder) & {SUMMARY_FILE, EVAL_FILE, ARCHIVED_METRICS_FILE})
+    """A bench's evaluation, archived metrics, or a summary that says the run trained its budget or met its target:
+    a finished run's files. A summary of a stop (a signal, even during the compile, or --max-minutes) is not."""
+    held = run_files_in(folder)
+    if held & {EVAL_FILE, ARCHIVED_METRICS_FILE}:
+        return True
+    try:
+        summary = json.loads((Path(folder) / SUMMARY_FILE).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(summary, dict) and summary.get("stop_reason") in ("budget", "stop_at_return")
 
 
 def finished_without_checkpoints(folder: Path) -> bool:

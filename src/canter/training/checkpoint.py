@@ -81,7 +81,8 @@ def _damaged_fix(path: Path) -> str:
             f"{run_dir / CONFIG_FILE}"
         )
     return (
-        f"it is the run's only one: move it away, and canter train --resume {run_dir} trains the run again from step 0"
+        f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and canter "
+        f"train --resume {run_dir} trains the run again from step 0"
     )
 
 

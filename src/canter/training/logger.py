@@ -223,7 +223,7 @@ TENSORBOARD_CHARTS = frozenset(
 )
 
 
-_MOVE_IT_AWAY = "move it away to resume with rows from step {step:,} on"
+_MOVE_IT_AWAY = "move it away to resume with rows from step {step:,} on"  # the file starts again at the checkpoint
 
 
 class MetricsLogger:
@@ -243,7 +243,7 @@ class MetricsLogger:
         self.columns = columns_for(metric_names, info_keys, evaluates)
         self._unpack_archived()
         if resume_step:
-            self._refuse_a_lost_history(resume_step)
+            self._note_a_lost_history(resume_step)
         self._check_header()
         if resume_step:
             self._refuse_rows_cut_back(resume_step)  # before the half-written line goes: a refused file stays as it is
@@ -277,12 +277,16 @@ class MetricsLogger:
         atomic_write_bytes(self.path, lambda f: f.write(rows))
         packed.unlink()
 
-    def _refuse_a_lost_history(self, step: int) -> None:
-        """A file without the rows up to the checkpoint at `step` (each iteration logs its row before its checkpoint)
-        lost them to something other than a stopped process: appending to it would hide that. A file moved away on
-        purpose starts again at the checkpoint."""
+    def _note_a_lost_history(self, step: int) -> None:
+        """A file without a row, of a run that trained to a checkpoint at `step`: emptied or damaged, or begun again
+        by a resume that was killed before its first row, after the file had been moved away (canter's own advice).
+        The two cannot be told apart, so the resume logs on from the checkpoint and says what the file lacks."""
         if self.path.is_file() and _whole_lines(self.path).count(b"\n") < 2:  # the header and a row at least
-            raise CanterError(f"{lost_rows(self.path, step)}, or {_MOVE_IT_AWAY.format(step=step)}")
+            print(
+                f"canter: note: {lost_rows(self.path, step)} to keep the rows before step {step:,}; the resume logs "
+                f"its rows from there",
+                file=sys.stderr,
+            )
 
     def _refuse_rows_cut_back(self, step: int) -> None:
         """A file whose last row comes before the checkpoint's own row was cut back by something else than a stopped
@@ -306,7 +310,7 @@ class MetricsLogger:
         with open(self.path, "r+b") as f:
             f.truncate(whole)
         # A row is logged before its iteration's checkpoint, so a process stopped while writing one stopped after the
-        # newest checkpoint, which the resume goes on from, logging that row again (`_refuse_a_lost_history` refused
+        # newest checkpoint, which the resume goes on from, logging that row again (`_refuse_rows_cut_back` refused
         # a file cut back further).
         print(
             f"canter: note: dropped the half-written last row of {self.path} (a process stopped while writing "

@@ -326,6 +326,7 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
         if _never_checkpointed(out):
             _check_only_the_budget_differs(_saved_config(out), config, out)
+            _refuse_lost_checkpoints(out, config)
             return SeedStart(out, restarted=True)
         latest = checkpoint.latest(out)
         saved, _, state, header = load_state(out, latest)
@@ -372,6 +373,31 @@ def _never_checkpointed(run_dir: Path) -> bool:
         and (run_dir / CONFIG_FILE).is_file()
         and not finished_without_checkpoints(run_dir)
     )
+
+
+def _refuse_lost_checkpoints(run_dir: Path, config: Config) -> None:
+    """A run killed before its first checkpoint has logged at most one row at or past run.checkpoint_every (each
+    iteration logs its row before its checkpoint) and may have a best.npz of an evaluation. More rows mean its
+    checkpoints were lost, and training it again must not throw away its rows or its best policy unasked."""
+    try:
+        rows = read_rows(run_folder.metrics_file(run_dir))[1]
+    except CanterError:  # damaged: its own refusal comes when the resume reads it
+        rows = []
+    steps = [float(row["global_step"]) for row in rows if row.get("global_step", "").replace(".", "", 1).isdigit()]
+    every = config.run.checkpoint_every
+    past = [step for step in steps if every > 0 and step >= every]
+    best = checkpoint.best_path(run_dir)
+    if len(past) > 1:
+        raise CanterError(
+            f"{run_dir} has no checkpoint but has logged rows up to step {max(past):,.0f}, past its first checkpoint "
+            f"(run.checkpoint_every={every:,}): its checkpoints were lost; restore them from a copy, or move its "
+            f"metrics.csv away to train it again from step 0"
+        )
+    if best.is_file():
+        raise CanterError(
+            f"{run_dir} has no checkpoint but has {best.name}, the best policy its evaluations found; restore its "
+            f"checkpoints from a copy, or move {best} away to train it again from step 0"
+        )
 
 
 def _start_over(run_dir: Path) -> None:

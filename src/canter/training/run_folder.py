@@ -23,7 +23,6 @@ import os
 import platform
 import re
 import secrets
-import shutil
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -309,7 +308,11 @@ def discard_unstarted(run_dir: Path) -> None:
     for name in (CONFIG_FILE, VERSIONS_FILE, TRACKERS_FILE, METRICS_FILE):
         with contextlib.suppress(OSError):  # an unwritable folder: the refusal that brought us here is what to tell
             (run_dir / name).unlink(missing_ok=True)
-    shutil.rmtree(run_dir / TENSORBOARD_FOLDER, ignore_errors=True)
+    for events in (run_dir / TENSORBOARD_FOLDER).glob("events.out.tfevents.*"):  # a user's own files there stay
+        with contextlib.suppress(OSError):
+            events.unlink()
+    with contextlib.suppress(OSError):
+        (run_dir / TENSORBOARD_FOLDER).rmdir()
 
 
 # What a run writes before its first checkpoint, by folder: a restart removes these and nothing else.
