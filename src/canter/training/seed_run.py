@@ -333,9 +333,16 @@ def _suspicion(key: str, value: Any) -> int:
     return 0 if isinstance(value, float) and (name == "lr" or name.endswith("_lr")) else 1
 
 
+# A resume refuses --set, and an edited config.toml no longer matches its checkpoints: the fix is a new run.
+_ANEW = (
+    "a resume keeps the run's settings and would diverge again: train anew from its config.toml (canter train --config)"
+)
+
+
 def divergence_hint(config: Config) -> str:
-    """What to change before resuming a diverged run: the same settings would diverge again from its last good
-    state, and the settings it changed from its preset are the first suspects, learning rates first."""
+    """What to change in a diverged run: a resume keeps its settings (it refuses --set) and would diverge again from
+    its last good state, so the fix is a new run from its config.toml with settings changed; the settings it changed
+    from its preset are the first suspects, learning rates first."""
     from canter.config.build import preset_config
     from canter.config.experiment import flat_config
     from canter.config.values import set_text
@@ -343,8 +350,8 @@ def divergence_hint(config: Config) -> str:
     built = preset_config(config)
     if built is None:
         return (
-            f"resuming with the same settings would diverge again; lower its learning rate or undo the settings it "
-            f"changed (preset {config.run.preset} could not be built to compare with)"
+            f"{_ANEW} with a lower learning rate or without the settings it changed (preset {config.run.preset} could "
+            f"not be built to compare with)"
         )
     preset = flat_config(built)
     suspects = sorted(
@@ -359,11 +366,11 @@ def divergence_hint(config: Config) -> str:
         f"{key}={value:g}" if isinstance(value, float) else f"{key}={set_text(value)}" for key, value in suspects
     ]
     if not changed:
-        return "it diverged with its preset's own settings: lower its learning rate before resuming"
+        return f"it diverged with its preset's own settings; {_ANEW} with a lower learning rate"
     more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
     return (
-        f"resuming with the same settings would diverge again; first suspects, the settings changed from preset "
-        f"{config.run.preset}: {', '.join(changed[:4])}{more}"
+        f"{_ANEW} with settings changed; first suspects, the settings changed from preset {config.run.preset}: "
+        f"{', '.join(changed[:4])}{more}"
     )
 
 
