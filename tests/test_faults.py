@@ -560,3 +560,25 @@ def test_a_slow_call_is_noted_once_and_a_stop_then_says_how_long_it_waits(tmp_pa
     )
     assert "canter: SIGTERM: stopping when the current call ends (each takes about " in err
     assert run_folder.list_checkpoints(result.run_dir)  # it stopped with a checkpoint to resume from
+
+
+@pytest.mark.slow
+def test_the_rows_before_a_checkpoint_reach_the_disk_before_it_does(tmp_path, monkeypatch):
+    """A checkpoint is fsynced; rows appended without one could be lost to a machine crash while it survives, and the
+    resume would then refuse the metrics as cut back before the checkpoint's own row."""
+    from canter.config.build import build_config
+    from canter.files import AppendFile
+    from canter.training.loop import train
+    from conftest import TINY
+
+    events: list[str] = []
+    synced = AppendFile.sync
+    monkeypatch.setattr(AppendFile, "sync", lambda self: (events.append(f"sync {self.path.name}"), synced(self))[1])
+    saved = checkpoint.save
+    monkeypatch.setattr(
+        checkpoint, "save", lambda path, *a, **k: (events.append(f"save {path.name}"), saved(path, *a, **k))[1]
+    )
+    sets = TINY + [f"run.out_dir={tmp_path}", "env.num_envs=4", "ppo.n_steps=64", "ppo.minibatch_size=256"]
+    train(build_config("Pendulum-v1", preset="fast", total_steps=1024, sets=sets + ["run.checkpoint_every=256"]))
+    saves = [i for i, event in enumerate(events) if event.startswith("save ckpt_")]
+    assert len(saves) >= 2 and all(events[i - 1] == "sync metrics.csv" for i in saves), events

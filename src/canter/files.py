@@ -195,6 +195,16 @@ class AppendFile:
                 raise WriteError(self.path, exc) from None
             raise
 
+    def sync(self) -> None:
+        """Make what was appended durable (a machine that crashes after this keeps it)."""
+        assert self._fd is not None, f"{self.path} is closed"
+        try:
+            os.fsync(self._fd)
+        except OSError as exc:
+            if is_write_error(exc):
+                raise WriteError(self.path, exc) from None
+            raise
+
     def close(self) -> None:
         if self._fd is not None:
             os.close(self._fd)

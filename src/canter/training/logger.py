@@ -380,6 +380,11 @@ class MetricsLogger:
                 scalars[tag] = value
             self._tb.add_scalars(int(row["global_step"]), scalars)
 
+    def sync(self) -> None:
+        """Make the rows logged so far durable: each comes before its iteration's checkpoint, which is fsynced, and a
+        resume after a machine crash would otherwise find a checkpoint past the rows that reached the disk."""
+        self._file.sync()
+
     def close(self) -> None:
         self._file.close()
         if self._tb is not None:

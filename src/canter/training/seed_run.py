@@ -176,6 +176,7 @@ class SeedRun:
         zeros still, as reading them back gives them; the header marks the checkpoint `untrained`, so that a resume
         starts the run as it would have started."""
         header = self._header() if untrained_but is None else dict(self._header(), untrained=True)
+        self.logger.sync()
         checkpoint.save(
             run_folder.checkpoint_path(self.out, self.global_step),
             train_state,
