@@ -113,6 +113,11 @@ def _number(text: str | None) -> float:
         return math.nan
 
 
+def row_steps(rows: list[dict[str, str]]) -> list[float]:
+    """The global_step of each row whose step is a finite number, in the file's order."""
+    return [step for step in (_number(row.get("global_step")) for row in rows) if math.isfinite(step)]
+
+
 def unreadable_steps(rows: list[dict[str, str]]) -> list[tuple[int, str]]:
     """(line number, cell) of each row whose global_step is not a finite number: an edited or damaged file, whose
     rows canter can neither place nor plot."""
@@ -293,7 +298,7 @@ class MetricsLogger:
         process (which stops after the row it had logged before its checkpoint): the rows it lost are not logged
         again, and appending after them would hide the gap. Rows with unreadable steps are noted when dropped."""
         rows = read_rows(self.path)[1]
-        last = max((s for s in (_number(row.get("global_step")) for row in rows) if math.isfinite(s)), default=0.0)
+        last = max(row_steps(rows), default=0.0)
         if rows and last < step and not unreadable_steps(rows):
             raise CanterError(
                 f"{self.path} ends at step {last:,.0f}, before the row of step {step:,} that the checkpoint the run "

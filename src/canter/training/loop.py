@@ -36,7 +36,7 @@ from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
-from canter.training.logger import Progress, checkpoint_totals, read_rows
+from canter.training.logger import Progress, checkpoint_totals, read_rows, row_steps
 from canter.training.seed_run import RunResult, SeedRun, SeedStart, reached_target, write_summary
 
 STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
@@ -383,9 +383,8 @@ def _refuse_lost_checkpoints(run_dir: Path, config: Config) -> None:
         rows = read_rows(run_folder.metrics_file(run_dir))[1]
     except CanterError:  # damaged: its own refusal comes when the resume reads it
         rows = []
-    steps = [float(row["global_step"]) for row in rows if row.get("global_step", "").replace(".", "", 1).isdigit()]
     every = config.run.checkpoint_every
-    past = [step for step in steps if every > 0 and step >= every]
+    past = [step for step in row_steps(rows) if every > 0 and step >= every]
     best = checkpoint.best_path(run_dir)
     if len(past) > 1:
         raise CanterError(
