@@ -471,3 +471,17 @@ def test_only_a_summary_of_a_finished_run_marks_a_folder_without_checkpoints_as_
     assert not finished_without_checkpoints(tmp_path)
     (tmp_path / "eval.json").write_text("{}")  # only a bench evaluates a run that has finished
     assert finished_without_checkpoints(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "text, read",
+    [(None, None), ("{broken", None), ("[1, 2]", None), ("3", None), ('{"global_step": 5}', {"global_step": 5})],
+)
+def test_one_reader_gives_a_summary_only_when_it_is_a_json_object(tmp_path, text, read):
+    """Every reader of summary.json (resume, the group's seeds, report, bench) treats a missing, damaged or
+    hand-edited file alike: as none."""
+    from canter.run_layout import read_summary
+
+    if text is not None:
+        (tmp_path / "summary.json").write_text(text)
+    assert read_summary(tmp_path) == read

@@ -8,6 +8,7 @@ with any sign of a run, while an output guard refuses only a folder that is sure
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
@@ -45,17 +46,24 @@ def run_files_in(folder: Path) -> frozenset[str]:
     return frozenset(held)
 
 
+def read_summary(folder: Path) -> dict[str, Any] | None:
+    """The run's summary.json; None where it is missing, not JSON, or not an object (a damaged or hand-edited file,
+    or none yet: a run writes it when it stops)."""
+    try:
+        summary = json.loads((Path(folder) / SUMMARY_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) else None
+
+
 def has_finished(folder: Path) -> bool:
     """A bench's evaluation, archived metrics, or a summary that says the run trained its budget or met its target:
     a finished run's files. A summary of a stop (a signal, even during the compile, or --max-minutes) is not."""
     held = run_files_in(folder)
     if held & {EVAL_FILE, ARCHIVED_METRICS_FILE}:
         return True
-    try:
-        summary = json.loads((Path(folder) / SUMMARY_FILE).read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(summary, dict) and summary.get("stop_reason") in ("budget", "stop_at_return")
+    summary = read_summary(folder)
+    return summary is not None and summary.get("stop_reason") in ("budget", "stop_at_return")
 
 
 def finished_without_checkpoints(folder: Path) -> bool:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from canter import run_layout
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
 from canter.run_layout import CHECKPOINT_NAME, EVAL_FILE, SUMMARY_FILE
@@ -167,8 +168,8 @@ def summary_problem(summary: Any) -> str | None:
 def read_summary(run_dir: Path) -> dict[str, Any] | None:
     """A run's summary.json; None where it is missing, or damaged (`summary_problem`): a run with its final
     checkpoint has it written again from that checkpoint, as after a kill between the two writes."""
-    summary = read_json(run_dir / SUMMARY_FILE)
-    return None if summary_problem(summary) else summary
+    summary = run_layout.read_summary(run_dir)
+    return None if summary is None or summary_problem(summary) else summary
 
 
 # ------------------------------------------------------------------------------------------------------ CPU limits

@@ -4,7 +4,6 @@ and handle stop conditions and signals."""
 from __future__ import annotations
 
 import functools
-import json
 import math
 import sys
 import time
@@ -30,6 +29,7 @@ from canter.run_layout import (
     METRICS_FILE,
     SUMMARY_FILE,
     finished_without_checkpoints,
+    read_summary,
     run_files_in,
 )
 from canter.signals import StopFlag
@@ -182,10 +182,7 @@ def _summarize_if_it_ended(run_dir: Path) -> RunResult | None:
         step = run_folder.step_of(newest)
         if step < _header_config(checkpoint.read_header(newest), newest).run.total_steps:
             return None  # a lower --total-steps than the run's own: refused as it was
-        try:
-            summarized = json.loads((run_dir / SUMMARY_FILE).read_text()).get("global_step")
-        except (OSError, ValueError, AttributeError):
-            summarized = None
+        summarized = (read_summary(run_dir) or {}).get("global_step")
         if isinstance(summarized, int) and summarized >= step:
             return None
         result = summarize_ended_run(run_dir)

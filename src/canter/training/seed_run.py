@@ -377,10 +377,10 @@ def divergence_hint(config: Config) -> str:
 
 def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
     """The seeds that summary.json says trained with this one in its last session; None where it says nothing."""
+    seeds = (run_layout.read_summary(run_dir) or {}).get("trained_with")
     try:
-        seeds = json.loads((run_dir / run_layout.SUMMARY_FILE).read_text()).get("trained_with")
         return tuple(int(seed) for seed in seeds) if isinstance(seeds, list) else None
-    except (OSError, ValueError, AttributeError, TypeError):  # missing or damaged: this session's group stands
+    except (ValueError, TypeError):  # damaged: this session's group stands
         return None
 
 

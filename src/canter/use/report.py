@@ -63,7 +63,7 @@ def _natural_key(path: Path) -> list:
 def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFacts:
     """What the report needs from a run folder; a one-line error when it lacks the checkpoint `which` names (None:
     the page plays none, as an archived run kept without checkpoints allows)."""
-    from canter.run_layout import SUMMARY_FILE
+    from canter.run_layout import read_summary
     from canter.training.run_folder import read_config
 
     run_dir = Path(run_dir)
@@ -72,12 +72,7 @@ def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFa
     else:
         checkpoint.need_run_folder(run_dir)  # a missing folder, or a bench's, told as such
     config = read_config(run_dir)
-    try:
-        summary = json.loads((run_dir / SUMMARY_FILE).read_text())
-    except (OSError, ValueError):
-        summary = {}  # still training, or stopped before the end: the table shows dashes
-    if not isinstance(summary, dict):
-        summary = {}  # not a summary canter wrote: shown as missing
+    summary = read_summary(run_dir) or {}  # none while training, or a damaged one: the table shows dashes
     robustness = (
         tuple(sorted((p for p in (run_dir / "robustness").rglob("*.png") if p.is_file()), key=_natural_key))
         if (run_dir / "robustness").is_dir()
