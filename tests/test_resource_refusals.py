@@ -19,7 +19,7 @@ from canter.algos import get_algorithm
 from canter.algos.state_size import state_size
 from canter.cli.main import main
 from canter.config.build import build_config
-from canter.errors import CanterError
+from canter.errors import CanterError, DoesNotFitError
 from canter.training import device_memory, host_memory, loop, run_lock
 from conftest import ARCHIVED_RUN
 
@@ -183,6 +183,21 @@ def test_the_env_refusal_of_a_group_counts_envs_per_seed_and_suggests_fewer_seed
     assert str(error).endswith("lower it, e.g. --set env.num_envs=9216, with one seed at a time")
 
 
+def test_a_resumed_run_is_told_the_fix_that_a_resume_can_take():
+    """--resume refuses --set: fewer seeds at a time stays a fix, settings to lower go to a new run."""
+    seeds = host_memory.refusal(16, 2**20, 10 * GIB, group=5000)
+    assert str(seeds.for_a_resume("r/config.toml")).endswith("; resume at most 576 seeds at a time")
+    settings = host_memory.refusal(20_000, 2**20, 10 * GIB)
+    assert str(settings.for_a_resume("r/config.toml")).endswith(
+        "are available; a resume keeps the run's settings: resume it where more memory is free, or lower it, e.g. "
+        "--set env.num_envs=9216 in a new run from its config (canter train --config r/config.toml)"
+    )
+    bare = DoesNotFitError("the train state needs about 9.0 GiB, but 1.0 GiB are available")
+    assert str(bare.for_a_resume("r/config.toml")).endswith(
+        "; a resume keeps the run's settings: resume it where more memory is free"
+    )
+
+
 def test_a_program_too_large_for_the_host_is_refused_after_the_compile(memory):
     x = jnp.ones((256, 256), jnp.float32)
     compiled = jax.jit(lambda a: jnp.tanh(a @ a) @ a).lower(x).compile()
@@ -220,7 +235,13 @@ def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_
     monkeypatch.setattr(device_memory, "required_bytes", lambda compiled: 2**50)
     before = sorted(p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*"))
     assert main(["train", "--resume", str(tmp_path / "resumed"), "--total-steps", "1e6", "--quiet"]) == 2
-    assert "lower what sizes one call" in _one_line_error(capsys)
+    # --resume refuses --set, so the settings to lower go to a new run from the run's config.
+    err = _one_line_error(capsys)
+    assert (
+        "are available; a resume keeps the run's settings: resume it where more memory is free, or lower what sizes "
+        "one call (env.num_envs=4, ppo.n_steps=64), the batch sizes, or the hidden layer sizes in a new run from its "
+        f"config (canter train --config {tmp_path / 'resumed' / 'config.toml'})"
+    ) in err, err
     assert set(before) <= {p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*")}
 
 

@@ -17,6 +17,34 @@ class DiscreteActionsError(CanterError):
         self.env_id, self.space = env_id, space
 
 
+class DoesNotFitError(CanterError):
+    """A run too large for the memory it goes to. Its fix is `change`, settings to lower, or where one seed's part
+    fits, `seeds_at_once` seeds at a time. A resume keeps the run's settings, so it is told the fix that it can take
+    (`for_a_resume`)."""
+
+    def __init__(self, problem: str, change: str | None = None, seeds_at_once: int | None = None) -> None:
+        fix = _fewer_seeds("train", seeds_at_once) if seeds_at_once else change
+        super().__init__(f"{problem}; {fix}" if fix else problem)
+        self.problem, self.change, self.seeds_at_once = problem, change, seeds_at_once
+
+    def for_a_resume(self, config_file: object) -> CanterError:
+        """The same refusal of a resumed run, whose settings `--resume` refuses to change (`config_file`: its
+        config.toml, from which a new run can change them)."""
+        if self.seeds_at_once:
+            return CanterError(f"{self.problem}; {_fewer_seeds('resume', self.seeds_at_once)}")
+        elsewhere = "a resume keeps the run's settings: resume it where more memory is free"
+        if self.change is None:
+            return CanterError(f"{self.problem}; {elsewhere}")
+        return CanterError(
+            f"{self.problem}; {elsewhere}, or {self.change} in a new run from its config (canter train --config "
+            f"{config_file})"
+        )
+
+
+def _fewer_seeds(verb: str, fits: int) -> str:
+    return f"{verb} one seed at a time" if fits == 1 else f"{verb} at most {fits} seeds at a time"
+
+
 def first_line(exc: BaseException) -> str:
     """The first line of an exception's message, or its type's name where the message is empty: a library's error
     can run to a page (a traceback from a server, a SQL statement), and a one-line message quotes only its start."""

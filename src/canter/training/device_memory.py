@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from canter.errors import CanterError
+from canter.errors import DoesNotFitError
 from canter.training import host_memory
 from canter.training.host_memory import size_text
 
@@ -39,20 +39,20 @@ def free_bytes() -> int | None:
     return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
 
 
-def too_many_envs(num_envs: int, need: int | None = None, free: int | None = None) -> CanterError:
-    amounts = f" (needs about {size_text(need)}, {size_text(free)} free);" if need and free else ";"
-    return CanterError(
-        f"env.num_envs={num_envs} does not fit in the device's memory{amounts} lower it, "
-        f"e.g. --set env.num_envs={max(num_envs // 2, 1)}"
+def too_many_envs(num_envs: int, need: int | None = None, free: int | None = None) -> DoesNotFitError:
+    amounts = f" (needs about {size_text(need)}, {size_text(free)} free)" if need and free else ""
+    return DoesNotFitError(
+        f"env.num_envs={num_envs} does not fit in the device's memory{amounts}",
+        f"lower it, e.g. --set env.num_envs={max(num_envs // 2, 1)}",
     )
 
 
-def too_large_for_the_host(more: int, available: int, sizes: str) -> CanterError:
+def too_large_for_the_host(more: int, available: int, sizes: str) -> DoesNotFitError:
     """`sizes`: the keys that size one call of the program, with their values ("env.num_envs=16, ppo.n_steps=64")."""
-    return CanterError(
+    return DoesNotFitError(
         f"the training program needs about {size_text(more)} of memory beyond its train state and envs (its "
-        f"rollout, batches and activations), but {size_text(available)} are available; lower what sizes one call "
-        f"({sizes}), the batch sizes, or the hidden layer sizes"
+        f"rollout, batches and activations), but {size_text(available)} are available",
+        f"lower what sizes one call ({sizes}), the batch sizes, or the hidden layer sizes",
     )
 
 

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from canter.config.values import set_text
-from canter.errors import CanterError
+from canter.errors import DoesNotFitError
 
 if TYPE_CHECKING:
     from canter.algos.protocol import Algorithm
@@ -73,7 +73,7 @@ def bytes_per_env(make: Callable[[int], Any]) -> float | None:
 
 def refusal(
     num_envs: int, per_env: float, available: int, group: int = 1, how: str | None = "measured"
-) -> CanterError | None:
+) -> DoesNotFitError | None:
     """The one-line error when `group` seeds of `num_envs` envs each, of `per_env` bytes (found `how`, or None: the
     least an env takes), do not fit in `available` bytes, else None. When one seed's envs fit, the fix is fewer seeds
     at a time, not fewer envs."""
@@ -89,13 +89,14 @@ def refusal(
     else:
         what = f"env.num_envs={num_envs} needs {amount} for its"
     each = f"{size_text(per_env)} each, {how}" if how else f"at least {per_env:.0f} bytes each"
+    problem = f"{what} envs ({each}), but {size_text(available)} are available"
     if how is None:  # a count that fits this floor can still be far too many envs
-        fix = "lower it by far (an env takes much more than its seed)"
-    elif group > 1 and num_envs <= fits:
-        fix = fewer_seeds(fits // num_envs)
-    else:
-        fix = f"lower it, e.g. --set env.num_envs={fits}" + (", with one seed at a time" if group > 1 else "")
-    return CanterError(f"{what} envs ({each}), but {size_text(available)} are available; {fix}")
+        return DoesNotFitError(problem, "lower it by far (an env takes much more than its seed)")
+    if group > 1 and num_envs <= fits:
+        return DoesNotFitError(problem, seeds_at_once=fits // num_envs)
+    return DoesNotFitError(
+        problem, f"lower it, e.g. --set env.num_envs={fits}" + (", with one seed at a time" if group > 1 else "")
+    )
 
 
 _PROBE = """
@@ -180,13 +181,9 @@ def size_text(size: float) -> str:
     return f"{size / 2**10:.1f} KiB"
 
 
-def fewer_seeds(fits: int) -> str:
-    return "train one seed at a time" if fits == 1 else f"train at most {fits} seeds at a time"
-
-
 def state_refusal(
     size: StateSize, value: Any, group: int, available: int, where: str, smaller: Any | None = None
-) -> CanterError | None:
+) -> DoesNotFitError | None:
     """The one-line error when `group` train states of `size` (whose key has `value`) do not fit in `available` bytes
     of `where`, else None; `smaller` is a value of the key that would fit."""
     need = size.total * state_copies(group)
@@ -195,16 +192,17 @@ def state_refusal(
     amounts = f"about {size_text(need)} of {where}"
     have = f"but {size_text(available)} are available"
     if group > 1 and (fits := seeds_that_fit(size.total, HEADROOM * available)) >= 1:
-        return CanterError(
+        return DoesNotFitError(
             f"the train states of {group} seeds need {amounts} ({size_text(size.total)} each, and as much again "
-            f"while they are stacked), {have}; {fewer_seeds(fits)}"
+            f"while they are stacked), {have}",
+            seeds_at_once=fits,
         )
     whose = f"the train states of {group} seeds need" if group > 1 else "the train state needs"
     if size.key is None:
-        return CanterError(f"{whose} {amounts}, {have}")
+        return DoesNotFitError(f"{whose} {amounts}, {have}")
     fix = f"lower {size.key}" + (f", e.g. --set {size.key}={set_text(smaller)}" if smaller is not None else "")
     share = size_text(size.share * state_copies(group))
-    return CanterError(f"{whose} {amounts}, {share} of it for {size.key}={set_text(value)}, {have}; {fix}")
+    return DoesNotFitError(f"{whose} {amounts}, {share} of it for {size.key}={set_text(value)}, {have}", fix)
 
 
 def check_state_fits(algorithm: Algorithm, config: Config, spec: Any, group: int, free: int | None) -> None:

@@ -20,7 +20,7 @@ from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.core.seeding import check_seed
 from canter.envs.base import JaxVecEnv
-from canter.errors import CanterError, DiscreteActionsError
+from canter.errors import CanterError, DiscreteActionsError, DoesNotFitError
 from canter.files import WriteError, is_write_error
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
@@ -239,6 +239,18 @@ def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: 
 
 
 def _train_locked(
+    configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
+) -> list[RunResult]:
+    try:
+        return _train_checked(configs, resumes, run_dirs, quiet, locks)
+    except DoesNotFitError as exc:
+        resumed = [Path(resume) for resume in resumes if resume is not None]
+        if not resumed:
+            raise
+        raise exc.for_a_resume(resumed[0] / CONFIG_FILE) from None  # --resume refuses --set
+
+
+def _train_checked(
     configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
 ) -> list[RunResult]:
     from canter.algos import get_algorithm
