@@ -22,6 +22,7 @@ from canter.orchestrate.bench_results import read_seed
 from canter.orchestrate.bench_runs import seeds_finished
 from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
 from canter.training import checkpoint, run_folder
+from conftest import ARCHIVED_RUN
 from test_bench import TINY
 
 BUDGET = 2000
@@ -465,3 +466,25 @@ def test_a_seed_stopped_before_its_first_iteration_starts_anew_in_the_start_line
         (folder / f"ckpt_{step:012d}.npz").write_bytes(b"")
     progress = seed_progress(job, settings, tmp_path)
     assert start_text(job, progress, BUDGET) == "start Hopper-v5__ppo (seeds 0,1)"
+
+
+def test_a_bench_plot_keeps_a_seed_whose_metrics_are_archived(tmp_path, monkeypatch):
+    """A bench folder restored from a results archive holds metrics.csv.gz, which plot reads as it reads metrics.csv."""
+    import gzip
+    import shutil
+
+    from canter.orchestrate import bench_results
+    from canter.orchestrate.bench_grid import BenchSettings, make_cells
+    from canter.training.run_folder import read_config
+
+    config = read_config(ARCHIVED_RUN)
+    settings = BenchSettings((config.run.algo,), (config.env.id,), (config.run.seed,), config.run.total_steps)
+    cells = make_cells(settings)
+    run = cells[0].run_dir(tmp_path, config.run.seed)
+    shutil.copytree(ARCHIVED_RUN, run)
+    (run / "metrics.csv.gz").write_bytes(gzip.compress((run / "metrics.csv").read_bytes()))
+    (run / "metrics.csv").unlink()
+    plotted = []
+    monkeypatch.setattr(bench_results, "plot_env", lambda run_dirs, path: plotted.append(run_dirs))
+    bench_results.write_results(cells, [], settings, tmp_path)
+    assert plotted == [[run]]

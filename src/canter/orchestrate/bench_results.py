@@ -18,7 +18,7 @@ from canter.errors import CanterError
 from canter.files import check_writable
 from canter.orchestrate.bench_grid import BenchSettings, Cell, safe_name, varying_keys
 from canter.orchestrate.jobs import is_number, read_object, read_summary
-from canter.run_layout import CONFIG_FILE, EVAL_FILE, METRICS_FILE
+from canter.run_layout import CONFIG_FILE, EVAL_FILE
 from canter.use.reference_scores import REFERENCE_STEPS, env_base, published_scores
 
 if TYPE_CHECKING:
@@ -357,6 +357,7 @@ def results_markdown(
 
 def write_results(cells: list[Cell], results: list[CellResult], settings: BenchSettings, bench_dir: Path) -> str:
     from canter.files import write_output
+    from canter.training.run_folder import metrics_file
 
     keys = varying_keys(cells)
     markdown, table_csv, statistics_json = results_markdown(results, keys, settings.total_steps)
@@ -366,7 +367,7 @@ def write_results(cells: list[Cell], results: list[CellResult], settings: BenchS
         write_output(bench_dir / "statistics.json", statistics_json.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
         run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
-        run_dirs = [d for d in run_dirs if (d / METRICS_FILE).is_file() and (d / CONFIG_FILE).is_file()]
+        run_dirs = [d for d in run_dirs if metrics_file(d).is_file() and (d / CONFIG_FILE).is_file()]
         if run_dirs:
             plot_env(run_dirs, plot_path(bench_dir, env_id))
     return markdown

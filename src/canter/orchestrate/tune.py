@@ -59,7 +59,7 @@ from canter.orchestrate.study import (
     study_storage,
 )
 from canter.run_layout import METRICS_FILE
-from canter.training.logger import read_rows
+from canter.training.logger import cell_number, read_rows, row_steps
 from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
 DB_FILE = "study.db"
@@ -277,16 +277,16 @@ def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float
     trainer is still writing is left for the next look)."""
     found = {}
     for row in read_rows(run_dir / METRICS_FILE)[1]:
-        value = row.get("eval/return_mean")
-        if value and row.get("eval/episodes"):
-            found[evaluation_index(int(float(row["global_step"])), settings)] = float(value)
+        step = cell_number(row.get("global_step"))
+        if math.isfinite(step) and row.get("eval/return_mean") and row.get("eval/episodes"):
+            found[evaluation_index(int(step), settings)] = cell_number(row["eval/return_mean"])  # NaN: diverged
     return found
 
 
 def logged_steps(run_dir: Path) -> int:
     """The env steps of the last row a run has logged to its metrics.csv; 0 before its first."""
-    rows = read_rows(run_dir / METRICS_FILE)[1]
-    return int(float(rows[-1]["global_step"])) if rows else 0
+    steps = row_steps(read_rows(run_dir / METRICS_FILE)[1])
+    return int(steps[-1]) if steps else 0
 
 
 def study_group(settings: TuneSettings) -> str:

@@ -102,11 +102,12 @@ def _header(path: Path) -> list[str]:
 
 def _count(text: str | None) -> int:
     """A whole count from a cell; 0 for an empty or unreadable one."""
-    value = _number(text)
+    value = cell_number(text)
     return int(value) if math.isfinite(value) else 0
 
 
-def _number(text: str | None) -> float:
+def cell_number(text: str | None) -> float:
+    """A metrics.csv cell as a number: NaN where it is empty or not a number (an edited or damaged file)."""
     try:
         return float(text) if text else math.nan
     except ValueError:
@@ -115,7 +116,7 @@ def _number(text: str | None) -> float:
 
 def row_steps(rows: list[dict[str, str]]) -> list[float]:
     """The global_step of each row whose step is a finite number, in the file's order."""
-    return [step for step in (_number(row.get("global_step")) for row in rows) if math.isfinite(step)]
+    return [step for step in (cell_number(row.get("global_step")) for row in rows) if math.isfinite(step)]
 
 
 def unreadable_steps(rows: list[dict[str, str]]) -> list[tuple[int, str]]:
@@ -124,7 +125,7 @@ def unreadable_steps(rows: list[dict[str, str]]) -> list[tuple[int, str]]:
     return [
         (line, row.get("global_step") or "")
         for line, row in enumerate(rows, start=2)
-        if not math.isfinite(_number(row.get("global_step")))
+        if not math.isfinite(cell_number(row.get("global_step")))
     ]
 
 
@@ -139,16 +140,20 @@ def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[s
     kept: list[tuple[dict[str, str], dict[str, float]]] = []
     wall_offset = previous_wall = 0.0
     for row in rows:
-        iteration, raw_wall = _number(row.get("iteration")), _number(row.get("wall_time"))
-        if kept and iteration <= _number(kept[-1][0].get("iteration")):
-            while kept and _number(kept[-1][0].get("iteration")) >= iteration:
+        iteration, raw_wall = cell_number(row.get("iteration")), cell_number(row.get("wall_time"))
+        if kept and iteration <= cell_number(kept[-1][0].get("iteration")):
+            while kept and cell_number(kept[-1][0].get("iteration")) >= iteration:
                 kept.pop()
             wall_offset = kept[-1][1]["wall_seconds"] if kept else 0.0
         elif kept and raw_wall < previous_wall:  # a resume after a clean stop, which loses no rows
             wall_offset = kept[-1][1]["wall_seconds"]
         previous_wall = raw_wall if raw_wall == raw_wall else previous_wall
         before = kept[-1][1] if kept else {"global_step": 0.0, "wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
-        step, wall, sps = _number(row["global_step"]), _number(row.get("wall_time")), _number(row.get("sps"))
+        step, wall, sps = (
+            cell_number(row["global_step"]),
+            cell_number(row.get("wall_time")),
+            cell_number(row.get("sps")),
+        )
         wall = wall_offset + wall if wall == wall else before["wall_seconds"]
         totals = {
             "global_step": step,
@@ -336,7 +341,7 @@ class MetricsLogger:
     def _drop_rows_after(self, step: int) -> None:
         header, rows = read_rows(self.path)
         damaged = unreadable_steps(rows)
-        placed = [row for row in rows if math.isfinite(_number(row.get("global_step")))]
+        placed = [row for row in rows if math.isfinite(cell_number(row.get("global_step")))]
         kept = [row for row, totals in run_history(placed) if totals["global_step"] <= step]
         if not header or kept == rows:
             return
