@@ -693,8 +693,8 @@ def test_results_hold_the_aggregates_with_their_intervals(monkeypatch):
 
 
 def test_a_cell_with_a_diverged_seed_is_left_out_of_the_statistics_and_named(monkeypatch):
-    """A seed whose eval.json holds a NaN mean (a diverged policy) once crashed the statistics, so no results file
-    was written. Its cell now stays out of them whole, and the results say so."""
+    """A seed whose eval.json holds a NaN mean (a diverged policy) has no place in the bootstrap statistics: its cell
+    stays out of them whole, the results say so, and the results file is still written."""
     import canter.use.statistics
     from canter.orchestrate.bench_results import combine_records, results_markdown
 

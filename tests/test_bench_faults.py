@@ -65,8 +65,8 @@ def _one_line_error(capsys) -> str:
     ['"x"', "[1]", '{"global_step": 2000, "wall_seconds": "n/a"}', '{"global_step": 2000, "trained_with": ["a"]}'],
 )
 def test_a_damaged_summary_is_written_again_from_the_final_checkpoint(tmp_path, content):
-    """A summary.json that is not an object, or holds a value of the wrong type, crashed the bench with a traceback
-    (AttributeError, ValueError); the bench writes it again from the final checkpoint, as after a kill between the
+    """A summary.json that is not an object, or holds a value of the wrong type, is no reason for a traceback
+    (AttributeError, ValueError): the bench writes it again from the final checkpoint, as after a kill between the
     two writes."""
     settings, cell = _one_cell()
     run = _finished_run(cell, tmp_path, 0)
@@ -94,8 +94,8 @@ def test_a_damaged_summary_without_a_checkpoint_to_rebuild_it_from_is_named(tmp_
     "content", ["[1]", '"x"', json.dumps({**EVAL, "mean": None}), json.dumps({**EVAL, "mean": "1"})]
 )
 def test_a_damaged_evaluation_is_done_again(tmp_path, monkeypatch, content):
-    """An eval.json that is not an object, or whose mean is not a number, crashed the bench (AttributeError,
-    TypeError); the seed is unfinished until its job evaluates it again."""
+    """An eval.json that is not an object, or whose mean is not a number, is no reason for a traceback
+    (AttributeError, TypeError): the seed is unfinished until its job evaluates it again."""
     import canter.use.evaluate
     import canter.use.policy
 
@@ -119,8 +119,8 @@ def test_a_damaged_evaluation_is_done_again(tmp_path, monkeypatch, content):
 
 @pytest.mark.slow
 def test_a_bench_rerun_over_damaged_files_writes_them_again_and_says_what_it_resumes(tmp_path, capsys):
-    """The fault review's reruns: each damaged file crashed the bench with a traceback. And a re-run printed the same
-    `start` line for a job that trains anew and one that resumes."""
+    """A re-run over damaged files writes each of them again without a traceback, and its `start` lines tell a job
+    that trains anew from one that resumes."""
     out = tmp_path / "bench"
     argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0,1", "--total-steps", "1024", "--episodes", "2"]
     argv += ["--grid", "ppo.ent_coef=0,0.01", "--jobs", "2", "--out", str(out)] + TINY

@@ -465,7 +465,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
 def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
     """The first Ctrl-C in a run's compilation is held until it ends; a second one means now, and lands inside the
     compile. The interpreter's shutdown after it could then segfault (exit -11, about half the runs here), or end by
-    a further Ctrl-C (exit -2); an interrupted process now skips that shutdown."""
+    a further Ctrl-C (exit -2), so an interrupted process skips that shutdown."""
     import signal
     import time
 

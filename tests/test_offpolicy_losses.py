@@ -418,3 +418,9 @@ def test_sac_entropies_in_the_envs_action_coordinates_match_a_reference():
     unit_alpha = _update(SAC(myopic, -2.0 - c), learner, batch, jax.random.key(2))[0].log_alpha
     np.testing.assert_allclose(env_alpha, unit_alpha, rtol=1e-6)
     assert float(env_alpha) != float(_update(SAC(myopic, -2.0), learner, batch, jax.random.key(2))[0].log_alpha)
+
+
+def test_every_noise_the_config_accepts_has_its_function():
+    from canter.algos.offpolicy.sections import NOISE_KINDS
+
+    assert tuple(noise.NOISES) == NOISE_KINDS

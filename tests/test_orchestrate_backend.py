@@ -74,7 +74,7 @@ def test_tune_backend_sets_env_backend_as_set_does(tmp_path, monkeypatch):
     ids=["bench", "tune"],
 )
 def test_a_backend_error_advises_an_option_the_command_takes(argv, tmp_path, capsys):
-    """`hopper` is Brax's id: the error says `pass --backend brax`, which bench and tune used to reject."""
+    """`hopper` is Brax's id: the error says `pass --backend brax`, which bench and tune must take too."""
     argv = [*argv, "--out" if argv[0] == "bench" else "--out-dir", str(tmp_path / "out")]
     assert main(argv) == 2
     err = _one_line_error(capsys)
@@ -85,8 +85,8 @@ def test_a_backend_error_advises_an_option_the_command_takes(argv, tmp_path, cap
 
 
 def test_bench_follows_the_advice(tmp_path, monkeypatch):
-    """make_cells used to check each env id on the auto backend, whatever env.backend was, and so refused a Brax id
-    with the very advice given here."""
+    """make_cells checks each env id on its cell's backend: on the auto backend it would refuse a Brax id with the
+    very advice given here."""
     monkeypatch.setattr(bench_grid, "check_continuous", lambda env_id, backend: None)
     settings = _captured(
         monkeypatch, bench_module, "bench", [*BENCH, "--envs", "hopper", "--backend", "brax", "--out", str(tmp_path)]

@@ -223,8 +223,8 @@ def test_the_legend_states_each_groups_n_and_band_and_the_statistics_sit_below(t
 
 
 def test_a_method_keeps_one_colour_across_envs_and_its_statistics_rows_share_it(tmp_path):
-    """The statistics aggregate a method over envs; with a colour per curve group, its rows took colours that no
-    curve of that method had. A method now has one colour, its envs a line style each."""
+    """The statistics aggregate a method over envs, so a method has one colour, its envs a line style each: with a
+    colour per curve group, its rows would take colours that no curve of that method has."""
     from matplotlib.colors import to_hex
 
     from canter.use.plot import group_styles

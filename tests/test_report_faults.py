@@ -28,8 +28,8 @@ TERM, INT = STOPPED  # (signal, exit status, the end of stderr)
     ids=["SIGTERM-folder-made", "SIGTERM-rendering", "SIGINT-rendering"],
 )
 def test_a_stopped_canter_report_video_leaves_no_temp_folder(tiny_run, tmp_path, moment, stop):
-    """SIGTERM's default action, delivered once the unfinished video was removed, ended the process before the temp
-    folder it was in was removed: every stopped `canter report --video` left an empty canter-report-* folder."""
+    """SIGTERM's default action, delivered once the unfinished video is removed, would end the process before the
+    temp folder it was in is removed, leaving an empty canter-report-* folder after every stopped report."""
     sig, code, said = stop
     temp = tmp_path / "tmp"
     temp.mkdir()

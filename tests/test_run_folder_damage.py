@@ -231,8 +231,8 @@ def test_a_versions_json_of_another_json_type_is_named_as_json_names_it(archived
 
 @pytest.mark.parametrize("summary", ["missing", "stale"])
 def test_a_resume_of_a_run_stopped_before_its_summary_writes_it_and_trains_nothing(archived_run, capsys, summary):
-    """A kill between the final checkpoint and summary.json left a finished run that job scripts never saw finish;
-    its resume used to refuse it as finished, with the summary still missing."""
+    """A kill between the final checkpoint and summary.json leaves a finished run that job scripts never see finish:
+    its resume writes the summary, rather than refusing a run that has its budget."""
     path = archived_run / "summary.json"
     if summary == "missing":
         path.unlink()
@@ -270,9 +270,9 @@ def test_a_group_resume_writes_the_missing_summaries_of_its_finished_seeds(tmp_p
 
 @pytest.mark.parametrize("damage", ["emptied", "header_cut", "rows_gone"])
 def test_a_resume_notes_a_metrics_csv_without_rows_and_logs_on_from_its_checkpoint(archived_run, capsys, damage):
-    """A resume used to log on after an emptied file without a word, after which plot drew the run as if it had begun
-    at its checkpoint. Refusing it would refuse a file canter leaves itself (a resume killed before its first row,
-    after the file was moved away), so it is a note."""
+    """Logging on after an emptied file without a word would let plot draw the run as if it had begun at its
+    checkpoint. Refusing it would refuse a file canter leaves itself (a resume killed before its first row, after the
+    file was moved away), so it is a note."""
     metrics = archived_run / "metrics.csv"
     header = metrics.read_text().splitlines()[0]
     metrics.write_text({"emptied": "", "header_cut": header[:20], "rows_gone": header + "\n"}[damage])
@@ -301,8 +301,8 @@ def _killed_before_its_first_checkpoint(run: Path) -> None:
 def test_a_run_killed_before_its_first_checkpoint_resumes_by_training_again_in_its_folder(
     archived_run, tmp_path, capsys
 ):
-    """Such a run used to be refused by --resume, with advice to train a new one in another folder; a seed of a group
-    killed between the seeds' first checkpoints was stranded the same way."""
+    """Nothing of such a run is worth keeping but its config, so --resume trains it again where it is, rather than
+    sending the user to another folder; so does a seed of a group killed between the seeds' first checkpoints."""
     _killed_before_its_first_checkpoint(archived_run)
     logged = len(read_rows(archived_run / "metrics.csv")[1])
     assert main(["train", "--resume", str(archived_run), "--quiet"]) == 0

@@ -31,8 +31,8 @@ def test_a_study_is_claimed_by_the_first_command_and_refused_to_the_other(tmp_pa
 
 
 def test_studies_from_before_the_mark_are_told_apart_by_what_their_trials_hold(tmp_path):
-    """A tune study from before tune kept its settings was taken for a bench's (it had trials and no settings):
-    tune refused to resume it, and a bench would have taken it."""
+    """A tune study from before tune kept its settings has trials and no settings, as a bench's has: what its trials
+    hold tells them apart, so that tune resumes it and a bench refuses it."""
     bench_made = _study(tmp_path, "old-bench")
     bench_made.enqueue_trial({}, user_attrs={JOB_ATTR: "cell|seeds=0"})  # a bench's queued job
     with pytest.raises(CanterError, match="holds a canter bench's jobs"):

@@ -171,7 +171,7 @@ def test_a_worker_gives_up_when_trials_keep_failing_after_some_finished(tmp_path
 
 
 def test_a_worker_says_what_it_waits_for_when_a_trial_runs_elsewhere(tmp_path, capsys):
-    """After a kill, the next run waits out the dead worker's trial in silence for minutes; it now says so."""
+    """After a kill, the next run waits out the dead worker's trial for minutes: it says so, rather than seem hung."""
     import optuna
 
     from canter.orchestrate.study import Outcome, run_worker
@@ -198,7 +198,7 @@ def test_a_worker_says_what_it_waits_for_when_a_trial_runs_elsewhere(tmp_path, c
 
 def test_a_stop_while_the_storage_is_away_is_recorded_once_it_is_back(postgres_url, capsys):  # noqa: F811
     """Ctrl-C or SIGTERM during an outage: the worker says it waits, and once the server is back fails the trial and
-    queues its copy. It used to give up at once, leaving the trial running, which every worker then waited for."""
+    queues its copy. Giving up at once would leave the trial running, which every worker would then wait for."""
     import threading
 
     import optuna

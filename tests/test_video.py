@@ -302,7 +302,8 @@ def test_a_frame_rate_the_format_cannot_play_is_refused(tmp_path, name, fps, ref
 
 @pytest.mark.slow
 def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(archived_run):
-    """The lock used to delete such a snapshot as half-written, and that video was never made."""
+    """Such a snapshot is whole (it was saved before the render began): deleting it as half-written would lose that
+    video for good."""
     folder = archived_run / "videos"
     folder.mkdir()
     snapshot = folder / ".snapshot_000000000714.npz"

@@ -46,14 +46,19 @@ def run_files_in(folder: Path) -> frozenset[str]:
     return frozenset(held)
 
 
-def read_summary(folder: Path) -> dict[str, Any] | None:
-    """The run's summary.json; None where it is missing, not JSON, or not an object (a damaged or hand-edited file,
-    or none yet: a run writes it when it stops)."""
+def read_object(path: Path) -> dict[str, Any] | None:
+    """A JSON file's object; None where the file is missing, not JSON, or holds anything else (a damaged or
+    hand-edited file)."""
     try:
-        summary = json.loads((Path(folder) / SUMMARY_FILE).read_text())
+        data = json.loads(Path(path).read_text())
     except (OSError, ValueError):
         return None
-    return summary if isinstance(summary, dict) else None
+    return data if isinstance(data, dict) else None
+
+
+def read_summary(folder: Path) -> dict[str, Any] | None:
+    """The run's summary.json; None where it is missing (a run writes it when it stops), damaged or hand-edited."""
+    return read_object(Path(folder) / SUMMARY_FILE)
 
 
 def has_finished(folder: Path) -> bool:

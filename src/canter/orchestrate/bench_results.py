@@ -17,8 +17,8 @@ import numpy as np
 from canter.errors import CanterError
 from canter.files import check_writable
 from canter.orchestrate.bench_grid import BenchSettings, Cell, safe_name, varying_keys
-from canter.orchestrate.jobs import is_number, read_object, read_summary
-from canter.run_layout import CONFIG_FILE, EVAL_FILE
+from canter.orchestrate.jobs import is_number, read_usable_summary
+from canter.run_layout import CONFIG_FILE, EVAL_FILE, read_object
 from canter.use.reference_scores import REFERENCE_STEPS, env_base, published_scores
 
 if TYPE_CHECKING:
@@ -69,7 +69,7 @@ def read_seed(run_dir: Path, seed: int) -> SeedRecord:
     from canter.training.run_folder import metrics_file
 
     evaluation = read_object(run_dir / EVAL_FILE) or {}
-    summary = read_summary(run_dir) or {}
+    summary = read_usable_summary(run_dir) or {}
     wall = float(summary["wall_seconds"]) if "wall_seconds" in summary else None
     sps = float(summary["sps"]) if "sps" in summary else None
     metrics = metrics_file(run_dir)

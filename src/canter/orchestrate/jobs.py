@@ -44,7 +44,7 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
     the budget may be gone, and evaluating a later one would report another budget's policy."""
     from canter.training import run_folder
 
-    summary = read_summary(run_dir) or {}
+    summary = read_usable_summary(run_dir) or {}
     found = run_folder.list_checkpoints(run_dir)
     newest = run_folder.step_of(found[-1]) if found else None
     summarized = summary.get("global_step")
@@ -128,13 +128,6 @@ def read_json(path: Path) -> Any:
         return None
 
 
-def read_object(path: Path) -> dict[str, Any] | None:
-    """The file's JSON object; None where it is missing or holds anything else (a hand-edited or damaged file, which
-    the bench treats as missing: it writes the file again)."""
-    data = read_json(path)
-    return data if isinstance(data, dict) else None
-
-
 def is_number(value: Any) -> bool:
     """A JSON number: NaN counts (a diverged evaluation is one), true and false do not."""
     return isinstance(value, int | float) and not isinstance(value, bool)
@@ -165,7 +158,7 @@ def summary_problem(summary: Any) -> str | None:
     return None
 
 
-def read_summary(run_dir: Path) -> dict[str, Any] | None:
+def read_usable_summary(run_dir: Path) -> dict[str, Any] | None:
     """A run's summary.json; None where it is missing, or damaged (`summary_problem`): a run with its final
     checkpoint has it written again from that checkpoint, as after a kill between the two writes."""
     summary = run_layout.read_summary(run_dir)
@@ -473,7 +466,7 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     from canter.use.policy import load
 
     path = run_dir / EVAL_FILE
-    cached = read_object(path) or {}
+    cached = run_layout.read_object(path) or {}
     step = checkpoint.latest(run_dir).name
     if (
         cached.get("checkpoint") == step

@@ -614,7 +614,7 @@ def run_worker(
             stop = call("asking for a trial", functools.partial(_ask, study, asked))
             trial = asked[0]
             with _Heartbeat(storage, trial, heartbeat_seconds):
-                stop.deliver()  # now that a stop fails the trial and queues it again (below)
+                stop.deliver()  # from here a stop fails the trial and queues it again (below)
                 if ask_new and call("reading the study", functools.partial(_surplus, study, trial.number, target)):
                     _tell(study, trial, Outcome("fail", reason=SURPLUS), TrialState.FAIL, call)
                     continue

@@ -64,7 +64,7 @@ from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
 DB_FILE = "study.db"
 BEST_FILE = "best.toml"
-SUMMARY_FILE = "summary.md"
+STUDY_SUMMARY_FILE = "summary.md"
 PRESET_ATTR = TRIAL_MARKS["tune"]
 
 
@@ -665,7 +665,7 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
 
     table = summary_table(study)
     print(table)
-    summary = settings.study_dir / SUMMARY_FILE
+    summary = settings.study_dir / STUDY_SUMMARY_FILE
     write_output(summary, (table + "\n").encode())
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if not complete:

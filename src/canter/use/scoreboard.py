@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from canter.run_layout import EVAL_FILE, SUMMARY_FILE
+from canter.run_layout import EVAL_FILE, SUMMARY_FILE, read_object
 from canter.use import statistics
 from canter.use.reference_scores import Normalizer, normalizer_for, random_command, reference_score
 from canter.use.statistics import Aggregates, Interval, Profile
@@ -358,11 +358,10 @@ def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOU
     it had not failed."""
     for source in sources:
         name, key = SCORE_FILES[source]
-        try:
-            data = json.loads((run_dir / name).read_text())
-            value = data.get(key)
-        except (OSError, ValueError, AttributeError):
+        data = read_object(run_dir / name)
+        if data is None:
             continue
+        value = data.get(key)
         if source == EVAL_SOURCE and not _of_newest_checkpoint(run_dir, data.get("checkpoint")):
             continue
         if isinstance(value, int | float) and (np.isfinite(value) or source == EVAL_SOURCE):

@@ -13,6 +13,8 @@ from canter.config.schema import Config, register_section
 from canter.config.validate import need, need_positive
 from canter.core.netconfig import ACTIVATION_CHOICES, check_activation
 
+NOISE_KINDS = ("gaussian", "ou", "none")  # each one of canter.algos.offpolicy.noise.NOISES
+
 
 @dataclass(frozen=True)
 class OffPolicyConfig:
@@ -100,7 +102,7 @@ def check_offpolicy(s: OffPolicyConfig, name: str) -> None:
         f"{name}.hidden must be positive sizes such as 256,256, got {s.hidden}",
     )
     check_activation(f"{name}.activation", s.activation)
-    need(s.noise in ("gaussian", "ou", "none"), f"{name}.noise must be gaussian, ou or none, got '{s.noise}'")
+    need(s.noise in NOISE_KINDS, f"{name}.noise must be gaussian, ou or none, got '{s.noise}'")
     need(math.isfinite(s.noise_std) and s.noise_std >= 0, f"{name}.noise_std must be >= 0, got {s.noise_std}")
 
 
