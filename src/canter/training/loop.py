@@ -54,11 +54,12 @@ class Saved(Enum):
 def train(
     config: Config, *, resume: str | Path | None = None, quiet: bool = True, run_dir: str | Path | None = None
 ) -> RunResult:
-    """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then only
-    differ in its budget: run.total_steps (the learning-rate schedule is stretched to the new total) and
-    run.max_minutes."""
+    """Train a policy. With `resume`, continue the newest checkpoint of that run folder; `config` may then differ
+    in its budget: run.total_steps (the learning-rate schedule is stretched to the new total), run.max_minutes and
+    run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
+    `canter.config.experiment`), but not in its seed or in what is learned."""
     if resume is not None and _has_its_budget(Path(resume), config):
-        _check_only_the_budget_differs(_saved_config(Path(resume)), config, Path(resume))
+        _check_same_experiment_and_seed(_saved_config(Path(resume)), config, Path(resume))
         if (summarized := _summarize_if_it_ended(Path(resume))) is not None:
             return summarized
     return _train_group([config], [resume], [run_dir], quiet)[0]
@@ -151,9 +152,9 @@ def _check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> N
         )
 
 
-def _check_only_the_budget_differs(saved: Config, config: Config, run_dir: Path) -> None:
+def _check_same_experiment_and_seed(saved: Config, config: Config, run_dir: Path) -> None:
     """A resume continues the run it finds: a config that differs in what is learned (`canter.config.experiment`)
-    would train another experiment on its state."""
+    or in its seed would train another run on its state. Budget, output and bookkeeping keys may differ."""
     from canter.config.experiment import differing_keys
 
     differing = [key for key in differing_keys([saved, config]) if key != "run.seed"]
@@ -334,12 +335,12 @@ def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: ru
         out = Path(resume)
         locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
         if _never_checkpointed(out):
-            _check_only_the_budget_differs(_saved_config(out), config, out)
+            _check_same_experiment_and_seed(_saved_config(out), config, out)
             _refuse_lost_checkpoints(out, config)
             return SeedStart(out, restarted=True)
         latest = checkpoint.latest(out)
         saved, _, state, header = load_state(out, latest)
-        _check_only_the_budget_differs(saved, config, out)
+        _check_same_experiment_and_seed(saved, config, out)
         step = int(header["global_step"])
         _note_a_changed_backend(out, header["env"]["backend"], backend, step)
         earlier = checkpoint_totals(header, run_folder.metrics_file(out))
