@@ -64,6 +64,28 @@ def test_the_lock_is_reentrant_and_a_folder_left_empty_is_removed(tmp_path):
     run_lock.release(run)
 
 
+def test_taking_a_folder_over_removes_every_half_written_file_and_nothing_whole(tmp_path):
+    """A killed writer leaves the temp files of its atomic writes: of a run file, a checkpoint, the best state, a
+    video snapshot and a video. A whole snapshot stays, for the resume to render its video."""
+    import tempfile
+
+    run = tmp_path / "run"
+    whole = ["config.toml", "checkpoints/ckpt_000000001000.npz", "videos/.snapshot_000000001000.npz", "videos/a.mp4"]
+    for name in whole:
+        (run / name).parent.mkdir(parents=True, exist_ok=True)
+        (run / name).write_text("")
+    # The names canter.files.atomic_write_bytes and canter.use.video's temp videos give their temp files.
+    targets = ["config.toml", "checkpoints/ckpt_000000002000.npz", "checkpoints/best.npz", "videos/.snapshot_2.npz"]
+    halves = [tempfile.mkstemp(prefix=f".{Path(t).name}.", suffix=".tmp", dir=run / Path(t).parent) for t in targets]
+    halves.append(tempfile.mkstemp(prefix=".step_000000002000.", suffix=".tmp.mp4", dir=run / "videos"))
+    for fd, _ in halves:
+        os.close(fd)
+    run_lock.acquire(run)
+    run_lock.release(run)
+    left = sorted(str(p.relative_to(run)) for p in run.rglob("*") if p.is_file() and p.name != run_lock.LOCK_FILE)
+    assert left == sorted(whole)
+
+
 def test_a_run_that_wrote_nothing_also_removes_the_out_dir_made_for_it_and_keeps_what_was_there(tmp_path):
     out = tmp_path / "made" / "runs"
     run_a, run_b = out / "a", out / "b"

@@ -206,7 +206,7 @@ def _missing_folders(run_dir: Path) -> list[Path]:
 
 
 # Video snapshots are whole (written atomically): a resume renders those its videos still lack (canter.training.videos).
-HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp.*")
+HALF_WRITTEN = (".*.tmp", ".*.tmp.*", "checkpoints/.*.tmp", "videos/.*.tmp", "videos/.*.tmp.*")
 
 
 def _remove_half_written(run_dir: Path) -> None:
