@@ -46,6 +46,28 @@ def test_fixtures_are_format_1_and_read_as_their_algorithms():
     assert group_by_experiment([read_config(FIXTURES / name) for name in GROUP]) == [[0, 1]]
 
 
+def test_a_v1_runs_config_toml_trains_anew_as_the_run_it_belongs_to(v1_runs, capsys):
+    """`canter train --config RUN/config.toml` (the advice for a finished run whose only checkpoint is damaged)
+    takes a format-1 file, whose sections the algorithm does not read would otherwise each be refused."""
+    from canter.config.build import build_config
+    from canter.training.run_folder import holds_every_section
+
+    for name in ALGORITHM_RUNS:
+        file = FIXTURES / name / "config.toml"
+        assert holds_every_section(file)
+        assert flat_config(build_config(None, config_file=str(file), file_holds_every_section=True)) == flat_config(
+            read_config(FIXTURES / name)
+        ), name
+    run = v1_runs / "ppo"
+    shutil.rmtree(run / "checkpoints")  # a finished run kept without its checkpoints
+    argv = ["train", "--config", str(run / "config.toml"), "--total-steps", "256", "--out-dir", str(v1_runs / "new")]
+    assert main([*argv, "--quiet"]) == 0, capsys.readouterr().err
+    [new] = (v1_runs / "new").iterdir()
+    given = {"run.total_steps": 256, "run.out_dir": str(v1_runs / "new")}
+    assert flat_config(read_config(new)) == flat_config(read_config(run)) | given
+    assert not holds_every_section(new / "config.toml"), "a new run writes format 2"
+
+
 def test_v1_runs_evaluate_plot_report_and_export_without_being_written(v1_runs, tmp_path, capsys, monkeypatch):
     import canter.use.statistics
 

@@ -103,6 +103,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
     from canter.config.overrides import parse_set_args
+    from canter.training.run_folder import holds_every_section
 
     if args.seed is not None and args.seeds is not None:
         raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
@@ -174,6 +175,7 @@ def _train(args: argparse.Namespace) -> list[Any]:
             total_steps=args.total_steps,
             algo=args.algo,
             flags=extra,
+            file_holds_every_section=bool(args.config) and holds_every_section(args.config),
         )
         if args.eval_episodes is not None and not config.run.eval_every:
             raise CanterError(

@@ -91,13 +91,16 @@ def build_config(
     check_unread: bool = True,
     flags: Mapping[str, Any] | None = None,
     notes: bool = True,
+    file_holds_every_section: bool = False,
 ) -> Config:
     """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
     validate. The preset is `preset`, else the one the config file's run.preset names, else fast. The algorithm is
     known before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does
     not read is refused (unless `check_unread` is off), since it would change nothing. `flags` holds the keys that a
     command's other flags set (train's `--backend` as `env.backend`, say). `notes` off keeps its notes (a preset made
-    for other envs) off stderr, for a config built to compare with rather than to train."""
+    for other envs) off stderr, for a config built to compare with rather than to train. `file_holds_every_section`:
+    the config file is a format-1 run folder's config.toml, which holds every algorithm's section; those the
+    algorithm does not read are left out, not refused."""
     # An empty --config or --preset would otherwise read as not given.
     if config_file == "":
         raise CanterError("--config is empty; give a TOML file, or drop --config")
@@ -133,6 +136,8 @@ def build_config(
         check_algorithm_name(str(resolved_algo))
         first["run.algo"] = resolved_algo
     config = apply_overrides(config, first, "arguments")
+    if file_holds_every_section:
+        file_data = {key: value for key, value in file_data.items() if reads_key(config.run.algo, key)}
     config = apply_overrides(
         config, preset_overrides(preset, str(resolved_id), config.run.algo, named_by), f"preset {preset}"
     )

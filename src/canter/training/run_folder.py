@@ -46,6 +46,7 @@ from canter.run_layout import (
     VIDEOS_FOLDER,
     checkpoints_in,
     run_files_in,
+    surely_a_run,
 )
 from canter.training import provenance
 
@@ -169,6 +170,13 @@ def run_format(run_dir: Path) -> int:
             f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"
         )
     return found
+
+
+def holds_every_section(config_file: str | Path) -> bool:
+    """Whether `config_file` is the config.toml of a format-1 run folder, which holds every algorithm's section,
+    read or not (`canter.config.build.build_config` leaves out those the run's algorithm does not read)."""
+    folder = Path(config_file).parent
+    return Path(config_file).name == CONFIG_FILE and surely_a_run(folder) and run_format(folder) == 1
 
 
 def checkpoint_dir(run_dir: Path) -> Path:
