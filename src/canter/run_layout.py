@@ -61,6 +61,13 @@ def read_summary(folder: Path) -> dict[str, Any] | None:
     return read_object(Path(folder) / SUMMARY_FILE)
 
 
+def evaluates_newest_checkpoint(folder: Path, evaluation: dict[str, Any]) -> bool:
+    """Whether an eval.json's content is of the run's newest checkpoint (one from before a resume is stale); a
+    finished run kept without its checkpoints (an archive) has only its eval.json to go by."""
+    found = checkpoints_in(folder)
+    return not found or evaluation.get("checkpoint") == found[-1].name
+
+
 def has_finished(folder: Path) -> bool:
     """A bench's evaluation, archived metrics, or a summary that says the run trained its budget or met its target:
     a finished run's files. A summary of a stop (a signal, even during the compile, or --max-minutes) is not."""

@@ -11,7 +11,7 @@ from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job
 from canter.orchestrate.jobs import JobSpec, is_number, run_status
-from canter.run_layout import CONFIG_FILE, EVAL_FILE, read_object
+from canter.run_layout import CONFIG_FILE, EVAL_FILE, evaluates_newest_checkpoint, read_object
 
 
 def job_spec(job: Job, settings: BenchSettings, bench_dir: Path) -> JobSpec:
@@ -29,17 +29,14 @@ def seeds_finished(cell: Cell, seeds: tuple[int, ...], settings: BenchSettings, 
     """Each seed trained to the budget, with its final evaluation of its newest checkpoint (one left from a smaller
     budget, whose extension stopped before the evaluations, does not count; a run restored from a results archive
     keeps its evaluation and no checkpoint)."""
-    from canter.training import run_folder
-
     for seed in seeds:
         run_dir = cell.run_dir(bench_dir, seed)
         if run_status(run_dir, settings.total_steps, cell.config.run.stop_at_return) != "done":
             return False
         evaluation = read_object(run_dir / EVAL_FILE) or {}  # a damaged one is evaluated again
-        newest = run_folder.list_checkpoints(run_dir)  # none in a run restored from a results archive
         if (
             evaluation.get("episodes") != settings.eval_episodes
-            or (newest and evaluation.get("checkpoint") != newest[-1].name)
+            or not evaluates_newest_checkpoint(run_dir, evaluation)
             or not is_number(evaluation.get("mean"))
         ):
             return False

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from canter.run_layout import EVAL_FILE, SUMMARY_FILE, read_object
+from canter.run_layout import EVAL_FILE, SUMMARY_FILE, evaluates_newest_checkpoint, read_object
 from canter.use import statistics
 from canter.use.reference_scores import Normalizer, normalizer_for, random_command, reference_score
 from canter.use.statistics import Aggregates, Interval, Profile
@@ -362,17 +362,8 @@ def run_score(run_dir: Path, sources: Sequence[str] = (EVAL_SOURCE, TRAINING_SOU
         if data is None:
             continue
         value = data.get(key)
-        if source == EVAL_SOURCE and not _of_newest_checkpoint(run_dir, data.get("checkpoint")):
+        if source == EVAL_SOURCE and not evaluates_newest_checkpoint(run_dir, data):
             continue
         if isinstance(value, int | float) and (np.isfinite(value) or source == EVAL_SOURCE):
             return float(value), source
     return None
-
-
-def _of_newest_checkpoint(run_dir: Path, evaluated: Any) -> bool:
-    """Whether an eval.json of `evaluated` (a checkpoint's name) is of the run's newest checkpoint; an archived run
-    kept without checkpoints has only its eval.json to go by."""
-    from canter.training import run_folder
-
-    found = run_folder.list_checkpoints(run_dir)
-    return not found or found[-1].name == evaluated
