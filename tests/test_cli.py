@@ -221,16 +221,16 @@ def test_an_out_dir_under_a_file_names_the_file(tmp_path, capsys):
 
 @pytest.mark.parametrize(("given", "target"), [(None, "keep"), ("inf", None), ("-50", -50.0)])
 def test_a_resume_takes_a_return_target_and_inf_lifts_it(given, target, monkeypatch, tmp_path):
-    from canter.training import loop
+    from canter.training import resume
 
     class Resumed(Exception):
         pass
 
-    def stand_in(run_dir, total_steps, max_minutes=None, stop_at_return=loop.Saved.KEEP):
+    def stand_in(run_dir, total_steps, max_minutes=None, stop_at_return=resume.Saved.KEEP):
         raise Resumed(stop_at_return)
 
-    monkeypatch.setattr(loop, "resume_config", stand_in)
+    monkeypatch.setattr(resume, "resume_config", stand_in)
     flags = [] if given is None else ["--stop-at-return", given]
     with pytest.raises(Resumed) as resumed:
         main(["train", "--resume", str(tmp_path), *flags])
-    assert resumed.value.args[0] == (loop.Saved.KEEP if target == "keep" else target)
+    assert resumed.value.args[0] == (resume.Saved.KEEP if target == "keep" else target)

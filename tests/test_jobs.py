@@ -108,7 +108,7 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
     from canter.config.serialize import to_toml
     from canter.errors import CanterError
     from canter.orchestrate.jobs import run_status
-    from canter.training.loop import summarize_ended_run
+    from canter.training.resume import summarize_ended_run
 
     def saved(step, budget):
         config = build_config("Hopper-v5", total_steps=budget)

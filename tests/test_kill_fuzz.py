@@ -98,8 +98,9 @@ def _check_after_a_kill(run: Path) -> tuple[int, bool]:
 
 
 def test_sigkill_during_checkpoint_and_metrics_writes_loses_nothing(tmp_path):
-    from canter.training.loop import resume_config, train
+    from canter.training.loop import train
     from canter.training.restore import load_state
+    from canter.training.resume import resume_config
 
     run = tmp_path / "run"
     shutil.copytree(FIXTURE, run)

@@ -27,8 +27,9 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.envs.base import StepOutput
 from canter.errors import CanterError
-from canter.training.loop import resume_config, resume_seeds, train, train_seeds
+from canter.training.loop import resume_seeds, train, train_seeds
 from canter.training.restore import load_state
+from canter.training.resume import resume_config
 from canter.training.run_folder import read_config
 from canter.training.seedgroup import group_step, split_first_obs, stack, unstack
 from conftest import TINY

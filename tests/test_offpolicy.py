@@ -20,8 +20,9 @@ from canter.envs.base import StepOutput
 from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
 from canter.training import checkpoint, run_folder
-from canter.training.loop import resume_config, train
+from canter.training.loop import train
 from canter.training.restore import load_state
+from canter.training.resume import resume_config
 from canter.use.evaluate import evaluate
 from canter.use.policy import load
 from signals import sigterm_during_setup

@@ -12,7 +12,8 @@ import pytest
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training import checkpoint
-from canter.training.loop import resume_config, train
+from canter.training.loop import train
+from canter.training.resume import resume_config
 from canter.training.seed_run import RECENT_EPISODES
 from conftest import TINY
 

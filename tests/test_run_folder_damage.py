@@ -352,7 +352,7 @@ def test_a_missing_summary_is_written_only_for_a_run_that_reached_its_own_budget
     assert main(["train", "--resume", str(archived_run), "--total-steps", "500", "--quiet"]) == 2
     assert "already has 714 of run.total_steps=500 steps" in capsys.readouterr().err
     assert json.loads((archived_run / "summary.json").read_text()) == stale
-    from canter.training.loop import resume_config
+    from canter.training.resume import resume_config
 
     differing = resume_config(archived_run, 500).with_values("ppo", lr=0.1)
     with pytest.raises(CanterError, match=r"ppo\.lr"):
@@ -362,7 +362,7 @@ def test_a_missing_summary_is_written_only_for_a_run_that_reached_its_own_budget
 
 def test_a_python_resume_with_another_config_is_refused_before_a_missing_summary_is_written(archived_run):
     import canter
-    from canter.training.loop import resume_config
+    from canter.training.resume import resume_config
 
     (archived_run / "summary.json").unlink()
     with pytest.raises(CanterError, match=r"ppo\.lr"):

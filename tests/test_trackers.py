@@ -15,7 +15,8 @@ from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
 from canter.training.logger import read_rows
-from canter.training.loop import resume_config, train
+from canter.training.loop import train
+from canter.training.resume import resume_config
 from canter.training.trackers import TrackSpec, register_tracker, tracking
 from canter.training.trackers.registry import TRACKERS, tracker_names
 

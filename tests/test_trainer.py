@@ -9,8 +9,9 @@ import pytest
 from canter.config.algorithms import reads_key
 from canter.config.build import build_config
 from canter.errors import CanterError
-from canter.training.loop import resume_config, train, train_seeds
+from canter.training.loop import train, train_seeds
 from canter.training.restore import load_state
+from canter.training.resume import resume_config
 from conftest import TINY
 from signals import sigterm_during_setup, sigterm_once_logging
 

@@ -132,7 +132,8 @@ def _train(args: argparse.Namespace) -> list[Any]:
                 f"--track and --mlflow-uri may be given (got {', '.join(changed)})"
             )
         # The trainer imports JAX, so it comes after the checks that need only the config.
-        from canter.training.loop import Saved, resume_config, resume_seeds, train
+        from canter.training.loop import resume_seeds, train
+        from canter.training.resume import Saved, resume_config
 
         target = Saved.KEEP if args.stop_at_return is None else _return_target(args.stop_at_return)
 

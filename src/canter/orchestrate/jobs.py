@@ -403,7 +403,8 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
     """Skip finished seeds, resume stopped ones (and their tracker runs), train the rest (as one seed group), each seed
     with its own tracker runs, then evaluate the final policies."""
     from canter.config.serialize import from_toml_text
-    from canter.training.loop import resume_seeds, summarize_ended_run, train_seeds
+    from canter.training.loop import resume_seeds, train_seeds
+    from canter.training.resume import summarize_ended_run
     from canter.training.run_lock import LOCK_FILE, RunLocks
     from canter.training.trackers import resume_spec, tracking
 

@@ -4,12 +4,10 @@ and handle stop conditions and signals."""
 from __future__ import annotations
 
 import functools
-import math
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import replace
-from enum import Enum
 from pathlib import Path
 from typing import Any, cast
 
@@ -23,32 +21,31 @@ from canter.envs.base import JaxVecEnv
 from canter.errors import CanterError, DiscreteActionsError, DoesNotFitError
 from canter.files import WriteError, is_write_error
 from canter.run_layout import (
-    ARCHIVED_METRICS_FILE,
-    CHECKPOINT_FOLDER,
     CONFIG_FILE,
-    METRICS_FILE,
     SUMMARY_FILE,
-    finished_without_checkpoints,
-    read_summary,
-    run_files_in,
 )
 from canter.signals import StopFlag
-from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock, trackers
+from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
-from canter.training.logger import Progress, checkpoint_totals, read_rows, row_steps
-from canter.training.seed_run import RunResult, SeedRun, SeedStart, reached_target, write_summary
+from canter.training.logger import Progress
+from canter.training.resume import (
+    Saved,
+    check_one_group,
+    check_same_experiment_and_seed,
+    has_its_budget,
+    resume_config,
+    saved_config,
+    start_of_seed,
+    start_over,
+    summarize_if_it_ended,
+)
+from canter.training.seed_run import RunResult, SeedRun, SeedStart
 
 STOP_NOTICE = "stopping at the next safe point, with a checkpoint to resume from"
 # A call of the jitted program this long gets a note: until it returns, a signal only waits (a td3 batch of 100,000
 # makes a call of 1,000 updates last many minutes).
 SLOW_CALL_SECONDS = 60.0
-
-
-class Saved(Enum):
-    """A budget key left as the run folder saved it."""
-
-    KEEP = "keep"
 
 
 def train(
@@ -58,9 +55,9 @@ def train(
     in its budget: run.total_steps (the learning-rate schedule is stretched to the new total), run.max_minutes and
     run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
     `canter.config.experiment`), but not in its seed or in what is learned."""
-    if resume is not None and _has_its_budget(Path(resume), config):
-        _check_same_experiment_and_seed(_saved_config(Path(resume)), config, Path(resume))
-        if (summarized := _summarize_if_it_ended(Path(resume))) is not None:
+    if resume is not None and has_its_budget(Path(resume), config):
+        check_same_experiment_and_seed(saved_config(Path(resume)), config, Path(resume))
+        if (summarized := summarize_if_it_ended(Path(resume))) is not None:
             return summarized
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
@@ -100,9 +97,9 @@ def resume_seeds(
     note; the results are those of the folders resumed."""
     configs = [resume_config(Path(d), total_steps, max_minutes, stop_at_return) for d in run_dirs]
     # Checked before the seeds: two runs of different experiments repeat seeds too, which would hide the cause.
-    _check_one_group(run_dirs, configs)
-    finished = [_has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
-    summarized = [_summarize_if_it_ended(Path(d)) for d, done in zip(run_dirs, finished) if done]
+    check_one_group(run_dirs, configs)
+    finished = [has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
+    summarized = [summarize_if_it_ended(Path(d)) for d, done in zip(run_dirs, finished) if done]
     if all(finished) and any(summarized):  # what was left to do is done; a finished run is refused only otherwise
         return [result for result in summarized if result is not None]
     if len(run_dirs) > 1 and any(finished) and not all(finished):
@@ -116,127 +113,11 @@ def resume_seeds(
     return _train_group(configs, list(run_dirs), [None] * len(configs), quiet)
 
 
-def _check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> None:
-    """Folders resume together as one group when they are distinct runs of one config that differ in run.seed."""
-    from canter.config.experiment import differing_keys, flat_config
-
-    seen: dict[Path, str | Path] = {}
-    for run_dir in run_dirs:
-        if (folder := Path(run_dir).resolve()) in seen:
-            other = f" (as {seen[folder]})" if str(seen[folder]) != str(run_dir) else ""
-            raise CanterError(
-                f"the run folders to resume together have repeated seeds: {run_dir} is given twice{other}; give "
-                f"each run folder once"
-            )
-        seen[folder] = run_dir
-    reference = configs[0].with_values("run", seed=0)
-    for run_dir, config in zip(run_dirs, configs):
-        if config.with_values("run", seed=0) != reference:
-            keys = [k for k in differing_keys([configs[0], config], key_of=flat_config) if k != "run.seed"]
-            keys.sort(key=lambda k: k not in ("env.id", "run.algo"))  # what tells two experiments apart first
-            named = ", ".join(keys[:4]) + (f" and {len(keys) - 4} more keys" if len(keys) > 4 else "")
-            if differing_keys([configs[0], config]):
-                fix = "they are runs of different experiments, which resume one at a time"
-            elif keys == ["run.total_steps"]:
-                fix = "pass --total-steps to give them one budget, or resume them one at a time"
-            else:
-                fix = "resume them one at a time"
-            raise CanterError(
-                f"{run_dir} differs from {run_dirs[0]} in more than run.seed{f' ({named})' if named else ''}; {fix}"
-            )
-    seeds = [c.run.seed for c in configs]
-    if len(set(seeds)) != len(seeds):
-        raise CanterError(
-            f"the run folders to resume together have repeated seeds {seeds}; a group needs distinct seeds: resume "
-            f"the folders of one seed one at a time"
-        )
-
-
-def _check_same_experiment_and_seed(saved: Config, config: Config, run_dir: Path) -> None:
-    """A resume continues the run it finds: a config that differs in what is learned (`canter.config.experiment`)
-    or in its seed would train another run on its state. Budget, output and bookkeeping keys may differ."""
-    from canter.config.experiment import differing_keys
-
-    differing = [key for key in differing_keys([saved, config]) if key != "run.seed"]
-    if saved.run.seed != config.run.seed:
-        differing.insert(0, "run.seed")
-    if differing:
-        raise CanterError(
-            f"the config to resume {run_dir} with differs from the run's in {', '.join(differing)}; a resume may "
-            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return): build it with "
-            f"canter.training.loop.resume_config({str(run_dir)!r}, total_steps)"
-        )
-
-
-def _has_its_budget(run_dir: Path, config: Config) -> bool:
-    newest = run_folder.list_checkpoints(run_dir)
-    return bool(newest) and int(checkpoint.read_header(newest[-1]).get("global_step", 0)) >= config.run.total_steps
-
-
-def _summarize_if_it_ended(run_dir: Path) -> RunResult | None:
-    """Write summary.json of a run that trained its own budget (the one its newest checkpoint was trained toward)
-    but stopped before its summary (a kill between the two writes), as `summarize_ended_run` does for a bench, and
-    say so; None for a run whose summary is there, or that stopped short of its own budget."""
-    with run_lock.RunLocks() as locks:
-        locks.take(run_dir)
-        newest = run_folder.list_checkpoints(run_dir)[-1]
-        step = run_folder.step_of(newest)
-        if step < _header_config(checkpoint.read_header(newest), newest).run.total_steps:
-            return None  # a lower --total-steps than the run's own: refused as it was
-        summarized = (read_summary(run_dir) or {}).get("global_step")
-        if isinstance(summarized, int) and summarized >= step:
-            return None
-        result = summarize_ended_run(run_dir)
-    print(
-        f"canter: note: {run_dir} had trained its budget ({step:,} steps) but stopped before writing its "
-        f"{SUMMARY_FILE}, which is written now from its final checkpoint",
-        file=sys.stderr,
-    )
-    return result
-
-
 def _train_group(configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool) -> list[RunResult]:
     """Train len(configs) seeds (configs equal but for run.seed) together; one seed runs without vmap. Each run
     folder's writer lock (`canter.training.run_lock`) is held throughout."""
     with run_lock.RunLocks() as locks:
         return _train_locked(configs, resumes, run_dirs, quiet, locks)
-
-
-def summarize_ended_run(run_dir: Path) -> RunResult:
-    """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
-    between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
-
-    newest = checkpoint.latest(run_dir)
-    header = checkpoint.read_header(newest)
-    step = int(header["global_step"])
-    totals = checkpoint_totals(header, run_folder.metrics_file(run_dir))
-    recent = totals.recent_returns
-    train_seconds = totals.train_seconds
-    config = _header_config(header, newest)
-    reached = reached_target(recent, config.run.stop_at_return)
-    result = RunResult(
-        run_dir=Path(run_dir),
-        global_step=step,
-        recent_return=float(np.mean(recent)) if recent else None,
-        episodes=totals.episodes,
-        wall_seconds=totals.wall_seconds,
-        compile_seconds=totals.compile_seconds,
-        sps=step / train_seconds if train_seconds > 0 else 0.0,
-        stop_reason="stop_at_return" if reached else "budget",  # the loop's order: the target, then the budget
-    )
-    summary = write_summary(result)
-    trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)
-    return result
-
-
-def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: int) -> None:
-    """`env.backend = auto` picks what this machine has, which can differ from what the run started on: say so."""
-    if recorded != backend:
-        print(
-            f"canter: note: {out} was trained on {recorded} up to step {start_step:,}; env.backend=auto picks "
-            f"{backend} here, which steps it from now on (install {recorded} to keep one backend)",
-            file=sys.stderr,
-        )
 
 
 def _train_locked(
@@ -270,7 +151,7 @@ def _train_checked(
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
     with StopFlag(notice=STOP_NOTICE) as stop:
-        starts = [_start_of(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
+        starts = [start_of_seed(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
         seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
         env = _make_env(configs[0], backend, seeds)
         spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
@@ -327,115 +208,6 @@ def _one_env_state_bytes(backend: Any, env_id: str, options: dict[str, Any]) -> 
     return env.state_bytes()
 
 
-def _start_of(config: Config, resume: Any, run_dir: Any, backend: str, locks: run_lock.RunLocks) -> SeedStart:
-    """Take one seed's run folder and, for a resume, read its newest checkpoint; refuse a run that has its budget."""
-    if resume is not None:
-        from canter.training.restore import load_state
-
-        out = Path(resume)
-        locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
-        if _never_checkpointed(out):
-            _check_same_experiment_and_seed(_saved_config(out), config, out)
-            _refuse_lost_checkpoints(out, config)
-            return SeedStart(out, restarted=True)
-        latest = checkpoint.latest(out)
-        saved, _, state, header = load_state(out, latest)
-        _check_same_experiment_and_seed(saved, config, out)
-        step = int(header["global_step"])
-        _note_a_changed_backend(out, header["env"]["backend"], backend, step)
-        earlier = checkpoint_totals(header, run_folder.metrics_file(out))
-        start = SeedStart(out, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
-    else:
-        if run_dir is not None:
-            _refuse_a_run_in(Path(run_dir))
-        start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
-    if start.step >= config.run.total_steps:
-        if resume is not None and _unreadable(start.out / CONFIG_FILE):
-            # `_saved_config` promised it: a finished run repaired by a resume that trains nothing
-            run_folder.write_config(start.out, saved)
-        raise CanterError(
-            f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
-            f"steps; pass a --total-steps (total_steps= from Python) larger than {start.step} to extend it"
-        )
-    if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
-        # Not refused: a bench re-run given a target resumes such a seed so that it ends there, as an uncut run would.
-        mean = float(np.mean(start.earlier.recent_returns))
-        print(
-            f"canter: note: {start.out} has reached its return target run.stop_at_return="
-            f"{config.run.stop_at_return:g} already (the mean of its last training episodes is {mean:.1f}), so it "
-            "stops after one iteration; to train it on, pass --stop-at-return with a higher target, or inf for none",
-            file=sys.stderr,
-        )
-    if resume is None:
-        locks.take(start.out)  # before anything is written to it
-    return start
-
-
-def _never_checkpointed(run_dir: Path) -> bool:
-    """A run folder with its config.toml, stopped before its first checkpoint (a kill while it compiled or before
-    run.checkpoint_every steps; a seed of a group killed between the seeds' first checkpoints). An archive, a
-    finished run kept without its checkpoints, is not one: `checkpoint.latest` refuses it."""
-    folder = run_folder.checkpoint_dir(run_dir)
-    whole = folder.is_dir() or not (folder.exists() or folder.is_symlink())  # else latest() names what is wrong
-    return (
-        whole
-        and not run_folder.list_checkpoints(run_dir)
-        and (run_dir / CONFIG_FILE).is_file()
-        and not finished_without_checkpoints(run_dir)
-    )
-
-
-def _refuse_lost_checkpoints(run_dir: Path, config: Config) -> None:
-    """A run killed before its first checkpoint has logged at most one row at or past run.checkpoint_every (each
-    iteration logs its row before its checkpoint) and may have a best.npz of an evaluation. More rows mean its
-    checkpoints were lost, and training it again must not throw away its rows or its best policy unasked."""
-    try:
-        rows = read_rows(run_folder.metrics_file(run_dir))[1]
-    except CanterError:  # damaged: its own refusal comes when the resume reads it
-        rows = []
-    every = config.run.checkpoint_every
-    past = [step for step in row_steps(rows) if every > 0 and step >= every]
-    best = checkpoint.best_path(run_dir)
-    if len(past) > 1:
-        raise CanterError(
-            f"{run_dir} has no checkpoint but has logged rows up to step {max(past):,.0f}, past its first checkpoint "
-            f"(run.checkpoint_every={every:,}): its checkpoints were lost; restore them from a copy, or move its "
-            f"metrics.csv away to train it again from step 0"
-        )
-    if best.is_file():
-        raise CanterError(
-            f"{run_dir} has no checkpoint but has {best.name}, the best policy its evaluations found; restore its "
-            f"checkpoints from a copy, or move {best} away to train it again from step 0"
-        )
-
-
-def _start_over(run_dir: Path) -> None:
-    """Such a run has nothing to resume from, so it starts again at step 0 in its own folder, as it first started:
-    what it logged of the training it lost is cleared first (once every seed of the group has been checked), so that
-    its folder reads as one run."""
-    try:
-        rows = len(read_rows(run_folder.metrics_file(run_dir))[1])
-    except CanterError:  # a damaged file: it is cleared all the same
-        rows = 0
-    run_folder.clear_for_a_restart(run_dir)
-    print(
-        f"canter: note: {run_dir} stopped before its first checkpoint, so it trains again from step 0 in its "
-        f"folder" + (f" (the {rows} metrics rows it had logged are dropped)" if rows else ""),
-        file=sys.stderr,
-    )
-
-
-def _refuse_a_run_in(run_dir: Path) -> None:
-    """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
-    present = run_files_in(run_dir)
-    held = [name for name in (CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, CHECKPOINT_FOLDER) if name in present]
-    if held:
-        raise CanterError(
-            f"{run_dir} already holds a run ({', '.join(held)}); resume it (canter train --resume, or "
-            "train(config, resume=...)), or give a new run folder"
-        )
-
-
 def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
     """The group's vector env: one env per seed in `seeds`, the seeds of a group one block after another."""
     from canter.envs import make_vec_env
@@ -456,7 +228,7 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, c
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.out.mkdir(parents=True, exist_ok=True)
     if start.restarted:
-        _start_over(start.out)
+        start_over(start.out)
     if start.resumed:
         # config.toml before the migrations, which read it: a damaged one is replaced by the config the resume read.
         run_folder.write_config(start.out, config)
@@ -668,72 +440,3 @@ def _results(runs: list[SeedRun]) -> list[RunResult]:
     results = [run.result for run in runs if run.result is not None]
     assert len(results) == len(runs), "a seed that did not fail has finished"
     return results
-
-
-def _saved_config(run_dir: Path) -> Config:
-    """The run's config.toml; where it is missing, empty or not TOML, the config its newest checkpoint holds (each
-    holds the run's whole config), with a note: the resume writes config.toml again, so the run loses nothing. A
-    file that reads but holds a value canter refuses stays an error: it was edited, and is not overwritten."""
-
-    run_folder.run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
-    try:
-        return run_folder.read_config(run_dir)
-    except CanterError as damaged:
-        if not (run_folder.list_checkpoints(run_dir) and _unreadable(run_dir / CONFIG_FILE)):
-            raise
-        newest = checkpoint.latest(run_dir)
-        config = _header_config(checkpoint.read_header(newest), newest)
-        print(
-            f"canter: note: {run_dir / CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
-            f"the config saved in {newest.name}, which this resume writes back to config.toml",
-            file=sys.stderr,
-        )
-        return config
-
-
-def _header_config(header: dict[str, Any], path: Path) -> Config:
-    """The run's whole config, as a checkpoint's header holds it."""
-    from canter.config.serialize import from_toml_text
-
-    return from_toml_text(header["config"], str(path))
-
-
-def _unreadable(path: Path) -> bool:
-    """Missing, empty or not TOML: damaged, where a file that parses was written or edited as it is."""
-    import tomllib
-
-    if not path.is_file():
-        return True
-    text = path.read_text(errors="replace")
-    try:
-        tomllib.loads(text)
-    except tomllib.TOMLDecodeError:
-        return True
-    return not text.strip()
-
-
-def _reason(error: CanterError) -> str:
-    """The cause in a config error, without the advice that follows it (here the resume is the fix)."""
-    return str(error).split("; ")[0]
-
-
-def resume_config(
-    run_dir: Path,
-    total_steps: int | None,
-    max_minutes: float | None = None,
-    stop_at_return: float | None | Saved = Saved.KEEP,
-) -> Config:
-    """The saved config of a run, with only its budget changed: the step budget, the wall-minute limit of the
-    resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run), and
-    the return target (a bench re-run gives its own; None: no target)."""
-    if not Path(run_dir).is_dir():
-        raise CanterError(f"run folder not found: {run_dir}")
-    config = _saved_config(Path(run_dir))
-    if total_steps is not None:
-        config = config.with_values("run", total_steps=int(total_steps))
-    if max_minutes is not None:  # inf lifts a saved limit: the config holds no limit as None, which TOML can omit
-        lifted = math.isinf(max_minutes) and max_minutes > 0
-        config = config.with_values("run", max_minutes=None if lifted else float(max_minutes))
-    if not isinstance(stop_at_return, Saved):
-        config = config.with_values("run", stop_at_return=stop_at_return)
-    return config
