@@ -99,109 +99,97 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+# The flags that set a run.* key of a new run; --resume refuses them (it keeps the run's settings) but for the budget.
+_RUN_KEY_FLAGS = {
+    "out_dir": "run.out_dir",
+    "video_every": "run.video_every",
+    "eval_every": "run.eval_every",
+    "eval_episodes": "run.eval_episodes",
+}
+# What --resume may be given besides run folders: the budget and how the run is shown and tracked.
+_RESUME_FLAGS = "--total-steps, --max-minutes, --stop-at-return, --quiet, --track and --mlflow-uri"
+
+
 def _train(args: argparse.Namespace) -> list[Any]:
+    if args.seed is not None and args.seeds is not None:
+        raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
+    return _resume(args) if args.resume else _train_new(args)
+
+
+def _resume(args: argparse.Namespace) -> list[Any]:
+    given = {"env": args.env, "--algo": args.algo, "--preset": args.preset, "--config": args.config}
+    given |= {"--set": args.set, "--seed": args.seed, "--seeds": args.seeds, "--backend": args.backend}
+    given |= {f"--{name.replace('_', '-')}": getattr(args, name) for name in _RUN_KEY_FLAGS}
+    changed = [flag for flag, value in given.items() if value is not None and value != []]  # 0 is given too
+    if changed:
+        raise CanterError(
+            f"--resume uses the saved config; only {_RESUME_FLAGS} may be given (got {', '.join(changed)})"
+        )
+    # The trainer imports JAX, so it comes after the checks that need only the config.
+    from canter.training.loop import resume_seeds, train
+    from canter.training.resume import Saved, resume_config
+
+    target = Saved.KEEP if args.stop_at_return is None else _return_target(args.stop_at_return)
+    if len(args.resume) > 1:
+        return resume_seeds(
+            [Path(d) for d in args.resume],
+            args.total_steps,
+            max_minutes=args.max_minutes,
+            stop_at_return=target,
+            quiet=args.quiet,
+        )
+    config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes, target)
+    return [train(config, resume=args.resume[0], quiet=args.quiet)]
+
+
+def _train_new(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
     from canter.config.overrides import parse_set_args
     from canter.training.run_folder import holds_every_section
 
-    if args.seed is not None and args.seeds is not None:
-        raise CanterError("--seed and --seeds exclude each other; give one seed with --seed or a group with --seeds")
-    if args.resume:
-        changed = [
-            flag
-            for flag, value in (
-                ("env", args.env),
-                ("--algo", args.algo),
-                ("--preset", args.preset),
-                ("--config", args.config),
-                ("--set", args.set),
-                ("--seed", args.seed),
-                ("--seeds", args.seeds),
-                ("--backend", args.backend),
-                ("--out-dir", args.out_dir),
-                ("--video-every", args.video_every),
-                ("--eval-every", args.eval_every),
-                ("--eval-episodes", args.eval_episodes),
-            )
-            if value is not None and value != []  # a flag given as 0 is still given
-        ]
-        if changed:
-            raise CanterError(
-                f"--resume uses the saved config; only --total-steps, --max-minutes, --stop-at-return, --quiet, "
-                f"--track and --mlflow-uri may be given (got {', '.join(changed)})"
-            )
-        # The trainer imports JAX, so it comes after the checks that need only the config.
-        from canter.training.loop import resume_seeds, train
-        from canter.training.resume import Saved, resume_config
-
-        target = Saved.KEEP if args.stop_at_return is None else _return_target(args.stop_at_return)
-
-        if len(args.resume) > 1:
-            results = resume_seeds(
-                [Path(d) for d in args.resume],
-                args.total_steps,
-                max_minutes=args.max_minutes,
-                stop_at_return=target,
-                quiet=args.quiet,
-            )
-        else:
-            config = resume_config(Path(args.resume[0]), args.total_steps, args.max_minutes, target)
-            results = [train(config, resume=args.resume[0], quiet=args.quiet)]
-    else:
-        extra: dict[str, Any] = {}
-        if args.backend:
-            extra["env.backend"] = args.backend
-        if args.stop_at_return is not None:
-            extra["run.stop_at_return"] = _return_target(args.stop_at_return)
-        if args.max_minutes is not None:  # inf is no limit, which the config holds as none
-            extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
-        if args.out_dir == "":  # it would read as not given, and the run would go to runs/
-            raise CanterError("--out-dir is empty; give a folder for the run folders, or drop --out-dir")
-        if args.out_dir:
-            extra["run.out_dir"] = args.out_dir
-        if args.video_every is not None:
-            extra["run.video_every"] = args.video_every
-        if args.eval_every is not None:
-            extra["run.eval_every"] = args.eval_every
-        if args.eval_episodes is not None:
-            extra["run.eval_episodes"] = args.eval_episodes
-        config = build_config(
-            args.env,
-            preset=args.preset,
-            config_file=args.config,
-            sets=list(args.set),
-            # A group replaces the seed by each of its own; given here, it refuses a --set run.seed all the same.
-            seed=args.seeds[0] if args.seeds else args.seed,
-            total_steps=args.total_steps,
-            algo=args.algo,
-            flags=extra,
-            file_holds_every_section=bool(args.config) and holds_every_section(args.config),
+    if args.out_dir == "":  # it would read as not given, and the run would go to runs/
+        raise CanterError("--out-dir is empty; give a folder for the run folders, or drop --out-dir")
+    extra: dict[str, Any] = {key: getattr(args, flag) for flag, key in _RUN_KEY_FLAGS.items()}
+    extra = {key: value for key, value in extra.items() if value is not None}
+    if args.backend:
+        extra["env.backend"] = args.backend
+    if args.stop_at_return is not None:
+        extra["run.stop_at_return"] = _return_target(args.stop_at_return)
+    if args.max_minutes is not None:  # inf is no limit, which the config holds as none
+        extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
+    config = build_config(
+        args.env,
+        preset=args.preset,
+        config_file=args.config,
+        sets=list(args.set),
+        # A group replaces the seed by each of its own; given here, it refuses a --set run.seed all the same.
+        seed=args.seeds[0] if args.seeds else args.seed,
+        total_steps=args.total_steps,
+        algo=args.algo,
+        flags=extra,
+        file_holds_every_section=bool(args.config) and holds_every_section(args.config),
+    )
+    if args.eval_episodes is not None and not config.run.eval_every:
+        raise CanterError(
+            "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
         )
-        if args.eval_episodes is not None and not config.run.eval_every:
-            raise CanterError(
-                "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
-            )
-        if "run.eval_backend" in parse_set_args(list(args.set)) and not config.run.eval_every:
-            raise CanterError(
-                "run.eval_backend sets where the evaluations during training play; also pass --eval-every N"
-            )
-        from canter.config.algorithms import warm_up_note
-        from canter.training.loop import train, train_seeds
+    if "run.eval_backend" in parse_set_args(list(args.set)) and not config.run.eval_every:
+        raise CanterError("run.eval_backend sets where the evaluations during training play; also pass --eval-every N")
+    from canter.config.algorithms import warm_up_note
+    from canter.training.loop import train, train_seeds
 
-        if (note := warm_up_note(config)) is not None:
-            print(f"canter: note: {note}", file=sys.stderr)
-        if args.seeds is not None:
-            if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
-                print(
-                    f"canter: note: {config.run.algo} seeds train faster one per process than in a group "
-                    f"(docs/multiseed.md); `canter bench --algos {config.run.algo} --seeds ... --jobs 2` does that",
-                    file=sys.stderr,
-                )
-            results = train_seeds(config, args.seeds, quiet=args.quiet)
-        else:
-            results = [train(config, quiet=args.quiet)]
-    return results
+    if (note := warm_up_note(config)) is not None:
+        print(f"canter: note: {note}", file=sys.stderr)
+    if args.seeds is None:
+        return [train(config, quiet=args.quiet)]
+    if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):
+        print(
+            f"canter: note: {config.run.algo} seeds train faster one per process than in a group "
+            f"(docs/multiseed.md); `canter bench --algos {config.run.algo} --seeds ... --jobs 2` does that",
+            file=sys.stderr,
+        )
+    return train_seeds(config, args.seeds, quiet=args.quiet)
 
 
 def _return_target(value: float) -> float | None:
