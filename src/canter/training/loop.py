@@ -28,7 +28,7 @@ from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
 from canter.training.evaluation import evaluation_backend
 from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
-from canter.training.logger import Progress
+from canter.training.progress import Progress
 from canter.training.resume import (
     Saved,
     check_one_group,

@@ -1,0 +1,48 @@
+"""The progress bar of a training run in a terminal."""
+
+from __future__ import annotations
+
+
+class Progress:
+    """A rich progress bar with steps, SPS, ETA and the recent mean return; a no-op when quiet."""
+
+    def __init__(self, total: int, start: int, quiet: bool, description: str) -> None:
+        self._bar = None
+        if quiet:
+            return
+        from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
+        from rich.progress import Progress as RichProgress
+
+        self._total = total
+        self._bar = RichProgress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(bar_width=24),
+            TextColumn("{task.fields[steps]}"),
+            TextColumn("{task.fields[sps]} SPS"),
+            TextColumn("ret {task.fields[ret]}"),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            transient=False,
+        )
+        self._bar.start()
+        self._task = self._bar.add_task(
+            description, total=total, completed=start, steps=self._steps(start), sps="-", ret="-"
+        )
+
+    def _steps(self, step: int) -> str:
+        def short(n: float) -> str:
+            if n >= 1e6:
+                return f"{n / 1e6:.2f}M"
+            return f"{n / 1e3:.0f}k" if n >= 1e4 else f"{n:,.0f}"
+
+        return f"{short(step)}/{short(self._total)}"
+
+    def update(self, step: int, sps: float, recent_return: float | None) -> None:
+        if self._bar is None:
+            return
+        ret = "-" if recent_return is None else f"{recent_return:.1f}"
+        self._bar.update(self._task, completed=step, steps=self._steps(step), sps=f"{sps:,.0f}", ret=ret)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
