@@ -7,6 +7,7 @@ with any sign of a run, while an output guard refuses only a folder that is sure
 
 import json
 import re
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,19 @@ RUN_OWN_FILES = frozenset(
     {CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, VERSIONS_FILE, TRACKERS_FILE, EVAL_FILE}
 )
 RUN_OWN_FOLDERS = frozenset({CHECKPOINT_FOLDER, TENSORBOARD_FOLDER})
+
+
+class StopReason(StrEnum):
+    """Why a run stopped, as summary.json's `stop_reason` records it."""
+
+    BUDGET = "budget"  # it trained run.total_steps
+    TARGET = "stop_at_return"  # its recent training return reached run.stop_at_return
+    MAX_MINUTES = "max_minutes"
+    SIGNAL = "signal"
+    NON_FINITE = "non_finite"  # its losses or parameters diverged
+
+
+FINISHED = frozenset({StopReason.BUDGET, StopReason.TARGET})  # the others stop a run that a resume goes on with
 
 
 def checkpoints_in(folder: Path) -> list[Path]:
@@ -75,7 +89,7 @@ def has_finished(folder: Path) -> bool:
     if held & {EVAL_FILE, ARCHIVED_METRICS_FILE}:
         return True
     summary = read_summary(folder)
-    return summary is not None and summary.get("stop_reason") in ("budget", "stop_at_return")
+    return summary is not None and summary.get("stop_reason") in FINISHED
 
 
 def finished_without_checkpoints(folder: Path) -> bool:

@@ -30,7 +30,7 @@ from typing import Any
 from canter import run_layout
 from canter.errors import CanterError
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
-from canter.run_layout import CHECKPOINT_NAME, EVAL_FILE, SUMMARY_FILE
+from canter.run_layout import CHECKPOINT_NAME, EVAL_FILE, SUMMARY_FILE, StopReason
 from canter.signals import die_with_parent, exit_interrupted, handling_stop_signals, stops_held
 from canter.training.trackers.base import TrackSpec
 
@@ -66,7 +66,7 @@ def run_status(run_dir: Path, total_steps: int, stop_at_return: float | None = N
         return "done"
     reached = summary.get("recent_return")
     if (
-        summary.get("stop_reason") == "stop_at_return"
+        summary.get("stop_reason") == StopReason.TARGET
         and stop_at_return is not None
         and reached is not None
         and reached >= stop_at_return

@@ -23,6 +23,7 @@ from canter.files import WriteError, is_write_error
 from canter.run_layout import (
     CONFIG_FILE,
     SUMMARY_FILE,
+    StopReason,
 )
 from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
@@ -362,7 +363,8 @@ def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: li
     # out spares a Ctrl-C from writing gigabytes of zeros.
     empty = program.algorithm.policy_checkpoint_leaves_out
     for i, (run, start) in enumerate(zip(runs, starts)):
-        reason = run.stop_reason_after("signal") or "signal"  # a resumed seed may have met its return target
+        # A resumed seed may have met its return target already.
+        reason = run.stop_reason_after(StopReason.SIGNAL) or StopReason.SIGNAL
         if start.resumed:
             run.finish_untrained(reason)
         else:
@@ -406,9 +408,9 @@ def _note_a_slow_call(config: Config, seconds: float, stop: StopFlag) -> bool:
 def _group_stop_reason(deadline: float | None, stop: StopFlag) -> str | None:
     """What stops every seed after this iteration: the wall-minute limit, else a signal."""
     if deadline is not None and time.perf_counter() >= deadline:
-        return "max_minutes"
+        return StopReason.MAX_MINUTES
     if stop.signal is not None:
-        return "signal"
+        return StopReason.SIGNAL
     return None
 
 

@@ -22,6 +22,7 @@ from canter.run_layout import (
     CONFIG_FILE,
     METRICS_FILE,
     SUMMARY_FILE,
+    StopReason,
     finished_without_checkpoints,
     read_summary,
     run_files_in,
@@ -136,7 +137,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
         wall_seconds=totals.wall_seconds,
         compile_seconds=totals.compile_seconds,
         sps=step / train_seconds if train_seconds > 0 else 0.0,
-        stop_reason="stop_at_return" if reached else "budget",  # the loop's order: the target, then the budget
+        stop_reason=StopReason.TARGET if reached else StopReason.BUDGET,  # the loop's order: target, then budget
     )
     summary = write_summary(result)
     trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)

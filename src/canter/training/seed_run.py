@@ -22,6 +22,7 @@ from canter.config.serialize import to_toml
 from canter.core.seeding import RESUME, TRAIN, env_seeds
 from canter.errors import CanterError
 from canter.files import atomic_write_bytes
+from canter.run_layout import StopReason
 from canter.training import checkpoint, run_folder, trackers
 from canter.training.cadence import Cadence
 from canter.training.evaluation import DURING_TRAINING_SEED, TrainingEvaluation
@@ -40,7 +41,7 @@ class RunResult:
     wall_seconds: float  # the whole run, compile and earlier sessions of a resumed run included
     compile_seconds: float  # this session's compile
     sps: float  # env steps per second over the whole run, compile excluded
-    stop_reason: str  # budget | stop_at_return | max_minutes | signal
+    stop_reason: str  # a StopReason
     # The seeds of the process that trained its last session (itself alone, or its vmapped group); None unknown.
     trained_with: tuple[int, ...] | None = None
 
@@ -260,9 +261,9 @@ class SeedRun:
         comes in the same iteration: marked stopped early, a resume would find nothing left to train."""
         run = self.config.run
         if reached_target(tuple(self.recent), run.stop_at_return):
-            return "stop_at_return"
+            return StopReason.TARGET
         if self.global_step >= run.total_steps:
-            return "budget"
+            return StopReason.BUDGET
         return group_reason
 
     def finish(
@@ -310,7 +311,7 @@ class SeedRun:
 
     def fail(self, last_good_state: Any, env_carry: Any = None) -> None:
         """A non-finite iteration: keep the state before it and stop this seed; no summary is written."""
-        self.stop_reason = "non_finite"
+        self.stop_reason = StopReason.NON_FINITE
         # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
         # (an off-policy buffer keeps the finite transitions of the failed call).
         if not run_folder.checkpoint_path(self.out, self.global_step).is_file():
