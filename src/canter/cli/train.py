@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from canter.cli.args import add_backend_arg, add_track_args, seed_arg, seeds_arg, steps_arg, track_spec
+from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
 
 
@@ -129,7 +129,7 @@ def _resume(args: argparse.Namespace) -> list[Any]:
     from canter.training.loop import resume_seeds, train
     from canter.training.resume import Saved, resume_config
 
-    target = Saved.KEEP if args.stop_at_return is None else _return_target(args.stop_at_return)
+    target = Saved.KEEP if args.stop_at_return is None else unlimited_as_none(args.stop_at_return)
     if len(args.resume) > 1:
         return resume_seeds(
             [Path(d) for d in args.resume],
@@ -155,9 +155,9 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
     if args.backend:
         extra["env.backend"] = args.backend
     if args.stop_at_return is not None:
-        extra["run.stop_at_return"] = _return_target(args.stop_at_return)
+        extra["run.stop_at_return"] = unlimited_as_none(args.stop_at_return)
     if args.max_minutes is not None:  # inf is no limit, which the config holds as none
-        extra["run.max_minutes"] = None if args.max_minutes == math.inf else args.max_minutes
+        extra["run.max_minutes"] = unlimited_as_none(args.max_minutes)
     config = build_config(
         args.env,
         preset=args.preset,
@@ -190,11 +190,6 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
             file=sys.stderr,
         )
     return train_seeds(config, args.seeds, quiet=args.quiet)
-
-
-def _return_target(value: float) -> float | None:
-    """--stop-at-return as run.stop_at_return: inf is no target (none), as --max-minutes inf is no limit."""
-    return None if value == math.inf else value
 
 
 def _report(results: list[Any]) -> None:

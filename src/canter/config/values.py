@@ -161,6 +161,12 @@ def toml_value(value: Any) -> str:
     raise TypeError(value)
 
 
+def unlimited_as_none(value: float) -> float | None:
+    """A limit given as a number (--max-minutes, --stop-at-return) as its config key holds it: +inf is no limit,
+    which the config holds as none (TOML has no way to write it but to leave the key out)."""
+    return None if value == math.inf else value
+
+
 def set_text(value: Any) -> str:
     """A config value as `--set` text, the form `coerce` reads back and the README's key table shows: a tuple's
     entries joined by commas, None as none, a bool as true or false."""

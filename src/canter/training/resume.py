@@ -5,7 +5,6 @@ its budget but stopped before writing it."""
 
 from __future__ import annotations
 
-import math
 import sys
 from collections.abc import Sequence
 from enum import Enum
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from canter.config.schema import Config
+from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
@@ -324,9 +324,8 @@ def resume_config(
     config = saved_config(Path(run_dir))
     if total_steps is not None:
         config = config.with_values("run", total_steps=int(total_steps))
-    if max_minutes is not None:  # inf lifts a saved limit: the config holds no limit as None, which TOML can omit
-        lifted = math.isinf(max_minutes) and max_minutes > 0
-        config = config.with_values("run", max_minutes=None if lifted else float(max_minutes))
+    if max_minutes is not None:  # inf lifts a saved limit
+        config = config.with_values("run", max_minutes=unlimited_as_none(float(max_minutes)))
     if not isinstance(stop_at_return, Saved):
         config = config.with_values("run", stop_at_return=stop_at_return)
     return config
