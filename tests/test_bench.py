@@ -138,11 +138,11 @@ def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monke
     import canter.orchestrate.jobs
 
     monkeypatch.setattr(canter.orchestrate.jobs.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3, 3)
+    canter.orchestrate.job_resources.warn_if_more_jobs_than_cores(3, 3)
     assert capsys.readouterr().err == (
         "canter: warning: --jobs 3 is more than the 2 CPU cores; the jobs will slow each other down\n"
     )
-    canter.orchestrate.jobs.warn_if_more_jobs_than_cores(3, 2)
+    canter.orchestrate.job_resources.warn_if_more_jobs_than_cores(3, 2)
     assert capsys.readouterr().err == ""
     # A refused command prints its one-line error and nothing else, whatever --jobs says.
     code = main(["bench", "--envs", "Hopper-v5", "--algos", "nope", "--jobs", "999", "--out", str(tmp_path / "b")])
@@ -151,7 +151,7 @@ def test_jobs_over_cores_warns_once_the_command_is_valid(tmp_path, capsys, monke
 
 
 def test_worker_count_never_passes_the_work_left():
-    from canter.orchestrate.jobs import worker_count
+    from canter.orchestrate.job_resources import worker_count
 
     assert [worker_count(1000, 1), worker_count(4, 10), worker_count(4, 4), worker_count(3, 2)] == [1, 4, 4, 2]
     # One even with nothing left: it finds that out, or waits for what runs elsewhere, and the results are written.
@@ -169,9 +169,9 @@ def test_jobs_far_over_the_cores_are_refused_before_anything_starts(tmp_path, ca
 
     monkeypatch.setattr(canter.orchestrate.jobs, "run_workers", no_process)
     monkeypatch.setattr(canter.orchestrate.jobs, "start_job", no_process)
-    canter.orchestrate.jobs.check_jobs(8)  # 4 per core: slow, but a choice; the warning says so
+    canter.orchestrate.job_resources.check_jobs(8)  # 4 per core: slow, but a choice; the warning says so
     with pytest.raises(CanterError) as refused:
-        canter.orchestrate.jobs.check_jobs(9)
+        canter.orchestrate.job_resources.check_jobs(9)
     assert str(refused.value) == (
         "--jobs 9 is more than 4 per CPU core, and this machine lets canter use 2; pass --jobs 2 (one per core), or "
         "at most --jobs 8"

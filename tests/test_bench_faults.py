@@ -20,7 +20,8 @@ from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells, make_jobs
 from canter.orchestrate.bench_results import read_seed
 from canter.orchestrate.bench_runs import seeds_finished
-from canter.orchestrate.jobs import JOB_START, failure_reason, run_status, write_final_eval
+from canter.orchestrate.jobs import JOB_START, failure_reason, write_final_eval
+from canter.orchestrate.run_status import run_status
 from canter.training import checkpoint, run_folder
 from conftest import ARCHIVED_RUN
 from test_bench import TINY

@@ -52,7 +52,7 @@ def test_a_cached_evaluation_is_kept_unless_it_lacks_lengths(run_copy, monkeypat
 
 
 def test_concurrent_jobs_share_a_gpus_memory(monkeypatch):
-    from canter.orchestrate.jobs import gpu_memory_env, job_layout
+    from canter.orchestrate.job_resources import gpu_memory_env, job_layout
 
     monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
     assert gpu_memory_env(1) == {}  # one job keeps JAX's default
@@ -75,7 +75,7 @@ def test_concurrent_jobs_share_a_gpus_memory(monkeypatch):
 def test_a_run_stopped_at_its_target_return_counts_as_done(tmp_path, summary, target, status):
     """A bench or tune job must not resume a seed that stopped because it reached the target it still has; one that
     stopped on the clock, or whose target was raised since, goes on from its checkpoint."""
-    from canter.orchestrate.jobs import run_status
+    from canter.orchestrate.run_status import run_status
 
     (tmp_path / "checkpoints").mkdir()
     (tmp_path / "checkpoints" / "ckpt_000000004000.npz").write_bytes(b"")
@@ -88,7 +88,7 @@ def test_a_run_that_reached_its_target_toward_another_budget_is_not_this_budgets
     from canter.config.build import build_config
     from canter.config.serialize import to_toml
     from canter.errors import CanterError
-    from canter.orchestrate.jobs import run_status
+    from canter.orchestrate.run_status import run_status
 
     (tmp_path / "checkpoints").mkdir()
     (tmp_path / "checkpoints" / "ckpt_000000004000.npz").write_bytes(b"")
@@ -107,7 +107,7 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
     from canter.config.build import build_config
     from canter.config.serialize import to_toml
     from canter.errors import CanterError
-    from canter.orchestrate.jobs import run_status
+    from canter.orchestrate.run_status import run_status
     from canter.training.resume import summarize_ended_run
 
     def saved(step, budget):
@@ -152,7 +152,7 @@ def test_a_run_whose_summary_is_missing_or_older_than_its_final_checkpoint(tmp_p
 def test_a_damaged_newest_checkpoint_never_reads_as_done(tmp_path):
     """Its budget cannot be read, so it cannot be told apart from a run trained toward another: the resume that
     follows reads it and says what is wrong, rather than the bench reusing a cached evaluation."""
-    from canter.orchestrate.jobs import run_status
+    from canter.orchestrate.run_status import run_status
 
     (tmp_path / "checkpoints").mkdir()
     (tmp_path / "checkpoints" / "ckpt_000002000000.npz").write_bytes(b"garbage")

@@ -31,7 +31,7 @@ from timed import STOP_GRACE_SECONDS, canter_command, out_of_time, run_to_deadli
 from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
 from canter.orchestrate.bench_results import combine_records, seed_record
-from canter.orchestrate.jobs import read_json, run_status
+from canter.orchestrate.run_status import read_json, run_status
 from canter.training import run_lock
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL, Interval, aggregates
 

@@ -33,7 +33,7 @@ from grids import Grid, finished  # noqa: E402
 
 from canter.algos.ppo.symmetry import MirrorPair, check_action_range, parse_groups  # noqa: E402
 from canter.errors import CanterError  # noqa: E402
-from canter.orchestrate.jobs import read_json  # noqa: E402
+from canter.orchestrate.run_status import read_json  # noqa: E402
 
 if TYPE_CHECKING:
     from canter.use.policy import Policy

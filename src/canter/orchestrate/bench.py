@@ -36,7 +36,8 @@ from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
 from canter.orchestrate.bench_local import run_local
 from canter.orchestrate.bench_results import cell_result, check_results_writable, write_results
 from canter.orchestrate.bench_runs import check_existing_runs, seeds_finished
-from canter.orchestrate.jobs import check_jobs, needs_a_fix
+from canter.orchestrate.job_resources import check_jobs
+from canter.orchestrate.jobs import needs_a_fix
 from canter.orchestrate.study import describe_url, normalize_url
 from canter.training.trackers import check_trackers, group_name, open_groups
 

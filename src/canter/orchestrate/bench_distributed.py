@@ -16,15 +16,8 @@ import numpy as np
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_results import CellResult, SeedRecord, combine_seeds, read_seed
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
-from canter.orchestrate.jobs import (
-    exit_text,
-    failure_reason,
-    run_workers,
-    start_job,
-    stop_jobs,
-    warn_if_more_jobs_than_cores,
-    worker_count,
-)
+from canter.orchestrate.job_resources import warn_if_more_jobs_than_cores, worker_count
+from canter.orchestrate.jobs import exit_text, failure_reason, run_workers, start_job, stop_jobs
 from canter.orchestrate.study import claim_study, retrying, study_storage
 
 if TYPE_CHECKING:

@@ -9,14 +9,8 @@ from typing import Any
 
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
-from canter.orchestrate.jobs import (
-    failure_reason,
-    job_layout,
-    start_job,
-    stop_jobs,
-    warn_if_more_jobs_than_cores,
-    worker_count,
-)
+from canter.orchestrate.job_resources import job_layout, warn_if_more_jobs_than_cores, worker_count
+from canter.orchestrate.jobs import failure_reason, start_job, stop_jobs
 
 
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:

@@ -17,7 +17,7 @@ import numpy as np
 from canter.errors import CanterError
 from canter.files import check_writable
 from canter.orchestrate.bench_grid import BenchSettings, Cell, safe_name, varying_keys
-from canter.orchestrate.jobs import is_number, read_usable_summary
+from canter.orchestrate.run_status import is_number, read_usable_summary
 from canter.run_layout import CONFIG_FILE, EVAL_FILE, read_object
 from canter.use.reference_scores import REFERENCE_STEPS, env_base, published_scores
 

@@ -10,7 +10,8 @@ from canter.config.serialize import to_toml
 from canter.config.values import set_text
 from canter.errors import CanterError
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job
-from canter.orchestrate.jobs import JobSpec, is_number, run_status
+from canter.orchestrate.jobs import JobSpec
+from canter.orchestrate.run_status import is_number, run_status
 from canter.run_layout import CONFIG_FILE, EVAL_FILE, evaluates_newest_checkpoint, read_object
 
 

@@ -41,7 +41,8 @@ from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
 from canter.files import make_folder, refuse_inside_run_own_folder
 from canter.orchestrate.env_check import check_continuous
-from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs, worker_count
+from canter.orchestrate.job_resources import worker_count
+from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
     FAIL_REASON,
@@ -549,7 +550,8 @@ def tune_workers(study: Any, settings: TuneSettings) -> int:
 
 def tune(settings: TuneSettings) -> Any:
     """Check everything, create (or join) the study, run the workers, and write the best preset and the summary."""
-    from canter.orchestrate.jobs import check_jobs, exit_text, run_workers, warn_if_more_jobs_than_cores
+    from canter.orchestrate.job_resources import check_jobs, warn_if_more_jobs_than_cores
+    from canter.orchestrate.jobs import exit_text, run_workers
 
     base, space = check_settings(settings)
     refuse_inside_run_own_folder(settings.out_dir, "--out-dir")
