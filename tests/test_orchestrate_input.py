@@ -137,6 +137,12 @@ def test_bench_refuses_a_run_folder_as_its_out_folder(tmp_path, capsys):
     (own / "metrics.csv").write_text("global_step\n")
     with pytest.raises(CanterError, match=r"it holds config.toml and metrics.csv\)"):
         refuse_run_folder(own)
+    archive = tmp_path / "archive"  # a finished run kept without its checkpoints, its metrics packed
+    archive.mkdir()
+    (archive / "config.toml").write_text("[run]\n")
+    (archive / "metrics.csv.gz").write_bytes(b"")
+    with pytest.raises(CanterError, match=r"it holds config.toml and metrics.csv.gz\)"):
+        refuse_run_folder(archive)
 
 
 @pytest.mark.parametrize("name", ["../../etc", "a/b", "/tmp/x", ".", "..", "", "a\\b", "x\ny"])

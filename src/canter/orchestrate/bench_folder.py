@@ -27,13 +27,13 @@ STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid,
 def refuse_run_folder(bench_dir: Path) -> None:
     """Refuse a run folder given as --out: the bench would write its tables and job folders among the run's files, and
     take over the writer lock of the run (its own lock file, `canter.training.run_lock`)."""
-    from canter.run_layout import CONFIG_FILE, METRICS_FILE
-    from canter.training.run_folder import checkpoint_dir
+    from canter.run_layout import CHECKPOINT_FOLDER, RUN_OWN_FILES, run_files_in, surely_a_run
 
-    marks = ((CONFIG_FILE, bench_dir / CONFIG_FILE), (METRICS_FILE, bench_dir / METRICS_FILE))
-    held = [name for name, found in (*marks, ("checkpoints/", checkpoint_dir(bench_dir))) if found.exists()]
-    # A config.toml alone may be the user's own base config for the bench (--config OUT/config.toml).
-    if "checkpoints/" in held or {CONFIG_FILE, METRICS_FILE} <= set(held):
+    # A config.toml alone may be the user's own base config for the bench (--config OUT/config.toml); a bench folder
+    # never holds a checkpoints/ folder of its own.
+    found = run_files_in(bench_dir)
+    held = sorted(found & RUN_OWN_FILES) + ["checkpoints/"] * (bench_dir / CHECKPOINT_FOLDER).exists()
+    if surely_a_run(bench_dir) or (bench_dir / CHECKPOINT_FOLDER).exists():
         raise CanterError(
             f"--out {bench_dir} is a run folder (it holds {' and '.join(held)}), not a bench folder; give a new "
             f"--out, in which the bench makes a run folder for each cell and seed"
