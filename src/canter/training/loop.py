@@ -177,8 +177,8 @@ def _train_checked(
             if isinstance(exc, CanterError):  # a new folder that holds no checkpoint and no row goes
                 for start in starts:
                     if not (start.resumed or start.restarted):  # a restarted run keeps its config to resume again
-                        run_folder.discard_unstarted(start.out)
-            error = training_write_error(exc, [start.out for start in starts])
+                        run_folder.discard_unstarted(start.run_dir)
+            error = training_write_error(exc, [start.run_dir for start in starts])
             if error is None:
                 raise
             raise error from None
@@ -227,17 +227,17 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
 def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, carry_bytes: int) -> Any:
     """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
-    start.out.mkdir(parents=True, exist_ok=True)
+    start.run_dir.mkdir(parents=True, exist_ok=True)
     if start.restarted:
-        start_over(start.out)
+        start_over(start.run_dir)
     if start.resumed:
         # config.toml before the migrations, which read it: a damaged one is replaced by the config the resume read.
-        run_folder.write_config(start.out, config)
-        run_folder.migrate(start.out)
+        run_folder.write_config(start.run_dir, config)
+        run_folder.migrate(start.run_dir)
     else:
-        run_folder.create(start.out, config)
+        run_folder.create(start.run_dir, config)
     disk_room.warn_if_checkpoints_will_not_fit(
-        start.out, state, config, algorithm.policy_checkpoint_leaves_out, carry_bytes
+        start.run_dir, state, config, algorithm.policy_checkpoint_leaves_out, carry_bytes
     )
     return state
 

@@ -144,11 +144,11 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     return result
 
 
-def _note_a_changed_backend(out: Path, recorded: str, backend: str, start_step: int) -> None:
+def _note_a_changed_backend(run_dir: Path, recorded: str, backend: str, start_step: int) -> None:
     """`env.backend = auto` picks what this machine has, which can differ from what the run started on: say so."""
     if recorded != backend:
         print(
-            f"canter: note: {out} was trained on {recorded} up to step {start_step:,}; env.backend=auto picks "
+            f"canter: note: {run_dir} was trained on {recorded} up to step {start_step:,}; env.backend=auto picks "
             f"{backend} here, which steps it from now on (install {recorded} to keep one backend)",
             file=sys.stderr,
         )
@@ -159,42 +159,42 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
     if resume is not None:
         from canter.training.restore import load_state
 
-        out = Path(resume)
-        locks.take(out)  # before its newest checkpoint is read: another writer may be finishing it
-        if _never_checkpointed(out):
-            check_same_experiment_and_seed(saved_config(out), config, out)
-            _refuse_lost_checkpoints(out, config)
-            return SeedStart(out, restarted=True)
-        latest = checkpoint.latest(out)
-        saved, _, state, header = load_state(out, latest)
-        check_same_experiment_and_seed(saved, config, out)
+        folder = Path(resume)
+        locks.take(folder)  # before its newest checkpoint is read: another writer may be finishing it
+        if _never_checkpointed(folder):
+            check_same_experiment_and_seed(saved_config(folder), config, folder)
+            _refuse_lost_checkpoints(folder, config)
+            return SeedStart(folder, restarted=True)
+        latest = checkpoint.latest(folder)
+        saved, _, state, header = load_state(folder, latest)
+        check_same_experiment_and_seed(saved, config, folder)
         step = int(header["global_step"])
-        _note_a_changed_backend(out, header["env"]["backend"], backend, step)
-        earlier = checkpoint_totals(header, run_folder.metrics_file(out))
-        start = SeedStart(out, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
+        _note_a_changed_backend(folder, header["env"]["backend"], backend, step)
+        earlier = checkpoint_totals(header, run_folder.metrics_file(folder))
+        start = SeedStart(folder, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
     else:
         if run_dir is not None:
             _refuse_a_run_in(Path(run_dir))
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
-        if resume is not None and _unreadable(start.out / CONFIG_FILE):
+        if resume is not None and _unreadable(start.run_dir / CONFIG_FILE):
             # `saved_config` promised it: a finished run repaired by a resume that trains nothing
-            run_folder.write_config(start.out, saved)
+            run_folder.write_config(start.run_dir, saved)
         raise CanterError(
-            f"{start.out} already has {start.step} of run.total_steps={config.run.total_steps} "
+            f"{start.run_dir} already has {start.step} of run.total_steps={config.run.total_steps} "
             f"steps; pass a --total-steps (total_steps= from Python) larger than {start.step} to extend it"
         )
     if resume is not None and reached_target(start.earlier.recent_returns, config.run.stop_at_return):
         # Not refused: a bench re-run given a target resumes such a seed so that it ends there, as an uncut run would.
         mean = float(np.mean(start.earlier.recent_returns))
         print(
-            f"canter: note: {start.out} has reached its return target run.stop_at_return="
+            f"canter: note: {start.run_dir} has reached its return target run.stop_at_return="
             f"{config.run.stop_at_return:g} already (the mean of its last training episodes is {mean:.1f}), so it "
             "stops after one iteration; to train it on, pass --stop-at-return with a higher target, or inf for none",
             file=sys.stderr,
         )
     if resume is None:
-        locks.take(start.out)  # before anything is written to it
+        locks.take(start.run_dir)  # before anything is written to it
     return start
 
 

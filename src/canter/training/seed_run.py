@@ -80,7 +80,7 @@ def reached_target(recent: Sequence[float], target: float | None) -> bool:
 class SeedStart:
     """Where one seed of a group starts: its run folder and, for a resume, what its newest checkpoint holds."""
 
-    out: Path
+    run_dir: Path
     state: Any = None  # None: the algorithm's initial state
     step: int = 0
     earlier: Totals = field(default_factory=Totals)  # what the sessions before a resume add up to
@@ -114,9 +114,9 @@ class SeedRun:
         """`started`: when this session started, on time.perf_counter's clock. (A resume may start at step 0: a run
         whose first iteration was non-finite.)"""
         resumed = start.resumed
-        out = start.out
+        run_dir = start.run_dir
         self.config = config
-        self.out = out
+        self.run_dir = run_dir
         self.metric_names = metric_names
         self.global_step = start.step
         self.started = started
@@ -131,7 +131,7 @@ class SeedRun:
         self.checkpoints = Cadence(config.run.checkpoint_every, start.step)
         self.header_base = {"config": to_toml(config), "env": env_header(spec), "algo": config.run.algo}
         self.logger = MetricsLogger(
-            out,
+            run_dir,
             metric_names,
             spec.info_keys,
             config.run.tensorboard,
@@ -139,12 +139,12 @@ class SeedRun:
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
-            TrainingEvaluation(config, spec, start.step, best_return(out, start.step) if resumed else None)
+            TrainingEvaluation(config, spec, start.step, best_return(run_dir, start.step) if resumed else None)
             if config.run.eval_every
             else None
         )
-        self.videos = TrainingVideos(out, config.run.video_every, start.step, resumed=resumed)
-        self.trackers = trackers.open_for_run(config, out, resumed=resumed)  # `canter train --track`
+        self.videos = TrainingVideos(run_dir, config.run.video_every, start.step, resumed=resumed)
+        self.trackers = trackers.open_for_run(config, run_dir, resumed=resumed)  # `canter train --track`
         self.closed = False
         self.stop_reason: str | None = None  # set once the seed is done; the group may still run
         self.error: str | None = None
@@ -179,14 +179,14 @@ class SeedRun:
         header = self._header() if untrained_but is None else dict(self._header(), untrained=True)
         self.logger.sync()
         checkpoint.save(
-            run_folder.checkpoint_path(self.out, self.global_step),
+            run_folder.checkpoint_path(self.run_dir, self.global_step),
             train_state,
             header,
             compress=self.config.run.compress_checkpoints,
             env_carry=env_carry,
             leave_out=untrained_but or (),
         )
-        checkpoint.prune(self.out, self.config.run.keep_checkpoints)
+        checkpoint.prune(self.run_dir, self.config.run.keep_checkpoints)
 
     def evaluation_due(self) -> bool:
         return self.evaluation is not None and self.evaluation.due(self.global_step)
@@ -202,7 +202,7 @@ class SeedRun:
             evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
             header = dict(self._header(), evaluation=evaluation)
             checkpoint.save(
-                checkpoint.best_path(self.out),
+                checkpoint.best_path(self.run_dir),
                 train_state,
                 header,
                 compress=self.config.run.compress_checkpoints,
@@ -280,17 +280,17 @@ class SeedRun:
         holds its state, and a rewrite would record a budget it did not train toward, so only summary.json is
         written, with the totals of the sessions that trained it."""
         self.stop_reason = reason
-        trained_with = _summary_trained_with(self.out) or self.trained_with
+        trained_with = _summary_trained_with(self.run_dir) or self.trained_with
         self._end(replace(self._result(reason), wall_seconds=self.earlier_wall, trained_with=trained_with))
 
     def _end(self, result: RunResult) -> None:
         self.close()
         self.result = result
-        self.trackers.finish(self.out, write_summary(result))
+        self.trackers.finish(self.run_dir, write_summary(result))
 
     def _result(self, reason: str) -> RunResult:
         return RunResult(
-            run_dir=self.out,
+            run_dir=self.run_dir,
             global_step=self.global_step,
             recent_return=self.recent_mean,
             episodes=self.episodes,
@@ -314,12 +314,12 @@ class SeedRun:
         self.stop_reason = StopReason.NON_FINITE
         # A checkpoint of this step, written before the failed iteration, is exact; the state handed back may not be
         # (an off-policy buffer keeps the finite transitions of the failed call).
-        if not run_folder.checkpoint_path(self.out, self.global_step).is_file():
+        if not run_folder.checkpoint_path(self.run_dir, self.global_step).is_file():
             self.save(last_good_state, env_carry)
         self.close()
         self.error = (
             f"non-finite observation, reward or parameter during the iteration after step "
-            f"{self.global_step}; stopped, last good state saved in {self.out / 'checkpoints'}; "
+            f"{self.global_step}; stopped, last good state saved in {self.run_dir / 'checkpoints'}; "
             f"{divergence_hint(self.config)}"
         )
 
