@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from canter.algos import Algorithm, ExportedActor
@@ -87,27 +88,16 @@ def validate_continuous(config: Config, spec: EnvSpec) -> None:
         check_action_range(parse_groups(config.sym.groups, config.sym.negate), spec.act_dim, config.run.algo)
 
 
-ALGORITHMS = {
-    "ppo": Algorithm(
-        name="ppo",
-        init_state=_init_state,
-        make_iteration=_make_iteration,
-        metric_names=PPO_METRICS,
-        make_act=make_gaussian_act,
-        policy_params=gaussian_policy_params,
-        export_actor=export_gaussian_actor,
-        validate=validate_continuous,
-        size_keys=GAUSSIAN_SIZE_KEYS,
-    ),
-    "rpo": Algorithm(
-        name="rpo",
-        init_state=_init_state,
-        make_iteration=_make_rpo_iteration,
-        metric_names=PPO_METRICS,
-        make_act=make_gaussian_act,
-        policy_params=gaussian_policy_params,
-        export_actor=export_gaussian_actor,
-        validate=validate_continuous,
-        size_keys=GAUSSIAN_SIZE_KEYS,
-    ),
-}
+_PPO = Algorithm(
+    name="ppo",
+    init_state=_init_state,
+    make_iteration=_make_iteration,
+    metric_names=PPO_METRICS,
+    make_act=make_gaussian_act,
+    policy_params=gaussian_policy_params,
+    export_actor=export_gaussian_actor,
+    validate=validate_continuous,
+    size_keys=GAUSSIAN_SIZE_KEYS,
+)
+# rpo is ppo whose loss shifts the policy mean by U(-rpo.alpha, rpo.alpha): only its iteration differs.
+ALGORITHMS = {"ppo": _PPO, "rpo": replace(_PPO, name="rpo", make_iteration=_make_rpo_iteration)}
