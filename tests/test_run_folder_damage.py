@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from canter.cli.main import main
+from canter.config.serialize import from_toml_text
 from canter.errors import CanterError
 from canter.training import run_folder
 from canter.training.logger import MetricsLogger, read_rows
@@ -250,6 +251,34 @@ def test_a_resume_of_a_run_stopped_before_its_summary_writes_it_and_trains_nothi
     # With its summary written it is a finished run, which a resume refuses as before.
     assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
     assert "already has 1190 of run.total_steps=1024 steps; pass a --total-steps" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("damage", ["malformed", "missing"])
+def test_a_resume_of_a_finished_run_with_a_damaged_config_writes_it_again_and_trains_nothing(
+    archived_run, capsys, damage
+):
+    """Every reader of such a config.toml advises `canter train --resume RUN` to write it again: for a finished run
+    that is all the resume does, and it succeeds, saying so once."""
+    config = archived_run / "config.toml"
+    kept = config.read_text()
+    if damage == "missing":
+        config.unlink()
+    else:
+        config.write_text("[broken")
+    summary = (archived_run / "summary.json").read_text()
+    checkpoints = sorted((archived_run / "checkpoints").iterdir())
+    assert main(["train", "--resume", str(archived_run)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.count("cannot be read") == 1, captured.err
+    assert (
+        f"canter: note: {archived_run} has trained its budget (1,190 steps), so nothing is trained: its config.toml "
+        "is written again from ckpt_000000001190.npz (pass a larger --total-steps to train it on)"
+    ) in captured.err
+    assert "steps 1,190 |" in captured.out and "stopped: budget" in captured.out
+    assert read_config(archived_run) == from_toml_text(kept, "kept")
+    assert (archived_run / "summary.json").read_text() == summary
+    assert sorted((archived_run / "checkpoints").iterdir()) == checkpoints
+    assert main(["plot", str(archived_run), "--out", str(archived_run.parent / "p.png")]) == 0
 
 
 def test_a_group_resume_writes_the_missing_summaries_of_its_finished_seeds(tmp_path, capsys):

@@ -35,6 +35,7 @@ from canter.training.resume import (
     check_one_group,
     check_same_experiment_and_seed,
     has_its_budget,
+    repair_config_of_a_finished_run,
     resume_config,
     saved_config,
     start_of_seed,
@@ -57,9 +58,11 @@ def train(
     run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
     `canter.config.experiment`), but not in its seed or in what is learned."""
     if resume is not None and has_its_budget(Path(resume), config):
-        check_same_experiment_and_seed(saved_config(Path(resume)), config, Path(resume))
+        check_same_experiment_and_seed(saved_config(Path(resume), note=False), config, Path(resume))
         if (summarized := summarize_if_it_ended(Path(resume))) is not None:
             return summarized
+        if (repaired := repair_config_of_a_finished_run(Path(resume))) is not None:
+            return repaired
     return _train_group([config], [resume], [run_dir], quiet)[0]
 
 
@@ -100,7 +103,11 @@ def resume_seeds(
     # Checked before the seeds: two runs of different experiments repeat seeds too, which would hide the cause.
     check_one_group(run_dirs, configs)
     finished = [has_its_budget(Path(d), c) for d, c in zip(run_dirs, configs)]
-    summarized = [summarize_if_it_ended(Path(d)) for d, done in zip(run_dirs, finished) if done]
+    summarized = [
+        summarize_if_it_ended(Path(d)) or repair_config_of_a_finished_run(Path(d))
+        for d, done in zip(run_dirs, finished)
+        if done
+    ]
     if all(finished) and any(summarized):  # what was left to do is done; a finished run is refused only otherwise
         return [result for result in summarized if result is not None]
     if len(run_dirs) > 1 and any(finished) and not all(finished):

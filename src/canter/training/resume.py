@@ -24,12 +24,13 @@ from canter.run_layout import (
     SUMMARY_FILE,
     StopReason,
     finished_without_checkpoints,
+    has_finished,
     read_summary,
     run_files_in,
 )
 from canter.training import checkpoint, run_folder, run_lock, trackers
 from canter.training.logger import checkpoint_totals, read_rows, row_steps
-from canter.training.seed_run import RunResult, SeedStart, reached_target, write_summary
+from canter.training.seed_run import RunResult, SeedStart, reached_target, read_result, write_summary
 
 
 class Saved(Enum):
@@ -112,6 +113,28 @@ def summarize_if_it_ended(run_dir: Path) -> RunResult | None:
     print(
         f"canter: note: {run_dir} had trained its budget ({step:,} steps) but stopped before writing its "
         f"{SUMMARY_FILE}, which is written now from its final checkpoint",
+        file=sys.stderr,
+    )
+    return result
+
+
+def repair_config_of_a_finished_run(run_dir: Path) -> RunResult | None:
+    """A finished run whose config.toml is missing or damaged has it written again from its newest checkpoint,
+    which is all that a resume of it has to do (and what every reader of such a file advises); None for any other
+    run."""
+    if not (_unreadable(run_dir / CONFIG_FILE) and has_finished(run_dir)):
+        return None
+    result = read_result(run_dir)
+    if result is None:
+        return None
+    with run_lock.RunLocks() as locks:
+        locks.take(run_dir)
+        newest = checkpoint.latest(run_dir)
+        run_folder.write_config(run_dir, header_config(checkpoint.read_header(newest), newest))
+        run_folder.migrate(run_dir)
+    print(
+        f"canter: note: {run_dir} has trained its budget ({result.global_step:,} steps), so nothing is trained: its "
+        f"{CONFIG_FILE} is written again from {newest.name} (pass a larger --total-steps to train it on)",
         file=sys.stderr,
     )
     return result
@@ -263,10 +286,11 @@ def _refuse_a_run_in(run_dir: Path) -> None:
         )
 
 
-def saved_config(run_dir: Path) -> Config:
+def saved_config(run_dir: Path, note: bool = True) -> Config:
     """The run's config.toml; where it is missing, empty or not TOML, the config its newest checkpoint holds (each
-    holds the run's whole config), with a note: the resume writes config.toml again, so the run loses nothing. A
-    file that reads but holds a value canter refuses stays an error: it was edited, and is not overwritten."""
+    holds the run's whole config), with a note (`note`: the first reading of it in this resume): the resume writes
+    config.toml again, so the run loses nothing. A file that reads but holds a value canter refuses stays an error:
+    it was edited, and is not overwritten."""
 
     run_folder.run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
     try:
@@ -276,6 +300,8 @@ def saved_config(run_dir: Path) -> Config:
             raise
         newest = checkpoint.latest(run_dir)
         config = header_config(checkpoint.read_header(newest), newest)
+        if not note:
+            return config
         print(
             f"canter: note: {run_dir / CONFIG_FILE} cannot be read ({_reason(damaged)}); resuming with "
             f"the config saved in {newest.name}, which this resume writes back to config.toml",

@@ -59,6 +59,28 @@ def env_header(spec: Any) -> dict[str, Any]:
     }
 
 
+def read_result(run_dir: Path) -> RunResult | None:
+    """What the run's summary.json records, as a RunResult of a session that trained nothing; None where the file
+    is missing, damaged, or holds a value of another type."""
+    summary = run_layout.read_summary(run_dir)
+    if summary is None:
+        return None
+    recent = summary.get("recent_return")
+    try:
+        return RunResult(
+            run_dir=Path(run_dir),
+            global_step=int(summary["global_step"]),
+            recent_return=None if recent is None else float(recent),
+            episodes=int(summary.get("episodes", 0)),
+            wall_seconds=float(summary.get("wall_seconds", 0.0)),
+            compile_seconds=0.0,
+            sps=float(summary.get("sps", 0.0)),
+            stop_reason=StopReason(summary["stop_reason"]),
+        )
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def write_summary(result: RunResult) -> dict[str, Any]:
     """Write the run's summary.json, whose run_dir is absolute (resolved) whether the run was started or resumed
     from a relative path; returns the summary."""
