@@ -141,6 +141,25 @@ def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
     one_line(capsys, argv, "cannot make the folder")
 
 
+def test_an_export_to_a_folder_says_so_first(tmp_path, capsys):
+    """A folder's name seldom tells a format: the fix is a file name inside it, whatever --format says."""
+    for flags in ([], ["--format", "npz"]):
+        one_line(capsys, ["export", str(ARCHIVED_RUN), "--out", str(tmp_path), *flags], "it is a folder; give a file")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_resume_of_a_file_or_of_a_folder_of_runs_names_what_to_pass(tmp_path, capsys):
+    """As eval, plot and report say it: the folder that holds the file, or the run folders inside."""
+    import shutil
+
+    for name in ("a", "b"):
+        shutil.copytree(ARCHIVED_RUN, tmp_path / name)
+    checkpoint = sorted((tmp_path / "a" / "checkpoints").iterdir())[-1]
+    for given in (tmp_path / "a" / "config.toml", checkpoint):
+        one_line(capsys, ["train", "--resume", str(given)], "is a file, not a run folder; pass the run folder that")
+    one_line(capsys, ["train", "--resume", str(tmp_path)], "is not a run folder but holds 2 (a bench's?): pass them")
+
+
 def test_a_jax_platform_this_machine_lacks_is_one_line():
     code = "import sys; from canter.cli.main import main; sys.exit(main(['eval', sys.argv[1], '--episodes', '1']))"
     env = dict(os.environ, JAX_PLATFORMS="cuda")

@@ -34,6 +34,8 @@ def check_output_path(path: str, flag: str, example: str) -> None:
     making its folder would only say "File exists"). Checked without writing anything."""
     if not path.strip():
         raise CanterError(f"{flag} is empty; give the file to write, e.g. {flag} {example}")
+    if Path(path).is_dir() and not Path(path).is_symlink():  # before its format is read from its name
+        raise CanterError(f"cannot write {path}: it is a folder; give a file name, e.g. {flag} {Path(path) / example}")
     for folder in Path(path).parents:  # the nearest that exists decides
         if folder.exists():
             if not folder.is_dir():

@@ -345,8 +345,9 @@ def resume_config(
     """The saved config of a run, with only its budget changed: the step budget, the wall-minute limit of the
     resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run), and
     the return target (a bench re-run gives its own; None: no target)."""
-    if not Path(run_dir).is_dir():
-        raise CanterError(f"run folder not found: {run_dir}")
+    if Path(run_dir).is_file():  # a checkpoint too: a resume goes on from the run's newest
+        raise CanterError(f"{run_dir} is a file, not a run folder; pass the run folder that holds it")
+    checkpoint.need_run_folder(Path(run_dir))
     config = saved_config(Path(run_dir))
     if total_steps is not None:
         config = config.with_values("run", total_steps=int(total_steps))
