@@ -292,6 +292,7 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     for argv, message in [
         (["train", "Pendulum-v1", "--eval-episodes", "3"], "also pass --eval-every N"),
         (["train", "Pendulum-v1", "--set", "run.eval_backend=auto"], "run.eval_backend sets where the evaluations"),
+        (["train", "Pendulum-v1", "--set", "run.eval_episodes=3"], "--set run.eval_episodes sets the episodes of each"),
         (["train", "Pendulum-v1", "--set", "run.eval_every=-1"], "run.eval_every must be >= 0"),
         (["train", "Pendulum-v1", "--eval-every", "1000", "--eval-episodes", "0"], "run.eval_episodes must be >= 1"),
         (["train", "Pendulum-v1", "--eval-every", "0"], "expected a positive whole step count"),

@@ -106,6 +106,12 @@ _RUN_KEY_FLAGS = {
     "eval_every": "run.eval_every",
     "eval_episodes": "run.eval_episodes",
 }
+# What each setting of the evaluations during training sets; each needs run.eval_every.
+_EVALUATION_SETTINGS = {
+    "--eval-episodes": "the episodes of each evaluation",
+    "--set run.eval_episodes": "the episodes of each evaluation",
+    "--set run.eval_backend": "where the evaluations play",
+}
 # What --resume may be given besides run folders: the budget and how the run is shown and tracked.
 _RESUME_FLAGS = "--total-steps, --max-minutes, --stop-at-return, --quiet, --track and --mlflow-uri"
 
@@ -170,12 +176,12 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
         flags=extra,
         file_holds_every_section=bool(args.config) and holds_every_section(args.config),
     )
-    if args.eval_episodes is not None and not config.run.eval_every:
-        raise CanterError(
-            "--eval-episodes sets the episodes of each evaluation during training; also pass --eval-every N"
-        )
-    if "run.eval_backend" in parse_set_args(list(args.set)) and not config.run.eval_every:
-        raise CanterError("run.eval_backend sets where the evaluations during training play; also pass --eval-every N")
+    if not config.run.eval_every:  # the settings of evaluations during training would change nothing without them
+        set_keys = parse_set_args(list(args.set))
+        given = {"--eval-episodes": args.eval_episodes is not None}
+        given |= {f"--set {key}": key in set_keys for key in ("run.eval_episodes", "run.eval_backend")}
+        for flag in (flag for flag, present in given.items() if present):
+            raise CanterError(f"{flag} sets {_EVALUATION_SETTINGS[flag]} during training; also pass --eval-every N")
     from canter.config.algorithms import warm_up_note
     from canter.training.loop import train, train_seeds
 
