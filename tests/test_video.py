@@ -315,3 +315,11 @@ def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(a
         TrainingVideos(archived_run, every=500, start_step=1190, resumed=True).close()
     assert sorted(p.name for p in folder.iterdir() if not p.name.startswith("render")) == ["step_000000000714.mp4"]
     assert len(frames_of(folder / "step_000000000714.mp4")) > 1
+
+
+def test_a_run_on_brax_own_envs_is_told_it_has_no_video():
+    """canter renders through Gymnasium's envs, which Brax's own models are not."""
+    from canter.use.video import _GymnasiumPlayer
+
+    with pytest.raises(CanterError, match=r"cannot replay ant: .*--backend brax, has no video; canter eval scores it"):
+        _GymnasiumPlayer("ant", 64, 64, None)

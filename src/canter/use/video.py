@@ -177,7 +177,10 @@ class _GymnasiumPlayer:
         try:
             resolve_backend(env_id, backend.name)
         except CanterError:
-            raise CanterError(f"cannot replay {env_id}: Gymnasium has no such env to render") from None
+            raise CanterError(
+                f"cannot replay {env_id}: Gymnasium has no such env to render, and canter renders through Gymnasium "
+                f"(a run on Brax's own envs, --backend brax, has no video; canter eval scores it)"
+            ) from None
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
         self.env_id = env_id
         self.size = (width, height)
