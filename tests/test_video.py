@@ -323,3 +323,16 @@ def test_a_run_on_brax_own_envs_is_told_it_has_no_video():
 
     with pytest.raises(CanterError, match=r"cannot replay ant: .*--backend brax, has no video; canter eval scores it"):
         _GymnasiumPlayer("ant", 64, 64, None)
+
+
+@pytest.mark.parametrize(("gl", "message"), [("bogus", "is not one of MuJoCo's renderers"), ("disable", "turns")])
+def test_training_with_videos_refuses_a_renderer_it_cannot_use_before_its_folder(
+    tmp_path, capsys, monkeypatch, gl, message
+):
+    """A renderer that fails later costs only its videos; one that the environment names wrongly is bad input."""
+    monkeypatch.setenv("MUJOCO_GL", gl)
+    argv = ["train", "InvertedPendulum-v5", "--video-every", "1000", "--total-steps", "512", "--out-dir", str(tmp_path)]
+    assert main([*argv, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"canter: error: MUJOCO_GL={gl} {message}" in err, err
+    assert list(tmp_path.iterdir()) == []

@@ -182,6 +182,10 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
         given |= {f"--set {key}": key in set_keys for key in ("run.eval_episodes", "run.eval_backend")}
         for flag in (flag for flag, present in given.items() if present):
             raise CanterError(f"{flag} sets {_EVALUATION_SETTINGS[flag]} during training; also pass --eval-every N")
+    if config.run.video_every:
+        from canter.use.video import check_renderer
+
+        check_renderer()
     from canter.config.algorithms import warm_up_note
     from canter.training.loop import train, train_seeds
 

@@ -101,11 +101,7 @@ def configure_gl() -> str:
     """Choose MUJOCO_GL for this process (a user's choice is kept if it works) and return it."""
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
-        if chosen.lower().strip() not in MUJOCO_GL_VALUES:
-            raise CanterError(
-                f"MUJOCO_GL={chosen} is not one of MuJoCo's renderers; set egl or osmesa (headless), glfw, glx, cgl "
-                f"or wgl (a display), or unset it to let canter choose"
-            )
+        check_renderer_name(chosen)
         if chosen in GL_PACKAGES and "mujoco" not in sys.modules and not _probe(chosen):
             raise CanterError(unavailable_message([chosen]))
         return chosen
@@ -122,6 +118,15 @@ def configure_gl() -> str:
     raise CanterError(unavailable_message(list(GL_PACKAGES)))
 
 
+def check_renderer_name(chosen: str) -> None:
+    """Refuse a MUJOCO_GL that names none of MuJoCo's renderers."""
+    if chosen.lower().strip() not in MUJOCO_GL_VALUES:
+        raise CanterError(
+            f"MUJOCO_GL={chosen} is not one of MuJoCo's renderers; set egl or osmesa (headless), glfw, glx, cgl "
+            f"or wgl (a display), or unset it to let canter choose"
+        )
+
+
 def renderer_problem(chosen: str, system: str, environ: Mapping[str, str]) -> str | None:
     """Why MUJOCO_GL=`chosen` cannot render on this `system` (platform.system()) with these environment variables,
     or None. Kept apart from `configure_gl`, which accepts every name MuJoCo knows, whatever the machine."""
@@ -136,7 +141,10 @@ def renderer_problem(chosen: str, system: str, environ: Mapping[str, str]) -> st
 
 
 def check_renderer() -> None:
-    """Refuse, in one line and before any rendering, a MUJOCO_GL that cannot render here."""
+    """Refuse, in one line and before any rendering, a MUJOCO_GL that cannot render here. Training with videos
+    checks it before its run folder is made: a renderer that fails later costs only its videos."""
+    if os.environ.get("MUJOCO_GL"):
+        check_renderer_name(os.environ["MUJOCO_GL"])
     problem = renderer_problem(os.environ.get("MUJOCO_GL", ""), platform.system(), os.environ)
     if problem:
         raise CanterError(problem)
