@@ -173,6 +173,19 @@ def test_unknown_ids_and_spaces_are_clear_errors():
     assert resolve_backend("Hopper-v5", "auto") == "envpool"
 
 
+def test_a_custom_module_whose_dependency_is_missing_names_the_dependency(tmp_path, monkeypatch):
+    """The module is found: what is missing is what it imports, and its traceback shows where."""
+    (tmp_path / "needs_a_dependency.py").write_text("import no_such_dependency\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(CanterError) as refused:
+        resolve_backend("needs_a_dependency:Env-v0", "auto")
+    assert str(refused.value) == (
+        "module 'needs_a_dependency' for env 'needs_a_dependency:Env-v0' imports 'no_such_dependency', which is "
+        "missing (No module named 'no_such_dependency'); install it, or see the full traceback with: python -c "
+        '"import needs_a_dependency"'
+    )
+
+
 def test_sharded_pools_step_like_one_pool():
     """Splitting the envs over concurrent single-threaded pools, evenly or not (5 envs: 3 + 2, 2 + 2 + 1), changes
     nothing but speed: every env gets its own action and seed whatever pool it lands in (each env's actions differ)."""

@@ -40,7 +40,14 @@ class GymnasiumBackend(Backend):
             )
         try:
             importlib.import_module(module)
-        except ImportError as exc:
+        except ModuleNotFoundError as exc:
+            missing = exc.name or ""
+            # The module itself, or a package above it: it is not installed. Anything else is what it imports.
+            if missing and not (module == missing or module.startswith(f"{missing}.")):
+                raise CanterError(
+                    f"module '{module}' for env '{env_id}' imports '{missing}', which is missing ({exc}); install "
+                    f'it, or see the full traceback with: python -c "import {module}"'
+                ) from None
             raise CanterError(
                 f"cannot import module '{module}' for env '{env_id}' ({exc}); check that it is "
                 f"installed or on PYTHONPATH"
