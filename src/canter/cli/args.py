@@ -35,10 +35,21 @@ def seed_arg(text: str) -> int:
     return seed
 
 
+def comma_entries(text: str) -> list[str]:
+    """The entries of a comma-separated flag value, stripped. An empty one (`a,`, `a,,b`, `,`) is refused, not
+    dropped: it is a slip, such as an entry lost in editing, and dropped it would run one cell or draw one panel fewer
+    than the user meant, or leave a flag of commas alone at its default."""
+    entries = [entry.strip() for entry in text.split(",")]
+    if len(entries) > 1 and "" in entries:  # a blank value is another slip, which each flag words itself
+        raise argparse.ArgumentTypeError(f"{text!r} has an empty entry; drop the stray comma or fill in the entry")
+    return entries
+
+
 def seeds_arg(text: str) -> tuple[int, ...]:
     """`0,1,2` -> (0, 1, 2): distinct whole numbers separated by commas."""
+    entries = comma_entries(text)
     try:
-        seeds = tuple(int(part) for part in text.split(","))
+        seeds = tuple(int(part) for part in entries)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected whole numbers separated by commas such as 0,1,2, got {text!r}"

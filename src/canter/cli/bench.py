@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_backend_arg, add_track_args, seeds_arg, sets_with_backend, steps_arg, track_spec
+from canter.cli.args import (
+    add_backend_arg,
+    add_track_args,
+    comma_entries,
+    seeds_arg,
+    sets_with_backend,
+    steps_arg,
+    track_spec,
+)
 
 
 def _names(text: str) -> tuple[str, ...]:
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    names = tuple(name for name in comma_entries(text) if name)
     if not names:
         raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
     if len(set(names)) != len(names):  # a repeat would be a second cell counting the same runs again

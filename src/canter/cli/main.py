@@ -41,6 +41,18 @@ def _unrecognized(parser: argparse.ArgumentParser, command: str | None, extra: l
     )
 
 
+def _check_command(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """A mistyped command gets the closest one, as a mistyped flag does; argparse would only list them all."""
+    commands = _subcommands(parser)
+    # canter's own options (--help, --version) take no value, so the first other word is the command.
+    word = next((word for word in argv if not word.startswith("-")), None)
+    if word is None or word in commands:
+        return
+    close = difflib.get_close_matches(word.lower(), list(commands), n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]}?" if close else f"commands are {', '.join(commands)}"
+    raise CanterError(f"invalid choice of command: {word!r}; {hint} (see --help)")
+
+
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
 
@@ -88,7 +100,9 @@ def _version() -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
-        argv = _join_dashed_values(parser, list(sys.argv[1:] if argv is None else argv))
+        argv = list(sys.argv[1:] if argv is None else argv)
+        _check_command(parser, argv)
+        argv = _join_dashed_values(parser, argv)
         args, extra = parser.parse_known_args(argv)
         if extra:
             raise _unrecognized(parser, args.command, extra)

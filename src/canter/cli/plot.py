@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import check_distinct_runs, seed_arg
+from canter.cli.args import check_distinct_runs, comma_entries, seed_arg
+from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
 
@@ -34,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--metrics",
+        type=comma_entries,
         default=None,
         metavar="COL,COL",
         help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' (default: all but info/*)",
@@ -48,7 +50,9 @@ def run(args: argparse.Namespace) -> int:
     check_distinct_runs(args.runs)
     fmt = figure_format(args.out)
     check_writable(args.out)
-    metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
+    if args.metrics == [""]:
+        raise CanterError("--metrics is empty; give metrics.csv columns, e.g. --metrics episodic_return,value_loss")
+    metrics = args.metrics
     data = render(args.runs, fmt=fmt, metrics=metrics, x_axis=args.x, smooth=args.smooth, seed=args.seed)
     write_output(args.out, data)
     print(f"wrote {args.out}")

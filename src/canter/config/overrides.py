@@ -9,6 +9,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from canter.config.peer_names import joined, peer_keys
 from canter.config.schema import Config, field_names, section_names
 from canter.config.values import coerce, field_types
 from canter.errors import CanterError
@@ -23,9 +24,21 @@ def close_keys(key: str) -> list[str]:
     return difflib.get_close_matches(key, all_keys(), n=3, cutoff=0.5)
 
 
-def unknown_key_error(key: str, source: str) -> CanterError:
+def key_suggestion(key: str) -> str | None:
+    """'did you mean ...?' for an unknown config key: canter's name for another library's, else the closest keys;
+    None if nothing is close. The one hint of --set, --config, --grid and --space alike."""
+    peer = peer_keys(key, all_keys())
+    if peer is not None:
+        names, keys = peer
+        libraries = joined([f"{library}'s" for library in names.libraries])
+        return f"did you mean {joined(keys)}? ({libraries} {names.name}{names.note})"
     close = close_keys(key)
-    hint = f"; did you mean {', '.join(close)}?" if close else f"; sections are {', '.join(section_names())}"
+    return f"did you mean {', '.join(close)}?" if close else None
+
+
+def unknown_key_error(key: str, source: str) -> CanterError:
+    suggestion = key_suggestion(key)
+    hint = f"; {suggestion}" if suggestion else f"; sections are {', '.join(section_names())}"
     return CanterError(f"unknown config key '{key}' in {source}{hint}")
 
 

@@ -115,9 +115,11 @@ def canonical(value: Any) -> str:
 def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
     key, sep, values = text.partition("=")
     key = key.strip()
-    items = tuple(v.strip() for v in values.split(",") if v.strip())
-    if not sep or not key or not items:
+    items = tuple(v.strip() for v in values.split(","))
+    if not sep or not key or items == ("",):
         raise CanterError(f"--grid expects KEY=V1,V2,... such as ppo.ent_coef=0.01,1e-4,0; got {text!r}")
+    if "" in items:  # a slip, as in --seeds: dropped, it would bench one value fewer than was typed
+        raise CanterError(f"--grid {text!r} has an empty value; drop the stray comma or fill in the value")
     return key, items
 
 

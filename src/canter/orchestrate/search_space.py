@@ -29,7 +29,7 @@ from types import MappingProxyType
 from typing import Any
 
 from canter.config.algorithms import algorithm_spec
-from canter.config.overrides import all_keys, apply_overrides, close_keys, load_toml
+from canter.config.overrides import all_keys, apply_overrides, key_suggestion, load_toml
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.config.values import coerce, field_types
@@ -138,8 +138,8 @@ def parse_space(data: dict[str, Any], source: str, fixed: Mapping[str, str] = _N
         for name, spec in table.items():
             key = f"{section}.{name}"
             if key not in known:
-                close = close_keys(key)
-                hint = f"; did you mean {', '.join(close)}?" if close else "; keys are config keys like ppo.lr"
+                suggestion = key_suggestion(key)
+                hint = f"; {suggestion}" if suggestion else "; keys are config keys like ppo.lr"
                 raise CanterError(f"{source}: unknown hyperparameter '{key}'{hint}")
             if key in fixed:
                 raise CanterError(
