@@ -69,8 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=60,
         metavar="SECONDS",
-        help="trial heartbeat interval; a trial silent for 3x this, or whose worker on this machine is gone, is "
-        "failed and retried",
+        help="trial heartbeat interval (default %(default)s); a trial silent for 3x this, or whose worker on this "
+        "machine is gone, is failed and retried",
     )
     t.add_argument(
         "--sampler-seed",

@@ -6,6 +6,10 @@ Both lock the folder's writer lock file (`canter.training.run_lock`): a local be
 a worker of a shared grid a shared flock on the same file, which the grid's other workers share with it. A worker
 records itself in the file as a writer does, with the storage it shares the grid through, so that a refused local
 bench names it.
+
+A folder that another command writes is no bench folder: a run folder, and a study folder of `canter tune` or the
+--out-dir that holds its study folders, are refused as --out (`refuse_run_folder`), as tune refuses a bench folder
+(`bench_files_in`); `canter.orchestrate.study.study_files_in` tells a study folder.
 """
 
 from __future__ import annotations
@@ -18,15 +22,34 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import WriteError, is_write_error
-from canter.orchestrate.study import redacted
+from canter.orchestrate.study import redacted, study_files_in
 from canter.training import run_lock
 
 STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid, not a local bench
+CELLS_FOLDER = ".cells"  # each job's job.json and train.log (`bench_local`, `bench_distributed`)
+
+
+def bench_files_in(folder: Path) -> list[str]:
+    """What marks `folder` as a bench's --out folder: its jobs' .cells/ folder, its tables, or a writer lock that a
+    bench took; empty for any other folder. A results.md alone may be the user's own notes, so the tables count only
+    together with results.csv."""
+    from canter.orchestrate.bench_results import RESULT_FILES
+
+    folder = Path(folder)
+    held = [f"{CELLS_FOLDER}/"] * (folder / CELLS_FOLDER).is_dir()
+    tables = [name for name in RESULT_FILES if (folder / name).is_file()]
+    if {"results.md", "results.csv"} <= set(tables):
+        held += tables
+    holder = run_lock.read_holder(folder)
+    if STORAGE_KEY in holder or str(holder.get("command", "")).split()[:2] == ["canter", "bench"]:
+        held.append(f"a bench's {run_lock.LOCK_FILE}")
+    return held
 
 
 def refuse_run_folder(bench_dir: Path) -> None:
-    """Refuse a run folder given as --out: the bench would write its tables and job folders among the run's files, and
-    take over the writer lock of the run (its own lock file, `canter.training.run_lock`)."""
+    """Refuse a run folder or tune's folders given as --out: the bench would write its tables and job folders among
+    the run's files, and take over the writer lock of the run (its own lock file, `canter.training.run_lock`), or
+    write them beside a study's database and trials."""
     from canter.run_layout import CHECKPOINT_FOLDER, RUN_OWN_FILES, run_files_in, surely_a_run
 
     # A config.toml alone may be the user's own base config for the bench (--config OUT/config.toml); a bench folder
@@ -37,6 +60,29 @@ def refuse_run_folder(bench_dir: Path) -> None:
         raise CanterError(
             f"--out {bench_dir} is a run folder (it holds {' and '.join(held)}), not a bench folder; give a new "
             f"--out, in which the bench makes a run folder for each cell and seed"
+        )
+    _refuse_tune_folder(bench_dir)
+
+
+def _refuse_tune_folder(bench_dir: Path) -> None:
+    """Refuse a study folder of `canter tune`, or its --out-dir, given as --out."""
+    study = study_files_in(bench_dir)
+    if study:
+        raise CanterError(
+            f"--out {bench_dir} is a study folder of canter tune (it holds {' and '.join(study)}), not a bench "
+            f"folder; give a new --out, in which the bench makes a run folder for each cell and seed"
+        )
+    if not bench_dir.is_dir():
+        return
+    studies = sorted(p.name for p in bench_dir.iterdir() if p.is_dir() and study_files_in(p))
+    if studies:
+        shown = ", ".join(f"{name}/" for name in studies[:3]) + (
+            f" and {len(studies) - 3} more" if len(studies) > 3 else ""
+        )
+        raise CanterError(
+            f"--out {bench_dir} is an --out-dir of canter tune (it holds the study folder{'s' * (len(studies) > 1)} "
+            f"{shown}), not a bench folder; give a new --out, in which the bench makes a run folder for each cell "
+            f"and seed"
         )
 
 

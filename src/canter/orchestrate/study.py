@@ -52,6 +52,10 @@ SETTINGS_ATTR = "canter_settings"
 # its job (`canter.orchestrate.bench_distributed.JOB_ATTR`), a tune trial the preset it trained (`tune.PRESET_ATTR`).
 TRIAL_MARKS = {"bench": "job", "tune": "preset"}
 GRACE_HEARTBEATS = 3  # a trial whose worker missed this many heartbeats is failed and retried
+# A tune study's folder: its SQLite database, unless --storage is given, and its trials' folders.
+DB_FILE = "study.db"
+TRIALS_FOLDER = "trials"
+_TRIAL_FOLDER = re.compile(r"trial_[0-9]{5,}")
 
 
 def check_at_least(limits: Iterable[tuple[str, float, float]]) -> None:
@@ -85,6 +89,38 @@ def claim_study(study: Any, command: str) -> None:
         )
     if marked is None:
         study.set_user_attr(COMMAND_ATTR, command)
+
+
+def study_files_in(folder: Path) -> list[str]:
+    """What marks `folder` as a study folder of tune: a study.db that holds a tune study, or trials/ with trial
+    folders in it; empty for any other folder. A best.toml or summary.md alone may be a copy the user keeps, and a
+    bench that shares its grid through a SQLite --storage may keep its database under the same name."""
+    folder = Path(folder)
+    held = [DB_FILE] * _holds_a_tune_study(folder / DB_FILE)
+    trials = folder / TRIALS_FOLDER
+    if trials.is_dir() and any(_TRIAL_FOLDER.fullmatch(p.name) and p.is_dir() for p in trials.iterdir()):
+        held.append(f"{TRIALS_FOLDER}/")
+    return held
+
+
+def _holds_a_tune_study(db: Path) -> bool:
+    """Whether the SQLite file `db` holds a study that tune made, read without writing to it (a worker may be using
+    it); False for anything that cannot be read as an Optuna database."""
+    import json
+    import sqlite3
+
+    if not db.is_file():
+        return False
+    try:
+        uri = f"{db.resolve().as_uri()}?mode=ro"
+        with contextlib.closing(sqlite3.connect(uri, uri=True, timeout=5)) as connection:
+            rows = connection.execute(
+                "SELECT key, value_json FROM study_user_attributes WHERE key IN (?, ?)", (COMMAND_ATTR, SETTINGS_ATTR)
+            ).fetchall()
+        # A study from before COMMAND_ATTR was kept is tune's by its settings (`_maker`).
+        return any(key == SETTINGS_ATTR or json.loads(value) == "tune" for key, value in rows)
+    except (sqlite3.Error, ValueError, OSError):
+        return False
 
 
 @dataclass(frozen=True)

@@ -40,14 +40,17 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError
 from canter.files import make_folder, refuse_inside_run_own_folder
+from canter.orchestrate.bench_folder import bench_files_in
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.job_resources import worker_count
 from canter.orchestrate.jobs import JobSpec, failure_reason, start_job, stop_jobs
 from canter.orchestrate.search_space import SearchSpace, apply_sample, load_space
 from canter.orchestrate.study import (
+    DB_FILE,
     FAIL_REASON,
     SETTINGS_ATTR,
     TRIAL_MARKS,
+    TRIALS_FOLDER,
     Outcome,
     StorageSettings,
     check_at_least,
@@ -63,7 +66,6 @@ from canter.run_layout import METRICS_FILE
 from canter.training.logger import cell_number, read_rows, row_steps
 from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
-DB_FILE = "study.db"
 BEST_FILE = "best.toml"
 STUDY_SUMMARY_FILE = "summary.md"
 PRESET_ATTR = TRIAL_MARKS["tune"]
@@ -133,6 +135,46 @@ class TuneSettings:
     @property
     def eval_interval(self) -> int:
         return max(1, math.ceil(self.total_steps / self.evaluations))
+
+
+def refuse_bench_folder(settings: TuneSettings) -> None:
+    """Refuse an --out-dir, or a study folder, that is a bench's --out folder: the study would write its database,
+    trials and tables among the bench's run folders and results."""
+    held = bench_files_in(Path(settings.out_dir))
+    if held:
+        raise CanterError(
+            f"--out-dir {settings.out_dir} is a folder of canter bench (it holds {_listed(held)}), not a folder for "
+            f"tune studies; give another --out-dir"
+        )
+    held = bench_files_in(settings.study_dir)
+    if held:
+        raise CanterError(
+            f"the study folder {settings.study_dir} (--out-dir/--study) is a folder of canter bench (it holds "
+            f"{_listed(held)}); give another --out-dir or --study"
+        )
+
+
+def _listed(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
+def _missing_folders(folder: Path) -> list[Path]:
+    """`folder` and each folder above it that does not exist yet, innermost first: those that making it makes."""
+    missing = []
+    for part in (folder, *folder.absolute().parents):
+        if part.exists() or part.is_symlink():
+            break
+        missing.append(part)
+    return missing
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove `folders`, innermost first, up to the first that holds something."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:  # it holds something (another command's study, say), so it and those above it stay
+            return
 
 
 # A study's folder is OUT_DIR/STUDY: a name with a path in it would put the study elsewhere, or nest it. Any other
@@ -312,7 +354,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     from canter.training import checkpoint
 
     values = space.suggest(trial)
-    trial_dir = settings.study_dir / "trials" / f"trial_{trial.number:05d}"
+    trial_dir = settings.study_dir / TRIALS_FOLDER / f"trial_{trial.number:05d}"
     try:
         config = trial_config(base, values, trial_dir, settings)
     except CanterError as exc:
@@ -557,21 +599,23 @@ def tune(settings: TuneSettings) -> Any:
     refuse_inside_run_own_folder(settings.out_dir, "--out-dir")
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     check_jobs(settings.jobs)  # before the study folder is made
-    if settings.storage_url is None:
-        make_folder(settings.study_dir)  # the SQLite file's folder
-    storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
-    made = settings.storage_url is not None and not settings.study_dir.exists()
-    if settings.storage_url is not None:
-        make_folder(settings.study_dir)  # the trials' folders, once the storage is reached, before a trial is stored
-    study = make_study(settings, storage)
-    trials_before = len(study.get_trials(deepcopy=False))  # one count for every worker's sampler seed
-    wanted = study_settings(settings, base, space)
-    check = functools.partial(check_study_settings, study, wanted, settings.study_dir / "trials")
+    refuse_bench_folder(settings)
+    # A refused command leaves no folder behind: neither the study folder nor the --out-dir above it, when it made
+    # them and they still hold nothing.
+    made = _missing_folders(settings.study_dir)
     try:
-        retrying(check, settings.storage.url, "reading the study")
-    except CanterError:  # another command's study, or other settings: a refused command leaves no folder behind
-        if made and not any(settings.study_dir.iterdir()):
-            settings.study_dir.rmdir()
+        if settings.storage_url is None:
+            make_folder(settings.study_dir)  # the SQLite file's folder
+        storage = open_storage(settings.storage)  # a bad URL fails here, before any worker starts
+        if settings.storage_url is not None:
+            make_folder(settings.study_dir)  # the trials' folders, once the storage is reached, before any trial
+        study = make_study(settings, storage)
+        trials_before = len(study.get_trials(deepcopy=False))  # one count for every worker's sampler seed
+        wanted = study_settings(settings, base, space)
+        check = functools.partial(check_study_settings, study, wanted, settings.study_dir / TRIALS_FOLDER)
+        retrying(check, settings.storage.url, "reading the study")  # another command's study, or other settings
+    except BaseException:
+        _remove_empty(made)
         raise
     if trials_before:
         print(
