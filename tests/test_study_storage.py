@@ -95,6 +95,21 @@ def test_a_sqlite_folder_that_does_not_exist_cannot_connect(tmp_path):
     assert not (tmp_path / "missing").exists()
 
 
+def test_a_sqlite_path_meant_absolute_names_the_fourth_slash(tmp_path, monkeypatch):
+    """sqlite:///tmp/x.db is tmp/x.db under the current folder, a slip for /tmp/x.db that SQLite words as 'unable to
+    open database file'."""
+    monkeypatch.chdir(tmp_path)
+    meant = tmp_path / "study.db"
+    url = f"sqlite://{meant}"  # three slashes before a path without its leading one
+    with pytest.raises(CanterError) as refused:
+        open_storage(StorageSettings(url))
+    relative = str(meant).lstrip("/")
+    assert str(refused.value).endswith(
+        f"; sqlite:///{relative} is relative to the current folder: for /{relative}, write sqlite:////{relative}"
+    ), refused.value
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_workers_wait_out_a_database_restart_and_no_trial_is_lost_or_counted_twice(postgres_url):  # noqa: F811
     """The server stops while a trial runs. A worker that waits long enough records the trial once the server is
     back; one whose patience runs out stops with one line, leaving its trial running, which the next worker fails by

@@ -206,6 +206,16 @@ def _schema_lock(engine: Any, driver: str) -> Iterator[None]:
             connection.execute(sqlalchemy.text("SELECT pg_advisory_unlock(:key)"), {"key": _SCHEMA_LOCK_KEY})
 
 
+def _absolute_path_hint(driver: str, path: str) -> str:
+    """sqlite:///tmp/x.db names tmp/x.db under the current folder; an absolute path takes a fourth slash. Said where
+    the relative path's folder is missing and the absolute one's is there, as when the user meant /tmp/x.db."""
+    if not driver.startswith("sqlite") or not path or Path(path).is_absolute() or Path(path).parent.is_dir():
+        return ""
+    if not Path("/", path).parent.is_dir():
+        return ""
+    return f"; sqlite:///{path} is relative to the current folder: for /{path}, write sqlite:////{path}"
+
+
 def open_storage(settings: StorageSettings) -> Any:
     """An RDBStorage with heartbeats and failed-trial retry, or a one-line error naming the host and driver that
     says "cannot connect" only when the connection failed. Any number of workers may open an empty database at
@@ -236,7 +246,9 @@ def open_storage(settings: StorageSettings) -> Any:
             f"cannot connect to the {driver} storage at {host}: its database driver is not installed; {hint}"
         ) from None
     except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
-        raise CanterError(f"cannot connect to the {driver} storage at {host}: {_reason(exc)}") from None
+        raise CanterError(
+            f"cannot connect to the {driver} storage at {host}: {_reason(exc)}{_absolute_path_hint(driver, host)}"
+        ) from None
     try:
         attempt = 0
         while True:
