@@ -5,7 +5,8 @@ import math
 import pytest
 
 from canter.errors import CanterError
-from canter.training.logger import BASE_COLUMNS, MetricsLogger, Progress, Totals, totals_until
+from canter.training.logger import BASE_COLUMNS, MetricsLogger, Totals, totals_until
+from canter.training.progress import Progress
 
 
 def read_rows(path):
