@@ -218,11 +218,13 @@ def test_tune_reads_evaluations_past_a_byte_order_mark_and_refuses_a_damaged_fil
     rows = "global_step,eval/return_mean,eval/episodes\n500,-3.5,1\n1000,-1.5,1\n1200,-9"  # the last: half-written
     (tmp_path / METRICS_FILE).write_text("\ufeff" + rows, encoding="utf-8")
     assert logged_evaluations(tmp_path, settings) == {1: -3.5, 2: -1.5}
-    # A damaged step is skipped, a damaged return reads as a diverged (NaN) evaluation; neither stops the study.
+    # A damaged step or return is skipped, and stops nothing; a NaN return is a diverged evaluation, and counts.
     (tmp_path / METRICS_FILE).write_text(rows.replace("500,", "5x0,").replace("-1.5", "-1.x"), encoding="utf-8")
-    found = logged_evaluations(tmp_path, settings)
-    assert list(found) == [2] and math.isnan(found[2])
+    assert logged_evaluations(tmp_path, settings) == {}
     assert logged_steps(tmp_path) == 1000
+    (tmp_path / METRICS_FILE).write_text(rows.replace("-1.5", "nan"), encoding="utf-8")
+    found = logged_evaluations(tmp_path, settings)
+    assert found[1] == -3.5 and math.isnan(found[2])
     (tmp_path / METRICS_FILE).write_text("global_step,eval/return_mean,eval/episodes\n500," + "9" * 200_000 + ",1\n")
     with pytest.raises(CanterError, match=r"metrics\.csv is damaged .*; restore it from a copy, or move it away"):
         logged_evaluations(tmp_path, settings)

@@ -498,6 +498,9 @@ def test_only_a_summary_of_a_finished_run_marks_a_folder_without_checkpoints_as_
         assert finished_without_checkpoints(tmp_path) is finished, reason
     (tmp_path / "summary.json").write_text("[not a summary")
     assert not finished_without_checkpoints(tmp_path)
+    for reason in (["budget"], {"why": "budget"}, 3):  # hand-edited: not a reason canter writes
+        (tmp_path / "summary.json").write_text(json.dumps({"global_step": 0, "stop_reason": reason}))
+        assert not finished_without_checkpoints(tmp_path), reason
     (tmp_path / "eval.json").write_text("{}")  # only a bench evaluates a run that has finished
     assert finished_without_checkpoints(tmp_path)
 

@@ -88,8 +88,8 @@ def has_finished(folder: Path) -> bool:
     held = run_files_in(folder)
     if held & {EVAL_FILE, ARCHIVED_METRICS_FILE}:
         return True
-    summary = read_summary(folder)
-    return summary is not None and summary.get("stop_reason") in FINISHED
+    reason = (read_summary(folder) or {}).get("stop_reason")
+    return isinstance(reason, str) and reason in FINISHED  # a hand-edited value may be a list, which no set holds
 
 
 def finished_without_checkpoints(folder: Path) -> bool:

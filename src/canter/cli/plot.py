@@ -51,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
     fmt = figure_format(args.out)
     check_writable(args.out)
     if args.metrics == [""]:
-        raise CanterError("--metrics is empty; give metrics.csv columns, e.g. --metrics episodic_return,value_loss")
+        raise CanterError(
+            "--metrics is empty; give metrics.csv columns, e.g. --metrics episodic_return,episodic_length"
+        )
     metrics = args.metrics
     data = render(args.runs, fmt=fmt, metrics=metrics, x_axis=args.x, smooth=args.smooth, seed=args.seed)
     write_output(args.out, data)

@@ -320,9 +320,11 @@ def logged_evaluations(run_dir: Path, settings: TuneSettings) -> dict[int, float
     trainer is still writing is left for the next look)."""
     found = {}
     for row in read_rows(run_dir / METRICS_FILE)[1]:
-        step = cell_number(row.get("global_step"))
-        if math.isfinite(step) and row.get("eval/return_mean") and row.get("eval/episodes"):
-            found[evaluation_index(int(step), settings)] = cell_number(row["eval/return_mean"])  # NaN: diverged
+        step, text = cell_number(row.get("global_step")), row.get("eval/return_mean") or ""
+        value = cell_number(text)
+        damaged = math.isnan(value) and text.strip().lower() != "nan"  # "nan" is a diverged evaluation
+        if math.isfinite(step) and text and not damaged and row.get("eval/episodes"):
+            found[evaluation_index(int(step), settings)] = value
     return found
 
 

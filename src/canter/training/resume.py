@@ -86,8 +86,9 @@ def check_same_experiment_and_seed(saved: Config, config: Config, run_dir: Path)
     if differing:
         raise CanterError(
             f"the config to resume {run_dir} with differs from the run's in {', '.join(differing)}; a resume may "
-            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return): build it with "
-            f"canter.training.resume.resume_config({str(run_dir)!r}, total_steps)"
+            f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return) and keys that do not "
+            f"change what is learned: build it with canter.training.resume.resume_config({str(run_dir)!r}, "
+            f"total_steps)"
         )
 
 
