@@ -321,7 +321,7 @@ def test_a_run_on_brax_own_envs_is_told_it_has_no_video():
     """canter renders through Gymnasium's envs, which Brax's own models are not."""
     from canter.use.video import _GymnasiumPlayer
 
-    with pytest.raises(CanterError, match=r"cannot replay ant: .*--backend brax, has no video; canter eval scores it"):
+    with pytest.raises(CanterError, match=r"cannot replay ant: .*Brax's own envs has no video; canter eval scores it"):
         _GymnasiumPlayer("ant", 64, 64, None)
 
 

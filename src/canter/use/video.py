@@ -187,7 +187,7 @@ class _GymnasiumPlayer:
         except CanterError:
             raise CanterError(
                 f"cannot replay {env_id}: Gymnasium has no such env to render, and canter renders through Gymnasium "
-                f"(a run on Brax's own envs, --backend brax, has no video; canter eval scores it)"
+                f"(a run on Brax's own envs has no video; canter eval scores it)"
             ) from None
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
         self.env_id = env_id
