@@ -17,11 +17,20 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
 
 
+def ignore_stop_signals() -> None:
+    """From here on a further Ctrl-C or SIGTERM is ignored: the process is already ending, and one landing in its last
+    lines would end it by a traceback instead (a user presses Ctrl-C again and again)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def exit_interrupted() -> NoReturn:
     """End an interrupted process with INTERRUPTED, skipping the interpreter's shutdown. A Ctrl-C can land inside
     native code (an XLA compile, an env pool's threads) and leave it in a state that crashes that shutdown with a
     segfault (exit -11 instead of 130). Every file canter writes was closed as the interrupt unwound; only logging and
     the standard streams are flushed here."""
+    ignore_stop_signals()
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError
-from canter.signals import INTERRUPTED, exit_interrupted
+from canter.signals import INTERRUPTED, exit_interrupted, ignore_stop_signals
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
 # and sets `func(args) -> exit code`.
@@ -164,6 +164,7 @@ def entry() -> None:
     try:
         code = main()
     except KeyboardInterrupt:  # a second Ctrl-C after the command stopped on the first one
+        ignore_stop_signals()
         print("canter: interrupted", file=sys.stderr)
         code = INTERRUPTED
     if code == INTERRUPTED:
