@@ -509,20 +509,31 @@ def test_a_stop_flag_says_once_what_the_first_signal_does(capfd):
 
 
 def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_shutdown(monkeypatch):
+    """An interrupted process ignores further stop signals as it ends: a Ctrl-C pressed again in its last lines would
+    end it by a traceback."""
+    import signal
+
     from canter import signals
     from canter.cli import main as cli
 
+    handlers = {sig: signal.getsignal(sig) for sig in signals.STOP_SIGNALS}
     ended = []
     monkeypatch.setattr(cli, "main", lambda: 130)
     monkeypatch.setattr(signals.os, "_exit", lambda code: ended.append(code))
-    with pytest.raises(SystemExit):  # os._exit returned here, so entry goes on to sys.exit
-        cli.entry()
-    assert ended == [130]
+    try:
+        with pytest.raises(SystemExit):  # os._exit returned here, so entry goes on to sys.exit
+            cli.entry()
+        assert ended == [130]
+        assert all(signal.getsignal(sig) == signal.SIG_IGN for sig in signals.STOP_SIGNALS)
+    finally:  # this process goes on to other tests
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
 
     monkeypatch.setattr(cli, "main", lambda: 2)
     with pytest.raises(SystemExit) as exited:
         cli.entry()
     assert exited.value.code == 2 and ended == [130]
+    assert all(signal.getsignal(sig) == handler for sig, handler in handlers.items())
 
 
 @pytest.mark.slow
