@@ -336,3 +336,14 @@ def test_training_with_videos_refuses_a_renderer_it_cannot_use_before_its_folder
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"canter: error: MUJOCO_GL={gl} {message}" in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_resume_that_renders_videos_refuses_a_renderer_it_cannot_use_first(archived_run, capsys, monkeypatch):
+    config = archived_run / "config.toml"
+    config.write_text(config.read_text().replace("video_every = 0", "video_every = 1000"))
+    before = sorted(p.relative_to(archived_run) for p in archived_run.rglob("*"))
+    monkeypatch.setenv("MUJOCO_GL", "bogus")
+    assert main(["train", "--resume", str(archived_run), "--total-steps", "2048", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "canter: error: MUJOCO_GL=bogus is not one of MuJoCo's renderers" in err, err
+    assert sorted(p.relative_to(archived_run) for p in archived_run.rglob("*")) == before

@@ -131,6 +131,7 @@ def _resume(args: argparse.Namespace) -> list[Any]:
         raise CanterError(
             f"--resume uses the saved config; only {_RESUME_FLAGS} may be given (got {', '.join(changed)})"
         )
+    _check_the_renderer(_renders_videos_when_resumed(args.resume))
     # The trainer imports JAX, so it comes after the checks that need only the config.
     from canter.training.loop import resume_seeds, train
     from canter.training.resume import Saved, resume_config
@@ -182,10 +183,7 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
         given |= {f"--set {key}": key in set_keys for key in ("run.eval_episodes", "run.eval_backend")}
         for flag in (flag for flag, present in given.items() if present):
             raise CanterError(f"{flag} sets {_EVALUATION_SETTINGS[flag]} during training; also pass --eval-every N")
-    if config.run.video_every:
-        from canter.use.video import check_renderer
-
-        check_renderer()
+    _check_the_renderer(bool(config.run.video_every))
     from canter.config.algorithms import warm_up_note
     from canter.training.loop import train, train_seeds
 
@@ -200,6 +198,29 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
             file=sys.stderr,
         )
     return train_seeds(config, args.seeds, quiet=args.quiet)
+
+
+def _renders_videos_when_resumed(run_dirs: list[str]) -> bool:
+    """Whether any of these runs renders videos as it trains; a config.toml that cannot be read says nothing here,
+    and the resume itself names what is wrong with it."""
+    from canter.training.run_folder import read_config
+
+    for run_dir in run_dirs:
+        try:
+            if read_config(Path(run_dir)).run.video_every:
+                return True
+        except CanterError:
+            continue
+    return False
+
+
+def _check_the_renderer(renders: bool) -> None:
+    """A MUJOCO_GL that names no renderer, or cannot render here, is refused before a run that renders videos
+    starts; a renderer that fails later costs only its videos."""
+    if renders:
+        from canter.use.video import check_renderer
+
+        check_renderer()
 
 
 def _report(results: list[Any]) -> None:
