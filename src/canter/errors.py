@@ -45,6 +45,11 @@ def _fewer_seeds(verb: str, fits: int) -> str:
     return f"{verb} one seed at a time" if fits == 1 else f"{verb} at most {fits} seeds at a time"
 
 
+def joined(words: list[str]) -> str:
+    """'a', 'a and b', 'a, b and c': a list as a one-line message names it."""
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+
+
 def first_line(exc: BaseException) -> str:
     """The first line of an exception's message, or its type's name where the message is empty: a library's error
     can run to a page (a traceback from a server, a SQL statement), and a one-line message quotes only its start."""

@@ -9,10 +9,10 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from canter.config.peer_names import joined, peer_keys
+from canter.config.peer_names import peer_keys
 from canter.config.schema import Config, field_names, section_names
 from canter.config.values import coerce, field_types
-from canter.errors import CanterError
+from canter.errors import CanterError, joined
 
 
 def all_keys() -> list[str]:

@@ -83,7 +83,3 @@ def peer_keys(key: str, known_keys: Iterable[str]) -> tuple[PeerName, list[str]]
             if all(k in known for k in keys):
                 return peer, keys
     return None
-
-
-def joined(words: list[str]) -> str:
-    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"

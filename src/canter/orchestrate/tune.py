@@ -38,7 +38,7 @@ from canter.config.build import build_config
 from canter.config.overrides import parse_set_args
 from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
-from canter.errors import CanterError
+from canter.errors import CanterError, joined
 from canter.files import make_folder, refuse_inside_run_own_folder
 from canter.orchestrate.bench_folder import bench_files_in
 from canter.orchestrate.env_check import check_continuous
@@ -63,6 +63,7 @@ from canter.orchestrate.study import (
     study_storage,
 )
 from canter.run_layout import METRICS_FILE
+from canter.training import run_lock
 from canter.training.logger import cell_number, read_rows, row_steps
 from canter.training.trackers import TrackSpec, check_trackers, open_groups
 
@@ -143,29 +144,15 @@ def refuse_bench_folder(settings: TuneSettings) -> None:
     held = bench_files_in(Path(settings.out_dir))
     if held:
         raise CanterError(
-            f"--out-dir {settings.out_dir} is a folder of canter bench (it holds {_listed(held)}), not a folder for "
+            f"--out-dir {settings.out_dir} is a folder of canter bench (it holds {joined(held)}), not a folder for "
             f"tune studies; give another --out-dir"
         )
     held = bench_files_in(settings.study_dir)
     if held:
         raise CanterError(
             f"the study folder {settings.study_dir} (--out-dir/--study) is a folder of canter bench (it holds "
-            f"{_listed(held)}); give another --out-dir or --study"
+            f"{joined(held)}); give another --out-dir or --study"
         )
-
-
-def _listed(names: list[str]) -> str:
-    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
-
-
-def _missing_folders(folder: Path) -> list[Path]:
-    """`folder` and each folder above it that does not exist yet, innermost first: those that making it makes."""
-    missing = []
-    for part in (folder, *folder.absolute().parents):
-        if part.exists() or part.is_symlink():
-            break
-        missing.append(part)
-    return missing
 
 
 def _remove_empty(folders: list[Path]) -> None:
@@ -604,7 +591,7 @@ def tune(settings: TuneSettings) -> Any:
     refuse_bench_folder(settings)
     # A refused command leaves no folder behind: neither the study folder nor the --out-dir above it, when it made
     # them and they still hold nothing.
-    made = _missing_folders(settings.study_dir)
+    made = run_lock.missing_folders(settings.study_dir)
     try:
         if settings.storage_url is None:
             make_folder(settings.study_dir)  # the SQLite file's folder

@@ -159,7 +159,7 @@ def acquire(run_dir: Path) -> None:
         _HELD[key].holds += 1
         return
     path = run_dir / LOCK_FILE
-    created = _missing_folders(run_dir)
+    created = missing_folders(run_dir)
     try:
         fd = open_lock_file(run_dir)
     except BaseException:
@@ -195,11 +195,11 @@ def _remove_created(created: list[Path]) -> None:
             folder.rmdir()
 
 
-def _missing_folders(run_dir: Path) -> list[Path]:
-    """`run_dir` and each folder above it that does not exist yet, innermost first."""
+def missing_folders(run_dir: Path) -> list[Path]:
+    """`run_dir` and each folder above it that does not exist yet, innermost first: those that making it makes."""
     missing = []
     for folder in (run_dir, *run_dir.absolute().parents):
-        if folder.exists():
+        if folder.exists() or folder.is_symlink():
             break
         missing.append(folder)
     return missing
