@@ -20,7 +20,7 @@ from canter.algos.state_size import state_size
 from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError, DoesNotFitError
-from canter.training import device_memory, host_memory, loop, run_lock
+from canter.training import device_memory, host_memory, loop, run_folder, run_lock
 from conftest import ARCHIVED_RUN
 
 GIB = 2**30
@@ -234,6 +234,7 @@ def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_
     monkeypatch.setattr(device_memory, "free_bytes", lambda: None)
     monkeypatch.setattr(device_memory, "required_bytes", lambda compiled: 2**50)
     before = sorted(p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*"))
+    budget = run_folder.read_config(tmp_path / "resumed").run.total_steps
     assert main(["train", "--resume", str(tmp_path / "resumed"), "--total-steps", "1e6", "--quiet"]) == 2
     # --resume refuses --set, so the settings to lower go to a new run from the run's config.
     err = _one_line_error(capsys)
@@ -243,6 +244,8 @@ def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_
         f"config (canter train --config {tmp_path / 'resumed' / 'config.toml'})"
     ) in err, err
     assert set(before) <= {p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*")}
+    # The advised new run from its config, or a later resume, trains the run's own budget, not the refused one.
+    assert run_folder.read_config(tmp_path / "resumed").run.total_steps == budget != 10**6
 
 
 def test_a_refusal_while_the_program_is_built_leaves_no_run_folder(monkeypatch, tmp_path, capsys):

@@ -41,6 +41,7 @@ from canter.training.resume import (
     start_of_seed,
     start_over,
     summarize_if_it_ended,
+    unreadable_config,
 )
 from canter.training.seed_run import RunResult, SeedRun, SeedStart
 
@@ -238,8 +239,10 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, c
     if start.restarted:
         start_over(start.run_dir)
     if start.resumed:
-        # config.toml before the migrations, which read it: a damaged one is replaced by the config the resume read.
-        run_folder.write_config(start.run_dir, config)
+        # A damaged config.toml is replaced before the migrations, which read it. The resume's own budget is written
+        # once its program is known to fit (`_open_seeds`): a refused resume leaves the run's config as it was.
+        if unreadable_config(start.run_dir):
+            run_folder.write_config(start.run_dir, config)
         run_folder.migrate(start.run_dir)
     else:
         run_folder.create(start.run_dir, config)
@@ -354,6 +357,9 @@ def _open_seeds(
             # After every check that can refuse the run, so that a refusal stays one line.
             if (note := budget_rounding_note(configs[0])) is not None:
                 print(f"canter: note: {note}", file=sys.stderr)
+        for config, start in zip(configs, starts):
+            if start.resumed:  # its new budget, which a later resume of the run goes on to
+                run_folder.write_config(start.run_dir, config)
         for run in runs:
             run.compile_seconds = compile_seconds
     except BaseException:

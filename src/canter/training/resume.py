@@ -123,7 +123,7 @@ def repair_config_of_a_finished_run(run_dir: Path) -> RunResult | None:
     """A finished run whose config.toml is missing or damaged has it written again from its newest checkpoint,
     which is all that a resume of it has to do (and what every reader of such a file advises); None for any other
     run."""
-    if not (_unreadable(run_dir / CONFIG_FILE) and has_finished(run_dir)):
+    if not (unreadable_config(run_dir) and has_finished(run_dir)):
         return None
     result = read_result(run_dir)
     if result is None:
@@ -201,7 +201,7 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
             _refuse_a_run_in(Path(run_dir))
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
-        if resume is not None and _unreadable(start.run_dir / CONFIG_FILE):
+        if resume is not None and unreadable_config(start.run_dir):
             # `saved_config` promised it: a finished run repaired by a resume that trains nothing
             run_folder.write_config(start.run_dir, saved)
         raise CanterError(
@@ -297,7 +297,7 @@ def saved_config(run_dir: Path, note: bool = True) -> Config:
     try:
         return run_folder.read_config(run_dir)
     except CanterError as damaged:
-        if not (run_folder.list_checkpoints(run_dir) and _unreadable(run_dir / CONFIG_FILE)):
+        if not (run_folder.list_checkpoints(run_dir) and unreadable_config(run_dir)):
             raise
         newest = checkpoint.latest(run_dir)
         config = header_config(checkpoint.read_header(newest), newest)
@@ -318,10 +318,11 @@ def header_config(header: dict[str, Any], path: Path) -> Config:
     return from_toml_text(header["config"], str(path))
 
 
-def _unreadable(path: Path) -> bool:
-    """Missing, empty or not TOML: damaged, where a file that parses was written or edited as it is."""
+def unreadable_config(run_dir: Path) -> bool:
+    """A config.toml missing, empty or not TOML: damaged, where a file that parses was written or edited as it is."""
     import tomllib
 
+    path = run_dir / CONFIG_FILE
     if not path.is_file():
         return True
     text = path.read_text(errors="replace")
