@@ -93,7 +93,7 @@ def tiny_run(tmp_path_factory):
 def _choose_gl() -> None:
     # MuJoCo reads MUJOCO_GL when it is first imported, so pick EGL or OSMesa before any test imports it.
     from canter.errors import CanterError
-    from canter.use.video import configure_gl
+    from canter.use.renderer import configure_gl
 
     with contextlib.suppress(CanterError):  # the video tests then fail with the message naming the package to install
         configure_gl()

@@ -12,7 +12,7 @@ import pytest
 from canter.orchestrate.bench_results import seed_record
 from canter.training.logger import read_rows, totals_until
 from canter.training.run_folder import metrics_file
-from canter.use.plot import read_metrics
+from canter.use.curves import read_metrics
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from archive import PACKED_METRICS_OVER, RUN_FILES, copy_run, has_run_files

@@ -127,7 +127,7 @@ def test_video_settings_the_renderer_cannot_take(archived_run, tmp_path, capsys,
     )
     monkeypatch.setenv("MUJOCO_GL", "bogus")
     one_line(capsys, ["video", str(archived_run), "--out", out], "MUJOCO_GL=bogus is not one of MuJoCo's renderers")
-    from canter.use.video import configure_gl
+    from canter.use.renderer import configure_gl
 
     for accepted in ("glx", "EGL", "cgl"):  # MuJoCo's own names, which it reads lower-cased
         monkeypatch.setenv("MUJOCO_GL", accepted)

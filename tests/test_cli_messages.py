@@ -271,7 +271,7 @@ def test_a_value_the_config_file_gives_that_is_refused_names_the_file(sets, name
 
 def test_a_camera_index_of_minus_one_is_the_free_camera(archived_run, capsys):
     """Help says `name or index`: -1 is MuJoCo's free camera, and an index below it is refused with the choices."""
-    from canter.use.video import _GymnasiumPlayer
+    from canter.use.video_players import GymnasiumPlayer
 
     line = error_line(
         capsys, ["video", str(archived_run), "--out", "v.gif", "--camera", "-2", "--width", "32", "--height", "32"]
@@ -279,7 +279,7 @@ def test_a_camera_index_of_minus_one_is_the_free_camera(archived_run, capsys):
     assert line == (
         "InvertedPendulum-v4 has no camera '-2'; cameras: -1 (the free camera), or omit --camera for the default view"
     )
-    _GymnasiumPlayer("InvertedPendulum-v4", 32, 32, "-1").close()
+    GymnasiumPlayer("InvertedPendulum-v4", 32, 32, "-1").close()
 
 
 @pytest.mark.slow

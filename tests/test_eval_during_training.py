@@ -19,16 +19,11 @@ from canter.errors import CanterError
 from canter.training import checkpoint, run_folder
 from canter.training.evaluation import EVAL_COLUMNS, EvalResult, run_episodes
 from canter.training.loop import train
+from canter.use.bands import EVAL_PREFIX, experiment_band
+from canter.use.curves import RunCurves, load_run
 from canter.use.evaluate import seed_stream
-from canter.use.plot import (
-    EVAL_PREFIX,
-    RunCurves,
-    available_metrics,
-    experiment_band,
-    experiments_of,
-    load_run,
-    panel_labels,
-)
+from canter.use.experiments import experiments_of
+from canter.use.plot import available_metrics, panel_labels
 from conftest import TINY
 
 EVERY = 1500  # not a multiple of the 1024-step iterations, so evaluations fall on the first row past each multiple

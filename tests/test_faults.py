@@ -199,7 +199,7 @@ def test_readers_skip_a_half_written_last_line_and_the_next_logger_cuts_it(tmp_p
     assert header[0] == "global_step" and [r["global_step"] for r in rows] == ["100", "200"]
     assert totals_until(metrics, 10_000) == Totals(wall_seconds=2.0, train_seconds=2.0, episodes=3)
 
-    from canter.use.plot import read_metrics
+    from canter.use.curves import read_metrics
 
     assert list(read_metrics(metrics)["global_step"]) == [100.0, 200.0]
 

@@ -22,7 +22,7 @@ from conftest import error_line
 
 
 def test_a_window_longer_than_the_series_averages_the_whole_series():
-    from canter.use.plot import moving_average
+    from canter.use.bands import moving_average
 
     y = np.array([1.0, 2.0, np.nan, 4.0])
     expected = [1.0, 1.5, 1.5, 7.0 / 3.0]  # every row so far, as a window of exactly len(y) gives
@@ -67,7 +67,7 @@ def test_glfw_without_a_display_is_one_line(archived_run, tmp_path):
     ],
 )
 def test_a_renderer_this_machine_cannot_use_is_named(value, system, environ, problem):
-    from canter.use.video import renderer_problem
+    from canter.use.renderer import renderer_problem
 
     found = renderer_problem(value, system, environ)
     if problem is None:
@@ -79,7 +79,7 @@ def test_a_renderer_this_machine_cannot_use_is_named(value, system, environ, pro
 
 
 def test_a_failed_gl_context_names_glfw_s_own_reason():
-    from canter.use.video import gl_failure
+    from canter.use.renderer import gl_failure
 
     fatal = "an OpenGL platform library has not been loaded into this process, this most likely means that ..."
     assert gl_failure("Hopper-v5", "glfw", fatal, ["(65550) b'X11: Failed to open display :1'"]) == (
@@ -96,7 +96,7 @@ def test_a_gl_context_that_fails_at_the_first_frame_is_one_line(monkeypatch, rec
 
     import mujoco
 
-    from canter.use import video
+    from canter.use.video_players import GymnasiumPlayer
 
     class GLFWError(UserWarning):
         pass
@@ -106,7 +106,7 @@ def test_a_gl_context_that_fails_at_the_first_frame_is_one_line(monkeypatch, rec
             warnings.warn("(65550) b'X11: Failed to open display :1'", GLFWError, stacklevel=1)
             raise mujoco.FatalError("an OpenGL platform library has not been loaded into this process, this ...")
 
-    player = object.__new__(video._GymnasiumPlayer)
+    player = object.__new__(GymnasiumPlayer)
     player.env, player.env_id, player.size, player._rendered = Env(), "Hopper-v5", (16, 16), False
     monkeypatch.setenv("MUJOCO_GL", "glfw")
     with pytest.raises(CanterError) as caught:

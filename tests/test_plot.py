@@ -17,26 +17,10 @@ from canter.config.experiment import experiment_key, group_by_experiment
 from canter.config.overrides import apply_overrides
 from canter.config.serialize import to_toml
 from canter.errors import CanterError
-from canter.use.plot import (
-    Experiment,
-    RunCurves,
-    bootstrap_band,
-    choose_metrics,
-    common_grid,
-    draw,
-    experiment_band,
-    experiment_labels,
-    experiments_of,
-    final_score,
-    interpolate,
-    load_run,
-    method_labels,
-    moving_average,
-    range_band,
-    read_metrics,
-    scoreboard_of,
-    unused_diagnostic,
-)
+from canter.use.bands import bootstrap_band, common_grid, experiment_band, interpolate, moving_average, range_band
+from canter.use.curves import RunCurves, load_run, read_metrics
+from canter.use.experiments import Experiment, experiment_labels, experiments_of, method_labels
+from canter.use.plot import choose_metrics, draw, final_score, scoreboard_of, unused_diagnostic
 from canter.use.scoreboard import EVAL_SOURCE, TRAINING_SOURCE, RunScore, build_scoreboard
 
 

@@ -12,8 +12,8 @@ from test_video_faults import STOPPED, _check_stopped, _signal_once_rendering
 # `canter report` with each frame slowed: one Pendulum episode renders in a second or two, and the signal must land
 # while it is going.
 SLOWED_REPORT = (
-    "import sys, time; from canter.use import video; append = video._AtomicVideo.append; "
-    "video._AtomicVideo.append = lambda self, frame: (time.sleep(0.05), append(self, frame)); "
+    "import sys, time; from canter.use import video_file; append = video_file.AtomicVideo.append; "
+    "video_file.AtomicVideo.append = lambda self, frame: (time.sleep(0.05), append(self, frame)); "
     "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
 )
 # When the signal lands: as soon as the temp folder is made (before the render has its writer), or mid-render.

@@ -74,7 +74,7 @@ def test_taking_a_folder_over_removes_every_half_written_file_and_nothing_whole(
     for name in whole:
         (run / name).parent.mkdir(parents=True, exist_ok=True)
         (run / name).write_text("")
-    # The names canter.files.atomic_write_bytes and canter.use.video's temp videos give their temp files.
+    # The names canter.files.atomic_write_bytes and canter.use.video_file's temp videos give their temp files.
     targets = ["config.toml", "checkpoints/ckpt_000000002000.npz", "checkpoints/best.npz", "videos/.snapshot_2.npz"]
     halves = [tempfile.mkstemp(prefix=f".{Path(t).name}.", suffix=".tmp", dir=run / Path(t).parent) for t in targets]
     halves.append(tempfile.mkstemp(prefix=".step_000000002000.", suffix=".tmp.mp4", dir=run / "videos"))

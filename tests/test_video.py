@@ -14,7 +14,7 @@ from canter.envs.registry import dm_control_task
 from canter.errors import CanterError
 from canter.training import run_lock
 from canter.training.videos import TrainingVideos, quiet_fork
-from canter.use import video
+from canter.use import renderer, video
 from conftest import TINY
 
 
@@ -227,15 +227,15 @@ def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
 def test_gl_selection(monkeypatch):
     monkeypatch.delenv("MUJOCO_GL", raising=False)
     monkeypatch.delitem(sys.modules, "mujoco", raising=False)
-    monkeypatch.setattr(video, "_probe", lambda backend: backend == "osmesa")
-    assert video.configure_gl() == "osmesa"
+    monkeypatch.setattr(renderer, "_probe", lambda backend: backend == "osmesa")
+    assert renderer.configure_gl() == "osmesa"
     monkeypatch.delenv("MUJOCO_GL")
-    monkeypatch.setattr(video, "_probe", lambda backend: False)
+    monkeypatch.setattr(renderer, "_probe", lambda backend: False)
     with pytest.raises(CanterError, match="apt-get install -y libegl1 libosmesa6"):
-        video.configure_gl()
+        renderer.configure_gl()
     monkeypatch.setenv("MUJOCO_GL", "egl")
     with pytest.raises(CanterError, match=r"apt-get install -y libegl1$"):
-        video.configure_gl()
+        renderer.configure_gl()
 
 
 @pytest.mark.slow
@@ -243,7 +243,7 @@ def test_the_gl_backend_chosen_here_really_renders():
     import os
 
     assert os.environ.get("MUJOCO_GL") in ("egl", "osmesa")
-    assert video._probe(os.environ["MUJOCO_GL"])
+    assert renderer._probe(os.environ["MUJOCO_GL"])
 
 
 @pytest.mark.slow
@@ -319,10 +319,10 @@ def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(a
 
 def test_a_run_on_brax_own_envs_is_told_it_has_no_video():
     """canter renders through Gymnasium's envs, which Brax's own models are not."""
-    from canter.use.video import _GymnasiumPlayer
+    from canter.use.video_players import GymnasiumPlayer
 
     with pytest.raises(CanterError, match=r"cannot replay ant: .*Brax's own envs has no video; canter eval scores it"):
-        _GymnasiumPlayer("ant", 64, 64, None)
+        GymnasiumPlayer("ant", 64, 64, None)
 
 
 @pytest.mark.parametrize(("gl", "message"), [("bogus", "is not one of MuJoCo's renderers"), ("disable", "turns")])

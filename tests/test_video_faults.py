@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from canter.cli.main import main
-from canter.use import video
+from canter.use import video_file
 from canter.use.report import run_facts
 from signals import with_sigint
 
@@ -23,14 +23,14 @@ KILLED_RENDER = (
 
 
 def test_a_videos_temp_file_is_not_a_finished_video(tmp_path):
-    writer = video._AtomicVideo(tmp_path / "videos" / "step_000000001427.mp4", fps=10)
+    writer = video_file.AtomicVideo(tmp_path / "videos" / "step_000000001427.mp4", fps=10)
     try:
-        assert video.is_unfinished_video(writer.tmp)
-        assert not video.is_unfinished_video(writer.out)
+        assert video_file.is_unfinished_video(writer.tmp)
+        assert not video_file.is_unfinished_video(writer.out)
     finally:
         writer.abort()
-    assert video.is_unfinished_video(Path(KILLED_RENDER))
-    assert not video.is_unfinished_video(Path("clip.tmp.mp4"))  # not hidden: a file of the user's, not canter's
+    assert video_file.is_unfinished_video(Path(KILLED_RENDER))
+    assert not video_file.is_unfinished_video(Path("clip.tmp.mp4"))  # not hidden: a file of the user's, not canter's
 
 
 @pytest.fixture
@@ -116,7 +116,7 @@ def _check_stopped(ended: tuple[int, str], code: int, said: str) -> None:
 
 # `canter video` as where mujoco was imported with another GL platform: it renders in a child process.
 IN_A_SUBPROCESS = (
-    "import sys; from canter.use import video; video._headless_in_this_process = lambda: False; "
+    "import sys; from canter.use import video; video.headless_in_this_process = lambda: False; "
     "from canter.cli.main import main; sys.exit(main(sys.argv[1:]))"
 )
 # The ways a video renders: in the process that asks for it, or in a child process of it.
@@ -182,7 +182,7 @@ from pathlib import Path
 from canter.use import video
 
 if sys.argv[3] == "in a subprocess":
-    video._headless_in_this_process = lambda: False
+    video.headless_in_this_process = lambda: False
 out = Path(sys.argv[2])
 noted = []
 note = lambda signum, frame: noted.append(signum)

@@ -34,7 +34,7 @@ from timed import page_main  # noqa: E402
 
 from canter.orchestrate.bench_results import seed_record  # noqa: E402
 from canter.training.run_folder import metrics_file  # noqa: E402
-from canter.use.plot import read_metrics  # noqa: E402
+from canter.use.curves import read_metrics  # noqa: E402
 
 WORK = "runs/report000"  # the bench folders (with checkpoints), relative to the repository root
 SEEDS = (100, 101, 102)  # chosen before the runs, for every comparison that runs 3 seeds

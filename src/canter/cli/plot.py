@@ -12,7 +12,7 @@ from canter.files import check_writable, write_output
 
 def register(sub: argparse._SubParsersAction) -> None:
     # Neither module imports JAX or matplotlib at import time, so parsing stays fast.
-    from canter.use.plot import CONFIDENCE, X_AXES
+    from canter.use.bands import CONFIDENCE, X_AXES
     from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
 
     p = sub.add_parser(

@@ -218,7 +218,7 @@ def _check_the_renderer(renders: bool) -> None:
     """A MUJOCO_GL that names no renderer, or cannot render here, is refused before a run that renders videos
     starts; a renderer that fails later costs only its videos."""
     if renders:
-        from canter.use.video import check_renderer
+        from canter.use.renderer import check_renderer
 
         check_renderer()
 

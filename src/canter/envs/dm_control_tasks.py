@@ -20,7 +20,7 @@ def observation_keys(domain: str, task: str) -> frozenset[str] | None:
     try:
         with warnings.catch_warnings():
             # dm_control loads its renderer on import, and on a machine without a display GLFW warns that it has
-            # none: this lookup renders nothing, and videos choose their own OpenGL platform (canter.use.video).
+            # none: this lookup renders nothing, and videos choose their own OpenGL platform (canter.use.renderer).
             warnings.filterwarnings("ignore", message=r".*DISPLAY environment variable is missing")
             from dm_control import suite
     except ImportError:

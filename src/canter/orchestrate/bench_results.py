@@ -284,7 +284,8 @@ def plot_env(run_dirs: list[Path], path: Path) -> None:
     """One figure per env through `canter plot`: one curve (mean over seeds, with a band) per algorithm and grid
     values, training return against env steps."""
     from canter.files import write_output
-    from canter.use.plot import load_run, render_runs
+    from canter.use.curves import load_run
+    from canter.use.plot import render_runs
 
     runs = []
     for run_dir in run_dirs:

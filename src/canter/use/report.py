@@ -29,7 +29,7 @@ from canter.signals import StopFlag
 from canter.training import checkpoint
 from canter.use.scoreboard import Scoreboard
 from canter.use.statistics import MIN_RUNS_FOR_INTERVAL
-from canter.use.video import is_unfinished_video
+from canter.use.video_file import is_unfinished_video
 
 VIDEO_TYPES = {".mp4": "video/mp4", ".webm": "video/webm"}
 IMAGE_TYPES = {".gif": "image/gif", ".png": "image/png"}
@@ -190,7 +190,7 @@ def experiment_groups(facts: Sequence[RunFacts]) -> list[tuple[str, list[int]]]:
     """The runs' groups (runs that differ only in seed share one), each with its label as `canter plot` draws it and
     its runs' indices, in order of first appearance."""
     from canter.config.experiment import group_by_experiment
-    from canter.use.plot import experiment_labels
+    from canter.use.experiments import experiment_labels
 
     groups = group_by_experiment([f.config for f in facts])
     return list(zip(experiment_labels([facts[members[0]].config for members in groups]), groups))
@@ -423,7 +423,8 @@ def build_report(
     the newest file of the run's videos/ folder. SIGINT or SIGTERM stops the rendering and acts once the temp folder
     is removed, as it would have (`StopFlag.deliver`); where the caller's own handler returns instead, so does this,
     with a page of the videos finished before the stop."""
-    from canter.use.plot import load_run, render_runs
+    from canter.use.curves import load_run
+    from canter.use.plot import render_runs
 
     if episodes < 0:
         raise CanterError(f"--episodes must be >= 0 (0 skips the evaluation), got {episodes}")

@@ -1,0 +1,91 @@
+"""A run folder's logged curves: the numeric columns of its metrics.csv, read with messages that say why a file
+cannot be read (a folder in its place, missing, damaged, no rows yet) and what to do."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from canter.config.schema import Config
+from canter.errors import CanterError
+from canter.training.logger import lost_rows, read_rows, run_history, unreadable_steps
+from canter.training.run_folder import list_checkpoints, metrics_file, read_config, step_of
+
+
+@dataclass(frozen=True)
+class RunCurves:
+    run_dir: Path
+    config: Config
+    columns: dict[str, np.ndarray]  # numeric metrics.csv columns, NaN where a row has no value
+
+
+def _no_rows(path: Path) -> str:
+    """Why a metrics.csv without rows has none, and what to do: a run that trained an iteration has logged one."""
+    run = path.parent
+    checkpoints = list_checkpoints(run)
+    newest = step_of(checkpoints[-1]) if checkpoints else 0
+    if newest > 0:
+        return lost_rows(path, newest)
+    # A run stopped in setup or in its first iteration (a signal, a non-finite start) has at most a step-0 checkpoint.
+    go_on = f"train it on with canter train --resume {run}" if checkpoints else "train it again"
+    return (
+        f"{path} has no logged rows: the run has not finished an iteration (it is compiling, or it stopped before its "
+        f"first one); leave it out, or {go_on}"
+    )
+
+
+def read_metrics(path: Path) -> dict[str, np.ndarray]:
+    """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
+    path = Path(path)
+    if path.is_dir():  # a run folder with its file's name taken: sending the user to another run folder misleads
+        raise CanterError(f"{path} is a folder, not a file; move it away and restore {path.name} from a copy")
+    if not path.is_file():
+        from canter.training.checkpoint import runs_inside
+
+        inside = runs_inside(path.parent) if path.parent.is_dir() else []
+        if inside:
+            raise CanterError(
+                f"{path.parent} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as "
+                f"{inside[0]}"
+            )
+        # plot and report both read curves here, so the message names no command.
+        raise CanterError(f"no metrics.csv in {path.parent}; pass a run folder written by `canter train`")
+    header, rows = read_rows(path)  # a half-written last line is left out
+    if header and "global_step" not in header:
+        raise CanterError(
+            f"{path} has no global_step column in its first line, so it is not a metrics file canter wrote, or it "
+            f"was edited or damaged; restore it from a copy"
+        )
+    if not header or not rows:
+        raise CanterError(_no_rows(path))
+    if damaged := unreadable_steps(rows):
+        line, cell = damaged[0]
+        raise CanterError(
+            f"{path} has a row whose global_step is {cell!r} (line {line}), not a step: the file was edited or "
+            f"damaged; delete that row or restore the file from a copy"
+        )
+    if "iteration" in header:
+        rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
+    columns: dict[str, np.ndarray] = {}
+    for name in header:
+        cells = [row.get(name) or "" for row in rows]
+        try:
+            columns[name] = np.array([float(c) if c.strip() else math.nan for c in cells])
+        except ValueError:
+            continue
+    return columns
+
+
+def load_run(run_dir: str | Path) -> RunCurves:
+    run_dir = Path(run_dir)
+    if run_dir.is_file():
+        raise CanterError(
+            f"{run_dir} is a file, not a run folder; pass the folder that holds config.toml and metrics.csv"
+        )
+    if not run_dir.is_dir():
+        raise CanterError(f"run folder not found: {run_dir}")
+    columns = read_metrics(metrics_file(run_dir))
+    return RunCurves(run_dir, read_config(run_dir), columns)
