@@ -250,14 +250,21 @@ def test_a_set_key_given_twice_takes_the_last_and_says_so(capsys):
     assert build_config("Hopper-v5", sets=["ppo.clip=0.1", "ppo.clip=0.2"]).ppo.clip == 0.2
 
 
-@pytest.mark.parametrize("how", ["flag", "toml"])
-def test_a_huge_step_budget_is_shown_short(how, tmp_path, capsys):
+def test_a_huge_step_budget_is_shown_short(tmp_path, capsys):
     config = tmp_path / "c.toml"
     config.write_text("[run]\ntotal_steps = 1e300\n")
-    extra = ["--total-steps", "1e300"] if how == "flag" else ["--config", str(config)]
-    line = error_line(capsys, ["train", "Hopper-v5", *extra])
+    line = error_line(capsys, ["train", "Hopper-v5", "--config", str(config)])
     assert line.startswith("run.total_steps must be below 9,007,199,254,740,992 in size, got 1e+300"), line
     assert len(line) < 200, line
+
+
+@pytest.mark.parametrize("command", [["train", "Hopper-v5"], ["bench", "--envs", "Hopper-v5"], ["tune", "Hopper-v5"]])
+def test_a_huge_step_flag_is_refused_naming_the_flag(command, capsys):
+    line = error_line(capsys, [*command, "--total-steps", "1e300"])
+    assert line == (
+        f"{command[0]}: argument --total-steps: expected a step count below 2**53 (9,007,199,254,740,992), got "
+        "'1e300' (see --help)"
+    ), line
 
 
 def test_short_int_keeps_readable_numbers_whole():

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from canter.config.values import STEP_LIMIT
 from canter.core.seeding import SEED_LIMIT
 from canter.errors import CanterError
 
@@ -21,6 +22,8 @@ def steps_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a step count such as 1000000 or 1e6, got {text!r}") from None
     if not value.is_integer() or value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive whole step count, got {text!r}")
+    if value >= STEP_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected a step count below 2**53 ({STEP_LIMIT:,}), got {text!r}")
     return int(value)
 
 

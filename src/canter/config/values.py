@@ -114,6 +114,7 @@ def _whole_number(value: Any, bad: CanterError) -> int:
 # Counts live in int32 arrays on a JAX-native backend: every whole-number setting stays below 2^31, except the step
 # budgets and intervals, counted on the host (int64 there), and run.seed (its own limit, SEED_LIMIT).
 INT_LIMIT = 2**31
+STEP_LIMIT = 2**53  # a float64 counts every step below it exactly
 STEP_KEYS = frozenset({"run.total_steps", "run.checkpoint_every", "run.eval_every", "run.video_every", "run.seed"})
 
 
@@ -129,7 +130,7 @@ def short_int(number: int) -> str:
 
 
 def _within_int_limit(key: str, number: int) -> int:
-    limit = 2**53 if key in STEP_KEYS else INT_LIMIT
+    limit = STEP_LIMIT if key in STEP_KEYS else INT_LIMIT
     if abs(number) >= limit:
         raise CanterError(f"{key} must be below {limit:,} in size, got {short_int(number)}")
     return number
