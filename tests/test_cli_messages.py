@@ -9,7 +9,7 @@ import pytest
 
 from canter.cli.main import main
 from canter.config.build import build_config
-from canter.errors import CanterError
+from canter.errors import CanterError, first_sentence
 from conftest import error_line
 
 SEEDS_RANGE = "expected seeds from 0 to 4294967295, got '-1,2' (see --help)"
@@ -287,3 +287,16 @@ def test_a_video_renders_from_the_free_camera(archived_run, capsys):
     argv = ["video", str(archived_run), "--out", "v.gif", "--camera", "-1", "--width", "32", "--height", "32"]
     assert main([*argv, "--max-steps", "3"]) == 0, capsys.readouterr().err
     assert Path("v.gif").stat().st_size > 0
+
+
+def test_first_sentence_keeps_a_library_message_to_its_cause():
+    paragraph = (
+        "The filesystem tracking backend (e.g., './mlruns') is in maintenance mode. Please migrate to a database "
+        "backend (e.g., 'sqlite:///mlflow.db'). See https://mlflow.org/docs for more.\nTraceback line"
+    )
+    assert first_sentence(RuntimeError(paragraph)) == (
+        "The filesystem tracking backend (e.g., './mlruns') is in maintenance mode."
+    )
+    assert first_sentence(ValueError("no such table: runs")) == "no such table: runs"
+    assert first_sentence(OSError("version 1.2 of x. `pip install y` fixes it")) == "version 1.2 of x."
+    assert first_sentence(KeyError()) == "KeyError"

@@ -4,6 +4,8 @@ A `CanterError` carries a one-line message that names the problem and the fix. T
 traceback and exits non-zero; everything else is a bug and keeps its traceback.
 """
 
+import re
+
 
 class CanterError(Exception):
     """A problem with the user's input or environment, reported as one line."""
@@ -55,3 +57,11 @@ def first_line(exc: BaseException) -> str:
     can run to a page (a traceback from a server, a SQL statement), and a one-line message quotes only its start."""
     lines = str(exc).strip().splitlines()
     return lines[0] if lines else type(exc).__name__
+
+
+def first_sentence(exc: BaseException) -> str:
+    """The first sentence of an exception's first line: some libraries put a paragraph of advice on that line,
+    which a one-line message that gives its own fix need not quote."""
+    line = first_line(exc)
+    end = re.search(r"[.!?] (?=[A-Z`'\"])", line)
+    return line[: end.start() + 1] if end else line

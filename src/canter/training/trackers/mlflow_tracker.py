@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from canter.errors import CanterError, first_line
+from canter.errors import CanterError, first_line, first_sentence
 from canter.run_layout import CONFIG_FILE, SUMMARY_FILE
 from canter.training.trackers.base import RunContext, TrackSpec
 
@@ -63,7 +63,7 @@ def _open_client(spec: TrackSpec) -> Any:
     except Exception as exc:
         where = f"--mlflow-uri {spec.mlflow_uri}" if spec.mlflow_uri else "MLflow's default tracking store"
         raise CanterError(
-            f"{where} cannot be opened ({first_line(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
+            f"{where} cannot be opened ({first_sentence(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
         ) from None
     return client
 
