@@ -10,7 +10,7 @@ import pytest
 
 from canter.cli.main import main
 from canter.errors import CanterError
-from canter.orchestrate.bench_folder import bench_files_in, refuse_run_folder
+from canter.orchestrate.bench_folder import bench_files_in, refuse_run_or_study_folder
 from canter.orchestrate.study import claim_study, open_storage, study_files_in
 from canter.orchestrate.tune import (
     TuneSettings,
@@ -92,7 +92,7 @@ def test_bench_refuses_a_study_folder_of_tune_and_tunes_out_dir(tmp_path, capsys
     shared = tmp_path / "shared"
     (shared / "trials" / "trial_00000").mkdir(parents=True)
     with pytest.raises(CanterError, match=r"is a study folder of canter tune \(it holds trials/\)"):
-        refuse_run_folder(shared)
+        refuse_run_or_study_folder(shared)
 
 
 def test_bench_takes_its_own_folder_whatever_tune_like_files_it_holds(tmp_path):
@@ -107,10 +107,10 @@ def test_bench_takes_its_own_folder_whatever_tune_like_files_it_holds(tmp_path):
     (bench_dir / "trials").mkdir()
     (bench_dir / "trials" / "notes.txt").write_text("")
     assert study_files_in(bench_dir) == []
-    refuse_run_folder(bench_dir)
-    refuse_run_folder(tmp_path)  # a folder holding a bench folder is no --out-dir of tune
+    refuse_run_or_study_folder(bench_dir)
+    refuse_run_or_study_folder(tmp_path)  # a folder holding a bench folder is no --out-dir of tune
     (bench_dir / "study.db").write_bytes(b"not a database")
-    refuse_run_folder(bench_dir)
+    refuse_run_or_study_folder(bench_dir)
 
 
 def test_tune_refuses_a_bench_folder_as_its_out_dir_or_study_folder(tmp_path, capsys, monkeypatch):

@@ -10,7 +10,7 @@ import pytest
 from canter.cli.main import main
 from canter.errors import CanterError
 from canter.orchestrate.bench import failures_text
-from canter.orchestrate.bench_folder import refuse_run_folder
+from canter.orchestrate.bench_folder import refuse_run_or_study_folder
 from canter.orchestrate.bench_grid import BenchSettings, make_cells
 from canter.orchestrate.jobs import JOB_START, exit_text, failure_reason
 from canter.orchestrate.search_space import parse_space
@@ -119,7 +119,7 @@ def test_bench_refuses_a_run_folder_as_its_out_folder(tmp_path, capsys):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
     with pytest.raises(CanterError, match=r"is a run folder \(it holds checkpoints/\), not a bench folder; give a"):
-        refuse_run_folder(run)
+        refuse_run_or_study_folder(run)
     (run / "config.toml").write_text("[run]\n")
     (run / ".writer.lock").write_text("the run's own\n")
     before = sorted(p.name for p in run.iterdir())
@@ -128,21 +128,21 @@ def test_bench_refuses_a_run_folder_as_its_out_folder(tmp_path, capsys):
     err = _one_line_error(capsys)
     assert f"--out {run} is a run folder (it holds config.toml and checkpoints/)" in err
     assert sorted(p.name for p in run.iterdir()) == before and (run / ".writer.lock").read_text() == "the run's own\n"
-    refuse_run_folder(tmp_path / "new")  # a folder to make, or a bench folder, is what --out takes
-    refuse_run_folder(tmp_path)
+    refuse_run_or_study_folder(tmp_path / "new")  # a folder to make, or a bench folder, is what --out takes
+    refuse_run_or_study_folder(tmp_path)
     own = tmp_path / "own"  # a folder holding the user's base config for the bench is no run folder
     own.mkdir()
     (own / "config.toml").write_text("[ppo]\nclip = 0.1\n")
-    refuse_run_folder(own)
+    refuse_run_or_study_folder(own)
     (own / "metrics.csv").write_text("global_step\n")
     with pytest.raises(CanterError, match=r"it holds config.toml and metrics.csv\)"):
-        refuse_run_folder(own)
+        refuse_run_or_study_folder(own)
     archive = tmp_path / "archive"  # a finished run kept without its checkpoints, its metrics packed
     archive.mkdir()
     (archive / "config.toml").write_text("[run]\n")
     (archive / "metrics.csv.gz").write_bytes(b"")
     with pytest.raises(CanterError, match=r"it holds config.toml and metrics.csv.gz\)"):
-        refuse_run_folder(archive)
+        refuse_run_or_study_folder(archive)
 
 
 @pytest.mark.parametrize("name", ["../../etc", "a/b", "/tmp/x", ".", "..", "", "a\\b", "x\ny"])

@@ -31,7 +31,7 @@ from typing import Any
 from canter.errors import CanterError
 from canter.files import make_folder, refuse_inside_run_own_folder
 from canter.orchestrate.bench_distributed import open_grid_study, run_distributed
-from canter.orchestrate.bench_folder import holding_bench_folder, refuse_run_folder, sharing_bench_folder
+from canter.orchestrate.bench_folder import holding_bench_folder, refuse_run_or_study_folder, sharing_bench_folder
 from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
 from canter.orchestrate.bench_local import run_local
 from canter.orchestrate.bench_results import cell_result, check_results_writable, write_results
@@ -50,7 +50,7 @@ def bench(settings: BenchSettings) -> str:
     bench_dir = Path(settings.out_dir)
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
-    refuse_run_folder(bench_dir)
+    refuse_run_or_study_folder(bench_dir)
     refuse_inside_run_own_folder(bench_dir, "--out")
     existed = bench_dir.exists()
     make_folder(bench_dir)  # first: a SQLite storage may live in it

@@ -8,8 +8,8 @@ records itself in the file as a writer does, with the storage it shares the grid
 bench names it.
 
 A folder that another command writes is no bench folder: a run folder, and a study folder of `canter tune` or the
---out-dir that holds its study folders, are refused as --out (`refuse_run_folder`), as tune refuses a bench folder
-(`bench_files_in`); `canter.orchestrate.study.study_files_in` tells a study folder.
+--out-dir that holds its study folders, are refused as --out (`refuse_run_or_study_folder`), as tune refuses a bench
+folder (`bench_files_in`); `canter.orchestrate.study.study_files_in` tells a study folder.
 """
 
 from __future__ import annotations
@@ -33,12 +33,12 @@ def bench_files_in(folder: Path) -> list[str]:
     """What marks `folder` as a bench's --out folder: its jobs' .cells/ folder, its tables, or a writer lock that a
     bench took; empty for any other folder. A results.md alone may be the user's own notes, so the tables count only
     together with results.csv."""
-    from canter.orchestrate.bench_results import RESULT_FILES
+    from canter.orchestrate.bench_results import RESULT_FILES, RESULTS_CSV, RESULTS_TABLE
 
     folder = Path(folder)
     held = [f"{CELLS_FOLDER}/"] * (folder / CELLS_FOLDER).is_dir()
     tables = [name for name in RESULT_FILES if (folder / name).is_file()]
-    if {"results.md", "results.csv"} <= set(tables):
+    if {RESULTS_TABLE, RESULTS_CSV} <= set(tables):
         held += tables
     holder = run_lock.read_holder(folder)
     if STORAGE_KEY in holder or str(holder.get("command", "")).split()[:2] == ["canter", "bench"]:
@@ -46,7 +46,7 @@ def bench_files_in(folder: Path) -> list[str]:
     return held
 
 
-def refuse_run_folder(bench_dir: Path) -> None:
+def refuse_run_or_study_folder(bench_dir: Path) -> None:
     """Refuse a run folder or tune's folders given as --out: the bench would write its tables and job folders among
     the run's files, and take over the writer lock of the run (its own lock file, `canter.training.run_lock`), or
     write them beside a study's database and trials."""

@@ -356,16 +356,22 @@ def results_markdown(
     return markdown + "\n## Statistics\n\n" + board.markdown(), table_csv, board.json()
 
 
+RESULTS_TABLE = "results.md"  # the table, then the statistics
+RESULTS_CSV = "results.csv"
+STATISTICS_FILE = "statistics.json"  # absent without scores
+RESULT_FILES = (RESULTS_TABLE, RESULTS_CSV, STATISTICS_FILE)
+
+
 def write_results(cells: list[Cell], results: list[CellResult], settings: BenchSettings, bench_dir: Path) -> str:
     from canter.files import write_output
     from canter.training.run_folder import metrics_file
 
     keys = varying_keys(cells)
     markdown, table_csv, statistics_json = results_markdown(results, keys, settings.total_steps)
-    write_output(bench_dir / "results.md", markdown.encode())
-    write_output(bench_dir / "results.csv", table_csv.encode())
+    write_output(bench_dir / RESULTS_TABLE, markdown.encode())
+    write_output(bench_dir / RESULTS_CSV, table_csv.encode())
     if statistics_json:
-        write_output(bench_dir / "statistics.json", statistics_json.encode())
+        write_output(bench_dir / STATISTICS_FILE, statistics_json.encode())
     for env_id in dict.fromkeys(c.env_id for c in cells):
         run_dirs = [cell.run_dir(bench_dir, seed) for cell in cells if cell.env_id == env_id for seed in settings.seeds]
         run_dirs = [d for d in run_dirs if metrics_file(d).is_file() and (d / CONFIG_FILE).is_file()]
@@ -378,7 +384,6 @@ def plot_path(bench_dir: Path, env_id: str) -> Path:
     return bench_dir / f"plot_{safe_name(env_id.split(':')[-1])}.png"
 
 
-RESULT_FILES = ("results.md", "results.csv", "statistics.json")
 
 
 def check_results_writable(cells: list[Cell], bench_dir: Path) -> None:
