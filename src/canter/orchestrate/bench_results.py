@@ -384,8 +384,6 @@ def plot_path(bench_dir: Path, env_id: str) -> Path:
     return bench_dir / f"plot_{safe_name(env_id.split(':')[-1])}.png"
 
 
-
-
 def check_results_writable(cells: list[Cell], bench_dir: Path) -> None:
     """Before any job starts, as eval and report check their outputs: each file the bench writes once the jobs have
     ended is a plain file or absent (the atomic rename would replace a link or fail on a folder), in a folder that
