@@ -351,6 +351,17 @@ def test_the_cpu_notice_comes_where_mjx_steps_not_where_its_policy_loads(monkeyp
     assert capsys.readouterr().err == "canter: no GPU found, so mjx steps its physics on the CPU (correct, but slow)\n"
 
 
+def test_an_mjx_run_refused_on_its_settings_is_one_line_without_the_cpu_notice(monkeypatch, tmp_path, capsys):
+    from canter.core import runtime
+
+    monkeypatch.setattr(runtime, "_cpu_notice_given", False)
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    argv = ["train", "InvertedPendulum-v5", "--backend", "mjx", "--set", "env.num_envs=100000000"]
+    line = error_line(capsys, [*argv, "--out-dir", str(tmp_path / "runs")])
+    assert line.startswith("env.num_envs=100000000 needs about "), line
+    assert not (tmp_path / "runs").exists()
+
+
 def _eval_with_other_physics(monkeypatch, run_dir, capsys):
     """`canter eval --set` makes the eval envs with the physics settings asked for, and records them."""
     import canter.envs.mjx.env

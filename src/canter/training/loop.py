@@ -145,17 +145,19 @@ def _train_checked(
     configs: list[Config], resumes: list[Any], run_dirs: list[Any], quiet: bool, locks: run_lock.RunLocks
 ) -> list[RunResult]:
     from canter.algos import get_algorithm
-    from canter.core.runtime import setup_jax
+    from canter.core.runtime import announce_physics, setup_jax
     from canter.envs import resolve_backend
     from canter.envs.registry import note_replay
 
     backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
-    setup_jax(backend)
+    setup_jax(backend, announce=False)
     for config in configs:
         validate(config)
     played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
-    note_replay(configs[0].env.id, backend, played)
     _check_resources(configs, backend)  # before a folder is made, and before the envs' seed lists are
+    # The notes after the checks that refuse a run on its settings alone, so that such a refusal stays one line.
+    announce_physics(backend)
+    note_replay(configs[0].env.id, backend, played)
     started = time.perf_counter()
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
