@@ -11,7 +11,7 @@ import pytest
 
 from canter.algos import get_algorithm
 from canter.algos.offpolicy.ddpg import DDPGLearner
-from canter.algos.offpolicy.iteration import init_train_state, make_iteration
+from canter.algos.offpolicy.iteration import count_step, init_train_state, make_iteration, next_ou_state, should_train
 from canter.algos.offpolicy.sac import SACLearner
 from canter.algos.offpolicy.td3 import TD3
 from canter.cli.main import main
@@ -626,3 +626,42 @@ def test_a_signal_during_setup_saves_no_replay_buffer_and_the_run_resumes_as_if_
     a, b = load_state(resumed.run_dir)[2], load_state(uninterrupted.run_dir)[2]
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+# ---------------------------------------------------------------------------------- the env loop's pure pieces
+
+
+def test_count_step_counts_env_steps_and_skips_a_vector_step_that_stored_nothing():
+    global_step, vector_steps = jnp.asarray(10, jnp.int32), jnp.asarray(3, jnp.int32)
+    for valid, expected in [([True, True, False], (12, 4, True)), ([False, False, False], (10, 3, False))]:
+        got = count_step(global_step, vector_steps, jnp.asarray(valid))
+        assert (int(got[0]), int(got[1]), bool(got[2])) == expected
+
+
+def test_should_train_matches_its_rule_on_every_case():
+    cfg = SimpleNamespace(learning_starts=100, train_freq=3)
+    for stored in (False, True):
+        for healthy in (False, True):
+            for global_step in (99, 100, 250):
+                for vector_steps in range(1, 7):
+                    expected = stored and healthy and global_step >= 100 and vector_steps % 3 == 0
+                    got = should_train(
+                        cfg,
+                        jnp.asarray(stored),
+                        jnp.asarray(healthy),
+                        jnp.asarray(global_step),
+                        jnp.asarray(vector_steps),
+                    )
+                    assert bool(got) == expected, (stored, healthy, global_step, vector_steps)
+
+
+def test_next_ou_state_holds_on_autoreset_steps_and_restarts_where_episodes_end():
+    old = np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], np.float32)
+    new = np.array([[7.0, 8.0], [9.0, 10.0], [11.0, 12.0]], np.float32)
+    valid = np.array([True, False, True])
+    done = np.array([False, False, True])
+    got = np.asarray(next_ou_state(jnp.asarray(old), jnp.asarray(new), jnp.asarray(valid), jnp.asarray(done)))
+    expected = np.empty_like(old)
+    for i in range(3):  # a plain loop over the envs
+        expected[i] = (new[i] if valid[i] else old[i]) * (0.0 if done[i] else 1.0)
+    np.testing.assert_array_equal(got, expected)
