@@ -32,6 +32,7 @@ def test_eval_json_holds_every_episodes_return_and_length(run_copy):
     assert stored["lengths"] == [int(n) for n in again.lengths] == [200, 200, 200]  # Pendulum's time limit
     assert stored["mean"] == pytest.approx(again.mean) and stored["std"] == pytest.approx(again.std)
     assert stored["checkpoint"] == checkpoint.latest(run_copy).name and stored["episodes"] == 3
+    assert stored["deterministic"] is True and stored["seed"] == 0 and stored["backend"] == "envpool"
 
 
 def test_a_cached_evaluation_is_kept_unless_it_lacks_lengths(run_copy, monkeypatch):

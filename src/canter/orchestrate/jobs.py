@@ -244,6 +244,9 @@ def run_job(spec: JobSpec, quiet: bool = True) -> None:
                 write_final_eval(Path(folder), spec.eval_episodes)
 
 
+FINAL_EVAL_SEED = 0  # the eval seed, from which `canter.core.seeding` derives the envs' seeds
+
+
 def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
     """Deterministic evaluation of the newest checkpoint (eval seed 0), cached in eval.json with every episode's
     return and length. A cached evaluation without lengths (written before they were kept), or without a mean
@@ -262,11 +265,13 @@ def write_final_eval(run_dir: Path, episodes: int) -> dict[str, Any]:
         and is_number(cached.get("mean"))
     ):
         return cached
-    result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=0)
+    result = evaluate(load(run_dir), episodes=episodes, deterministic=True, seed=FINAL_EVAL_SEED)
     summary = result.summary()
     data = {
         "checkpoint": step,
         "episodes": episodes,
+        "deterministic": True,  # the protocol, with the seed, in the file that a table's scores are read from
+        "seed": FINAL_EVAL_SEED,
         "mean": result.mean,
         "std": result.std,
         "returns": summary["returns"],
