@@ -8,9 +8,10 @@ Run with canter's interpreter (the SB3 venv is the one benchmarks/ppo_speed/run.
 
 The tools run one after another, each as a whole process. Besides the overall SPS, each row gives the steady SPS
 over the steps after learning_starts (canter: from metrics.csv; SB3: from a callback), and the 1M-step time that
-rate implies: 25k warm-up steps at the measured warm-up rate plus 975k steps at the steady rate. The markdown
-table is printed and appended, as a dated section with the machine and versions, to results.md, and the runs' raw
-files and rows.json are kept beside it in logs/<stamp>/ (benchmarks/speed_archive.py).
+rate implies: 25k warm-up steps at the measured warm-up rate plus 975k steps at the steady rate (SB3's warm-up
+rate is not measured, so its projection is the 975k steps alone). The markdown table is printed and appended, as a
+dated section with the machine and versions, to results.md, and the runs' raw files and rows.json are kept beside
+it in logs/<stamp>/ (benchmarks/speed_archive.py).
 """
 
 from __future__ import annotations
@@ -243,7 +244,8 @@ def readme_text(content: dict, m: dict, logs: str) -> str:
         f"canter's steady SPS after learning_starts is **{mine.steady_sps:,.0f}** against SB3's "
         f"**{sb3.steady_sps:,.0f}**, **{mine.steady_sps / sb3.steady_sps:.1f}x**, and the whole processes took "
         f"{mine.process_wall:.0f} s and {sb3.process_wall:.0f} s. At those rates 1M steps take about "
-        f"{mine_minutes:.0f} minutes against SB3's {sb3_minutes / 60:.1f} hours."
+        f"{mine_minutes:.0f} minutes against SB3's {sb3_minutes / 60:.1f} hours. SB3's figure is its 975k steps after "
+        f"learning_starts alone (its warm-up rate is not measured); canter's adds its 25k warm-up steps."
     )
     return textwrap.fill(text, width=116, break_long_words=False, break_on_hyphens=False)
 
@@ -253,7 +255,8 @@ HEAD = """# TD3 speed: canter vs Stable-Baselines3 on HalfCheetah-v4
 Written by `benchmarks/td3_speed/run.py`; each run appends a dated section. Both tools use 1 env, 256-256 relu
 actor and critics, batch 256, one gradient step per env step, policy delay 2, Gaussian exploration noise 0.1,
 target noise 0.2 clipped at 0.5, buffer 1e6. The projected 1M-step time is 25k warm-up steps at the warm-up rate
-plus 975k steps at the steady rate (SB3's warm-up is not timed separately, so its projection is 1M at the
+plus 975k steps at the steady rate. SB3's warm-up is not timed separately, so its projection is the 975k steps at
+the steady rate alone and leaves out its 25k warm-up steps (random actions without gradient steps, faster than the
 steady rate). Full benchmark: `.venv/bin/python benchmarks/td3_speed/run.py --total-steps 1e6`.
 """
 

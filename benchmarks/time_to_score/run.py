@@ -133,9 +133,10 @@ README_MARKERS = ("<!-- time-to-score -->\n", "<!-- /time-to-score -->")
 
 def readme_text(content: dict, m: dict, logs: str) -> str:
     """README.md's time-to-score sentence: per env, the median eval return over seeds and the median process wall,
-    against its target, with the run, machine and archive `logs` they come from."""
+    against its target, with the run, machine and archive `logs` they come from. The two medians are taken apart, so
+    they can come from different seeds; the sentence says so and gives each seed's pair after them."""
     rows, settings = content["rows"], content["settings"]
-    scores = []
+    scores, pairs = [], []
     for env in dict.fromkeys(r["env"] for r in rows):
         mine = [r for r in rows if r["env"] == env]
         median, wall = (
@@ -145,11 +146,18 @@ def readme_text(content: dict, m: dict, logs: str) -> str:
         target = TARGETS.get(env)
         verdict = "" if target is None else f" (target {target:.0f}: {'met' if median >= target else 'not met'})"
         scores.append(f"{env} scored **{median:.0f}** in {wall:.0f} s{verdict}")
+        pairs.append(
+            f"{env} " + ", ".join(f"{r['eval_mean']:.0f} in {r['process_wall']:.0f} s (seed {r['seed']})" for r in mine)
+        )
     text = (
         f"Time to score with the default preset, by `benchmarks/time_to_score/run.py` ({m['usable_cores']}-core "
         f"{m['cpu']} with {m['gpu'] or 'no GPU'}, {content['started'][:10]}; each training run a whole process with "
-        f"a {settings['minutes']:g}-minute guard, then a 10-episode deterministic eval; medians over seeds "
-        f"{','.join(map(str, settings['seeds']))}; raw logs: [{logs}]({logs})): " + " and ".join(scores) + "."
+        f"a {settings['minutes']:g}-minute guard, then a 10-episode deterministic eval; the return and the wall time "
+        f"are separate medians over seeds {','.join(map(str, settings['seeds']))}; raw logs: [{logs}]({logs})): "
+        + " and ".join(scores)
+        + ". The two medians can come from different seeds; each seed's return and process wall: "
+        + "; ".join(pairs)
+        + "."
     )
     return textwrap.fill(text, width=116, break_long_words=False, break_on_hyphens=False)
 
