@@ -87,11 +87,90 @@ def test_batch_matches_numpy_reference_and_ignores_masked_rows():
     assert float(d["policy_loss"]) == pytest.approx(pg, rel=1e-4)
     assert float(d["value_loss"]) == pytest.approx(vl, rel=1e-5)
     assert float(loss) == pytest.approx(pg + 0.5 * vl, rel=1e-4)
+    # The diagnostics that drive target_kl early stopping average over the kept rows only.
+    approx_kl = ((ratio - 1.0) - np.log(ratio)).mean()
+    clip_frac = (np.abs(ratio - 1.0) > 0.2).mean()
+    assert 0.0 < clip_frac < 1.0  # the kept rows include clipped and unclipped ratios
+    assert float(d["approx_kl"]) == pytest.approx(approx_kl, rel=1e-4)
+    assert float(d["clip_frac"]) == pytest.approx(clip_frac, rel=1e-6)
 
-    # Garbage in the masked rows changes nothing.
-    poisoned = batch._replace(advantages=batch.advantages.at[2].set(1e6), returns=batch.returns.at[5].set(-1e6))
-    loss2, _ = ppo_loss(params, poisoned, NET, ppo)
+    # Garbage in the masked rows changes nothing, the old log-probs (ratio e^30 there) included.
+    poisoned = batch._replace(
+        advantages=batch.advantages.at[2].set(1e6),
+        returns=batch.returns.at[5].set(-1e6),
+        log_probs=batch.log_probs.at[2].add(-30.0).at[5].add(-30.0),
+    )
+    loss2, d2 = ppo_loss(params, poisoned, NET, ppo)
     assert float(loss2) == pytest.approx(float(loss), rel=1e-6)
+    for name in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac"):
+        assert float(d2[name]) == pytest.approx(float(d[name]), rel=1e-6), name
+
+
+SDS_NET = NetConfig(hidden=(4,), state_dependent_std=True)
+
+
+def sds_params():
+    """state_dependent_std: mean = 0.3 + tanh(obs[1]) and log std = -0.2 + tanh(obs[0]), the critic a constant 0.7."""
+    params = init_params(jax.random.key(0), SDS_NET, 2, 1)
+    params = jax.tree_util.tree_map(jnp.zeros_like, params)
+    params["actor"][0]["w"] = jnp.eye(2, 4, dtype=jnp.float32)  # hidden = tanh(obs[0]), tanh(obs[1]), 0, 0
+    params["actor"][-1]["w"] = jnp.zeros((4, 2), jnp.float32).at[1, 0].set(1.0).at[0, 1].set(1.0)
+    params["actor"][-1]["b"] = jnp.array([0.3, -0.2], jnp.float32)
+    params["critic"][-1]["b"] = jnp.array([0.7], jnp.float32)
+    return params
+
+
+@pytest.mark.parametrize("state_dependent_std", [False, True])
+def test_every_diagnostic_is_a_mean_over_the_kept_rows(state_dependent_std):
+    """Every term of the loss and every diagnostic (approx_kl and clip_frac drive target_kl early stopping) matches
+    a numpy reference over the kept rows, while every per-row input of the masked rows is garbage. With a
+    state-dependent std the per-row entropies differ, so the entropy's masking is observable too."""
+    rng = np.random.default_rng(11)
+    B = 12
+    net = SDS_NET if state_dependent_std else NET
+    params = sds_params() if state_dependent_std else constant_params(0.3, -0.2, 0.7)
+    mask = np.ones(B, np.float32)
+    mask[[1, 4, 9]] = 0.0
+    keep = mask > 0
+    obs = rng.normal(scale=0.7, size=(B, 2)).astype(np.float32)
+    obs[~keep] = 5.0  # a log std of -0.2 + tanh(5) ~ 0.8 under state_dependent_std, far above the kept rows'
+    if state_dependent_std:
+        mean, log_std = 0.3 + np.tanh(obs[:, 1]), -0.2 + np.tanh(obs[:, 0])
+    else:
+        mean, log_std = np.full(B, 0.3), np.full(B, -0.2)
+    actions = rng.normal(size=(B, 1)).astype(np.float32)
+    actions[~keep] = 10.0
+    new_lp = np.array([log_normal(a, m, s) for a, m, s in zip(actions[:, 0], mean, log_std)])
+    old_lp = (new_lp + rng.normal(scale=0.3, size=B)).astype(np.float32)
+    old_lp[~keep] = new_lp[~keep] - 30.0  # ratio e^30: approx_kl ~ 1e13 and clipped, were these rows counted
+    adv = rng.normal(size=B).astype(np.float32)
+    adv[~keep] = 1e6
+    returns = rng.normal(size=B).astype(np.float32)
+    returns[~keep] = -1e6
+    old_values = (0.7 + rng.normal(scale=0.5, size=B)).astype(np.float32)
+    old_values[~keep] = 1e3
+    ppo = PPOConfig(clip=0.2, norm_adv=True, clip_vloss=True, ent_coef=0.05, vf_coef=0.5)
+    batch = Minibatch(*map(jnp.asarray, (obs, actions, old_lp, old_values, adv, returns, mask)))
+    loss, d = ppo_loss(params, batch, net, ppo)
+
+    a = adv[keep]
+    a = (a - a.mean()) / (a.std(ddof=1) + 1e-8)
+    log_ratio = new_lp[keep] - old_lp[keep]
+    ratio = np.exp(log_ratio)
+    pg = np.maximum(-a * ratio, -a * np.clip(ratio, 0.8, 1.2)).mean()
+    v_old, ret = old_values[keep], returns[keep]
+    v_clipped = v_old + np.clip(0.7 - v_old, -0.2, 0.2)
+    vl = 0.5 * np.maximum((0.7 - ret) ** 2, (v_clipped - ret) ** 2).mean()
+    entropy = (log_std[keep] + 0.5 * (1.0 + math.log(2 * math.pi))).mean()
+    approx_kl = ((ratio - 1.0) - log_ratio).mean()
+    clip_frac = (np.abs(ratio - 1.0) > 0.2).mean()
+    assert 0.0 < clip_frac < 1.0
+    assert float(d["policy_loss"]) == pytest.approx(pg, rel=1e-4)
+    assert float(d["value_loss"]) == pytest.approx(vl, rel=1e-5)
+    assert float(d["entropy"]) == pytest.approx(entropy, rel=1e-5)
+    assert float(d["approx_kl"]) == pytest.approx(approx_kl, rel=1e-4)
+    assert float(d["clip_frac"]) == pytest.approx(clip_frac, rel=1e-6)
+    assert float(loss) == pytest.approx(pg - 0.05 * entropy + 0.5 * vl, rel=1e-4)
 
 
 def test_advantage_normalization_uses_valid_entries_only():

@@ -420,6 +420,118 @@ def test_sac_entropies_in_the_envs_action_coordinates_match_a_reference():
     assert float(env_alpha) != float(_update(SAC(myopic, -2.0), learner, batch, jax.random.key(2))[0].log_alpha)
 
 
+def test_sac_updates_match_a_hand_written_sac():
+    """Three sac updates against SAC written out here (Haarnoja et al. 2018, with CleanRL's update order): the next
+    action a' = tanh(u'), u' = mean + std * noise from the actor at s' (log std squashed into [-5, 2] by tanh), its
+    log density log N(u'; mean, std) - sum log(1 - tanh(u')^2) - c (c the env box's log half-range), the soft target
+    y = r + gamma (1 - terminated) (min(Q1', Q2')(s', a') - alpha log pi(a'|s')) of the target critics, the critic
+    loss sum_i mean (Q_i - y)^2, numpy Adam on each network and on log alpha (its own step count), the Polyak target,
+    then on updates 0 and 2 only (policy_delay 2) the actor loss mean(alpha log pi(a|s) - min(Q1, Q2)(s, a)) through
+    the critics just updated, with alpha from before the update, and the temperature loss
+    -log_alpha mean(log pi(a|s) + target entropy) of the actor's sample before its step. The noise is the standard
+    normal draw of the same keys canter splits. Gradients by jax.grad of the losses as written here, in float64."""
+    cfg = replace(Config().sac, hidden=(8,), policy_delay=2, tau=0.05, gamma=0.9, alpha=0.5, entropy_box="env")
+    cfg = replace(cfg, actor_lr=1e-2, critic_lr=3e-2, alpha_lr=3e-2)
+    c, target_entropy = 2 * math.log(0.7), -1.5
+    sac = SAC(cfg, target_entropy, c)
+    state = sac.init(jax.random.key(0), 3, 2)
+    # Targets that differ from the online critics, so that mixing them up would show.
+    state = jax.jit(
+        lambda s: s._replace(
+            target_critics=jax.tree_util.tree_map(lambda x: x + 0.1 * jnp.sign(x + 0.3), s.target_critics)
+        )
+    )(state)
+
+    def flat(tree):  # as ravel_pytree orders the leaves, in numpy
+        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(tree)])
+
+    unravel_actor, unravel_critics = ravel_pytree(state.actor)[1], ravel_pytree(state.critics)[1]
+    theta = {name: flat(getattr(state, name)) for name in ("actor", "critics", "target_critics")}
+    log_alpha = math.log(0.5)
+    actor_adam = Adam(theta["actor"].size, cfg.actor_lr)
+    critic_adam = Adam(theta["critics"].size, cfg.critic_lr)
+    alpha_adam = Adam(1, cfg.alpha_lr)
+
+    def forward(layers, x):
+        for layer in layers[:-1]:
+            x = jnp.maximum(x @ layer["w"] + layer["b"], 0.0)
+        return x @ layers[-1]["w"] + layers[-1]["b"]
+
+    def q(critics_flat, i, obs, action):
+        layers = [{"w": layer["w"][i], "b": layer["b"][i]} for layer in unravel_critics(critics_flat)]
+        return forward(layers, jnp.concatenate([obs, action], axis=-1))[:, 0]
+
+    def policy(actor_flat, obs, noise):
+        """(the action tanh(u), log pi(a|s) in the env box) of u = mean + std * noise."""
+        out = forward(unravel_actor(actor_flat), obs)
+        mean, log_std = out[:, :2], -5.0 + 3.5 * (jnp.tanh(out[:, 2:]) + 1.0)
+        u = mean + jnp.exp(log_std) * noise
+        gaussian = -0.5 * noise**2 - log_std - 0.5 * math.log(2 * math.pi)
+        return jnp.tanh(u), jnp.sum(gaussian - jnp.log(1.0 - jnp.tanh(u) ** 2), axis=-1) - c
+
+    @jax.jit
+    def target(actor, target_critics, alpha, reward, next_obs, terminated, noise):
+        next_action, next_log_prob = policy(actor, next_obs, noise)
+        next_q = jnp.minimum(q(target_critics, 0, next_obs, next_action), q(target_critics, 1, next_obs, next_action))
+        return reward + 0.9 * (1.0 - terminated) * (next_q - alpha * next_log_prob)
+
+    @jax.jit
+    def critic_loss(critics, obs, action, y):
+        """(the loss, the mean Q of both critics, the gradient)"""
+
+        def loss(critics):
+            q1, q2 = q(critics, 0, obs, action), q(critics, 1, obs, action)
+            return jnp.mean(jnp.square(q1 - y)) + jnp.mean(jnp.square(q2 - y)), (q1.mean() + q2.mean()) / 2
+
+        (value, q_mean), grad = jax.value_and_grad(loss, has_aux=True)(critics)
+        return value, q_mean, grad
+
+    @jax.jit
+    def actor_loss(actor, critics, alpha, obs, noise):
+        """(the loss, log pi(a|s) of the actor before its step, the gradient)"""
+
+        def loss(actor):
+            action, log_prob = policy(actor, obs, noise)
+            q_pi = jnp.minimum(q(critics, 0, obs, action), q(critics, 1, obs, action))
+            return jnp.mean(alpha * log_prob - q_pi), log_prob
+
+        (value, log_prob), grad = jax.value_and_grad(loss, has_aux=True)(actor)
+        return value, log_prob, grad
+
+    for step in range(3):
+        batch = _batch(jax.random.key(10 + step), n=16)._replace(
+            terminated=(jax.random.uniform(jax.random.key(20 + step), (16,)) < 0.3).astype(jnp.float32)
+        )
+        key = jax.random.key(30 + step)
+        state, diag = _update(sac, state, batch, key)
+        obs, action, reward, next_obs, terminated = (np.asarray(x, np.float64) for x in batch)
+        next_noise, actor_noise = (
+            np.asarray(jax.random.normal(k, (16, 2), jnp.float32), np.float64) for k in jax.random.split(key)
+        )
+        alpha = math.exp(log_alpha)
+        y = target(theta["actor"], theta["target_critics"], alpha, reward, next_obs, terminated, next_noise)
+        loss, q_mean, grad = critic_loss(theta["critics"], obs, action, y)
+        theta["critics"] = critic_adam.step(theta["critics"], grad)
+        theta["target_critics"] = 0.05 * theta["critics"] + 0.95 * theta["target_critics"]
+        assert float(diag["critic_loss"]) == pytest.approx(float(loss), rel=1e-5)
+        assert float(diag["q_mean"]) == pytest.approx(float(q_mean), rel=1e-5)
+        if step % 2 == 0:
+            loss, log_prob, grad = actor_loss(theta["actor"], theta["critics"], alpha, obs, actor_noise)
+            theta["actor"] = actor_adam.step(theta["actor"], grad)
+            # d/d log_alpha of -log_alpha mean(log pi + target entropy)
+            log_alpha = float(alpha_adam.step(np.array([log_alpha]), [-np.mean(log_prob + target_entropy)])[0])
+            assert float(diag["actor_loss"]) == pytest.approx(float(loss), rel=1e-5)
+            assert float(diag["entropy"]) == pytest.approx(-float(np.mean(log_prob)), rel=1e-5)
+        else:
+            assert np.isnan(float(diag["actor_loss"])) and np.isnan(float(diag["entropy"]))
+        for name in ("actor", "critics", "target_critics"):
+            got = flat(getattr(state, name))
+            np.testing.assert_allclose(got, theta[name], rtol=1e-5, atol=1e-6, err_msg=f"{name} after update {step}")
+        assert float(state.log_alpha) == pytest.approx(log_alpha, rel=1e-5)
+        assert float(diag["alpha"]) == pytest.approx(math.exp(log_alpha), rel=1e-5)
+    assert int(state.updates) == 3 and actor_adam.t == alpha_adam.t == 2 and critic_adam.t == 3
+
+
 def test_every_noise_the_config_accepts_has_its_function():
     from canter.algos.offpolicy.sections import NOISE_KINDS
 

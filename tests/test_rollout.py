@@ -8,7 +8,7 @@ import pytest
 from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance
 from canter.algos.ppo.iteration import init_train_state, make_iteration
 from canter.config.build import build_config
-from canter.core.networks import value
+from canter.core.networks import gaussian_log_prob, policy_dist, value
 from canter.envs import make_vec_env
 from canter.envs.episodes import init_env_carry
 from test_gae import reference_gae
@@ -59,6 +59,50 @@ def test_masking_on_a_known_episode_structure():
     assert float(obs_stats.mean[0]) == pytest.approx(np.mean(seen_a), abs=1e-5)
     # Rewards of reset steps are zero and their transitions are excluded from learning.
     assert np.all(np.asarray(tr.reward)[~valid] == 0.0)
+
+
+def _reference_normalized(raw, valid, clip):
+    """Plain numpy: raw[t] ([T, N, D]) normalized by the statistics of every valid row of steps 0..t (the update
+    comes before use), merged with the prior of init_stats (mean 0, var 1, count 1e-4), epsilon 1e-8, clipped."""
+    c0 = 1e-4
+    out = np.empty(raw.shape, np.float64)
+    for t in range(raw.shape[0]):
+        seen = raw[: t + 1][valid[: t + 1]].astype(np.float64)  # [n, D]
+        n = c0 + len(seen)
+        mean = seen.sum(0) / n
+        var = (c0 * (1.0 + mean**2) + np.square(seen - mean).sum(0)) / n
+        out[t] = np.clip((raw[t] - mean) / np.sqrt(var + 1e-8), -clip, clip)
+    return out
+
+
+def test_the_policy_acts_on_and_the_rollout_stores_normalized_observations():
+    """DictObs's raw obs at episode step k is (a, b, b) = (k/10, -k/10, -k/10); the autoreset step (k = 7) shows the
+    terminal obs, which the stats never see. tr.obs must be the raw obs normalized by the running stats as they
+    stand after that step's update, and the stored log-prob must be the policy's on tr.obs."""
+    config, env, state, carry = _setup("canter_test_envs:DictObs-v0", "gymnasium", 2, 24)
+    # A policy head that the observation moves visibly (the 0.01-gain init barely does).
+    actor = list(state.params["actor"])
+    actor[-1] = {**actor[-1], "w": actor[-1]["w"] * 100.0}
+    params = {**state.params, "actor": actor}
+    state = state._replace(params=params)
+    obs_stats, _, _, tr, _ = _collect(config, env, state, carry)
+    valid = np.asarray(tr.valid)
+    assert valid.all(axis=1).sum() == 21 and valid.any(axis=1).sum() == 21  # both envs in step
+    k = np.arange(24) % 8
+    raw = np.stack([k / 10, -k / 10, -k / 10], 1).astype(np.float32)[:, None].repeat(2, 1)  # [T, N, 3]
+    expected = _reference_normalized(raw, valid, config.env.clip_obs)
+    assert config.env.normalize_obs
+    assert not np.allclose(expected, raw, atol=0.05), "normalization must move the observations"
+    np.testing.assert_allclose(np.asarray(tr.obs), expected, rtol=1e-4, atol=1e-5)
+    # The final stats are the reference's too.
+    np.testing.assert_allclose(np.asarray(obs_stats.mean), raw[valid].mean(0) * 42 / (42 + 1e-4), rtol=1e-5)
+    # The action was drawn from the policy on the stored (normalized) obs.
+    mean, log_std = policy_dist(params, tr.obs, config.net)
+    np.testing.assert_allclose(
+        np.asarray(tr.log_prob), np.asarray(gaussian_log_prob(mean, log_std, tr.action)), rtol=1e-5, atol=1e-5
+    )
+    raw_mean, _ = policy_dist(params, jnp.asarray(raw), config.net)
+    assert not np.allclose(np.asarray(raw_mean), np.asarray(mean), atol=1e-3), "raw and normalized obs must differ"
 
 
 def test_estimate_advantages_bootstraps_from_the_last_observation_and_matches_a_python_loop():
