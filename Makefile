@@ -6,12 +6,13 @@
 # on a clean clone, as `bash .ci/run` runs it (venv, install, lint, suite), took about 11.5 minutes that day, 582 s of
 # it pytest.
 # make test-fast: lint, then the suite without the slow tests (pytest -m "not slow"): the unit tests, in under 2 minutes.
+# make test-heavy: only the tests that make test leaves out for time (the MJX ports of the larger envs).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 DEMO_DIR ?= runs/demo
 
-.PHONY: install lint test test-fast demo bench clean docs
+.PHONY: install lint test test-fast test-heavy demo bench clean docs
 
 install: $(VENV)/.installed
 
@@ -36,6 +37,9 @@ test: lint
 
 test-fast: lint
 	$(PY) -m pytest -q -n 2 -m "not slow"
+
+test-heavy: install
+	$(PY) -m pytest -q -n 2 --run-heavy -m heavy
 
 demo: $(VENV)/.installed-core
 	rm -rf $(DEMO_DIR)
