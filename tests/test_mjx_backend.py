@@ -91,7 +91,8 @@ def _each_step_from_the_same_state(env_id, steps=100):
             terminations += 1
             reference.reset()
     # A diverged state: C MuJoCo resets to the rest pose at the next step's start and steps on with zero controls,
-    # whatever the action (which still sets the control cost).
+    # whatever the action (which still sets the control cost, except of Humanoid and HumanoidStandup: Gymnasium costs
+    # their controls after the step, which the reset zeroed).
     data.qvel[:] = 1e20
     state = mjx.put_data(model, data)
     action = reference.action_space.high.astype(np.float32)

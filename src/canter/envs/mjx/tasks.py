@@ -172,7 +172,8 @@ def _humanoid_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.n
     is_healthy = _in_open(data.qpos[2], 1.0, 2.0)
     forward = 1.25 * velocity[0]
     survive = 5.0 * is_healthy.astype(forward.dtype)
-    ctrl = _control_cost(0.1, action)
+    # Gymnasium costs the controls after the step, not the action: a divergence reset zeroes them in between.
+    ctrl = _control_cost(0.1, data.ctrl)
     contact = jnp.minimum(5e-7 * jnp.sum(jnp.square(_contact_wrenches(data))), 10.0)
     info = {
         "x_position": data.qpos[0],
@@ -190,7 +191,7 @@ def _humanoid_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.n
 
 def _standup_reward(model: Any, data: Any, action: jnp.ndarray, velocity: jnp.ndarray, dt: float) -> tuple:
     uph = data.qpos[2] / model.opt.timestep
-    ctrl = _control_cost(0.1, action)
+    ctrl = _control_cost(0.1, data.ctrl)  # the controls after the step, as `_humanoid_reward` costs them
     impact = jnp.minimum(0.5e-6 * jnp.sum(jnp.square(_contact_wrenches(data))), 10.0)
     info = {
         "x_position": data.qpos[0],
