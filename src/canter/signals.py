@@ -25,6 +25,21 @@ def ignore_stop_signals() -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
+def interrupt_once() -> None:
+    """For a command's process: the first SIGINT that reaches Python raises KeyboardInterrupt, as Python's own handler
+    does, and stops further ones at that moment (`ignore_stop_signals`), with no gap in which one more could land
+    while the process ends. A process started with SIGINT ignored keeps it ignored."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is (
+        signal.default_int_handler
+    ):
+        signal.signal(signal.SIGINT, _interrupt_and_ignore_the_rest)
+
+
+def _interrupt_and_ignore_the_rest(signum: int, frame: FrameType | None) -> None:
+    ignore_stop_signals()
+    raise KeyboardInterrupt
+
+
 def exit_interrupted() -> NoReturn:
     """End an interrupted process with INTERRUPTED, skipping the interpreter's shutdown. A Ctrl-C can land inside
     native code (an XLA compile, an env pool's threads) and leave it in a state that crashes that shutdown with a

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError
-from canter.signals import INTERRUPTED, exit_interrupted, ignore_stop_signals
+from canter.signals import INTERRUPTED, exit_interrupted, ignore_stop_signals, interrupt_once
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
 # and sets `func(args) -> exit code`.
@@ -161,6 +161,7 @@ def _shown(path: object, limit: int = 80) -> str:
 
 
 def entry() -> None:
+    interrupt_once()
     try:
         code = main()
     except KeyboardInterrupt:  # a second Ctrl-C after the command stopped on the first one
