@@ -531,6 +531,7 @@ def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_
 
     monkeypatch.setattr(cli, "main", lambda: 2)
     try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # as a command starts (a test worker may ignore it)
         with pytest.raises(SystemExit) as exited:
             cli.entry()
         assert exited.value.code == 2 and ended == [130]
@@ -540,6 +541,10 @@ def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_
         with pytest.raises(KeyboardInterrupt):
             signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
         assert all(signal.getsignal(sig) == signal.SIG_IGN for sig in signals.STOP_SIGNALS)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a job a script starts with `&`: SIGINT stays ignored
+        with pytest.raises(SystemExit):
+            cli.entry()
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
