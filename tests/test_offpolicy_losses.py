@@ -233,6 +233,43 @@ def test_td3_delays_the_actor_and_target_updates():
     assert np.isnan(float(diag["actor_loss"]))
 
 
+def _flat(tree):
+    """A network's parameters as one float64 numpy vector, in the order ravel_pytree gives its leaves."""
+    return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(tree)])
+
+
+def _forward(layers, x):
+    """A ReLU MLP written out, for the hand-written references."""
+    for layer in layers[:-1]:
+        x = jnp.maximum(x @ layer["w"] + layer["b"], 0.0)
+    return x @ layers[-1]["w"] + layers[-1]["b"]
+
+
+def _twin_q(unravel_critics):
+    """q(critics_flat, i, obs, action): critic i of the stacked twin critics, from their flat parameters."""
+
+    def q(critics_flat, i, obs, action):
+        layers = [{"w": layer["w"][i], "b": layer["b"][i]} for layer in unravel_critics(critics_flat)]
+        return _forward(layers, jnp.concatenate([obs, action], axis=-1))[:, 0]
+
+    return q
+
+
+def _twin_critic_loss(q):
+    """critic_loss(critics, obs, action, y) -> (sum_i mean (Q_i - y)^2, the mean Q of both critics, the gradient)."""
+
+    @jax.jit
+    def critic_loss(critics, obs, action, y):
+        def loss(critics):
+            q1, q2 = q(critics, 0, obs, action), q(critics, 1, obs, action)
+            return jnp.mean(jnp.square(q1 - y)) + jnp.mean(jnp.square(q2 - y)), (q1.mean() + q2.mean()) / 2
+
+        (value, q_mean), grad = jax.value_and_grad(loss, has_aux=True)(critics)
+        return value, q_mean, grad
+
+    return critic_loss
+
+
 def test_td3_updates_match_a_hand_written_td3():
     """Three td3 updates against TD3 written out here (Fujimoto et al. 2018, Algorithm 1): the target actor's action
     smoothed by the same standard-normal draw (std target_noise, clipped to noise_clip, the action to [-1, 1]), the
@@ -252,25 +289,15 @@ def test_td3_updates_match_a_hand_written_td3():
         )
     )(state)
 
-    def flat(tree):  # as ravel_pytree orders the leaves, in numpy
-        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(tree)])
-
     unravel_actor, unravel_critics = ravel_pytree(state.actor)[1], ravel_pytree(state.critics)[1]
-    theta = {name: flat(getattr(state, name)) for name in ("actor", "critics", "target_actor", "target_critics")}
+    theta = {name: _flat(getattr(state, name)) for name in ("actor", "critics", "target_actor", "target_critics")}
     actor_adam = Adam(theta["actor"].size, cfg.actor_lr)
     critic_adam = Adam(theta["critics"].size, cfg.critic_lr)
 
-    def forward(layers, x):
-        for layer in layers[:-1]:
-            x = jnp.maximum(x @ layer["w"] + layer["b"], 0.0)
-        return x @ layers[-1]["w"] + layers[-1]["b"]
-
-    def q(critics_flat, i, obs, action):
-        layers = [{"w": layer["w"][i], "b": layer["b"][i]} for layer in unravel_critics(critics_flat)]
-        return forward(layers, jnp.concatenate([obs, action], axis=-1))[:, 0]
+    q = _twin_q(unravel_critics)
 
     def mu(actor_flat, obs):
-        return jnp.tanh(forward(unravel_actor(actor_flat), obs))
+        return jnp.tanh(_forward(unravel_actor(actor_flat), obs))
 
     @jax.jit
     def target(target_actor, target_critics, reward, next_obs, terminated, noise):
@@ -278,16 +305,7 @@ def test_td3_updates_match_a_hand_written_td3():
         next_q = jnp.minimum(q(target_critics, 0, next_obs, next_action), q(target_critics, 1, next_obs, next_action))
         return reward + 0.9 * (1.0 - terminated) * next_q
 
-    @jax.jit
-    def critic_loss(critics, obs, action, y):
-        """(the loss, the mean Q of both critics, the gradient)"""
-
-        def loss(critics):
-            q1, q2 = q(critics, 0, obs, action), q(critics, 1, obs, action)
-            return jnp.mean(jnp.square(q1 - y)) + jnp.mean(jnp.square(q2 - y)), (q1.mean() + q2.mean()) / 2
-
-        (value, q_mean), grad = jax.value_and_grad(loss, has_aux=True)(critics)
-        return value, q_mean, grad
+    critic_loss = _twin_critic_loss(q)
 
     @jax.jit
     @jax.value_and_grad
@@ -307,7 +325,7 @@ def test_td3_updates_match_a_hand_written_td3():
         theta["critics"] = critic_adam.step(theta["critics"], grad)
         assert float(diag["critic_loss"]) == pytest.approx(float(loss), rel=1e-5)
         assert float(diag["q_mean"]) == pytest.approx(float(q_mean), rel=1e-5)
-        np.testing.assert_allclose(flat(state.critics), theta["critics"], rtol=0, atol=1e-5)
+        np.testing.assert_allclose(_flat(state.critics), theta["critics"], rtol=0, atol=1e-5)
         if step % 2 == 0:
             loss, grad = actor_loss(theta["actor"], theta["critics"], obs)
             theta["actor"] = actor_adam.step(theta["actor"], grad)
@@ -317,7 +335,7 @@ def test_td3_updates_match_a_hand_written_td3():
         else:
             assert np.isnan(float(diag["actor_loss"]))
         for name in ("actor", "target_actor", "target_critics"):
-            got = flat(getattr(state, name))
+            got = _flat(getattr(state, name))
             np.testing.assert_allclose(got, theta[name], rtol=0, atol=1e-5, err_msg=f"{name} after update {step}")
     assert int(state.updates) == 3 and actor_adam.t == 2 and critic_adam.t == 3
 
@@ -442,28 +460,18 @@ def test_sac_updates_match_a_hand_written_sac():
         )
     )(state)
 
-    def flat(tree):  # as ravel_pytree orders the leaves, in numpy
-        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(tree)])
-
     unravel_actor, unravel_critics = ravel_pytree(state.actor)[1], ravel_pytree(state.critics)[1]
-    theta = {name: flat(getattr(state, name)) for name in ("actor", "critics", "target_critics")}
+    theta = {name: _flat(getattr(state, name)) for name in ("actor", "critics", "target_critics")}
     log_alpha = math.log(0.5)
     actor_adam = Adam(theta["actor"].size, cfg.actor_lr)
     critic_adam = Adam(theta["critics"].size, cfg.critic_lr)
     alpha_adam = Adam(1, cfg.alpha_lr)
 
-    def forward(layers, x):
-        for layer in layers[:-1]:
-            x = jnp.maximum(x @ layer["w"] + layer["b"], 0.0)
-        return x @ layers[-1]["w"] + layers[-1]["b"]
-
-    def q(critics_flat, i, obs, action):
-        layers = [{"w": layer["w"][i], "b": layer["b"][i]} for layer in unravel_critics(critics_flat)]
-        return forward(layers, jnp.concatenate([obs, action], axis=-1))[:, 0]
+    q = _twin_q(unravel_critics)
 
     def policy(actor_flat, obs, noise):
         """(the action tanh(u), log pi(a|s) in the env box) of u = mean + std * noise."""
-        out = forward(unravel_actor(actor_flat), obs)
+        out = _forward(unravel_actor(actor_flat), obs)
         mean, log_std = out[:, :2], -5.0 + 3.5 * (jnp.tanh(out[:, 2:]) + 1.0)
         u = mean + jnp.exp(log_std) * noise
         gaussian = -0.5 * noise**2 - log_std - 0.5 * math.log(2 * math.pi)
@@ -475,16 +483,7 @@ def test_sac_updates_match_a_hand_written_sac():
         next_q = jnp.minimum(q(target_critics, 0, next_obs, next_action), q(target_critics, 1, next_obs, next_action))
         return reward + 0.9 * (1.0 - terminated) * (next_q - alpha * next_log_prob)
 
-    @jax.jit
-    def critic_loss(critics, obs, action, y):
-        """(the loss, the mean Q of both critics, the gradient)"""
-
-        def loss(critics):
-            q1, q2 = q(critics, 0, obs, action), q(critics, 1, obs, action)
-            return jnp.mean(jnp.square(q1 - y)) + jnp.mean(jnp.square(q2 - y)), (q1.mean() + q2.mean()) / 2
-
-        (value, q_mean), grad = jax.value_and_grad(loss, has_aux=True)(critics)
-        return value, q_mean, grad
+    critic_loss = _twin_critic_loss(q)
 
     @jax.jit
     def actor_loss(actor, critics, alpha, obs, noise):
@@ -525,7 +524,7 @@ def test_sac_updates_match_a_hand_written_sac():
         else:
             assert np.isnan(float(diag["actor_loss"])) and np.isnan(float(diag["entropy"]))
         for name in ("actor", "critics", "target_critics"):
-            got = flat(getattr(state, name))
+            got = _flat(getattr(state, name))
             np.testing.assert_allclose(got, theta[name], rtol=1e-5, atol=1e-6, err_msg=f"{name} after update {step}")
         assert float(state.log_alpha) == pytest.approx(log_alpha, rel=1e-5)
         assert float(diag["alpha"]) == pytest.approx(math.exp(log_alpha), rel=1e-5)
