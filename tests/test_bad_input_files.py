@@ -157,7 +157,8 @@ def test_a_resume_of_a_file_or_of_a_folder_of_runs_names_what_to_pass(tmp_path, 
     checkpoint = sorted((tmp_path / "a" / "checkpoints").iterdir())[-1]
     for given in (tmp_path / "a" / "config.toml", checkpoint):
         one_line(capsys, ["train", "--resume", str(given)], "is a file, not a run folder; pass the run folder that")
-    one_line(capsys, ["train", "--resume", str(tmp_path)], "is not a run folder but holds 2 (a bench's?): pass them")
+    holds_two = "is not a run folder but holds 2 run folders (a bench's?): pass them"
+    one_line(capsys, ["train", "--resume", str(tmp_path)], holds_two)
 
 
 def test_a_jax_platform_this_machine_lacks_is_one_line():
@@ -179,7 +180,8 @@ def test_a_folder_of_run_folders_names_the_glob_that_reaches_them(tmp_path, caps
         ["video", str(bench), "--out", str(tmp_path / "v.mp4")],
     ):
         message = (
-            f"{bench} is not a run folder but holds 1 (a bench's?): pass them, such as {bench / 'Hopper-v5__ppo__s0'}"
+            f"{bench} is not a run folder but holds 1 run folder (a bench's?): pass them, such as "
+            f"{bench / 'Hopper-v5__ppo__s0'}"
         )
         one_line(capsys, argv, message)
 
@@ -480,15 +482,15 @@ def test_an_empty_bench_or_study_folder_is_refused(capsys):
 
 def test_a_projects_own_checkpoints_folder_beside_its_config_is_no_run_folder(tmp_path, monkeypatch):
     """A user's folder with a config.toml and an output folder named checkpoints/ holds no run: runs may go there."""
-    from canter.files import refuse_inside_run_own_folder, refuse_protected_target
+    from canter.files import refuse_out_dir_in_a_run, refuse_protected_target
 
     (tmp_path / "config.toml").write_text("[run]\n")
     (tmp_path / "checkpoints" / "Pendulum-v1__ppo__fast__s0__x").mkdir(parents=True)
-    refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")
+    refuse_out_dir_in_a_run(tmp_path / "checkpoints", "--out-dir")
     refuse_protected_target(tmp_path / "checkpoints" / "actor.onnx")
     (tmp_path / "versions.json").write_text("{}")  # now it is a run's
     with pytest.raises(CanterError, match="is inside checkpoints/ of the run folder"):
-        refuse_inside_run_own_folder(tmp_path / "checkpoints", "--out-dir")
+        refuse_out_dir_in_a_run(tmp_path / "checkpoints", "--out-dir")
 
 
 def test_a_folder_s_run_files_count_checkpoints_only_when_one_is_there(tmp_path):

@@ -46,7 +46,7 @@ def test_best_of_a_bench_folder_names_the_runs_inside(tmp_path, capsys):
     shutil.copytree(FIXTURE, tmp_path / "bench" / "ppo")
     code = main(["eval", str(tmp_path / "bench"), "--checkpoint", "best"])
     err = capsys.readouterr().err
-    assert code == 2 and "is not a run folder but holds 1 (a bench's?)" in err, err
+    assert code == 2 and "is not a run folder but holds 1 run folder (a bench's?)" in err, err
 
 
 def test_a_run_folder_that_lost_its_config_still_gives_its_checkpoints(tmp_path):

@@ -50,7 +50,7 @@ def test_a_report_that_plays_nothing_still_tells_a_missing_folder_and_a_benchs(t
     out = str(tmp_path / "r.html")
     for folder, expected in (
         (tmp_path / "missing", f"run folder not found: {tmp_path / 'missing'}"),
-        (bench, f"{bench} is not a run folder but holds 1 (a bench's?): pass them, such as {bench / 'a'}"),
+        (bench, f"{bench} is not a run folder but holds 1 run folder (a bench's?): pass them, such as {bench / 'a'}"),
     ):
         assert main(["report", str(folder), "--episodes", "0", "--out", out]) == 2
         assert capsys.readouterr().err == f"canter: error: {expected}\n"

@@ -28,6 +28,26 @@ class _Parser(argparse.ArgumentParser):
         raise CanterError(f"{command}: {message} (see --help)" if command else f"{message} (see --help)")
 
 
+class _CommandParser(_Parser):
+    """A command's parser, which takes its run folders (or env) before, between or after its flags: argparse fills
+    a positional from one stretch of words, so `eval A --episodes 1 B` would leave B unrecognized."""
+
+    _intermixing = False
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        # parse_known_intermixed_args parses by calling parse_known_args (twice), which must then parse plainly. It
+        # also drops a `--` in its first pass, so the words after one (a run folder named -x) would read as flags.
+        if self._intermixing or (args is not None and "--" in args):
+            return super().parse_known_args(args, namespace)
+        self._intermixing = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._intermixing = False
+
+
 def _unrecognized(parser: argparse.ArgumentParser, command: str | None, extra: list[str]) -> CanterError:
     """argparse's 'unrecognized arguments' error, with the command's flags closest to the unknown ones."""
     commands = _subcommands(parser)
@@ -82,10 +102,23 @@ def _join_dashed_values(parser: argparse.ArgumentParser, argv: list[str]) -> lis
     return joined
 
 
+# The arguments that name run folders, in every command that reads one: its positional run or runs, and --resume.
+_RUN_FOLDER_ARGS = {"run": "as the run folder", "runs": "as a run folder", "resume": "to --resume"}
+
+
+def _refuse_empty_run_folders(args: argparse.Namespace) -> None:
+    """An empty run folder path: Path("") is the working folder, which would be read, or refused, in its place."""
+    for name, what in _RUN_FOLDER_ARGS.items():
+        value = getattr(args, name, None)
+        given = [value] if isinstance(value, str) else value or []
+        if any(not path.strip() for path in given):
+            raise CanterError(f"{args.command}: an empty path was given {what}; give the run folder's path")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="canter", description="Fast, correct continuous-control RL for MuJoCo robots.")
     parser.add_argument("--version", action="version", version=_version())
-    sub = parser.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", parser_class=_CommandParser, metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f"canter.cli.{name}").register(sub)
     return parser
@@ -109,6 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command is None:
             parser.print_help()
             return 2
+        _refuse_empty_run_folders(args)
         from canter.config.overrides import repeated_set_note
 
         note = repeated_set_note(getattr(args, "set", None) or [])

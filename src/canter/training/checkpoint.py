@@ -45,6 +45,7 @@ FORMAT_VERSION = 1
 LEFT_OUT_FORMAT_VERSION = 2
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
+_CHECKPOINT_TAKES = f"--checkpoint takes {LAST}, {BEST} or a .npz file"
 
 
 class DamagedCheckpoint(CanterError):
@@ -143,14 +144,14 @@ def save(
     atomic_write_bytes(Path(path), lambda f: writer(f, **payload))  # type: ignore[arg-type]
 
 
+def _named_in_checkpoint_folder(path: Path) -> bool:
+    """A path found by its name in a run's checkpoints/, where no --checkpoint need have been given."""
+    return path.parent.name == CHECKPOINT_FOLDER and bool(CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE)
+
+
 def _refuse_not_a_file(path: Path) -> None:
-    """A folder or a missing path named as a checkpoint, told apart from a damaged file."""
-    if (
-        path.is_dir()
-        and path.parent.name == CHECKPOINT_FOLDER
-        and (CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE)
-    ):
-        # Found by its name in a run's checkpoints/, where no --checkpoint need have been given.
+    """A folder, a device or a missing path named as a checkpoint, told apart from a damaged file."""
+    if path.is_dir() and _named_in_checkpoint_folder(path):
         raise CanterError(
             f"checkpoint {path} is a folder where a checkpoint file should be; move it out of {path.parent}"
         )
@@ -164,11 +165,42 @@ def _refuse_not_a_file(path: Path) -> None:
             f"checkpoint {path} is a link to a missing file ({os.readlink(path)}); remove the link, or restore "
             f"its target"
         )
+    if path.exists() and not path.is_file():  # reading a pipe would wait for a writer that never comes
+        fix = f"move it out of {path.parent}" if _named_in_checkpoint_folder(path) else _CHECKPOINT_TAKES
+        raise CanterError(f"checkpoint {path} is not a regular file (a device, pipe or socket); {fix}")
     if not path.is_file():
         named = path.suffix != ".npz" and len(path.parts) == 1  # a word, as `last` and `best` are
-        raise CanterError(
-            f"checkpoint not found: {path}" + (f"; --checkpoint takes {LAST}, {BEST} or a .npz file" if named else "")
-        )
+        raise CanterError(f"checkpoint not found: {path}" + (f"; {_CHECKPOINT_TAKES}" if named else ""))
+
+
+# Header fields that readers index into as this type, where a header has them; a header written by canter always
+# has config, env and global_step, but tests and tools write headers with fewer fields.
+_FIELD_TYPES: dict[str, tuple[type, str]] = {
+    "config": (str, "text"),
+    "env": (dict, "an object"),
+    "global_step": (int, "a whole number"),
+    "left_out": (list, "a list"),
+}
+
+
+def _checked_header(header: Any, path: Path) -> dict[str, Any]:
+    """A parsed header, refused as damaged where it is no JSON object or a field has a type no writer gives it (the
+    content hash, kept inside the header, cannot vouch for a header that is not an object)."""
+    if not isinstance(header, dict):
+        raise DamagedCheckpoint(path, "is corrupt (its header is not a JSON object)")
+    for key, (kind, name) in _FIELD_TYPES.items():
+        value = header.get(key)
+        if key in header and (not isinstance(value, kind) or isinstance(value, bool)):
+            raise DamagedCheckpoint(path, f"is corrupt (its header's {key} is not {name})")
+    return header
+
+
+def config_text(header: dict[str, Any], path: Path) -> str:
+    """The config TOML that a checkpoint's header holds; a DamagedCheckpoint where it holds none."""
+    text = header.get("config")
+    if not isinstance(text, str):
+        raise DamagedCheckpoint(Path(path), "is corrupt (its header holds no config)")
+    return text
 
 
 def read_header(path: Path) -> dict[str, Any]:
@@ -176,11 +208,12 @@ def read_header(path: Path) -> dict[str, Any]:
     _refuse_not_a_file(Path(path))
     try:
         with np.load(path, allow_pickle=False) as data:
-            return json.loads(bytes(data["header"]).decode())
+            header = json.loads(bytes(data["header"]).decode())
     except PermissionError:
         raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise DamagedCheckpoint(Path(path), "is corrupt or truncated") from None
+    return _checked_header(header, Path(path))
 
 
 def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -195,6 +228,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         raise
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise DamagedCheckpoint(path, "is corrupt or truncated") from None
+    header = _checked_header(header, path)
     version = header.get("format_version")
     if version not in (FORMAT_VERSION, LEFT_OUT_FORMAT_VERSION):
         raise CanterError(
@@ -263,11 +297,7 @@ def need_run_folder(run_dir: Path) -> None:
             f"{run_dir} has {', '.join(sorted(held))} but no {CONFIG_FILE} and no checkpoint: the run folder is "
             f"damaged; restore its {CONFIG_FILE} and {CHECKPOINT_FOLDER}/ from a copy"
         )
-    inside = runs_inside(run_dir)
-    if inside:
-        raise CanterError(
-            f"{run_dir} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as {inside[0]}"
-        )
+    refuse_a_folder_of_runs(run_dir)
     raise CanterError(f"{run_dir} has no {CONFIG_FILE} and no checkpoint; is it a canter run folder?")
 
 
@@ -299,6 +329,14 @@ def latest(run_dir: Path) -> Path:
             f"folder that holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
+
+
+def refuse_a_folder_of_runs(folder: Path) -> None:
+    """A one-line refusal of a folder that holds run folders (a bench's) where one run folder was asked for."""
+    inside = runs_inside(folder)
+    if inside:
+        runs = f"{len(inside)} run folder{'s' if len(inside) > 1 else ''}"
+        raise CanterError(f"{folder} is not a run folder but holds {runs} (a bench's?): pass them, such as {inside[0]}")
 
 
 def runs_inside(folder: Path) -> list[Path]:
@@ -339,6 +377,11 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     run_dir = Path(run_dir)
     if not isinstance(which, str | Path):
         raise CanterError(f"checkpoint must be {LAST!r}, {BEST!r} or a checkpoint file's path, got {which!r}")
+    if isinstance(which, str) and not which.strip():  # Path("") is ".", which would be refused as a folder
+        raise CanterError(
+            f"the checkpoint given is an empty path; pass {LAST}, {BEST} or a checkpoint file (--checkpoint, "
+            f"checkpoint= from Python)"
+        )
     if which == LAST:
         return latest(run_dir)
     need_run_folder(run_dir)

@@ -26,6 +26,30 @@ class PolicyFacts:
     global_step: int
 
 
+def policy_facts(header: dict[str, Any], path: Path) -> PolicyFacts:
+    """The env facts of a checkpoint's header; a DamagedCheckpoint where any is missing or of the wrong kind."""
+    try:
+        env = header["env"]
+        return PolicyFacts(
+            env_id=_text(env["id"]),
+            backend=_text(env["backend"]),
+            obs_dim=int(env["obs_dim"]),
+            act_dim=int(env["act_dim"]),
+            action_low=np.asarray(env["action_low"], np.float32),
+            action_high=np.asarray(env["action_high"], np.float32),
+            global_step=int(header["global_step"]),
+        )
+    except (KeyError, TypeError, ValueError):
+        what = "is corrupt (its header lacks the env facts of its policy)"
+        raise checkpoint.DamagedCheckpoint(path, what) from None
+
+
+def _text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise TypeError(value)
+    return value
+
+
 def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
     """(config, facts, train state, header) from a checkpoint of a run folder: `which` is `last` (the newest),
     `best` or a checkpoint file (`checkpoint.resolve`)."""
@@ -35,22 +59,13 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     run_dir = Path(run_dir)
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
-    config = from_toml_text(header["config"], str(path))
+    config = from_toml_text(checkpoint.config_text(header, path), str(path))
     if path.resolve().parent == run_folder.checkpoint_dir(run_dir).resolve():  # one of the folder's own
         run_folder.check_own_checkpoint(run_dir, config, path)
     else:
         run_folder.check_given_checkpoint(run_dir, config, path)
-    env = header["env"]
-    setup_jax(env["backend"], announce=False)  # the precision it trained in; where it plays, says its player
-    facts = PolicyFacts(
-        env_id=env["id"],
-        backend=env["backend"],
-        obs_dim=int(env["obs_dim"]),
-        act_dim=int(env["act_dim"]),
-        action_low=np.asarray(env["action_low"], np.float32),
-        action_high=np.asarray(env["action_high"], np.float32),
-        global_step=int(header["global_step"]),
-    )
+    facts = policy_facts(header, path)
+    setup_jax(facts.backend, announce=False)  # the precision it trained in; where it plays, says its player
     # Only the state's structure, shapes and dtypes: building a real one would compile and run its initializers
     # (seconds, and a replay buffer's worth of memory) just to be overwritten.
     import jax

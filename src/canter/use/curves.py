@@ -43,14 +43,9 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     if path.is_dir():  # a run folder with its file's name taken: sending the user to another run folder misleads
         raise CanterError(f"{path} is a folder, not a file; move it away and restore {path.name} from a copy")
     if not path.is_file():
-        from canter.training.checkpoint import runs_inside
+        from canter.training.checkpoint import refuse_a_folder_of_runs
 
-        inside = runs_inside(path.parent) if path.parent.is_dir() else []
-        if inside:
-            raise CanterError(
-                f"{path.parent} is not a run folder but holds {len(inside)} (a bench's?): pass them, such as "
-                f"{inside[0]}"
-            )
+        refuse_a_folder_of_runs(path.parent)
         # plot and report both read curves here, so the message names no command.
         raise CanterError(f"no metrics.csv in {path.parent}; pass a run folder written by `canter train`")
     header, rows = read_rows(path)  # a half-written last line is left out

@@ -94,14 +94,16 @@ def record_video(
     too) and this returns as just said, leaving the signal to the caller."""
     from canter.envs.registry import dm_control_task, note_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
+    from canter.training.restore import policy_facts
 
     if not str(out_path).strip():  # Path("") is ".", which the suffix check would name instead
         raise CanterError("--out is empty; give the file to write, e.g. --out policy.mp4 (or .gif)")
     out = Path(out_path)
     check_video_args(out, episodes, width, height, fps, max_steps)
-    header = read_header(resolve(Path(run_dir), checkpoint))
-    if dm_control_task(header["env"]["id"]) is None:  # here, not in a render subprocess, whose output is not shown
-        note_replay(header["env"]["id"], header["env"]["backend"], single_env_backend().name)
+    newest = resolve(Path(run_dir), checkpoint)
+    trained = policy_facts(read_header(newest), newest)
+    if dm_control_task(trained.env_id) is None:  # here, not in a render subprocess, whose output is not shown
+        note_replay(trained.env_id, trained.backend, single_env_backend().name)
     if not headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
