@@ -11,7 +11,15 @@ from pathlib import Path
 from typing import BinaryIO
 
 from canter.errors import CanterError
-from canter.run_layout import RUN_OWN_FILES, RUN_OWN_FOLDERS, surely_a_run
+from canter.run_layout import (
+    LOCK_FILE,
+    RUN_OWN_FILES,
+    RUN_OWN_FOLDERS,
+    STEP_VIDEO,
+    VIDEO_WORK_FILES,
+    VIDEOS_FOLDER,
+    surely_a_run,
+)
 
 # A full disk or quota, where freeing space is the fix; the other write errors need a writable path or device.
 _NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
@@ -89,6 +97,8 @@ def is_write_error(exc: BaseException) -> bool:
 def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None:
     """Call writer(file_object) on a temp file next to `path`, then rename it into place. A write error leaves
     no temp file and raises `WriteError`; `path` keeps its old content."""
+    if path.is_dir() and not path.is_symlink():  # before the writer, which may take long, runs in vain
+        raise _naming(path, OSError(errno.EISDIR, os.strerror(errno.EISDIR)))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -103,7 +113,10 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
             with contextlib.suppress(OSError):  # a file system without modes keeps its own
                 os.fchmod(f.fileno(), OUTPUT_FILE_MODE)
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise _naming(path, exc) from None
     except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -113,10 +126,19 @@ def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None
         raise
 
 
-def refuse_inside_run_own_folder(folder: str | Path, flag: str) -> None:
-    """Refuse a folder for new run or bench folders that lies inside a run folder's own folder (checkpoints/, tb/):
-    the run's listings would then meet foreign folders among its checkpoints or events."""
+def _naming(path: Path, exc: OSError) -> OSError:
+    """`exc` naming `path`: a failed rename names the temp file, which is removed, not what is in the way."""
+    return OSError(exc.errno, exc.strerror, str(path))
+
+
+def refuse_out_dir_in_a_run(folder: str | Path, flag: str) -> None:
+    """Refuse a folder for new run or bench folders that is a run folder, or lies inside a run folder's own folder
+    (checkpoints/, tb/): the run's listings would then meet foreign folders among its files, checkpoints or events."""
     resolved = Path(folder).resolve()
+    if surely_a_run(resolved):
+        raise CanterError(
+            f"{flag} {folder} is a run folder, and new folders would be made among its own files; give another {flag}"
+        )
     for inner in (resolved, *resolved.parents):
         if inner.name in RUN_OWN_FOLDERS and surely_a_run(inner.parent):
             raise CanterError(
@@ -139,6 +161,25 @@ def refuse_protected_target(path: str | Path) -> None:
             f"cannot write {path}: {resolved.parent.name}/ belongs to the run folder {resolved.parent.parent}; "
             f"give another path"
         )
+    if resolved.name == LOCK_FILE:
+        raise CanterError(
+            f"cannot write {path}: {LOCK_FILE} is the writer lock that keeps two processes from training into one "
+            f"folder; give another path"
+        )
+    if resolved.parent.name == VIDEOS_FOLDER and _a_video_file_of_the_run(resolved):
+        raise CanterError(
+            f"cannot write {path}: it is a file of the videos the run folder {resolved.parent.parent} renders as it "
+            f"trains; give another path (a new name in {resolved.parent} will do)"
+        )
+
+
+def _a_video_file_of_the_run(path: Path) -> bool:
+    """A saved step video or a renderer's file in a run's videos/ folder. A new step video stays writable: the
+    trainer's own renderer writes it through these guards; other names there are the user's own videos."""
+    if not surely_a_run(path.parent.parent):
+        return False
+    own = path.match(STEP_VIDEO) and (path.exists() or path.is_symlink())
+    return own or any(path.match(pattern) for pattern in VIDEO_WORK_FILES)
 
 
 def write_output(path: str | Path, data: bytes) -> None:

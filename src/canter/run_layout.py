@@ -21,6 +21,12 @@ EVAL_FILE = "eval.json"
 CHECKPOINT_FOLDER = "checkpoints"
 TENSORBOARD_FOLDER = "tb"
 VIDEOS_FOLDER = "videos"  # videos rendered while a run trains (canter.training.videos)
+STEP_VIDEO = "step_*.mp4"  # in videos/: the video of one step
+# In videos/ too: the renderer's output, the states it renders from, and unfinished videos (atomic writes' temp files).
+VIDEO_WORK_FILES = ("render.log", ".snapshot_*.npz", ".*.tmp*")
+# The writer lock (canter.training.run_lock) of each folder canter trains into: a run's, a bench's or a tune's. Not
+# one of RUN_OWN_FILES, which tell a run: a folder whose first run was refused keeps its lock and is no run.
+LOCK_FILE = ".writer.lock"
 CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"  # in checkpoints/: the state of the best evaluation during training
 

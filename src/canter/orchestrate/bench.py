@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
-from canter.files import make_folder, refuse_inside_run_own_folder
+from canter.files import make_folder, refuse_out_dir_in_a_run
 from canter.orchestrate.bench_distributed import open_grid_study, run_distributed
 from canter.orchestrate.bench_folder import holding_bench_folder, refuse_run_or_study_folder, sharing_bench_folder
 from canter.orchestrate.bench_grid import BenchSettings, Cell, make_cells
@@ -51,7 +51,7 @@ def bench(settings: BenchSettings) -> str:
     if settings.storage_url:
         describe_url(normalize_url(settings.storage_url))  # a URL that is not one, before the folder is made
     refuse_run_or_study_folder(bench_dir)
-    refuse_inside_run_own_folder(bench_dir, "--out")
+    refuse_out_dir_in_a_run(bench_dir, "--out")
     existed = bench_dir.exists()
     make_folder(bench_dir)  # first: a SQLite storage may live in it
     try:

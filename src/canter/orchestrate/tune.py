@@ -39,7 +39,7 @@ from canter.config.overrides import parse_set_args
 from canter.config.schema import Config
 from canter.config.serialize import to_toml, toml_tables
 from canter.errors import CanterError, joined
-from canter.files import make_folder, refuse_inside_run_own_folder
+from canter.files import make_folder, refuse_out_dir_in_a_run
 from canter.orchestrate.bench_folder import bench_files_in
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.job_resources import worker_count
@@ -585,7 +585,7 @@ def tune(settings: TuneSettings) -> Any:
     from canter.orchestrate.jobs import exit_text, run_workers
 
     base, space = check_settings(settings)
-    refuse_inside_run_own_folder(settings.out_dir, "--out-dir")
+    refuse_out_dir_in_a_run(settings.out_dir, "--out-dir")
     check_trackers(settings.track)  # a missing library or a bad --mlflow-uri, before any trial
     check_jobs(settings.jobs)  # before the study folder is made
     refuse_bench_folder(settings)

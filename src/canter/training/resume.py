@@ -22,6 +22,7 @@ from canter.run_layout import (
     CONFIG_FILE,
     METRICS_FILE,
     SUMMARY_FILE,
+    VERSIONS_FILE,
     StopReason,
     finished_without_checkpoints,
     has_finished,
@@ -30,7 +31,7 @@ from canter.run_layout import (
 )
 from canter.training import checkpoint, run_folder, run_lock, trackers
 from canter.training.logger import checkpoint_totals, read_rows, row_steps
-from canter.training.seed_run import RunResult, SeedStart, reached_target, read_result, write_summary
+from canter.training.seed_run import RunResult, SeedStart, reached_target, read_best, read_result, write_summary
 
 
 class Saved(Enum):
@@ -185,6 +186,7 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
 
         folder = Path(resume)
         locks.take(folder)  # before its newest checkpoint is read: another writer may be finishing it
+        refuse_folders_for_files(folder)
         if _never_checkpointed(folder):
             check_same_experiment_and_seed(saved_config(folder), config, folder)
             _refuse_lost_checkpoints(folder, config)
@@ -195,7 +197,9 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         step = int(header["global_step"])
         _note_a_changed_backend(folder, header["env"]["backend"], backend, step)
         earlier = checkpoint_totals(header, run_folder.metrics_file(folder))
-        start = SeedStart(folder, state, step, earlier, latest, untrained=bool(header.get("untrained", False)))
+        best = read_best(folder) if config.run.eval_every else None
+        untrained = bool(header.get("untrained", False))
+        start = SeedStart(folder, state, step, earlier, latest, untrained=untrained, best=best)
     else:
         if run_dir is not None:
             _refuse_a_run_in(Path(run_dir))
@@ -276,6 +280,21 @@ def start_over(run_dir: Path) -> None:
     )
 
 
+# The files a resume writes at the top of its run folder, whatever its settings.
+WRITTEN_BY_A_RESUME = (CONFIG_FILE, METRICS_FILE, SUMMARY_FILE, VERSIONS_FILE)
+
+
+def refuse_folders_for_files(run_dir: Path) -> None:
+    """A folder where the resume will write one of the run's files is refused before anything is trained: else the
+    resume would train to its end and then fail, or read a config.toml folder as a missing file."""
+    for name in WRITTEN_BY_A_RESUME:
+        path = run_dir / name
+        if path.is_dir():
+            raise CanterError(
+                f"{path} is a folder, where the run keeps its {name} file; move it out of the way, then resume"
+            )
+
+
 def _refuse_a_run_in(run_dir: Path) -> None:
     """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
     present = run_files_in(run_dir)
@@ -315,7 +334,7 @@ def header_config(header: dict[str, Any], path: Path) -> Config:
     """The run's whole config, as a checkpoint's header holds it."""
     from canter.config.serialize import from_toml_text
 
-    return from_toml_text(header["config"], str(path))
+    return from_toml_text(checkpoint.config_text(header, path), str(path))
 
 
 def unreadable_config(run_dir: Path) -> bool:
@@ -350,6 +369,7 @@ def resume_config(
     if Path(run_dir).is_file():  # a checkpoint too: a resume goes on from the run's newest
         raise CanterError(f"{run_dir} is a file, not a run folder; pass the run folder that holds it")
     checkpoint.need_run_folder(Path(run_dir))
+    refuse_folders_for_files(Path(run_dir))
     config = saved_config(Path(run_dir))
     if total_steps is not None:
         config = config.with_values("run", total_steps=int(total_steps))

@@ -32,7 +32,7 @@ from typing import Any
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
 from canter.errors import CanterError
-from canter.files import atomic_write_bytes, refuse_inside_run_own_folder
+from canter.files import atomic_write_bytes, refuse_out_dir_in_a_run
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
     BEST_FILE,
@@ -66,7 +66,7 @@ def _safe(text: str) -> str:
 
 def new_run_dir(config: Config) -> Path:
     """A new run folder's path in run.out_dir, named by its env, algorithm, preset, seed and start time."""
-    refuse_inside_run_own_folder(config.run.out_dir, "--out-dir")
+    refuse_out_dir_in_a_run(config.run.out_dir, "--out-dir")
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     name = (
         f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
@@ -213,6 +213,8 @@ def damaged_config_fix(run_dir: Path) -> str:
 
 def read_config(run_dir: Path) -> Config:
     path = Path(run_dir) / CONFIG_FILE
+    if path.is_dir():
+        raise CanterError(f"{path} is a folder, where the run keeps its config.toml file; move it out of the way")
     if not path.is_file():
         # A folder with a run's own files (checkpoints, metrics) is a run that lost its config, which a checkpoint
         # can give back; only a folder with none of them may be no run at all.

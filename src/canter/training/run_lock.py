@@ -40,8 +40,8 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import WriteError, is_write_error, make_folder
+from canter.run_layout import LOCK_FILE as LOCK_FILE  # re-exported: bench and job code name it through this module
 
-LOCK_FILE = ".writer.lock"
 OUT_OF_FILES = (errno.EMFILE, errno.ENFILE)  # the process's or the system's table of open files is full
 FILES_PER_RUN = 3  # what a training run keeps open: its writer lock, metrics.csv and TensorBoard's events
 SPARE_FILES = 32  # what a process opens beyond its runs': envs, evaluations, a video's encoder, the libraries

@@ -99,6 +99,15 @@ def reached_target(recent: Sequence[float], target: float | None) -> bool:
 
 
 @dataclass(frozen=True)
+class Best:
+    """A run's checkpoints/best.npz: its evaluation's score and the step it was saved at."""
+
+    path: Path
+    score: float
+    step: int
+
+
+@dataclass(frozen=True)
 class SeedStart:
     """Where one seed of a group starts: its run folder and, for a resume, what its newest checkpoint holds."""
 
@@ -109,6 +118,7 @@ class SeedStart:
     resumed_from: Path | None = None  # the checkpoint
     untrained: bool = False  # the checkpoint was written before the run's first iteration (a stop during setup)
     restarted: bool = False  # a resume of a run with no checkpoint, which trains again from step 0 in its folder
+    best: Best | None = None  # a resumed run's best.npz, read before anything is written to its folder
 
     @property
     def resumed(self) -> bool:
@@ -161,7 +171,7 @@ class SeedRun:
             evaluates=config.run.eval_every > 0,
         )
         self.evaluation = (
-            TrainingEvaluation(config, spec, start.step, best_return(run_dir, start.step) if resumed else None)
+            TrainingEvaluation(config, spec, start.step, best_return(start.best, start.step))
             if config.run.eval_every
             else None
         )
@@ -407,29 +417,37 @@ def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
         return None
 
 
-def best_return(run_dir: Path, resume_step: int) -> float | None:
-    """The score of the run's best.npz, so that a run resumed at `resume_step` keeps its best state until a better
-    one comes. A best.npz saved after that checkpoint (an evaluation comes before its iteration's checkpoint) is of
-    training that the resume does again, whose rows it drops: it is removed, and the next evaluation saves one."""
+def read_best(run_dir: Path) -> Best | None:
+    """The run's best.npz, which a resume that evaluates reads before it writes anything: a damaged one is refused
+    in one line with the run folder as it was. None where the run has none."""
     path = checkpoint.best_path(run_dir)
-    if not path.is_file():
+    if not (path.exists() or path.is_symlink()):
         return None
+    header = checkpoint.read_header(path)  # a folder, or a file that is no checkpoint, is refused here
     try:
-        header = checkpoint.read_header(path)
         score = float(header["evaluation"]["return_mean"])
+        step = int(header.get("global_step", 0))
     except (KeyError, TypeError, ValueError):
         raise CanterError(
             f"{path} holds no evaluation score, so it is not a best checkpoint of this run; move it out of the "
             f"folder, then resume"
         ) from None
-    saved_at = int(header.get("global_step", 0))
-    if saved_at <= resume_step:
-        return score
-    path.unlink()
+    return Best(path, score, step)
+
+
+def best_return(best: Best | None, resume_step: int) -> float | None:
+    """The score of the run's best.npz, so that a run resumed at `resume_step` keeps its best state until a better
+    one comes. A best.npz saved after that checkpoint (an evaluation comes before its iteration's checkpoint) is of
+    training that the resume does again, whose rows it drops: it is removed, and the next evaluation saves one."""
+    if best is None:
+        return None
+    if best.step <= resume_step:
+        return best.score
+    best.path.unlink(missing_ok=True)
     print(
-        f"canter: note: removed {path} (step {saved_at:,}, return {score:.1f}): it was saved after the checkpoint "
-        f"this resume starts from (step {resume_step:,}), by training the resume does again; the next evaluation "
-        f"saves a new one",
+        f"canter: note: removed {best.path} (step {best.step:,}, return {best.score:.1f}): it was saved after the "
+        f"checkpoint this resume starts from (step {resume_step:,}), by training the resume does again; the next "
+        f"evaluation saves a new one",
         file=sys.stderr,
     )
     return None
