@@ -201,8 +201,8 @@ def test_quiet_is_offered_where_there_is_a_progress_bar_only(capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--stop-at-return", "-inf"], "run.stop_at_return must be a finite number, got -inf"),
-        (["--max-minutes", "-NaN"], "run.max_minutes must be a finite number, got nan"),
+        (["--stop-at-return", "-inf"], "run.stop_at_return must be a finite number or none, got -inf"),
+        (["--max-minutes", "-NaN"], "run.max_minutes must be a finite number or none, got nan"),
     ],
 )
 def test_a_value_that_starts_with_a_dash_reaches_its_own_check(argv, message, capsys):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +25,23 @@ def steps_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive whole step count, got {text!r}")
     if value >= STEP_LIMIT:
         raise argparse.ArgumentTypeError(f"expected a step count below 2**53 ({STEP_LIMIT:,}), got {text!r}")
+    return int(value)
+
+
+def whole_arg(text: str) -> int:
+    """A whole number, written as 1000 or as 1e3 (as --total-steps takes it); each command checks its own range."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value.is_integer():  # also nan and inf
+        raise argparse.ArgumentTypeError(f"expected a whole number such as 10 or 1e3, got {text!r}")
+    if abs(value) >= STEP_LIMIT:  # past 2**53 a float skips whole numbers, so 1e17 may not be the number meant
+        raise argparse.ArgumentTypeError(f"expected a whole number below 2**53 ({STEP_LIMIT:,}), got {text!r}")
     return int(value)
 
 
@@ -62,6 +80,15 @@ def seeds_arg(text: str) -> tuple[int, ...]:
     if not all(0 <= seed < SEED_LIMIT for seed in seeds):
         raise argparse.ArgumentTypeError(f"expected seeds from 0 to {SEED_LIMIT - 1}, got {text!r}")
     return seeds
+
+
+def check_storage_arg(url: str | None, without: str) -> None:
+    """`--storage ''` would read as not given, and the command would quietly use `without` instead."""
+    if url == "":
+        raise CanterError(
+            "--storage is empty; give a database URL such as sqlite:///study.db or postgresql://user:pw@host/db, "
+            f"or drop --storage for {without}"
+        )
 
 
 def add_checkpoint_arg(parser: argparse.ArgumentParser) -> None:

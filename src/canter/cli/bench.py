@@ -7,11 +7,13 @@ import argparse
 from canter.cli.args import (
     add_backend_arg,
     add_track_args,
+    check_storage_arg,
     comma_entries,
     seeds_arg,
     sets_with_backend,
     steps_arg,
     track_spec,
+    whole_arg,
 )
 
 
@@ -50,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument(
         "--jobs",
-        type=int,
+        type=whole_arg,
         default=1,
         help="jobs trained at once, one process each (a cell's seeds, or one td3/ddpg/sac seed; default 1)",
     )
@@ -66,13 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_backend_arg(b)
     b.add_argument(
         "--episodes",
-        type=int,
+        type=whole_arg,
         default=10,
         help="deterministic episodes of each run's final evaluation, as in canter eval (default 10)",
     )
     # `--eval-episodes` means episodes per evaluation during training (train, tune), not bench's final evaluation,
     # so bench refuses it and names `--episodes`.
-    b.add_argument("--eval-episodes", type=int, default=None, help=argparse.SUPPRESS)
+    b.add_argument("--eval-episodes", type=whole_arg, default=None, help=argparse.SUPPRESS)
     b.add_argument(
         "--storage",
         default=None,
@@ -81,7 +83,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--study", default=None, metavar="NAME", help="study name with --storage (default: --out name)")
     b.add_argument(
-        "--heartbeat", type=int, default=None, metavar="SECONDS", help="with --storage: heartbeat interval (default 60)"
+        "--heartbeat",
+        type=whole_arg,
+        default=None,
+        metavar="SECONDS",
+        help="with --storage: heartbeat interval (default 60)",
     )
     add_track_args(b, "one tracker run per seed, a cell's seeds in one group; a re-run continues those it resumes")
     b.set_defaults(func=run)
@@ -107,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
             f"{flags} {'go' if len(alone) > 1 else 'goes'} with --storage only (without it the bench runs on this "
             f"machine alone, with no study); add --storage URL to share the grid, or leave out {flags}"
         )
+    check_storage_arg(args.storage, "the bench on this machine alone")
 
     grid = tuple(parse_grid_arg(g) for g in args.grid)
     grid_keys = {key for key, _ in grid}

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
+from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg, whole_arg
 from canter.cli.export import check_output_path
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     e.add_argument("runs", nargs="+", help="run folders")
     add_checkpoint_arg(e)
-    e.add_argument("--episodes", type=int, default=10, help="episodes per run (and per --vary value; default 10)")
+    e.add_argument("--episodes", type=whole_arg, default=10, help="episodes per run (and per --vary value; default 10)")
     e.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     e.add_argument("--env", default=None, help="evaluate on another env with the same observation/action sizes")
     e.add_argument(
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.vary is None and args.out is not None:
         raise CanterError("--out names the --vary plot; without --vary use --json")
     if args.json is not None:
-        check_output_path(args.json, "--json", "eval.json")
+        check_output_path(args.json, "--json", "results.json")
         check_writable(args.json)
     spec = None
     if args.vary is not None:

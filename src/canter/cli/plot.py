@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import check_distinct_runs, comma_entries, seed_arg
+from canter.cli.args import check_distinct_runs, comma_entries, seed_arg, whole_arg
+from canter.cli.export import check_output_path
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -28,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--x", choices=tuple(X_AXES), default="steps", help="x axis: env steps or wall time")
     p.add_argument(
         "--smooth",
-        type=int,
+        type=whole_arg,
         default=1,
         metavar="W",
         help="trailing moving average over W logged rows of each run (default 1: none)",
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from canter.use.plot import figure_format, render
 
     check_distinct_runs(args.runs)
+    check_output_path(args.out, "--out", "curves.png")  # before its format is read from its name
     fmt = figure_format(args.out)
     check_writable(args.out)
     if args.metrics == [""]:

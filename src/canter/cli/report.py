@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg
+from canter.cli.args import add_checkpoint_arg, check_distinct_runs, check_one_run_for_a_file, seed_arg, whole_arg
+from canter.cli.export import check_output_path
 from canter.errors import CanterError
 from canter.files import check_writable, write_output
 
@@ -22,10 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_checkpoint_arg(p)
     p.add_argument("--out", default="report.html", help="output HTML file (default report.html)")
     p.add_argument(
-        "--episodes", type=int, default=10, help="evaluation episodes per run (default 10); 0 skips evaluation"
+        "--episodes", type=whole_arg, default=10, help="evaluation episodes per run (default 10); 0 skips evaluation"
     )
     p.add_argument("--seed", type=seed_arg, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
-    p.add_argument("--smooth", type=int, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
+    p.add_argument("--smooth", type=whole_arg, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
     p.add_argument(
         "--video",
         action="store_true",
@@ -37,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.use.report import build_report
 
+    check_output_path(args.out, "--out", "report.html")  # an empty or folder --out, named as such
     if Path(args.out).suffix.lower() not in (".html", ".htm"):  # before check_writable, which makes its folders
         raise CanterError(f"--out {args.out}: the report is one HTML page; name it *.html")
     check_distinct_runs(args.runs)

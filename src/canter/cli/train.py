@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_backend_arg, add_track_args, seed_arg, seeds_arg, steps_arg, track_spec
+from canter.cli.args import add_backend_arg, add_track_args, seed_arg, seeds_arg, steps_arg, track_spec, whole_arg
 from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
 
@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument(
         "--eval-episodes",
-        type=int,
+        type=whole_arg,
         default=None,
         metavar="K",
         help="episodes of each evaluation during training (run.eval_episodes, default 10)",

@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import argparse
 
-from canter.cli.args import add_backend_arg, add_track_args, seed_arg, sets_with_backend, steps_arg, track_spec
+from canter.cli.args import (
+    add_backend_arg,
+    add_track_args,
+    check_storage_arg,
+    seed_arg,
+    sets_with_backend,
+    steps_arg,
+    track_spec,
+    whole_arg,
+)
 from canter.core.seeding import SEED_LIMIT
 from canter.errors import CanterError
 
@@ -23,26 +32,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("env", nargs="?", help="env id, e.g. Hopper-v5")
     t.add_argument("--algo", default="ppo", help="algorithm to tune (default ppo)")
     t.add_argument(
-        "--trials", type=int, default=50, help="finished (complete + pruned) trials of the whole study (default 50)"
+        "--trials",
+        type=whole_arg,
+        default=50,
+        help="finished (complete + pruned) trials of the whole study (default 50)",
     )
-    t.add_argument("--jobs", type=int, default=1, help="parallel worker processes on this machine (default 1)")
+    t.add_argument("--jobs", type=whole_arg, default=1, help="parallel worker processes on this machine (default 1)")
     t.add_argument(
         "--total-steps",
         type=steps_arg,
         default=1_000_000,
         help="env steps per trial (default 1e6: the defaults train 50M steps in all)",
     )
-    t.add_argument("--seeds-per-trial", type=int, default=1, help="average the objective over K seeds (default 1)")
+    t.add_argument(
+        "--seeds-per-trial", type=whole_arg, default=1, help="average the objective over K seeds (default 1)"
+    )
     t.add_argument(
         "--seed", type=seed_arg, default=0, help="first seed of every trial (seeds SEED..SEED+K-1; default 0)"
     )
     t.add_argument(
-        "--startup-trials", type=int, default=10, help="random trials before TPE models the space (default 10)"
+        "--startup-trials", type=whole_arg, default=10, help="random trials before TPE models the space (default 10)"
     )
     t.add_argument(
-        "--evaluations", type=int, default=20, help="evaluations during training per trial, for pruning (default 20)"
+        "--evaluations",
+        type=whole_arg,
+        default=20,
+        help="evaluations during training per trial, for pruning (default 20)",
     )
-    t.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation during training (default 5)")
+    t.add_argument(
+        "--eval-episodes", type=whole_arg, default=5, help="episodes per evaluation during training (default 5)"
+    )
     t.add_argument("--trial-minutes", type=float, default=None, help="wall-clock limit of one trial")
     t.add_argument("--study-hours", type=float, default=None, help="stop starting trials after this many hours")
     t.add_argument("--space", default=None, metavar="FILE", help="search space TOML (default: the shipped one)")
@@ -66,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument(
         "--heartbeat",
-        type=int,
+        type=whole_arg,
         default=60,
         metavar="SECONDS",
         help="trial heartbeat interval (default %(default)s); a trial silent for 3x this, or whose worker on this "
@@ -93,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.env:
         raise CanterError("no environment given; pass an env id, e.g. `canter tune Hopper-v5`")
+    check_storage_arg(args.storage, "the SQLite database in the study folder")
     if args.seeds_per_trial < 1:  # TuneSettings sees the seeds, none at all for a count below 1
         raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
     if args.seed + args.seeds_per_trial > SEED_LIMIT:

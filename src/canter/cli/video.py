@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from canter.cli.args import add_checkpoint_arg, seed_arg
+from canter.cli.args import add_checkpoint_arg, seed_arg, whole_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,17 +21,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     v.add_argument("run", help="run folder")
     v.add_argument("--out", required=True, help="output file: .mp4 (H.264) or .gif")
-    v.add_argument("--episodes", type=int, default=1, help="episodes, one after another (default 1)")
+    v.add_argument("--episodes", type=whole_arg, default=1, help="episodes, one after another (default 1)")
     v.add_argument(
-        "--width", type=int, default=DEFAULT_WIDTH, help=f"frame width, 16 to 4096 (default {DEFAULT_WIDTH})"
+        "--width", type=whole_arg, default=DEFAULT_WIDTH, help=f"frame width, 16 to 4096 (default {DEFAULT_WIDTH})"
     )
     v.add_argument(
-        "--height", type=int, default=DEFAULT_HEIGHT, help=f"frame height, 16 to 4096 (default {DEFAULT_HEIGHT})"
+        "--height", type=whole_arg, default=DEFAULT_HEIGHT, help=f"frame height, 16 to 4096 (default {DEFAULT_HEIGHT})"
     )
     fps_limits = ", ".join(f"{limit} for {suffix}" for suffix, (limit, _) in FPS_LIMITS.items())
     v.add_argument(
         "--fps",
-        type=int,
+        type=whole_arg,
         default=DEFAULT_FPS,
         help=f"frames per second (default {DEFAULT_FPS}; at most {fps_limits})",
     )
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="MuJoCo camera name or index, -1 for the free camera (default: the env's own view)",
     )
-    v.add_argument("--max-steps", type=int, default=0, help="cut each episode after this many steps (0: no cut)")
+    v.add_argument("--max-steps", type=whole_arg, default=0, help="cut each episode after this many steps (0: no cut)")
     add_checkpoint_arg(v)
     v.add_argument("--seed", type=seed_arg, default=0, help="env seed of the first episode (default 0)")
     v.set_defaults(func=run)

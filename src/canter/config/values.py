@@ -77,7 +77,8 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
         else:
             raise bad
         if not math.isfinite(number):  # no setting means anything by nan or inf; they fail deep in training
-            raise CanterError(f"{key} must be a finite number, got {value}")
+            unset = " or none" if optional else ""  # none is how an optional key goes unset (a limit: no limit)
+            raise CanterError(f"{key} must be a finite number{unset}, got {value}")
         return number
     if inner is str:
         if isinstance(value, str):

@@ -149,19 +149,25 @@ def redacted(url: str) -> str:
     return re.sub(r"(://[^/@:]*:).*@", r"\1***@", url)
 
 
+_URL_FORMS = "sqlite:///path/study.db or postgresql://user:password@host:5432/dbname"
+
+
 def describe_url(url: str) -> tuple[str, str]:
     """(driver, host) of a storage URL, without the password."""
     from sqlalchemy.engine import make_url
-    from sqlalchemy.exc import ArgumentError
+    from sqlalchemy.exc import ArgumentError, NoSuchModuleError
 
     try:
         parsed = make_url(url)
     except (ArgumentError, ValueError):  # ValueError: a port that is not a number
-        raise CanterError(
-            f"--storage {redacted(url)!r} is not a database URL; use sqlite:///path/study.db or "
-            f"postgresql://user:password@host:5432/dbname"
-        ) from None
+        raise CanterError(f"--storage {redacted(url)!r} is not a database URL; use {_URL_FORMS}") from None
     driver = parsed.drivername
+    try:
+        parsed.get_dialect()  # only SQLAlchemy's module for the scheme, not the database driver it will import
+    except NoSuchModuleError:  # SQLAlchemy would say only "Can't load plugin: sqlalchemy.dialects:foo"
+        raise CanterError(
+            f"--storage {redacted(url)!r}: unknown database scheme {driver!r}; use {_URL_FORMS}"
+        ) from None
     if driver.startswith("sqlite"):
         if parsed.database in (None, "", ":memory:"):  # each worker process would get its own, empty database
             raise CanterError(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -156,9 +157,24 @@ def check_spec(env_id: str, spec: VarySpec) -> np.ndarray:
     env = _make_gymnasium(env_id)
     try:
         model, _ = mujoco_handles(env, env_id)
-        return original_value(model, spec)
+        original = original_value(model, spec)
     finally:
         env.close()
+    check_scaled_values(spec, original)
+    return original
+
+
+def check_scaled_values(spec: VarySpec, original: np.ndarray) -> None:
+    """Each scaled value must be a float64: past about 1.8e308 it is inf, which MuJoCo cannot simulate and the
+    sweep's JSON cannot hold."""
+    for scale in spec.scales:
+        with np.errstate(over="ignore"):
+            scaled = original * scale
+        if not np.all(np.isfinite(scaled)):
+            raise CanterError(
+                f"--vary {spec.text!r}: scale {scale:g} takes {spec.param} past the largest number a float holds "
+                f"(about 1.8e308); give a smaller scale"
+            )
 
 
 def _make_gymnasium(env_id: str) -> Any:
@@ -177,13 +193,15 @@ def _make_gymnasium(env_id: str) -> Any:
 
 # The text of MuJoCo's warnings for a NaN, Inf or huge qpos, qvel or qacc, after which it resets the state.
 _UNSTABLE = "The simulation is unstable"
+_OUT_OF_SPACE = r".*returned by the `step\(\)` method is not within the observation space"
 
 
 @contextmanager
 def counting_instabilities() -> Iterator[list[str]]:
     """MuJoCo's instability warnings while the block runs, collected (not printed) in the list it yields; any other
-    warning goes where it went before. numpy's overflow warnings are silenced meanwhile: the float64 state of a
-    diverging model overflows the float32 observations, and the point is marked unstable already."""
+    warning goes where it went before. numpy's overflow warnings, and Gymnasium's that an observation is outside
+    its space, are silenced meanwhile: the float64 state of a diverging model overflows the float32 observations,
+    and the point is marked unstable already."""
     import mujoco
 
     previous = mujoco.get_mju_user_warning()
@@ -199,7 +217,9 @@ def counting_instabilities() -> Iterator[list[str]]:
 
     mujoco.set_mju_user_warning(warn)
     try:
-        with np.errstate(over="ignore"):
+        with np.errstate(over="ignore"), warnings.catch_warnings():
+            # Gymnasium's env checker's word for the same divergence, seen in the observations it leaves behind
+            warnings.filterwarnings("ignore", message=_OUT_OF_SPACE, category=UserWarning)
             yield unstable
     finally:
         mujoco.set_mju_user_warning(previous)
