@@ -25,7 +25,18 @@ if TYPE_CHECKING:  # imported lazily below, so that `import canter` stays light
     from canter.use.policy import Policy
 
 __version__ = "0.1.0"
-__all__ = ["CanterError", "Config", "Policy", "RunResult", "build_config", "evaluate", "load", "train", "train_seeds"]
+__all__ = [
+    "CanterError",
+    "Config",
+    "EvalResult",
+    "Policy",
+    "RunResult",
+    "build_config",
+    "evaluate",
+    "load",
+    "train",
+    "train_seeds",
+]
 
 
 def train(
@@ -78,13 +89,22 @@ def evaluate(
     )
 
 
+# The exported classes, imported on first use so that `import canter` stays light: name -> its module.
+_LAZY_CLASSES = {
+    "RunResult": "canter.training.seed_run",
+    "Policy": "canter.use.policy",
+    "EvalResult": "canter.training.evaluation",
+}
+
+
 def __getattr__(name: str) -> type:
-    if name == "RunResult":
-        from canter.training.seed_run import RunResult
+    if name not in _LAZY_CLASSES:
+        raise AttributeError(f"module 'canter' has no attribute {name!r}")
+    import importlib
 
-        return RunResult
-    if name == "Policy":
-        from canter.use.policy import Policy
+    cls: type = getattr(importlib.import_module(_LAZY_CLASSES[name]), name)
+    return cls
 
-        return Policy
-    raise AttributeError(name)
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -49,6 +49,12 @@ class EvalResult:
     def mean(self) -> float:
         return float(self.returns.mean())
 
+    def __repr__(self) -> str:
+        return (
+            f"EvalResult(episodes={self.returns.size}, return {self.mean:.1f} ± {self.std:.1f}, length "
+            f"{self.lengths.mean():.1f}, backend={self.backend!r}, wall_seconds={self.wall_seconds:.2f})"
+        )
+
     @property
     def std(self) -> float:
         return float(self.returns.std())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,6 +49,17 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
         )
 
 
+def check_policy(policy: Any) -> None:
+    """A one-line error where something else than a loaded `Policy` is given (a run folder's path, most likely)."""
+    if isinstance(policy, str | Path):
+        raise CanterError(
+            f"evaluate takes a Policy, got the path {str(policy)!r}; load it first: "
+            f"canter.evaluate(canter.load({str(policy)!r}))"
+        )
+    if not isinstance(policy, Policy):
+        raise CanterError(f"evaluate takes a Policy (canter.load(RUN)), got {type(policy).__name__}")
+
+
 def parse_physics(settings: Mapping[str, Any]) -> dict[str, Any]:
     """`{"solver_iterations": "4"}` (or `env.solver_iterations`, as `--set` spells it) as typed physics settings, or
     a one-line error for a key that is not one of the env's physics settings or a value of the wrong type."""
@@ -57,6 +69,8 @@ def parse_physics(settings: Mapping[str, Any]) -> dict[str, Any]:
     types = field_types("env")
     physics = {}
     for key, value in settings.items():
+        if not isinstance(key, str):
+            raise CanterError(f"physics takes setting names such as 'solver_iterations' as its keys, got {key!r}")
         name = key.removeprefix("env.")
         if name not in MODEL_OWN_PHYSICS:
             names = ", ".join(f"env.{known}" for known in MODEL_OWN_PHYSICS)
@@ -115,10 +129,15 @@ def evaluate(
     without it they are the run's own on its env where the backend takes them, else the model's own."""
     from canter.envs.registry import note_replay, single_env_backend
 
+    check_policy(policy)
+    if not isinstance(deterministic, bool | np.bool_):  # a string such as "no" would read as true
+        raise CanterError(f"deterministic must be True or False, got {deterministic!r}")
     if isinstance(episodes, bool) or not isinstance(episodes, int | np.integer) or episodes < 1:
         raise CanterError(f"episodes must be a whole number >= 1, got {episodes!r}")
     seed = check_seed(seed)
     for name, value in (("env_id", env_id), ("backend", backend)):
+        if value is not None and not isinstance(value, str):
+            raise CanterError(f"{name} must be a name (a string) or None for the run's own, got {value!r}")
         if value == "":  # it would read as not given
             raise CanterError(f"{name} is empty; give one, or leave it out (None) for the run's own")
     if physics is not None and not isinstance(physics, Mapping):

@@ -54,9 +54,23 @@ class Policy:
     def act_dim(self) -> int:
         return self.facts.act_dim
 
+    def __repr__(self) -> str:
+        return (
+            f"Policy({self.facts.env_id}, {self.config.run.algo}, step {self.facts.global_step:,}, "
+            f"checkpoint={self.checkpoint!r}, obs_dim={self.obs_dim}, act_dim={self.act_dim}, "
+            f"source={str(self.source)!r})"
+        )
+
     def __call__(self, obs_batch: np.ndarray, deterministic: bool = True, seed: int | None = None) -> np.ndarray:
+        """Actions for one observation [obs_dim] or a batch [B, obs_dim]: the mean action, or with
+        `deterministic=False` a sample, from a key that `seed` resets and each sampling call advances. Observations
+        are normalized with the saved, frozen statistics; actions are clipped to the env's bounds (float32)."""
         import jax
 
+        if not isinstance(deterministic, bool | np.bool_):  # a string such as "no" would read as true
+            raise CanterError(f"deterministic must be True or False, got {deterministic!r}")
+        if seed is not None:
+            seed = check_seed(seed)
         try:
             if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
                 raise CanterError("policy expects real-valued observations, got complex numbers")
@@ -76,7 +90,7 @@ class Policy:
         key = self._key
         if not deterministic:
             if seed is not None:
-                self._key = jax.random.key(check_seed(seed))
+                self._key = jax.random.key(seed)
             self._key, key = jax.random.split(self._key)
         action = self._act(self.params, self.obs_stats, obs, key, deterministic)
         return action[0] if single else action
