@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import tomllib
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -63,9 +64,16 @@ def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> C
     return config.replace(**{s: dataclasses.replace(config.section(s), **values) for s, values in sections.items()})
 
 
-def parse_set_args(items: list[str]) -> dict[str, str]:
+def parse_set_args(items: Iterable[object]) -> dict[str, str]:
+    # A lone string would be read a character at a time, so `sets="ppo.clip=0.1"` would be refused for its "p".
+    if isinstance(items, (str, bytes)):
+        raise CanterError(
+            f'sets (--set) takes a list of "section.key=value" strings, got the string {items!r}; pass [{items!r}]'
+        )
     overrides: dict[str, str] = {}
     for item in items:
+        if not isinstance(item, str):
+            raise CanterError(f"--set expects section.key=value text, got {item!r} ({type(item).__name__})")
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise CanterError(f"--set expects section.key=value, got {item!r}")

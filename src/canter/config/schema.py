@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from canter.config.fields import BUDGET, OUTPUT, SEED, setting
+from canter.config.values import typed_section, typed_values
 from canter.envs.registry import AUTO, MODEL_OWN_PHYSICS, backend_doc
 from canter.errors import CanterError
 
@@ -162,6 +163,17 @@ class Config:
     run: RunConfig = field(default_factory=RunConfig)
     sections: tuple[tuple[str, Any], ...] = field(default_factory=_default_sections)
 
+    def __post_init__(self) -> None:
+        # Every way of building a config (the constructor, replace, with_values, dataclasses.replace) ends here, so
+        # that a wrong kind of section or a wrongly typed value is refused by name before it trains, not deep in JAX.
+        # A value of a harmless other type (numpy's int, a Path, "no" for false) is converted as TOML's would be,
+        # so that the config trains on what its config.toml reads back as.
+        object.__setattr__(self, "env", _typed("env", self.env))
+        object.__setattr__(self, "run", _typed("run", self.run))
+        typed = tuple((name, _typed(name, value)) for name, value in self.sections)
+        if any(new is not old for (_, new), (_, old) in zip(typed, self.sections)):
+            object.__setattr__(self, "sections", typed)
+
     def __getattr__(self, name: str) -> Any:
         # Only called when normal lookup fails, i.e. for the registered sections.
         if not name.startswith("__"):
@@ -176,19 +188,39 @@ class Config:
     def replace(self, **changes: Any) -> Config:
         """A copy with whole sections replaced: `config.replace(run=..., ppo=...)`."""
         names = {name for name, _ in self.sections}
-        unknown = [k for k in changes if k not in names and k not in CORE_SECTIONS]
-        if unknown:
-            close = difflib.get_close_matches(unknown[0], list(section_names()), n=1)
-            raise CanterError(
-                f"config has no section '{unknown[0]}'" + (f"; did you mean {close[0]}?" if close else "")
-            )
+        for name in changes:
+            if name not in names and name not in CORE_SECTIONS:
+                raise _unknown_section(name)
         sections = tuple((name, changes.get(name, value)) for name, value in self.sections)
         core = {k: v for k, v in changes.items() if k in CORE_SECTIONS}
         return dataclasses.replace(self, sections=sections, **core)
 
     def with_values(self, section: str, **values: Any) -> Config:
-        """A copy with some keys of one section changed: `config.with_values("run", seed=3)`."""
-        return self.replace(**{section: dataclasses.replace(self.section(section), **values)})
+        """A copy with some keys of one section changed: `config.with_values("run", seed=3)`. Each value is checked
+        and converted as a `--set` of it would be."""
+        if section not in section_names():
+            raise _unknown_section(section)
+        current = self.section(section)
+        return self.replace(**{section: dataclasses.replace(current, **typed_values(section, current, values))})
+
+
+def _unknown_section(name: str) -> CanterError:
+    close = difflib.get_close_matches(name, list(section_names()), n=1)
+    return CanterError(f"config has no section '{name}'" + (f"; did you mean {close[0]}?" if close else ""))
+
+
+def _typed(name: str, section: Any) -> Any:
+    """Section `name` with each value of its field's type; a one-line CanterError for another kind of section."""
+    if name not in CORE_SECTIONS and name not in _REGISTERED:
+        raise _unknown_section(name)
+    expected = section_type(name)
+    if not isinstance(section, expected):
+        hint = f"; to change some of its keys, use config.with_values({name!r}, key=value)"
+        raise CanterError(
+            f"config section '{name}' must be of type {expected.__name__}, got {type(section).__name__} {section!r:.60}"
+            + (hint if isinstance(section, dict) else "")
+        )
+    return typed_section(name, section)
 
 
 def field_names(section: str) -> list[str]:

@@ -2,21 +2,28 @@
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import math
+import numbers
+import os
 import re
 import types
 import typing
+import weakref
+from collections.abc import Callable, Mapping
 from dataclasses import fields
 from decimal import Decimal
 from typing import Any
 
-from canter.config.schema import section_type
 from canter.errors import CanterError
 
 SEED_LIMIT = 2**32  # run seeds are unsigned 32-bit, as numpy's and JAX's keys take them
 
 
 def field_types(section: str) -> dict[str, Any]:
+    from canter.config.schema import section_type  # the schema imports this module, to type its sections
+
     cls = section_type(section)
     hints = typing.get_type_hints(cls)
     return {f.name: hints[f.name] for f in fields(cls)}
@@ -53,8 +60,8 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
                     raise CanterError(f"{key}: {_tuple_entries(key)}, got {value!r}")
                 raise bad
             return tuple(int(p) for p in re.split(r"[-,]", value) if p.strip())
-        if isinstance(value, (list, tuple)) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-            return tuple(value)
+        if isinstance(value, (list, tuple)) and all(_is_integer(v) for v in value):
+            return tuple(int(v) for v in value)
         raise bad
     if inner is bool:
         if isinstance(value, bool):
@@ -67,8 +74,11 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
     if inner is float:
         if isinstance(value, bool):
             raise bad
-        if isinstance(value, (int, float)):
-            number = float(value)
+        if isinstance(value, numbers.Real):  # numpy's floats and integers too, which are plain numbers here
+            try:
+                number = float(value)
+            except OverflowError:  # an int past float's range
+                raise bad from None
         elif isinstance(value, str):
             try:
                 number = float(value)
@@ -83,8 +93,15 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
     if inner is str:
         if isinstance(value, str):
             return value
+        if isinstance(value, os.PathLike) and isinstance(path := os.fspath(value), str):  # run.out_dir as a Path
+            return path
         raise bad
     raise bad
+
+
+def _is_integer(value: Any) -> bool:
+    """An int, or another integer type such as numpy's (registered as numbers.Integral); a bool is not one here."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
 def _tuple_entries(key: str) -> str:
@@ -98,8 +115,8 @@ def _tuple_entries(key: str) -> str:
 def _whole_number(value: Any, bad: CanterError) -> int:
     if isinstance(value, bool):
         raise bad
-    if isinstance(value, int):
-        return value
+    if _is_integer(value):
+        return int(value)
     if isinstance(value, float) and value.is_integer():
         return int(value)
     if isinstance(value, str):
@@ -135,6 +152,65 @@ def _within_int_limit(key: str, number: int) -> int:
     if abs(number) >= limit:
         raise CanterError(f"{key} must be below {limit:,} in size, got {short_int(number)}")
     return number
+
+
+def _plain_check(tp: Any) -> Callable[[Any], bool]:
+    """Whether a value already has the type `coerce` gives a field of type `tp`, so that a section built the usual
+    way (every value coerced) is checked without coercing it again."""
+    optional, inner = is_optional(tp)
+    if typing.get_origin(inner) is tuple:
+        return lambda value: type(value) is tuple and all(type(v) is int for v in value)
+    if optional:
+        return lambda value: value is None or type(value) is inner
+    return lambda value: type(value) is inner
+
+
+SectionFields = tuple[tuple[str, Any, Callable[[Any], bool]], ...]
+_FIELDS: dict[type, SectionFields] = {}  # by section class: get_type_hints is too slow for every config built
+
+
+def _section_fields(section: Any) -> SectionFields:
+    """Each field of `section`: its name, its type, and whether a value already has that type."""
+    cls = type(section)
+    if cls not in _FIELDS:
+        hints = typing.get_type_hints(cls)
+        _FIELDS[cls] = tuple((f.name, hints[f.name], _plain_check(hints[f.name])) for f in fields(cls))
+    return _FIELDS[cls]
+
+
+# Sections already typed, by id: a frozen section stays typed, and every config built shares most of its sections
+# with the one it was made from, so only a new section is checked (a build makes a config per layer).
+_TYPED: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
+
+
+def typed_section(name: str, section: Any) -> Any:
+    """`section` (section `name` of a config) with each value as `coerce` gives it, or a one-line CanterError naming
+    the key: however a section was built, the config trains on and saves the values that its config.toml reads back
+    as. The same object when every value already has its type, as every value the TOML and --set paths give does."""
+    if _TYPED.get(id(section)) is section:
+        return section
+    changes = {
+        key: coerce(f"{name}.{key}", tp, getattr(section, key))
+        for key, tp, plain in _section_fields(section)
+        if not plain(getattr(section, key))
+    }
+    typed = dataclasses.replace(section, **changes) if changes else section
+    _TYPED[id(typed)] = typed
+    return typed
+
+
+def typed_values(name: str, section: Any, values: Mapping[str, Any]) -> dict[str, Any]:
+    """`values` for keys of `section` (section `name`), each coerced to its field's type: the keys and values that
+    `Config.with_values` is given, checked as a --set of them would be."""
+    types_of = {key: tp for key, tp, _ in _section_fields(section)}
+    typed: dict[str, Any] = {}
+    for key, value in values.items():
+        if key not in types_of:
+            close = difflib.get_close_matches(key, list(types_of), n=1)
+            hint = f"; did you mean {name}.{close[0]}?" if close else f"; its keys are {', '.join(types_of)}"
+            raise CanterError(f"config section '{name}' has no key '{key}'{hint}")
+        typed[key] = coerce(f"{name}.{key}", types_of[key], value)
+    return typed
 
 
 def _escape_toml_char(match: re.Match[str]) -> str:
