@@ -5,8 +5,8 @@ from dataclasses import fields
 
 import pytest
 
-from canter.config.schema import Config, section_names
-from canter.config.values import coerce, field_types, set_text
+from canter.config.schema import Config, field_types, section_names
+from canter.config.values import coerce, set_text
 
 
 @pytest.mark.parametrize(

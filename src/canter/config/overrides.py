@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from canter.config.peer_names import peer_keys
-from canter.config.schema import Config, field_names, section_names
-from canter.config.values import coerce, field_types
+from canter.config.schema import Config, field_names, field_types, section_names
+from canter.config.values import coerce
 from canter.errors import CanterError, joined
 
 

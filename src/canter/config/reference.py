@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from canter.config.schema import section_names, section_type
-from canter.config.values import field_types, set_text, type_name
+from canter.config.schema import field_types, section_names, section_type
+from canter.config.values import set_text, type_name
 
 
 def docs_table() -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -221,6 +222,13 @@ def _typed(name: str, section: Any) -> Any:
             + (hint if isinstance(section, dict) else "")
         )
     return typed_section(name, section)
+
+
+def field_types(section: str) -> dict[str, Any]:
+    """Each key of a section and its type."""
+    cls = section_type(section)
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in fields(cls)}
 
 
 def field_names(section: str) -> list[str]:

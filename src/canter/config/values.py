@@ -21,14 +21,6 @@ from canter.errors import CanterError
 SEED_LIMIT = 2**32  # run seeds are unsigned 32-bit, as numpy's and JAX's keys take them
 
 
-def field_types(section: str) -> dict[str, Any]:
-    from canter.config.schema import section_type  # the schema imports this module, to type its sections
-
-    cls = section_type(section)
-    hints = typing.get_type_hints(cls)
-    return {f.name: hints[f.name] for f in fields(cls)}
-
-
 def is_optional(tp: Any) -> tuple[bool, Any]:
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]

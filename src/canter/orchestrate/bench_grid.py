@@ -11,8 +11,8 @@ from typing import Any
 from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
 from canter.config.overrides import all_keys, unknown_key_error
-from canter.config.schema import Config
-from canter.config.values import coerce, field_types
+from canter.config.schema import Config, field_types
+from canter.config.values import coerce
 from canter.errors import CanterError
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.study import check_at_least

@@ -30,9 +30,9 @@ from typing import Any
 
 from canter.config.algorithms import algorithm_spec
 from canter.config.overrides import all_keys, apply_overrides, key_suggestion, load_toml
-from canter.config.schema import Config
+from canter.config.schema import Config, field_types
 from canter.config.validate import validate
-from canter.config.values import coerce, field_types
+from canter.config.values import coerce
 from canter.errors import CanterError
 
 _RANGE_KEYS = {"low", "high", "log", "step"}

@@ -8,6 +8,7 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import replace
+from os import PathLike
 from pathlib import Path
 from typing import Any, cast
 
@@ -35,6 +36,7 @@ from canter.training.resume import (
     check_one_group,
     check_same_experiment_and_seed,
     has_its_budget,
+    need_a_run_to_resume,
     repair_config_of_a_finished_run,
     resume_config,
     saved_config,
@@ -58,6 +60,16 @@ def train(
     in its budget: run.total_steps (the learning-rate schedule is stretched to the new total), run.max_minutes and
     run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
     `canter.config.experiment`), but not in its seed or in what is learned."""
+    _need_a_config(config)
+    _need_a_folder(run_dir, "run_dir")
+    _need_a_folder(resume, "resume")
+    if resume is not None and run_dir is not None:
+        raise CanterError(
+            "resume= goes on in the run's own folder, so run_dir= cannot be given with it; drop run_dir= (or copy "
+            "the run folder first, and resume the copy)"
+        )
+    if resume is not None:
+        need_a_run_to_resume(Path(resume))  # before the setup, which takes seconds
     if resume is not None and has_its_budget(Path(resume), config):
         check_same_experiment_and_seed(saved_config(Path(resume), note=False), config, Path(resume))
         if (summarized := summarize_if_it_ended(Path(resume))) is not None:
@@ -73,18 +85,58 @@ def train_seeds(
     """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is
     replaced by each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and
     follows the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
-    if isinstance(cast(object, seeds), str):  # "012" would train seeds 0, 1 and 2
-        raise CanterError(f"seeds must be a list of whole numbers, e.g. [0, 1, 2], got {seeds!r}")
-    seeds = [check_seed(s) for s in seeds]
+    _need_a_config(config)
+    seeds = _checked_seeds(seeds)
     if not seeds:
         raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
     if len(set(seeds)) != len(seeds):
         raise CanterError(f"seeds repeat in {seeds}; each seed of a group must be different")
+    if run_dirs is not None:
+        _need_folders(run_dirs)
     if run_dirs is not None and len(run_dirs) != len(seeds):
         raise CanterError(f"{len(run_dirs)} run folders given for {len(seeds)} seeds")
     configs = [config.with_values("run", seed=seed) for seed in seeds]
     dirs: list[str | Path | None] = list(run_dirs) if run_dirs is not None else [None] * len(seeds)
     return _train_group(configs, [None] * len(seeds), dirs, quiet)
+
+
+def _need_a_config(config: object) -> None:
+    """Anything else given as the config (a dict of settings, an env id) would fail deep in the trainer."""
+    if isinstance(config, Config):
+        return
+    built = f"canter.build_config({config!r})" if isinstance(config, str) else 'canter.build_config("Pendulum-v1")'
+    raise CanterError(
+        f"config must be a canter Config, got {type(config).__name__}; build one with {built} (settings go in its "
+        'sets=["section.key=value"])'
+    )
+
+
+def _need_a_folder(folder: object, name: str) -> None:
+    """An empty path reads as the working folder, which a run would fill with its files (or resume by chance)."""
+    if folder is None:
+        return
+    if not isinstance(folder, str | PathLike):
+        raise CanterError(f"{name}= must be a folder path (str or Path), got {type(folder).__name__}")
+    if not str(folder).strip():
+        raise CanterError(f"{name}= is empty, which would be the working folder; give a run folder, or leave it out")
+
+
+def _need_folders(run_dirs: object) -> None:
+    if isinstance(run_dirs, str | bytes | PathLike) or not isinstance(run_dirs, Sequence):
+        raise CanterError(f"run_dirs= must be a list of folders, one per seed, got {run_dirs!r}")
+    for folder in run_dirs:
+        _need_a_folder(folder, "run_dirs")
+
+
+def _checked_seeds(seeds: object) -> list[int]:
+    """Seeds are a list, tuple, range or 1-d array of whole numbers: the keys of a dict or the digits of a string
+    would train other seeds than meant."""
+    listed = isinstance(seeds, Sequence) and not isinstance(seeds, str | bytes)
+    if not (listed or (isinstance(seeds, np.ndarray) and seeds.ndim == 1)):
+        count = isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0
+        hint = f"; for {seeds} seeds pass range({seeds})" if count else ""
+        raise CanterError(f"seeds must be a list of whole numbers, e.g. [0, 1, 2], got {seeds!r}{hint}")
+    return [check_seed(s) for s in cast(Sequence[object], seeds)]
 
 
 def resume_seeds(

@@ -185,8 +185,8 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         from canter.training.restore import load_state
 
         folder = Path(resume)
+        need_a_run_to_resume(folder)
         locks.take(folder)  # before its newest checkpoint is read: another writer may be finishing it
-        refuse_folders_for_files(folder)
         if _never_checkpointed(folder):
             check_same_experiment_and_seed(saved_config(folder), config, folder)
             _refuse_lost_checkpoints(folder, config)
@@ -203,6 +203,7 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
     else:
         if run_dir is not None:
             _refuse_a_run_in(Path(run_dir))
+            _refuse_a_folder_of_runs(Path(run_dir))
         start = SeedStart(Path(run_dir) if run_dir is not None else run_folder.new_run_dir(config))
     if start.step >= config.run.total_steps:
         if resume is not None and unreadable_config(start.run_dir):
@@ -295,6 +296,28 @@ def refuse_folders_for_files(run_dir: Path) -> None:
             )
 
 
+def need_a_run_to_resume(folder: Path) -> None:
+    """Refuse a path that holds no run to resume before its writer lock is taken: taking it writes a lock file, which
+    a refused folder would keep. Checked without the lock: a run's lock file belongs in its folder anyway."""
+    if folder.is_file():  # a checkpoint too: a resume goes on from the run's newest
+        raise CanterError(f"{folder} is a file, not a run folder; pass the run folder that holds it")
+    if folder.name == CHECKPOINT_FOLDER and CHECKPOINT_FOLDER in run_files_in(folder.parent):
+        raise CanterError(f"{folder} is the checkpoints folder of a run, not a run folder; pass {folder.parent}")
+    refuse_folders_for_files(folder)
+    checkpoint.need_run_folder(folder)
+
+
+def _refuse_a_folder_of_runs(run_dir: Path) -> None:
+    """A new run given a folder of run folders (a bench's --out, run.out_dir) would mix its files among theirs."""
+    inside = checkpoint.runs_inside(run_dir)
+    if inside:
+        runs = f"{len(inside)} run folder{'s' if len(inside) > 1 else ''}"
+        raise CanterError(
+            f"{run_dir} holds {runs} (a bench's?), such as {inside[0]}; give run_dir= a new folder, or leave it out "
+            "for one under run.out_dir"
+        )
+
+
 def _refuse_a_run_in(run_dir: Path) -> None:
     """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
     present = run_files_in(run_dir)
@@ -366,10 +389,7 @@ def resume_config(
     """The saved config of a run, with only its budget changed: the step budget, the wall-minute limit of the
     resuming process (a saved run.max_minutes otherwise applies again to each process that resumes the run), and
     the return target (a bench re-run gives its own; None: no target)."""
-    if Path(run_dir).is_file():  # a checkpoint too: a resume goes on from the run's newest
-        raise CanterError(f"{run_dir} is a file, not a run folder; pass the run folder that holds it")
-    checkpoint.need_run_folder(Path(run_dir))
-    refuse_folders_for_files(Path(run_dir))
+    need_a_run_to_resume(Path(run_dir))
     config = saved_config(Path(run_dir))
     if total_steps is not None:
         config = config.with_values("run", total_steps=int(total_steps))

@@ -63,7 +63,8 @@ def check_policy(policy: Any) -> None:
 def parse_physics(settings: Mapping[str, Any]) -> dict[str, Any]:
     """`{"solver_iterations": "4"}` (or `env.solver_iterations`, as `--set` spells it) as typed physics settings, or
     a one-line error for a key that is not one of the env's physics settings or a value of the wrong type."""
-    from canter.config.values import coerce, field_types
+    from canter.config.schema import field_types
+    from canter.config.values import coerce
     from canter.envs.registry import MODEL_OWN_PHYSICS
 
     types = field_types("env")

@@ -1,0 +1,111 @@
+"""Bad arguments to the Python API's train and train_seeds: one CanterError line that names the argument and the
+fix, refused before anything is written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import canter
+from canter.errors import CanterError
+from canter.training.loop import _checked_seeds, train_seeds
+
+
+@pytest.fixture(scope="module")
+def config() -> canter.Config:
+    return canter.build_config("Pendulum-v1", total_steps=2048)
+
+
+def contents(folder: Path) -> list[Path]:
+    return sorted(folder.rglob("*"))
+
+
+def refused(call, *args, **kwargs) -> str:
+    with pytest.raises(CanterError) as error:
+        call(*args, **kwargs)
+    line = str(error.value)
+    assert "\n" not in line, line
+    return line
+
+
+@pytest.mark.parametrize("given", [None, {"env": {"id": "Pendulum-v1"}}, "Pendulum-v1"])
+def test_a_config_that_is_not_a_config_is_refused(given):
+    line = refused(canter.train, given)
+    assert line.startswith(f"config must be a canter Config, got {type(given).__name__}; build one with canter.")
+    assert refused(canter.train_seeds, given, [0, 1]) == line
+
+
+def test_an_env_id_given_as_the_config_is_shown_built():
+    assert "canter.build_config('Pendulum-v1')" in refused(canter.train, "Pendulum-v1")
+
+
+def test_an_empty_run_dir_or_resume_is_refused_and_writes_nothing_to_the_working_folder(config, tmp_path):
+    before = contents(tmp_path)
+    for name in ("run_dir", "resume"):
+        line = refused(canter.train, config, **{name: ""})
+        assert line.startswith(f"{name}= is empty, which would be the working folder")
+    assert refused(train_seeds, config, [0, 1], run_dirs=["", "b"]).startswith("run_dirs= is empty")
+    assert contents(tmp_path) == before
+
+
+def test_a_new_run_in_a_folder_of_runs_is_refused(config, archived_run):
+    bench = archived_run.parent  # a folder that holds a run folder, as a bench's does
+    (bench / "results.md").write_text("| env | return |\n")
+    before = contents(bench)
+    line = refused(canter.train, config, run_dir=bench)
+    assert line == (
+        f"{bench} holds 1 run folder (a bench's?), such as {archived_run}; give run_dir= a new folder, or leave it "
+        "out for one under run.out_dir"
+    )
+    assert contents(bench) == before
+
+
+@pytest.mark.parametrize("which", ["empty", "folder of runs", "checkpoints"])
+def test_a_refused_resume_of_a_folder_that_is_no_run_leaves_no_file(config, archived_run, which):
+    folder = {
+        "empty": archived_run.parent / "empty",
+        "folder of runs": archived_run.parent,
+        "checkpoints": archived_run / "checkpoints",
+    }[which]
+    folder.mkdir(exist_ok=True)
+    before = contents(archived_run.parent)
+    line = refused(canter.train, config, resume=folder)
+    assert str(folder) in line
+    if which == "checkpoints":
+        assert line == f"{folder} is the checkpoints folder of a run, not a run folder; pass {archived_run}"
+    assert contents(archived_run.parent) == before
+
+
+def test_a_resume_with_a_run_dir_is_refused(config, archived_run, tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    line = refused(canter.train, config, resume=archived_run, run_dir=elsewhere)
+    assert line.startswith("resume= goes on in the run's own folder, so run_dir= cannot be given with it")
+    assert not elsewhere.exists()
+
+
+@pytest.mark.parametrize("name", ["checkpoints/ckpt_000000001190.npz", "config.toml"])
+def test_a_file_given_to_resume_is_named_as_no_run_folder(config, archived_run, name):
+    given = archived_run / name
+    before = contents(archived_run)
+    line = refused(canter.train, config, resume=given)
+    assert line == f"{given} is a file, not a run folder; pass the run folder that holds it"
+    assert contents(archived_run) == before
+
+
+@pytest.mark.parametrize("seeds", [3, {0: 1, 1: 2}, {0, 1}, None, b"01"])
+def test_seeds_that_are_not_a_list_of_whole_numbers_are_refused(config, seeds):
+    line = refused(canter.train_seeds, config, seeds)
+    assert line.startswith(f"seeds must be a list of whole numbers, e.g. [0, 1, 2], got {seeds!r}")
+    if seeds == 3:
+        assert line.endswith("; for 3 seeds pass range(3)")
+
+
+def test_seeds_may_be_a_list_tuple_range_or_array():
+    for seeds in ([0, 1], (0, 1), range(2), np.arange(2)):
+        assert _checked_seeds(seeds) == [0, 1]
+
+
+def test_run_dirs_given_as_one_path_is_refused(config):
+    assert refused(train_seeds, config, [0, 1], run_dirs="ab").startswith("run_dirs= must be a list of folders")
