@@ -455,7 +455,8 @@ def test_a_run_that_lost_its_checkpoints_is_refused_not_trained_again(archived_r
     if kept == "best":
         _killed_before_its_first_checkpoint_rows(archived_run)
         (archived_run / "checkpoints").mkdir()
-        shutil.copy(ARCHIVED_RUN / "checkpoints" / "ckpt_000000000714.npz", archived_run / "checkpoints" / "best.npz")
+        # Of step 1,190, past the rows that are left (up to step 714): training went on past them.
+        shutil.copy(ARCHIVED_RUN / "checkpoints" / "ckpt_000000001190.npz", archived_run / "checkpoints" / "best.npz")
     before = {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file()}
     assert main(["train", "--resume", str(archived_run), "--quiet"]) == 2
     err = _one_line_error(capsys, 2)
@@ -468,6 +469,24 @@ def test_a_run_that_lost_its_checkpoints_is_refused_not_trained_again(archived_r
     else:
         assert "has no checkpoint but has best.npz, the best policy its evaluations found" in err
     assert {p: p.read_bytes() for p in archived_run.rglob("*") if p.is_file() and p.name != ".writer.lock"} == before
+
+
+def test_a_best_evaluated_before_the_first_checkpoint_lets_the_run_start_again(archived_run):
+    """`--eval-every` below run.checkpoint_every: a run killed after an evaluation, before its first checkpoint, has
+    a best.npz of a step its rows reach, and nothing was lost that the restart does not do again."""
+    import shutil
+
+    from canter.training import resume
+
+    shutil.rmtree(archived_run / "checkpoints")
+    (archived_run / "summary.json").unlink()
+    _killed_before_its_first_checkpoint_rows(archived_run)  # rows up to step 714, one past checkpoint_every=512
+    (archived_run / "checkpoints").mkdir()
+    shutil.copy(ARCHIVED_RUN / "checkpoints" / "ckpt_000000000714.npz", archived_run / "checkpoints" / "best.npz")
+    resume._refuse_lost_checkpoints(archived_run, read_config(archived_run))  # not refused
+    (archived_run / "metrics.csv").unlink()  # a best.npz with no rows to account for it: lost training
+    with pytest.raises(CanterError, match=r"has no checkpoint but has best\.npz"):
+        resume._refuse_lost_checkpoints(archived_run, read_config(archived_run))
 
 
 def _killed_before_its_first_checkpoint_rows(run: Path) -> None:

@@ -252,17 +252,30 @@ def _refuse_lost_checkpoints(run_dir: Path, config: Config) -> None:
     every = config.run.checkpoint_every
     past = [step for step in row_steps(rows) if every > 0 and step >= every]
     best = checkpoint.best_path(run_dir)
+    logged_to = max(row_steps(rows), default=0.0)
     if len(past) > 1:
         raise CanterError(
             f"{run_dir} has no checkpoint but has logged rows up to step {max(past):,.0f}, past its first checkpoint "
             f"(run.checkpoint_every={every:,}): its checkpoints were lost; restore them from a copy, or move its "
             f"metrics.csv away to train it again from step 0"
         )
-    if best.is_file():
+    if best.is_file() and not _evaluated_within(best, logged_to):
         raise CanterError(
             f"{run_dir} has no checkpoint but has {best.name}, the best policy its evaluations found; restore its "
             f"checkpoints from a copy, or move {best} away to train it again from step 0"
         )
+
+
+def _evaluated_within(best: Path, logged_to: float) -> bool:
+    """Whether a best.npz comes from an evaluation at a step the run's rows reach: with rows that stop before a
+    second checkpoint was due, it is the best of training the restart does again (`--eval-every` below
+    run.checkpoint_every evaluates before the first checkpoint). One past them, or a best.npz without rows, shows
+    training whose checkpoints were lost."""
+    try:
+        step = checkpoint.read_header(best).get("global_step")
+    except CanterError:
+        return False
+    return isinstance(step, int) and 0 < step <= logged_to
 
 
 def start_over(run_dir: Path) -> None:
