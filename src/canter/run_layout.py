@@ -29,6 +29,9 @@ VIDEO_WORK_FILES = ("render.log", ".snapshot_*.npz", ".*.tmp*")
 LOCK_FILE = ".writer.lock"
 CHECKPOINT_NAME = re.compile(r"^ckpt_(\d{12})\.npz$")
 BEST_FILE = "best.npz"  # in checkpoints/: the state of the best evaluation during training
+# In checkpoints/ too, while a best.npz newer than the newest checkpoint has replaced it: the best.npz that this
+# checkpoint's training had, which a resume from the checkpoint puts back.
+KEPT_BEST_FILE = ".best_at_checkpoint.npz"
 
 RUN_OWN_FILES = frozenset(
     {CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, SUMMARY_FILE, VERSIONS_FILE, TRACKERS_FILE, EVAL_FILE}

@@ -33,6 +33,7 @@ from canter.run_layout import (
     CHECKPOINT_FOLDER,
     CHECKPOINT_NAME,
     CONFIG_FILE,
+    KEPT_BEST_FILE,
     finished_without_checkpoints,
     has_finished,
     run_files_in,
@@ -369,6 +370,10 @@ def _note_foreign_files(run_dir: Path) -> None:
 
 def best_path(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / BEST_FILE
+
+
+def kept_best_path(run_dir: Path) -> Path:
+    return checkpoint_dir(run_dir) / KEPT_BEST_FILE
 
 
 def resolve(run_dir: Path, which: str | Path = LAST) -> Path:

@@ -214,12 +214,13 @@ def _train_checked(
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one
     # that lands during setup or compilation stops it before its first iteration.
     with StopFlag(notice=STOP_NOTICE) as stop:
-        starts = [start_of_seed(c, resume, dir_, backend, locks) for c, resume, dir_ in zip(configs, resumes, run_dirs)]
-        seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
-        env = _make_env(configs[0], backend, seeds)
-        spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
-        algorithm = get_algorithm(configs[0].run.algo)
+        starts = _start_seeds(configs, resumes, run_dirs, backend, locks)
+        env = None
         try:
+            seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
+            env = _make_env(configs[0], backend, seeds)
+            spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
+            algorithm = get_algorithm(configs[0].run.algo)
             algorithm.validate(configs[0], spec)
             if all(start.state is None for start in starts):  # a resumed state was checked when its run started
                 host_memory.check_state_fits(algorithm, configs[0], spec, len(configs), device_memory.free_bytes())
@@ -236,16 +237,37 @@ def _train_checked(
                 carry = _initial_carry(env, spec, [start.resumed_from for start in starts])
             return _loop(configs, algorithm, env, spec, states, carry, starts, quiet, started, stop)
         except (CanterError, OSError) as exc:  # a full disk or unwritable folder: one line, and how to go on
-            if isinstance(exc, CanterError):  # a new folder that holds no checkpoint and no row goes
-                for start in starts:
-                    if not (start.resumed or start.restarted):  # a restarted run keeps its config to resume again
-                        run_folder.discard_unstarted(start.run_dir)
+            if isinstance(exc, CanterError):
+                _discard_new_runs(starts)
             error = training_write_error(exc, [start.run_dir for start in starts])
             if error is None:
                 raise
             raise error from None
         finally:
-            env.close()
+            if env is not None:
+                env.close()
+
+
+def _start_seeds(
+    configs: list[Config], resumes: list[Any], run_dirs: list[Any], backend: str, locks: run_lock.RunLocks
+) -> list[SeedStart]:
+    """Each seed's start, its folder locked (and a new run's folder made); the folders of the seeds before one that is
+    refused are left as they were found."""
+    starts: list[SeedStart] = []
+    try:
+        for config, resume, run_dir in zip(configs, resumes, run_dirs):
+            starts.append(start_of_seed(config, resume, run_dir, backend, locks))
+    except CanterError:
+        _discard_new_runs(starts)
+        raise
+    return starts
+
+
+def _discard_new_runs(starts: list[SeedStart]) -> None:
+    """A new folder that holds no checkpoint and no row goes; a restarted run keeps its config to resume again."""
+    for start in starts:
+        if not (start.resumed or start.restarted):
+            run_folder.discard_unstarted(start.run_dir)
 
 
 def _check_resources(configs: list[Config], backend: str) -> None:
@@ -287,7 +309,8 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
 
 
 def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, carry_bytes: int) -> Any:
-    """Make (or migrate) the seed's run folder with this config, and return the state it trains from."""
+    """Migrate a resumed seed's run folder (a new one was made as it was locked), and return the state it trains
+    from."""
     state = start.state if start.state is not None else algorithm.init_state(config, spec)
     start.run_dir.mkdir(parents=True, exist_ok=True)
     if start.restarted:
@@ -298,8 +321,6 @@ def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, c
         if unreadable_config(start.run_dir):
             run_folder.write_config(start.run_dir, config)
         run_folder.migrate(start.run_dir)
-    else:
-        run_folder.create(start.run_dir, config)
     disk_room.warn_if_checkpoints_will_not_fit(
         start.run_dir, state, config, algorithm.policy_checkpoint_leaves_out, carry_bytes
     )
@@ -439,8 +460,8 @@ def _stop_before_training(program: GroupProgram, runs: list[SeedRun], starts: li
 
 
 def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> int:
-    """Seed i's share of an iteration: its metrics.csv row (with an evaluation when one is due), then a checkpoint and
-    a video when due; a non-finite iteration stops the seed instead. Returns the env steps it adds to the group's
+    """Seed i's share of an iteration: its metrics.csv row (with an evaluation when one is due), then a video and a
+    checkpoint when due; a non-finite iteration stops the seed instead. Returns the env steps it adds to the group's
     SPS."""
     metrics = program.pick(chunk.metrics, i)
     if not bool(metrics["finite"]):
@@ -453,10 +474,11 @@ def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> in
         row.update(run.evaluate(program.pick(chunk.state, i)))
     run.logger.log(row)
     run.trackers.log(row)
+    # The video's snapshot before the checkpoint: a resume from this checkpoint renders a snapshot of its step that
+    # the process left, but records none of steps up to it. Seed i's part of the state is picked only when one is due.
+    run.videos.maybe_record(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
     if run.checkpoint_due():
         run.save_periodic(program.pick(chunk.state, i), program.env_carry(chunk.carry, i))
-    # Seed i's part of the group's state is picked out only when a video is due.
-    run.videos.maybe_record(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
     return int(metrics["steps"])
 
 

@@ -32,6 +32,7 @@ from canter.run_layout import (
 from canter.training import checkpoint, run_folder, run_lock, trackers
 from canter.training.logger import checkpoint_totals, read_rows, row_steps
 from canter.training.seed_run import RunResult, SeedStart, reached_target, read_best, read_result, write_summary
+from canter.training.videos import TrainingVideos
 
 
 class Saved(Enum):
@@ -144,8 +145,8 @@ def repair_config_of_a_finished_run(run_dir: Path) -> RunResult | None:
 
 def summarize_ended_run(run_dir: Path) -> RunResult:
     """Write summary.json of a run whose final checkpoint was saved but whose summary was not (a full disk, or a kill
-    between the two writes), from that checkpoint's header: the run then reads as finished, as it is."""
-
+    between the two writes), from that checkpoint's header: the run then reads as finished, as it is. The videos
+    whose snapshots the killed process left unrendered are rendered first, as a finished run is not resumed again."""
     newest = checkpoint.latest(run_dir)
     header = checkpoint.read_header(newest)
     step = int(header["global_step"])
@@ -153,6 +154,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     recent = totals.recent_returns
     train_seconds = totals.train_seconds
     config = header_config(header, newest)
+    TrainingVideos(Path(run_dir), config.run.video_every, step, resumed=True).close()
     reached = reached_target(recent, config.run.stop_at_return)
     result = RunResult(
         run_dir=Path(run_dir),
@@ -163,10 +165,19 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
         compile_seconds=totals.compile_seconds,
         sps=step / train_seconds if train_seconds > 0 else 0.0,
         stop_reason=StopReason.TARGET if reached else StopReason.BUDGET,  # the loop's order: target, then budget
+        trained_with=_recorded_seeds(header.get("trained_with")),
     )
     summary = write_summary(result)
     trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)
     return result
+
+
+def _recorded_seeds(value: Any) -> tuple[int, ...] | None:
+    """A checkpoint header's `trained_with`; None where it has none (written before canter recorded it) or it is
+    damaged."""
+    if isinstance(value, list) and all(isinstance(seed, int) and not isinstance(seed, bool) for seed in value):
+        return tuple(value)
+    return None
 
 
 def _note_a_changed_backend(run_dir: Path, recorded: str, backend: str, start_step: int) -> None:
@@ -198,8 +209,9 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         _note_a_changed_backend(folder, header["env"]["backend"], backend, step)
         earlier = checkpoint_totals(header, run_folder.metrics_file(folder))
         best = read_best(folder) if config.run.eval_every else None
+        kept = read_best(folder, checkpoint.kept_best_path(folder)) if config.run.eval_every else None
         untrained = bool(header.get("untrained", False))
-        start = SeedStart(folder, state, step, earlier, latest, untrained=untrained, best=best)
+        start = SeedStart(folder, state, step, earlier, latest, untrained=untrained, best=best, kept_best=kept)
     else:
         if run_dir is not None:
             _refuse_a_run_in(Path(run_dir))
@@ -224,6 +236,9 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         )
     if resume is None:
         locks.take(start.run_dir)  # before anything is written to it
+        # At once: a process killed while its envs are made or its program compiles leaves a run that a resume
+        # starts again, not a folder that holds nothing but the lock.
+        run_folder.create(start.run_dir, config)
     return start
 
 

@@ -39,6 +39,7 @@ from canter.run_layout import (
     CHECKPOINT_FOLDER,
     CHECKPOINT_NAME,
     CONFIG_FILE,
+    KEPT_BEST_FILE,
     METRICS_FILE,
     TENSORBOARD_FOLDER,
     TRACKERS_FILE,
@@ -330,7 +331,7 @@ WRITTEN_BEFORE_A_CHECKPOINT = {
     ".": (METRICS_FILE, TRACKERS_FILE),
     TENSORBOARD_FOLDER: ("events.out.tfevents.*",),
     VIDEOS_FOLDER: ("step_*.mp4", ".snapshot_*.npz", ".*.tmp*", "render.log"),
-    CHECKPOINT_FOLDER: (BEST_FILE, ".*.tmp"),
+    CHECKPOINT_FOLDER: (BEST_FILE, KEPT_BEST_FILE, ".*.tmp"),
 }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from collections import deque
@@ -119,6 +120,7 @@ class SeedStart:
     untrained: bool = False  # the checkpoint was written before the run's first iteration (a stop during setup)
     restarted: bool = False  # a resume of a run with no checkpoint, which trains again from step 0 in its folder
     best: Best | None = None  # a resumed run's best.npz, read before anything is written to its folder
+    kept_best: Best | None = None  # and the best.npz its checkpoint's training had, where a newer one replaced it
 
     @property
     def resumed(self) -> bool:
@@ -161,7 +163,12 @@ class SeedRun:
         self.compile_seconds = 0.0  # this session's, once compiled
         self.trained_with = trained_with  # the seeds of this process's group, its own included
         self.checkpoints = Cadence(config.run.checkpoint_every, start.step)
-        self.header_base = {"config": to_toml(config), "env": env_header(spec), "algo": config.run.algo}
+        self.header_base = {
+            "config": to_toml(config),
+            "env": env_header(spec),
+            "algo": config.run.algo,
+            "trained_with": list(trained_with),  # for a summary written from the checkpoint alone
+        }
         self.logger = MetricsLogger(
             run_dir,
             metric_names,
@@ -170,8 +177,13 @@ class SeedRun:
             resume_step=start.step if resumed else None,
             evaluates=config.run.eval_every > 0,
         )
+        best = resumed_best(start.best, start.kept_best, start.step, run_dir) if resumed else None
+        # The newest checkpoint's step, and the step of best.npz: a best.npz that the checkpoint covers is kept when a
+        # better one replaces it, until the next checkpoint covers that one.
+        self.checkpointed_step = start.step if resumed else None
+        self.best_step = best.step if best is not None else None
         self.evaluation = (
-            TrainingEvaluation(config, spec, start.step, best_return(start.best, start.step))
+            TrainingEvaluation(config, spec, start.step, best.score if best is not None else None)
             if config.run.eval_every
             else None
         )
@@ -218,6 +230,8 @@ class SeedRun:
             env_carry=env_carry,
             leave_out=untrained_but or (),
         )
+        self.checkpointed_step = self.global_step
+        checkpoint.kept_best_path(self.run_dir).unlink(missing_ok=True)  # best.npz is this checkpoint's now
         checkpoint.prune(self.run_dir, self.config.run.keep_checkpoints)
 
     def evaluation_due(self) -> bool:
@@ -233,6 +247,9 @@ class SeedRun:
         if self.evaluation.improves(result):
             evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
             header = dict(self._header(), evaluation=evaluation)
+            if self._best_is_checkpointed():
+                os.replace(checkpoint.best_path(self.run_dir), checkpoint.kept_best_path(self.run_dir))
+            self.best_step = self.global_step
             checkpoint.save(
                 checkpoint.best_path(self.run_dir),
                 train_state,
@@ -241,6 +258,14 @@ class SeedRun:
                 leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
             )
         return result.columns()
+
+    def _best_is_checkpointed(self) -> bool:
+        """Whether best.npz is the best of the newest checkpoint's training (a resume from it keeps that best)."""
+        return (
+            self.best_step is not None
+            and self.checkpointed_step is not None
+            and self.best_step <= self.checkpointed_step
+        )
 
     def record(self, metrics: dict[str, Any], iteration: int, elapsed: float) -> dict[str, Any]:
         """This iteration's metrics.csv row, which the loop logs once any evaluation has joined it."""
@@ -417,10 +442,10 @@ def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
         return None
 
 
-def read_best(run_dir: Path) -> Best | None:
-    """The run's best.npz, which a resume that evaluates reads before it writes anything: a damaged one is refused
-    in one line with the run folder as it was. None where the run has none."""
-    path = checkpoint.best_path(run_dir)
+def read_best(run_dir: Path, path: Path | None = None) -> Best | None:
+    """The run's best.npz (or `path`, its kept one), which a resume that evaluates reads before it writes anything: a
+    damaged one is refused in one line with the run folder as it was. None where the run has none."""
+    path = checkpoint.best_path(run_dir) if path is None else path
     if not (path.exists() or path.is_symlink()):
         return None
     header = checkpoint.read_header(path)  # a folder, or a file that is no checkpoint, is refused here
@@ -435,19 +460,30 @@ def read_best(run_dir: Path) -> Best | None:
     return Best(path, score, step)
 
 
-def best_return(best: Best | None, resume_step: int) -> float | None:
-    """The score of the run's best.npz, so that a run resumed at `resume_step` keeps its best state until a better
-    one comes. A best.npz saved after that checkpoint (an evaluation comes before its iteration's checkpoint) is of
-    training that the resume does again, whose rows it drops: it is removed, and the next evaluation saves one."""
-    if best is None:
-        return None
-    if best.step <= resume_step:
-        return best.score
-    best.path.unlink(missing_ok=True)
-    print(
-        f"canter: note: removed {best.path} (step {best.step:,}, return {best.score:.1f}): it was saved after the "
-        f"checkpoint this resume starts from (step {resume_step:,}), by training the resume does again; the next "
-        f"evaluation saves a new one",
-        file=sys.stderr,
-    )
-    return None
+def resumed_best(best: Best | None, kept: Best | None, resume_step: int, run_dir: Path) -> Best | None:
+    """The best.npz that a run resumed at `resume_step` keeps until a better one comes. One saved after that
+    checkpoint (an evaluation comes before its iteration's checkpoint) is of training that the resume does again,
+    whose rows it drops: it is removed, and the best.npz it replaced, which the run kept, is put back."""
+    if best is not None and best.step <= resume_step:
+        checkpoint.kept_best_path(run_dir).unlink(missing_ok=True)  # left by a kill after the checkpoint
+        return best
+    back = kept if kept is not None and kept.step <= resume_step else None
+    if back is not None:
+        os.replace(back.path, checkpoint.best_path(run_dir))
+    else:
+        checkpoint.kept_best_path(run_dir).unlink(missing_ok=True)
+    if best is not None:
+        if back is None:
+            best.path.unlink(missing_ok=True)
+        again = (
+            f"the best.npz it had replaced (step {back.step:,}, return {back.score:.1f}) is back"
+            if back is not None
+            else "the next evaluation saves a new one"
+        )
+        print(
+            f"canter: note: removed {best.path} (step {best.step:,}, return {best.score:.1f}): it was saved after "
+            f"the checkpoint this resume starts from (step {resume_step:,}), by training the resume does again; "
+            f"{again}",
+            file=sys.stderr,
+        )
+    return None if back is None else replace(back, path=checkpoint.best_path(run_dir))
