@@ -394,6 +394,15 @@ def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
         policy(np.zeros((2, 1)))
     with pytest.raises(CanterError, match="policy expects numeric observations of shape"):
         policy([[1.0, 2.0, 3.0], [1.0, 2.0]])  # ragged
+    # numpy reads None as NaN, on which the policy would act
+    with pytest.raises(CanterError, match=r"policy expects numeric observations of shape \(batch, \d+\), got None$"):
+        policy(None)
+    holey = good.astype(object)
+    holey[1, 0] = None
+    with pytest.raises(CanterError, match=r"got None among them$"):
+        policy(holey)
+    with pytest.raises(CanterError, match=r"got None among them$"):
+        policy([None] * policy.obs_dim)
 
 
 @pytest.mark.parametrize("seed", [1.5, "7", True, -1, 2**70])

@@ -38,6 +38,8 @@ def test_a_bool_given_as_text_trains_as_its_config_toml_reads_back(config: Confi
         ("run", "out_dir", Path("/tmp/canter-runs"), "/tmp/canter-runs"),
         ("net", "hidden", [np.int64(32), 32], (32, 32)),
         ("run", "max_minutes", "none", None),
+        ("env", "normalize_obs", np.bool_(False), False),
+        ("env", "normalize_obs", np.float64(1.0) > 0, True),
     ],
 )
 def test_harmless_other_types_are_converted_as_toml_values_are(
@@ -54,6 +56,7 @@ def test_harmless_other_types_are_converted_as_toml_values_are(
         ("env", "normalize_obs", "maybe", r"^env\.normalize_obs: expected true or false, got 'maybe'$"),
         ("ppo", "lr", "fast", r"^ppo\.lr: expected a number, got 'fast'$"),
         ("env", "num_envs", True, r"^env\.num_envs: expected an integer, got True$"),
+        ("env", "num_envs", np.bool_(True), r"^env\.num_envs: expected an integer, got np\.True_$"),
         ("run", "out_dir", 3, r"^run\.out_dir: expected a string, got 3$"),
         pytest.param("ppo", "lr", 10**400, r"^ppo\.lr: expected a number, got 1000", id="int-past-float"),
     ],

@@ -190,7 +190,7 @@ def test_a_group_resumes_together_like_each_folder_alone(hopper_group, tmp_path,
     alone_copy = tmp_path / "alone_s1"
     shutil.copytree(grouped[1].run_dir, alone_copy)
 
-    resumed = resume_seeds(folders, 3072)
+    resumed = canter.resume_seeds(folders, 3072)  # the public API's, which keeps the saved return target
     alone = train(resume_config(alone_copy, 3072), resume=alone_copy)
     assert [r.run_dir for r in resumed] == folders and all(r.global_step >= 3072 for r in resumed)
     assert resumed[1].global_step == alone.global_step

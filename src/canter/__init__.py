@@ -9,7 +9,7 @@ actions = policy(observations)
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import canter.algos  # noqa: F401  (registers every algorithm's config sections and spec)
 from canter.config.build import build_config
@@ -34,6 +34,7 @@ __all__ = [
     "build_config",
     "evaluate",
     "load",
+    "resume_seeds",
     "train",
     "train_seeds",
 ]
@@ -54,6 +55,24 @@ def train_seeds(config: Config, seeds: Sequence[int], quiet: bool = True) -> lis
     from canter.training.loop import train_seeds as _train_seeds
 
     return _train_seeds(config, seeds, quiet=quiet)
+
+
+def resume_seeds(
+    run_dirs: Sequence[str | Path],
+    total_steps: int | None = None,
+    *,
+    max_minutes: float | None = None,
+    stop_at_return: float | None | Literal["keep"] = "keep",
+    quiet: bool = True,
+) -> list[RunResult]:
+    """Resume the run folders of one `train_seeds` group together, each from its newest checkpoint, as each would
+    resume alone. `total_steps` and `max_minutes` (inf: none) replace the saved budget where given; `stop_at_return`
+    replaces the saved return target ("keep": leave it; None: no target)."""
+    from canter.training.loop import resume_seeds as _resume_seeds
+    from canter.training.resume import Saved
+
+    target = Saved.KEEP if isinstance(stop_at_return, str) and stop_at_return == "keep" else stop_at_return
+    return _resume_seeds(run_dirs, total_steps, max_minutes=max_minutes, stop_at_return=target, quiet=quiet)
 
 
 def load(run_dir: str | Path, checkpoint: str | Path = "last") -> Policy:

@@ -10,7 +10,6 @@ import os
 import re
 import types
 import typing
-import weakref
 from collections.abc import Callable, Mapping
 from dataclasses import fields
 from decimal import Decimal
@@ -58,6 +57,8 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
     if inner is bool:
         if isinstance(value, bool):
             return value
+        if _is_numpy_bool(value):  # what a comparison of numpy values gives
+            return bool(value)
         if isinstance(value, str) and value.strip().lower() in ("true", "1", "yes", "on", "false", "0", "no", "off"):
             return value.strip().lower() in ("true", "1", "yes", "on")
         raise bad
@@ -89,6 +90,12 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
             return path
         raise bad
     raise bad
+
+
+def _is_numpy_bool(value: Any) -> bool:
+    """numpy's bool scalar, known by its type's name (the config layer does not import numpy)."""
+    kind = type(value)
+    return kind.__module__ == "numpy" and kind.__name__ in ("bool", "bool_")
 
 
 def _is_integer(value: Any) -> bool:
@@ -170,25 +177,16 @@ def _section_fields(section: Any) -> SectionFields:
     return _FIELDS[cls]
 
 
-# Sections already typed, by id: a frozen section stays typed, and every config built shares most of its sections
-# with the one it was made from, so only a new section is checked (a build makes a config per layer).
-_TYPED: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
-
-
 def typed_section(name: str, section: Any) -> Any:
     """`section` (section `name` of a config) with each value as `coerce` gives it, or a one-line CanterError naming
     the key: however a section was built, the config trains on and saves the values that its config.toml reads back
     as. The same object when every value already has its type, as every value the TOML and --set paths give does."""
-    if _TYPED.get(id(section)) is section:
-        return section
     changes = {
         key: coerce(f"{name}.{key}", tp, getattr(section, key))
         for key, tp, plain in _section_fields(section)
         if not plain(getattr(section, key))
     }
-    typed = dataclasses.replace(section, **changes) if changes else section
-    _TYPED[id(typed)] = typed
-    return typed
+    return dataclasses.replace(section, **changes) if changes else section
 
 
 def typed_values(name: str, section: Any, values: Mapping[str, Any]) -> dict[str, Any]:

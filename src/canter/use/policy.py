@@ -74,6 +74,11 @@ class Policy:
         try:
             if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
                 raise CanterError("policy expects real-valued observations, got complex numbers")
+            if _holds_none(obs_batch):  # numpy would read each None as NaN, and act on it
+                among = "" if obs_batch is None else " among them"
+                raise CanterError(
+                    f"policy expects numeric observations of shape (batch, {self.obs_dim}), got None{among}"
+                )
             obs = np.asarray(obs_batch, np.float32)
         except (TypeError, ValueError):
             raise CanterError(
@@ -94,6 +99,16 @@ class Policy:
             self._key, key = jax.random.split(self._key)
         action = self._act(self.params, self.obs_stats, obs, key, deterministic)
         return action[0] if single else action
+
+
+def _holds_none(obs_batch: Any) -> bool:
+    if obs_batch is None:
+        return True
+    try:
+        raw = np.asarray(obs_batch)
+    except ValueError:  # ragged: refused as not numbers
+        return False
+    return raw.dtype == object and any(value is None for value in raw.flat)
 
 
 def load(run_dir: str | Path, checkpoint: str | Path = LAST) -> Policy:
