@@ -38,6 +38,18 @@ def _killed_at(hook: str, argv: list[str], cwd: Path) -> None:
     assert result.returncode == -signal.SIGKILL, result.stderr[-2000:]
 
 
+def _after_seed_run(method: str) -> str:
+    """A hook that kills the process as soon as a SeedRun's `method` returns."""
+    return f"""
+        from canter.training.seed_run import SeedRun
+        original = SeedRun.{method}
+        def killed_after(self, *args, **kwargs):
+            original(self, *args, **kwargs)
+            os.kill(os.getpid(), signal.SIGKILL)
+        SeedRun.{method} = killed_after
+    """
+
+
 def _canter(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([*CANTER, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
 
@@ -75,15 +87,7 @@ def _video_steps(run: Path) -> list[int]:
 def test_a_run_killed_after_a_periodic_checkpoint_keeps_the_video_of_its_step(tmp_path):
     """The checkpoint came before the video's snapshot: killed between the two, a resume from that checkpoint never
     recorded the video of its step."""
-    hook = """
-        from canter.training.seed_run import SeedRun
-        save_periodic = SeedRun.save_periodic
-        def killed_after(self, *args, **kwargs):
-            save_periodic(self, *args, **kwargs)
-            os.kill(os.getpid(), signal.SIGKILL)
-        SeedRun.save_periodic = killed_after
-    """
-    _killed_at(hook, VIDEO_RUN, tmp_path)
+    _killed_at(_after_seed_run("save_periodic"), VIDEO_RUN, tmp_path)
     (run,) = (tmp_path / "runs").iterdir()
     (checkpointed,) = run_folder.list_checkpoints(run)
     resumed = _canter("train", "--resume", str(run), "--quiet", cwd=tmp_path)
@@ -141,15 +145,7 @@ def test_a_run_killed_after_a_new_best_keeps_the_best_of_the_checkpoint_it_resum
     first = run_folder.step_of(checkpointed)
     assert _best_step(run) > first and checkpoint.kept_best_path(run).is_file()
     # The resume is stopped as soon as it has set up its seed: what it did to best.npz is what the run goes on with.
-    stopped_at_setup = """
-        from canter.training.seed_run import SeedRun
-        init = SeedRun.__init__
-        def killed_after(self, *args, **kwargs):
-            init(self, *args, **kwargs)
-            os.kill(os.getpid(), signal.SIGKILL)
-        SeedRun.__init__ = killed_after
-    """
-    _killed_at(stopped_at_setup, ["train", "--resume", str(run)], tmp_path)
+    _killed_at(_after_seed_run("__init__"), ["train", "--resume", str(run)], tmp_path)
     assert _best_step(run) == first and not checkpoint.kept_best_path(run).exists()
     header = checkpoint.read_header(checkpoint.best_path(run))
     (row,) = [row for row in read_rows(run / "metrics.csv")[1] if int(row["global_step"]) == first]
