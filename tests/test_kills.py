@@ -5,6 +5,7 @@ process from inside, so the moment is exact rather than a matter of timing."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -184,3 +185,34 @@ def test_the_kept_best_comes_back_whichever_write_a_kill_interrupted(tmp_path):
     # A resume from an older checkpoint than the kept best's (the newest was damaged): neither stands.
     assert resumed_best(*files(300, 100), 50, tmp_path) is None
     assert not best_file.exists() and not kept_file.exists()
+
+
+def test_an_output_s_temp_file_left_by_a_killed_writer_goes_with_the_next_write(archived_run, tmp_path):
+    """A write goes to a hidden temp file that is renamed into place; a kill before the rename left that file beside
+    the output for good. The next writer of the output removes it, knowing from its name that its process is gone."""
+    hook = "os.fsync = lambda fd: os.kill(os.getpid(), signal.SIGKILL)"
+    _killed_at(hook, ["plot", str(archived_run), "--out", "curve.png"], tmp_path)
+    (left,) = tmp_path.glob(".curve.png.*.tmp")
+    assert not (tmp_path / "curve.png").exists()
+    plotted = _canter("plot", str(archived_run), "--out", "curve.png", cwd=tmp_path)
+    assert plotted.returncode == 0, plotted.stderr
+    assert (tmp_path / "curve.png").is_file() and not left.exists()
+    assert not list(tmp_path.glob(".curve.png.*"))
+
+
+def test_only_the_temp_files_of_gone_processes_of_this_machine_are_removed(tmp_path):
+    """A temp file being written (its process alive) stays, and so does one of another machine sharing the folder,
+    whose processes this one cannot see."""
+    from canter.files import remove_orphaned_temps, temp_prefix
+
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    gone_pid = int(finished.stdout)
+    mine = temp_prefix("out.json")
+    alive = tmp_path / f"{mine}abc.tmp"
+    gone = tmp_path / f"{mine.replace(f'-{os.getpid()}-', f'-{gone_pid}-')}abc.tmp"
+    elsewhere = tmp_path / f".out.json.000000-{gone_pid}-abc.tmp"
+    other_output = tmp_path / f"{temp_prefix('other.json').replace(f'-{os.getpid()}-', f'-{gone_pid}-')}abc.tmp"
+    for path in (alive, gone, elsewhere, other_output):
+        path.write_text("")
+    remove_orphaned_temps(tmp_path, "out.json")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in (alive, elsewhere, other_output))

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
+import hashlib
 import os
+import socket
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -94,14 +97,52 @@ def is_write_error(exc: BaseException) -> bool:
     return isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS
 
 
+# This machine, in each temp file's name: of a folder that several machines share, only the temp files of this one's
+# processes can be known to be orphaned.
+_HOST_TAG = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:6]
+
+
+def temp_prefix(name: str) -> str:
+    """The start of the name of a temp file beside the output named `name`: hidden, and naming the machine and the
+    process that writes it, so that a later writer of that output removes it once that process is gone."""
+    return f".{name}.{_HOST_TAG}-{os.getpid()}-"
+
+
+def remove_orphaned_temps(folder: Path, name: str) -> None:
+    """Remove the temp files beside the output named `name` whose writer, a process of this machine, is gone: a
+    kill (no handler runs) leaves its temp file, which no one else would remove."""
+    prefix = f".{name}.{_HOST_TAG}-"
+    try:
+        temps = list(Path(folder).glob(glob.escape(prefix) + "*.tmp*"))
+    except OSError:
+        return
+    for temp in temps:
+        pid = temp.name[len(prefix) :].split("-", 1)[0]
+        if pid.isdigit() and not _process_exists(int(pid)):
+            with contextlib.suppress(OSError):
+                temp.unlink()
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's, say
+        return True
+    return True
+
+
 def atomic_write_bytes(path: Path, writer: Callable[[BinaryIO], object]) -> None:
     """Call writer(file_object) on a temp file next to `path`, then rename it into place. A write error leaves
-    no temp file and raises `WriteError`; `path` keeps its old content."""
+    no temp file and raises `WriteError`; `path` keeps its old content, and the temp files of earlier writers of
+    `path` that were killed go."""
     if path.is_dir() and not path.is_symlink():  # before the writer, which may take long, runs in vain
         raise _naming(path, OSError(errno.EISDIR, os.strerror(errno.EISDIR)))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        remove_orphaned_temps(path.parent, path.name)
+        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=".tmp", dir=path.parent)
     except OSError as exc:
         if is_write_error(exc):
             raise WriteError(path, exc) from None

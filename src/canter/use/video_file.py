@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from canter.errors import CanterError
-from canter.files import OUTPUT_FILE_MODE
+from canter.files import OUTPUT_FILE_MODE, remove_orphaned_temps, temp_prefix
 
 
 class _GifWriter:
@@ -54,7 +54,8 @@ class AtomicVideo:
         suffix = out.suffix.lower()
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
-            fd, name = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=f"{_TEMP_MARK}{suffix}", dir=out.parent)
+            remove_orphaned_temps(out.parent, out.stem)
+            fd, name = tempfile.mkstemp(prefix=temp_prefix(out.stem), suffix=f"{_TEMP_MARK}{suffix}", dir=out.parent)
             os.close(fd)
         except OSError as exc:
             raise CanterError(f"cannot write {out}: {exc.strerror or exc}; pick a writable path") from None
