@@ -439,7 +439,8 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     sets = ["run.keep_checkpoints=2", "run.eval_every=1000", "run.video_every=0"]
     config = build_config("Pendulum-v1", algo="td3", sets=sets)
     full, policy = disk_room.state_bytes(state), disk_room.state_bytes({"policy": state.policy})
-    needed = 3 * full + policy  # two kept, the next one written before the oldest goes, and best.npz
+    # two kept, the next one written before the oldest goes, best.npz and the one it replaced (kept until a checkpoint)
+    needed = 3 * full + 2 * policy
     Usage = namedtuple("Usage", "total used free")
     for free, warns in ((needed, False), (needed - 1, True)):
         monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _, free=free: Usage(0, 0, free))
@@ -449,7 +450,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     # The key that sizes the field best.npz leaves out, as td3's size_keys names it, is the other way to make room.
     assert "lower run.keep_checkpoints or td3.buffer_size, or set run.compress_checkpoints=true" in warning
     assert "a checkpoint of this run takes 990.2 KiB and it needs room for 2.9 MiB of them" in warning
-    # A state whose best.npz holds everything needs room for four whole ones.
+    # A state whose best.npz holds everything needs room for five whole ones.
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
     assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)
 

@@ -12,6 +12,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from canter.run_layout import CONFIG_FILE, LOCK_FILE
 from canter.training import checkpoint, run_folder
 from canter.training.logger import read_rows
@@ -24,17 +26,11 @@ VIDEO_RUN = ["train", "InvertedPendulum-v4", "--total-steps", "512", "--out-dir"
 VIDEO_RUN += ["--set", "run.checkpoint_every=256", "--set", "run.video_every=256"]
 
 
-def _killed_at(hook: str, argv: list[str], cwd: Path) -> None:
-    """Run `canter argv` with `hook` (Python that wraps a canter function so that it kills the process) installed
-    first, and check that the kill came."""
-    script = "\n".join(
-        [
-            "import os, signal, sys",
-            textwrap.dedent(hook),
-            "from canter.cli.main import main",
-            f"sys.exit(main({argv!r}))",
-        ]
-    )
+def _killed_at(hook: str, argv: list[str] | str, cwd: Path) -> None:
+    """Run `canter argv` (or Python code) with `hook` (Python that wraps a canter function so that it kills the
+    process) installed first, and check that the kill came."""
+    call = argv if isinstance(argv, str) else f"from canter.cli.main import main\nsys.exit(main({argv!r}))"
+    script = "\n".join(["import os, signal, sys", textwrap.dedent(hook), call])
     result = subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, timeout=300)
     assert result.returncode == -signal.SIGKILL, result.stderr[-2000:]
 
@@ -122,10 +118,12 @@ def _best_step(run: Path) -> int:
     return int(checkpoint.read_header(checkpoint.best_path(run))["global_step"])
 
 
-def test_a_run_killed_after_a_new_best_keeps_the_best_of_the_checkpoint_it_resumes_from(tmp_path):
+@pytest.mark.parametrize("resume_evaluates", [True, False])
+def test_a_run_killed_after_a_new_best_keeps_the_best_of_the_checkpoint_it_resumes_from(tmp_path, resume_evaluates):
     """A best.npz saved after the newest checkpoint is of training that the resume does again, so the resume removes
     it; the best.npz it had replaced, of the checkpoint's training, was lost with it. Each evaluation here counts as
-    a new best, so the second replaces the first; the kill comes before the second iteration's checkpoint."""
+    a new best, so the second replaces the first; the kill comes before the second iteration's checkpoint. A resume
+    that does not evaluate (run.eval_every is an output key, which a resume may change) sets best.npz right too."""
     hook = """
         from canter.training.evaluation import TrainingEvaluation
         from canter.training.seed_run import SeedRun
@@ -146,7 +144,13 @@ def test_a_run_killed_after_a_new_best_keeps_the_best_of_the_checkpoint_it_resum
     first = run_folder.step_of(checkpointed)
     assert _best_step(run) > first and checkpoint.kept_best_path(run).is_file()
     # The resume is stopped as soon as it has set up its seed: what it did to best.npz is what the run goes on with.
-    _killed_at(_after_seed_run("__init__"), ["train", "--resume", str(run)], tmp_path)
+    resume: list[str] | str = ["train", "--resume", str(run)]
+    if not resume_evaluates:
+        resume = (
+            "import canter\nfrom canter.training.resume import resume_config\n"
+            f"canter.train(resume_config({str(run)!r}, None).with_values('run', eval_every=0), resume={str(run)!r})"
+        )
+    _killed_at(_after_seed_run("__init__"), resume, tmp_path)
     assert _best_step(run) == first and not checkpoint.kept_best_path(run).exists()
     header = checkpoint.read_header(checkpoint.best_path(run))
     (row,) = [row for row in read_rows(run / "metrics.csv")[1] if int(row["global_step"]) == first]
@@ -212,7 +216,27 @@ def test_only_the_temp_files_of_gone_processes_of_this_machine_are_removed(tmp_p
     gone = tmp_path / f"{mine.replace(f'-{os.getpid()}-', f'-{gone_pid}-')}abc.tmp"
     elsewhere = tmp_path / f".out.json.000000-{gone_pid}-abc.tmp"
     other_output = tmp_path / f"{temp_prefix('other.json').replace(f'-{os.getpid()}-', f'-{gone_pid}-')}abc.tmp"
-    for path in (alive, gone, elsewhere, other_output):
+    # Names that no writer of canter's gives, with no process ID in them: left alone, and no error.
+    odd = [tmp_path / f"{mine.replace(f'-{os.getpid()}-', f'-{pid}-')}abc.tmp" for pid in ("²", "9" * 40, "")]
+    for path in (alive, gone, elsewhere, other_output, *odd):
         path.write_text("")
     remove_orphaned_temps(tmp_path, "out.json")
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in (alive, elsewhere, other_output))
+    kept = (alive, elsewhere, other_output, *odd)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in kept)
+
+
+def test_keeping_best_npz_leaves_it_in_place_and_takes_one_moved_away(tmp_path):
+    """best.npz is kept by a link, so that readers find it throughout; one that the user moved away while the run
+    trained leaves nothing to keep, and training goes on."""
+    from canter.training.seed_run import keep_best
+
+    (tmp_path / "checkpoints").mkdir()
+    best, kept = checkpoint.best_path(tmp_path), checkpoint.kept_best_path(tmp_path)
+    best.write_bytes(b"best of step 100")
+    kept.write_bytes(b"stale")
+    keep_best(tmp_path)
+    assert best.read_bytes() == kept.read_bytes() == b"best of step 100"
+    best.unlink()
+    kept.unlink()
+    keep_best(tmp_path)
+    assert not kept.exists()

@@ -218,7 +218,8 @@ def test_a_renderer_ends_with_its_trainer(tmp_path):
 def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
     """The render subprocess dies (here: a checkpoint it cannot read); training finishes and warns."""
     hook = TrainingVideos(tmp_path, every=10, start_step=0)
-    hook.maybe_record(10, lambda path: path.write_bytes(b"not a checkpoint"))
+    hook.snapshot_if_due(10, lambda path: path.write_bytes(b"not a checkpoint"))
+    hook.render_snapshot()
     hook.close()
     assert "video at step 10 failed" in capsys.readouterr().err
     assert not list((tmp_path / "videos").glob("*.npz")) and not list((tmp_path / "videos").glob("*.mp4"))

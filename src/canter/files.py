@@ -97,9 +97,18 @@ def is_write_error(exc: BaseException) -> bool:
     return isinstance(exc, OSError) and exc.errno in _WRITE_ERRORS
 
 
-# This machine, in each temp file's name: of a folder that several machines share, only the temp files of this one's
-# processes can be known to be orphaned.
-_HOST_TAG = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:6]
+def _host_tag() -> str:
+    """This machine and its process-ID namespace (containers that share a host name have their own), in each temp
+    file's name: of a folder that several share, only the temp files of this one's processes can be known to be
+    orphaned."""
+    try:
+        namespace = str(os.stat("/proc/self/ns/pid").st_ino)
+    except OSError:  # no /proc: the host name alone
+        namespace = ""
+    return hashlib.sha1(f"{socket.gethostname()}/{namespace}".encode()).hexdigest()[:6]
+
+
+_HOST_TAG = _host_tag()
 
 
 def temp_prefix(name: str) -> str:
@@ -118,7 +127,7 @@ def remove_orphaned_temps(folder: Path, name: str) -> None:
         return
     for temp in temps:
         pid = temp.name[len(prefix) :].split("-", 1)[0]
-        if pid.isdigit() and not _process_exists(int(pid)):
+        if pid.isascii() and pid.isdigit() and not _process_exists(int(pid)):
             with contextlib.suppress(OSError):
                 temp.unlink()
 
@@ -128,7 +137,7 @@ def _process_exists(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except OSError:  # another user's, say
+    except (OSError, OverflowError):  # another user's, say, or no process ID at all: left alone
         return True
     return True
 

@@ -63,8 +63,9 @@ def state_bytes(state: Any) -> int:
 
 
 def policy_files(config: Config) -> int:
-    """best.npz and a video's snapshot: the files that hold the state less the fields its algorithm leaves out."""
-    return (1 if config.run.eval_every else 0) + (1 if config.run.video_every else 0)
+    """best.npz and the one it replaced (kept until the next checkpoint), and a video's snapshot and the one being
+    rendered: the files that hold the state less the fields its algorithm leaves out."""
+    return (2 if config.run.eval_every else 0) + (2 if config.run.video_every else 0)
 
 
 def checkpoints_at_once(config: Config, existing: int) -> int:

@@ -257,7 +257,7 @@ def _start_seeds(
     try:
         for config, resume, run_dir in zip(configs, resumes, run_dirs):
             starts.append(start_of_seed(config, resume, run_dir, backend, locks))
-    except CanterError:
+    except (CanterError, OSError):
         _discard_new_runs(starts)
         raise
     return starts
@@ -476,9 +476,10 @@ def _take_share(program: GroupProgram, i: int, run: SeedRun, chunk: Chunk) -> in
     run.trackers.log(row)
     # The video's snapshot before the checkpoint: a resume from this checkpoint renders a snapshot of its step that
     # the process left, but records none of steps up to it. Seed i's part of the state is picked only when one is due.
-    run.videos.maybe_record(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
+    run.videos.snapshot_if_due(run.global_step, lambda path: run.save_snapshot(path, program.pick(chunk.state, i)))
     if run.checkpoint_due():
         run.save_periodic(program.pick(chunk.state, i), program.env_carry(chunk.carry, i))
+    run.videos.render_snapshot()
     return int(metrics["steps"])
 
 

@@ -31,7 +31,15 @@ from canter.run_layout import (
 )
 from canter.training import checkpoint, run_folder, run_lock, trackers
 from canter.training.logger import checkpoint_totals, read_rows, row_steps
-from canter.training.seed_run import RunResult, SeedStart, reached_target, read_best, read_result, write_summary
+from canter.training.seed_run import (
+    RunResult,
+    SeedStart,
+    reached_target,
+    read_best,
+    read_result,
+    readable_best,
+    write_summary,
+)
 from canter.training.videos import TrainingVideos
 
 
@@ -155,6 +163,7 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
     train_seconds = totals.train_seconds
     config = header_config(header, newest)
     TrainingVideos(Path(run_dir), config.run.video_every, step, resumed=True).close()
+    checkpoint.kept_best_path(run_dir).unlink(missing_ok=True)  # best.npz is the final checkpoint's
     reached = reached_target(recent, config.run.stop_at_return)
     result = RunResult(
         run_dir=Path(run_dir),
@@ -208,8 +217,9 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         step = int(header["global_step"])
         _note_a_changed_backend(folder, header["env"]["backend"], backend, step)
         earlier = checkpoint_totals(header, run_folder.metrics_file(folder))
-        best = read_best(folder) if config.run.eval_every else None
-        kept = read_best(folder, checkpoint.kept_best_path(folder)) if config.run.eval_every else None
+        # Read, and made to fit the checkpoint, also where this session does not evaluate: the run may again.
+        best = read_best(folder) if config.run.eval_every else readable_best(folder)
+        kept = readable_best(folder, checkpoint.kept_best_path(folder))
         untrained = bool(header.get("untrained", False))
         start = SeedStart(folder, state, step, earlier, latest, untrained=untrained, best=best, kept_best=kept)
     else:
@@ -238,7 +248,11 @@ def start_of_seed(config: Config, resume: Any, run_dir: Any, backend: str, locks
         locks.take(start.run_dir)  # before anything is written to it
         # At once: a process killed while its envs are made or its program compiles leaves a run that a resume
         # starts again, not a folder that holds nothing but the lock.
-        run_folder.create(start.run_dir, config)
+        try:
+            run_folder.create(start.run_dir, config)
+        except BaseException:  # a full disk after config.toml, say: what it wrote goes
+            run_folder.discard_unstarted(start.run_dir)
+            raise
     return start
 
 

@@ -3,6 +3,7 @@ returns and stop reason, and what it hands back when it ends (`RunResult`, summa
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -248,8 +249,7 @@ class SeedRun:
             evaluation = dict(result.summary(), seed=DURING_TRAINING_SEED)
             header = dict(self._header(), evaluation=evaluation)
             if self._best_is_checkpointed():
-                os.replace(checkpoint.best_path(self.run_dir), checkpoint.kept_best_path(self.run_dir))
-            self.best_step = self.global_step
+                keep_best(self.run_dir)
             checkpoint.save(
                 checkpoint.best_path(self.run_dir),
                 train_state,
@@ -257,6 +257,7 @@ class SeedRun:
                 compress=self.config.run.compress_checkpoints,
                 leave_out=get_algorithm(self.config.run.algo).policy_checkpoint_leaves_out,
             )
+            self.best_step = self.global_step
         return result.columns()
 
     def _best_is_checkpointed(self) -> bool:
@@ -458,6 +459,31 @@ def read_best(run_dir: Path, path: Path | None = None) -> Best | None:
             f"folder, then resume"
         ) from None
     return Best(path, score, step)
+
+
+def readable_best(run_dir: Path, path: Path | None = None) -> Best | None:
+    """`read_best`, with a damaged file as none: where nothing will be evaluated against it, or for the kept best,
+    which a resume either puts back or removes."""
+    try:
+        return read_best(run_dir, path)
+    except CanterError:
+        return None
+
+
+def keep_best(run_dir: Path) -> None:
+    """Keep best.npz, which the newest checkpoint covers, as the kept best, before a better one replaces it: linked,
+    so that best.npz is there throughout for its readers (copied where the file system has no links). One moved away
+    while the run trained leaves nothing to keep."""
+    best, kept = checkpoint.best_path(run_dir), checkpoint.kept_best_path(run_dir)
+    kept.unlink(missing_ok=True)
+    try:
+        os.link(best, kept)
+    except FileNotFoundError:
+        return
+    except OSError:
+        with contextlib.suppress(FileNotFoundError):
+            data = best.read_bytes()
+            atomic_write_bytes(kept, lambda f: f.write(data))
 
 
 def resumed_best(best: Best | None, kept: Best | None, resume_step: int, run_dir: Path) -> Best | None:

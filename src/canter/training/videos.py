@@ -53,6 +53,7 @@ class TrainingVideos:
         self.folder = Path(run_dir) / VIDEOS_FOLDER
         self.cadence = Cadence(every, start_step)
         self._job: tuple[subprocess.Popen, Path, int] | None = None
+        self._saved: tuple[Path, int] | None = None  # a snapshot whose render has not started
         if resumed and self.folder.is_dir():
             for video in self.folder.glob("step_*.mp4"):
                 step = video.stem.removeprefix("step_")
@@ -69,14 +70,25 @@ class TrainingVideos:
     def _video(self, step: int) -> Path:
         return self.folder / f"step_{step:012d}.mp4"
 
-    def maybe_record(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
+    def snapshot_if_due(self, step: int, save_snapshot: Callable[[Path], None]) -> None:
+        """Save the snapshot of `step` where a video is due; `render_snapshot` starts its render. Apart, so that the
+        snapshot comes before the step's checkpoint (a resume from it renders a snapshot its process left) and the
+        wait for the video before comes after it."""
         if not self.cadence.due(step):
             return
         self.cadence = self.cadence.advance(step)
-        self._finish()
         self.folder.mkdir(parents=True, exist_ok=True)
         snapshot = self.folder / f".snapshot_{step:012d}.npz"
         save_snapshot(snapshot)
+        self._saved = (snapshot, step)
+
+    def render_snapshot(self) -> None:
+        """Render the snapshot just saved, once the video before it is done."""
+        if self._saved is None:
+            return
+        snapshot, step = self._saved
+        self._saved = None
+        self._finish()
         self._render(snapshot, step)
 
     def _render(self, snapshot: Path, step: int) -> None:

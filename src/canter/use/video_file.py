@@ -39,8 +39,8 @@ _TEMP_MARK = ".tmp"  # ends the stem of every temp video (`AtomicVideo`): what `
 
 
 def is_unfinished_video(path: Path) -> bool:
-    """Whether `path` is the temp file of a video (`.NAME.<random>.tmp.mp4` beside NAME.mp4): one still being
-    rendered, or left by a renderer that was killed. Readers of a videos/ folder skip these."""
+    """Whether `path` is the temp file of a video (`.NAME.<machine>-<pid>-<random>.tmp.mp4` beside NAME.mp4): one
+    still being rendered, or left by a renderer that was killed. Readers of a videos/ folder skip these."""
     name = Path(path).name
     return name.startswith(".") and Path(Path(name).stem).suffix == _TEMP_MARK
 
