@@ -74,6 +74,7 @@ def test_a_process_that_ended_without_its_time_recorded_is_not_carried_on(tmp_pa
 SLEEPER = """
 import signal, sys, time
 signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # as canter train: checkpoint, then a clean exit
+print("sleeping", flush=True)
 time.sleep(60)
 """
 
@@ -100,7 +101,9 @@ print(timed.out_of_time("next"), flush=True)
 def test_sigterm_to_a_page_command_stops_its_training_process_as_its_deadline_would():
     started = time.monotonic()
     with subprocess.Popen([sys.executable, "-c", PAGE_COMMAND], stdout=subprocess.PIPE, text=True) as page:
-        time.sleep(2.0)  # the sleeper is running
+        assert page.stdout is not None
+        # The sleeper is running, with its handler (a loaded machine may take seconds to get there).
+        assert page.stdout.readline() == "sleeping\n"
         page.send_signal(signal.SIGTERM)
         out, _ = page.communicate(timeout=30)
     assert page.returncode == 0 and time.monotonic() - started < 30
