@@ -80,3 +80,26 @@ def test_an_archive_missing_a_file_is_not_complete(tmp_path):
     assert not copy_run(source, tmp_path / "archive")
     assert not (tmp_path / "archive").exists()
     assert not has_run_files(source) and has_run_files(source, tuple(f for f in RUN_FILES if f != "eval.json"))
+
+
+@pytest.mark.parametrize(
+    ("metrics", "refusal"),
+    [
+        ("step,iteration\n2048,1\n", "has no global_step column"),  # not a header canter writes
+        (HEADER + "2048,1,3.5,4096.0,3,101.0,\n", "ends at step 2,048, before the row of step 4,096"),  # cut back
+    ],
+)
+def test_a_resume_refused_by_its_archived_metrics_leaves_them_archived(tmp_path, metrics, refusal):
+    """The checks that refuse a resume read metrics.csv.gz as it is: the refused folder keeps it packed, with no
+    metrics.csv beside it."""
+    from canter.errors import CanterError
+    from canter.training.logger import MetricsLogger
+
+    run = tmp_path / "run"
+    run.mkdir()
+    packed = run / "metrics.csv.gz"
+    packed.write_bytes(gzip.compress(metrics.encode()))
+    before = packed.read_bytes()
+    with pytest.raises(CanterError, match=refusal):
+        MetricsLogger(run, ("sps",), (), tensorboard=False, resume_step=4096)
+    assert packed.read_bytes() == before and not (run / "metrics.csv").exists()

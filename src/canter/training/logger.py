@@ -93,11 +93,18 @@ def _header(path: Path) -> list[str]:
     """A metrics.csv's column names, read from its first line only (none for a missing or empty file)."""
     if not path.is_file():
         return []
+    if path.suffix == ".gz":  # an archived copy: small, and read whole as every reader reads it
+        lines = _whole_lines(path).decode("utf-8-sig", errors="replace").splitlines()
+        return _first_row(path, lines[:1])
     with open(path, newline="", encoding="utf-8-sig", errors="replace") as f:
-        try:
-            return next(csv.reader(f), [])
-        except csv.Error as exc:
-            raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
+        return _first_row(path, f)
+
+
+def _first_row(path: Path, lines: Any) -> list[str]:
+    try:
+        return next(csv.reader(lines), [])
+    except csv.Error as exc:
+        raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
 
 
 def _count(text: str | None) -> int:
@@ -251,12 +258,15 @@ class MetricsLogger:
     ) -> None:
         self.path = Path(run_dir) / METRICS_FILE
         self.columns = columns_for(metric_names, info_keys, evaluates)
+        packed = self.path.with_name(self.path.name + ".gz")
+        source = packed if packed.is_file() and not self.path.exists() else self.path
+        if resume_step:
+            self._note_a_lost_history(source, resume_step)
+        # Checked before anything is changed: a refused file, archived or not, stays as it is.
+        self._check_header(source)
+        if resume_step:
+            self._refuse_rows_cut_back(source, resume_step)
         self._unpack_archived()
-        if resume_step:
-            self._note_a_lost_history(resume_step)
-        self._check_header()
-        if resume_step:
-            self._refuse_rows_cut_back(resume_step)  # before the half-written line goes: a refused file stays as it is
         self._cut_half_written_line()
         if resume_step is not None:
             self._drop_rows_after(resume_step)
@@ -287,26 +297,26 @@ class MetricsLogger:
         atomic_write_bytes(self.path, lambda f: f.write(rows))
         packed.unlink()
 
-    def _note_a_lost_history(self, step: int) -> None:
+    def _note_a_lost_history(self, source: Path, step: int) -> None:
         """A file without a row, of a run that trained to a checkpoint at `step`: emptied or damaged, or begun again
         by a resume that was killed before its first row, after the file had been moved away (canter's own advice).
         The two cannot be told apart, so the resume logs on from the checkpoint and says what the file lacks."""
-        if self.path.is_file() and _whole_lines(self.path).count(b"\n") < 2:  # the header and a row at least
+        if source.is_file() and _whole_lines(source).count(b"\n") < 2:  # the header and a row at least
             print(
-                f"canter: note: {lost_rows(self.path, step)} to keep the rows before step {step:,}; the resume logs "
+                f"canter: note: {lost_rows(source, step)} to keep the rows before step {step:,}; the resume logs "
                 f"its rows from there",
                 file=sys.stderr,
             )
 
-    def _refuse_rows_cut_back(self, step: int) -> None:
+    def _refuse_rows_cut_back(self, source: Path, step: int) -> None:
         """A file whose last row comes before the checkpoint's own row was cut back by something else than a stopped
         process (which stops after the row it had logged before its checkpoint): the rows it lost are not logged
         again, and appending after them would hide the gap. Rows with unreadable steps are noted when dropped."""
-        rows = read_rows(self.path)[1]
+        rows = read_rows(source)[1]
         last = max(row_steps(rows), default=0.0)
         if rows and last < step and not unreadable_steps(rows):
             raise CanterError(
-                f"{self.path} ends at step {last:,.0f}, before the row of step {step:,} that the checkpoint the run "
+                f"{source} ends at step {last:,.0f}, before the row of step {step:,} that the checkpoint the run "
                 f"goes on from follows: the file was cut back; restore it from a copy, or "
                 f"{_MOVE_IT_AWAY.format(step=step)}"
             )
@@ -328,13 +338,13 @@ class MetricsLogger:
             file=sys.stderr,
         )
 
-    def _check_header(self) -> None:
+    def _check_header(self, source: Path) -> None:
         """Rows are told apart by their global_step, so a file whose first line names no such column would lose
         every row in a rewrite: refuse it, untouched."""
-        header = _header(self.path)
+        header = _header(source)
         if header and "global_step" not in header:
             raise CanterError(
-                f"{self.path} has no global_step column in its first line, so its rows cannot be kept; restore its "
+                f"{source} has no global_step column in its first line, so its rows cannot be kept; restore its "
                 f"header line (canter writes global_step first), or move the file away to start a new one"
             )
 
