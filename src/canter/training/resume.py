@@ -38,6 +38,7 @@ from canter.training.seed_run import (
     read_best,
     read_result,
     readable_best,
+    recorded_seeds,
     write_summary,
 )
 from canter.training.videos import TrainingVideos
@@ -174,19 +175,11 @@ def summarize_ended_run(run_dir: Path) -> RunResult:
         compile_seconds=totals.compile_seconds,
         sps=step / train_seconds if train_seconds > 0 else 0.0,
         stop_reason=StopReason.TARGET if reached else StopReason.BUDGET,  # the loop's order: target, then budget
-        trained_with=_recorded_seeds(header.get("trained_with")),
+        trained_with=recorded_seeds(header.get("trained_with")),
     )
     summary = write_summary(result)
     trackers.open_for_run(config, Path(run_dir), resumed=True).finish(Path(run_dir), summary)
     return result
-
-
-def _recorded_seeds(value: Any) -> tuple[int, ...] | None:
-    """A checkpoint header's `trained_with`; None where it has none (written before canter recorded it) or it is
-    damaged."""
-    if isinstance(value, list) and all(isinstance(seed, int) and not isinstance(seed, bool) for seed in value):
-        return tuple(value)
-    return None
 
 
 def _note_a_changed_backend(run_dir: Path, recorded: str, backend: str, start_step: int) -> None:

@@ -436,10 +436,15 @@ def divergence_hint(config: Config) -> str:
 
 def _summary_trained_with(run_dir: Path) -> tuple[int, ...] | None:
     """The seeds that summary.json says trained with this one in its last session; None where it says nothing."""
-    seeds = (run_layout.read_summary(run_dir) or {}).get("trained_with")
+    return recorded_seeds((run_layout.read_summary(run_dir) or {}).get("trained_with"))
+
+
+def recorded_seeds(value: Any) -> tuple[int, ...] | None:
+    """`trained_with` as summary.json or a checkpoint header records it; None where it is absent (a checkpoint
+    written before canter recorded it) or damaged."""
     try:
-        return tuple(int(seed) for seed in seeds) if isinstance(seeds, list) else None
-    except (ValueError, TypeError):  # damaged: this session's group stands
+        return tuple(int(seed) for seed in value) if isinstance(value, list) else None
+    except (ValueError, TypeError):
         return None
 
 
