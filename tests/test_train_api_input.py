@@ -62,6 +62,24 @@ def test_a_new_run_in_a_folder_of_runs_is_refused(config, archived_run):
     assert contents(bench) == before
 
 
+@pytest.mark.parametrize(
+    ("kind", "marker", "held"),
+    [
+        ("a bench's --out folder", ".cells/InvertedPendulum-v4__ppo__s0", ".cells/"),
+        ("a study folder of canter tune", "trials/trial_00000", "trials/"),
+    ],
+)
+def test_a_new_run_in_a_bench_or_study_folder_that_holds_no_run_yet_is_refused(config, tmp_path, kind, marker, held):
+    folder = tmp_path / "out"
+    (folder / marker).mkdir(parents=True)
+    before = contents(folder)
+    line = refused(canter.train, config, run_dir=folder)
+    assert line == (
+        f"{folder} is {kind} (it holds {held}); give run_dir= a new folder, or leave it out for one under run.out_dir"
+    )
+    assert contents(folder) == before
+
+
 @pytest.mark.parametrize("which", ["empty", "folder of runs", "checkpoints"])
 def test_a_refused_resume_of_a_folder_that_is_no_run_leaves_no_file(config, archived_run, which):
     folder = {

@@ -46,6 +46,10 @@ def train(
     """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return)."""
     from canter.training.loop import train as _train
 
+    if run_dir and resume is None:  # with resume=, train refuses run_dir= itself
+        from canter.orchestrate.bench_folder import refuse_as_run_dir
+
+        refuse_as_run_dir(run_dir)
     return _train(config, quiet=quiet, resume=resume, run_dir=run_dir)
 
 

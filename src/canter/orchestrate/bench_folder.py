@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from canter.errors import CanterError
+from canter.errors import CanterError, joined
 from canter.files import WriteError, is_write_error
 from canter.orchestrate.study import redacted, study_files_in
 from canter.training import run_lock
@@ -62,6 +62,23 @@ def refuse_run_or_study_folder(bench_dir: Path) -> None:
             f"--out, in which the bench makes a run folder for each cell and seed"
         )
     _refuse_tune_folder(bench_dir)
+
+
+def refuse_as_run_dir(run_dir: str | Path) -> None:
+    """Refuse a bench's --out folder, or a study folder of tune, given as a new run's run_dir=: the run would write
+    its files among the bench's or the study's, which would then read its config.toml and checkpoints as their own.
+    A folder of runs is refused for the new run already (`canter.training.resume`); these may hold none yet."""
+    run_dir = Path(run_dir)
+    kinds = {
+        "a bench's --out folder": bench_files_in(run_dir),
+        "a study folder of canter tune": study_files_in(run_dir),
+    }
+    for kind, held in kinds.items():
+        if held:
+            raise CanterError(
+                f"{run_dir} is {kind} (it holds {joined(held)}); give run_dir= a new folder, or leave it out for one "
+                "under run.out_dir"
+            )
 
 
 def _refuse_tune_folder(bench_dir: Path) -> None:
