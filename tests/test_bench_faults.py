@@ -455,6 +455,66 @@ def test_a_job_whose_run_folder_another_process_writes_exits_busy_not_as_a_refus
         holder.wait()
 
 
+def test_a_busy_job_is_queued_again_after_its_retry_time_until_it_has_waited_its_time(monkeypatch):
+    clock = [100.0]
+    monkeypatch.setattr(bench_local.time, "monotonic", lambda: clock[0])
+    settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), BUDGET, grid=(("ppo.ent_coef", ("0", "0.01")),))
+    job, second = make_jobs(make_cells(settings), (0,))
+    busy = bench_local.BusyRetries(wait_seconds=30.0, retry_seconds=10.0)
+    pending = [second]
+    assert busy.retry(job, pending) and pending == [second, job]
+    assert busy.next_due(pending) is second and busy.next_due(pending) is None  # job waits for its retry
+    clock[0] = 110.0
+    assert busy.next_due(pending) is job and pending == []
+    clock[0] = 125.0
+    assert busy.retry(job, pending) and busy.next_due(pending) is None
+    clock[0] = 130.0  # 30 s since its first busy exit: it fails as any job does
+    assert not busy.retry(job, [])
+
+
+@pytest.mark.slow
+def test_a_bench_waits_for_a_run_folder_that_a_stopping_job_still_writes(tmp_path, capsys, monkeypatch):
+    """A bench run again right after it was killed finds its jobs' folders held by the old jobs, which still write
+    their checkpoints: it tries them again rather than fail their cells."""
+    import threading
+
+    monkeypatch.setattr(bench_local, "BUSY_RETRY_SECONDS", 1.0)
+    bench = tmp_path / "bench"
+    run = bench / "InvertedPendulum-v4__ppo__s0"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"from canter.training import run_lock; run_lock.acquire({str(run)!r}); "
+            "print('held', flush=True); import time; time.sleep(300)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+
+    def release_once_refused() -> None:
+        while holder.poll() is None:
+            logs = [log.read_text() for log in bench.glob(".cells/*/train.log")]
+            if any("is being written by" in log for log in logs):
+                holder.kill()
+            threading.Event().wait(0.2)
+
+    assert holder.stdout.readline() == "held\n"
+    releaser = threading.Thread(target=release_once_refused)
+    releaser.start()
+    try:
+        argv = ["bench", "--envs", "InvertedPendulum-v4", "--seeds", "0", "--total-steps", "512", "--episodes", "1"]
+        code = main([*argv, "--out", str(bench), *TINY])
+    finally:
+        holder.kill()
+        releaser.join()
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    wait = f"wait  InvertedPendulum-v4__ppo: {run} is being written by process {holder.pid} on "
+    assert wait in out and "; trying again every 1 s, for up to 4 min" in out, out
+    assert (run / "eval.json").is_file() and "FAIL" not in out
+
+
 def test_a_seed_stopped_before_its_first_iteration_starts_anew_in_the_start_line(tmp_path):
     """A stop during the warm-up leaves a checkpoint at step 0, from which the seed starts as a new one does."""
     from canter.orchestrate.bench_runs import seed_progress, start_text

@@ -10,7 +10,12 @@ from typing import Any
 from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
 from canter.orchestrate.job_resources import job_layout, warn_if_more_jobs_than_cores, worker_count
-from canter.orchestrate.jobs import failure_reason, start_job, stop_jobs
+from canter.orchestrate.jobs import BUSY, STOP_GRACE_SECONDS, failure_reason, start_job, stop_jobs
+
+# How long a job whose run folder another process writes is tried again: a killed bench's job that still stops
+# (its grace, and the checkpoint it writes), with room for the start of a process.
+BUSY_WAIT_SECONDS = STOP_GRACE_SECONDS + 60.0
+BUSY_RETRY_SECONDS = 10.0
 
 
 def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> dict[str, str]:
@@ -29,15 +34,17 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     slots = job_layout(workers) if workers > 1 else [{}]
     running: dict[int, tuple[Job, Any, float]] = {}
     failures: dict[str, str] = {}
+    busy = BusyRetries(BUSY_WAIT_SECONDS, BUSY_RETRY_SECONDS)
     try:
         while pending or running:
             for slot, caps in enumerate(slots):
-                if slot not in running and pending:
-                    job = pending.pop(0)
-                    progress = seed_progress(job, settings, bench_dir)  # before the job saves any
-                    line = start_text(job, progress, settings.total_steps)
-                    proc = start_job(job_spec(job, settings, bench_dir), bench_dir / ".cells" / job.name, caps)
-                    running[slot] = (job, proc, time.monotonic())
+                starting = busy.next_due(pending) if slot not in running else None
+                if starting is not None:
+                    progress = seed_progress(starting, settings, bench_dir)  # before the job saves any
+                    line = start_text(starting, progress, settings.total_steps)
+                    cell_folder = bench_dir / ".cells" / starting.name
+                    proc = start_job(job_spec(starting, settings, bench_dir), cell_folder, caps)
+                    running[slot] = (starting, proc, time.monotonic())
                     print(line, flush=True)
             for slot, (job, proc, started) in list(running.items()):
                 code = proc.poll()
@@ -50,6 +57,8 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                     print(f"STOP  {job.name}: {STOPPED_EARLY}", flush=True)
                 elif code == 0:
                     print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
+                elif code == BUSY and busy.retry(job, pending):
+                    print(f"wait  {job.name}: {busy.reason(bench_dir / '.cells' / job.name)}", flush=True)
                 else:
                     reason = failure_reason(bench_dir / ".cells" / job.name, code)
                     failures.setdefault(job.cell.name, reason)
@@ -58,3 +67,39 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
     finally:
         stop_jobs(proc for _, proc, _ in running.values())
     return failures
+
+
+class BusyRetries:
+    """The jobs that exited because another process writes their run folder (`BUSY`), such as a job of a bench that
+    was killed and whose jobs still checkpoint: each is tried again every `retry_seconds` for up to
+    `wait_seconds` from its first try, then fails as any job does."""
+
+    def __init__(self, wait_seconds: float, retry_seconds: float):
+        self.wait_seconds = wait_seconds
+        self.retry_seconds = retry_seconds
+        self._first_busy: dict[str, float] = {}
+        self._due: dict[str, float] = {}
+
+    def next_due(self, pending: list[Job]) -> Job | None:
+        """Take the first pending job that is not waiting for its retry."""
+        now = time.monotonic()
+        for index, job in enumerate(pending):
+            if self._due.get(job.name, now) <= now:
+                return pending.pop(index)
+        return None
+
+    def retry(self, job: Job, pending: list[Job]) -> bool:
+        """Queue a busy job again, unless it has waited its time; False then."""
+        now = time.monotonic()
+        first = self._first_busy.setdefault(job.name, now)
+        if now - first >= self.wait_seconds:
+            return False
+        self._due[job.name] = now + self.retry_seconds
+        pending.append(job)
+        return True
+
+    def reason(self, cell_folder: Path) -> str:
+        """The line a waiting job prints: the child's error, which names the process, and the retry."""
+        said = failure_reason(cell_folder, BUSY).partition(": canter: error: ")[2].partition("; one process")[0]
+        retry = f"trying again every {self.retry_seconds:.0f} s, for up to {self.wait_seconds / 60:.0f} min"
+        return f"{said or 'its run folder is busy'}; {retry}"
