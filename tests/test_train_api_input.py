@@ -62,6 +62,24 @@ def test_a_new_run_in_a_folder_of_runs_is_refused(config, archived_run):
     assert contents(bench) == before
 
 
+def test_a_new_run_in_the_checkpoints_folder_of_a_run_is_refused(config, archived_run):
+    folder = archived_run / "checkpoints"
+    before = contents(archived_run)
+    line = refused(canter.train, config, run_dir=folder)
+    assert line == (
+        f"{folder} is the checkpoints folder of the run {archived_run}; give run_dir= a new folder, or leave it out "
+        "for one under run.out_dir"
+    )
+    assert contents(archived_run) == before
+
+
+@pytest.mark.parametrize("run_dir", [5, b"runs/a", ["runs/a"]])
+def test_a_run_dir_that_is_no_path_is_refused(config, run_dir):
+    assert refused(canter.train, config, run_dir=run_dir) == (
+        f"run_dir= must be a folder path (str or Path), got {type(run_dir).__name__}"
+    )
+
+
 @pytest.mark.parametrize(
     ("kind", "marker", "held"),
     [

@@ -9,6 +9,7 @@ actions = policy(observations)
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any, Literal
 
 import canter.algos  # noqa: F401  (registers every algorithm's config sections and spec)
@@ -46,7 +47,7 @@ def train(
     """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return)."""
     from canter.training.loop import train as _train
 
-    if run_dir and resume is None:  # with resume=, train refuses run_dir= itself
+    if isinstance(run_dir, str | os.PathLike) and str(run_dir).strip() and resume is None:  # train checks the rest
         from canter.orchestrate.bench_folder import refuse_as_run_dir
 
         refuse_as_run_dir(run_dir)

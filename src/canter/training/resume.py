@@ -354,7 +354,13 @@ def _refuse_a_folder_of_runs(run_dir: Path) -> None:
 
 
 def _refuse_a_run_in(run_dir: Path) -> None:
-    """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics."""
+    """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics; given the
+    checkpoints folder of a run, it would write its files among them, which every later reading of the run skips."""
+    if run_dir.name == CHECKPOINT_FOLDER and CHECKPOINT_FOLDER in run_files_in(run_dir.parent):
+        raise CanterError(
+            f"{run_dir} is the checkpoints folder of the run {run_dir.parent}; give run_dir= a new folder, or leave "
+            "it out for one under run.out_dir"
+        )
     present = run_files_in(run_dir)
     held = [name for name in (CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, CHECKPOINT_FOLDER) if name in present]
     if held:
