@@ -417,7 +417,9 @@ def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "ckpt_000000001000.npz").write_bytes(b"")
     error = training_write_error(full, [run])
-    assert error is not None and str(error).endswith(f"then `canter train --resume {run}`")
+    assert error is not None and str(error).endswith(
+        f"then `canter train --resume {run}` (canter.resume_seeds({[str(run)]!r}) from Python)"
+    )
     error = training_write_error(WriteError(run / "summary.json", full), [run])
     assert error is not None and "training finished and its last checkpoint is saved" in str(error)
     read_only = OSError(errno.EROFS, os.strerror(errno.EROFS), str(run / "tb" / "events"))

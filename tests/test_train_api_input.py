@@ -145,3 +145,65 @@ def test_seeds_may_be_a_list_tuple_range_or_array():
 
 def test_run_dirs_given_as_one_path_is_refused(config):
     assert refused(train_seeds, config, [0, 1], run_dirs="ab").startswith("run_dirs= must be a list of folders")
+
+
+@pytest.mark.parametrize(
+    ("run_dirs", "start"),
+    [
+        ([], "run_dirs= is empty; pass the run folders to resume"),
+        (None, "run_dirs= must be a list of folders, one per seed, got None"),
+        ("runs/a", "run_dirs= must be a list of folders, one per seed, got 'runs/a'"),
+        ([5], "run_dirs= must be a folder path (str or Path), got int"),
+    ],
+)
+def test_resume_seeds_refuses_run_dirs_that_are_no_list_of_folders(run_dirs, start):
+    assert refused(canter.resume_seeds, run_dirs).startswith(start)
+
+
+@pytest.mark.parametrize(
+    ("budget", "line"),
+    [
+        ({"total_steps": "abc"}, "run.total_steps: expected an integer, got 'abc'"),
+        ({"total_steps": 4096.9}, "run.total_steps: expected an integer, got 4096.9"),
+        ({"total_steps": float("nan")}, "run.total_steps: expected an integer, got nan"),
+        ({"max_minutes": "x"}, "run.max_minutes: expected a number or none, got 'x'"),
+    ],
+)
+def test_resume_seeds_checks_its_budget_as_the_config_does(archived_run, budget, line):
+    before = contents(archived_run)
+    assert refused(canter.resume_seeds, [archived_run], **budget) == line
+    assert contents(archived_run) == before
+
+
+def test_runs_that_differ_in_their_budget_alone_are_told_the_python_argument_that_gives_them_one(archived_run):
+    import shutil
+
+    other = archived_run.parent / "other"
+    shutil.copytree(archived_run, other)
+    config = other / "config.toml"
+    config.write_text(config.read_text().replace("total_steps = 1024", "total_steps = 2048", 1))
+    line = refused(canter.resume_seeds, [archived_run, other])
+    assert "(run.total_steps); pass --total-steps (total_steps= from Python) to give them one budget" in line
+
+
+def test_a_config_that_differs_from_the_resumed_runs_is_told_the_public_call_that_reads_the_runs_own(archived_run):
+    line = refused(canter.train, canter.build_config("InvertedPendulum-v4", seed=3), resume=archived_run)
+    assert line.endswith(
+        f"resume it with canter.resume_seeds([{str(archived_run)!r}], total_steps=...), which reads the run's own "
+        "config"
+    )
+
+
+def test_train_seeds_without_seeds_names_the_python_argument(config):
+    assert refused(canter.train_seeds, config, []).endswith("(seeds=[0, 1, 2] from Python)")
+
+
+@pytest.mark.parametrize(("args", "start"), [((None,), "run_dir must be the path"), ((5,), "run_dir must be the path")])
+def test_load_refuses_a_run_dir_that_is_no_path(args, start):
+    assert refused(canter.load, *args).startswith(start)
+
+
+def test_load_refuses_a_checkpoint_that_is_no_name_or_path(archived_run):
+    assert refused(canter.load, archived_run, 5) == (
+        'checkpoint= takes "last", "best" or the path of a checkpoint file, got int'
+    )

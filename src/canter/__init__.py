@@ -44,7 +44,10 @@ __all__ = [
 def train(
     config: Config, *, quiet: bool = True, resume: str | Path | None = None, run_dir: str | Path | None = None
 ) -> RunResult:
-    """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return)."""
+    """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return). `run_dir`: the
+    new run's folder (default: a new one under run.out_dir). `resume`: a run folder to continue from its newest
+    checkpoint; `config` must then equal the run's own apart from its budget (`resume_seeds([folder],
+    total_steps=...)` reads the run's own config)."""
     from canter.training.loop import train as _train
 
     if isinstance(run_dir, str | os.PathLike) and str(run_dir).strip() and resume is None:  # train checks the rest

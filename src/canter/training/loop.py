@@ -88,7 +88,7 @@ def train_seeds(
     _need_a_config(config)
     seeds = _checked_seeds(seeds)
     if not seeds:
-        raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2")
+        raise CanterError("no seeds given; pass at least one, e.g. --seeds 0,1,2 (seeds=[0, 1, 2] from Python)")
     if len(set(seeds)) != len(seeds):
         raise CanterError(f"seeds repeat in {seeds}; each seed of a group must be different")
     if run_dirs is not None:
@@ -152,6 +152,11 @@ def resume_seeds(
     would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`. A folder that has
     its budget already (a seed of the group that finished before a signal stopped the others) is left out with a
     note; the results are those of the folders resumed."""
+    _need_folders(run_dirs)
+    if not run_dirs:
+        raise CanterError(
+            "run_dirs= is empty; pass the run folders to resume, e.g. the run_dir of each train_seeds result"
+        )
     configs = [resume_config(Path(d), total_steps, max_minutes, stop_at_return) for d in run_dirs]
     # Checked before the seeds: two runs of different experiments repeat seeds too, which would hide the cause.
     check_one_group(run_dirs, configs)
@@ -340,7 +345,10 @@ def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError
     if error.path.name == SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
         return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
     if all(run_folder.list_checkpoints(d) for d in run_dirs):
-        return error.resumable(f"`canter train --resume {' '.join(str(d) for d in run_dirs)}`")
+        folders = [str(d) for d in run_dirs]
+        return error.resumable(
+            f"`canter train --resume {' '.join(folders)}` (canter.resume_seeds({folders!r}) from Python)"
+        )
     return error.resumable("train again (no checkpoint was written to resume from)")
 
 

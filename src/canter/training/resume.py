@@ -72,7 +72,7 @@ def check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> No
             if differing_keys([configs[0], config]):
                 fix = "they are runs of different experiments, which resume one at a time"
             elif keys == ["run.total_steps"]:
-                fix = "pass --total-steps to give them one budget, or resume them one at a time"
+                fix = "pass --total-steps (total_steps= from Python) to give them one budget, or resume them one by one"
             else:
                 fix = "resume them one at a time"
             raise CanterError(
@@ -98,8 +98,8 @@ def check_same_experiment_and_seed(saved: Config, config: Config, run_dir: Path)
         raise CanterError(
             f"the config to resume {run_dir} with differs from the run's in {', '.join(differing)}; a resume may "
             f"change only its budget (run.total_steps, run.max_minutes, run.stop_at_return) and keys that do not "
-            f"change what is learned: build it with canter.training.resume.resume_config({str(run_dir)!r}, "
-            f"total_steps)"
+            f"change what is learned: resume it with canter.resume_seeds([{str(run_dir)!r}], total_steps=...), "
+            f"which reads the run's own config"
         )
 
 
@@ -432,10 +432,12 @@ def resume_config(
     the return target (a bench re-run gives its own; None: no target)."""
     need_a_run_to_resume(Path(run_dir))
     config = saved_config(Path(run_dir))
+    # Checked as a --set of the key is (a string, a NaN or 4096.9 steps refused), not cut to a whole number.
     if total_steps is not None:
-        config = config.with_values("run", total_steps=int(total_steps))
+        config = config.with_values("run", total_steps=total_steps)
     if max_minutes is not None:  # inf lifts a saved limit
-        config = config.with_values("run", max_minutes=unlimited_as_none(float(max_minutes)))
+        lifted = isinstance(max_minutes, int | float) and unlimited_as_none(max_minutes) is None
+        config = config.with_values("run", max_minutes=None if lifted else max_minutes)
     if not isinstance(stop_at_return, Saved):
         config = config.with_values("run", stop_at_return=stop_at_return)
     return config
