@@ -375,9 +375,17 @@ def test_a_bad_value_in_a_file_names_the_file(archived_run, tmp_path, capsys):
 
 
 def test_a_path_of_the_wrong_kind_says_what_is_wanted(archived_run, tmp_path, capsys):
-    one_line(capsys, ["train", "Pendulum-v1", "--config", str(tmp_path)], "is a folder; --config takes a TOML file")
+    one_line(
+        capsys,
+        ["train", "Pendulum-v1", "--config", str(tmp_path)],
+        "is a folder; --config (config_file= from Python) takes a TOML file",
+    )
     one_line(capsys, ["plot", str(archived_run / "config.toml")], "is a file, not a run folder")
-    one_line(capsys, ["eval", str(archived_run), "--checkpoint", "lst"], "--checkpoint takes last, best or a .npz file")
+    one_line(
+        capsys,
+        ["eval", str(archived_run), "--checkpoint", "lst"],
+        "--checkpoint (checkpoint= from Python) takes last, best or a .npz file",
+    )
 
 
 def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
@@ -454,7 +462,7 @@ def test_settings_that_would_do_nothing_or_write_into_the_current_folder_are_ref
 
 
 def test_an_empty_algo_is_refused_rather_than_read_as_the_default():
-    with pytest.raises(CanterError, match=r"^--algo is empty; give one of ppo, .*, or drop --algo$"):
+    with pytest.raises(CanterError, match=r"^--algo \(algo= from Python\) is empty; give one of ppo, .*, or drop it$"):
         build_config("Hopper-v5", algo="")
 
 
@@ -473,9 +481,10 @@ def test_new_runs_benches_and_studies_are_refused_inside_a_runs_own_folders(tmp_
         assert main([*argv, "--total-steps", "2048"]) == 2, argv
         err = capsys.readouterr().err
         owner = "checkpoints" if "checkpoints" in str(folder) else "tb"
+        python = " (run.out_dir from Python)" if argv[0] == "train" else ""  # bench and tune are commands only
         assert err == (
             f"canter: error: {flag} {folder} is inside {owner}/ of the run folder {run}, which holds that run's own "
-            f"files; give another {flag}\n"
+            f"files; give another {flag}{python}\n"
         ), err
     assert sorted(run.rglob("*")) == before
 

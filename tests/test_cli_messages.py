@@ -79,7 +79,8 @@ def test_a_checkpoint_folder_is_not_a_checkpoint(archived_run, capsys):
         capsys, ["eval", str(archived_run), "--checkpoint", str(archived_run / "checkpoints"), "--episodes", "1"]
     )
     assert line.startswith(
-        f"checkpoint {archived_run / 'checkpoints'} is a folder; --checkpoint takes last, best or a .npz"
+        f"checkpoint {archived_run / 'checkpoints'} is a folder; --checkpoint (checkpoint= from Python) takes last, "
+        f"best or a .npz"
     )
 
 
@@ -102,8 +103,8 @@ def test_a_missing_search_space_file_is_named_as_one(capsys):
 @pytest.mark.parametrize(
     "flag, message",
     [
-        ("--config", "--config is empty; give a TOML file, or drop --config"),
-        ("--preset", "--preset is empty; give one of "),
+        ("--config", "--config (config_file= from Python) is empty; give a TOML file, or drop it"),
+        ("--preset", "--preset (preset= from Python) is empty; give one of "),
         ("--out-dir", "--out-dir is empty; give a folder for the run folders, or drop --out-dir"),
     ],
 )
@@ -142,7 +143,7 @@ def test_a_config_file_s_run_preset_is_the_preset_beneath_it(tmp_path):
             ["--preset", "fast"],
             'preset = "cleanrl"',
             "c.toml sets run.preset = 'cleanrl', but the preset is fast; run.preset records the preset a config was "
-            "built from: pass --preset cleanrl, or drop run.preset from the file",
+            "built from: pass --preset cleanrl (preset='cleanrl' from Python), or drop run.preset from the file",
         ),
         ([], 'preset = "mine"', "c.toml sets run.preset = 'mine', which is no preset; run.preset records the preset"),
     ],
@@ -178,8 +179,8 @@ def test_a_preset_the_config_file_names_that_excludes_the_algorithm_names_the_fi
     line = error_line(capsys, ["train", "Hopper-v5", "--config", "c.toml", "--algo", "ppo"])
     assert line == (
         "preset report002-ddpg, named by c.toml's run.preset, holds settings for ddpg only, not ppo; train one of "
-        "those algorithms with it (e.g. --algo ddpg), or drop run.preset from c.toml and pass --preset fast (or "
-        "another preset)"
+        "those algorithms with it, e.g. --algo ddpg (algo='ddpg' from Python), or drop run.preset from c.toml and "
+        "pass another preset, e.g. --preset fast (preset='fast' from Python)"
     )
     # --preset fast alone is refused, as naming another preset than the file's; dropping run.preset is what frees it
     assert error_line(capsys, ["train", "Hopper-v5", "--config", "c.toml", "--preset", "fast"]).startswith(

@@ -107,7 +107,7 @@ def test_toml_round_trip_preserves_everything():
         (["run.seed=4294967296"], "run.seed must be from 0 to 4294967295, got 4294967296"),
         (["run.seed=-1"], "run.seed must be from 0 to 4294967295, got -1"),
         (["run.stop_at_return=inf"], "run.stop_at_return must be a finite number or none, got inf"),
-        (["nosection"], "--set expects section.key=value"),
+        (["nosection"], "--set (sets= from Python) expects section.key=value"),
         (["bogus.key=1"], "unknown config key 'bogus.key'"),
     ],
 )

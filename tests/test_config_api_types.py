@@ -108,5 +108,7 @@ def test_sets_given_as_one_string_is_refused_with_the_fix() -> None:
 
 
 def test_a_set_entry_that_is_not_text_is_refused() -> None:
-    with pytest.raises(CanterError, match=r"^--set expects section\.key=value text, got 1 \(int\)$"):
+    with pytest.raises(
+        CanterError, match=r"^--set \(sets= from Python\) expects section\.key=value text, got 1 \(int\)$"
+    ):
         canter.build_config("Pendulum-v1", sets=[1])  # type: ignore[list-item]

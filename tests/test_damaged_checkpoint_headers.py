@@ -117,8 +117,8 @@ def test_a_header_field_of_another_type_is_refused_even_with_a_matching_hash(arc
 def test_a_checkpoint_that_is_no_regular_file_is_told_as_such(tmp_path, capsys):
     message = error_line(capsys, ["eval", str(ARCHIVED_RUN), "--checkpoint", os.devnull])
     assert message == (
-        f"checkpoint {os.devnull} is not a regular file (a device, pipe or socket); --checkpoint takes last, best "
-        f"or a .npz file"
+        f"checkpoint {os.devnull} is not a regular file (a device, pipe or socket); --checkpoint (checkpoint= from "
+        f"Python) takes last, best or a .npz file"
     )
     pipe = tmp_path / "c.npz"
     os.mkfifo(pipe)  # reading it would wait for a writer

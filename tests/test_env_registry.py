@@ -206,19 +206,27 @@ def test_an_id_of_another_backend_or_a_malformed_custom_id_names_the_fix(env_id,
     assert str(refused.value).startswith(message), str(refused.value)
 
 
+# The Python names of --backend that each error advising it ends with, for a caller of canter.train or evaluate.
+PYTHON = "(env.backend from Python; backend= for evaluate)"
+
+
 @pytest.mark.parametrize(
     "env_id, backend, message",
     [
         ("antt", "brax", "unknown env id 'antt' for Brax; did you mean ant? (RUNS)"),
         ("Hoper-v5", "mjx", "unknown env id 'Hoper-v5' for MJX; did you mean Hopper-v5? (RUNS)"),
-        ("hopper", "mjx", "MJX does not run hopper (RUNS); pass --backend brax, or use Hopper-v5 with --backend mjx"),
+        (
+            "hopper",
+            "mjx",
+            "MJX does not run hopper (RUNS); pass --backend brax, or use Hopper-v5 with --backend mjx PYTHON",
+        ),
         (
             "Hopper-v5",
             "brax",
             "Brax does not run Hopper-v5 (RUNS); pass --backend mjx, drop --backend to run it on the CPU, or use "
-            "hopper with --backend brax",
+            "hopper with --backend brax PYTHON",
         ),
-        ("Pendulum-v1", "mjx", "MJX does not run Pendulum-v1 (RUNS); drop --backend to run it on the CPU"),
+        ("Pendulum-v1", "mjx", "MJX does not run Pendulum-v1 (RUNS); drop --backend to run it on the CPU PYTHON"),
     ],
 )
 def test_an_id_a_jax_native_backend_lacks_names_the_backends_that_run_it_and_its_own_spelling(env_id, backend, message):
@@ -232,4 +240,4 @@ def test_an_id_a_jax_native_backend_lacks_names_the_backends_that_run_it_and_its
         resolve_backend(env_id, backend)
     # Every such error lists what the backend runs, as the issue asks of an unported id.
     runs = f"--backend {backend} runs {_or(sorted(get_backend(backend).supported_ids()))}"
-    assert str(refused.value) == message.replace("RUNS", runs)
+    assert str(refused.value) == message.replace("RUNS", runs).replace("PYTHON", PYTHON)

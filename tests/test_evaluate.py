@@ -163,7 +163,7 @@ def test_eval_physics_are_the_runs_own_with_the_changes_over_them():
     [
         (["env.num_envs=4"], "an evaluation takes the physics settings env.solver_iterations, "),
         (["run.seed=1"], "got 'run.seed'; the rest is the run's own"),
-        (["solver_iterations"], "--set expects section.key=value"),
+        (["solver_iterations"], "--set (sets= from Python) expects section.key=value"),
     ],
 )
 def test_cli_eval_set_takes_physics_settings_only(sets, message, tmp_path, capsys):
@@ -193,5 +193,5 @@ def test_cli_eval_set_on_a_cpu_backend_names_the_backend_that_takes_it(tiny_run,
     # Pendulum has no MJX port, so --backend mjx would only fail next.
     assert err.strip().endswith(
         "env.solver_iterations applies to the mjx backend only; Pendulum-v1 has no mjx version: drop "
-        "env.solver_iterations"
+        "env.solver_iterations (physics= for evaluate)"
     ), err

@@ -19,7 +19,8 @@ def test_a_run_that_lost_its_config_is_told_how_to_get_it_back(command, archived
     (archived_run / "config.toml").unlink()
     line = error_line(capsys, [command[0], str(archived_run), *command[1:]])
     assert line.startswith(f"{archived_run} has no config.toml: the run folder is damaged; restore config.toml"), line
-    assert f"let canter train --resume {archived_run} write it again from the newest checkpoint" in line
+    assert f"let canter train --resume {archived_run} (canter.resume_seeds(" in line
+    assert ") from Python) write it again from the newest checkpoint" in line
     assert "is it a canter run folder" not in line
 
 

@@ -270,7 +270,8 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     (edited / "config.toml").write_text(text.replace("num_envs = ", 'num_envs = "sixteen" #', 1))
     refused = (
         f"env.num_envs: expected an integer, got 'sixteen' (in {edited / 'config.toml'}); correct it, or move "
-        f"config.toml away and let canter train --resume {edited} write it again from the newest checkpoint"
+        f"config.toml away and let canter train --resume {edited} (canter.resume_seeds({[str(edited)]!r}) from "
+        f"Python) write it again from the newest checkpoint"
     )
     one_line(["plot", str(edited), "--out", str(tmp_path / "a.png")], refused)
     one_line(["train", "--resume", str(edited), "--total-steps", "1e6"], refused)  # edited: not overwritten unasked
@@ -306,7 +307,8 @@ def test_damaged_or_foreign_files_in_a_run_folder_are_one_line_errors_or_skipped
     one_line(
         ["eval", str(corrupt)],
         f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and canter "
-        f"train --resume {corrupt} trains the run again from step 0",
+        f"train --resume {corrupt} (canter.resume_seeds({[str(corrupt)]!r}) from Python) trains the run again from "
+        f"step 0",
     )
 
     truncated = folder("truncated_metrics")
@@ -388,7 +390,8 @@ def test_a_finished_run_s_damaged_config_toml_is_written_again_by_the_resume_its
     saved = from_toml_text(checkpoint.read_header(newest)["config"], str(newest))
     (archived_run / "config.toml").write_text("[run\nalgo = 'ppo'\n")
     assert main(["plot", str(archived_run), "--out", "curves.png"]) == 2
-    assert f"let canter train --resume {archived_run} write it again" in capsys.readouterr().err
+    resume = f"canter train --resume {archived_run} (canter.resume_seeds({[str(archived_run)]!r}) from Python)"
+    assert f"let {resume} write it again" in capsys.readouterr().err
     assert main(["train", "--resume", str(archived_run)]) == 0
     assert "so nothing is trained: its config.toml is written again" in capsys.readouterr().err
     assert read_config(archived_run) == saved

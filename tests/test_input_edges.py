@@ -280,7 +280,8 @@ def test_short_int_keeps_readable_numbers_whole():
 
 def test_a_config_path_that_is_no_regular_file_says_so(capsys):
     line = error_line(capsys, ["train", "Hopper-v5", "--config", "/dev/zero"])
-    assert line.startswith("/dev/zero is not a regular file; --config takes a TOML file"), line
+    expected = "/dev/zero is not a regular file; --config (config_file= from Python) takes a TOML file"
+    assert line.startswith(expected), line
 
 
 # ------------------------------------------------------------------------------------------------- checkpoints
@@ -297,4 +298,6 @@ def test_a_corrupt_best_checkpoint_gets_advice_that_fits_resume(tmp_path):
         checkpoint.read_header(best)
     message = str(caught.value)
     assert message.startswith(f"checkpoint {best} is corrupt or truncated; move it out of its folder"), message
-    assert "eval, video, export and report can take --checkpoint last instead" in message
+    assert (
+        "eval, video, export and report can take --checkpoint last (checkpoint='last' from Python) instead" in message
+    )

@@ -187,7 +187,7 @@ def test_tianshou_preset_is_tianshous_example_settings_and_off_policy_only():
     with pytest.raises(
         CanterError,
         match=r"preset tianshou holds settings for sac, td3, ddpg only, not ppo; "
-        r"train one of those algorithms with it \(e.g. --algo sac\)",
+        r"train one of those algorithms with it, e.g. --algo sac \(algo='sac' from Python\)",
     ):
         build_config("Walker2d-v5", preset="tianshou")
 

@@ -190,7 +190,8 @@ def test_a_resumed_run_is_told_the_fix_that_a_resume_can_take():
     settings = host_memory.refusal(20_000, 2**20, 10 * GIB)
     assert str(settings.for_a_resume("r/config.toml")).endswith(
         "are available; a resume keeps the run's settings: resume it where more memory is free, or lower it, e.g. "
-        "--set env.num_envs=9216 in a new run from its config (canter train --config r/config.toml)"
+        "--set env.num_envs=9216 in a new run from its config: canter train --config r/config.toml "
+        "(canter.train(canter.build_config(None, config_file='r/config.toml')) from Python)"
     )
     bare = DoesNotFitError("the train state needs about 9.0 GiB, but 1.0 GiB are available")
     assert str(bare.for_a_resume("r/config.toml")).endswith(
@@ -241,7 +242,8 @@ def test_a_program_refused_after_its_compile_names_what_sizes_a_call_and_leaves_
     assert (
         "are available; a resume keeps the run's settings: resume it where more memory is free, or lower what sizes "
         "one call (env.num_envs=4, ppo.n_steps=64), the batch sizes, or the hidden layer sizes in a new run from its "
-        f"config (canter train --config {tmp_path / 'resumed' / 'config.toml'})"
+        f"config: canter train --config {tmp_path / 'resumed' / 'config.toml'} (canter.train(canter.build_config("
+        f"None, config_file={str(tmp_path / 'resumed' / 'config.toml')!r})) from Python)"
     ) in err, err
     assert set(before) <= {p.relative_to(tmp_path) for p in (tmp_path / "resumed").rglob("*")}
     # The advised new run from its config, or a later resume, trains the run's own budget, not the refused one.

@@ -272,7 +272,8 @@ def test_a_resume_of_a_finished_run_with_a_damaged_config_writes_it_again_and_tr
     assert captured.err.count("cannot be read") == 1, captured.err
     assert (
         f"canter: note: {archived_run} has trained its budget (1,190 steps), so nothing is trained: its config.toml "
-        "is written again from ckpt_000000001190.npz (pass a larger --total-steps to train it on)"
+        "is written again from ckpt_000000001190.npz (pass a larger --total-steps, total_steps= from Python, to train "
+        "it on)"
     ) in captured.err
     assert "steps 1,190 |" in captured.out and "stopped: budget" in captured.out
     assert read_config(archived_run) == from_toml_text(kept, "kept")

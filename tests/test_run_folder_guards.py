@@ -143,8 +143,10 @@ def test_a_reader_names_a_folder_where_the_config_belongs(run, capsys, tmp_path,
 def test_a_run_folder_is_refused_as_the_folder_for_new_ones(run, capsys, command):
     before = contents(run)
     line = error_line(capsys, [*command, "--out-dir", str(run), "--total-steps", "2048"])
+    python = " (run.out_dir from Python)" if command[0] == "train" else ""  # tune is a command only
     assert line == (
-        f"--out-dir {run} is a run folder, and new folders would be made among its own files; give another --out-dir"
+        f"--out-dir {run} is a run folder, and new folders would be made among its own files; give another "
+        f"--out-dir{python}"
     )
     assert contents(run) == before
 

@@ -201,9 +201,3 @@ def test_train_seeds_without_seeds_names_the_python_argument(config):
 @pytest.mark.parametrize(("args", "start"), [((None,), "run_dir must be the path"), ((5,), "run_dir must be the path")])
 def test_load_refuses_a_run_dir_that_is_no_path(args, start):
     assert refused(canter.load, *args).startswith(start)
-
-
-def test_load_refuses_a_checkpoint_that_is_no_name_or_path(archived_run):
-    assert refused(canter.load, archived_run, 5) == (
-        'checkpoint= takes "last", "best" or the path of a checkpoint file, got int'
-    )

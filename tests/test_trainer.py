@@ -238,7 +238,8 @@ def test_a_diverged_run_names_the_settings_it_changed_from_its_preset(capsys):
 
     assert divergence_hint(build_config("Hopper-v5")) == (
         "it diverged with its preset's own settings; a resume keeps the run's settings and would diverge again: train "
-        "anew from its config.toml (canter train --config) with a lower learning rate"
+        "anew from its config.toml (canter train --config, canter.build_config(None, config_file=...) from Python) "
+        "with a lower learning rate"
     )
     changed = divergence_hint(build_config("Hopper-v5", sets=["ppo.lr=1e30", "ppo.clip=0.3"], total_steps=5000))
     assert changed.endswith("the settings changed from preset fast: ppo.lr=1e+30, ppo.clip=0.3"), changed

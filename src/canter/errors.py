@@ -38,13 +38,32 @@ class DoesNotFitError(CanterError):
         if self.change is None:
             return CanterError(f"{self.problem}; {elsewhere}")
         return CanterError(
-            f"{self.problem}; {elsewhere}, or {self.change} in a new run from its config (canter train --config "
-            f"{config_file})"
+            f"{self.problem}; {elsewhere}, or {self.change} in a new run from its config: {new_run(config_file)}"
         )
 
 
 def _fewer_seeds(verb: str, fits: int) -> str:
     return f"{verb} one seed at a time" if fits == 1 else f"{verb} at most {fits} seeds at a time"
+
+
+def with_python(cli: str, python: str) -> str:
+    """A fix as the command line takes it, then as the Python API does: a refusal that reaches both gives each
+    caller a fix it can apply, the command line's first."""
+    return f"{cli} ({python} from Python)"
+
+
+def resume_run(run_dir: object) -> str:
+    """The command that resumes a run folder, and its Python form: `resume_seeds` reads the run's own config as the
+    command does, where `train(config, resume=)` needs one built (from a config.toml the fix may be about)."""
+    return with_python(f"canter train --resume {run_dir}", f"canter.resume_seeds([{str(run_dir)!r}])")
+
+
+def new_run(config_file: object) -> str:
+    """The command that starts a new run from a config file (a run folder's config.toml), and its Python form."""
+    return with_python(
+        f"canter train --config {config_file}",
+        f"canter.train(canter.build_config(None, config_file={str(config_file)!r}))",
+    )
 
 
 def joined(words: list[str]) -> str:

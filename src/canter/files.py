@@ -181,19 +181,19 @@ def _naming(path: Path, exc: OSError) -> OSError:
     return OSError(exc.errno, exc.strerror, str(path))
 
 
-def refuse_out_dir_in_a_run(folder: str | Path, flag: str) -> None:
+def refuse_out_dir_in_a_run(folder: str | Path, flag: str, python: str = "") -> None:
     """Refuse a folder for new run or bench folders that is a run folder, or lies inside a run folder's own folder
-    (checkpoints/, tb/): the run's listings would then meet foreign folders among its files, checkpoints or events."""
+    (checkpoints/, tb/): the run's listings would then meet foreign folders among its files, checkpoints or events.
+    `python`: the name a Python caller gives the folder by, where one can."""
     resolved = Path(folder).resolve()
+    fix = f"give another {flag}" + (f" ({python} from Python)" if python else "")
     if surely_a_run(resolved):
-        raise CanterError(
-            f"{flag} {folder} is a run folder, and new folders would be made among its own files; give another {flag}"
-        )
+        raise CanterError(f"{flag} {folder} is a run folder, and new folders would be made among its own files; {fix}")
     for inner in (resolved, *resolved.parents):
         if inner.name in RUN_OWN_FOLDERS and surely_a_run(inner.parent):
             raise CanterError(
                 f"{flag} {folder} is inside {inner.name}/ of the run folder {inner.parent}, which holds that run's own "
-                f"files; give another {flag}"
+                f"files; {fix}"
             )
 
 

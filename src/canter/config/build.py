@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from canter.config.algorithms import (
@@ -36,6 +37,8 @@ FLAG_NAMES = {
     "run.seed": "--seed (or --seeds)",
     "run.total_steps": "--total-steps (or its default)",
 }
+# The keys that build_config's own arguments set, by argument, which a Python caller passes for the flags above.
+ARGUMENT_NAMES = {"env.id": "env_id", "run.algo": "algo", "run.seed": "seed", "run.total_steps": "total_steps"}
 
 
 def flag_name(key: str) -> str:
@@ -55,7 +58,7 @@ def _file_preset(file_data: dict[str, Any]) -> str | None:
     return named
 
 
-def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str | None) -> str:
+def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str | Path | None) -> str:
     """The preset beneath the config file. run.preset records the preset a config was built from (the schema's
     "recorded, not applied"), so it must name the preset actually laid beneath the file, as --set run.preset must:
     a file that names one is laid over that one (so `canter train --config RUN/config.toml` reproduces a run of any
@@ -75,7 +78,8 @@ def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str
     if from_file != preset:  # it would misname the run
         raise CanterError(
             f"{config_file} sets run.preset = {named!r}, but the preset is {preset}; run.preset records the preset "
-            f"a config was built from: pass --preset {named}, or drop run.preset from the file"
+            f"a config was built from: pass --preset {named} (preset={named!r} from Python), or drop run.preset "
+            f"from the file"
         )
     return preset
 
@@ -83,7 +87,7 @@ def _base_preset(preset: str | None, file_data: dict[str, Any], config_file: str
 def build_config(
     env_id: str | None,
     preset: str | None = None,
-    config_file: str | None = None,
+    config_file: str | Path | None = None,
     sets: list[str] | None = None,
     seed: int | None = None,
     total_steps: int | None = None,
@@ -93,35 +97,48 @@ def build_config(
     notes: bool = True,
     file_holds_every_section: bool = False,
 ) -> Config:
-    """Resolve defaults < preset < config file < --set (< explicit flags, which refuse a --set of their key), then
-    validate. The preset is `preset`, else the one the config file's run.preset names, else fast. The algorithm is
-    known before the preset is applied, so presets can hold per-algorithm tables. A --set key that the algorithm does
-    not read is refused (unless `check_unread` is off), since it would change nothing. `flags` holds the keys that a
-    command's other flags set (train's `--backend` as `env.backend`, say). `notes` off keeps its notes (a preset made
-    for other envs) off stderr, for a config built to compare with rather than to train. `file_holds_every_section`:
-    the config file is a format-1 run folder's config.toml, which holds every algorithm's section; those the
-    algorithm does not read are left out, not refused."""
-    # An empty --config or --preset would otherwise read as not given.
+    """The config of env `env_id` (else the env.id of `sets` or the config file): defaults < `preset` < `config_file`
+    < `sets` < the other arguments, validated.
+
+    `preset` defaults to the one the config file's run.preset names, else fast; `algo` to the run.algo of `sets` or
+    the file, else the preset's, else ppo. `config_file` is a TOML file (a str or Path), such as a run folder's
+    config.toml; `sets` a list of "section.key=value" strings, such as ["ppo.clip=0.1"]. A key given both by `sets`
+    and by its own argument (`seed`, say) is refused, as is a `sets` or file key the algorithm does not read, which
+    would change nothing. `check_unread`, `flags`, `notes` and `file_holds_every_section` are internal: canter's
+    commands use them to skip that check, to add the keys their other flags set, to keep notes off stderr, and to
+    read a format-1 run folder's config.toml, whose sections of other algorithms are left out."""
+    # The command line and Python callers reach the same refusals, so each names the flag, then the argument.
+    if config_file is not None and not isinstance(config_file, (str, Path)):  # Path() would raise a TypeError
+        raise CanterError(f"config_file= must be a path (str or Path), got {type(config_file).__name__}")
+    # An empty string would otherwise read as not given.
     if config_file == "":
-        raise CanterError("--config is empty; give a TOML file, or drop --config")
+        raise CanterError("--config (config_file= from Python) is empty; give a TOML file, or drop it")
     if preset == "":
-        raise CanterError(f"--preset is empty; give one of {', '.join(preset_names())}, or drop --preset")
+        raise CanterError(
+            f"--preset (preset= from Python) is empty; give one of {', '.join(preset_names())}, or drop it"
+        )
     if algo == "":
-        raise CanterError(f"--algo is empty; give one of {', '.join(algorithm_names())}, or drop --algo")
-    file_data = flatten_toml(load_toml(config_file), config_file) if config_file else {}
+        raise CanterError(
+            f"--algo (algo= from Python) is empty; give one of {', '.join(algorithm_names())}, or drop it"
+        )
+    file_data = flatten_toml(load_toml(config_file), str(config_file)) if config_file else {}
     set_data = parse_set_args(sets or [])
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
     if not resolved_id:
-        raise CanterError("no environment given; pass an env id, e.g. `canter train Hopper-v5`")
+        raise CanterError(
+            'no environment given; pass an env id, e.g. `canter train Hopper-v5` (`canter.build_config("Hopper-v5")` '
+            "from Python)"
+        )
     # A preset the file chose, rather than --preset, must say so where it refuses the algorithm.
-    named_by = config_file if preset is None and _file_preset(file_data) is not None else None
+    named_by = str(config_file) if preset is None and _file_preset(file_data) is not None else None
     preset = _base_preset(preset, file_data, config_file)
     if "run.preset" in file_data and isinstance(file_data["run.preset"], str):
         file_data["run.preset"] = preset  # an alias names its preset by the preset's own name
     if "run.preset" in set_data and canonical_preset(str(set_data["run.preset"])) != preset:  # it would misname the run
         raise CanterError(
             f"run.preset names the preset a run was built from; pass --preset {set_data['run.preset']} rather than "
-            f"--set run.preset (it would label a run of preset {preset}'s settings)"
+            f"--set run.preset (preset={set_data['run.preset']!r} rather than sets= from Python): it would label a "
+            f"run of preset {preset}'s settings"
         )
     if "run.preset" in set_data:
         set_data["run.preset"] = preset  # an alias names its preset by the preset's own name
@@ -157,7 +174,8 @@ def build_config(
     }
     explicit |= dict(flags or {})
     for key in sorted(explicit.keys() & set_data.keys()):  # the flag would win, silently
-        raise CanterError(f"{key} is given twice, by {flag_name(key)} and by --set {key}; give it once")
+        python = f" ({ARGUMENT_NAMES[key]}= and sets= from Python)" if key in ARGUMENT_NAMES else ""
+        raise CanterError(f"{key} is given twice, by {flag_name(key)} and by --set {key}{python}; give it once")
     config = apply_overrides(config, explicit, "arguments")
     try:
         validate(config)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -68,15 +68,24 @@ def parse_set_args(items: Iterable[object]) -> dict[str, str]:
     # A lone string would be read a character at a time, so `sets="ppo.clip=0.1"` would be refused for its "p".
     if isinstance(items, (str, bytes)):
         raise CanterError(
-            f'sets (--set) takes a list of "section.key=value" strings, got the string {items!r}; pass [{items!r}]'
+            f'sets= takes a list of "section.key=value" strings, got the string {items!r}; pass [{items!r}]'
+        )
+    # A dict would be read by its keys alone, without their values.
+    if isinstance(items, Mapping):
+        example = f"{next(iter(items))}=..." if items else "ppo.clip=0.1"
+        raise CanterError(
+            f'sets= takes a list of "section.key=value" strings, got a {type(items).__name__}; pass a string per '
+            f"key, such as [{example!r}]"
         )
     overrides: dict[str, str] = {}
     for item in items:
         if not isinstance(item, str):
-            raise CanterError(f"--set expects section.key=value text, got {item!r} ({type(item).__name__})")
+            raise CanterError(
+                f"--set (sets= from Python) expects section.key=value text, got {item!r} ({type(item).__name__})"
+            )
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise CanterError(f"--set expects section.key=value, got {item!r}")
+            raise CanterError(f"--set (sets= from Python) expects section.key=value, got {item!r}")
         overrides[key.strip()] = value.strip()  # the last wins: a script lays its own --set over a shared list
     return overrides
 
@@ -111,10 +120,14 @@ def flatten_toml(data: dict[str, Any], source: str) -> dict[str, Any]:
 def load_toml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if path.is_dir():
-        raise CanterError(f"{path} is a folder; --config takes a TOML file, such as a run folder's config.toml")
+        raise CanterError(
+            f"{path} is a folder; --config (config_file= from Python) takes a TOML file, such as a run folder's "
+            f"config.toml"
+        )
     if path.exists() and not path.is_file():  # a device or a pipe: /dev/zero would be read without end
         raise CanterError(
-            f"{path} is not a regular file; --config takes a TOML file, such as a run folder's config.toml"
+            f"{path} is not a regular file; --config (config_file= from Python) takes a TOML file, such as a run "
+            f"folder's config.toml"
         )
     if not path.is_file():
         raise CanterError(f"config file not found: {path}")

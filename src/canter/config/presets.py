@@ -124,13 +124,16 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo", named_by: str | 
     chain = _read_chain(name)
     supported = _nearest_algorithms(chain)
     if supported and algo not in supported:
-        holds = f"holds settings for {', '.join(supported)} only, not {algo}; train one of those algorithms with it"
+        holds = (
+            f"holds settings for {', '.join(supported)} only, not {algo}; train one of those algorithms with it, "
+            f"e.g. --algo {supported[0]} (algo={supported[0]!r} from Python)"
+        )
         if named_by is None:
-            raise CanterError(f"preset {name} {holds} (e.g. --algo {supported[0]}) or choose another preset")
+            raise CanterError(f"preset {name} {holds}, or choose another --preset (preset= from Python)")
         # --preset fast alone would be refused, as naming another preset than the file's run.preset
         raise CanterError(
-            f"preset {name}, named by {named_by}'s run.preset, {holds} (e.g. --algo {supported[0]}), or drop "
-            f"run.preset from {named_by} and pass --preset fast (or another preset)"
+            f"preset {name}, named by {named_by}'s run.preset, {holds}, or drop run.preset from {named_by} and pass "
+            f"another preset, e.g. --preset fast (preset='fast' from Python)"
         )
     flat: dict[str, Any] = {}
     for link, table, _ in chain:

@@ -55,9 +55,10 @@ def _physics_fix(env_id: str, key: str) -> str:
     if env_id and installed and env_id in known_ids():
         ports = [name for name in installed if env_id in get_backend(name).supported_ids()]
         if not ports:
-            return f"{env_id} has no {' or '.join(installed)} version: drop env.{key}"
+            return f"{env_id} has no {' or '.join(installed)} version: drop env.{key} (physics= for evaluate)"
         names = ports
-    return f"add --backend {names[0]} or drop env.{key}"
+    # canter.evaluate reaches this check too, with its backend= and physics= for --backend and --set.
+    return f"add --backend {names[0]} or drop env.{key} (env.backend from Python; backend= and physics= for evaluate)"
 
 
 def _check_eval_backend(backend: str, eval_backend: str) -> None:

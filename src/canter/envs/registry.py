@@ -145,7 +145,9 @@ def resolve_backend(env_id: str, backend: str) -> str:
     chosen = get_backend(backend)
     if not chosen.available():
         others = [other.name for other in backends() if other is not chosen and other.available()] or [AUTO]
-        raise CanterError(f"{chosen.label} is not installed on this platform; use --backend {_or(others)}")
+        raise CanterError(
+            f"{chosen.label} is not installed on this platform; {_python_backend(f'use --backend {_or(others)}')}"
+        )
     ids = chosen.supported_ids()
     if env_id not in ids and chosen.jax_native:
         raise _not_ported(env_id, chosen, sorted(ids))
@@ -171,7 +173,8 @@ def refuse_mujoco_py(env_id: str, backend_name: str) -> None:
     newer = [f"{found.group(1)}-v{version}" for version in (5, 4) if f"{found.group(1)}-v{version}" in ids]
     instead = f"{newer[0]}{f' (or {newer[1]})' if len(newer) > 1 else ''}" if newer else "its v5 or v4 version"
     ports = [b.name for b in backends() if b is not backend and b.available() and env_id in b.supported_ids()]
-    port = f", or pass --backend {_or(ports)}, which runs its own {env_id}" if ports else ""
+    # Only a config reaches this check, so env.backend is the one Python name.
+    port = f", or pass --backend {_or(ports)} (env.backend from Python), which runs its own {env_id}" if ports else ""
     raise CanterError(
         f"{env_id} is an old MuJoCo version that needs mujoco-py, which {backend.label} no longer runs; train "
         f"{instead} instead{port}"
@@ -187,8 +190,9 @@ def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None
         return None
     if chosen is None:
         labels = _or([get_backend(name).label for name in where])
-        return CanterError(f"'{env_id}' is an env id of {labels}; pass --backend {_or(where)}")
-    return CanterError(f"{chosen.label} does not run {env_id}; pass --backend {_or(where)}, or drop --backend")
+        return CanterError(f"'{env_id}' is an env id of {labels}; {_python_backend(f'pass --backend {_or(where)}')}")
+    advice = _python_backend(f"pass --backend {_or(where)}, or drop --backend")
+    return CanterError(f"{chosen.label} does not run {env_id}; {advice}")
 
 
 def _not_ported(env_id: str, chosen: Backend, ids: list[str]) -> CanterError:
@@ -212,7 +216,7 @@ def _not_ported(env_id: str, chosen: Backend, ids: list[str]) -> CanterError:
     if same_task:
         fixes.append(f"use {_or(same_task)} with --backend {chosen.name}")
     advice = fixes[0] if len(fixes) == 1 else f"{', '.join(fixes[:-1])}, or {fixes[-1]}"
-    return CanterError(f"{chosen.label} does not run {env_id} ({runs}); {advice}")
+    return CanterError(f"{chosen.label} does not run {env_id} ({runs}); {_python_backend(advice)}")
 
 
 def _task(env_id: str) -> str:
@@ -250,7 +254,9 @@ def _auto_backends() -> list[Backend]:
 def _resolve_custom(env_id: str, backend: str) -> str:
     custom = next(candidate for candidate in backends() if candidate.custom_ids)
     if backend not in (AUTO, custom.name):
-        raise CanterError(f"custom env '{env_id}' needs the {custom.name} backend; drop --backend {backend}")
+        raise CanterError(
+            f"custom env '{env_id}' needs the {custom.name} backend; {_python_backend(f'drop --backend {backend}')}"
+        )
     custom.load_custom(env_id)
     return custom.name
 
@@ -263,3 +269,9 @@ def _unknown(env_id: str, candidates: list[str], where: str) -> CanterError:
 
 def _or(items: list[str]) -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
+
+
+def _python_backend(advice: str) -> str:
+    """Advice that names --backend, followed by its Python names: these errors reach canter.train (a config's
+    env.backend) and canter.evaluate (backend=) too, whose callers have no --backend to pass."""
+    return f"{advice} (env.backend from Python; backend= for evaluate)"

@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from canter.errors import CanterError
+from canter.errors import CanterError, new_run, resume_run, with_python
 from canter.files import atomic_write_bytes
 from canter.run_layout import (
     BEST_FILE,
@@ -46,7 +46,7 @@ FORMAT_VERSION = 1
 LEFT_OUT_FORMAT_VERSION = 2
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
-_CHECKPOINT_TAKES = f"--checkpoint takes {LAST}, {BEST} or a .npz file"
+_CHECKPOINT_TAKES = f"{with_python('--checkpoint', 'checkpoint=')} takes {LAST}, {BEST} or a .npz file"
 
 
 class DamagedCheckpoint(CanterError):
@@ -69,22 +69,21 @@ def _damaged_fix(path: Path) -> str:
     if path.name == BEST_FILE:  # read by train --resume too, which takes no --checkpoint: the advice fits both
         return (
             f"move it out of its folder (training's next evaluation writes a new one); eval, video, export and "
-            f"report can take --checkpoint {LAST} instead"
+            f"report can take {with_python(f'--checkpoint {LAST}', f'checkpoint={LAST!r}')} instead"
         )
     if len(list_checkpoints(path.parent.parent)) > 1:
         return (
-            "move it out of its folder to use the checkpoint before it (eval, video, export and report also take "
-            "--checkpoint FILE)"
+            f"move it out of its folder to use the checkpoint before it; eval, video, export and report also take "
+            f"another as {with_python('--checkpoint FILE', 'checkpoint=FILE')}"
         )
     run_dir = path.parent.parent
     if has_finished(run_dir):  # without its checkpoints a finished run is an archive, which no resume trains
         return (
-            f"it is the run's only one, so move it away and start the run again with canter train --config "
-            f"{run_dir / CONFIG_FILE}"
+            f"it is the run's only one, so move it away and start the run again with {new_run(run_dir / CONFIG_FILE)}"
         )
     return (
-        f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and canter "
-        f"train --resume {run_dir} trains the run again from step 0"
+        f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and "
+        f"{resume_run(run_dir)} trains the run again from step 0"
     )
 
 
@@ -158,8 +157,7 @@ def _refuse_not_a_file(path: Path) -> None:
         )
     if path.is_dir():
         raise CanterError(
-            f"checkpoint {path} is a folder; --checkpoint takes {LAST}, {BEST} or a .npz file (such as a run "
-            f"folder's checkpoints/ckpt_*.npz)"
+            f"checkpoint {path} is a folder; {_CHECKPOINT_TAKES} (such as a run folder's checkpoints/ckpt_*.npz)"
         )
     if path.is_symlink() and not path.exists():
         raise CanterError(
@@ -326,8 +324,8 @@ def latest(run_dir: Path) -> Path:
     if not found:
         raise CanterError(
             f"no checkpoint in {run_dir} yet: a run writes its first after run.checkpoint_every steps, and "
-            f"canter train --resume {run_dir} trains one stopped before that again from step 0; or pass the run "
-            f"folder that holds checkpoints/ckpt_*.npz"
+            f"{resume_run(run_dir)} trains one stopped before that again from step 0; or pass the run folder that "
+            f"holds checkpoints/ckpt_*.npz"
         )
     return found[-1]
 

@@ -154,7 +154,7 @@ def run_episodes(
         if sizes is not None and (env.spec.obs_dim, env.spec.act_dim) != sizes:
             raise CanterError(
                 f"{env_id} has observation/action sizes {env.spec.obs_dim}/{env.spec.act_dim}, the "
-                f"policy expects {sizes[0]}/{sizes[1]}; pick a matching --env"
+                f"policy expects {sizes[0]}/{sizes[1]}; pick a matching --env (env_id= for evaluate)"
             )
         if traced_act is not None and isinstance(env, JaxVecEnv):
             played = env.play_episodes(traced_act.fn, traced_act.args, quota)

@@ -146,7 +146,8 @@ def repair_config_of_a_finished_run(run_dir: Path) -> RunResult | None:
         run_folder.migrate(run_dir)
     print(
         f"canter: note: {run_dir} has trained its budget ({result.global_step:,} steps), so nothing is trained: its "
-        f"{CONFIG_FILE} is written again from {newest.name} (pass a larger --total-steps to train it on)",
+        f"{CONFIG_FILE} is written again from {newest.name} (pass a larger --total-steps, total_steps= from Python, "
+        "to train it on)",
         file=sys.stderr,
     )
     return result

@@ -31,7 +31,7 @@ from typing import Any
 
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text, to_toml
-from canter.errors import CanterError
+from canter.errors import CanterError, resume_run, with_python
 from canter.files import atomic_write_bytes, refuse_out_dir_in_a_run
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
@@ -67,7 +67,7 @@ def _safe(text: str) -> str:
 
 def new_run_dir(config: Config) -> Path:
     """A new run folder's path in run.out_dir, named by its env, algorithm, preset, seed and start time."""
-    refuse_out_dir_in_a_run(config.run.out_dir, "--out-dir")
+    refuse_out_dir_in_a_run(config.run.out_dir, "--out-dir", "run.out_dir")
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     name = (
         f"{_safe(config.env.id)}__{config.run.algo}__{_safe(config.run.preset)}__s{config.run.seed}__"
@@ -206,9 +206,8 @@ def damaged_config_fix(run_dir: Path) -> str:
     if not list_checkpoints(run_dir):
         return "the run folder is damaged and has no checkpoint that holds its config; restore config.toml from a copy"
     return (
-        f"the run folder is damaged; restore config.toml from a copy, or let canter train --resume {run_dir} write it "
-        f"again from the newest checkpoint (a run short of its budget also trains on; eval, video and export work as "
-        f"it is)"
+        f"the run folder is damaged; restore config.toml from a copy, or let {resume_run(run_dir)} write it again "
+        f"from the newest checkpoint (a run short of its budget also trains on; eval, video and export work as it is)"
     )
 
 
@@ -233,8 +232,8 @@ def read_config(run_dir: Path) -> Config:
             raise CanterError(f"{exc}; {damaged_config_fix(run_dir)}") from None
         # A file that reads but holds what canter refuses was edited: a resume does not overwrite it unasked.
         fix = (
-            f"correct it, or move config.toml away and let canter train --resume {run_dir} write it again from the "
-            "newest checkpoint"
+            f"correct it, or move config.toml away and let {resume_run(run_dir)} write it again from the newest "
+            "checkpoint"
             if list_checkpoints(run_dir)
             else "correct it, or restore config.toml from a copy"
         )
@@ -265,6 +264,12 @@ def _shown_keys(keys: list[str]) -> str:
     return ", ".join(keys[:3]) + (f" and {len(keys) - 3} more" if len(keys) > 3 else "")
 
 
+# What a resume may change; from Python they are train's config keys, and resume_seeds takes them by the same names.
+_BUDGET = with_python(
+    "--total-steps, --max-minutes, --stop-at-return", "run.total_steps, run.max_minutes, run.stop_at_return"
+)
+
+
 def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -> None:
     """A checkpoint found in a run folder's checkpoints/ was written by that run: the same experiment and seed. A
     checkpoint copied in from another run is refused."""
@@ -273,8 +278,8 @@ def check_own_checkpoint(run_dir: Path, checkpoint_config: Config, path: Path) -
     if keys:
         raise CanterError(
             f"{path} does not match {run_dir / CONFIG_FILE} in {_shown_keys(keys)}: if config.toml was edited, put "
-            f"back what the checkpoint holds (`--resume` changes only the budget: --total-steps, --max-minutes, "
-            f"--stop-at-return); if the checkpoint came from another run, move it out of {path.parent}"
+            f"back what the checkpoint holds, as a resume changes only the budget: {_BUDGET}; if the checkpoint came "
+            f"from another run, move it out of {path.parent}"
         )
 
 

@@ -395,7 +395,8 @@ def _suspicion(key: str, value: Any) -> int:
 
 # A resume refuses --set, and an edited config.toml no longer matches its checkpoints: the fix is a new run.
 _ANEW = (
-    "a resume keeps the run's settings and would diverge again: train anew from its config.toml (canter train --config)"
+    "a resume keeps the run's settings and would diverge again: train anew from its config.toml (canter train "
+    "--config, canter.build_config(None, config_file=...) from Python)"
 )
 
 

@@ -36,9 +36,9 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
     asked = [
         flag
         for flag, elsewhere in (
-            (f"--env {env_id}", env_id not in (None, facts.env_id)),
-            (f"--backend {backend}", backend not in (None, trained_on.name)),
-            ("--vary", varied),
+            (f"--env {env_id} (env_id=)", env_id not in (None, facts.env_id)),
+            (f"--backend {backend} (backend=)", backend not in (None, trained_on.name)),
+            ("--vary (prepare_env=)", varied),
         )
         if elsewhere
     ]
@@ -101,7 +101,7 @@ def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str
     if changes and trained_on.own_observations and not trained_on.solver_options:
         raise CanterError(
             f"{trained_on.name} runs evaluate on the {trained_on.name} backend only, which takes no physics "
-            f"settings; drop --set"
+            f"settings; drop --set (physics= from Python)"
         )
     check_physics(dataclasses.replace(EnvConfig(), id=env_id, backend=backend, **changes))
     own = policy.config.env if env_id == policy.facts.env_id else EnvConfig()

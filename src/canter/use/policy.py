@@ -121,10 +121,6 @@ def load(run_dir: str | Path, checkpoint: str | Path = LAST) -> Policy:
 
     if not isinstance(run_dir, str | os.PathLike) or not str(run_dir).strip():
         raise CanterError(f"run_dir must be the path of a run folder (str or Path), got {run_dir!r}")
-    if not isinstance(checkpoint, str | os.PathLike):
-        raise CanterError(
-            f'checkpoint= takes "last", "best" or the path of a checkpoint file, got {type(checkpoint).__name__}'
-        )
     config, facts, state, header = load_state(Path(run_dir), checkpoint)
     params = get_algorithm(config.run.algo).policy_params(state)
     return Policy(
