@@ -301,3 +301,36 @@ def test_first_sentence_keeps_a_library_message_to_its_cause():
     assert first_sentence(ValueError("no such table: runs")) == "no such table: runs"
     assert first_sentence(OSError("version 1.2 of x. `pip install y` fixes it")) == "version 1.2 of x."
     assert first_sentence(KeyError()) == "KeyError"
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["eval", "no\nsuch"], "run folder not found: no\\nsuch"),
+        (["train", "Hop\nper-v5"], "unknown env id 'Hop\\nper-v5' for canter; did you mean "),
+        (["train", "Hopper-v5", "--set", "ppo.l\r\nr=1"], "unknown config key 'ppo.l\\r\\nr' in --set; did you mean "),
+    ],
+)
+def test_a_line_break_in_a_given_value_is_written_escaped_so_the_error_stays_one_line(argv, message, capsys):
+    assert error_line(capsys, argv).startswith(message)
+
+
+@pytest.mark.parametrize("flag", ["--max-minutes", "--stop-at-return"])
+@pytest.mark.parametrize("value", ["-inf", "nan"])
+def test_a_limit_flag_refuses_what_limits_nothing_and_names_inf_not_none(flag, value, capsys):
+    assert error_line(capsys, ["train", "Hopper-v5", flag, value]) == (
+        f"train: argument {flag}: expected a finite number, or inf for no limit, got {value!r} (see --help)"
+    )
+
+
+def test_a_config_file_that_lists_as_a_file_but_cannot_be_read_is_one_line(capsys):
+    assert error_line(capsys, ["train", "Hopper-v5", "--config", "/proc/self/mem"]) == (
+        "cannot read /proc/self/mem: Input/output error; give a TOML file that can be read"
+    )
+
+
+def test_a_grid_of_layer_sizes_is_told_the_dashes_that_join_one_value(tmp_path, capsys):
+    argv = ["bench", "--envs", "Hopper-v5", "--grid", "net.hidden=64-64,abc", "--out", str(tmp_path / "b")]
+    assert error_line(capsys, argv) == (
+        "net.hidden: expected comma-separated integers (or joined by dashes, 64-64), got 'abc'"
+    )

@@ -76,7 +76,10 @@ def test_tune_refuses_a_space_file_that_searches_the_env_or_the_budget(tmp_path)
         ({"ppo": {"lr": {"choices": [float("nan")]}}}, "ppo.lr must be a finite number, got nan"),
         ({"ppo": {"lr": {"low": float("nan"), "high": 1.0}}}, "ppo.lr must be a finite number, got nan"),
         ({"ppo": {"epochs": {"low": 1, "high": 2**31 + 5}}}, "ppo.epochs must be below 2,147,483,648"),
-        ({"net": {"hidden": {"choices": ["abc"]}}}, "net.hidden: expected comma-separated integers, got 'abc'"),
+        (
+            {"net": {"hidden": {"choices": ["abc"]}}},
+            "net.hidden: expected comma-separated integers (or joined by dashes, 64-64), got 'abc'",
+        ),
         ({"ppo": {"norm_adv": {"low": 0, "high": 1}}}, "ppo.norm_adv: expected true or false, got 0"),
         ({"ppo": {"lr": {"same_as": "ppo.norm_adv"}, "norm_adv": {"choices": [True]}}}, "ppo.lr: expected a number"),
     ],

@@ -71,6 +71,13 @@ def joined(words: list[str]) -> str:
     return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
 
 
+def error_line(exc: BaseException | str) -> str:
+    """`canter: error: MESSAGE` on one line: a line break inside a value the user gave (an env id, a path) is
+    written escaped, as repr writes it, so the error stays one line that scripts and logs read as one."""
+    text = "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in str(exc))
+    return f"canter: error: {text}"
+
+
 def first_line(exc: BaseException) -> str:
     """The first line of an exception's message, or its type's name where the message is empty: a library's error
     can run to a page (a traceback from a server, a SQL statement), and a one-line message quotes only its start."""

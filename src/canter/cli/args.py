@@ -28,6 +28,18 @@ def steps_arg(text: str) -> int:
     return int(value)
 
 
+def limit_arg(text: str) -> float:
+    """A limit that inf lifts (--max-minutes, --stop-at-return): a number, or inf; nan and -inf limit nothing, and
+    the config's own refusal of them would offer `none`, which a flag does not take."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, or inf for no limit, got {text!r}") from None
+    if math.isnan(value) or value == -math.inf:
+        raise argparse.ArgumentTypeError(f"expected a finite number, or inf for no limit, got {text!r}")
+    return value
+
+
 def whole_arg(text: str) -> int:
     """A whole number, written as 1000 or as 1e3 (as --total-steps takes it); each command checks its own range."""
     try:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from canter.errors import CanterError
+from canter.errors import CanterError, error_line
 from canter.signals import INTERRUPTED, exit_interrupted, ignore_stop_signals, interrupt_once
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
@@ -150,22 +150,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"canter: note: {note}", file=sys.stderr)
         return args.func(args)
     except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr)
+        print(error_line(exc), file=sys.stderr)
         return 2
     except PermissionError as exc:  # reading a run folder's file this user may not read; writes are WriteErrors
-        print(f"canter: error: {exc.filename}: permission denied; give this user access to it", file=sys.stderr)
+        print(error_line(f"{exc.filename}: permission denied; give this user access to it"), file=sys.stderr)
         return 2
     except (IsADirectoryError, NotADirectoryError, FileExistsError) as exc:  # a hand-edited or damaged run folder
         wanted = "a file" if isinstance(exc, IsADirectoryError) else "a folder"
         print(
-            f"canter: error: {exc.filename}: {exc.strerror}, where canter needs {wanted}; move it out of the way",
+            error_line(f"{exc.filename}: {exc.strerror}, where canter needs {wanted}; move it out of the way"),
             file=sys.stderr,
         )
         return 2
     except OSError as exc:
         if exc.filename is None or exc.errno not in _PATH_ERRORS or _in_package(exc.filename):
             raise  # not a path the user gave: a bug, which keeps its traceback
-        print(f"canter: error: {_shown(exc.filename)}: {_PATH_ERRORS[exc.errno]}", file=sys.stderr)
+        print(error_line(f"{_shown(exc.filename)}: {_PATH_ERRORS[exc.errno]}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)

@@ -7,7 +7,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canter.cli.args import add_backend_arg, add_track_args, seed_arg, seeds_arg, steps_arg, track_spec, whole_arg
+from canter.cli.args import (
+    add_backend_arg,
+    add_track_args,
+    limit_arg,
+    seed_arg,
+    seeds_arg,
+    steps_arg,
+    track_spec,
+    whole_arg,
+)
 from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
 
@@ -35,14 +44,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_backend_arg(t)
     t.add_argument(
         "--stop-at-return",
-        type=float,
+        type=limit_arg,
         default=None,
         help="stop once the mean of the last 20 training episodes reaches this (inf: no target, which lifts a resumed "
         "run's)",
     )
     t.add_argument(
         "--max-minutes",
-        type=float,
+        type=limit_arg,
         default=None,
         help="stop cleanly, with a checkpoint, after M minutes (with --resume: replaces the saved limit; inf lifts it)",
     )

@@ -137,3 +137,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise CanterError(f"malformed TOML in {path}: {exc}") from None
     except UnicodeDecodeError:
         raise CanterError(f"config file {path} is not UTF-8 text") from None
+    except PermissionError:
+        raise  # the command line names the fix for every unreadable path alike
+    except OSError as exc:  # a file that lists as regular but does not read, such as /proc/self/mem
+        raise CanterError(f"cannot read {path}: {exc.strerror or exc}; give a TOML file that can be read") from None

@@ -49,7 +49,8 @@ def coerce(key: str, tp: Any, value: Any) -> Any:
             if not re.fullmatch(r"\s*(\d+(\s*[-,]\s*\d+)*)?\s*", value):
                 if re.fullmatch(r"\s*-?\s*\d+(\s*,\s*-?\s*\d+)*\s*", value):  # well formed, but with a negative
                     raise CanterError(f"{key}: {_tuple_entries(key)}, got {value!r}")
-                raise bad
+                # --grid and tune's choices separate their values by commas, so there the sizes take dashes
+                raise CanterError(f"{key}: expected {type_name(tp)} (or joined by dashes, 64-64), got {value!r}")
             return tuple(int(p) for p in re.split(r"[-,]", value) if p.strip())
         if isinstance(value, (list, tuple)) and all(_is_integer(v) for v in value):
             return tuple(int(v) for v in value)

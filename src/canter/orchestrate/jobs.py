@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from canter import run_layout
-from canter.errors import CanterError
+from canter.errors import CanterError, error_line
 from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_error
 from canter.orchestrate.job_resources import apply_cpu_pinning, job_layout
 from canter.orchestrate.run_status import is_number, run_status
@@ -349,7 +349,7 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
         with sigterm_interrupts():
             work(*args)
     except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        print(error_line(exc), file=sys.stderr, flush=True)
         sys.exit(2)
     except KeyboardInterrupt:
         exit_interrupted()
@@ -363,10 +363,10 @@ def main(argv: list[str]) -> int:
     try:
         run_job(JobSpec.from_json(Path(argv[0]).read_text()))
     except RunFolderBusy as exc:  # a job of a killed bench still stopping, say: a later try finds the folder free
-        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        print(error_line(exc), file=sys.stderr, flush=True)
         return BUSY
     except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr, flush=True)
+        print(error_line(exc), file=sys.stderr, flush=True)
         return INPUT_ERROR
     except KeyboardInterrupt:  # a second Ctrl-C, which means now
         exit_interrupted()

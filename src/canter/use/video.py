@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from canter.errors import CanterError
+from canter.errors import CanterError, error_line
 from canter.files import check_writable
 from canter.signals import INTERRUPTED, StopFlag, die_with_parent
 from canter.training.videos import child_env, quiet_fork
@@ -247,7 +247,7 @@ def _main(argv: list[str]) -> int:
     try:
         returns = record_video(**request)
     except CanterError as exc:
-        print(f"canter: error: {exc}", file=sys.stderr)
+        print(error_line(exc), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("canter: interrupted", file=sys.stderr)
