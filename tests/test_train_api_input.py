@@ -50,27 +50,29 @@ def test_an_empty_run_dir_or_resume_is_refused_and_writes_nothing_to_the_working
     assert contents(tmp_path) == before
 
 
+def refused_new_run(config: canter.Config, run_dir: Path, watched: Path) -> str:
+    """The refusal of a new run in `run_dir`, which leaves `watched` as it was."""
+    before = contents(watched)
+    line = refused(canter.train, config, run_dir=run_dir)
+    assert contents(watched) == before
+    return line
+
+
 def test_a_new_run_in_a_folder_of_runs_is_refused(config, archived_run):
     bench = archived_run.parent  # a folder that holds a run folder, as a bench's does
     (bench / "results.md").write_text("| env | return |\n")
-    before = contents(bench)
-    line = refused(canter.train, config, run_dir=bench)
-    assert line == (
+    assert refused_new_run(config, bench, bench) == (
         f"{bench} holds 1 run folder (a bench's?), such as {archived_run}; give run_dir= a new folder, or leave it "
         "out for one under run.out_dir"
     )
-    assert contents(bench) == before
 
 
 def test_a_new_run_in_the_checkpoints_folder_of_a_run_is_refused(config, archived_run):
     folder = archived_run / "checkpoints"
-    before = contents(archived_run)
-    line = refused(canter.train, config, run_dir=folder)
-    assert line == (
+    assert refused_new_run(config, folder, archived_run) == (
         f"{folder} is the checkpoints folder of the run {archived_run}; give run_dir= a new folder, or leave it out "
         "for one under run.out_dir"
     )
-    assert contents(archived_run) == before
 
 
 @pytest.mark.parametrize("run_dir", [5, b"runs/a", ["runs/a"]])
@@ -90,12 +92,9 @@ def test_a_run_dir_that_is_no_path_is_refused(config, run_dir):
 def test_a_new_run_in_a_bench_or_study_folder_that_holds_no_run_yet_is_refused(config, tmp_path, kind, marker, held):
     folder = tmp_path / "out"
     (folder / marker).mkdir(parents=True)
-    before = contents(folder)
-    line = refused(canter.train, config, run_dir=folder)
-    assert line == (
+    assert refused_new_run(config, folder, folder) == (
         f"{folder} is {kind} (it holds {held}); give run_dir= a new folder, or leave it out for one under run.out_dir"
     )
-    assert contents(folder) == before
 
 
 @pytest.mark.parametrize("which", ["empty", "folder of runs", "checkpoints"])
