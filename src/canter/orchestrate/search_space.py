@@ -21,6 +21,8 @@ canter ships one space per algorithm, in its folder (`AlgorithmSpec.search_space
 from __future__ import annotations
 
 import math
+import os
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -29,7 +31,7 @@ from types import MappingProxyType
 from typing import Any
 
 from canter.config.algorithms import algorithm_spec
-from canter.config.overrides import all_keys, apply_overrides, key_suggestion, load_toml
+from canter.config.overrides import all_keys, apply_overrides, key_suggestion
 from canter.config.schema import Config, field_types
 from canter.config.validate import validate
 from canter.config.values import coerce
@@ -94,12 +96,44 @@ def load_space(path: str | Path | None, algo: str, fixed: Mapping[str, str] = _N
         return parse_space(tomllib.loads(default_space_text(algo)), f"the shipped {algo} search space", fixed)
     if not str(path).strip():  # Path("") is the current folder
         raise CanterError("--space is empty; give a search space TOML file, or drop --space")
-    # load_toml's own messages are about --config files.
-    if Path(path).is_dir():
-        raise CanterError(f"{path} is a folder; --space takes a search space TOML file")
-    if not Path(path).is_file():
+    return parse_space(_read_space_file(Path(path)), str(path), fixed)
+
+
+_SPACE_TAKES = "--space takes a search space TOML file"
+
+
+def _read_space_file(path: Path) -> dict[str, Any]:
+    """A search space file's TOML, with messages that call it one (load_toml's are about --config files). A pipe or
+    device is refused without waiting on it: it is opened without blocking and checked before it is read."""
+    import tomllib
+
+    if path.is_dir():
+        raise CanterError(f"{path} is a folder; {_SPACE_TAKES}")
+    not_regular = CanterError(
+        f"search space file {path} is not a regular file (a device, pipe or socket); {_SPACE_TAKES}"
+    )
+    if path.exists() and not path.is_file():
+        raise not_regular
+    if not path.is_file():
         raise CanterError(f"search space file not found: {path}")
-    return parse_space(load_toml(path), str(path), fixed)
+    try:
+        # O_NONBLOCK: a path that became a pipe since the check opens at once rather than waiting for a writer.
+        with os.fdopen(os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)), "rb") as file:
+            if not stat.S_ISREG(os.fstat(file.fileno()).st_mode):
+                raise not_regular
+            data = file.read()
+    except PermissionError:
+        raise  # the command line names the fix for every unreadable path alike
+    except OSError as exc:  # a file that lists as regular but does not read, such as /proc/self/mem
+        raise CanterError(f"cannot read search space file {path}: {exc.strerror or exc}; {_SPACE_TAKES}") from None
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise CanterError(
+            f"search space file {path} is not UTF-8 text; save it as UTF-8, or pass another with --space"
+        ) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CanterError(f"malformed TOML in {path}: {exc}") from None
 
 
 def _optuna_value(value: Any) -> Any:

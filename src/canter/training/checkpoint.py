@@ -38,7 +38,7 @@ from canter.run_layout import (
     has_finished,
     run_files_in,
 )
-from canter.training.run_folder import checkpoint_dir, list_checkpoints
+from canter.training.run_folder import checkpoint_dir, holds_every_section, list_checkpoints, read_config
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -61,30 +61,88 @@ class DamagedCheckpoint(CanterError):
 
 def _damaged_fix(path: Path) -> str:
     """What to do about a damaged checkpoint, by where it is: of a run folder's periodic ones, `last` is the newest
-    file, so without it the one before is used, if there is one."""
+    file, so without it the one before is used, if there is one. The run's only checkpoint leaves its config.toml to
+    start it again, so that advice is given only where config.toml reads as a config."""
     if path.parent.name != checkpoint_dir(Path()).name or not (
         CHECKPOINT_NAME.match(path.name) or path.name == BEST_FILE
     ):
         return "pass a sound one (a run folder's checkpoints/ckpt_*.npz)"
-    if path.name == BEST_FILE:  # read by train --resume too, which takes no --checkpoint: the advice fits both
+    run_dir = path.parent.parent
+    periodic = list_checkpoints(run_dir)
+    if path.name == BEST_FILE and periodic:  # read by train --resume too, which takes no --checkpoint: fits both
         return (
             f"move it out of its folder (training's next evaluation writes a new one); eval, video, export and "
             f"report can take {with_python(f'--checkpoint {LAST}', f'checkpoint={LAST!r}')} instead"
         )
-    if len(list_checkpoints(path.parent.parent)) > 1:
+    if len(periodic) > 1:
         return (
             f"move it out of its folder to use the checkpoint before it; eval, video, export and report also take "
             f"another as {with_python('--checkpoint FILE', 'checkpoint=FILE')}"
         )
-    run_dir = path.parent.parent
-    if has_finished(run_dir):  # without its checkpoints a finished run is an archive, which no resume trains
+    best = path.name != BEST_FILE and _sound_header(best_path(run_dir))
+    finished = has_finished(run_dir)  # without its checkpoints a finished run is an archive, which no resume trains
+    fault = _config_fault(run_dir, new=finished)
+    or_best = f"; {_best_instead(not fault)}" if best else ""
+    if fault:
+        lost = "its training cannot go on" if best else "nothing of the run can be restored"
         return (
-            f"it is the run's only one, so move it away and start the run again with {new_run(run_dir / CONFIG_FILE)}"
+            f"it is the run's only one and {fault}, so {lost} from its folder: restore the checkpoint or "
+            f"{CONFIG_FILE} from a copy, or {_NEW_RUN_WITH_ITS_SETTINGS}{or_best}"
         )
+    if finished:
+        return (
+            f"it is the run's only one, so move it away and start the run again with "
+            f"{new_run(run_dir / CONFIG_FILE)}{or_best}"
+        )
+    # A best.npz without the rows of its evaluation is refused by a resume that starts over: it goes too.
+    moved = f"the run's metrics.csv and {BEST_FILE}" if best else "the run's metrics.csv"
     return (
-        f"it is the run's only one: restore it from a copy, or move it away with the run's metrics.csv, and "
-        f"{resume_run(run_dir)} trains the run again from step 0"
+        f"it is the run's only one: restore it from a copy, or move it away with {moved}, and "
+        f"{resume_run(run_dir)} trains the run again from step 0{or_best}"
     )
+
+
+def _best_instead(config_read: bool) -> str:
+    """The commands that read best.npz where the run's last checkpoint is lost: report also reads config.toml."""
+    readers = "eval, video, export and report" if config_read else "eval, video and export"
+    return f"{readers} can take {with_python(f'--checkpoint {BEST}', f'checkpoint={BEST!r}')} instead"
+
+
+# The fix of a run whose folder holds nothing to start it from: its settings, which only its user knows now.
+_NEW_RUN_WITH_ITS_SETTINGS = "train a new run with the same settings: " + with_python(
+    "canter train ENV --set KEY=VALUE ...", "canter.train(canter.build_config('ENV', sets=[...]))"
+)
+
+
+def _config_fault(run_dir: Path, new: bool) -> str | None:
+    """What keeps the run's config.toml from starting it again, as a new run from the file (`new`) or as a resume
+    from step 0 reads it; None where it can."""
+    config_file = run_dir / CONFIG_FILE
+    if not (config_file.exists() or config_file.is_symlink()):
+        return f"its {CONFIG_FILE} is missing"
+    try:
+        if new:
+            from canter.config.build import build_config  # the config layer, loaded where a fix needs it
+
+            build_config(
+                None, config_file=config_file, notes=False, file_holds_every_section=holds_every_section(config_file)
+            )
+        else:
+            read_config(run_dir)
+    except (CanterError, OSError):
+        return f"its {CONFIG_FILE} cannot be read as a config"
+    return None
+
+
+def _sound_header(path: Path) -> bool:
+    """Whether a checkpoint file's header reads (its arrays are not checked)."""
+    if not path.is_file():
+        return False
+    try:
+        read_header(path)
+    except (CanterError, OSError):
+        return False
+    return True
 
 
 def _path_name(path: tuple) -> str:
@@ -320,6 +378,12 @@ def latest(run_dir: Path) -> Path:
         raise CanterError(
             f"{run_dir} holds a finished run without its checkpoints (an archive?): it has no policy to load or "
             f"train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it again"
+        )
+    if not found and (fault := _config_fault(run_dir, new=False)):  # no resume can start it again
+        best = f"; {_best_instead(False)}" if _sound_header(best_path(run_dir)) else ""
+        raise CanterError(
+            f"no checkpoint in {run_dir} and {fault}, so the run cannot be trained again from its folder: restore "
+            f"{CONFIG_FILE} or its checkpoints from a copy, or {_NEW_RUN_WITH_ITS_SETTINGS}{best}"
         )
     if not found:
         raise CanterError(

@@ -42,6 +42,10 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if path.is_dir():  # a run folder with its file's name taken: sending the user to another run folder misleads
         raise CanterError(f"{path} is a folder, not a file; move it away and restore {path.name} from a copy")
+    if path.exists() and not path.is_file():  # a pipe would be read waiting for a writer that never comes
+        raise CanterError(
+            f"{path} is not a regular file (a device, pipe or socket); move it away and restore {path.name} from a copy"
+        )
     if not path.is_file():
         from canter.training.checkpoint import refuse_a_folder_of_runs
 

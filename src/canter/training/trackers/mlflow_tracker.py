@@ -63,9 +63,24 @@ def _open_client(spec: TrackSpec) -> Any:
     except Exception as exc:
         where = f"--mlflow-uri {spec.mlflow_uri}" if spec.mlflow_uri else "MLflow's default tracking store"
         raise CanterError(
-            f"{where} cannot be opened ({first_sentence(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
+            f"{where} cannot be opened ({store_refusal(exc)}); pass e.g. --mlflow-uri sqlite:///mlflow.db"
         ) from None
     return client
+
+
+# The setting that lets MLflow (3.x) open a plain folder as its store, which its refusal of one names.
+FILE_STORE_OPT_IN = "MLFLOW_ALLOW_FILE_STORE"
+REASON_CHARS = 300  # a reason longer than this (a server's page) is cut
+
+
+def store_refusal(exc: BaseException) -> str:
+    """Why MLflow would not open a store, in one line. Its refusal of a plain folder (a file store: a path, file:
+    URI or bare word) is a paragraph whose first sentence only says that backend is "in maintenance mode"; the
+    refusal is told by the opt-out it names. Other errors give their first sentence, cut to REASON_CHARS."""
+    if FILE_STORE_OPT_IN in str(exc):
+        return f"MLflow no longer writes to a plain folder, a file store, unless {FILE_STORE_OPT_IN}=true is set"
+    reason = " ".join(first_sentence(exc).split())
+    return reason if len(reason) <= REASON_CHARS else reason[: REASON_CHARS - 3].rstrip() + "..."
 
 
 class MlflowTracker:
