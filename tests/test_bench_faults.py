@@ -455,12 +455,11 @@ def test_a_job_whose_run_folder_another_process_writes_exits_busy_not_as_a_refus
         holder.wait()
 
 
-def test_a_busy_job_is_queued_again_after_its_retry_time_until_it_has_waited_its_time(monkeypatch):
+def test_a_busy_job_is_queued_again_after_its_retry_time_until_it_has_waited_its_time():
     clock = [100.0]
-    monkeypatch.setattr(bench_local.time, "monotonic", lambda: clock[0])
     settings = BenchSettings(("ppo",), ("Hopper-v5",), (0,), BUDGET, grid=(("ppo.ent_coef", ("0", "0.01")),))
     job, second = make_jobs(make_cells(settings), (0,))
-    busy = bench_local.BusyRetries(wait_seconds=30.0, retry_seconds=10.0)
+    busy = bench_local.BusyRetries(wait_seconds=30.0, retry_seconds=10.0, clock=lambda: clock[0])
     pending = [second]
     assert busy.retry(job, pending) and pending == [second, job]
     assert busy.next_due(pending) is second and busy.next_due(pending) is None  # job waits for its retry

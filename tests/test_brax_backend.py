@@ -69,7 +69,7 @@ def test_a_brax_run_evaluates_on_brax_and_its_own_env_only():
         (None, "auto", False, "--backend auto (backend=)"),
         ("Ant-v5", None, False, "--env Ant-v5 (env_id=)"),
         ("Ant-v5", "envpool", False, "--env Ant-v5 (env_id=) and --backend envpool (backend=)"),
-        (None, None, True, "--vary (prepare_env=)"),
+        (None, None, True, "--vary"),
     ]:
         expected = f"Brax observations differ from Gymnasium's.*; drop {re.escape(flags)}$"
         with pytest.raises(CanterError, match=expected):

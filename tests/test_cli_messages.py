@@ -334,3 +334,11 @@ def test_a_grid_of_layer_sizes_is_told_the_dashes_that_join_one_value(tmp_path, 
     assert error_line(capsys, argv) == (
         "net.hidden: expected comma-separated integers (or joined by dashes, 64-64), got 'abc'"
     )
+
+
+def test_an_error_line_escapes_control_characters_only():
+    from canter.errors import error_line
+
+    assert error_line(CanterError("a\nb\tc\u2028d")) == "canter: error: a\\nb\\tc\\u2028d"
+    names = "runs/実験\u30001 فارسی\u200cها 👩\u200d💻 café"
+    assert error_line(CanterError(names)) == f"canter: error: {names}"

@@ -47,17 +47,16 @@ def test_fixtures_are_format_1_and_read_as_their_algorithms():
 
 
 def test_a_v1_runs_config_toml_trains_anew_as_the_run_it_belongs_to(v1_runs, capsys):
-    """`canter train --config RUN/config.toml` (the advice for a finished run whose only checkpoint is damaged)
-    takes a format-1 file, whose sections the algorithm does not read would otherwise each be refused."""
+    """`canter train --config RUN/config.toml`, and build_config(None, config_file=...) from Python (the advice for a
+    finished run whose only checkpoint is damaged), take a format-1 file, whose sections the algorithm does not read
+    would otherwise each be refused."""
     from canter.config.build import build_config
-    from canter.training.run_folder import holds_every_section
+    from canter.run_layout import holds_every_section
 
     for name in ALGORITHM_RUNS:
         file = FIXTURES / name / "config.toml"
         assert holds_every_section(file)
-        assert flat_config(build_config(None, config_file=str(file), file_holds_every_section=True)) == flat_config(
-            read_config(FIXTURES / name)
-        ), name
+        assert flat_config(build_config(None, config_file=str(file))) == flat_config(read_config(FIXTURES / name)), name
     run = v1_runs / "ppo"
     shutil.rmtree(run / "checkpoints")  # a finished run kept without its checkpoints
     argv = ["train", "--config", str(run / "config.toml"), "--total-steps", "256", "--out-dir", str(v1_runs / "new")]

@@ -197,6 +197,41 @@ def test_train_seeds_without_seeds_names_the_python_argument(config):
     assert refused(canter.train_seeds, config, []).endswith("(seeds=[0, 1, 2] from Python)")
 
 
-@pytest.mark.parametrize(("args", "start"), [((None,), "run_dir must be the path"), ((5,), "run_dir must be the path")])
-def test_load_refuses_a_run_dir_that_is_no_path(args, start):
-    assert refused(canter.load, *args).startswith(start)
+@pytest.mark.parametrize(
+    ("run_dir", "line"),
+    [
+        (None, "run_dir= must be a folder path (str or Path), got NoneType"),
+        (5, "run_dir= must be a folder path (str or Path), got int"),
+        (" ", "run_dir= is empty, which would be the working folder; give a run folder"),
+    ],
+)
+def test_load_refuses_a_run_dir_that_is_no_path(run_dir, line):
+    assert refused(canter.load, run_dir) == line
+
+
+def test_a_run_folder_whose_lock_names_a_bench_is_refused_as_a_run(config, archived_run):
+    (archived_run / ".writer.lock").write_text('{"pid": 1, "host": "h", "command": "canter bench --envs x"}')
+    assert refused_new_run(config, archived_run, archived_run).startswith(f"{archived_run} already holds a run (")
+
+
+@pytest.mark.parametrize("sets", [5, {}, {"ppo.clip": 0.1}])
+def test_build_config_refuses_sets_that_are_no_list(sets):
+    assert refused(canter.build_config, "Pendulum-v1", sets=sets).startswith(
+        'sets= takes a list of "section.key=value" strings, got '
+    )
+
+
+def test_a_damaged_only_checkpoint_of_a_newer_format_says_so_first(archived_run):
+    (archived_run / "versions.json").write_text('{"run_format": 9}')
+    for path in sorted((archived_run / "checkpoints").glob("ckpt_*.npz"))[:-1]:
+        path.unlink()
+    [only] = (archived_run / "checkpoints").glob("ckpt_*.npz")
+    only.write_bytes(only.read_bytes()[:100])
+    assert refused(canter.load, archived_run).endswith("this canter reads up to 2; use a newer canter")
+
+
+def test_a_resume_limit_of_inf_lifts_the_saved_one_from_a_numpy_number_too():
+    from canter.training.resume import _lifts_the_limit
+
+    assert _lifts_the_limit(np.float32("inf")) and _lifts_the_limit(float("inf"))
+    assert not _lifts_the_limit(np.float64(5.0)) and not _lifts_the_limit("inf") and not _lifts_the_limit(None)

@@ -5,6 +5,7 @@ traceback and exits non-zero; everything else is a bug and keeps its traceback.
 """
 
 import re
+import unicodedata
 
 
 class CanterError(Exception):
@@ -73,8 +74,10 @@ def joined(words: list[str]) -> str:
 
 def error_line(exc: BaseException | str) -> str:
     """`canter: error: MESSAGE` on one line: a line break inside a value the user gave (an env id, a path) is
-    written escaped, as repr writes it, so the error stays one line that scripts and logs read as one."""
-    text = "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in str(exc))
+    written escaped, as repr writes it, so the error stays one line that scripts and logs read as one. Only control
+    characters and the two Unicode line separators are escaped: any other character (a CJK space, a joiner) is part
+    of a name that a fix quotes to be pasted back."""
+    text = "".join(repr(c)[1:-1] if unicodedata.category(c) == "Cc" or c in "\u2028\u2029" else c for c in str(exc))
     return f"canter: error: {text}"
 
 

@@ -11,6 +11,8 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from canter.errors import CanterError
+
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
 ARCHIVED_METRICS_FILE = METRICS_FILE + ".gz"
@@ -111,3 +113,64 @@ def surely_a_run(folder: Path) -> bool:
     other files may be a user's project with its own outputs, so a name alone proves nothing."""
     held = run_files_in(folder)
     return CONFIG_FILE in held and bool(held & {METRICS_FILE, ARCHIVED_METRICS_FILE, VERSIONS_FILE, CHECKPOINT_FOLDER})
+
+
+# The run folder's layout version, recorded in versions.json: a reader refuses a folder of a newer format.
+RUN_FORMAT = 2
+
+
+def versions_record(run_dir: Path) -> tuple[dict[str, Any], str | None]:
+    """What versions.json holds, and what is wrong with it (None for a whole file): missing, empty, not JSON or not
+    an object. Errors other than a missing file (no permission) are raised."""
+    path = Path(run_dir) / VERSIONS_FILE
+    try:
+        text = path.read_text(errors="replace")
+    except FileNotFoundError:
+        return {}, "missing"
+    if not text.strip():
+        return {}, "empty"
+    try:
+        data = json.loads(text)
+    except ValueError:
+        # The format of a damaged file still counts where it survives: one of a newer canter must stay refused.
+        found = re.search(r'"run_format"\s*:\s*(\d+)', text)
+        return ({"run_format": int(found.group(1))} if found else {}), "cut short or not JSON"
+    if isinstance(data, dict):
+        return data, None
+    return {}, f"a JSON {_JSON_TYPES.get(type(data), type(data).__name__)}, not an object"
+
+
+_JSON_TYPES = {list: "array", str: "string", int: "number", float: "number", bool: "boolean", type(None): "null"}
+
+
+def read_versions(run_dir: Path) -> dict[str, Any]:
+    try:
+        return versions_record(run_dir)[0]
+    except OSError:  # reading never stops at the version record: a folder without one reads as format 1
+        return {}
+
+
+def run_format(run_dir: Path) -> int:
+    """The folder's format version (1 when versions.json does not name one)."""
+    value = read_versions(run_dir).get("run_format", 1)
+    try:
+        found = int(value)
+        if found < 1:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise CanterError(
+            f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number from 1; restore it (1 "
+            f"for a folder without one)"
+        ) from None
+    if found > RUN_FORMAT:
+        raise CanterError(
+            f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"
+        )
+    return found
+
+
+def holds_every_section(config_file: str | Path) -> bool:
+    """Whether `config_file` is the config.toml of a format-1 run folder, which holds every algorithm's section,
+    read or not (`canter.config.build.build_config` leaves out those the run's algorithm does not read)."""
+    folder = Path(config_file).parent
+    return Path(config_file).name == CONFIG_FILE and surely_a_run(folder) and run_format(folder) == 1

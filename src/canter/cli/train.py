@@ -162,7 +162,6 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
     from canter.algos import seeds_train_apart
     from canter.config.build import build_config
     from canter.config.overrides import parse_set_args
-    from canter.training.run_folder import holds_every_section
 
     if args.out_dir == "":  # it would read as not given, and the run would go to runs/
         raise CanterError("--out-dir is empty; give a folder for the run folders, or drop --out-dir")
@@ -184,7 +183,6 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
         total_steps=args.total_steps,
         algo=args.algo,
         flags=extra,
-        file_holds_every_section=bool(args.config) and holds_every_section(args.config),
     )
     if not config.run.eval_every:  # the settings of evaluations during training would change nothing without them
         set_keys = parse_set_args(list(args.set))

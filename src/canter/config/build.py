@@ -29,6 +29,7 @@ from canter.config.presets import (
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.errors import CanterError
+from canter.run_layout import holds_every_section
 
 # The options that set a key and are not named after it, as a message names them (train's, and bench's and tune's).
 FLAG_NAMES = {
@@ -95,7 +96,6 @@ def build_config(
     check_unread: bool = True,
     flags: Mapping[str, Any] | None = None,
     notes: bool = True,
-    file_holds_every_section: bool = False,
 ) -> Config:
     """The config of env `env_id` (else the env.id of `sets` or the config file): defaults < `preset` < `config_file`
     < `sets` < the other arguments, validated.
@@ -104,9 +104,9 @@ def build_config(
     the file, else the preset's, else ppo. `config_file` is a TOML file (a str or Path), such as a run folder's
     config.toml; `sets` a list of "section.key=value" strings, such as ["ppo.clip=0.1"]. A key given both by `sets`
     and by its own argument (`seed`, say) is refused, as is a `sets` or file key the algorithm does not read, which
-    would change nothing. `check_unread`, `flags`, `notes` and `file_holds_every_section` are internal: canter's
-    commands use them to skip that check, to add the keys their other flags set, to keep notes off stderr, and to
-    read a format-1 run folder's config.toml, whose sections of other algorithms are left out."""
+    would change nothing, except in a format-1 run folder's config.toml, which holds every algorithm's section.
+    `check_unread`, `flags` and `notes` are internal: canter's commands use them to skip that check, to add the keys
+    their other flags set, and to keep notes off stderr."""
     # The command line and Python callers reach the same refusals, so each names the flag, then the argument.
     if config_file is not None and not isinstance(config_file, (str, Path)):  # Path() would raise a TypeError
         raise CanterError(f"config_file= must be a path (str or Path), got {type(config_file).__name__}")
@@ -122,7 +122,7 @@ def build_config(
             f"--algo (algo= from Python) is empty; give one of {', '.join(algorithm_names())}, or drop it"
         )
     file_data = flatten_toml(load_toml(config_file), str(config_file)) if config_file else {}
-    set_data = parse_set_args(sets or [])
+    set_data = parse_set_args([] if sets is None else sets)
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")
     if not resolved_id:
         raise CanterError(
@@ -153,7 +153,7 @@ def build_config(
         check_algorithm_name(str(resolved_algo))
         first["run.algo"] = resolved_algo
     config = apply_overrides(config, first, "arguments")
-    if file_holds_every_section:
+    if config_file and holds_every_section(config_file):  # a format-1 run folder's config.toml
         file_data = {key: value for key, value in file_data.items() if reads_key(config.run.algo, key)}
     config = apply_overrides(
         config, preset_overrides(preset, str(resolved_id), config.run.algo, named_by), f"preset {preset}"

@@ -70,6 +70,8 @@ def parse_set_args(items: Iterable[object]) -> dict[str, str]:
         raise CanterError(
             f'sets= takes a list of "section.key=value" strings, got the string {items!r}; pass [{items!r}]'
         )
+    if not isinstance(items, Iterable):
+        raise CanterError(f'sets= takes a list of "section.key=value" strings, got {type(items).__name__}')
     # A dict would be read by its keys alone, without their values.
     if isinstance(items, Mapping):
         example = f"{next(iter(items))}=..." if items else "ppo.clip=0.1"

@@ -23,7 +23,9 @@ from typing import Any
 from canter.errors import CanterError, joined
 from canter.files import WriteError, is_write_error
 from canter.orchestrate.study import redacted, study_files_in
+from canter.run_layout import surely_a_run
 from canter.training import run_lock
+from canter.training.resume import NEW_RUN_DIR
 
 STORAGE_KEY = "storage"  # in the lock file's record: a worker of a shared grid, not a local bench
 CELLS_FOLDER = ".cells"  # each job's job.json and train.log (`bench_local`, `bench_distributed`)
@@ -50,7 +52,7 @@ def refuse_run_or_study_folder(bench_dir: Path) -> None:
     """Refuse a run folder or tune's folders given as --out: the bench would write its tables and job folders among
     the run's files, and take over the writer lock of the run (its own lock file, `canter.training.run_lock`), or
     write them beside a study's database and trials."""
-    from canter.run_layout import CHECKPOINT_FOLDER, RUN_OWN_FILES, run_files_in, surely_a_run
+    from canter.run_layout import CHECKPOINT_FOLDER, RUN_OWN_FILES, run_files_in
 
     # A config.toml alone may be the user's own base config for the bench (--config OUT/config.toml); a bench folder
     # never holds a checkpoints/ folder of its own.
@@ -69,16 +71,15 @@ def refuse_as_run_dir(run_dir: str | Path) -> None:
     its files among the bench's or the study's, which would then read its config.toml and checkpoints as their own.
     A folder of runs is refused for the new run already (`canter.training.resume`); these may hold none yet."""
     run_dir = Path(run_dir)
+    if surely_a_run(run_dir):  # refused as a run (its lock may name the bench that trained it)
+        return
     kinds = {
         "a bench's --out folder": bench_files_in(run_dir),
         "a study folder of canter tune": study_files_in(run_dir),
     }
     for kind, held in kinds.items():
         if held:
-            raise CanterError(
-                f"{run_dir} is {kind} (it holds {joined(held)}); give run_dir= a new folder, or leave it out for one "
-                "under run.out_dir"
-            )
+            raise CanterError(f"{run_dir} is {kind} (it holds {joined(held)}); {NEW_RUN_DIR}")
 
 
 def _refuse_tune_folder(bench_dir: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,7 @@ from canter.orchestrate.bench_grid import BenchSettings, Cell, Job, make_jobs
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
 from canter.orchestrate.job_resources import job_layout, warn_if_more_jobs_than_cores, worker_count
 from canter.orchestrate.jobs import BUSY, STOP_GRACE_SECONDS, failure_reason, start_job, stop_jobs
+from canter.training.run_lock import BUSY_FIX
 
 # How long a job whose run folder another process writes is tried again: a killed bench's job that still stops
 # (its grace, and the checkpoint it writes), with room for the start of a process.
@@ -45,7 +47,8 @@ def run_local(cells: list[Cell], settings: BenchSettings, bench_dir: Path) -> di
                     cell_folder = bench_dir / ".cells" / starting.name
                     proc = start_job(job_spec(starting, settings, bench_dir), cell_folder, caps)
                     running[slot] = (starting, proc, time.monotonic())
-                    print(line, flush=True)
+                    if not busy.waited(starting):  # a retry's start was said with its first
+                        print(line, flush=True)
             for slot, (job, proc, started) in list(running.items()):
                 code = proc.poll()
                 if code is None:
@@ -74,15 +77,20 @@ class BusyRetries:
     was killed and whose jobs still checkpoint: each is tried again every `retry_seconds` for up to
     `wait_seconds` from its first try, then fails as any job does."""
 
-    def __init__(self, wait_seconds: float, retry_seconds: float):
+    def __init__(self, wait_seconds: float, retry_seconds: float, clock: Callable[[], float] = time.monotonic):
         self.wait_seconds = wait_seconds
         self.retry_seconds = retry_seconds
+        self._clock = clock
         self._first_busy: dict[str, float] = {}
         self._due: dict[str, float] = {}
 
+    def waited(self, job: Job) -> bool:
+        """Whether `job` has been busy before."""
+        return job.name in self._first_busy
+
     def next_due(self, pending: list[Job]) -> Job | None:
         """Take the first pending job that is not waiting for its retry."""
-        now = time.monotonic()
+        now = self._clock()
         for index, job in enumerate(pending):
             if self._due.get(job.name, now) <= now:
                 return pending.pop(index)
@@ -90,7 +98,7 @@ class BusyRetries:
 
     def retry(self, job: Job, pending: list[Job]) -> bool:
         """Queue a busy job again, unless it has waited its time; False then."""
-        now = time.monotonic()
+        now = self._clock()
         first = self._first_busy.setdefault(job.name, now)
         if now - first >= self.wait_seconds:
             return False
@@ -100,6 +108,6 @@ class BusyRetries:
 
     def reason(self, cell_folder: Path) -> str:
         """The line a waiting job prints: the child's error, which names the process, and the retry."""
-        said = failure_reason(cell_folder, BUSY).partition(": canter: error: ")[2].partition("; one process")[0]
+        said = failure_reason(cell_folder, BUSY).partition(": canter: error: ")[2].partition(f"; {BUSY_FIX}")[0]
         retry = f"trying again every {self.retry_seconds:.0f} s, for up to {self.wait_seconds / 60:.0f} min"
         return f"{said or 'its run folder is busy'}; {retry}"

@@ -37,8 +37,9 @@ from canter.run_layout import (
     finished_without_checkpoints,
     has_finished,
     run_files_in,
+    run_format,
 )
-from canter.training.run_folder import checkpoint_dir, holds_every_section, list_checkpoints, read_config
+from canter.training.run_folder import checkpoint_dir, list_checkpoints, read_config
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -118,15 +119,14 @@ def _config_fault(run_dir: Path, new: bool) -> str | None:
     """What keeps the run's config.toml from starting it again, as a new run from the file (`new`) or as a resume
     from step 0 reads it; None where it can."""
     config_file = run_dir / CONFIG_FILE
+    run_format(run_dir)  # a newer canter's folder, or a damaged versions.json: that error, whose fix comes first
     if not (config_file.exists() or config_file.is_symlink()):
         return f"its {CONFIG_FILE} is missing"
     try:
         if new:
             from canter.config.build import build_config  # the config layer, loaded where a fix needs it
 
-            build_config(
-                None, config_file=config_file, notes=False, file_holds_every_section=holds_every_section(config_file)
-            )
+            build_config(None, config_file=config_file, notes=False)
         else:
             read_config(run_dir)
     except (CanterError, OSError):

@@ -61,8 +61,8 @@ def train(
     run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
     `canter.config.experiment`), but not in its seed or in what is learned."""
     _need_a_config(config)
-    _need_a_folder(run_dir, "run_dir")
-    _need_a_folder(resume, "resume")
+    need_a_folder(run_dir, "run_dir")
+    need_a_folder(resume, "resume")
     if resume is not None and run_dir is not None:
         raise CanterError(
             "resume= goes on in the run's own folder, so run_dir= cannot be given with it; drop run_dir= (or copy "
@@ -111,21 +111,23 @@ def _need_a_config(config: object) -> None:
     )
 
 
-def _need_a_folder(folder: object, name: str) -> None:
-    """An empty path reads as the working folder, which a run would fill with its files (or resume by chance)."""
-    if folder is None:
+def need_a_folder(folder: object, name: str, optional: bool = True) -> None:
+    """An empty path reads as the working folder, which a run would fill with its files (or resume by chance).
+    `optional`: the argument may be left out (None), which the fix then offers."""
+    if folder is None and optional:
         return
     if not isinstance(folder, str | PathLike):
         raise CanterError(f"{name}= must be a folder path (str or Path), got {type(folder).__name__}")
     if not str(folder).strip():
-        raise CanterError(f"{name}= is empty, which would be the working folder; give a run folder, or leave it out")
+        leave = ", or leave it out" if optional else ""
+        raise CanterError(f"{name}= is empty, which would be the working folder; give a run folder{leave}")
 
 
 def _need_folders(run_dirs: object) -> None:
     if isinstance(run_dirs, str | bytes | PathLike) or not isinstance(run_dirs, Sequence):
         raise CanterError(f"run_dirs= must be a list of folders, one per seed, got {run_dirs!r}")
     for folder in run_dirs:
-        _need_a_folder(folder, "run_dirs")
+        need_a_folder(folder, "run_dirs")
 
 
 def _checked_seeds(seeds: object) -> list[int]:

@@ -5,6 +5,7 @@ its budget but stopped before writing it."""
 
 from __future__ import annotations
 
+import numbers
 import sys
 from collections.abc import Sequence
 from enum import Enum
@@ -28,6 +29,7 @@ from canter.run_layout import (
     has_finished,
     read_summary,
     run_files_in,
+    run_format,
 )
 from canter.training import checkpoint, run_folder, run_lock, trackers
 from canter.training.logger import checkpoint_totals, read_rows, row_steps
@@ -343,25 +345,23 @@ def need_a_run_to_resume(folder: Path) -> None:
     checkpoint.need_run_folder(folder)
 
 
+# The fix for a new run's run_dir= that is some other folder: its own is made where none is given.
+NEW_RUN_DIR = "give run_dir= a new folder, or leave it out for one under run.out_dir"
+
+
 def _refuse_a_folder_of_runs(run_dir: Path) -> None:
     """A new run given a folder of run folders (a bench's --out, run.out_dir) would mix its files among theirs."""
     inside = checkpoint.runs_inside(run_dir)
     if inside:
         runs = f"{len(inside)} run folder{'s' if len(inside) > 1 else ''}"
-        raise CanterError(
-            f"{run_dir} holds {runs} (a bench's?), such as {inside[0]}; give run_dir= a new folder, or leave it out "
-            "for one under run.out_dir"
-        )
+        raise CanterError(f"{run_dir} holds {runs} (a bench's?), such as {inside[0]}; {NEW_RUN_DIR}")
 
 
 def _refuse_a_run_in(run_dir: Path) -> None:
     """A new run given a folder that holds a run would overwrite it: its checkpoints, config and metrics; given the
     checkpoints folder of a run, it would write its files among them, which every later reading of the run skips."""
     if run_dir.name == CHECKPOINT_FOLDER and CHECKPOINT_FOLDER in run_files_in(run_dir.parent):
-        raise CanterError(
-            f"{run_dir} is the checkpoints folder of the run {run_dir.parent}; give run_dir= a new folder, or leave "
-            "it out for one under run.out_dir"
-        )
+        raise CanterError(f"{run_dir} is the checkpoints folder of the run {run_dir.parent}; {NEW_RUN_DIR}")
     present = run_files_in(run_dir)
     held = [name for name in (CONFIG_FILE, METRICS_FILE, ARCHIVED_METRICS_FILE, CHECKPOINT_FOLDER) if name in present]
     if held:
@@ -377,7 +377,7 @@ def saved_config(run_dir: Path, note: bool = True) -> Config:
     config.toml again, so the run loses nothing. A file that reads but holds a value canter refuses stays an error:
     it was edited, and is not overwritten."""
 
-    run_folder.run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
+    run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
     try:
         return run_folder.read_config(run_dir)
     except CanterError as damaged:
@@ -422,6 +422,11 @@ def _reason(error: CanterError) -> str:
     return str(error).split("; ")[0]
 
 
+def _lifts_the_limit(value: object) -> bool:
+    """Whether a limit given to a resume is inf, which lifts the saved one: a numpy number too, as float() takes it."""
+    return isinstance(value, numbers.Real) and unlimited_as_none(float(value)) is None
+
+
 def resume_config(
     run_dir: Path,
     total_steps: int | None,
@@ -437,8 +442,7 @@ def resume_config(
     if total_steps is not None:
         config = config.with_values("run", total_steps=total_steps)
     if max_minutes is not None:  # inf lifts a saved limit
-        lifted = isinstance(max_minutes, int | float) and unlimited_as_none(max_minutes) is None
-        config = config.with_values("run", max_minutes=None if lifted else max_minutes)
+        config = config.with_values("run", max_minutes=None if _lifts_the_limit(max_minutes) else max_minutes)
     if not isinstance(stop_at_return, Saved):
         config = config.with_values("run", stop_at_return=stop_at_return)
     return config

@@ -21,7 +21,6 @@ import contextlib
 import json
 import os
 import platform
-import re
 import secrets
 import sys
 from collections.abc import Callable
@@ -41,17 +40,18 @@ from canter.run_layout import (
     CONFIG_FILE,
     KEPT_BEST_FILE,
     METRICS_FILE,
+    RUN_FORMAT,
     TENSORBOARD_FOLDER,
     TRACKERS_FILE,
     VERSIONS_FILE,
     VIDEOS_FOLDER,
     checkpoints_in,
+    read_versions,
     run_files_in,
-    surely_a_run,
+    run_format,
+    versions_record,
 )
 from canter.training import provenance
-
-RUN_FORMAT = 2
 
 
 def metrics_file(run_dir: Path) -> Path:
@@ -119,65 +119,8 @@ def versions() -> dict[str, Any]:
     }
 
 
-def _versions_record(run_dir: Path) -> tuple[dict[str, Any], str | None]:
-    """What versions.json holds, and what is wrong with it (None for a whole file): missing, empty, not JSON or not
-    an object. Errors other than a missing file (no permission) are raised."""
-    path = Path(run_dir) / VERSIONS_FILE
-    try:
-        text = path.read_text(errors="replace")
-    except FileNotFoundError:
-        return {}, "missing"
-    if not text.strip():
-        return {}, "empty"
-    try:
-        data = json.loads(text)
-    except ValueError:
-        # The format of a damaged file still counts where it survives: one of a newer canter must stay refused.
-        found = re.search(r'"run_format"\s*:\s*(\d+)', text)
-        return ({"run_format": int(found.group(1))} if found else {}), "cut short or not JSON"
-    if isinstance(data, dict):
-        return data, None
-    return {}, f"a JSON {_JSON_TYPES.get(type(data), type(data).__name__)}, not an object"
-
-
-_JSON_TYPES = {list: "array", str: "string", int: "number", float: "number", bool: "boolean", type(None): "null"}
-
-
-def _read_versions(run_dir: Path) -> dict[str, Any]:
-    try:
-        return _versions_record(run_dir)[0]
-    except OSError:  # reading never stops at the version record: a folder without one reads as format 1
-        return {}
-
-
 def _write_versions(run_dir: Path, data: dict[str, Any]) -> None:
     atomic_write_bytes(Path(run_dir) / VERSIONS_FILE, lambda f: f.write(json.dumps(data, indent=2).encode()))
-
-
-def run_format(run_dir: Path) -> int:
-    """The folder's format version (1 when versions.json does not name one)."""
-    value = _read_versions(run_dir).get("run_format", 1)
-    try:
-        found = int(value)
-        if found < 1:
-            raise ValueError
-    except (TypeError, ValueError):
-        raise CanterError(
-            f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number from 1; restore it (1 "
-            f"for a folder without one)"
-        ) from None
-    if found > RUN_FORMAT:
-        raise CanterError(
-            f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"
-        )
-    return found
-
-
-def holds_every_section(config_file: str | Path) -> bool:
-    """Whether `config_file` is the config.toml of a format-1 run folder, which holds every algorithm's section,
-    read or not (`canter.config.build.build_config` leaves out those the run's algorithm does not read)."""
-    folder = Path(config_file).parent
-    return Path(config_file).name == CONFIG_FILE and surely_a_run(folder) and run_format(folder) == 1
 
 
 def checkpoint_dir(run_dir: Path) -> Path:
@@ -366,7 +309,7 @@ MIGRATIONS: dict[int, Callable[[Path], None]] = {1: _config_reads_only}
 def _repair_versions(run_dir: Path, found: int) -> None:
     """A versions.json that is missing or damaged is written again before a resume writes to the folder, with this
     session's versions and a `repaired` entry that says when and why, and keeps the damaged file's text whole."""
-    _, problem = _versions_record(run_dir)
+    _, problem = versions_record(run_dir)
     if problem is None:
         return
     path = Path(run_dir) / VERSIONS_FILE
@@ -390,4 +333,4 @@ def migrate(run_dir: Path) -> None:
     _repair_versions(Path(run_dir), found)
     for version in range(found, RUN_FORMAT):
         MIGRATIONS[version](Path(run_dir))
-        _write_versions(run_dir, dict(_read_versions(run_dir), run_format=version + 1))
+        _write_versions(run_dir, dict(read_versions(run_dir), run_format=version + 1))

@@ -110,15 +110,16 @@ class RunFolderBusy(CanterError):
     """Another process writes the run folder: a refusal that a later try meets no more once it has finished."""
 
 
+# The fix a busy folder's refusal ends with, after the holder; a bench that waits for the folder prints the rest.
+BUSY_FIX = "one process writes a run folder at a time: wait for it to finish or stop it, then run the command again"
+
+
 def _refusal(run_dir: Path, holder: dict[str, Any]) -> CanterError:
     who = "another process"
     if holder:
         who = f"process {holder.get('pid')} on {holder.get('host')}"
         who += f" (since {holder.get('started')}: {holder.get('command')})"
-    return RunFolderBusy(
-        f"{run_dir} is being written by {who}; one process writes a run folder at a time: wait for it to "
-        f"finish or stop it, then run the command again"
-    )
+    return RunFolderBusy(f"{run_dir} is being written by {who}; {BUSY_FIX}")
 
 
 def flock(fd: int, shared: bool = False) -> bool | None:

@@ -38,7 +38,7 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
         for flag, elsewhere in (
             (f"--env {env_id} (env_id=)", env_id not in (None, facts.env_id)),
             (f"--backend {backend} (backend=)", backend not in (None, trained_on.name)),
-            ("--vary (prepare_env=)", varied),
+            ("--vary", varied),
         )
         if elsewhere
     ]

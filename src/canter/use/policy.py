@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -118,9 +117,9 @@ def load(run_dir: str | Path, checkpoint: str | Path = LAST) -> Policy:
     import jax
 
     from canter.algos import get_algorithm
+    from canter.training.loop import need_a_folder
 
-    if not isinstance(run_dir, str | os.PathLike) or not str(run_dir).strip():
-        raise CanterError(f"run_dir must be the path of a run folder (str or Path), got {run_dir!r}")
+    need_a_folder(run_dir, "run_dir", optional=False)
     config, facts, state, header = load_state(Path(run_dir), checkpoint)
     params = get_algorithm(config.run.algo).policy_params(state)
     return Policy(
