@@ -201,8 +201,14 @@ def test_quiet_is_offered_where_there_is_a_progress_bar_only(capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--stop-at-return", "-inf"], "run.stop_at_return must be a finite number or none, got -inf"),
-        (["--max-minutes", "-NaN"], "run.max_minutes must be a finite number or none, got nan"),
+        (
+            ["--stop-at-return", "-inf"],
+            "train: argument --stop-at-return: expected a finite number, or inf for no limit, got '-inf' (see --help)",
+        ),
+        (
+            ["--max-minutes", "-NaN"],
+            "train: argument --max-minutes: expected a finite number, or inf for no limit, got '-NaN' (see --help)",
+        ),
     ],
 )
 def test_a_value_that_starts_with_a_dash_reaches_its_own_check(argv, message, capsys):

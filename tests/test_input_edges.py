@@ -294,6 +294,7 @@ def test_a_corrupt_best_checkpoint_gets_advice_that_fits_resume(tmp_path):
     best = Path(tmp_path / "run" / "checkpoints" / "best.npz")
     best.parent.mkdir(parents=True)
     best.write_bytes(b"not a zip")
+    (best.parent / "ckpt_000000001000.npz").write_bytes(b"")  # the newest checkpoint, which --checkpoint last takes
     with pytest.raises(CanterError) as caught:
         checkpoint.read_header(best)
     message = str(caught.value)
