@@ -40,6 +40,16 @@ def _interrupt_and_ignore_the_rest(signum: int, frame: FrameType | None) -> None
     raise KeyboardInterrupt
 
 
+def end_of_interrupts() -> None:
+    """In a command's process (`interrupt_once`), once a KeyboardInterrupt ends its command: further stops are
+    ignored. A StopFlag raises one for a second Ctrl-C and then puts back the handler before it, so a third one,
+    between the command's end and the process's, would raise again where nothing catches it, and the interpreter's
+    shutdown after an interrupted compile can crash. A process that did not take that handler (pytest, a script
+    calling canter) keeps its own."""
+    if signal.getsignal(signal.SIGINT) is _interrupt_and_ignore_the_rest:
+        ignore_stop_signals()
+
+
 def exit_interrupted() -> NoReturn:
     """End an interrupted process with INTERRUPTED, skipping the interpreter's shutdown. A Ctrl-C can land inside
     native code (an XLA compile, an env pool's threads) and leave it in a state that crashes that shutdown with a

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError, error_line
-from canter.signals import INTERRUPTED, exit_interrupted, ignore_stop_signals, interrupt_once
+from canter.signals import INTERRUPTED, end_of_interrupts, exit_interrupted, ignore_stop_signals, interrupt_once
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
 # and sets `func(args) -> exit code`.
@@ -168,6 +168,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(error_line(f"{_shown(exc.filename)}: {_PATH_ERRORS[exc.errno]}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        end_of_interrupts()
         print("canter: interrupted", file=sys.stderr)
         return INTERRUPTED
 
