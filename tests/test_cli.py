@@ -222,7 +222,9 @@ def test_an_out_dir_under_a_file_names_the_file(tmp_path, capsys):
     argv = ["train", "Pendulum-v1", "--total-steps", "100", "--out-dir", str(tmp_path / "cl.toml" / "x")]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{tmp_path / 'cl.toml'} is a file, not a folder; pick another path" in err, err
+    blocker = tmp_path / "cl.toml"
+    fix = f"{blocker} is a file, not a folder; move {blocker} out of the way, or pick another path"
+    assert err.count("\n") == 1 and fix in err, err
 
 
 @pytest.mark.parametrize(("given", "target"), [(None, "keep"), ("inf", None), ("-50", -50.0)])

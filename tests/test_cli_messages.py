@@ -60,10 +60,12 @@ def test_an_output_folder_that_is_a_file_says_so(tmp_path, capsys):
     (tmp_path / "empty.toml").write_text("")
     argv = ["bench", "--envs", "Hopper-v5", "--seeds", "0", "--total-steps", "2048", "--out"]
     assert error_line(capsys, [*argv, "empty.toml"]) == (
-        "cannot make the folder empty.toml: it is a file, not a folder; pick another path"
+        "cannot make the folder empty.toml: it is a file, not a folder; move empty.toml out of the way, or pick "
+        "another path"
     )
     assert error_line(capsys, [*argv, "empty.toml/bench"]) == (
-        "cannot make the folder empty.toml/bench: empty.toml is a file, not a folder; pick another path"
+        "cannot make the folder empty.toml/bench: empty.toml is a file, not a folder; move empty.toml out of the way, "
+        "or pick another path"
     )
 
 

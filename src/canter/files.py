@@ -8,6 +8,7 @@ import glob
 import hashlib
 import os
 import socket
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -68,16 +69,37 @@ def _nearest_existing(folder: Path) -> Path:
     return folder
 
 
-def _not_a_folder(path: Path, itself: str) -> str | None:
-    """Why `path` cannot be a folder when it, or a folder on the way to it, already exists as something else;
-    `itself` is what the reason calls `path` (`it`, where the message has named it)."""
+def not_a_regular_file(path: Path) -> CanterError:
+    """The error for a file canter reads or appends to (a run's metrics.csv, a log) that is a folder, pipe or device:
+    reading a pipe would wait for a writer that never comes, so it is refused before it is opened."""
+    what = "a folder, not a file" if path.is_dir() else "not a regular file (a device, pipe or socket)"
+    return CanterError(f"{path} is {what}; move it away and restore {path.name} from a copy")
+
+
+def refuse_not_regular(path: Path) -> None:
+    """Refuse `path` where something other than a regular file holds its name (see `not_a_regular_file`)."""
+    if (path.exists() or path.is_symlink()) and not path.is_file():
+        raise not_a_regular_file(path)
+
+
+def _in_the_way(path: Path) -> Path | None:
+    """`path` itself or the folder on the way to it that already exists as something other than a folder."""
     for part in (path, *path.parents):
         if part.is_dir():
             return None
         if part.exists() or part.is_symlink():
-            what = "is a file, not a folder" if part.is_file() else "is not a folder"
-            return f"{itself if part == path else part} {what}"
+            return part
     return None
+
+
+def _not_a_folder(path: Path, itself: str) -> str | None:
+    """Why `path` cannot be a folder when it, or a folder on the way to it, already exists as something else;
+    `itself` is what the reason calls `path` (`it`, where the message has named it)."""
+    part = _in_the_way(path)
+    if part is None:
+        return None
+    what = "is a file, not a folder" if part.is_file() else "is not a folder"
+    return f"{itself if part == path else part} {what}"
 
 
 def make_folder(path: str | Path) -> None:
@@ -88,8 +110,11 @@ def make_folder(path: str | Path) -> None:
         if is_write_error(exc):
             raise WriteError(path, exc) from None
         # mkdir says only `File exists` or `Not a directory`, without naming what is in the way.
+        # A path canter derived (a bench cell's run folder) is not the user's to pick: moving the file frees it.
+        blocker = _in_the_way(Path(path))
         why = _not_a_folder(Path(path), "it") or exc.strerror or str(exc)
-        raise CanterError(f"cannot make the folder {path}: {why}; pick another path") from None
+        fix = f"move {blocker} out of the way, or pick another path" if blocker else "pick another path"
+        raise CanterError(f"cannot make the folder {path}: {why}; {fix}") from None
 
 
 def is_write_error(exc: BaseException) -> bool:
@@ -265,12 +290,21 @@ class AppendFile:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        # O_NONBLOCK: a named pipe in the file's place would block the open until a reader came; it fails at once
+        # (ENXIO) or opens, and either way is refused. On a regular file the flag changes nothing.
         try:
-            self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+            self._fd: int | None = os.open(
+                self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NONBLOCK", 0), 0o666
+            )
         except OSError as exc:
             if is_write_error(exc):
                 raise WriteError(self.path, exc) from None
+            if exc.errno in (errno.ENXIO, errno.EISDIR):
+                raise not_a_regular_file(self.path) from None
             raise
+        if not stat.S_ISREG(os.fstat(self._fd).st_mode):
+            self.close()
+            raise not_a_regular_file(self.path)
 
     def append(self, data: bytes) -> None:
         assert self._fd is not None, f"{self.path} is closed"

@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
             check_output_path(args.out, "--out", "robustness.png")
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise CanterError(f"--out {args.out}: the robustness plot is a PNG; name it *.png")
-    physics = parse_physics(parse_set_args(args.set))
+    physics = parse_physics(parse_set_args(args.set, flag="--set"))
     if physics and spec is not None:
         raise CanterError("--vary sweeps the Gymnasium env, which takes no --set; run the sweep and --set apart")
     if spec is not None and args.backend not in (None, AUTO, single_env_backend().name):

@@ -64,7 +64,8 @@ def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> C
     return config.replace(**{s: dataclasses.replace(config.section(s), **values) for s, values in sections.items()})
 
 
-def parse_set_args(items: Iterable[object]) -> dict[str, str]:
+def parse_set_args(items: Iterable[object], flag: str = "--set (sets= from Python)") -> dict[str, str]:
+    """`section.key=value` strings as a dict; `flag` is what the errors call them (eval's `--set` has no sets=)."""
     # A lone string would be read a character at a time, so `sets="ppo.clip=0.1"` would be refused for its "p".
     if isinstance(items, (str, bytes)):
         raise CanterError(
@@ -82,12 +83,10 @@ def parse_set_args(items: Iterable[object]) -> dict[str, str]:
     overrides: dict[str, str] = {}
     for item in items:
         if not isinstance(item, str):
-            raise CanterError(
-                f"--set (sets= from Python) expects section.key=value text, got {item!r} ({type(item).__name__})"
-            )
+            raise CanterError(f"{flag} expects section.key=value text, got {item!r} ({type(item).__name__})")
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise CanterError(f"--set (sets= from Python) expects section.key=value, got {item!r}")
+            raise CanterError(f"{flag} expects section.key=value, got {item!r}")
         overrides[key.strip()] = value.strip()  # the last wins: a script lays its own --set over a shared list
     return overrides
 

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from canter.errors import CanterError
-from canter.files import AppendFile, atomic_write_bytes
+from canter.files import AppendFile, atomic_write_bytes, refuse_not_regular
 from canter.run_layout import METRICS_FILE, TENSORBOARD_FOLDER
 from canter.training.evaluation import EVAL_COLUMNS
 
@@ -79,6 +79,7 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     """The header and the rows of a metrics.csv or an archived metrics.csv.gz (none for a missing file), without a
     half-written last line."""
     path = Path(path)
+    refuse_not_regular(path)
     if not path.is_file():
         return [], []
     # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
@@ -91,6 +92,7 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
 
 def _header(path: Path) -> list[str]:
     """A metrics.csv's column names, read from its first line only (none for a missing or empty file)."""
+    refuse_not_regular(path)
     if not path.is_file():
         return []
     if path.suffix == ".gz":  # an archived copy: small, and read whole as every reader reads it

@@ -11,6 +11,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.errors import CanterError
+from canter.files import refuse_not_regular
 from canter.training.logger import lost_rows, read_rows, run_history, unreadable_steps
 from canter.training.run_folder import list_checkpoints, metrics_file, read_config, step_of
 
@@ -40,12 +41,7 @@ def _no_rows(path: Path) -> str:
 def read_metrics(path: Path) -> dict[str, np.ndarray]:
     """The numeric columns of a metrics.csv; empty cells become NaN, columns with text are left out."""
     path = Path(path)
-    if path.is_dir():  # a run folder with its file's name taken: sending the user to another run folder misleads
-        raise CanterError(f"{path} is a folder, not a file; move it away and restore {path.name} from a copy")
-    if path.exists() and not path.is_file():  # a pipe would be read waiting for a writer that never comes
-        raise CanterError(
-            f"{path} is not a regular file (a device, pipe or socket); move it away and restore {path.name} from a copy"
-        )
+    refuse_not_regular(path)  # a folder in the file's place: sending the user to another run folder misleads
     if not path.is_file():
         from canter.training.checkpoint import refuse_a_folder_of_runs
 
