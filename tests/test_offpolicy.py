@@ -19,6 +19,7 @@ from canter.config.build import build_config
 from canter.envs.base import StepOutput
 from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
+from canter.run_layout import read_summary
 from canter.training import checkpoint, run_folder
 from canter.training.loop import train
 from canter.training.restore import load_state
@@ -606,6 +607,27 @@ def test_a_seed_in_a_group_follows_its_single_seed_curve(algo, tmp_path, capsys)
     for name in ("critic_loss", "actor_loss", "q_mean"):
         np.testing.assert_allclose(g[name], a[name], rtol=1e-4, atol=1e-4, err_msg=name)
     assert not np.allclose(other["critic_loss"][1:], a["critic_loss"][1:], rtol=1e-2)  # another seed really differs
+
+
+@pytest.mark.slow
+def test_vmapped_sac_seeds_keep_finite_gradients_however_xla_rounds_their_critics_minimum(tmp_path):
+    """With XLA's optimizations off, the vmapped sac group above once diverged at its first update: the gradient of
+    `jnp.min` over the critics divided by the count of entries equal to a minimum computed with other rounding, 0.
+    The pairwise minimum (`losses.min_over_critics`) keeps it finite, whatever the compiler does."""
+    import os
+    import subprocess
+    import sys
+
+    sets = ["sac.hidden=16,16", "run.tensorboard=false", "sac.learning_starts=100", "sac.buffer_size=1000"]
+    sets += ["sac.batch_size=32", "sac.steps_per_call=100"]
+    argv = [sys.executable, "-m", "canter.cli", "train", "Pendulum-v1", "--algo", "sac", "--seeds", "0,1"]
+    argv += ["--total-steps", "400", "--quiet", "--out-dir", str(tmp_path)]
+    argv += [arg for item in sets for arg in ("--set", item)]
+    env = {**os.environ, "JAX_DISABLE_MOST_OPTIMIZATIONS": "true"}
+    done = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    for run_dir in tmp_path.iterdir():
+        assert (read_summary(run_dir) or {}).get("stop_reason") == "budget", run_dir
 
 
 def test_a_signal_during_setup_saves_no_replay_buffer_and_the_run_resumes_as_if_uninterrupted(tmp_path):

@@ -35,6 +35,20 @@ def test_td_target_takes_the_min_of_the_critics_and_stops_only_on_termination():
     )
 
 
+@pytest.mark.parametrize("critics", [1, 2, 3])
+def test_the_min_over_critics_and_its_gradient_match_numpy(critics):
+    q = np.random.default_rng(critics).normal(size=(critics, 5)).astype(np.float32)
+    q[:, 0] = 1.5  # a tie: the gradient is shared, as jnp.min shares it
+    np.testing.assert_array_equal(losses.min_over_critics(jnp.asarray(q)), q.min(axis=0))
+    grad = np.asarray(jax.grad(lambda x: jnp.sum(losses.min_over_critics(x)))(jnp.asarray(q)))
+    expected = (q == q.min(axis=0)).astype(np.float32)
+    expected[:, 0] = 1.0 / critics
+    if critics == 3:  # pairwise: the first two share half, and the third the other half
+        expected[:, 0] = [0.25, 0.25, 0.5]
+    np.testing.assert_allclose(grad, expected)
+    np.testing.assert_allclose(grad.sum(axis=0), 1.0)
+
+
 def test_target_smoothing_noise_is_clipped_then_the_action_is_clipped():
     action = jnp.array([0.9, -0.2, 0.0, -0.9])
     standard_normal = jnp.array([10.0, -10.0, 0.1, -1.0])

@@ -15,6 +15,17 @@ from canter.core.networks import gaussian_log_prob
 LOG_2 = math.log(2.0)
 
 
+def min_over_critics(q: jnp.ndarray) -> jnp.ndarray:
+    """The smallest Q of each transition, [B] of q [num_critics, B], as a chain of pairwise minimums. `jnp.min`'s
+    gradient divides by how many entries equal the minimum it computed; where the compiler evaluates the two with
+    different rounding (vmapped sac seeds compiled with XLA's optimizations off did), no entry does and the actor's
+    gradient is 0/0 = NaN. A pairwise minimum's gradient selects, and never divides."""
+    smallest = q[0]
+    for other in q[1:]:
+        smallest = jnp.minimum(smallest, other)
+    return smallest
+
+
 def td_target(
     reward: jnp.ndarray,
     terminated: jnp.ndarray,
@@ -24,7 +35,7 @@ def td_target(
 ) -> jnp.ndarray:
     """`r + gamma * (1 - terminated) * (min over critics of next_q + bonus)`; next_q is [num_critics, B].
     Truncated transitions have terminated = 0 and so bootstrap."""
-    return reward + gamma * (1.0 - terminated) * (jnp.min(next_q, axis=0) + next_entropy_bonus)
+    return reward + gamma * (1.0 - terminated) * (min_over_critics(next_q) + next_entropy_bonus)
 
 
 def smoothed_target_action(
@@ -73,7 +84,7 @@ def squashed_sample(mean: jnp.ndarray, log_std: jnp.ndarray, noise: jnp.ndarray)
 
 def sac_actor_loss(q: jnp.ndarray, log_prob: jnp.ndarray, alpha: jnp.ndarray) -> jnp.ndarray:
     """`mean(alpha * log pi(a|s) - min over critics of Q(s, a))`, a ~ pi; q is [num_critics, B]."""
-    return jnp.mean(alpha * log_prob - jnp.min(q, axis=0))
+    return jnp.mean(alpha * log_prob - min_over_critics(q))
 
 
 def temperature_loss(log_alpha: jnp.ndarray, log_prob: jnp.ndarray, target_entropy: float) -> jnp.ndarray:
