@@ -4,7 +4,7 @@
 # compiles or waits on a child process while the other computes, so on two cores pytest takes 0.74-0.80 of the time
 # one process takes (583 and 630 s against 785 s, 2026-11-30; pytest alone, once installed). The whole of `make test`
 # on a clean clone, as `bash .ci/run` runs it (venv, install, lint, suite), took about 11.5 minutes that day, 582 s of
-# it pytest.
+# it pytest; on slower runs of the same machine pytest alone took 1,015-1,207 s, with both cores busy throughout.
 # make test-fast: lint, then the suite without the slow tests (pytest -m "not slow"): the unit tests, in under 2 minutes.
 # make test-heavy: only the tests that make test leaves out for time (the MJX ports of the larger envs).
 PYTHON ?= python3
