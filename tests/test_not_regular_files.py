@@ -59,6 +59,15 @@ def test_reading_the_rows_of_a_pipe_is_refused(pipe):
     assert read_rows(pipe.parent / "missing.csv") == ([], [])
 
 
+def test_a_dangling_link_reads_as_a_missing_file_and_an_append_creates_its_target(tmp_path):
+    (tmp_path / "metrics.csv").symlink_to(tmp_path / "target.csv")
+    assert read_rows(tmp_path / "metrics.csv") == ([], [])
+    log = AppendFile(tmp_path / "metrics.csv")
+    log.append(b"global_step\n")
+    log.close()
+    assert (tmp_path / "target.csv").read_bytes() == b"global_step\n"
+
+
 def test_a_resume_whose_metrics_csv_is_a_pipe_stops_with_one_line(tiny_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(tiny_run.run_dir, run)

@@ -77,8 +77,9 @@ def not_a_regular_file(path: Path) -> CanterError:
 
 
 def refuse_not_regular(path: Path) -> None:
-    """Refuse `path` where something other than a regular file holds its name (see `not_a_regular_file`)."""
-    if (path.exists() or path.is_symlink()) and not path.is_file():
+    """Refuse `path` where something other than a regular file holds its name (see `not_a_regular_file`); a link is
+    judged by what it points to, and a dangling one is a missing file, which an append creates."""
+    if path.exists() and not path.is_file():
         raise not_a_regular_file(path)
 
 
