@@ -13,7 +13,7 @@ from conftest import ARCHIVED_RUN
 
 
 def _state(seed=0):
-    return init_train_state(build_config("Hopper-v5", seed=seed, sets=["net.hidden=8,8"]), 11, 3)
+    return init_train_state(build_config("Hopper-v5", sets=["net.hidden=8,8"]), 11, 3, seed)
 
 
 def _equal(a, b):
@@ -62,7 +62,7 @@ def test_corrupt_truncated_and_foreign_checkpoints_are_one_line_errors(tmp_path)
         checkpoint.read(other)
 
     with pytest.raises(CanterError, match="does not match this config"):
-        checkpoint.restore(init_train_state(build_config("Hopper-v5", sets=["net.hidden=4"]), 11, 3), arrays, path)
+        checkpoint.restore(init_train_state(build_config("Hopper-v5", sets=["net.hidden=4"]), 11, 3, 0), arrays, path)
 
 
 def test_a_leaf_of_another_dtype_is_named_with_both_dtypes(tmp_path):

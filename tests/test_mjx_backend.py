@@ -468,7 +468,7 @@ def test_evaluation_in_one_program_plays_the_host_loops_episodes(monkeypatch):
     config = build_config("InvertedPendulum-v5", sets=PENDULUM)
     env = make_vec_env("InvertedPendulum-v5", "mjx", 2, [0, 1])
     algorithm = get_algorithm("ppo")
-    state = algorithm.init_state(config, env.spec)
+    state = algorithm.init_state(config, env.spec, 0)
     params, obs_stats = algorithm.policy_params(state), state.obs_stats
     act = CompiledAct(config, env.spec)
 

@@ -63,7 +63,7 @@ def reference_transitions(vector_steps):
 def run_counter_iteration(config, learner):
     """One jitted iteration of `learner` on the two-env counter env, from fresh state."""
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
-    state = init_train_state(config, learner, 2, 1)
+    state = init_train_state(config, learner, 2, 1, config.run.seed)
     carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
     return jax.jit(make_iteration(config, learner, spec, counter_env_step))(state, carry, jnp.float32(1.0))
 
@@ -147,7 +147,7 @@ def test_an_autoreset_step_that_stores_nothing_makes_no_update():
     )
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
     learner = TD3(config.td3)
-    state = init_train_state(config, learner, 2, 1)
+    state = init_train_state(config, learner, 2, 1, config.run.seed)
     carry = init_env_carry((jnp.zeros(1, jnp.int32), jnp.zeros(1, bool)), jnp.zeros((1, 2)), ())
     state, _, metrics = jax.jit(make_iteration(config, learner, spec, one_env_step))(state, carry, jnp.float32(1.0))
     assert int(metrics["steps"]) == 6 and int(state.buffer.size) == 6
@@ -242,7 +242,7 @@ def test_gradient_steps_follow_a_python_simulation_of_the_schedule(
     learner = _CountingSpy(config.td3)
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
     iteration = jax.jit(make_iteration(config, learner, spec, counter_env_step))
-    state = init_train_state(config, learner, 2, 1)
+    state = init_train_state(config, learner, 2, 1, config.run.seed)
     carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
 
     acted = acted_counters(2 * vector_steps)
@@ -303,7 +303,7 @@ def test_sampled_batches_are_normalized_with_the_running_statistics_of_that_step
     config = build_config("Pendulum-v1", algo="td3", sets=sets)
     learner = _BatchSpy(config.td3)
     spec = SimpleNamespace(obs_dim=2, act_dim=1, action_low=(-2.0,), action_high=(2.0,))
-    state = init_train_state(config, learner, 2, 1)
+    state = init_train_state(config, learner, 2, 1, config.run.seed)
     carry = init_env_carry((jnp.zeros(2, jnp.int32), jnp.zeros(2, bool)), jnp.array([[0.0, 0.0], [0.0, 1.0]]), ())
     state, _, metrics = jax.jit(make_iteration(config, learner, spec, action_rewarding_env_step))(
         state, carry, jnp.float32(1.0)

@@ -54,7 +54,7 @@ def _one_line_error(capsys) -> str:
 def test_the_estimate_is_the_size_of_the_state_that_init_builds(algo, sets):
     config = build_config("InvertedPendulum-v5", algo=algo, sets=sets)
     algorithm = get_algorithm(algo)
-    built = algorithm.init_state(config, PENDULUM)
+    built = algorithm.init_state(config, PENDULUM, 0)
     assert state_size(algorithm, config, PENDULUM).total == sum(leaf.nbytes for leaf in jax.tree.leaves(built))
 
 

@@ -27,7 +27,7 @@ def _setup(env_id, backend, num_envs, n_steps, sets=()):
         ],
     )
     env = make_vec_env(config.env.id, config.env.backend, num_envs, list(range(num_envs)))
-    state = init_train_state(config, env.spec.obs_dim, env.spec.act_dim)
+    state = init_train_state(config, env.spec.obs_dim, env.spec.act_dim, config.run.seed)
     carry = init_env_carry(env.initial_state(), env.reset(), env.spec.info_keys)
     return config, env, state, carry
 

@@ -3,14 +3,16 @@
 Every algorithm plugs into the same trainer, run folder, checkpoints, logging and `canter.load` through one
 `Algorithm` record. The trainer knows nothing else about an algorithm:
 
-- `init_state(config, spec)` builds the train state: a NamedTuple pytree that a checkpoint holds in full. It must
-  have the fields `obs_stats` (a `RunningStats`, used by the policy), `iteration` and `global_step`.
+- `init_state(config, spec, seed)` builds the train state of run seed `seed`: a NamedTuple pytree that a checkpoint
+  holds in full. It must have the fields `obs_stats` (a `RunningStats`, used by the policy), `iteration` and
+  `global_step`. The trainer jits it with `seed` a traced uint32 scalar (the seeds of a group share one compile), so
+  it must stay pure JAX, build the same state from a Python int, and not read `config.run.seed`.
 - `make_iteration(config, spec, env_step)` returns `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`,
   a pure function the trainer jits. One call is the unit between which the host logs, checkpoints and checks for
   signals. `metrics` holds `steps` (env steps taken, autoreset steps excluded), `finite` (bool), `finished`,
   `episode_return`, `episode_length` (arrays [T, N]) and `episode_info` (dict of [T, N]), plus one scalar per name
   in `metric_names`. Several seeds train together by `jax.vmap` over this function (canter.training.seedgroup), so it
-  must stay pure JAX and must not read `config.run.seed` (the seed belongs in `init_state`).
+  must stay pure JAX and must not read `config.run.seed` either.
 - `metric_names`: the algorithm's diagnostics, written as metrics.csv columns in this order.
 - `make_act(config, spec)` returns `act(policy_params, obs_stats, raw_obs, key, deterministic) -> action`, clipped
   to the action bounds; `policy_params(state)` picks what it needs out of the train state.

@@ -27,10 +27,10 @@ class StateSize:
 
 
 def field_bytes(algorithm: Algorithm, config: Config, spec: Any) -> dict[str, int]:
-    """The bytes of each field of the train state that `algorithm.init_state(config, spec)` would build."""
+    """The bytes of each field of the train state that `algorithm.init_state(config, spec, seed)` would build."""
     import jax
 
-    shapes = jax.eval_shape(lambda: algorithm.init_state(config, spec))
+    shapes = jax.eval_shape(lambda: algorithm.init_state(config, spec, config.run.seed))
     return {
         name: sum(math.prod(leaf.shape) * leaf.dtype.itemsize for leaf in jax.tree.leaves(value))
         for name, value in shapes._asdict().items()

@@ -18,6 +18,17 @@ from canter.training import device_memory
 from canter.training.seed_run import SeedRun
 
 
+def initial_state_program(algorithm: Any, config: Config, spec: Any) -> Callable[[int], Any]:
+    """`initial_state(seed)`: the train state that a new run of `config` starts from with run seed `seed`, built by
+    one compiled program. Built eagerly, each of the initializers' few dozen small operations compiles on its own
+    (about 2 s of every start); the seed is the program's argument, so that the seeds of a group share its compile.
+    The state is the eager one, bit for bit."""
+    import jax
+
+    program = jax.jit(lambda seed: algorithm.init_state(config, spec, seed))
+    return lambda seed: program(np.uint32(seed))
+
+
 @contextmanager
 def fewer_envs_when_out_of_device_memory(envs: int) -> Iterator[None]:
     """The device running out of memory, reported as what the user can change: env.num_envs."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from os import PathLike
 from pathlib import Path
@@ -29,7 +29,12 @@ from canter.run_layout import (
 from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
 from canter.training.evaluation import evaluation_backend
-from canter.training.group_program import Chunk, GroupProgram, fewer_envs_when_out_of_device_memory
+from canter.training.group_program import (
+    Chunk,
+    GroupProgram,
+    fewer_envs_when_out_of_device_memory,
+    initial_state_program,
+)
 from canter.training.progress import Progress
 from canter.training.resume import (
     Saved,
@@ -234,8 +239,10 @@ def _train_checked(
             # Each checkpoint of a JAX env also holds its envs' state, the episodes in flight.
             jax_env = isinstance(env, JaxVecEnv)
             carry_bytes = disk_room.state_bytes(env.state_shapes()) // len(configs) if jax_env else 0
+            initial_state = initial_state_program(algorithm, configs[0], spec)
             states = [
-                _prepare_seed(config, start, algorithm, spec, carry_bytes) for config, start in zip(configs, starts)
+                _prepare_seed(config, start, initial_state, spec, algorithm, carry_bytes)
+                for config, start in zip(configs, starts)
             ]
             # The resumed states read from the checkpoints live on in `states` alone (a replay buffer twice over
             # for the whole run otherwise).
@@ -315,10 +322,12 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
         ) from None
 
 
-def _prepare_seed(config: Config, start: SeedStart, algorithm: Any, spec: Any, carry_bytes: int) -> Any:
+def _prepare_seed(
+    config: Config, start: SeedStart, initial_state: Callable[[int], Any], spec: Any, algorithm: Any, carry_bytes: int
+) -> Any:
     """Migrate a resumed seed's run folder (a new one was made as it was locked), and return the state it trains
-    from."""
-    state = start.state if start.state is not None else algorithm.init_state(config, spec)
+    from: its checkpoint's, or `initial_state(seed)`."""
+    state = start.state if start.state is not None else initial_state(config.run.seed)
     start.run_dir.mkdir(parents=True, exist_ok=True)
     if start.restarted:
         start_over(start.run_dir)

@@ -70,6 +70,6 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     # (seconds, and a replay buffer's worth of memory) just to be overwritten.
     import jax
 
-    template = jax.eval_shape(lambda: get_algorithm(config.run.algo).init_state(config, facts))
+    template = jax.eval_shape(lambda: get_algorithm(config.run.algo).init_state(config, facts, config.run.seed))
     state = checkpoint.restore(template, arrays, path, left_out=header.get("left_out", ()))
     return config, facts, state, header

@@ -76,8 +76,11 @@ def vector_steps_per_call(config: Config, learner: OffPolicyLearner) -> int:
     return vector_steps(learner.cfg.steps_per_call, config.env.num_envs)
 
 
-def init_train_state(config: Config, learner: OffPolicyLearner, obs_dim: int, act_dim: int) -> OffPolicyState:
-    key, init_key = jax.random.split(jax.random.key(config.run.seed))
+def init_train_state(
+    config: Config, learner: OffPolicyLearner, obs_dim: int, act_dim: int, seed: Any
+) -> OffPolicyState:
+    """The state of run seed `seed` (a Python int or a uint32 scalar, traced or not: the same state either way)."""
+    key, init_key = jax.random.split(jax.random.key(seed))
     return OffPolicyState(
         learner=learner.init(init_key, obs_dim, act_dim),
         buffer=init_buffer(learner.cfg.buffer_size, obs_dim, act_dim),

@@ -22,8 +22,8 @@ def offpolicy_algorithm(
 ) -> Algorithm:
     """The `Algorithm` record of the algorithm whose learner `make_learner(config, spec)` builds."""
 
-    def init_state(config: Config, spec: Any) -> Any:
-        return init_train_state(config, make_learner(config, spec), spec.obs_dim, spec.act_dim)
+    def init_state(config: Config, spec: Any, seed: Any) -> Any:
+        return init_train_state(config, make_learner(config, spec), spec.obs_dim, spec.act_dim, seed)
 
     def iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:
         return make_iteration(config, make_learner(config, spec), spec, env_step)

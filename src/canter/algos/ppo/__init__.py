@@ -32,10 +32,10 @@ PPO_METRICS = (
 GAUSSIAN_SIZE_KEYS = (("params", "net.hidden"), ("opt_state", "net.hidden"))
 
 
-def _init_state(config: Config, spec: Any) -> Any:
+def _init_state(config: Config, spec: Any, seed: Any) -> Any:
     from canter.algos.ppo.iteration import init_train_state
 
-    return init_train_state(config, spec.obs_dim, spec.act_dim)
+    return init_train_state(config, spec.obs_dim, spec.act_dim, seed)
 
 
 def _make_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., Any]:

@@ -33,8 +33,9 @@ class TrainState(NamedTuple):
     kl_beta: Any = None  # the adaptive KL penalty weight; None (no leaf) unless ppo.objective = kl_penalty
 
 
-def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
-    key, init_key = jax.random.split(jax.random.key(config.run.seed))
+def init_train_state(config: Config, obs_dim: int, act_dim: int, seed: Any) -> TrainState:
+    """The state of run seed `seed` (a Python int or a uint32 scalar, traced or not: the same state either way)."""
+    key, init_key = jax.random.split(jax.random.key(seed))
     params = init_params(init_key, config.net, obs_dim, act_dim)
     return TrainState(
         params=params,

@@ -30,10 +30,10 @@ TRPO_METRICS = (
 )
 
 
-def _init_state(config: Config, spec: Any) -> Any:
+def _init_state(config: Config, spec: Any, seed: Any) -> Any:
     from canter.algos.trpo.iteration import init_train_state
 
-    return init_train_state(config, spec.obs_dim, spec.act_dim)
+    return init_train_state(config, spec.obs_dim, spec.act_dim, seed)
 
 
 def _nothing_to_check(config: Config, spec: Any) -> None:

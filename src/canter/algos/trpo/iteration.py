@@ -53,8 +53,9 @@ def critic_optimizer(config: Config) -> optax.GradientTransformation:
     return optax.adam(config.trpo.critic_lr)
 
 
-def init_train_state(config: Config, obs_dim: int, act_dim: int) -> TrainState:
-    key, init_key = jax.random.split(jax.random.key(config.run.seed))
+def init_train_state(config: Config, obs_dim: int, act_dim: int, seed: Any) -> TrainState:
+    """The state of run seed `seed` (a Python int or a uint32 scalar, traced or not: the same state either way)."""
+    key, init_key = jax.random.split(jax.random.key(seed))
     params = init_params(init_key, config.net, obs_dim, act_dim)
     return TrainState(
         params=params,
