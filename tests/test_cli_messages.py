@@ -310,7 +310,10 @@ def test_first_sentence_keeps_a_library_message_to_its_cause():
     [
         (["eval", "no\nsuch"], "run folder not found: no\\nsuch"),
         (["train", "Hop\nper-v5"], "unknown env id 'Hop\\nper-v5' for canter; did you mean "),
-        (["train", "Hopper-v5", "--set", "ppo.l\r\nr=1"], "unknown config key 'ppo.l\\r\\nr' in --set; did you mean "),
+        (
+            ["train", "Hopper-v5", "--set", "ppo.l\r\nr=1"],
+            "unknown config key 'ppo.l\\r\\nr' in --set (sets= from Python); did you mean ",
+        ),
     ],
 )
 def test_a_line_break_in_a_given_value_is_written_escaped_so_the_error_stays_one_line(argv, message, capsys):

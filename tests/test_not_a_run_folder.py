@@ -42,6 +42,19 @@ def test_every_checkpoint_form_on_a_folder_that_is_no_run_says_so(tmp_path, caps
         checkpoint.resolve(folder, kept if which == "file" else which)
 
 
+def test_a_run_s_checkpoints_folder_names_its_run_folder(tmp_path, capsys):
+    shutil.copytree(FIXTURE, tmp_path / "run")
+    given = tmp_path / "run" / "checkpoints"
+    for argv in _commands(given, tmp_path):
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1, (argv, err)
+        assert err == (
+            f"canter: error: {given} is a run's checkpoints/ folder, not the run folder; pass {tmp_path / 'run'}, "
+            "and --checkpoint FILE (checkpoint= from Python) to pick one of its checkpoints\n"
+        )
+
+
 def test_best_of_a_bench_folder_names_the_runs_inside(tmp_path, capsys):
     shutil.copytree(FIXTURE, tmp_path / "bench" / "ppo")
     code = main(["eval", str(tmp_path / "bench"), "--checkpoint", "best"])

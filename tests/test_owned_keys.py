@@ -42,6 +42,9 @@ def _tune_settings(tmp_path: Path, **kwargs) -> TuneSettings:
         ("run.eval_episodes=3", "run.eval_episodes is set by tune's --eval-episodes; leave out --set run.eval_ep"),
         ("run.out_dir=elsewhere", "run.out_dir is set by tune's --out-dir (each trial trains in its own folder"),
         ("run.tensorboard=true", "run.tensorboard is set by tune, as false"),
+        # tune passes these two to every trial's config as its own arguments, given or not (a seed of 0 by default)
+        ("run.seed=3", "run.seed is set by tune's --seed and --seeds-per-trial (every trial trains the same seeds); "),
+        ("run.total_steps=9", "run.total_steps is set by tune's --total-steps (every trial trains the same budget); "),
     ],
 )
 def test_tune_refuses_a_set_of_a_key_it_sets_in_every_trial(tmp_path, given, message):

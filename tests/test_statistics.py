@@ -2,6 +2,8 @@
 plot and report; the shipped random and reference scores."""
 
 import json
+import subprocess
+import sys
 import tomllib
 from importlib import resources
 
@@ -150,6 +152,14 @@ def test_random_returns_of_a_short_env(tmp_path):
         written["command"] == f"python -m canter.use.random_score InvertedPendulum-v4 --episodes 5 --seed 0 --out {out}"
     )
     assert written["env"]["InvertedPendulum-v4"]["mean"] == pytest.approx(returns.mean(), abs=1e-4)
+
+
+def test_the_random_score_command_refuses_an_unknown_env_in_one_line_of_its_own_name(tmp_path):
+    command = [sys.executable, "-m", "canter.use.random_score", "Nope-v1", "--out", str(tmp_path / "random.toml")]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("python -m canter.use.random_score: error: unknown env id 'Nope-v1'"), done.stderr
+    assert not (tmp_path / "random.toml").exists()
 
 
 @pytest.mark.parametrize("env_id", ["InvertedPendulum-v4", "InvertedPendulum-v5"])

@@ -58,7 +58,7 @@ def test_a_peer_name_is_suggested_before_keys_spelled_alike(capsys):
     """ppo.learning_rate was matched by spelling to the off-policy learning_starts keys."""
     line = _cli_error(["train", "Hopper-v5", "--set", "ppo.learning_rate=abc"], capsys)
     assert line == (
-        "canter: error: unknown config key 'ppo.learning_rate' in --set; did you mean ppo.lr? "
+        "canter: error: unknown config key 'ppo.learning_rate' in --set (sets= from Python); did you mean ppo.lr? "
         "(Stable-Baselines3's and CleanRL's learning_rate)"
     )
 

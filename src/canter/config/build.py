@@ -14,6 +14,7 @@ from canter.config.algorithms import (
     unread_key_error,
 )
 from canter.config.overrides import (
+    SET_SOURCE,
     apply_overrides,
     flatten_toml,
     load_toml,
@@ -162,7 +163,7 @@ def build_config(
         note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))
     from_file = config
-    config = apply_overrides(config, set_data, "--set")
+    config = apply_overrides(config, set_data, SET_SOURCE)
     if check_unread:
         for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
             if not reads_key(config.run.algo, key):

@@ -43,8 +43,10 @@ def unknown_key_error(key: str, source: str) -> CanterError:
     return CanterError(f"unknown config key '{key}' in {source}{hint}")
 
 
+# What --set values are called in a message: build_config takes them from the command line and from Python alike.
+SET_SOURCE = "--set (sets= from Python)"
 # Sources of overrides that the command line gives; any other is a file or a preset, which a bad value names.
-FROM_FLAGS = ("--set", "arguments")
+FROM_FLAGS = (SET_SOURCE, "arguments")
 
 
 def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> Config:
@@ -64,7 +66,7 @@ def apply_overrides(config: Config, overrides: dict[str, Any], source: str) -> C
     return config.replace(**{s: dataclasses.replace(config.section(s), **values) for s, values in sections.items()})
 
 
-def parse_set_args(items: Iterable[object], flag: str = "--set (sets= from Python)") -> dict[str, str]:
+def parse_set_args(items: Iterable[object], flag: str = SET_SOURCE) -> dict[str, str]:
     """`section.key=value` strings as a dict; `flag` is what the errors call them (eval's `--set` has no sets=)."""
     # A lone string would be read a character at a time, so `sets="ppo.clip=0.1"` would be refused for its "p".
     if isinstance(items, (str, bytes)):

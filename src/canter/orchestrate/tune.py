@@ -225,6 +225,10 @@ STUDY_KEYS = {
 }
 
 
+# The study keys that tune passes to every trial's config as arguments, over a --set of them.
+TRIAL_ARGUMENTS = ("run.seed", "run.total_steps")
+
+
 def fixed_keys(settings: TuneSettings) -> dict[str, str]:
     """The keys a search space cannot sample, each with what sets it instead."""
     return STUDY_KEYS | {key: what for key, (_, what) in owned_keys(settings, Path()).items()}
@@ -237,6 +241,8 @@ def check_owned_keys(settings: TuneSettings) -> None:
     for key in parse_set_args(list(settings.sets)):
         if key in owned:
             raise CanterError(f"{key} is set by {owned[key][1]}; leave out --set {key}")
+        if key in TRIAL_ARGUMENTS:
+            raise CanterError(f"{key} is set by {STUDY_KEYS[key]}; leave out --set {key}")
 
 
 def check_settings(settings: TuneSettings) -> tuple[Config, SearchSpace]:

@@ -355,6 +355,11 @@ def need_run_folder(run_dir: Path) -> None:
             f"damaged; restore its {CONFIG_FILE} and {CHECKPOINT_FOLDER}/ from a copy"
         )
     refuse_a_folder_of_runs(run_dir)
+    if run_dir.name == CHECKPOINT_FOLDER and run_files_in(run_dir.parent) & {CONFIG_FILE, CHECKPOINT_FOLDER}:
+        raise CanterError(
+            f"{run_dir} is a run's {CHECKPOINT_FOLDER}/ folder, not the run folder; pass {run_dir.parent}, and "
+            f"--checkpoint FILE (checkpoint= from Python) to pick one of its checkpoints"
+        )
     raise CanterError(f"{run_dir} has no {CONFIG_FILE} and no checkpoint; is it a canter run folder?")
 
 

@@ -123,5 +123,5 @@ if __name__ == "__main__":
     try:
         sys.exit(main())
     except CanterError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"python -m canter.use.random_score: error: {exc}", file=sys.stderr)  # as argparse's own errors
         sys.exit(2)
