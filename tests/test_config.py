@@ -97,7 +97,11 @@ def test_toml_round_trip_preserves_everything():
         (["run.tensorboard=maybe"], "run.tensorboard: expected true or false"),
         (["ppo.lr=0"], "ppo.lr must be > 0"),
         (["ppo.lr=-1e-4"], "ppo.lr must be > 0"),
-        (["ppo.minibatch_size=100"], "does not divide the batch"),
+        (
+            ["ppo.minibatch_size=100"],
+            "does not divide the batch 2048 (ppo.n_steps 128 x env.num_envs 16); pick a divisor",
+        ),
+        (["ppo.minibatch_size=100"], "pick a divisor, e.g. --set ppo.minibatch_size=64"),
         (["ppo.gamma=1.5"], "ppo.gamma must be in (0, 1]"),
         (["env.normalize_reward=false", "env.reward_scale=0"], "env.reward_scale must be a positive number, got 0"),
         (["env.normalize_reward=false", "env.reward_scale=inf"], "env.reward_scale must be a finite number, got inf"),

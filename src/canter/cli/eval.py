@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -57,8 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--out",
         default=None,
         metavar="PATH.png",
-        help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png (<param>.png without a name) "
-        "in each run",
+        help="--vary plot (JSON beside it); default RUN/robustness/<param>_<name>.png (<param>.png without a name; "
+        "<env>_<param>... with an --env other than the run's) in each run",
     )
     e.add_argument("--seed", type=seed_arg, default=0, help="seed of the evaluation envs (default 0)")
     e.set_defaults(func=run)
@@ -67,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.config.overrides import parse_set_args
     from canter.envs.registry import AUTO, single_env_backend
-    from canter.use.evaluate import check_eval_env, eval_physics, eval_target, parse_physics
+    from canter.use.evaluate import check_eval_ends, check_eval_env, eval_physics, eval_target, parse_physics
     from canter.use.policy import load
 
     if args.episodes < 1:
@@ -107,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
     for policy in policies:  # before any sweep is set up or any env is built
         check_eval_env(policy.facts, args.env, args.backend, varied=spec is not None)
+        check_eval_ends(policy, args.env, args.backend if spec is None else single_env_backend().name)
         if physics:
             eval_physics(policy, *eval_target(policy, args.env, args.backend), physics)
     if spec is not None:
@@ -247,6 +249,13 @@ def _labels(policies: list) -> list[str]:
     return [label if labels.count(label) == 1 else p.source.name for label, p in zip(labels, policies)]
 
 
+def _sweep_plot(policy: Any, spec: Any, env_id: str) -> Path:
+    """RUN/robustness/<sweep>.png; a sweep on another env than the run's own (--env) is named after that env too, so
+    that it does not replace the sweep of the run's own env."""
+    other = "" if env_id == policy.facts.env_id else re.sub(r"[^A-Za-z0-9_.-]+", "-", env_id) + "_"
+    return policy.source / "robustness" / f"{other}{spec.slug}.png"
+
+
 def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int:
     from canter.use.vary import check_spec, is_unstable, plot, sweep
 
@@ -255,7 +264,7 @@ def _vary(args: argparse.Namespace, spec: Any, policies: list, seed: int) -> int
         raise CanterError(f"--vary compares runs on one env, got {', '.join(sorted(env_ids))}; pass --env")
     env_id = env_ids.pop()
     original = check_spec(env_id, spec)  # bad names fail here, before any evaluation
-    outputs = [Path(args.out)] if args.out else [p.source / "robustness" / f"{spec.slug}.png" for p in policies]
+    outputs = [Path(args.out)] if args.out else [_sweep_plot(p, spec, env_id) for p in policies]
     for path in outputs:
         check_output_path(str(path), "--out", "robustness.png")
         check_writable(path)

@@ -130,12 +130,18 @@ def rollout_batch(config: Config) -> int:
     return int(config.ppo.n_steps * config.env.num_envs)
 
 
+def largest_divisor(batch: int, at_most: int) -> int:
+    """The largest minibatch size up to `at_most` that divides `batch`: what a refusal offers."""
+    return max(d for d in range(1, min(batch, at_most) + 1) if batch % d == 0)
+
+
 def _check_minibatch(config: Config) -> None:
     ppo, batch = config.ppo, rollout_batch(config)
     need(
         batch % ppo.minibatch_size == 0,
         f"ppo.minibatch_size {ppo.minibatch_size} does not divide the batch {batch} "
-        f"(ppo.n_steps {ppo.n_steps} x env.num_envs {config.env.num_envs}); pick a divisor",
+        f"(ppo.n_steps {ppo.n_steps} x env.num_envs {config.env.num_envs}); pick a divisor, e.g. "
+        f"--set ppo.minibatch_size={largest_divisor(batch, ppo.minibatch_size)}",
     )
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from canter.algos.ppo.sections import ROLLOUT_KEYS, rollout_batch
+from canter.algos.ppo.sections import ROLLOUT_KEYS, largest_divisor, rollout_batch
 from canter.config.algorithms import AlgorithmSpec, register_algorithm
 from canter.config.fields import setting
 from canter.config.schema import Config, register_section
@@ -53,12 +53,8 @@ def _check_critic_minibatch(config: Config) -> None:
         batch % trpo.critic_minibatch_size == 0,
         f"trpo.critic_minibatch_size {trpo.critic_minibatch_size} does not divide the batch {batch} "
         f"(ppo.n_steps {config.ppo.n_steps} x env.num_envs {config.env.num_envs}); pick a divisor, e.g. "
-        f"--set trpo.critic_minibatch_size={_largest_divisor(batch, trpo.critic_minibatch_size)}",
+        f"--set trpo.critic_minibatch_size={largest_divisor(batch, trpo.critic_minibatch_size)}",
     )
-
-
-def _largest_divisor(batch: int, at_most: int) -> int:
-    return max(d for d in range(1, min(batch, at_most) + 1) if batch % d == 0)
 
 
 register_section("trpo", TRPOConfig, check_trpo)
