@@ -177,11 +177,13 @@ def test_cli_vary_writes_table_json_and_plot(tiny_hopper_run, tmp_path, capsys):
     assert [p["scale"] for p in points] == [0.5, 1.5] and all(len(p["returns"]) == 2 for p in points)
     assert points[0]["return_mean"] == pytest.approx(np.mean(points[0]["returns"]))
     assert points[1]["value"] == pytest.approx(3 * points[0]["value"]) == pytest.approx(1.5 * report["original"])
-    # A sweep on another env is named after it, beside the sweep of the run's own env, which it leaves as it was.
-    code = main(["eval", str(run), "--env", "Hopper-v4", "--episodes", "1", "--vary", "body_mass:torso=0.5,1.5"])
+    # A sweep on another env is named after it, beside the sweep of the run's own env, which it leaves as it was (in
+    # a copy: the report tests read the shared run's sweeps).
+    copy = shutil.copytree(run, tmp_path / "copy")
+    code = main(["eval", str(copy), "--env", "Hopper-v4", "--episodes", "1", "--vary", "body_mass:torso=0.5,1.5"])
     assert code == 0, capsys.readouterr().err
-    assert json.loads((run / "robustness" / "Hopper-v4_body_mass_torso.json").read_text())["env"] == "Hopper-v4"
-    assert (run / "robustness" / "body_mass_torso.png").read_bytes() == png
+    assert json.loads((copy / "robustness" / "Hopper-v4_body_mass_torso.json").read_text())["env"] == "Hopper-v4"
+    assert (copy / "robustness" / "body_mass_torso.png").read_bytes() == png
     # Two runs (here one and its copy) on one plot, written where --out says.
     twin = shutil.copytree(run, tmp_path / "twin")
     code = main(

@@ -160,6 +160,11 @@ class Backend(Protocol):
         """(domain, task) of dm_control's suite that env_id runs, or None when it is not a DM Control env."""
         return None
 
+    def unlimited_episodes(self, env_id: str) -> bool:
+        """Whether env_id's episodes have no step limit (its spec's max_episode_steps is None), so that one may never
+        end; False where every env of the backend has one."""
+        return False
+
     def differs_from_single_envs(self, env_id: str) -> str | None:
         """How its env of `env_id` differs from the single-env backend's of the same id, which replays its runs
         (videos, robustness sweeps), or None where they step alike."""

@@ -12,7 +12,7 @@ import re
 import sys
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from canter.errors import CanterError
 
@@ -156,29 +156,59 @@ def resolve_backend(env_id: str, backend: str) -> str:
     return chosen.name
 
 
-def refuse_mujoco_py(env_id: str, backend_name: str) -> None:
-    """A one-line error for a mujoco-py version of a Gymnasium MuJoCo task that would run on a backend of
-    Gymnasium's own envs, naming the current versions (and a backend with its own port of this id, where one is
-    installed). Other ids return at once, without importing an env library."""
+class MujocoPyId(NamedTuple):
+    """A mujoco-py version of a Gymnasium MuJoCo task, on a backend of Gymnasium's own envs that cannot make it."""
+
+    problem: str  # Hopper-v3 is an old MuJoCo version that needs mujoco-py, which Gymnasium no longer runs
+    newer: str  # its current versions there: Hopper-v5 (or Hopper-v4)
+    ports: str  # the other installed backends with their own port of the id (envpool), or ""
+
+
+def mujoco_py_id(env_id: str, backend_name: str) -> MujocoPyId | None:
+    """What to say of env_id where it is a mujoco-py version of a Gymnasium MuJoCo task and backend_name (or what
+    `auto` picks) is a backend of Gymnasium's own envs, whose gym.make would fail with an ImportError about a missing
+    dependency that no install fixes; None otherwise. Other ids return at once, without importing an env library."""
     found = _MUJOCO_PY_ID.fullmatch(env_id)
     if found is None:
-        return
+        return None
     try:
         backend = get_backend(resolve_backend(env_id, backend_name))
     except CanterError:
-        return  # the trainer says why this id cannot run
+        return None  # the caller says why this id cannot run
     if not backend.single_envs:
-        return
+        return None
     ids = backend.supported_ids()
     newer = [f"{found.group(1)}-v{version}" for version in (5, 4) if f"{found.group(1)}-v{version}" in ids]
     instead = f"{newer[0]}{f' (or {newer[1]})' if len(newer) > 1 else ''}" if newer else "its v5 or v4 version"
     ports = [b.name for b in backends() if b is not backend and b.available() and env_id in b.supported_ids()]
+    problem = f"{env_id} is an old MuJoCo version that needs mujoco-py, which {backend.label} no longer runs"
+    return MujocoPyId(problem, instead, _or(ports) if ports else "")
+
+
+def refuse_mujoco_py(env_id: str, backend_name: str) -> None:
+    """A one-line error for a mujoco-py version of a Gymnasium MuJoCo task that would train on a backend of
+    Gymnasium's own envs (`mujoco_py_id`), naming the current versions (and a backend with its own port of this id,
+    where one is installed)."""
+    old = mujoco_py_id(env_id, backend_name)
+    if old is None:
+        return
     # Only a config reaches this check, so env.backend is the one Python name.
-    port = f", or pass --backend {_or(ports)} (env.backend from Python), which runs its own {env_id}" if ports else ""
-    raise CanterError(
-        f"{env_id} is an old MuJoCo version that needs mujoco-py, which {backend.label} no longer runs; train "
-        f"{instead} instead{port}"
+    port = (
+        f", or pass --backend {old.ports} (env.backend from Python), which runs its own {env_id}" if old.ports else ""
     )
+    raise CanterError(f"{old.problem}; train {old.newer} instead{port}")
+
+
+def refuse_mujoco_py_replay(env_id: str, plays: str, instead: str, elsewhere: str = "") -> None:
+    """The same error for a command that plays a trained run of env_id on the single-env backend (a video, a
+    robustness sweep), which cannot make it: `plays` says what plays there, `instead` what to do instead (`{newer}` in
+    it names the current versions) and `elsewhere`, added where another backend runs its own port of the id, what
+    still plays this run (`{ports}` in it names those backends)."""
+    old = mujoco_py_id(env_id, single_env_backend().name)
+    if old is None:
+        return
+    other = elsewhere.format(ports=old.ports) if old.ports else ""
+    raise CanterError(f"{old.problem}, and {plays} there; {instead.format(newer=old.newer)}{other}")
 
 
 def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None:

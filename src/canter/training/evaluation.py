@@ -127,6 +127,20 @@ def eval_env_count(backend: str, episodes: int) -> int:
     return min(episodes, MAX_JAX_EVAL_ENVS if get_backend(backend).jax_native else MAX_EVAL_ENVS)
 
 
+# How a user gives a Gymnasium env a step limit: canter's config has no key that sets one.
+STEP_LIMIT_FIX = "register it with max_episode_steps=N (gymnasium.register(..., max_episode_steps=N))"
+
+
+def check_episodes_end(env_id: str, backend: str, played: str = "an evaluation episode", instead: str = "") -> None:
+    """A one-line error, before any env is made, where env_id's episodes have no step limit on `backend` (a resolved
+    name): an evaluation plays whole episodes, and one that never ends would hang it. `played` names what would
+    play them; `instead` is another way out, after the registration's (", or ...")."""
+    from canter.envs.registry import get_backend
+
+    if get_backend(backend).unlimited_episodes(env_id):
+        raise CanterError(f"{env_id} has no episode step limit, so {played} may never end; {STEP_LIMIT_FIX}{instead}")
+
+
 def run_episodes(
     act: Callable[[np.ndarray], np.ndarray],
     env_id: str,
@@ -144,6 +158,7 @@ def run_episodes(
     from canter.envs.registry import MODEL_OWN_PHYSICS, make_vec_env, resolve_backend
 
     backend = resolve_backend(env_id, backend)
+    check_episodes_end(env_id, backend)
     physics = {key: value for key, value in (env_kwargs or {}).items() if key in MODEL_OWN_PHYSICS}
     num_envs = eval_env_count(backend, episodes)
     quota = np.full(num_envs, episodes // num_envs)

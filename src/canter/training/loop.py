@@ -28,7 +28,7 @@ from canter.run_layout import (
 )
 from canter.signals import StopFlag
 from canter.training import checkpoint, device_memory, disk_room, host_memory, run_folder, run_lock
-from canter.training.evaluation import evaluation_backend
+from canter.training.evaluation import check_episodes_end, evaluation_backend
 from canter.training.group_program import (
     Chunk,
     GroupProgram,
@@ -211,13 +211,21 @@ def _train_checked(
     from canter.algos import get_algorithm
     from canter.core.runtime import announce_physics, setup_jax
     from canter.envs import resolve_backend
-    from canter.envs.registry import note_replay
+    from canter.envs.registry import note_replay, refuse_mujoco_py_replay
 
     backend = resolve_backend(configs[0].env.id, configs[0].env.backend)
     setup_jax(backend, announce=False)
     for config in configs:
         validate(config)
     played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
+    if configs[0].run.video_every and all(resume is None for resume in resumes):  # a resume cannot change its config
+        refuse_mujoco_py_replay(  # the videos play on the single-env backend
+            configs[0].env.id,
+            "run.video_every renders its videos",
+            "drop --video-every (run.video_every), or train {newer} instead",
+        )
+    if configs[0].run.eval_every:
+        check_episodes_end(configs[0].env.id, played, instead=", or train without --eval-every (run.eval_every=0)")
     _check_resources(configs, backend)  # before a folder is made, and before the envs' seed lists are
     # The notes after the checks that refuse a run on its settings alone, so that such a refusal stays one line.
     announce_physics(backend)

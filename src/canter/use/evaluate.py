@@ -12,7 +12,7 @@ import numpy as np
 from canter.core.runtime import announce_physics
 from canter.core.seeding import EVAL, HELD_OUT, check_seed
 from canter.errors import CanterError
-from canter.training.evaluation import EvalResult, run_episodes
+from canter.training.evaluation import EvalResult, check_episodes_end, run_episodes
 from canter.training.restore import PolicyFacts
 from canter.use.policy import Policy
 
@@ -27,11 +27,13 @@ def seed_stream(policy: Policy) -> str:
 
 def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, varied: bool = False) -> None:
     """A policy trained on a backend whose envs observe in their own way (Brax) reads no other backend's
-    observations, so it evaluates on the env and backend it trained on only: a one-line error otherwise."""
+    observations, so it evaluates on the env and backend it trained on only: a one-line error otherwise. So is an
+    evaluation that would play a mujoco-py version of a MuJoCo task on Gymnasium, which no longer makes it."""
     from canter.envs.registry import get_backend
 
     trained_on = get_backend(facts.backend)
     if not trained_on.own_observations:
+        _refuse_mujoco_py(facts, env_id, backend, varied)
         return
     asked = [
         flag
@@ -47,6 +49,37 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
             f"{trained_on.label} observations differ from Gymnasium's, so {trained_on.name} runs evaluate on the "
             f"{trained_on.name} backend only, on the env they trained on ({facts.env_id}); drop {' and '.join(asked)}"
         )
+
+
+def _refuse_mujoco_py(facts: PolicyFacts, env_id: str | None, backend: str | None, varied: bool) -> None:
+    """The one-line error where the env played is a mujoco-py version (Hopper-v3) and the backend that plays it is
+    Gymnasium (a sweep's, or the one asked for or picked), which fails to make it; EnvPool runs its own port."""
+    from canter.envs.registry import AUTO, mujoco_py_id
+
+    played = env_id or facts.env_id
+    if varied:
+        refuse_mujoco_py_sweep(played)
+        return
+    old = mujoco_py_id(played, backend or (facts.backend if played == facts.env_id else AUTO))
+    if old is None:
+        return
+    if old.ports:
+        fix = f"pass --backend {old.ports} (backend= for evaluate), which runs its own {played}"
+    else:
+        fix = f"evaluate it on {old.newer} with --env (env_id= for evaluate)"
+    raise CanterError(f"{old.problem}; {fix}")
+
+
+def refuse_mujoco_py_sweep(env_id: str) -> None:
+    """A one-line error where env_id is a mujoco-py version, which the Gymnasium env that a sweep edits cannot make."""
+    from canter.envs.registry import refuse_mujoco_py_replay
+
+    refuse_mujoco_py_replay(
+        env_id,
+        "--vary sweeps its MuJoCo model",
+        "vary a run of {newer} instead",
+        " (canter eval without --vary scores this one on {ports})",
+    )
 
 
 def check_policy(policy: Any) -> None:
@@ -87,6 +120,19 @@ def eval_target(policy: Policy, env_id: str | None, backend: str | None) -> tupl
     for its own env and on `auto` for another."""
     env_id = env_id or policy.facts.env_id
     return env_id, backend or (policy.facts.backend if env_id == policy.facts.env_id else "auto")
+
+
+def check_eval_ends(policy: Policy, env_id: str | None, backend: str | None) -> None:
+    """`check_episodes_end` for the env that an evaluation of `policy` plays (`eval_target`), before any is played:
+    `canter eval` refuses all its runs at once. An env or backend that cannot play it is left to `evaluate`."""
+    from canter.envs.registry import resolve_backend
+
+    env_id, backend = eval_target(policy, env_id, backend)
+    try:
+        resolved = resolve_backend(env_id, backend)
+    except CanterError:
+        return
+    check_episodes_end(env_id, resolved)
 
 
 def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str, Any]) -> dict[str, Any]:

@@ -434,6 +434,13 @@ def build_report(
     # was asked for by name, so a run without it is refused as it is when the page plays it.
     needs_checkpoint = bool(episodes) or video or which != checkpoint.LAST
     facts = [run_facts(r, which if needs_checkpoint else None) for r in run_dirs]
+    if video:  # before the evaluation, which can take minutes
+        from canter.envs.registry import refuse_mujoco_py_replay
+
+        for f in facts:
+            refuse_mujoco_py_replay(
+                f.config.env.id, "report --video renders its video", "drop --video, or report a run of {newer}"
+            )
     runs = [load_run(f.run_dir) for f in facts]  # a folder the curves cannot be read from fails now, not later
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
     # The statistics use this report's evaluation where there is one, else each run's own final score.

@@ -188,6 +188,9 @@ def _make_gymnasium(env_id: str) -> Any:
             f"--vary needs the Gymnasium version of {env_id}, and Gymnasium has no such env "
             f"(DM Control and other EnvPool-only envs cannot be varied)"
         ) from None
+    from canter.use.evaluate import refuse_mujoco_py_sweep
+
+    refuse_mujoco_py_sweep(env_id)
     return backend.make_single(env_id)
 
 

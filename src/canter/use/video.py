@@ -92,7 +92,7 @@ def record_video(
     and the returns of the episodes finished before the stop (fewer than asked). With `stop`, a StopFlag that the
     caller has entered and delivers itself, its signal stops the render (one that came before the render started,
     too) and this returns as just said, leaving the signal to the caller."""
-    from canter.envs.registry import dm_control_task, note_replay, single_env_backend
+    from canter.envs.registry import dm_control_task, note_replay, refuse_mujoco_py_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
     from canter.training.restore import policy_facts
 
@@ -103,6 +103,14 @@ def record_video(
     newest = resolve(Path(run_dir), checkpoint)
     trained = policy_facts(read_header(newest), newest)
     if dm_control_task(trained.env_id) is None:  # here, not in a render subprocess, whose output is not shown
+        refuse_mujoco_py_replay(
+            trained.env_id,
+            "canter renders its videos",
+            "render a run of {newer} instead",
+            " (canter eval --backend {ports} scores this one)",
+        )
+        if not max_steps:
+            _check_episodes_end(trained.env_id)
         note_replay(trained.env_id, trained.backend, single_env_backend().name)
     if not headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
@@ -156,6 +164,19 @@ def record_video(
     if stop is None:
         flag.deliver()
     return returns
+
+
+def _check_episodes_end(env_id: str) -> None:
+    """A one-line error where the Gymnasium env that renders env_id has no step limit, so that an episode uncut by
+    max_steps may never end. An id it cannot make is left to the player, which says why."""
+    from canter.envs.registry import resolve_backend, single_env_backend
+    from canter.training.evaluation import check_episodes_end
+
+    try:
+        backend = resolve_backend(env_id, single_env_backend().name)
+    except CanterError:
+        return
+    check_episodes_end(env_id, backend, "a video episode", instead=", or cut episodes with --max-steps N (max_steps=)")
 
 
 def _stop_flag(stop: StopFlag | None) -> contextlib.AbstractContextManager[StopFlag]:

@@ -65,6 +65,16 @@ class GymnasiumBackend(Backend):
                 f"call gymnasium.register(id='{name}', ...) in it"
             )
 
+    def unlimited_episodes(self, env_id: str) -> bool:
+        """From the registered spec, without making an env (a `module:EnvId` id once its module is imported)."""
+        import gymnasium as gym
+
+        try:
+            spec = gym.spec(env_id.partition(":")[2] or env_id)
+        except gym.error.Error:  # not registered: making the env says so
+            return False
+        return spec.max_episode_steps is None
+
     def make(self, env_id: str, num_envs: int, seeds: list[int], shards: int = 0, **kwargs: Any) -> VecEnv:
         """`shards` does not apply: every env is its own Python object. `on_make(env)`, if given in kwargs, is called
         on each env before its first reset."""
