@@ -132,12 +132,17 @@ STEP_LIMIT_FIX = "register it with max_episode_steps=N (gymnasium.register(..., 
 
 
 def check_episodes_end(env_id: str, backend: str, played: str = "an evaluation episode", instead: str = "") -> None:
-    """A one-line error, before any env is made, where env_id's episodes have no step limit on `backend` (a resolved
-    name): an evaluation plays whole episodes, and one that never ends would hang it. `played` names what would
-    play them; `instead` is another way out, after the registration's (", or ...")."""
-    from canter.envs.registry import get_backend
+    """A one-line error, before any env is made, where env_id's episodes have no step limit on `backend` (or what
+    `auto` picks): an evaluation plays whole episodes, and one that never ends would hang it. `played` names what
+    would play them; `instead` is another way out, after the registration's (", or ..."). An env or backend that
+    cannot play it is left to where its env is made, which says why."""
+    from canter.envs.registry import get_backend, resolve_backend
 
-    if get_backend(backend).unlimited_episodes(env_id):
+    try:
+        resolved = resolve_backend(env_id, backend)
+    except CanterError:
+        return
+    if get_backend(resolved).unlimited_episodes(env_id):
         raise CanterError(f"{env_id} has no episode step limit, so {played} may never end; {STEP_LIMIT_FIX}{instead}")
 
 

@@ -124,15 +124,8 @@ def eval_target(policy: Policy, env_id: str | None, backend: str | None) -> tupl
 
 def check_eval_ends(policy: Policy, env_id: str | None, backend: str | None) -> None:
     """`check_episodes_end` for the env that an evaluation of `policy` plays (`eval_target`), before any is played:
-    `canter eval` refuses all its runs at once. An env or backend that cannot play it is left to `evaluate`."""
-    from canter.envs.registry import resolve_backend
-
-    env_id, backend = eval_target(policy, env_id, backend)
-    try:
-        resolved = resolve_backend(env_id, backend)
-    except CanterError:
-        return
-    check_episodes_end(env_id, resolved)
+    `canter eval` refuses all its runs at once."""
+    check_episodes_end(*eval_target(policy, env_id, backend))
 
 
 def eval_physics(policy: Policy, env_id: str, backend: str, changes: Mapping[str, Any]) -> dict[str, Any]:

@@ -94,6 +94,7 @@ def record_video(
     too) and this returns as just said, leaving the signal to the caller."""
     from canter.envs.registry import dm_control_task, note_replay, refuse_mujoco_py_replay, single_env_backend
     from canter.training.checkpoint import read_header, resolve
+    from canter.training.evaluation import check_episodes_end
     from canter.training.restore import policy_facts
 
     if not str(out_path).strip():  # Path("") is ".", which the suffix check would name instead
@@ -110,7 +111,12 @@ def record_video(
             " (canter eval --backend {ports} scores this one)",
         )
         if not max_steps:
-            _check_episodes_end(trained.env_id)
+            check_episodes_end(
+                trained.env_id,
+                single_env_backend().name,
+                "a video episode",
+                instead=", or cut episodes with --max-steps N (max_steps=)",
+            )
         note_replay(trained.env_id, trained.backend, single_env_backend().name)
     if not headless_in_this_process():
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
@@ -164,19 +170,6 @@ def record_video(
     if stop is None:
         flag.deliver()
     return returns
-
-
-def _check_episodes_end(env_id: str) -> None:
-    """A one-line error where the Gymnasium env that renders env_id has no step limit, so that an episode uncut by
-    max_steps may never end. An id it cannot make is left to the player, which says why."""
-    from canter.envs.registry import resolve_backend, single_env_backend
-    from canter.training.evaluation import check_episodes_end
-
-    try:
-        backend = resolve_backend(env_id, single_env_backend().name)
-    except CanterError:
-        return
-    check_episodes_end(env_id, backend, "a video episode", instead=", or cut episodes with --max-steps N (max_steps=)")
 
 
 def _stop_flag(stop: StopFlag | None) -> contextlib.AbstractContextManager[StopFlag]:
