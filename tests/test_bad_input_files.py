@@ -17,7 +17,7 @@ import pytest
 from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError
-from conftest import ARCHIVED_RUN
+from conftest import ARCHIVED_RUN, error_line
 
 
 def one_line(capsys, argv, expected):
@@ -232,19 +232,18 @@ def test_an_algorithm_declares_its_warm_up_exactly_when_its_section_has_learning
         assert spec.warm_up_key == (f"{having[0]}.learning_starts" if having else None), name
 
 
-def test_train_prints_the_warm_up_note_before_it_trains(monkeypatch, capsys, tmp_path):
-    from canter.training import loop
-
-    class Trained(Exception):
-        pass
-
-    def stand_in(config, quiet):
-        raise Trained(config.run.algo)
-
-    monkeypatch.setattr(loop, "train", stand_in)
-    with pytest.raises(Trained, match="td3"):
-        main(["train", "Pendulum-v1", "--algo", "td3", "--total-steps", "200", "--out-dir", str(tmp_path)])
-    assert "canter: note: td3 acts at random for its first td3.learning_starts=" in capsys.readouterr().err
+@pytest.mark.slow
+def test_the_warm_up_note_comes_once_the_run_is_accepted_and_never_before_a_refusal(capsys, tmp_path):
+    out = ["--out-dir", str(tmp_path), "--quiet"]
+    refused = error_line(capsys, ["train", "CartPole-v1", "--algo", "td3", "--total-steps", "200", *out])
+    assert refused.startswith("td3 is continuous-only, but CartPole-v1 has discrete actions"), refused
+    tiny = ["--set", "td3.hidden=16,16", "--set", "run.tensorboard=false"]
+    assert main(["train", "Pendulum-v1", "--algo", "td3", "--total-steps", "200", *tiny, *out]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "acts at random" in line]
+    assert notes == [
+        "canter: note: td3 acts at random for its first td3.learning_starts=25,000 steps and updates nothing before "
+        "them, so this 200-step run will not learn; give a larger --total-steps or --set td3.learning_starts=N"
+    ]
 
 
 def test_a_budget_far_from_whole_iterations_is_noted():

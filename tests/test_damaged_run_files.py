@@ -77,7 +77,7 @@ def test_an_unreadable_episode_count_counts_as_none(archived_run):
     assert totals == [sum(plain[: i + 1]) for i in range(len(rows))]
 
 
-@pytest.mark.parametrize("value", ['"x"', "null", "0", "-1"])
+@pytest.mark.parametrize("value", ['"x"', "null", "0", "-1", "true", "2.5", '"2"', "1.0"])
 def test_a_run_format_that_is_not_a_number_is_one_line(archived_run, value):
     (archived_run / "versions.json").write_text(f'{{"run_format": {value}}}')
     with pytest.raises(CanterError, match=r"versions.json has run_format .* not a whole number from 1; restore it"):

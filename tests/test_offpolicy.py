@@ -542,6 +542,23 @@ def test_cli_refusal_is_one_line(capsys):
     assert err.count("\n") == 1 and "td3.buffer_size 10 is smaller than td3.batch_size 256" in err
 
 
+@pytest.mark.parametrize("algo", ["td3", "ddpg", "sac"])
+@pytest.mark.parametrize("low, high", [((-np.inf,), (np.inf,)), ((-1.0,), (np.inf,)), ((0.5,), (0.5,))])
+def test_an_action_box_without_finite_width_is_refused_with_the_algorithms_that_train_it(algo, low, high):
+    from canter.algos import get_algorithm
+    from canter.envs.base import EnvSpec
+
+    spec = EnvSpec("my:Env-v0", "gymnasium", 1, 3, 1, low, high, 10, ())
+    config = build_config("Pendulum-v1", algo=algo)
+    with pytest.raises(CanterError) as refused:
+        get_algorithm(algo).validate(config, spec)
+    assert str(refused.value) == (
+        f"{algo} needs finite action bounds (it squashes actions with tanh); my:Env-v0 has low={list(low)} "
+        f"high={list(high)}; give the env a finite action box with high > low, or train it with --algo ppo, rpo or "
+        f"trpo, whose Gaussian policies need no bounds"
+    )
+
+
 def test_presets_give_off_policy_runs_one_env_and_raw_observations():
     for preset in ("fast", "cleanrl"):
         for algo in ("td3", "ddpg", "sac"):

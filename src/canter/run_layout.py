@@ -153,20 +153,17 @@ def read_versions(run_dir: Path) -> dict[str, Any]:
 def run_format(run_dir: Path) -> int:
     """The folder's format version (1 when versions.json does not name one)."""
     value = read_versions(run_dir).get("run_format", 1)
-    try:
-        found = int(value)
-        if found < 1:
-            raise ValueError
-    except (TypeError, ValueError):
+    # JSON's true, 2.5 and "2" would pass int(): only a JSON whole number is a format that canter wrote.
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise CanterError(
             f"{Path(run_dir) / VERSIONS_FILE} has run_format {value!r}, not a whole number from 1; restore it (1 "
             f"for a folder without one)"
-        ) from None
-    if found > RUN_FORMAT:
-        raise CanterError(
-            f"{run_dir} has run-folder format {found}, this canter reads up to {RUN_FORMAT}; use a newer canter"
         )
-    return found
+    if value > RUN_FORMAT:
+        raise CanterError(
+            f"{run_dir} has run-folder format {value}, this canter reads up to {RUN_FORMAT}; use a newer canter"
+        )
+    return value
 
 
 def holds_every_section(config_file: str | Path) -> bool:

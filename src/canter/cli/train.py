@@ -191,11 +191,8 @@ def _train_new(args: argparse.Namespace) -> list[Any]:
         for flag in (flag for flag, present in given.items() if present):
             raise CanterError(f"{flag} sets {_EVALUATION_SETTINGS[flag]} during training; also pass --eval-every N")
     _check_the_renderer(bool(config.run.video_every))
-    from canter.config.algorithms import warm_up_note
     from canter.training.loop import train, train_seeds
 
-    if (note := warm_up_note(config)) is not None:
-        print(f"canter: note: {note}", file=sys.stderr)
     if args.seeds is None:
         return [train(config, quiet=args.quiet)]
     if len(args.seeds) > 1 and seeds_train_apart(config.run.algo):

@@ -14,7 +14,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from canter.config.algorithms import budget_rounding_note, slow_call_note
+from canter.config.algorithms import budget_rounding_note, slow_call_note, warm_up_note
 from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.core.seeding import check_seed
@@ -457,8 +457,9 @@ def _open_seeds(
         else:
             compile_seconds = program.compile(runs)
             # After every check that can refuse the run, so that a refusal stays one line.
-            if (note := budget_rounding_note(configs[0])) is not None:
-                print(f"canter: note: {note}", file=sys.stderr)
+            for note in (warm_up_note(configs[0]), budget_rounding_note(configs[0])):
+                if note is not None:
+                    print(f"canter: note: {note}", file=sys.stderr)
         for config, start in zip(configs, starts):
             if start.resumed:  # its new budget, which a later resume of the run goes on to
                 run_folder.write_config(start.run_dir, config)

@@ -87,5 +87,6 @@ def _validate_bounded_actions(name: str, spec: EnvSpec) -> None:
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
         raise CanterError(
             f"{name} needs finite action bounds (it squashes actions with tanh); "
-            f"{spec.id} has low={low.tolist()} high={high.tolist()}"
+            f"{spec.id} has low={low.tolist()} high={high.tolist()}; give the env a finite action box with high > "
+            f"low, or train it with --algo ppo, rpo or trpo, whose Gaussian policies need no bounds"
         )
