@@ -10,7 +10,7 @@ import pytest
 from canter.cli.main import main
 from canter.config.build import build_config
 from canter.errors import CanterError, first_sentence
-from conftest import error_line
+from conftest import ARCHIVED_RUN, error_line
 
 SEEDS_RANGE = "expected seeds from 0 to 4294967295, got '-1,2' (see --help)"
 
@@ -347,3 +347,49 @@ def test_an_error_line_escapes_control_characters_only():
     assert error_line(CanterError("a\nb\tc\u2028d")) == "canter: error: a\\nb\\tc\\u2028d"
     names = "runs/実験\u30001 فارسی\u200cها 👩\u200d💻 café"
     assert error_line(CanterError(names)) == f"canter: error: {names}"
+
+
+@pytest.mark.parametrize("episodes", ["0", "1"])
+@pytest.mark.parametrize("given", ["missing", "of another run"])
+def test_report_refuses_a_checkpoint_file_as_eval_does_with_or_without_evaluation(
+    given, episodes, archived_run, tmp_path, capsys
+):
+    """With --episodes 0 nothing loaded the file, so a page named a checkpoint that was not there or not the run's."""
+    other = sorted((ARCHIVED_RUN.parent / "sac" / "checkpoints").iterdir())[-1]
+    file = tmp_path / "missing.npz" if given == "missing" else other
+    report = ["report", str(archived_run), "--checkpoint", str(file), "--episodes", episodes, "--out", "r.html"]
+    assert error_line(capsys, report) == error_line(capsys, ["eval", str(archived_run), "--checkpoint", str(file)])
+    assert not Path("r.html").exists()
+
+
+def test_report_without_evaluation_takes_a_checkpoint_file_of_its_own_run(archived_run, tmp_path, capsys):
+    kept = tmp_path / "kept.npz"  # one of its own, moved out of checkpoints/
+    shutil.copy(sorted((archived_run / "checkpoints").glob("ckpt_*.npz"))[0], kept)
+    argv = ["report", str(archived_run), "--checkpoint", str(kept), "--episodes", "0", "--out", "r.html"]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert Path("r.html").is_file()
+
+
+def test_best_missing_from_a_run_that_evaluates_during_training_is_not_said_never_to_have_evaluated(
+    archived_run, capsys
+):
+    config = archived_run / "config.toml"
+    config.write_text(config.read_text().replace("[run]\n", "[run]\neval_every = 512\n", 1))
+    assert error_line(capsys, ["eval", str(archived_run), "--checkpoint", "best"]) == (
+        f"{archived_run} has no best checkpoint: {archived_run / 'checkpoints' / 'best.npz'} is missing, though the "
+        f"run evaluates during training (run.eval_every): deleted, or the run stopped before its first evaluation; "
+        f"drop --checkpoint best to use the last checkpoint (checkpoint='last' from Python), or pass a checkpoint file"
+    )
+
+
+def test_an_archive_without_its_checkpoints_but_with_its_best_points_to_it(archived_run, capsys):
+    folder = archived_run / "checkpoints"
+    shutil.copy(sorted(folder.glob("ckpt_*.npz"))[-1], folder / "best.npz")
+    for path in folder.glob("ckpt_*.npz"):
+        path.unlink()
+    assert error_line(capsys, ["eval", str(archived_run)]) == (
+        f"{archived_run} holds a finished run without its checkpoints (an archive?): it has no policy to load or "
+        f"train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it again; eval, "
+        f"video, export and report can take --checkpoint best (checkpoint='best' from Python) instead"
+    )
+    assert main(["eval", str(archived_run), "--checkpoint", "best", "--episodes", "1"]) == 0, capsys.readouterr().err

@@ -26,6 +26,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from canter.config.schema import Config
+from canter.config.serialize import from_toml_text
 from canter.errors import CanterError, new_run, resume_run, with_python
 from canter.files import atomic_write_bytes
 from canter.run_layout import (
@@ -39,7 +41,13 @@ from canter.run_layout import (
     run_files_in,
     run_format,
 )
-from canter.training.run_folder import checkpoint_dir, list_checkpoints, read_config
+from canter.training.run_folder import (
+    check_given_checkpoint,
+    check_own_checkpoint,
+    checkpoint_dir,
+    list_checkpoints,
+    read_config,
+)
 
 FORMAT_VERSION = 1
 # A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
@@ -380,9 +388,11 @@ def latest(run_dir: Path) -> Path:
     found = list_checkpoints(run_dir)
     _note_foreign_files(run_dir)
     if not found and finished_without_checkpoints(run_dir):
+        # A best.npz kept with the archive is still a policy to play, though none to train on.
+        best = f"; {_best_instead(not _config_fault(run_dir, new=False))}" if _sound_header(best_path(run_dir)) else ""
         raise CanterError(
             f"{run_dir} holds a finished run without its checkpoints (an archive?): it has no policy to load or "
-            f"train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it again"
+            f"train on; plot reads its metrics, as report does with --episodes 0, and a new run trains it again{best}"
         )
     if not found and (fault := _config_fault(run_dir, new=False)):  # no resume can start it again
         best = f"; {_best_instead(False)}" if _sound_header(best_path(run_dir)) else ""
@@ -467,12 +477,49 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     path = best_path(run_dir)
     if path.exists() or path.is_symlink():
         _refuse_not_a_file(path)  # a folder or a broken link with its name is no sign that the run never evaluated
+    if not path.is_file() and _evaluates_during_training(run_dir):
+        raise CanterError(
+            f"{run_dir} has no best checkpoint: {path} is missing, though the run evaluates during training "
+            f"(run.eval_every): deleted, or the run stopped before its first evaluation; {_LAST_INSTEAD_OF_BEST}, "
+            f"or pass a checkpoint file"
+        )
     if not path.is_file():
         raise CanterError(
             f"{run_dir} has no best checkpoint: it never evaluated during training (train with --eval-every N, "
             f"run.eval_every); use the last checkpoint (--checkpoint last, checkpoint='last') or a checkpoint file"
         )
     return path
+
+
+_LAST_INSTEAD_OF_BEST = with_python(f"drop --checkpoint {BEST} to use the last checkpoint", f"checkpoint={LAST!r}")
+
+
+def _evaluates_during_training(run_dir: Path) -> bool:
+    """Whether the run's config.toml sets run.eval_every, so that a missing best.npz is no sign that it never
+    evaluated; False where config.toml does not read (nothing then says that it did)."""
+    try:
+        return read_config(run_dir).run.eval_every > 0
+    except (CanterError, OSError):
+        return False
+
+
+def resolve_own(run_dir: Path, which: str | Path = LAST) -> Path:
+    """`resolve`, then the checkpoint's header read and matched to the run folder as loading it does: a missing
+    file, or one of another run, is refused where nothing loads it (a report without an evaluation), as results
+    would be labelled with a run that never made them."""
+    path = resolve(run_dir, which)
+    header = read_header(path)
+    check_of_run(Path(run_dir), from_toml_text(config_text(header, path), str(path)), path)
+    return path
+
+
+def check_of_run(run_dir: Path, config: Config, path: Path) -> None:
+    """A checkpoint in the run folder's checkpoints/ must be the run's own; a file given from elsewhere must be one
+    of that run's, kept there."""
+    if path.resolve().parent == checkpoint_dir(run_dir).resolve():
+        check_own_checkpoint(run_dir, config, path)
+    else:
+        check_given_checkpoint(run_dir, config, path)
 
 
 def prune(run_dir: Path, keep: int) -> None:

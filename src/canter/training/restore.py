@@ -10,7 +10,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text
-from canter.training import checkpoint, run_folder
+from canter.training import checkpoint
 
 
 @dataclass(frozen=True)
@@ -60,10 +60,7 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(checkpoint.config_text(header, path), str(path))
-    if path.resolve().parent == run_folder.checkpoint_dir(run_dir).resolve():  # one of the folder's own
-        run_folder.check_own_checkpoint(run_dir, config, path)
-    else:
-        run_folder.check_given_checkpoint(run_dir, config, path)
+    checkpoint.check_of_run(run_dir, config, path)
     facts = policy_facts(header, path)
     setup_jax(facts.backend, announce=False)  # the precision it trained in; where it plays, says its player
     # Only the state's structure, shapes and dtypes: building a real one would compile and run its initializers

@@ -68,7 +68,9 @@ def run_facts(run_dir: str | Path, which: str | None = checkpoint.LAST) -> RunFa
 
     run_dir = Path(run_dir)
     if which is not None:
-        checkpoint.resolve(run_dir, which)  # refuses folders without that checkpoint before any work is done
+        # Refuses a folder without that checkpoint, or a file of another run, before any work is done: with
+        # --episodes 0 nothing loads it later, yet the page names it.
+        checkpoint.resolve_own(run_dir, which)
     else:
         checkpoint.need_run_folder(run_dir)  # a missing folder, or a bench's, told as such
     config = read_config(run_dir)
