@@ -109,6 +109,13 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
         (["--grid", "run.seed=1,2"], "use --seeds"),
         (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
+        (["--grid", "ppo.clip=0.2,0.20"], "canter: error: --grid ppo.clip repeats 0.2; give each value once"),
+        # A tuple typed with commas is split into one value per entry: the line says so, and how tuples are written.
+        (
+            ["--grid", "net.hidden=16-16,16,16"],
+            "canter: error: --grid net.hidden repeats 16: 16-16,16,16 is 3 values, as values are separated by commas "
+            "and a tuple's entries by '-'; write tuples as --grid net.hidden=16-16,32-32",
+        ),
         (["--seeds", "0,x"], "expected whole numbers separated by commas"),
         (["--seeds", "1,2,1"], "each seed may appear once"),
         (["--seeds", "0,-1"], "expected seeds from 0 to 4294967295"),

@@ -421,6 +421,26 @@ def test_grouping_and_labels():
     assert experiment_labels([fast, td3]) == ["algo=ppo", "algo=td3"]
 
 
+def test_method_labels_name_only_keys_the_method_reads():
+    ppo = build_config("Hopper-v5", preset="fast")
+    sac = build_config("Hopper-v5", preset="fast", algo="sac")
+    # The algorithm tells them apart; neither row lists the other's keys as `=none`.
+    assert method_labels([ppo, sac]) == ["algo=ppo", "algo=sac"]
+    # Settings that another algorithm's method does not share (budget, env count) are not named either.
+    small = apply_overrides(ppo, {"ppo.minibatch_size": 128, "env.num_envs": 4, "run.total_steps": 1024}, "test")
+    td3 = build_config("Hopper-v5", preset="fast", algo="td3")
+    assert method_labels([small, sac, td3]) == ["algo=ppo", "algo=sac", "algo=td3"]
+
+
+def test_method_labels_name_the_keys_methods_of_one_algorithm_differ_in():
+    ppo = build_config("Hopper-v5", preset="fast")
+    wide = apply_overrides(ppo, {"net.hidden": (16, 16)}, "test")
+    assert method_labels([ppo, wide]) == ["net.hidden=64,64", "net.hidden=16,16"]
+    # With another algorithm beside them, the algorithm is named too, and the sac row stays short.
+    sac = build_config("Hopper-v5", preset="fast", algo="sac")
+    assert method_labels([ppo, wide, sac]) == ["algo=ppo, net.hidden=64,64", "algo=ppo, net.hidden=16,16", "algo=sac"]
+
+
 def test_choose_metrics_defaults_and_globs():
     run = fake_run([0, 1], [0, 1])
     columns = dict(

@@ -4,6 +4,7 @@ its validated config) and its jobs (the seeds of a cell that one child process t
 from __future__ import annotations
 
 import itertools
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,7 @@ from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
 from canter.config.overrides import all_keys, unknown_key_error
 from canter.config.schema import Config, field_types
-from canter.config.values import coerce
+from canter.config.values import coerce, is_optional
 from canter.errors import CanterError
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.study import check_at_least
@@ -123,6 +124,24 @@ def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
     return key, items
 
 
+def is_tuple_type(tp: Any) -> bool:
+    return typing.get_origin(is_optional(tp)[1]) is tuple
+
+
+def repeated_values_error(key: str, raw: tuple[str, ...], values: list[str], tuple_valued: bool) -> str:
+    """The one-line refusal of a grid axis that names a value twice (`raw` as typed, `values` in `canonical` form).
+    A tuple key's repeat is most often a tuple typed with commas, which the grid split into one value per entry, so
+    that case shows the split and how tuples are written."""
+    repeats = ", ".join(v for v in dict.fromkeys(values) if values.count(v) > 1)
+    if not tuple_valued:
+        return f"--grid {key} repeats {repeats}; give each value once"
+    example = "16-16,32-32" if key.endswith("hidden") else "0-1,2-3"
+    return (
+        f"--grid {key} repeats {repeats}: {','.join(raw)} is {len(raw)} values, as values are separated by commas "
+        f"and a tuple's entries by '-'; write tuples as --grid {key}={example}"
+    )
+
+
 def make_cells(settings: BenchSettings) -> list[Cell]:
     """Every cell, each with its validated config; refuses an unknown algo, env, key or value before any work."""
     from canter.algos import check_algorithm_name
@@ -147,9 +166,10 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
         if key not in known:
             raise unknown_key_error(key, "--grid")
         section, _, name = key.partition(".")
-        values = [canonical(coerce(key, field_types(section)[name], v)) for v in raw]
+        tp = field_types(section)[name]
+        values = [canonical(coerce(key, tp, v)) for v in raw]
         if len(set(values)) != len(values):
-            raise CanterError(f"--grid {key} repeats a value")
+            raise CanterError(repeated_values_error(key, raw, values, is_tuple_type(tp)))
         axes.append((key, values))
     if not algos or not envs or not settings.seeds:
         raise CanterError("the bench needs at least one algorithm, one env and one seed")

@@ -94,24 +94,57 @@ def method_keys(configs: Sequence[Config]) -> list[tuple[tuple[str, Any], ...]]:
 _PER_ENV = "preset's per env"
 
 
+def _headline(method: tuple) -> str:
+    return ", ".join(_show(k, v) for k, v in method[:2])  # its algorithm and preset (`method_keys` puts them first)
+
+
+def _method_values(configs: Sequence[Config], keys: Sequence[tuple]) -> dict[tuple, dict[str, Any]]:
+    """Each method's value of each key its runs read (`_PER_ENV` where its envs' values differ). A key its algorithm
+    does not read is left out rather than given None, so no label can claim another algorithm's key as `=none`."""
+    flats = [flat_config(c) for c in configs]
+    names = list(dict.fromkeys(name for method in keys for name, _ in method))
+    values: dict[tuple, dict[str, Any]] = {}
+    for method in dict.fromkeys(keys):
+        own = [f for f, k in zip(flats, keys) if k == method]
+        found = {}
+        for name in names:
+            read = [f[name] for f in own if name in f]
+            if read:
+                found[name] = read[0] if len({repr(v) for v in read}) == 1 and len(read) == len(own) else _PER_ENV
+        values[method] = found
+    return values
+
+
+def _telling_keys(values: dict[tuple, dict[str, Any]]) -> dict[tuple, list[str]]:
+    """The keys each method's label names: the algorithm where algorithms differ, and any key the method reads in
+    which a method of its algorithm differs from it (or does not read it). Comparing only within an algorithm keeps
+    a ppo row free of sac's keys and of the settings (budget, env count) that its algorithm already tells apart."""
+    missing = object()
+    telling = {}
+    for method, own in values.items():
+        peers = [v for v in values.values() if v is not own]
+        keys = []
+        for name, value in own.items():
+            rivals = peers if name == "run.algo" else [v for v in peers if v.get("run.algo") == own.get("run.algo")]
+            if any(repr(v.get(name, missing)) != repr(value) for v in rivals):
+                keys.append(name)
+        telling[method] = keys
+    return telling
+
+
 def method_labels(configs: Sequence[Config]) -> list[str]:
     """One label per config, equal for the configs of one method (`method_keys`), whose scores on several envs the
-    statistics aggregate. A label names the keys whose values tell the methods apart (the algorithm, the preset,
-    and the keys some method changed from its preset); a single method is labelled by its algorithm and preset."""
+    statistics aggregate. A label names the algorithm where algorithms differ, and the keys of its own in which
+    methods of one algorithm differ (the preset, the budget, the keys some method changed from its preset); a single
+    method is labelled by its algorithm and preset."""
     keys = method_keys(configs)
     methods = list(dict.fromkeys(keys))
     if len(methods) == 1:
-        return [", ".join(_show(k, v) for k, v in keys[0][:2])] * len(configs)
-    flats = [flat_config(c) for c in configs]
-
-    def value(method: tuple, key: str) -> Any:
-        seen = list(dict.fromkeys(repr(f.get(key)) for f, k in zip(flats, keys) if k == method))
-        return next(f.get(key) for f, k in zip(flats, keys) if k == method) if len(seen) == 1 else _PER_ENV
-
-    names = list(dict.fromkeys(name for method in methods for name, _ in method))
-    values = {m: {name: value(m, name) for name in names} for m in methods}
-    telling = [name for name in names if len({repr(values[m][name]) for m in methods}) > 1]
-    labels = {m: ", ".join(_show(name, values[m][name]) for name in telling) for m in methods}
+        return [_headline(keys[0])] * len(configs)
+    values = _method_values(configs, keys)
+    telling = _telling_keys(values)
+    # a method that differs from its peers only in keys it does not read is named by its algorithm and preset
+    labels = {m: ", ".join(_show(k, values[m][k]) for k in telling[m]) or _headline(m) for m in methods}
     if len(set(labels.values())) < len(methods):  # values that coincide across envs: name the changes themselves
         shared = set.intersection(*(set(m) for m in methods))
         labels = {m: ", ".join(_show(k, v) for k, v in [i for i in m if i not in shared] or m[:2]) for m in methods}
