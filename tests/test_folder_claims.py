@@ -30,10 +30,11 @@ def _listing(folder: Path) -> list[str]:
 
 
 def _tune_study(url: str, name: str, total_steps: int) -> None:
-    """A tune study in the storage at `url`, as a first tune command leaves it before its first trial."""
+    """A tune study in the storage at `url` with a finished trial, which other settings are refused."""
     settings = TuneSettings(env_id=ENV, total_steps=total_steps, storage_url=url, study_name=name)
     study = make_study(settings, open_storage(settings.storage))
     check_study_settings(study, study_settings(settings, *check_settings(settings)), Path("nowhere"))
+    study.add_trial(optuna.trial.create_trial(value=1.0))
 
 
 def _tune_without_trials(monkeypatch, argv: list[str]) -> int:

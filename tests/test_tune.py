@@ -588,6 +588,7 @@ def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders
     study = optuna.create_study(direction="maximize", study_name="s")
     check_study_settings(study, wanted, trials)  # a new study takes the settings
     check_study_settings(study, wanted, trials)  # and is resumed with the same ones
+    study.add_trial(optuna.trial.create_trial(value=1.0))  # a finished trial, which other settings would not match
 
     longer = replace(settings, total_steps=2048)
     with pytest.raises(CanterError) as refused:
@@ -608,6 +609,63 @@ def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders
     (trials / "trial_00000").mkdir(parents=True)
     with pytest.raises(CanterError, match=r"holds the trials of an earlier study that this database does not know"):
         check_study_settings(optuna.create_study(direction="maximize"), wanted, trials)
+
+
+def test_a_study_with_no_finished_trial_restarts_with_other_settings(tmp_path, capsys):
+    """A worker that gives up says to fix the cause and run again: with nothing finished, nothing compares, so the
+    fixed space or config replaces the study's settings, even where Optuna holds the old choices of a parameter."""
+    from canter.orchestrate.study import FAIL_REASON, RESTARTED, SETTINGS_ATTR
+    from canter.orchestrate.tune import check_study_settings
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    url, trials = f"sqlite:///{tmp_path / 'study.db'}", tmp_path / "trials"
+    study = optuna.create_study(storage=url, study_name="s", direction="maximize")
+    check_study_settings(study, {"--total-steps": "1024"}, trials)
+    failed = study.ask()
+    failed.suggest_categorical("trpo.critic_minibatch_size", [100])
+    failed.set_user_attr(FAIL_REASON, "invalid sample: 100 does not divide the batch 512")
+    study.tell(failed, state=optuna.trial.TrialState.FAIL)
+    study.enqueue_trial({"trpo.critic_minibatch_size": 100})  # a stopped trial queued again
+
+    study = check_study_settings(study, {"--total-steps": "2048"}, trials)
+    assert capsys.readouterr().err == (
+        "canter: note: study 's' had no finished trial, so it now runs with this command's settings\n"
+    )
+    reloaded = optuna.load_study(storage=url, study_name="s")
+    assert reloaded.user_attrs[SETTINGS_ATTR] == {"--total-steps": "2048"}
+    kept = reloaded.get_trials()
+    assert [(t.number, t.state, t.params) for t in kept] == [(n, optuna.trial.TrialState.FAIL, {}) for n in (0, 1)]
+    assert [t.user_attrs[FAIL_REASON] for t in kept] == ["invalid sample: 100 does not divide the batch 512", RESTARTED]
+    trial = study.ask()  # the new choices, which Optuna would refuse beside the old ones
+    assert trial.number == 2 and trial.suggest_categorical("trpo.critic_minibatch_size", [128]) == 128
+    study.tell(trial, 1.0)
+
+    with pytest.raises(CanterError, match=r"was run with --total-steps 2048, but this command gives 1024"):
+        check_study_settings(study, {"--total-steps": "1024"}, trials)
+
+
+def test_a_study_whose_trial_runs_keeps_its_settings(tmp_path):
+    """Another worker's running trial trains under the recorded settings: they stay until it ends."""
+    from canter.orchestrate.tune import check_study_settings
+
+    study = optuna.create_study(study_name="s", direction="maximize")
+    check_study_settings(study, {"--total-steps": "1024"}, tmp_path / "trials")
+    study.ask()
+    with pytest.raises(CanterError, match=r"was run with --total-steps 1024, but this command gives 2048"):
+        check_study_settings(study, {"--total-steps": "2048"}, tmp_path / "trials")
+
+
+def test_an_invalid_sample_names_the_space_entry_to_change_not_a_set_of_a_sampled_key():
+    from canter.orchestrate.tune import space_hint
+
+    space = parse_space({"trpo": {"critic_minibatch_size": {"choices": [100]}}}, "sp.toml")
+    refused = "trpo.critic_minibatch_size 100 does not divide the batch 512; pick a divisor, e.g. --set {}=64"
+    assert space_hint(refused.format("trpo.critic_minibatch_size"), space) == (
+        "trpo.critic_minibatch_size 100 does not divide the batch 512; pick a divisor, e.g. 64 in the search "
+        "space's [trpo.critic_minibatch_size]"
+    )
+    # A key the space does not sample is for --set to fix.
+    assert space_hint(refused.format("ppo.minibatch_size"), space) == refused.format("ppo.minibatch_size")
 
 
 def test_a_trial_trains_its_whole_budget_whatever_the_base_config_stops_at(tmp_path):

@@ -34,8 +34,10 @@ from canter.signals import StopFlag
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
 INTERRUPTED = "interrupted"
-# A stop or a surplus is no fault of the trial's parameters: such trials count toward no limit on failures.
-NO_FAULT = (INTERRUPTED, SURPLUS)
+# A queued trial dropped as its study restarted under other settings (`restart_study`): it would have run the old ones.
+RESTARTED = "restarted: queued under settings that a later command replaced"
+# A stop, a surplus or a restart is no fault of the trial's parameters: such trials count toward no limit on failures.
+NO_FAULT = (INTERRUPTED, SURPLUS, RESTARTED)
 # The trials of a copy's retry_history that a stop failed (system attr), which count toward no retry limit.
 STOPPED_ATTR = "canter_stopped"
 # The worker running a trial: host:pid, as messages show it, and which process exactly (`_worker_attrs`).
@@ -602,6 +604,39 @@ def _stop_interrupted(study: Any, trial: Any, target: int | None) -> None:
         return
     queue_copy(study, snapshot, max_retry=None, stopped=True)
     print(f"trial {trial.number} is queued again with its parameters; the same command trains it", flush=True)
+
+
+def restart_study(study: Any) -> Any:
+    """`study` made again under its name, with its attrs, for other settings: only a study with no finished or
+    running trial, which the caller checks. Optuna keeps each parameter's first distribution for the whole study and
+    refuses another (other choices, or a log range made linear), so the old trials come back as failed trials
+    without their parameters; they keep their numbers, which their trial folders bear, and their failure reasons."""
+    import optuna
+
+    storage, name = study._storage, study.study_name
+    trials = study.get_trials(deepcopy=True)
+    user_attrs, system_attrs = dict(study.user_attrs), storage.get_study_system_attrs(study._study_id)
+    optuna.delete_study(study_name=name, storage=storage)
+    fresh = optuna.create_study(
+        storage=storage, study_name=name, direction=study.direction, sampler=study.sampler, pruner=study.pruner
+    )
+    for key, value in user_attrs.items():
+        fresh.set_user_attr(key, value)
+    for key, value in system_attrs.items():
+        storage.set_study_system_attr(fresh._study_id, key, value)
+    fresh.add_trials([_without_params(trial) for trial in trials])
+    return fresh
+
+
+def _without_params(trial: Any) -> Any:
+    """A failed trial as `restart_study` keeps it; a queued one fails as RESTARTED, since it would run old settings."""
+    import optuna
+    from optuna.trial import TrialState
+
+    user_attrs = dict(trial.user_attrs)
+    if trial.state != TrialState.FAIL:
+        user_attrs[FAIL_REASON] = RESTARTED
+    return optuna.trial.create_trial(state=TrialState.FAIL, user_attrs=user_attrs, system_attrs=trial.system_attrs)
 
 
 def run_worker(

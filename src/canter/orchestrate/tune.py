@@ -58,6 +58,7 @@ from canter.orchestrate.study import (
     counts,
     open_storage,
     quiet_optuna,
+    restart_study,
     retrying,
     run_worker,
     study_storage,
@@ -344,6 +345,21 @@ def trial_track(settings: TuneSettings, number: int) -> TrackSpec:
     )
 
 
+_SET_HINT = re.compile(r"--set ([A-Za-z0-9_.]+)=([^\s;,)]+)")
+
+
+def space_hint(message: str, space: SearchSpace) -> str:
+    """`message` with each `--set KEY=VALUE` it offers, for a KEY that the space samples, turned into the space's
+    entry to change: a --set of a sampled key is refused, and the sample would override it anyway."""
+    sampled = {p.key: p.same_as or p.key for p in space.params}
+
+    def hint(found: re.Match[str]) -> str:
+        key, value = found.groups()
+        return f"{value} in the search space's [{sampled[key]}]" if key in sampled else found[0]
+
+    return _SET_HINT.sub(hint, message)
+
+
 def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpace) -> Outcome:
     """Train and evaluate one trial. Works with an Optuna trial or an `optuna.trial.FixedTrial`."""
     from canter.training import checkpoint
@@ -353,7 +369,7 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
     try:
         config = trial_config(base, values, trial_dir, settings)
     except CanterError as exc:
-        return Outcome("fail", reason=f"invalid sample: {exc}")
+        return Outcome("fail", reason=f"invalid sample: {space_hint(str(exc), space)}")
     url = settings.storage.url
     for attr, text in ((PRESET_ATTR, config_file_toml(config)), ("trial_dir", str(trial_dir.resolve()))):
         retrying(functools.partial(trial.set_user_attr, attr, text), url, "recording a trial")
@@ -523,9 +539,11 @@ def study_settings(settings: TuneSettings, base: Config, space: SearchSpace) -> 
     return found
 
 
-def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -> None:
+def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -> Any:
     """Refuse to resume a study with settings that make its trials incomparable, and a new study whose trial
-    folders would land on those of an earlier one (a deleted or another database under the same --out-dir)."""
+    folders would land on those of an earlier one (a deleted or another database under the same --out-dir). A study
+    with no finished trial has nothing to compare, so it restarts with other settings (`restart_study`), as a give-up
+    says to fix the cause and run again; not while a trial runs, under the old ones. Returns the study to run."""
     stored = study.user_attrs.get(SETTINGS_ATTR)
     claim_study(study, "tune")
     if stored is None:
@@ -535,15 +553,35 @@ def check_study_settings(study: Any, wanted: dict[str, str], trials_dir: Path) -
                 f"away, or pick another --out-dir or --study"
             )
         study.set_user_attr(SETTINGS_ATTR, wanted)
-        return
+        return study
+    differs = _first_difference(stored, wanted)
+    if differs is None:
+        return study
+    n = counts(study)
+    if n["COMPLETE"] + n["PRUNED"] + n["RUNNING"] == 0:
+        study = restart_study(study)
+        study.set_user_attr(SETTINGS_ATTR, wanted)
+        print(
+            f"canter: note: study '{study.study_name}' had no finished trial, so it now runs with this command's "
+            f"settings",
+            file=sys.stderr,
+        )
+        return study
+    name, was, now = differs
+    raise CanterError(
+        f"study '{study.study_name}' was run with {name} {was}, but this command gives {now}; its trials would not "
+        f"compare: use the same settings, or a new --study"
+    )
+
+
+def _first_difference(stored: dict[str, str], wanted: dict[str, str]) -> tuple[str, str, str] | None:
+    """(setting, stored value, wanted value) of the first setting that differs, as an error shows them."""
     missing = "(not set)"
     for name in dict.fromkeys([*stored, *wanted]):
         if stored.get(name, missing) != wanted.get(name, missing):
             was, now = (setting_text(str(found.get(name, missing))) for found in (stored, wanted))
-            raise CanterError(
-                f"study '{study.study_name}' was run with {name} {was}, but this command gives {now}; its trials "
-                f"would not compare: use the same settings, or a new --study"
-            )
+            return name, was, now
+    return None
 
 
 _SEED_LIST = re.compile(r"[0-9]+(,[0-9]+)*")
@@ -608,7 +646,7 @@ def tune(settings: TuneSettings) -> Any:
         trials_before = len(study.get_trials(deepcopy=False))  # one count for every worker's sampler seed
         wanted = study_settings(settings, base, space)
         check = functools.partial(check_study_settings, study, wanted, settings.study_dir / TRIALS_FOLDER)
-        retrying(check, settings.storage.url, "reading the study")  # another command's study, or other settings
+        study = retrying(check, settings.storage.url, "reading the study")  # another command's, or other settings
     except BaseException:
         _remove_empty(made)
         raise
