@@ -434,11 +434,11 @@ def test_method_labels_name_only_keys_the_method_reads():
 
 def test_method_labels_name_the_keys_methods_of_one_algorithm_differ_in():
     ppo = build_config("Hopper-v5", preset="fast")
-    wide = apply_overrides(ppo, {"net.hidden": (16, 16)}, "test")
-    assert method_labels([ppo, wide]) == ["net.hidden=64,64", "net.hidden=16,16"]
+    narrow = apply_overrides(ppo, {"net.hidden": (16, 16)}, "test")
+    assert method_labels([ppo, narrow]) == ["net.hidden=64,64", "net.hidden=16,16"]
     # With another algorithm beside them, the algorithm is named too, and the sac row stays short.
     sac = build_config("Hopper-v5", preset="fast", algo="sac")
-    assert method_labels([ppo, wide, sac]) == ["algo=ppo, net.hidden=64,64", "algo=ppo, net.hidden=16,16", "algo=sac"]
+    assert method_labels([ppo, narrow, sac]) == ["algo=ppo, net.hidden=64,64", "algo=ppo, net.hidden=16,16", "algo=sac"]
 
 
 def test_choose_metrics_defaults_and_globs():
