@@ -28,6 +28,11 @@ def is_optional(tp: Any) -> tuple[bool, Any]:
     return False, tp
 
 
+def is_tuple_field(tp: Any) -> bool:
+    """Whether a field of type `tp` (optional or not) holds a tuple of integers."""
+    return typing.get_origin(is_optional(tp)[1]) is tuple
+
+
 def type_name(tp: Any) -> str:
     optional, inner = is_optional(tp)
     if typing.get_origin(inner) is tuple:

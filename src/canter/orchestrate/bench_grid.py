@@ -4,7 +4,6 @@ its validated config) and its jobs (the seeds of a cell that one child process t
 from __future__ import annotations
 
 import itertools
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,7 +12,7 @@ from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
 from canter.config.overrides import all_keys, unknown_key_error
 from canter.config.schema import Config, field_types
-from canter.config.values import coerce, is_optional
+from canter.config.values import coerce, is_tuple_field
 from canter.errors import CanterError
 from canter.orchestrate.env_check import check_continuous
 from canter.orchestrate.study import check_at_least
@@ -124,10 +123,6 @@ def parse_grid_arg(text: str) -> tuple[str, tuple[str, ...]]:
     return key, items
 
 
-def is_tuple_type(tp: Any) -> bool:
-    return typing.get_origin(is_optional(tp)[1]) is tuple
-
-
 def repeated_values_error(key: str, raw: tuple[str, ...], values: list[str], tuple_valued: bool) -> str:
     """The one-line refusal of a grid axis that names a value twice (`raw` as typed, `values` in `canonical` form).
     A tuple key's repeat is most often a tuple typed with commas, which the grid split into one value per entry, so
@@ -169,7 +164,7 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
         tp = field_types(section)[name]
         values = [canonical(coerce(key, tp, v)) for v in raw]
         if len(set(values)) != len(values):
-            raise CanterError(repeated_values_error(key, raw, values, is_tuple_type(tp)))
+            raise CanterError(repeated_values_error(key, raw, values, is_tuple_field(tp)))
         axes.append((key, values))
     if not algos or not envs or not settings.seeds:
         raise CanterError("the bench needs at least one algorithm, one env and one seed")
