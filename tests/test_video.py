@@ -1,8 +1,10 @@
 """Videos: decoded frame counts, sizes and content; GL selection; DM Control; the training hook; bad input."""
 
+import json
 import os
 import re
 import shutil
+import subprocess
 import sys
 
 import imageio.v2 as imageio
@@ -10,12 +12,12 @@ import numpy as np
 import pytest
 
 from canter.cli.main import main
-from canter.envs.registry import dm_control_task
+from canter.envs.registry import dm_control_task, get_backend
 from canter.errors import CanterError
 from canter.training import run_lock
 from canter.training.videos import TrainingVideos, quiet_fork
 from canter.use import renderer, video
-from conftest import TINY
+from conftest import TINY, error_line
 
 
 def frames_of(path) -> np.ndarray:
@@ -318,12 +320,61 @@ def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(a
     assert len(frames_of(folder / "step_000000000714.mp4")) > 1
 
 
-def test_a_run_on_brax_own_envs_is_told_it_has_no_video():
-    """canter renders through Gymnasium's envs, which Brax's own models are not."""
+def test_a_run_on_brax_own_envs_is_told_it_has_no_video(archived_run, monkeypatch, capsys):
+    """canter renders through Gymnasium's envs, which Brax's own models are not: `canter video`, `report --video` and
+    training with videos say so in one line, before anything renders."""
+    import dataclasses
+
+    from canter.config.build import build_config
+    from canter.training import restore
     from canter.use.video_players import GymnasiumPlayer
 
     with pytest.raises(CanterError, match=r"cannot replay ant: .*Brax's own envs has no video; canter eval scores it"):
         GymnasiumPlayer("ant", 64, 64, None)
+    real = restore.policy_facts
+    monkeypatch.setattr(restore, "policy_facts", lambda *a: dataclasses.replace(real(*a), env_id="ant", backend="brax"))
+    refused = "a run on Brax's own envs (ant) has no video: canter renders through Gymnasium's envs, which do not have "
+    refused += "Brax's models; "
+    assert error_line(capsys, ["video", str(archived_run), "--out", "v.mp4"]) == refused + "canter eval scores it"
+    assert not os.path.exists("v.mp4")
+    if get_backend("brax").available():
+        with pytest.raises(CanterError, match=re.escape(refused + "drop --video-every (run.video_every)")):
+            build_config("ant", sets=["env.backend=brax", "run.video_every=1000"])
+
+
+def test_a_render_process_renders_itself_or_fails_but_never_hands_off(archived_run, monkeypatch, capsys):
+    """A render subprocess whose mujoco could not render headless would otherwise start another, which would do the
+    same, one process after another without end."""
+    monkeypatch.setattr(video, "headless_in_this_process", lambda: False)
+    monkeypatch.setattr(video, "_in_render_process", False)  # `_main` sets it for the rest of its process
+    monkeypatch.setattr(video, "_record_in_subprocess", lambda *a: pytest.fail("handed off to another process"))
+    request = {"run_dir": str(archived_run), "out_path": "v.mp4", "max_steps": 2}
+    assert video._main([json.dumps(request)]) == 2
+    assert "before a headless renderer was chosen" in capsys.readouterr().err
+    assert not os.path.exists("v.mp4")
+
+
+def test_the_renderer_is_chosen_before_the_checks_that_import_mujoco(archived_run, tmp_path):
+    """A backend's availability probe (mjx's) imports mujoco. Were it imported before MUJOCO_GL is chosen, it would
+    take its windowed default and the video would go to a subprocess, whose checks would do the same."""
+    script = (
+        "import sys\n"
+        "import canter.envs.registry as registry\n"
+        "from canter.use import video\n"
+        "real = registry.refuse_mujoco_py_replay\n"
+        "def probing(*args, **kwargs):\n"
+        "    import mujoco  # noqa: F401\n"
+        "    return real(*args, **kwargs)\n"
+        "registry.refuse_mujoco_py_replay = probing\n"
+        "def handed_off(*args):\n"
+        "    sys.exit('handed off to a subprocess')\n"
+        "video._record_in_subprocess = handed_off\n"
+        f"print(video.record_video({str(archived_run)!r}, 'v.mp4', max_steps=3))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "v.mp4").stat().st_size > 0
 
 
 @pytest.mark.parametrize(("gl", "message"), [("bogus", "is not one of MuJoCo's renderers"), ("disable", "turns")])

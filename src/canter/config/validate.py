@@ -95,6 +95,7 @@ def validate(config: Config) -> None:
         get_backend,
         pooled_backends,
         refuse_mujoco_py,
+        refuse_video_of_own_envs,
     )
 
     env, run = config.env, config.run
@@ -141,6 +142,8 @@ def validate(config: Config) -> None:
     need(run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {run.checkpoint_every}")
     need(run.keep_checkpoints >= 1, f"run.keep_checkpoints must be >= 1, got {run.keep_checkpoints}")
     need(run.video_every >= 0, f"run.video_every must be >= 0, got {run.video_every}")
+    if run.video_every:
+        refuse_video_of_own_envs(env.backend, env.id, "drop --video-every (run.video_every)")
     need(run.eval_every >= 0, f"run.eval_every must be >= 0, got {run.eval_every}")
     need(run.eval_episodes >= 1, f"run.eval_episodes must be >= 1, got {run.eval_episodes}")
     _check_eval_backend(env.backend, run.eval_backend)

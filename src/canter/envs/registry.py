@@ -211,6 +211,18 @@ def refuse_mujoco_py_replay(env_id: str, plays: str, instead: str, elsewhere: st
     raise CanterError(f"{old.problem}, and {plays} there; {instead.format(newer=old.newer)}{other}")
 
 
+def refuse_video_of_own_envs(backend: str, env_id: str, fix: str) -> None:
+    """One line for a video of a run on a backend whose envs are its own models (Brax): canter renders through
+    Gymnasium's envs, which have no such model to show. `fix` says what to do instead."""
+    if backend in (AUTO, "") or not get_backend(backend).own_observations:
+        return
+    label = get_backend(backend).label
+    raise CanterError(
+        f"a run on {label}'s own envs ({env_id}) has no video: canter renders through Gymnasium's envs, which do not "
+        f"have {label}'s models; {fix}"
+    )
+
+
 def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None:
     """The error for an id that another backend than the one chosen (or than `auto`'s) runs: it names that one."""
     where = [b.name for b in backends() if b is not chosen and b.available() and env_id in b.supported_ids()]

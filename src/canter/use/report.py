@@ -437,9 +437,10 @@ def build_report(
     needs_checkpoint = bool(episodes) or video or which != checkpoint.LAST
     facts = [run_facts(r, which if needs_checkpoint else None) for r in run_dirs]
     if video:  # before the evaluation, which can take minutes
-        from canter.envs.registry import refuse_mujoco_py_replay
+        from canter.envs.registry import refuse_mujoco_py_replay, refuse_video_of_own_envs
 
         for f in facts:
+            refuse_video_of_own_envs(f.config.env.backend, f.config.env.id, "drop --video")
             refuse_mujoco_py_replay(
                 f.config.env.id, "report --video renders its video", "drop --video, or report a run of {newer}"
             )

@@ -23,7 +23,7 @@ from canter.errors import CanterError, error_line
 from canter.files import check_writable
 from canter.signals import INTERRUPTED, StopFlag, die_with_parent
 from canter.training.videos import child_env, quiet_fork
-from canter.use.renderer import check_renderer, configure_gl, headless_in_this_process
+from canter.use.renderer import check_renderer, configure_gl, gl_fix, headless_in_this_process
 from canter.use.video_file import AtomicVideo
 from canter.use.video_players import DMControlPlayer, GymnasiumPlayer
 
@@ -38,6 +38,7 @@ MAX_SIDE = 4096  # larger offscreen framebuffers fail deep in MuJoCo's GL contex
 # A caller stopped by a signal waits this long for its render subprocess to stop: a frame, then the encoder's end.
 _STOP_SECONDS = 30
 _POLL_SECONDS = 0.1  # how soon a caller passes a stop signal on to its render subprocess
+_in_render_process = False  # set in a render subprocess (`_main`), which renders itself or fails, never hands off
 
 
 def check_video_args(out: Path, episodes: int, width: int, height: int, fps: int, max_steps: int = 0) -> None:
@@ -92,7 +93,13 @@ def record_video(
     and the returns of the episodes finished before the stop (fewer than asked). With `stop`, a StopFlag that the
     caller has entered and delivers itself, its signal stops the render (one that came before the render started,
     too) and this returns as just said, leaving the signal to the caller."""
-    from canter.envs.registry import dm_control_task, note_replay, refuse_mujoco_py_replay, single_env_backend
+    from canter.envs.registry import (
+        dm_control_task,
+        note_replay,
+        refuse_mujoco_py_replay,
+        refuse_video_of_own_envs,
+        single_env_backend,
+    )
     from canter.training.checkpoint import read_header, resolve
     from canter.training.evaluation import check_episodes_end
     from canter.training.restore import policy_facts
@@ -103,6 +110,11 @@ def record_video(
     check_video_args(out, episodes, width, height, fps, max_steps)
     newest = resolve(Path(run_dir), checkpoint)
     trained = policy_facts(read_header(newest), newest)
+    refuse_video_of_own_envs(trained.backend, trained.env_id, "canter eval scores it")
+    if "mujoco" not in sys.modules:
+        # Before the checks below, which may import mujoco (a JAX-native backend's availability): imported first, it
+        # would take its default, windowed platform, and this process could not render.
+        configure_gl()
     if dm_control_task(trained.env_id) is None:  # here, not in a render subprocess, whose output is not shown
         refuse_mujoco_py_replay(
             trained.env_id,
@@ -119,6 +131,11 @@ def record_video(
             )
         note_replay(trained.env_id, trained.backend, single_env_backend().name)
     if not headless_in_this_process():
+        if _in_render_process:  # handing off again would start one render process after another without end
+            raise CanterError(
+                f"mujoco was imported with MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r} before a headless renderer "
+                f"was chosen; {gl_fix()}"
+            )
         # Resolved here, so that a run without the checkpoint asked for fails with its own message.
         path = resolve(Path(run_dir), checkpoint).absolute()
         if on_start:
@@ -130,7 +147,6 @@ def record_video(
         return returns
     from canter.use.policy import load
 
-    configure_gl()
     check_renderer()
     policy = load(run_dir, checkpoint)
     task = dm_control_task(policy.facts.env_id)
@@ -248,6 +264,8 @@ def _wait_for_renderer(process: subprocess.Popen, stop: StopFlag) -> tuple[str, 
 def _main(argv: list[str]) -> int:
     """Entry point of the render subprocesses (`_record_in_subprocess`, `canter.training.videos`): one JSON request;
     prints the returns as JSON."""
+    global _in_render_process
+    _in_render_process = True
     request = json.loads(argv[0])
     parent = request.pop("parent", None)
     if parent is not None:
