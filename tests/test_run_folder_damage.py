@@ -141,6 +141,23 @@ def test_a_file_cut_back_past_its_checkpoints_row_is_refused_untouched(archived_
     assert metrics.read_bytes() == before
 
 
+@pytest.mark.parametrize(
+    "command", [["train", "--resume", "{run}", "--total-steps", "12000", "--quiet"], ["eval", "{run}"]]
+)
+def test_a_checkpoint_renamed_to_another_step_is_refused_not_resumed_from(archived_run, capsys, command):
+    """Checkpoints are found and ordered by their names: taken as the newest, the step-714 state named as step 9,999
+    would be resumed from in silence, its run's rows after 714 dropped, and the real newest pruned later."""
+    folder = archived_run / "checkpoints"
+    (folder / "ckpt_000000000714.npz").rename(folder / "ckpt_000000009999.npz")
+    before = sorted((p.name, p.stat().st_size) for p in archived_run.rglob("*") if p.is_file())
+    err = _one_line_error(capsys, main([arg.format(run=archived_run) for arg in command]))
+    assert err == (
+        f"canter: error: checkpoint {folder / 'ckpt_000000009999.npz'} holds step 714, not the step 9999 its name "
+        f"says (renamed or copied over?); rename it to ckpt_000000000714.npz, or move it out of {folder}\n"
+    )
+    assert sorted((p.name, p.stat().st_size) for p in archived_run.rglob("*") if p.is_file()) == before
+
+
 def test_a_whole_metrics_file_gives_no_note(archived_run, capsys):
     MetricsLogger(archived_run, (), (), tensorboard=False, resume_step=1190).close()
     assert capsys.readouterr().err == ""

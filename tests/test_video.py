@@ -218,12 +218,19 @@ def test_a_renderer_ends_with_its_trainer(tmp_path):
 
 @pytest.mark.slow
 def test_a_crashing_renderer_does_not_stop_training(tmp_path, capsys):
-    """The render subprocess dies (here: a checkpoint it cannot read); training finishes and warns."""
+    """The render subprocess dies (here: a snapshot it cannot read); training finishes and warns. The snapshot is
+    kept, as the failure may pass (a full disk), and the next resume renders it once more; failing again, the video
+    is given up."""
     hook = TrainingVideos(tmp_path, every=10, start_step=0)
     hook.snapshot_if_due(10, lambda path: path.write_bytes(b"not a checkpoint"))
     hook.render_snapshot()
     hook.close()
-    assert "video at step 10 failed" in capsys.readouterr().err
+    log = tmp_path / "videos" / "render.log"
+    failed = f"canter: warning: the video at step 10 failed (exit 2; see {log}); "
+    assert capsys.readouterr().err == failed + "its snapshot is kept, and the run's next resume renders it again\n"
+    assert [p.name for p in (tmp_path / "videos").glob("*.npz")] == [".snapshot_000000000010.npz"]
+    TrainingVideos(tmp_path, every=10, start_step=20, resumed=True).close()
+    assert capsys.readouterr().err == failed + "so it is given up\n"
     assert not list((tmp_path / "videos").glob("*.npz")) and not list((tmp_path / "videos").glob("*.mp4"))
 
 

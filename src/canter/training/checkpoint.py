@@ -257,7 +257,21 @@ def _checked_header(header: Any, path: Path) -> dict[str, Any]:
         value = header.get(key)
         if key in header and (not isinstance(value, kind) or isinstance(value, bool)):
             raise DamagedCheckpoint(path, f"is corrupt (its header's {key} is not {name})")
+    _refuse_a_renamed_checkpoint(header, path)
     return header
+
+
+def _refuse_a_renamed_checkpoint(header: dict[str, Any], path: Path) -> None:
+    """A run's periodic checkpoints are found and ordered by the step in their names, so one whose name says
+    another step than it holds would be resumed as the newest (or pruned as the oldest) in the wrong place."""
+    named = CHECKPOINT_NAME.match(path.name)
+    step = header.get("global_step")
+    if path.parent.name != CHECKPOINT_FOLDER or not named or not isinstance(step, int) or int(named[1]) == step:
+        return
+    raise CanterError(
+        f"checkpoint {path} holds step {step}, not the step {int(named[1])} its name says (renamed or copied over?); "
+        f"rename it to ckpt_{step:012d}.npz, or move it out of {path.parent}"
+    )
 
 
 def config_text(header: dict[str, Any], path: Path) -> str:

@@ -39,9 +39,10 @@ def child_env() -> dict[str, str]:
 
 class TrainingVideos:
     """At every multiple of `every` env steps, snapshot the train state and render one episode to
-    RUN/videos/step_<step>.mp4 in a separate, lower-priority process. A renderer crash (MuJoCo aborts the process on
-    some errors) costs only that video and a warning; training never waits except for the previous video (one at a
-    time) and, at the end, for the last one."""
+    RUN/videos/step_<step>.mp4 in a separate, lower-priority process. A failed render (MuJoCo aborts the process on
+    some errors; a full disk) costs training nothing but a warning, and keeps its snapshot: the run's next resume
+    renders it once more, as the failure may have passed, and gives it up if it fails again. Training never waits
+    except for the previous video (one at a time) and, at the end, for the last one."""
 
     WAIT_SECONDS = 900
 
@@ -49,10 +50,10 @@ class TrainingVideos:
         """every == 0 switches videos off. A resumed run drops the videos of steps after its checkpoint, as the
         logger drops their metrics: they showed training that was lost with the process, and are redone. A video of
         a step up to the checkpoint whose render the process took with it is rendered now from its snapshot, which
-        is whole (it is written atomically before its render starts)."""
+        is whole (it is written atomically before its render starts), and so is one whose render failed."""
         self.folder = Path(run_dir) / VIDEOS_FOLDER
         self.cadence = Cadence(every, start_step)
-        self._job: tuple[subprocess.Popen, Path, int] | None = None
+        self._job: tuple[subprocess.Popen, Path, int, bool] | None = None
         self._saved: tuple[Path, int] | None = None  # a snapshot whose render has not started
         if resumed and self.folder.is_dir():
             for video in self.folder.glob("step_*.mp4"):
@@ -63,7 +64,7 @@ class TrainingVideos:
                 step = snapshot.stem.removeprefix(".snapshot_")
                 if every and step.isdigit() and int(step) <= start_step and not self._video(int(step)).exists():
                     self._finish()
-                    self._render(snapshot, int(step))
+                    self._render(snapshot, int(step), again=True)
                 else:
                     snapshot.unlink()
 
@@ -91,8 +92,9 @@ class TrainingVideos:
         self._finish()
         self._render(snapshot, step)
 
-    def _render(self, snapshot: Path, step: int) -> None:
-        """Start the child that renders the video of `step` from its snapshot, which it removes when done."""
+    def _render(self, snapshot: Path, step: int, again: bool = False) -> None:
+        """Start the child that renders the video of `step` from its snapshot; `again` for a snapshot that a run
+        before this process left."""
         request = dict(
             run_dir=str(self.folder.parent),
             out_path=str(self._video(step)),
@@ -110,22 +112,25 @@ class TrainingVideos:
                 env=child_env(),
                 start_new_session=True,
             )
-        self._job = (process, snapshot, step)
+        self._job = (process, snapshot, step, again)
 
     def _finish(self) -> None:
         if self._job is None:
             return
-        process, snapshot, step = self._job
+        process, snapshot, step, again = self._job
         self._job = None
         try:
             code = process.wait(timeout=self.WAIT_SECONDS)
         except subprocess.TimeoutExpired:
             process.kill()
             code = process.wait()
-        snapshot.unlink(missing_ok=True)
+        if code == 0 or again:
+            snapshot.unlink(missing_ok=True)
         if code != 0:
+            fate = "so it is given up" if again else "its snapshot is kept, and the run's next resume renders it again"
             print(
-                f"canter: warning: the video at step {step} failed (exit {code}); see {self.folder / 'render.log'}",
+                f"canter: warning: the video at step {step} failed (exit {code}; see {self.folder / 'render.log'}); "
+                f"{fate}",
                 file=sys.stderr,
             )
 
