@@ -1,6 +1,7 @@
 """A refusal that a caller of the Python API reaches names its fix for that caller too: the command line's form
 first, then "(... from Python)", in one line. None of these trains."""
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -122,3 +123,11 @@ def test_a_divergence_hint_names_the_new_run_from_python():
 
     hint = divergence_hint(canter.build_config("Pendulum-v1"))
     assert "(canter train --config, canter.build_config(None, config_file=...) from Python)" in hint, hint
+
+
+def test_another_algorithm_in_config_toml_is_named_before_the_keys_it_changes(archived_run):
+    """With run.algo edited, dozens of the other algorithm's keys differ too; the message shows only three."""
+    config = archived_run / "config.toml"
+    config.write_text(config.read_text().replace('algo = "ppo"', 'algo = "sac"', 1))
+    message = refusal(lambda: canter.load(archived_run))
+    assert re.search(r" in run\.algo, sac\.\w+, sac\.\w+ and \d+ more: if config\.toml was edited", message), message

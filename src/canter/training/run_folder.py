@@ -200,7 +200,11 @@ def _keys_apart(run_dir: Path, checkpoint_config: Config) -> list[str]:
     keys = differing_keys([own, checkpoint_config])
     if own.run.seed != checkpoint_config.run.seed:
         keys.append("run.seed")
-    return keys
+    # Another algorithm or env changes dozens of keys with it; the message shows only the first few, so these first.
+    return sorted(keys, key=lambda key: key not in _ROOT_KEYS)
+
+
+_ROOT_KEYS = frozenset({"run.algo", "env.id", "env.backend"})
 
 
 def _shown_keys(keys: list[str]) -> str:
