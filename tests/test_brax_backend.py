@@ -76,8 +76,15 @@ def test_a_brax_run_evaluates_on_brax_and_its_own_env_only():
             check_eval_env(facts, env_id, backend, varied)
 
 
-def test_runs_of_other_backends_evaluate_anywhere():
+def test_runs_of_other_backends_evaluate_anywhere_but_on_brax():
     check_eval_env(_facts("Ant-v5", "envpool"), "Ant-v4", "gymnasium", varied=True)
+    for trained_on in ("envpool", "mjx"):
+        refused = (
+            f"Brax observations differ from Gymnasium's, so a run trained on {trained_on} (Ant-v5) does not evaluate "
+            f"on brax; drop --backend brax (backend=)"
+        )
+        with pytest.raises(CanterError, match=f"^{re.escape(refused)}$"):
+            check_eval_env(_facts("Ant-v5", trained_on), None, "brax")
 
 
 @pytest.fixture

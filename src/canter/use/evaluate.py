@@ -29,10 +29,16 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
     """A policy trained on a backend whose envs observe in their own way (Brax) reads no other backend's
     observations, so it evaluates on the env and backend it trained on only: a one-line error otherwise. So is an
     evaluation that would play a mujoco-py version of a MuJoCo task on Gymnasium, which no longer makes it."""
-    from canter.envs.registry import get_backend
+    from canter.envs.registry import AUTO, get_backend
 
     trained_on = get_backend(facts.backend)
     if not trained_on.own_observations:
+        asked = get_backend(backend) if backend not in (None, AUTO) else None
+        if asked is not None and asked.own_observations:
+            raise CanterError(
+                f"{asked.label} observations differ from Gymnasium's, so a run trained on {trained_on.name} "
+                f"({facts.env_id}) does not evaluate on {asked.name}; drop --backend {backend} (backend=)"
+            )
         _refuse_mujoco_py(facts, env_id, backend, varied)
         return
     asked = [
