@@ -149,13 +149,14 @@ def test_a_checkpoint_renamed_to_another_step_is_refused_not_resumed_from(archiv
     would be resumed from in silence, its run's rows after 714 dropped, and the real newest pruned later."""
     folder = archived_run / "checkpoints"
     (folder / "ckpt_000000000714.npz").rename(folder / "ckpt_000000009999.npz")
-    before = sorted((p.name, p.stat().st_size) for p in archived_run.rglob("*") if p.is_file())
+    kept = [*folder.iterdir(), archived_run / "metrics.csv"]
+    before = {path: path.read_bytes() for path in kept}
     err = _one_line_error(capsys, main([arg.format(run=archived_run) for arg in command]))
     assert err == (
         f"canter: error: checkpoint {folder / 'ckpt_000000009999.npz'} holds step 714, not the step 9999 its name "
         f"says (renamed or copied over?); rename it to ckpt_000000000714.npz, or move it out of {folder}\n"
     )
-    assert sorted((p.name, p.stat().st_size) for p in archived_run.rglob("*") if p.is_file()) == before
+    assert {path: path.read_bytes() for path in kept} == before and sorted(folder.iterdir()) == sorted(kept[:-1])
 
 
 def test_a_whole_metrics_file_gives_no_note(archived_run, capsys):

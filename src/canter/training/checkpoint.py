@@ -257,7 +257,6 @@ def _checked_header(header: Any, path: Path) -> dict[str, Any]:
         value = header.get(key)
         if key in header and (not isinstance(value, kind) or isinstance(value, bool)):
             raise DamagedCheckpoint(path, f"is corrupt (its header's {key} is not {name})")
-    _refuse_a_renamed_checkpoint(header, path)
     return header
 
 
@@ -523,15 +522,16 @@ def resolve_own(run_dir: Path, which: str | Path = LAST) -> Path:
     would be labelled with a run that never made them."""
     path = resolve(run_dir, which)
     header = read_header(path)
-    check_of_run(Path(run_dir), from_toml_text(config_text(header, path), str(path)), path)
+    check_of_run(Path(run_dir), from_toml_text(config_text(header, path), str(path)), path, header)
     return path
 
 
-def check_of_run(run_dir: Path, config: Config, path: Path) -> None:
-    """A checkpoint in the run folder's checkpoints/ must be the run's own; a file given from elsewhere must be one
-    of that run's, kept there."""
+def check_of_run(run_dir: Path, config: Config, path: Path, header: dict[str, Any]) -> None:
+    """A checkpoint in the run folder's checkpoints/ must be the run's own, under the name of its step; a file given
+    from elsewhere must be one of that run's, kept there."""
     if path.resolve().parent == checkpoint_dir(run_dir).resolve():
         check_own_checkpoint(run_dir, config, path)
+        _refuse_a_renamed_checkpoint(header, path)
     else:
         check_given_checkpoint(run_dir, config, path)
 

@@ -60,7 +60,7 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     path = checkpoint.resolve(run_dir, which)
     arrays, header = checkpoint.read(path)
     config = from_toml_text(checkpoint.config_text(header, path), str(path))
-    checkpoint.check_of_run(run_dir, config, path)
+    checkpoint.check_of_run(run_dir, config, path, header)
     facts = policy_facts(header, path)
     setup_jax(facts.backend, announce=False)  # the precision it trained in; where it plays, says its player
     # Only the state's structure, shapes and dtypes: building a real one would compile and run its initializers

@@ -33,11 +33,11 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
 
     trained_on = get_backend(facts.backend)
     if not trained_on.own_observations:
-        asked = get_backend(backend) if backend not in (None, AUTO) else None
-        if asked is not None and asked.own_observations:
+        played_on = get_backend(backend) if backend not in (None, AUTO) else None
+        if played_on is not None and played_on.own_observations:
             raise CanterError(
-                f"{asked.label} observations differ from Gymnasium's, so a run trained on {trained_on.name} "
-                f"({facts.env_id}) does not evaluate on {asked.name}; drop --backend {backend} (backend=)"
+                f"{played_on.label} observations differ from Gymnasium's, so a run trained on {trained_on.name} "
+                f"({facts.env_id}) does not evaluate on {played_on.name}; drop --backend {backend} (backend=)"
             )
         _refuse_mujoco_py(facts, env_id, backend, varied)
         return
