@@ -412,10 +412,17 @@ def test_a_write_error_in_training_names_the_fix_that_continues_the_run(tmp_path
     run = tmp_path / "run"
     (run / "tb").mkdir(parents=True)  # a training run's folders exist when its writes fail
     full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    error = training_write_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(run / "config.toml")), [run])
+    assert error is not None and str(error) == (
+        f"cannot write {run / 'config.toml'}: No space left on device; free space in {run}, then train again "
+        f"(no checkpoint was written to resume from)"
+    )
+    (run / "config.toml").write_text("")  # its resume trains the run again in its folder, not in a new one
     error = training_write_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(run / "metrics.csv")), [run])
     assert error is not None and str(error) == (
-        f"cannot write {run / 'metrics.csv'}: No space left on device; free space in {run}, then train again "
-        f"(no checkpoint was written to resume from)"
+        f"cannot write {run / 'metrics.csv'}: No space left on device; free space in {run}, then `canter train "
+        f"--resume {run}` (canter.resume_seeds({[str(run)]!r}) from Python), which trains a run without a checkpoint "
+        f"again from step 0 in its folder"
     )
     (run / "checkpoints").mkdir(parents=True)
     (run / "checkpoints" / "ckpt_000000001000.npz").write_bytes(b"")
@@ -516,7 +523,7 @@ def test_a_stop_flag_says_once_what_the_first_signal_does(capfd):
 
 def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_shutdown(monkeypatch):
     """An interrupted process ignores further stop signals as it ends: a Ctrl-C pressed again in its last lines would
-    end it by a traceback."""
+    end it by a traceback. So does one whose command returned its code."""
     import signal
 
     from canter import signals
@@ -537,19 +544,21 @@ def test_the_console_entry_ends_an_interrupted_process_without_the_interpreters_
 
     monkeypatch.setattr(cli, "main", lambda: 2)
     try:
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # as a command starts (a test worker may ignore it)
         with pytest.raises(SystemExit) as exited:
             cli.entry()
         assert exited.value.code == 2 and ended == [130]
-        assert signal.getsignal(signal.SIGTERM) == handlers[signal.SIGTERM]
+        # The code a command returned is the process's: a stop signal in the interpreter's shutdown cannot change it.
+        assert all(signal.getsignal(sig) == signal.SIG_IGN for sig in signals.STOP_SIGNALS)
+        for sig, handler in handlers.items():  # as a command starts (a test worker may ignore SIGINT)
+            signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else handler)
+        signals.interrupt_once()
         # The first Ctrl-C interrupts, as Python's own handler does, and stops the ones after it at that moment: one
         # landing between the interrupt and the process's end cannot end it by a traceback.
         with pytest.raises(KeyboardInterrupt):
             signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
         assert all(signal.getsignal(sig) == signal.SIG_IGN for sig in signals.STOP_SIGNALS)
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a job a script starts with `&`: SIGINT stays ignored
-        with pytest.raises(SystemExit):
-            cli.entry()
+        signals.interrupt_once()
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:
         for sig, handler in handlers.items():

@@ -1,5 +1,5 @@
-"""SIGINT and SIGTERM, the signals that stop a canter command: handlers set for a stretch of work and put back after,
-and a stop held back until the work is in a safe state, then passed on to the handling it would have had."""
+"""SIGINT, SIGTERM and SIGHUP, the signals that stop a canter command: handlers set for a stretch of work and put back
+after, and a stop held back until the work is in a safe state, then passed on to the handling it would have had."""
 
 from __future__ import annotations
 
@@ -13,13 +13,14 @@ from collections.abc import Callable, Iterator
 from types import FrameType
 from typing import Any, NoReturn
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# SIGHUP too: a dropped ssh session or a closed terminal stops a run as a scheduler's SIGTERM does, with a checkpoint.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
 
 
 def ignore_stop_signals() -> None:
-    """From here on a further Ctrl-C or SIGTERM is ignored: the process is already ending, and one landing in its last
-    lines would end it by a traceback instead (a user presses Ctrl-C again and again)."""
+    """From here on a further Ctrl-C, SIGTERM or SIGHUP is ignored: the process is already ending, and one landing in
+    its last lines would end it by a traceback instead (a user presses Ctrl-C again and again)."""
     if threading.current_thread() is threading.main_thread():
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
@@ -80,11 +81,12 @@ def die_with_parent(sig: int, parent: int | None = None) -> None:
 
 @contextlib.contextmanager
 def handling_stop_signals(handler: Callable[[int, FrameType | None], Any]) -> Iterator[dict[signal.Signals, Any]]:
-    """Within it, `handler` handles SIGINT and SIGTERM; yields the handlers it replaced, by signal, put back at the
-    end. A signal the process ignores stays ignored: a shell starts a background job (`cmd &` in a script) with
-    SIGINT ignored so that a Ctrl-C meant for the foreground leaves it running, as Python itself does then. So does
-    a handler that was not set from Python, which could not be put back. Outside the main thread, where Python
-    cannot set handlers, nothing changes."""
+    """Within it, `handler` handles SIGINT, SIGTERM and SIGHUP; yields the handlers it replaced, by signal, put back at
+    the end (but for those the caller takes out of it). A signal the process ignores stays ignored: a shell starts a
+    background job (`cmd &` in a script) with SIGINT ignored so that a Ctrl-C meant for the foreground leaves it
+    running, as Python itself does then, and `nohup` starts its command with SIGHUP ignored. So does a handler that
+    was not set from Python, which could not be put back. Outside the main thread, where Python cannot set handlers,
+    nothing changes."""
     replaced: dict[signal.Signals, Any] = {}
     if threading.current_thread() is threading.main_thread():
         for sig in STOP_SIGNALS:
@@ -101,9 +103,9 @@ _stops_held = 0  # how many signals every StopFlag of this process has held, for
 
 
 def stops_held() -> int:
-    """How many SIGINTs and SIGTERMs StopFlags have held in this process so far: work that runs several stretches,
-    each in its own StopFlag, compares it before and after to learn of a stop that one of them took in (even one
-    that came after the stretch's last check)."""
+    """How many stop signals StopFlags have held in this process so far: work that runs several stretches, each in
+    its own StopFlag, compares it before and after to learn of a stop that one of them took in (even one that came
+    after the stretch's last check)."""
     return _stops_held
 
 
@@ -115,10 +117,47 @@ def _write_stderr(text: str) -> None:
         os.write(sys.stderr.fileno(), text.encode())
 
 
+# Within `stops_dropped_after_the_work`: the handlers that StopFlags ending there left to it, by signal, rather than
+# putting them back; its end puts them back.
+_after_the_work: dict[signal.Signals, Any] | None = None
+
+
+def _drop(signum: int, frame: FrameType | None) -> None:
+    """A stop signal once the work is saved: the command ends as it would have without it."""
+
+
+@contextlib.contextmanager
+def stops_dropped_after_the_work() -> Iterator[None]:
+    """For a command whose work is a StopFlag's stretch (`canter train`: the run is saved and summarized when its
+    StopFlag ends): a stop signal from the end of that stretch to the end of this context is dropped, as what is left
+    only closes the work, and a finished run must not end as a killed (143) or interrupted (130) one. The StopFlag
+    leaves its handlers to this context rather than put them back (with no moment between in which a signal finds
+    the handlers from before it), and the end of this context puts them back."""
+    global _after_the_work
+    _after_the_work = {}
+    try:
+        yield
+    finally:
+        handed_over, _after_the_work = _after_the_work, None
+        for sig, earlier in handed_over.items():
+            signal.signal(sig, earlier)
+
+
+def _hand_over(replaced: dict[signal.Signals, Any], kept: dict[signal.Signals, Any]) -> None:
+    """Drop the stop signals that `replaced` names, keeping in `kept` the handlers from before the first StopFlag that
+    handed them over; `replaced` is emptied, so that its StopFlag puts back none of them."""
+    for sig, earlier in replaced.items():
+        signal.signal(sig, _drop)
+        kept.setdefault(sig, earlier)
+    replaced.clear()
+
+
 class StopFlag:
-    """A context in which SIGINT and SIGTERM (those `handling_stop_signals` handles) set `signal`, for work that stops
-    at its next safe point: an exception raised in a handler is lost when the signal lands in a garbage-collection
-    callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt.
+    """A context in which SIGINT, SIGTERM and SIGHUP (those `handling_stop_signals` handles) set `signal`, for work
+    that stops at its next safe point: an exception raised in a handler is lost when the signal lands in a
+    garbage-collection callback (JAX has one). A second Ctrl-C meanwhile means now: it raises KeyboardInterrupt. Its
+    end puts back the handlers from before it; inside `stops_dropped_after_the_work`, an end without an exception
+    leaves them to that context instead.
 
     `notice`, where given, is printed to stderr when the first signal lands: the next safe point can be many seconds
     away (the end of an XLA compile), and a stop that says nothing until then looks ignored. The work may change it
@@ -128,9 +167,10 @@ class StopFlag:
         self.signal: int | None = None
         self.notice = notice
         self._handling = contextlib.ExitStack()
+        self._replaced: dict[signal.Signals, Any] = {}
 
     def __enter__(self) -> StopFlag:
-        self._handling.enter_context(handling_stop_signals(self._handle))
+        self._replaced = self._handling.enter_context(handling_stop_signals(self._handle))
         return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
@@ -144,7 +184,9 @@ class StopFlag:
             again = "; Ctrl-C again stops at once" if signum == signal.SIGINT else ""
             _write_stderr(f"canter: {signal.Signals(signum).name}: {self.notice}{again}\n")
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None and _after_the_work is not None:
+            _hand_over(self._replaced, _after_the_work)
         self._handling.close()
 
     def deliver(self) -> None:

@@ -158,10 +158,11 @@ def _evaluate(args: argparse.Namespace, policies: list, seed: int, physics: dict
     groups = [
         _group_row(rows, members) for members in group_by_experiment([p.config for p in evaluated]) if len(members) > 1
     ]
-    if rows:
-        _print_table(rows, groups)
+    # The file before the table: a closed stdout (`| head -1`) ends the command at the table.
     if args.json and rows:
         write_output(args.json, json.dumps({"runs": rows, "groups": groups}, indent=2).encode())
+    if rows:
+        _print_table(rows, groups)
     if failed:
         first, reason = failed[0]
         kept = (f"; the other {len(rows)} are above" + (f" and in {args.json}" if args.json else "")) if rows else ""

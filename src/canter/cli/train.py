@@ -19,6 +19,7 @@ from canter.cli.args import (
 )
 from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
+from canter.signals import stops_dropped_after_the_work
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -102,9 +103,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from canter.training.trackers import tracking
 
-    with tracking(track_spec(args, [Path(d) for d in args.resume or ()])):
-        results = _train(args)
-    _report(results)
+    # Once training's StopFlag ends, the run is saved and summarized: a stop signal as the trackers close or the
+    # report prints is dropped, and the run ends as it finished (exit 0), not as a killed one (143).
+    with stops_dropped_after_the_work():
+        with tracking(track_spec(args, [Path(d) for d in args.resume or ()])):
+            results = _train(args)
+        _report(results)
     return 0
 
 

@@ -363,11 +363,13 @@ def training_write_error(exc: BaseException, run_dirs: list[Path]) -> WriteError
         return None
     if error.path.name == SUMMARY_FILE:  # written after the final checkpoint: nothing is left to train
         return error.resumable("use the run as it is (training finished and its last checkpoint is saved)")
+    folders = [str(d) for d in run_dirs]
+    resume = f"`canter train --resume {' '.join(folders)}` (canter.resume_seeds({folders!r}) from Python)"
     if all(run_folder.list_checkpoints(d) for d in run_dirs):
-        folders = [str(d) for d in run_dirs]
-        return error.resumable(
-            f"`canter train --resume {' '.join(folders)}` (canter.resume_seeds({folders!r}) from Python)"
-        )
+        return error.resumable(resume)
+    if all((d / CONFIG_FILE).is_file() for d in run_dirs):
+        # Training the same command again would leave this folder behind and start another.
+        return error.resumable(f"{resume}, which trains a run without a checkpoint again from step 0 in its folder")
     return error.resumable("train again (no checkpoint was written to resume from)")
 
 
@@ -431,10 +433,19 @@ def _loop(
             _stop_seeds(program, runs, _group_stop_reason(deadline, stop))
             _show_progress(progress, runs, steps / chunk.elapsed)
     finally:
+        _close(progress, runs)
+    return _results(runs)
+
+
+def _close(progress: Progress, runs: list[SeedRun]) -> None:
+    """Close the progress bar, then each seed's files and tracker runs, also where the bar's close fails (a second
+    Ctrl-C landing in it): the bar is only shown, and a seed left open can lose its last TensorBoard events and leaves
+    its tracker runs running."""
+    try:
         progress.close()
+    finally:
         for run in runs:
             run.close()
-    return _results(runs)
 
 
 def _open_seeds(

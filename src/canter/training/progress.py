@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
 
 class Progress:
     """A rich progress bar with steps, SPS, ETA and the recent mean return; a no-op when quiet."""
@@ -23,6 +29,7 @@ class Progress:
             TextColumn("ETA"),
             TimeRemainingColumn(),
             transient=False,
+            console=_console_that_outlives_stdout(),
         )
         self._bar.start()
         self._task = self._bar.add_task(
@@ -45,4 +52,20 @@ class Progress:
 
     def close(self) -> None:
         if self._bar is not None:
-            self._bar.stop()
+            # A terminal that hung up (a dropped ssh session, which also stops the run) fails the last draw with EIO:
+            # it costs only the bar, as a closed pipe does (`_console_that_outlives_stdout`).
+            with contextlib.suppress(OSError):
+                self._bar.stop()
+
+
+def _console_that_outlives_stdout() -> Console:
+    """A rich console that stops drawing once stdout is closed (`canter train ... | head`), where rich's own exits
+    the process (SystemExit(1)) from whatever draws: the bar is only shown, and the run it shows goes on, closes its
+    files and returns its result. A command then ends as `canter.cli.main` ends one whose stdout is closed."""
+    from rich.console import Console
+
+    class QuietOnceStdoutCloses(Console):
+        def on_broken_pipe(self) -> None:
+            self.quiet = True
+
+    return QuietOnceStdoutCloses()
