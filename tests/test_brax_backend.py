@@ -81,7 +81,7 @@ def test_runs_of_other_backends_evaluate_anywhere_but_on_brax():
     for trained_on in ("envpool", "mjx"):
         refused = (
             f"Brax observations differ from Gymnasium's, so a run trained on {trained_on} (Ant-v5) does not evaluate "
-            f"on brax; drop --backend brax (backend=)"
+            f"on brax; drop --backend brax (backend= for evaluate)"
         )
         with pytest.raises(CanterError, match=f"^{re.escape(refused)}$"):
             check_eval_env(_facts("Ant-v5", trained_on), None, "brax")

@@ -34,10 +34,12 @@ def check_eval_env(facts: PolicyFacts, env_id: str | None, backend: str | None, 
     trained_on = get_backend(facts.backend)
     if not trained_on.own_observations:
         played_on = get_backend(backend) if backend not in (None, AUTO) else None
-        if played_on is not None and played_on.own_observations:
+        # Where it is not installed, that is said first (resolve_backend), as it is of any backend.
+        if played_on is not None and played_on.own_observations and played_on.available():
             raise CanterError(
                 f"{played_on.label} observations differ from Gymnasium's, so a run trained on {trained_on.name} "
-                f"({facts.env_id}) does not evaluate on {played_on.name}; drop --backend {backend} (backend=)"
+                f"({facts.env_id}) does not evaluate on {played_on.name}; drop --backend {backend} (backend= for "
+                f"evaluate)"
             )
         _refuse_mujoco_py(facts, env_id, backend, varied)
         return
