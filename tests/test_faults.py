@@ -622,3 +622,23 @@ def test_the_rows_before_a_checkpoint_reach_the_disk_before_it_does(tmp_path, mo
     train(build_config("Pendulum-v1", preset="fast", total_steps=1024, sets=sets + ["run.checkpoint_every=256"]))
     saves = [i for i, event in enumerate(events) if event.startswith("save ckpt_")]
     assert len(saves) >= 2 and all(events[i - 1] == "sync metrics.csv" for i in saves), events
+
+
+@pytest.mark.slow
+def test_a_report_whose_videos_do_not_fit_in_the_temp_folder_names_tmpdir(tmp_path):
+    """The report renders its videos in a temp folder under TMPDIR, removed before the error is read: the fix names
+    TMPDIR's folder, not the removed one."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = (
+        f"mount -t tmpfs -o size=4k tmpfs {disk}\n"
+        f"rc=0; TMPDIR={disk} {CANTER} report {ARCHIVED_RUN} --episodes 0 --video --out {tmp_path / 'page.html'} "
+        f"2> {tmp_path / 'err'} || rc=$?\necho $rc > {tmp_path / 'rc'}\nls -A {disk} > {tmp_path / 'left'}\n"
+    )
+    result = _namespace_script(script)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "rc").read_text().strip() == "2"
+    error = _one_line_error((tmp_path / "err").read_text())
+    assert f"cannot write the report's videos in {disk}, the temp folder (TMPDIR)" in error, error
+    assert "canter-report-" not in error and "set TMPDIR to a folder with room" in error
+    assert (tmp_path / "left").read_text() == "" and not (tmp_path / "page.html").exists()

@@ -403,6 +403,18 @@ def statistics_section(board: Scoreboard | None) -> str:
     return "\n".join(parts + ([f"<p class='note'>{_e(note)}</p>"] if note else []))
 
 
+def _temp_video_error(exc: CanterError, folder: str) -> CanterError:
+    """A video that could not be written to the report's temp folder, which is gone by the time the user reads the
+    error: the fix names where that folder was made (TMPDIR), not the folder itself."""
+    if folder not in str(exc):
+        return exc
+    parent = Path(folder).parent
+    return CanterError(
+        f"cannot write the report's videos in {parent}, the temp folder (TMPDIR): it is full or not writable; "
+        f"free space in {parent}, or set TMPDIR to a folder with room, then run the command again"
+    )
+
+
 def _checkpoint_note(which: str) -> str:
     if which == checkpoint.BEST:
         return (
@@ -461,7 +473,10 @@ def build_report(
             if stop.signal is not None:
                 break
             path = Path(folder) / f"run{i + 1}.mp4"
-            returns = record_video(f.run_dir, path, episodes=1, seed=seed, checkpoint=which, stop=stop)
+            try:
+                returns = record_video(f.run_dir, path, episodes=1, seed=seed, checkpoint=which, stop=stop)
+            except CanterError as exc:
+                raise _temp_video_error(exc, folder) from None
             if stop.signal is None:  # a render that the stop cut short wrote no file
                 recorded[f.run_dir] = (path, returns)
         page = render_html(facts, rows, episodes, curves, smooth, recorded, which, board)
