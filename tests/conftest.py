@@ -28,6 +28,17 @@ def _in_tmp_dir(tmp_path, monkeypatch):
     yield
 
 
+@pytest.fixture(autouse=True)
+def _host_precision_after_each_test():
+    # A test that trains on mjx or brax turns JAX's 64-bit types off for the process; the next test in the same
+    # worker, whichever it is, starts from the host backends' precision again.
+    yield
+    from canter.envs.functional import x64_enabled
+
+    if not x64_enabled():
+        setup_jax()
+
+
 TINY = ["net.hidden=16,16", "run.tensorboard=false"]
 
 

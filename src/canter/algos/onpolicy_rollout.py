@@ -93,6 +93,49 @@ def collect(
     return obs_stats, return_stats, carry, transitions, next_obs
 
 
+class Collected(NamedTuple):
+    """What one rollout hands to the update: the transitions [T, N], the normalized observation after the last step
+    (for the bootstrap value), and the update's random key (key data)."""
+
+    transitions: Transition
+    next_obs: jnp.ndarray
+    learn_key: jnp.ndarray
+
+
+def make_rollout(
+    config: Config, action_low: Any, action_high: Any, env_step: Callable[[Any, jnp.ndarray], tuple[Any, StepOutput]]
+) -> Callable[[Any, EnvCarry], tuple[Any, EnvCarry, Collected]]:
+    """`rollout(state, carry) -> (state, carry, collected)`, the first part of an on-policy iteration: the train
+    state's normalizers and key move on, its parameters do not. `state` is any train state with `params`,
+    `obs_stats`, `return_stats` and `key` (key data); the update's key is split off here, as the rollout's is."""
+    low = jnp.asarray(action_low, jnp.float32)
+    high = jnp.asarray(action_high, jnp.float32)
+
+    def rollout(state: Any, carry: EnvCarry) -> tuple[Any, EnvCarry, Collected]:
+        key, rollout_key, learn_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
+        obs_stats, return_stats, carry, tr, next_obs = collect(
+            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config
+        )
+        state = state._replace(obs_stats=obs_stats, return_stats=return_stats, key=jax.random.key_data(key))
+        return state, carry, Collected(tr, next_obs, jax.random.key_data(learn_key))
+
+    return rollout
+
+
+def chain(
+    rollout: Callable[[Any, EnvCarry], tuple[Any, EnvCarry, Collected]],
+    learn: Callable[[Any, Collected, jnp.ndarray], tuple[Any, dict[str, Any]]],
+) -> Callable[[Any, EnvCarry, jnp.ndarray], tuple[Any, EnvCarry, dict[str, Any]]]:
+    """The whole iteration, `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, from its two parts."""
+
+    def iteration(state: Any, carry: EnvCarry, lr_fraction: jnp.ndarray) -> tuple[Any, EnvCarry, dict[str, Any]]:
+        state, carry, collected = rollout(state, carry)
+        state, metrics = learn(state, collected, lr_fraction)
+        return state, carry, metrics
+
+    return iteration
+
+
 def estimate_advantages(
     params: Params, transitions: Any, next_obs: jnp.ndarray, config: Config
 ) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:

@@ -13,6 +13,13 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
   `episode_return`, `episode_length` (arrays [T, N]) and `episode_info` (dict of [T, N]), plus one scalar per name
   in `metric_names`. Several seeds train together by `jax.vmap` over this function (canter.training.seedgroup), so it
   must stay pure JAX and must not read `config.run.seed` either.
+- `make_parts(config, spec, env_step)`, where the iteration is a rollout and then an update that never steps the
+  env (ppo, rpo, trpo), returns them as `rollout(state, carry) -> (state, carry, collected)` and
+  `learn(state, collected, lr_fraction) -> (state, metrics)`, the iteration being `learn` after `rollout`. The
+  trainer compiles them as two programs for an env whose step is not JAX (EnvPool, Gymnasium): a program holding
+  that step embeds the env's address, so it is compiled again by every process, while `learn` alone can be kept in
+  the compile cache and found again by a resume, a rerun or another seed's process. None where the update is
+  interleaved with the env steps (td3, sac, ddpg).
 - `metric_names`: the algorithm's diagnostics, written as metrics.csv columns in this order.
 - `make_act(config, spec)` returns `act(policy_params, obs_stats, raw_obs, key, deterministic) -> action`, clipped
   to the action bounds; `policy_params(state)` picks what it needs out of the train state.
@@ -72,6 +79,7 @@ class Algorithm:
     policy_params: Callable[[Any], Any]
     export_actor: Callable[..., ExportedActor]
     validate: Callable[[Config, EnvSpec], None]
+    make_parts: Callable[..., Any] | None = None  # see the module's docstring
     # Donate the train state to jit so large arrays (a replay buffer) are updated in place, not copied per call.
     # The input state is then invalid after the call, so an iteration reporting `finite` False must return the
     # last good state itself: the trainer checkpoints the returned state in that case.

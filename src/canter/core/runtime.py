@@ -43,8 +43,7 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     if not _platform_chosen:
         if not native and not os.environ.get("JAX_PLATFORMS"):
             jax.config.update("jax_platforms", "cpu")
-        if native:
-            use_compile_cache(jax)
+        use_compile_cache(jax)
         _platform_chosen = True
     try:
         jax.default_backend()  # starts the platform: a missing one fails here, in one line
@@ -87,11 +86,12 @@ def compile_cache_dir() -> str | None:
 
 
 def use_compile_cache(jax: Any) -> None:
-    """Keep the compiled programs of JAX-native runs across processes: a resume, a rerun, and bench seeds or trials
-    that share a program compile it again otherwise (an MJX iteration: 42 s on this CPU, up to two minutes on a
-    GPU; from the cache, 5 s). Programs that compile in under a second are not kept. EnvPool runs are left out:
-    their programs embed the pools' addresses, which differ in every process, so they would never be found again.
-    JAX's own JAX_COMPILATION_CACHE_DIR, where set, wins; an unusable folder leaves the cache off."""
+    """Keep compiled programs across processes: a resume, a rerun, and bench seeds or trials that share a program
+    compile it again otherwise (an MJX iteration: 42 s on this CPU, up to two minutes on a GPU; from the cache, 5 s).
+    Programs that compile in under a second are not kept. A program that holds EnvPool's step embeds the pool's
+    address, which differs in every process, so it is never found again (about 100 KiB each, until the size bound
+    drops it); an on-policy update is compiled apart from that step for this reason (`Algorithm.make_parts`), and
+    is found again. JAX's own JAX_COMPILATION_CACHE_DIR, where set, wins; an unusable folder leaves the cache off."""
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return
     folder = compile_cache_dir()

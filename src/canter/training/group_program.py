@@ -40,6 +40,32 @@ def fewer_envs_when_out_of_device_memory(envs: int) -> Iterator[None]:
         raise
 
 
+class TwoPrograms:
+    """An iteration as two jitted programs, `rollout(state, carry) -> (state, carry, collected)` and then
+    `learn(state, collected, lr_fraction) -> (state, metrics)`, lowered and compiled and called as one."""
+
+    def __init__(self, rollout: Any, learn: Any) -> None:
+        self.rollout, self.learn = rollout, learn
+
+    def lower(self, state: Any, carry: Any, lr_fraction: Any) -> TwoPrograms:
+        import jax
+
+        state_after, _, collected = jax.eval_shape(self.rollout, state, carry)
+        return TwoPrograms(self.rollout.lower(state, carry), self.learn.lower(state_after, collected, lr_fraction))
+
+    def compile(self) -> TwoPrograms:
+        return TwoPrograms(self.rollout.compile(), self.learn.compile())
+
+    @property
+    def programs(self) -> tuple[Any, Any]:
+        return self.rollout, self.learn
+
+    def __call__(self, state: Any, carry: Any, lr_fraction: Any) -> tuple[Any, Any, Any]:
+        state, carry, collected = self.rollout(state, carry)
+        state, metrics = self.learn(state, collected, lr_fraction)
+        return state, carry, metrics
+
+
 @dataclass(frozen=True)
 class Chunk:
     """One call of the group's program: the state and env carry it returned, its metrics on the host, and its wall
@@ -69,20 +95,29 @@ class GroupProgram:
         )
         donate = (0,) if algorithm.donate_state else ()
         self.pick: Callable[[Any, int], Any]  # seed i's part of a tree the group computed
+        jax_env = isinstance(env, JaxVecEnv)
         if self.group == 1:
             state = states[0]
-            self.iteration = jax.jit(algorithm.make_iteration(config, spec, env.jax_step), donate_argnums=donate)
+            env_step = env.jax_step
+            group: Callable[[Callable], Callable] = lambda f: f  # noqa: E731
             self.pick = lambda tree, i: tree
         else:
             from canter.training import seedgroup
 
             state = seedgroup.stack(states)
             # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
-            vmaps = isinstance(env, JaxVecEnv)
-            env_step = env.jax_step if vmaps else seedgroup.group_step(env.jax_step, self.group)
-            self.iteration = jax.jit(jax.vmap(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
+            env_step = env.jax_step if jax_env else seedgroup.group_step(env.jax_step, self.group)
+            group = jax.vmap
             self.pick = seedgroup.unstack
-        self.keeps_carry = isinstance(env, JaxVecEnv)
+        # An env step that is not JAX makes its program uncacheable (see `Algorithm.make_parts`): the update that
+        # does not step the env is compiled on its own where the algorithm can part them.
+        self.iteration: Any
+        if algorithm.make_parts is not None and not jax_env:
+            rollout, learn = algorithm.make_parts(config, spec, env_step)
+            self.iteration = TwoPrograms(jax.jit(group(rollout)), jax.jit(group(learn), donate_argnums=donate))
+        else:
+            self.iteration = jax.jit(group(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
+        self.keeps_carry = jax_env
         if algorithm.donate_state:
             state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
         self.state = state
@@ -105,7 +140,8 @@ class GroupProgram:
         start = time.perf_counter()
         with fewer_envs_when_out_of_device_memory(self.envs):
             self.compiled = self.iteration.lower(self.state, self.carry, self.lr_fractions(runs)).compile()
-        device_memory.check_fits(self.compiled, self.envs, self.call_sizes)
+        for program in getattr(self.compiled, "programs", (self.compiled,)):
+            device_memory.check_fits(program, self.envs, self.call_sizes)
         return time.perf_counter() - start
 
     def call(self, runs: list[SeedRun]) -> Chunk:

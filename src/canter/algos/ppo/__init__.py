@@ -50,6 +50,18 @@ def _make_rpo_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..
     return make_iteration(config, spec, env_step, rpo=True)
 
 
+def _make_parts(config: Config, spec: Any, env_step: Any) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    from canter.algos.ppo.iteration import make_parts
+
+    return make_parts(config, spec, env_step)
+
+
+def _make_rpo_parts(config: Config, spec: Any, env_step: Any) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    from canter.algos.ppo.iteration import make_parts
+
+    return make_parts(config, spec, env_step, rpo=True)
+
+
 def make_gaussian_act(config: Config, spec: Any) -> Callable[..., Any]:
     """`act(params, obs_stats, raw_obs, key, deterministic)` for the diagonal Gaussian actor of ppo and its kin."""
     import jax.numpy as jnp
@@ -92,6 +104,7 @@ _PPO = Algorithm(
     name="ppo",
     init_state=_init_state,
     make_iteration=_make_iteration,
+    make_parts=_make_parts,
     metric_names=PPO_METRICS,
     make_act=make_gaussian_act,
     policy_params=gaussian_policy_params,
@@ -100,4 +113,7 @@ _PPO = Algorithm(
     size_keys=GAUSSIAN_SIZE_KEYS,
 )
 # rpo is ppo whose loss shifts the policy mean by U(-rpo.alpha, rpo.alpha): only its iteration differs.
-ALGORITHMS = {"ppo": _PPO, "rpo": replace(_PPO, name="rpo", make_iteration=_make_rpo_iteration)}
+ALGORITHMS = {
+    "ppo": _PPO,
+    "rpo": replace(_PPO, name="rpo", make_iteration=_make_rpo_iteration, make_parts=_make_rpo_parts),
+}

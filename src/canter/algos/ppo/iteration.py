@@ -9,7 +9,14 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance, rollout_report
+from canter.algos.onpolicy_rollout import (
+    Collected,
+    chain,
+    estimate_advantages,
+    explained_variance,
+    make_rollout,
+    rollout_report,
+)
 from canter.algos.ppo.learner import adapt_kl_beta, make_optimizer, ppo_update
 from canter.algos.ppo.losses import Minibatch, loss_variant
 from canter.config.schema import Config
@@ -51,22 +58,14 @@ def init_train_state(config: Config, obs_dim: int, act_dim: int, seed: Any) -> T
     )
 
 
-def make_iteration(
-    config: Config, spec: EnvSpec, env_step: Any, rpo: bool = False
-) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
-    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit. `rpo` turns the
-    loss into RPO's (the rollout is the same: actions are sampled from the unshifted policy)."""
+def make_parts(config: Config, spec: EnvSpec, env_step: Any, rpo: bool = False) -> tuple[Callable, Callable]:
+    """The iteration's two parts, `rollout(state, carry) -> (state, carry, collected)` (canter.algos.onpolicy_rollout)
+    and `learn(state, collected, lr_fraction) -> (state, metrics)`: GAE and the update, which never step the env.
+    `rpo` turns the loss into RPO's (the rollout is the same: actions are sampled from the unshifted policy)."""
     variant = loss_variant(config, rpo)
-    low = jnp.asarray(spec.action_low, jnp.float32)
-    high = jnp.asarray(spec.action_high, jnp.float32)
 
-    def iteration(
-        state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray
-    ) -> tuple[TrainState, EnvCarry, dict[str, Any]]:
-        key, rollout_key, update_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
-        obs_stats, return_stats, carry, tr, next_obs = collect(
-            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config
-        )
+    def learn(state: TrainState, collected: Collected, lr_fraction: jnp.ndarray) -> tuple[TrainState, dict[str, Any]]:
+        tr, next_obs = collected.transitions, collected.next_obs
         values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         mask = tr.valid.astype(jnp.float32)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
@@ -83,6 +82,7 @@ def make_iteration(
         fraction = lr_fraction if config.ppo.anneal_lr else jnp.float32(1.0)
         actor_lr, critic_lr = config.ppo.lr * fraction, critic_lr * fraction
         kl_beta = state.kl_beta if variant.kl_penalty else jnp.float32(0.0)
+        update_key = jax.random.wrap_key_data(collected.learn_key)
         params, opt_state, diagnostics = ppo_update(
             state.params, state.opt_state, batch, update_key, actor_lr, critic_lr, config, variant, kl_beta
         )
@@ -100,16 +100,21 @@ def make_iteration(
             **rollout_report(tr, params),
         )
         steps = metrics["steps"]
-        new_state = TrainState(
-            params,
-            opt_state,
-            obs_stats,
-            return_stats,
-            jax.random.key_data(key),
-            state.iteration + 1,
-            state.global_step + steps,
-            new_beta,
+        new_state = state._replace(
+            params=params,
+            opt_state=opt_state,
+            iteration=state.iteration + 1,
+            global_step=state.global_step + steps,
+            kl_beta=new_beta,
         )
-        return new_state, carry, metrics
+        return new_state, metrics
 
-    return iteration
+    return make_rollout(config, spec.action_low, spec.action_high, env_step), learn
+
+
+def make_iteration(
+    config: Config, spec: EnvSpec, env_step: Any, rpo: bool = False
+) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
+    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit: one rollout, GAE
+    and update (`make_parts`)."""
+    return chain(*make_parts(config, spec, env_step, rpo))

@@ -46,11 +46,18 @@ def _make_iteration(config: Config, spec: Any, env_step: Any) -> Callable[..., A
     return make_iteration(config, spec, env_step)
 
 
+def _make_parts(config: Config, spec: Any, env_step: Any) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    from canter.algos.trpo.iteration import make_parts
+
+    return make_parts(config, spec, env_step)
+
+
 ALGORITHMS = {
     "trpo": Algorithm(
         name="trpo",
         init_state=_init_state,
         make_iteration=_make_iteration,
+        make_parts=_make_parts,
         metric_names=TRPO_METRICS,
         make_act=make_gaussian_act,
         policy_params=gaussian_policy_params,

@@ -15,7 +15,14 @@ import jax.numpy as jnp
 import optax
 from jax.flatten_util import ravel_pytree
 
-from canter.algos.onpolicy_rollout import collect, estimate_advantages, explained_variance, rollout_report
+from canter.algos.onpolicy_rollout import (
+    Collected,
+    chain,
+    estimate_advantages,
+    explained_variance,
+    make_rollout,
+    rollout_report,
+)
 from canter.algos.ppo.losses import gaussian_kl, masked_mean, normalize_advantages
 from canter.algos.trpo.natural import (
     backtracking_line_search,
@@ -173,22 +180,15 @@ def critic_regression(
     return critic, opt_state, losses[-1]
 
 
-def make_iteration(
-    config: Config, spec: EnvSpec, env_step: Any
-) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
-    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit. TRPO has no
-    policy learning rate, and the critic's is constant, so lr_fraction is unused."""
-    low = jnp.asarray(spec.action_low, jnp.float32)
-    high = jnp.asarray(spec.action_high, jnp.float32)
+def make_parts(config: Config, spec: EnvSpec, env_step: Any) -> tuple[Callable, Callable]:
+    """The iteration's two parts, `rollout(state, carry) -> (state, carry, collected)` (canter.algos.onpolicy_rollout)
+    and `learn(state, collected, lr_fraction) -> (state, metrics)`: GAE, the natural-gradient policy step and the
+    critic's regression. TRPO has no policy learning rate, and the critic's is constant, so lr_fraction is unused."""
 
-    def iteration(
-        state: TrainState, carry: EnvCarry, lr_fraction: jnp.ndarray
-    ) -> tuple[TrainState, EnvCarry, dict[str, Any]]:
+    def learn(state: TrainState, collected: Collected, lr_fraction: jnp.ndarray) -> tuple[TrainState, dict[str, Any]]:
         del lr_fraction
-        key, rollout_key, critic_key = jax.random.split(jax.random.wrap_key_data(state.key), 3)
-        obs_stats, return_stats, carry, tr, next_obs = collect(
-            state.params, state.obs_stats, state.return_stats, carry, rollout_key, env_step, low, high, config
-        )
+        tr, next_obs = collected.transitions, collected.next_obs
+        critic_key = jax.random.wrap_key_data(collected.learn_key)
         values, advantages, returns = estimate_advantages(state.params, tr, next_obs, config)
         flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
         mask = flat(tr.valid.astype(jnp.float32))
@@ -209,15 +209,20 @@ def make_iteration(
             **rollout_report(tr, params),
         )
         steps = metrics["steps"]
-        new_state = TrainState(
-            params,
-            critic_opt_state,
-            obs_stats,
-            return_stats,
-            jax.random.key_data(key),
-            state.iteration + 1,
-            state.global_step + steps,
+        new_state = state._replace(
+            params=params,
+            critic_opt_state=critic_opt_state,
+            iteration=state.iteration + 1,
+            global_step=state.global_step + steps,
         )
-        return new_state, carry, metrics
+        return new_state, metrics
 
-    return iteration
+    return make_rollout(config, spec.action_low, spec.action_high, env_step), learn
+
+
+def make_iteration(
+    config: Config, spec: EnvSpec, env_step: Any
+) -> Callable[[TrainState, EnvCarry, jnp.ndarray], tuple[TrainState, EnvCarry, dict[str, Any]]]:
+    """Return `iteration(state, carry, lr_fraction) -> (state, carry, metrics)`, ready for jax.jit: one rollout, GAE,
+    policy step and critic regression (`make_parts`)."""
+    return chain(*make_parts(config, spec, env_step))
