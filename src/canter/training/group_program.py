@@ -99,7 +99,7 @@ class GroupProgram:
         if self.group == 1:
             state = states[0]
             env_step = env.jax_step
-            group: Callable[[Callable], Callable] = lambda f: f  # noqa: E731
+            over_seeds: Callable[[Callable], Callable] = lambda f: f  # noqa: E731
             self.pick = lambda tree, i: tree
         else:
             from canter.training import seedgroup
@@ -107,16 +107,20 @@ class GroupProgram:
             state = seedgroup.stack(states)
             # A JAX env vmaps like the learner, each seed stepping its own envs; EnvPool's step goes through group_step.
             env_step = env.jax_step if jax_env else seedgroup.group_step(env.jax_step, self.group)
-            group = jax.vmap
+            over_seeds = jax.vmap
             self.pick = seedgroup.unstack
         # An env step that is not JAX makes its program uncacheable (see `Algorithm.make_parts`): the update that
         # does not step the env is compiled on its own where the algorithm can part them.
         self.iteration: Any
         if algorithm.make_parts is not None and not jax_env:
             rollout, learn = algorithm.make_parts(config, spec, env_step)
-            self.iteration = TwoPrograms(jax.jit(group(rollout)), jax.jit(group(learn), donate_argnums=donate))
+            self.iteration = TwoPrograms(
+                jax.jit(over_seeds(rollout)), jax.jit(over_seeds(learn), donate_argnums=donate)
+            )
         else:
-            self.iteration = jax.jit(group(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate)
+            self.iteration = jax.jit(
+                over_seeds(algorithm.make_iteration(config, spec, env_step)), donate_argnums=donate
+            )
         self.keeps_carry = jax_env
         if algorithm.donate_state:
             state = jax.device_put(state)  # donation needs device buffers (a resumed state holds numpy arrays)
