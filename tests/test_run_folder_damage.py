@@ -271,23 +271,27 @@ def test_a_resume_of_a_run_stopped_before_its_summary_writes_it_and_trains_nothi
     assert "already has 1190 of run.total_steps=1024 steps; pass a --total-steps" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("damage", ["malformed", "missing"])
+@pytest.mark.parametrize("damage", ["malformed", "missing", "cut"])
 def test_a_resume_of_a_finished_run_with_a_damaged_config_writes_it_again_and_trains_nothing(
     archived_run, capsys, damage
 ):
     """Every reader of such a config.toml advises `canter train --resume RUN` to write it again: for a finished run
-    that is all the resume does, and it succeeds, saying so once."""
+    that is all the resume does, and it succeeds, saying so once. A file cut short at a line's end still reads: its
+    lost keys (the budget among them) would take canter's defaults, and the resume would train on to 1M steps."""
     config = archived_run / "config.toml"
     kept = config.read_text()
     if damage == "missing":
         config.unlink()
+    elif damage == "cut":
+        config.write_text(kept[: kept.index("\ntotal_steps = ") + 1])
     else:
         config.write_text("[broken")
     summary = (archived_run / "summary.json").read_text()
     checkpoints = sorted((archived_run / "checkpoints").iterdir())
     assert main(["train", "--resume", str(archived_run)]) == 0
     captured = capsys.readouterr()
-    assert captured.err.count("cannot be read") == 1, captured.err
+    told = f"{config} lacks run.total_steps, " if damage == "cut" else "cannot be read"
+    assert captured.err.count(told) == 1, captured.err
     assert (
         f"canter: note: {archived_run} has trained its budget (1,190 steps), so nothing is trained: its config.toml "
         "is written again from ckpt_000000001190.npz (pass a larger --total-steps, total_steps= from Python, to train "

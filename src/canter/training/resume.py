@@ -10,7 +10,7 @@ import sys
 from collections.abc import Sequence
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -379,7 +379,7 @@ def saved_config(run_dir: Path, note: bool = True) -> Config:
 
     run_format(run_dir)  # a folder of a newer format is refused, not read through its checkpoint
     try:
-        return run_folder.read_config(run_dir)
+        return _lost_keys_restored(run_dir, run_folder.read_config(run_dir), note)
     except CanterError as damaged:
         if not (run_folder.list_checkpoints(run_dir) and unreadable_config(run_dir)):
             raise
@@ -395,6 +395,61 @@ def saved_config(run_dir: Path, note: bool = True) -> Config:
         return config
 
 
+class _CutConfig(NamedTuple):
+    lost: list[str]  # the keys config.toml lost, in the order the checkpoint holds them
+    saved: Config  # the newest checkpoint's config
+    present: dict[str, Any]  # what config.toml holds, as flat keys
+    newest: Path
+
+
+def _cut_config(run_dir: Path) -> _CutConfig | None:
+    """A config.toml that parses but lost keys that its newest checkpoint holds: a file cut short at a line's end
+    still reads, and each key it lost would take canter's default (the run's budget among them, so a resume would
+    train on to the default's 1M steps). A key counts where the checkpoint's config text holds it and a run of that
+    config reads it: a format-1 checkpoint holds every section, and an older file leaves out the keys whose value is
+    none, as its checkpoint does. None where nothing is lost or no readable checkpoint can say."""
+    import tomllib
+
+    from canter.config.overrides import flatten_toml
+    from canter.config.serialize import from_toml_text, written_keys
+
+    if not run_folder.list_checkpoints(run_dir):
+        return None
+    path = Path(run_dir) / CONFIG_FILE
+    try:
+        newest = checkpoint.latest(run_dir)
+        saved_text = checkpoint.config_text(checkpoint.read_header(newest), newest)
+        saved = from_toml_text(saved_text, str(newest))
+        present = flatten_toml(tomllib.loads(path.read_text(errors="replace")), str(path))
+    except (CanterError, OSError, tomllib.TOMLDecodeError):
+        return None  # the reading of that file or checkpoint by its own reader says what is wrong with it
+    read = {f"{section}.{name}" for section, names in written_keys(saved) for name in names}
+    lost = [key for key in flatten_toml(tomllib.loads(saved_text), str(newest)) if key in read and key not in present]
+    return _CutConfig(lost, saved, present, newest) if lost else None
+
+
+def _lost_keys_restored(run_dir: Path, config: Config, note: bool) -> Config:
+    """`config`, read from the run's config.toml, with the keys that the file lost taken from its newest checkpoint
+    (`_cut_config`)."""
+    from canter.config.overrides import apply_overrides
+    from canter.config.validate import validate
+
+    cut = _cut_config(run_dir)
+    if cut is None:
+        return config
+    path = run_dir / CONFIG_FILE
+    restored = apply_overrides(cut.saved, cut.present, str(path))
+    validate(restored)
+    if note:
+        named = ", ".join(cut.lost[:3]) + (f" and {len(cut.lost) - 3} more" if len(cut.lost) > 3 else "")
+        print(
+            f"canter: note: {path} lacks {named} (cut short?); resuming with the values saved in {cut.newest.name}, "
+            "which this resume writes back to config.toml",
+            file=sys.stderr,
+        )
+    return restored
+
+
 def header_config(header: dict[str, Any], path: Path) -> Config:
     """The run's whole config, as a checkpoint's header holds it."""
     from canter.config.serialize import from_toml_text
@@ -403,7 +458,8 @@ def header_config(header: dict[str, Any], path: Path) -> Config:
 
 
 def unreadable_config(run_dir: Path) -> bool:
-    """A config.toml missing, empty or not TOML: damaged, where a file that parses was written or edited as it is."""
+    """A config.toml missing, empty, not TOML or cut short (`_cut_config`): damaged, where a file that parses whole
+    was written or edited as it is."""
     import tomllib
 
     path = run_dir / CONFIG_FILE
@@ -414,7 +470,7 @@ def unreadable_config(run_dir: Path) -> bool:
         tomllib.loads(text)
     except tomllib.TOMLDecodeError:
         return True
-    return not text.strip()
+    return not text.strip() or _cut_config(run_dir) is not None
 
 
 def _reason(error: CanterError) -> str:
