@@ -108,6 +108,10 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--grid", "ppo.epochs=1,x"], "ppo.epochs: expected an integer"),
         (["--grid", "ppo.gamma=0.99,2"], "ppo.gamma must be in (0, 1]"),
         (["--grid", "run.seed=1,2"], "use --seeds"),
+        (
+            ["--grid", "run.preset=fast,cleanrl"],
+            "--grid run.preset is not a grid axis (a preset sets many keys); run one bench per --preset",
+        ),
         (["--grid", "ppo.clip"], "--grid expects KEY=V1,V2"),
         (["--grid", "ppo.clip=0.2,0.20"], "canter: error: --grid ppo.clip repeats 0.2; give each value once"),
         # A tuple typed with commas is split into one value per entry: the line says so, and how tuples are written.

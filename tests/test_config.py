@@ -87,6 +87,18 @@ def test_toml_round_trip_preserves_everything():
     assert from_toml_text(to_toml(nones), "test") == nones
 
 
+def test_the_divisor_a_refusal_offers_is_the_largest_one_found_by_trying_each():
+    from canter.algos.ppo.sections import largest_divisor
+
+    for batch in range(1, 400):
+        for at_most in (1, 2, 7, 64, 100, batch, batch + 5):
+            tried = max(d for d in range(1, min(batch, at_most) + 1) if batch % d == 0)
+            assert largest_divisor(batch, at_most) == tried
+    # A batch of a billion answers at once (trying each number up to it took minutes).
+    assert largest_divisor(1_000_000_000, 999_999_999) == 500_000_000
+    assert largest_divisor(2 * 999_999_937, 999_999_000) == 2  # 999,999,937 is prime
+
+
 @pytest.mark.parametrize(
     "sets, message",
     [

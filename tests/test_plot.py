@@ -548,3 +548,19 @@ def test_a_constant_curve_reads_its_value_on_the_axis(tmp_path):
     ax = fig.axes[0]
     assert ax.yaxis.get_offset_text().get_text() == ""
     assert any("0.0003" in label.get_text() for label in ax.get_yticklabels())
+
+
+def test_a_run_with_one_logged_row_shows_its_point():
+    """A line through one point draws nothing: each panel of a 2048-step run was empty."""
+    one = fake_run(np.array([2048]), [-1200.0])
+    fig = draw([Experiment("one", (one,))], ["episodic_return"])
+    (line,) = fig.axes[0].get_lines()
+    assert line.get_marker() == "o" and line.get_xydata().tolist() == [[2048.0, -1200.0]]
+    # Several runs: the range of their points is a bar, which the axis spans.
+    runs = tuple(fake_run(np.array([2048]), [value], seed=i) for i, value in enumerate([-1200.0, -1000.0, -900.0]))
+    fig = draw([Experiment("three", runs)], ["episodic_return"])
+    fig.canvas.draw()
+    low, high = fig.axes[0].get_ylim()
+    assert low <= -1200 and high >= -900 and len(fig.axes[0].collections) == 1
+    longer = fake_run(np.array([2048, 4096]), [-1200.0, -1100.0])
+    assert draw([Experiment("two", (longer,))], ["episodic_return"]).axes[0].get_lines()[0].get_marker() in ("None", "")

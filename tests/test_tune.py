@@ -192,6 +192,17 @@ def test_space_types_and_tuple_choices():
         ({"ppo": {"lr": {"low": 1e-5}}}, "needs choices"),
         ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 0.5}}}, "its step must be a whole number, got 0.5"),
         ({"ppo": {"epochs": {"low": 1, "high": 10, "step": 2.5}}}, "its step must be a whole number, got 2.5"),
+        ({"ppo": {"epochs": {"low": 1, "high": 3, "step": float("nan")}}}, "step must be a positive finite number"),
+        ({"ppo": {"epochs": {"low": 1, "high": 3, "step": float("inf")}}}, "step must be a positive finite number"),
+        ({"ppo": {"clip": {"low": 0.1, "high": 0.3, "step": float("nan")}}}, "step must be a positive finite number"),
+        ({"ppo": {"clip": {"low": 0.1, "high": 0.3, "step": True}}}, "step must be a positive finite number"),
+        # Optuna would cut high down to the last whole step, with a warning, and record the range it was given.
+        (
+            {"ppo": {"epochs": {"low": 1, "high": 10, "step": 2}}},
+            "step 2 does not divide the range 1 to 10; set high = 9, or pick a step that divides high - low = 9",
+        ),
+        ({"ppo": {"epochs": {"low": 1, "high": 3, "step": 10}}}, "step 10 is larger than the range 1 to 3"),
+        ({"ppo": {"clip": {"low": 0.1, "high": 0.3, "step": 0.15}}}, "set high = 0.25"),
         # Optuna refuses any step with log on a float, at every trial; an integer takes step 1.
         ({"ppo": {"lr": {"low": 1e-5, "high": 1e-2, "log": True, "step": 1}}}, "cannot combine with log"),
         ({"ppo": {"epochs": {"low": 1, "high": 16, "log": True, "step": 2}}}, "cannot combine with log"),
@@ -201,6 +212,14 @@ def test_space_types_and_tuple_choices():
 def test_bad_search_space_is_refused(data, message):
     with pytest.raises(CanterError, match=message.replace("(", r"\(").replace(".", r"\.")):
         parse_space(data, "space.toml")
+
+
+def test_a_step_that_divides_the_range_is_kept():
+    """Within float rounding: 0.2 / 0.1 is 2.0000000000000004."""
+    space = parse_space(
+        {"ppo": {"clip": {"low": 0.1, "high": 0.3, "step": 0.1}, "epochs": {"low": 2, "high": 10}}}, "t"
+    )
+    assert [(p.key, p.step) for p in space.params] == [("ppo.clip", 0.1), ("ppo.epochs", None)]
 
 
 def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):

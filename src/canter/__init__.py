@@ -46,8 +46,9 @@ def train(
 ) -> RunResult:
     """Train with a resolved config; returns a `RunResult` (run folder, steps, SPS, recent return). `run_dir`: the
     new run's folder (default: a new one under run.out_dir). `resume`: a run folder to continue from its newest
-    checkpoint; `config` must then equal the run's own apart from its budget (`resume_seeds([folder],
-    total_steps=...)` reads the run's own config)."""
+    checkpoint; `config` must then learn as the run's own does (the same seed and every key that changes what is
+    learned; its budget, output and bookkeeping keys may differ), and `resume_seeds([folder], total_steps=...)`
+    reads the run's own config."""
     from canter.training.loop import train as _train
 
     if isinstance(run_dir, str | os.PathLike) and str(run_dir).strip() and resume is None:  # train checks the rest

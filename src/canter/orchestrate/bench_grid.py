@@ -152,6 +152,10 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
         seen.add(key)
         if key in _FORBIDDEN:
             raise CanterError(f"--grid {key} is not a grid axis; use {_FORBIDDEN[key]}")
+        if key == "run.preset":  # it records the preset a config was built from; a cell's value would change nothing
+            raise CanterError(
+                "--grid run.preset is not a grid axis (a preset sets many keys); run one bench per --preset"
+            )
         if key == "run.algo":
             algos = list(raw)
             continue

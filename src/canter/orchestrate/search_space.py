@@ -239,13 +239,39 @@ def _param(key: str, spec: dict[str, Any], source: str) -> Param:
     step = spec.get("step")
     integer = isinstance(low, int)
     # Optuna takes log with no step on a float, and with step 1 on an integer.
-    if step is not None and (not isinstance(step, (int, float)) or step <= 0 or (log and (step != 1 or not integer))):
-        raise CanterError(f"{source}: [{key}] step must be a positive number (and cannot combine with log)")
-    if integer and step is not None and (isinstance(step, bool) or step != int(step)):
+    if step is not None and (
+        not isinstance(step, (int, float))
+        or isinstance(step, bool)
+        or not math.isfinite(step)
+        or step <= 0
+        or (log and (step != 1 or not integer))
+    ):
+        raise CanterError(f"{source}: [{key}] step must be a positive finite number (and cannot combine with log)")
+    if integer and step is not None and step != int(step):
         raise CanterError(f"{source}: [{key}] takes whole numbers, so its step must be a whole number, got {step}")
+    if step is not None:
+        _check_step_fits(key, low, high, step, source)
     for value in (low, high):
         _check_alone(key, value, source)
     return Param(key, low=low, high=high, log=log, step=step, integer=integer)
+
+
+def _check_step_fits(key: str, low: float, high: float, step: float, source: str) -> None:
+    """The range must hold a whole number of steps: Optuna would otherwise cut high down to the last step with a
+    warning, and the study would record a range that it never samples."""
+    steps = (high - low) / step
+    whole = math.floor(steps + 1e-9)
+    if abs(steps - round(steps)) <= 1e-9 * max(1.0, abs(steps)):
+        return
+    if whole == 0:
+        raise CanterError(
+            f"{source}: [{key}] step {step:g} is larger than the range {low:g} to {high:g}; pick a step that divides "
+            f"high - low = {high - low:g}"
+        )
+    raise CanterError(
+        f"{source}: [{key}] step {step:g} does not divide the range {low:g} to {high:g}; set high = "
+        f"{low + whole * step:g}, or pick a step that divides high - low = {high - low:g}"
+    )
 
 
 def apply_sample(base: Config, values: dict[str, Any]) -> Config:

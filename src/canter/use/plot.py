@@ -210,8 +210,11 @@ def draw(
             band = experiment_band(group, metric, x_axis, smooth, seed)
             if band is None:
                 continue
-            ax.plot(band.x, band.mean, color=color, linestyle=line_style, linewidth=1.6)
-            if band.kind != SINGLE:
+            lone = len(band.x) == 1  # a line through one point draws nothing: a run with one logged row
+            ax.plot(band.x, band.mean, color=color, linestyle=line_style, linewidth=1.6, marker="o" if lone else None)
+            if band.kind != SINGLE and lone:
+                ax.vlines(band.x, band.low, band.high, color=color, alpha=0.5, linewidth=4)
+            elif band.kind != SINGLE:
                 ax.fill_between(band.x, band.low, band.high, color=color, alpha=0.22, linewidth=0)
         ax.set_title(title, fontsize=11)
         ax.set_ylabel(unit, fontsize=9)
@@ -265,13 +268,12 @@ def draw(
 
 def _widen_if_flat(ax: Any) -> None:
     """A constant curve (a learning rate that is not annealed) varies by rounding alone after interpolation, and its
-    axis would span those 1e-19 steps ("1e-16+3e-4"); give it 5% of its value on each side instead."""
-    values = [np.asarray(line.get_ydata(), float) for line in ax.lines]
-    ys = np.concatenate(values) if values else np.array([])
-    ys = ys[np.isfinite(ys)]
-    if ys.size == 0 or ys.max() - ys.min() > 1e-9 * max(abs(ys.max()), abs(ys.min())):
+    axis would span those 1e-19 steps ("1e-16+3e-4"); give it 5% of its value on each side instead. The span is
+    that of everything drawn, bands included (a lone point's band is a vertical bar)."""
+    low, high = (float(v) for v in ax.dataLim.intervaly)
+    if not (math.isfinite(low) and math.isfinite(high)) or high - low > 1e-9 * max(abs(low), abs(high)):
         return
-    center = float(np.median(ys))
+    center = (low + high) / 2
     pad = abs(center) * 0.05 or 1.0
     ax.set_ylim(center - pad, center + pad)
 
