@@ -551,3 +551,16 @@ def test_seeds_given_as_text_and_an_empty_mlflow_store_are_refused(capsys):
         canter.train_seeds(config, [0, 1.5])
     one_line(capsys, ["train", "Pendulum-v1", "--track", "mlflow", "--mlflow-uri", ""], "--mlflow-uri is empty; give")
     one_line(capsys, ["eval", str(ARCHIVED_RUN), "--env", ""], "--env is empty; give an env id, or drop --env")
+
+
+def test_text_nested_past_the_recursion_limit_reads_as_malformed(archived_run, tmp_path, capsys):
+    # Python's parsers recurse once per level, so such text used to crash every reader with a RecursionError.
+    deep_toml = tmp_path / "deep.toml"
+    deep_toml.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    one_line(capsys, ["train", "Hopper-v5", "--config", str(deep_toml)], "malformed TOML in ")
+    one_line(capsys, ["tune", "Hopper-v5", "--space", str(deep_toml)], "nested too deeply to read")
+    for name in ("versions.json", "summary.json", "eval.json"):
+        (archived_run / name).write_text("[" * 5000 + "]" * 5000)
+    assert main(["report", str(archived_run), "--episodes", "0", "--out", str(tmp_path / "r.html")]) == 0
+    (archived_run / "trackers.json").write_text("{" + '"a":{' * 5000 + "}" * 5001)
+    one_line(capsys, ["train", "--resume", str(archived_run)], "trackers.json is not the JSON canter writes")

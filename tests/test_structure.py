@@ -12,8 +12,17 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "canter"
 
 # Layers from the bottom up: a module may import its own layer and the layers below it, never one above.
 LAYERS = ("foundation", "envs", "config", "core", "algos", "training", "use", "orchestrate", "cli")
-# Errors, safe file writes, the run folder's names, stop signals, and the packages that only hold shipped TOML data.
-FOUNDATION = {"canter.errors", "canter.files", "canter.run_layout", "canter.signals", "canter.presets", "canter.data"}
+# Errors, safe file writes, parsing that survives deep nesting, the run folder's names, stop signals, and the
+# packages that only hold shipped TOML data.
+FOUNDATION = {
+    "canter.errors",
+    "canter.files",
+    "canter.parsing",
+    "canter.run_layout",
+    "canter.signals",
+    "canter.presets",
+    "canter.data",
+}
 # The package's front door and the README generator sit above everything.
 TOP = {"canter", "canter.docs"}
 ENV_LIBRARIES = {"gymnasium", "envpool", "mujoco", "dm_control"}

@@ -5,13 +5,13 @@ never replaces a run's own file. Each caller asks its own question of `run_files
 with any sign of a run, while an output guard refuses only a folder that is surely one.
 """
 
-import json
 import re
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from canter.errors import CanterError
+from canter.parsing import json_value
 
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"
@@ -75,7 +75,7 @@ def read_object(path: Path) -> dict[str, Any] | None:
     """A JSON file's object; None where the file is missing, not JSON, or holds anything else (a damaged or
     hand-edited file)."""
     try:
-        data = json.loads(Path(path).read_text())
+        data = json_value(Path(path).read_text())
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None
@@ -130,7 +130,7 @@ def versions_record(run_dir: Path) -> tuple[dict[str, Any], str | None]:
     if not text.strip():
         return {}, "empty"
     try:
-        data = json.loads(text)
+        data = json_value(text)
     except ValueError:
         # The format of a damaged file still counts where it survives: one of a newer canter must stay refused.
         found = re.search(r'"run_format"\s*:\s*(\d+)', text)

@@ -14,6 +14,7 @@ from canter.config.peer_names import peer_keys
 from canter.config.schema import Config, field_names, field_types, section_names
 from canter.config.values import coerce
 from canter.errors import CanterError, joined
+from canter.parsing import toml_table
 
 
 def all_keys() -> list[str]:
@@ -135,7 +136,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise CanterError(f"config file not found: {path}")
     try:
-        return tomllib.loads(path.read_text())
+        return toml_table(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise CanterError(f"malformed TOML in {path}: {exc}") from None
     except UnicodeDecodeError:

@@ -19,6 +19,7 @@ from canter.config.schema import Config
 from canter.config.validate import validate
 from canter.config.values import toml_value
 from canter.errors import CanterError
+from canter.parsing import toml_table
 
 
 def written_keys(config: Config) -> list[tuple[str, list[str]]]:
@@ -58,7 +59,7 @@ def to_toml(config: Config) -> str:
 
 def from_toml_text(text: str, source: str) -> Config:
     try:
-        data: dict[str, Any] = tomllib.loads(text)
+        data: dict[str, Any] = toml_table(text)
     except tomllib.TOMLDecodeError as exc:
         raise CanterError(f"malformed TOML in {source}: {exc}") from None
     config = apply_overrides(Config(), flatten_toml(data, source), source)

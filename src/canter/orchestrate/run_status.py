@@ -3,13 +3,13 @@ from its checkpoints, config.toml and summary.json, each of which may be damaged
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from canter import run_layout
 from canter.errors import CanterError
+from canter.parsing import json_value
 from canter.run_layout import SUMMARY_FILE, StopReason
 
 
@@ -99,7 +99,7 @@ def _budget(path: Path) -> int | None:
 def read_json(path: Path) -> Any:
     """The file's JSON value; None where it is missing or not JSON."""
     try:
-        return json.loads(path.read_text())
+        return json_value(path.read_text())
     except (OSError, ValueError):
         return None
 

@@ -36,6 +36,7 @@ from canter.config.schema import Config, field_types
 from canter.config.validate import validate
 from canter.config.values import coerce
 from canter.errors import CanterError
+from canter.parsing import toml_table
 
 _RANGE_KEYS = {"low", "high", "log", "step"}
 _NONE_FIXED: Mapping[str, str] = MappingProxyType({})
@@ -127,7 +128,7 @@ def _read_space_file(path: Path) -> dict[str, Any]:
     except OSError as exc:  # a file that lists as regular but does not read, such as /proc/self/mem
         raise CanterError(f"cannot read search space file {path}: {exc.strerror or exc}; {_SPACE_TAKES}") from None
     try:
-        return tomllib.loads(data.decode("utf-8"))
+        return toml_table(data.decode("utf-8"))
     except UnicodeDecodeError:
         raise CanterError(
             f"search space file {path} is not UTF-8 text; save it as UTF-8, or pass another with --space"

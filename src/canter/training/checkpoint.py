@@ -30,6 +30,7 @@ from canter.config.schema import Config
 from canter.config.serialize import from_toml_text
 from canter.errors import CanterError, new_run, resume_run, with_python
 from canter.files import atomic_write_bytes
+from canter.parsing import json_value
 from canter.run_layout import (
     BEST_FILE,
     CHECKPOINT_FOLDER,
@@ -286,7 +287,7 @@ def read_header(path: Path) -> dict[str, Any]:
     _refuse_not_a_file(Path(path))
     try:
         with np.load(path, allow_pickle=False) as data:
-            header = json.loads(bytes(data["header"]).decode())
+            header = json_value(bytes(data["header"]).decode())
     except PermissionError:
         raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
@@ -300,7 +301,7 @@ def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     _refuse_not_a_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
-            header = json.loads(bytes(data["header"]).decode())
+            header = json_value(bytes(data["header"]).decode())
             arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
     except PermissionError:
         raise

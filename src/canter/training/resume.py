@@ -17,6 +17,7 @@ import numpy as np
 from canter.config.schema import Config
 from canter.config.values import unlimited_as_none
 from canter.errors import CanterError
+from canter.parsing import toml_table
 from canter.run_layout import (
     ARCHIVED_METRICS_FILE,
     CHECKPOINT_FOLDER,
@@ -420,11 +421,11 @@ def _cut_config(run_dir: Path) -> _CutConfig | None:
         newest = checkpoint.latest(run_dir)
         saved_text = checkpoint.config_text(checkpoint.read_header(newest), newest)
         saved = from_toml_text(saved_text, str(newest))
-        present = flatten_toml(tomllib.loads(path.read_text(errors="replace")), str(path))
+        present = flatten_toml(toml_table(path.read_text(errors="replace")), str(path))
     except (CanterError, OSError, tomllib.TOMLDecodeError):
         return None  # the reading of that file or checkpoint by its own reader says what is wrong with it
     read = {f"{section}.{name}" for section, names in written_keys(saved) for name in names}
-    lost = [key for key in flatten_toml(tomllib.loads(saved_text), str(newest)) if key in read and key not in present]
+    lost = [key for key in flatten_toml(toml_table(saved_text), str(newest)) if key in read and key not in present]
     return _CutConfig(lost, saved, present, newest) if lost else None
 
 
@@ -467,7 +468,7 @@ def unreadable_config(run_dir: Path) -> bool:
         return True
     text = path.read_text(errors="replace")
     try:
-        tomllib.loads(text)
+        toml_table(text)
     except tomllib.TOMLDecodeError:
         return True
     return not text.strip() or _cut_config(run_dir) is not None

@@ -40,6 +40,7 @@ from typing import Any
 
 from canter.errors import CanterError
 from canter.files import WriteError, is_write_error, make_folder
+from canter.parsing import json_value
 from canter.run_layout import LOCK_FILE as LOCK_FILE  # re-exported: bench and job code name it through this module
 
 OUT_OF_FILES = (errno.EMFILE, errno.ENFILE)  # the process's or the system's table of open files is full
@@ -85,7 +86,7 @@ def write_holder(fd: int, **fields: str) -> None:
 def read_holder(run_dir: Path) -> dict[str, Any]:
     """What the lock file records of the process that last took it ({} when there is none or it is unreadable)."""
     try:
-        found = json.loads((Path(run_dir) / LOCK_FILE).read_text())
+        found = json_value((Path(run_dir) / LOCK_FILE).read_text())
     except (OSError, ValueError):
         return {}
     return found if isinstance(found, dict) else {}

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 import re
 import tempfile
@@ -24,6 +23,7 @@ from canter.config.schema import Config
 from canter.config.serialize import to_toml
 from canter.config.values import set_text
 from canter.errors import CanterError
+from canter.parsing import json_value
 from canter.run_layout import VIDEOS_FOLDER
 from canter.signals import StopFlag
 from canter.training import checkpoint
@@ -302,7 +302,7 @@ def robustness_table(path: Path) -> str:
     """The numbers behind a robustness plot, from the JSON `canter eval --vary` writes beside it: return
     mean ± std at each scale, one column per run. Empty when there is no such file or it has another layout."""
     try:
-        data = json.loads(path.read_text())
+        data = json_value(path.read_text())
         runs = data["runs"]
         scales = [p["scale"] for p in runs[0]["points"]]
         rows = [[f"{scale:g}"] + [_robustness_cell(r["points"][j]) for r in runs] for j, scale in enumerate(scales)]

@@ -24,6 +24,7 @@ from canter.config.experiment import experiment_key, flat_config
 from canter.config.schema import Config
 from canter.errors import CanterError, first_line
 from canter.files import atomic_write_bytes
+from canter.parsing import json_value
 from canter.run_layout import TRACKERS_FILE
 from canter.training.trackers.base import RunContext, TrackerRun, TrackSpec
 from canter.training.trackers.registry import get_tracker
@@ -81,7 +82,7 @@ def read_ids(run_dir: Path) -> dict[str, dict[str, Any]]:
     if not path.is_file():
         return {}
     try:
-        ids = json.loads(path.read_text())
+        ids = json_value(path.read_text())
     except ValueError:
         ids = None
     if not isinstance(ids, dict) or not all(isinstance(entry, dict) for entry in ids.values()):
