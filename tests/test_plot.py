@@ -30,6 +30,8 @@ from canter.use.scoreboard import EVAL_SOURCE, TRAINING_SOURCE, RunScore, build_
         [1.0, np.nan, 3.0, 4.0, np.nan, np.nan, np.nan, 8.0, 9.0, 10.0],
         # Infinite rows (a diverged or damaged run) spoil only the windows that hold them.
         [1.0, np.inf, 3.0, 4.0, np.nan, -np.inf, 7.0, 8.0, np.inf, -np.inf, 11.0, 12.0, 13.0],
+        # A huge value (a loss that spiked) leaves the windows after it exact.
+        [1e17, 1.0, 2.0, np.nan, 3.0, 4.0, 5.0, 6.0, -3e18, 7.0, 8.0, 9.0, 1e-3, 2e-3],
     ],
 )
 def test_moving_average_matches_a_loop_with_nans(y):

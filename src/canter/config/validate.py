@@ -3,6 +3,7 @@ checks its algorithm declares across the keys it reads. Each failure is a one-li
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -19,6 +20,23 @@ def need(ok: bool, message: str) -> None:
 
 def need_positive(key: str, value: float) -> None:
     need(math.isfinite(value) and value > 0, f"{key} must be > 0, got {value}")
+
+
+# The learners and the JAX env steps compute in float32: a finite setting past its largest value becomes infinite there,
+# and a nonzero one below its smallest normal value becomes 0 (XLA flushes the rest), so either is refused by name.
+FLOAT32_MAX = 3.4028234663852886e38
+FLOAT32_TINY = 1.1754943508222875e-38
+
+
+def check_float32_range(section_name: str, section: Any) -> None:
+    for field in dataclasses.fields(section):
+        value = getattr(section, field.name)
+        if isinstance(value, float) and math.isfinite(value) and value != 0:
+            need(
+                FLOAT32_TINY <= abs(value) <= FLOAT32_MAX,
+                f"{section_name}.{field.name} {value:g} is beyond float32's range ({FLOAT32_TINY:.3g} to "
+                f"{FLOAT32_MAX:.3g} in size), which the learner computes in; choose a value within it",
+            )
 
 
 CONTACTS = ("all", "floor")
@@ -128,8 +146,10 @@ def validate(config: Config) -> None:
         "set env.normalize_reward=false or env.reward_scale=1",
     )
     spec = algorithm_spec(run.algo)
+    check_float32_range("env", env)
     for name in section_names():
         check_section(name, config.section(name))
+        check_float32_range(name, config.section(name))
     spec.validate(config)
     need(run.total_steps >= 1, f"run.total_steps must be >= 1, got {run.total_steps}")
     need(bool(run.out_dir.strip()), "run.out_dir is empty; give a folder for the run folders (the default is runs)")

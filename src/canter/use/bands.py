@@ -53,6 +53,20 @@ class Band:
     kind: str  # RANGE, BOOTSTRAP or SINGLE
 
 
+def trailing_sums(values: np.ndarray, window: int) -> np.ndarray:
+    """Row i sums values[i-window+1..i] (those that exist). Each window is one block's suffix plus the next block's
+    prefix, with blocks of `window` rows (van Herk, Gil-Werman), so the rounding of a huge value stays in the windows
+    that hold it: differences of one running total would lose every later window's small values to it."""
+    count = len(values)
+    padded = np.concatenate([np.zeros(window - 1), values, np.zeros(-(count + window - 1) % window)])
+    blocks = padded.reshape(-1, window)
+    prefix = np.cumsum(blocks, axis=1).ravel()
+    suffix = np.cumsum(blocks[:, ::-1], axis=1)[:, ::-1].ravel()
+    starts = np.arange(count)  # in the padded rows, row i's window starts at i and ends at i + window - 1
+    ends = starts + window - 1
+    return np.where(starts % window == 0, prefix[ends], suffix[starts] + prefix[ends])
+
+
 def moving_average(y: np.ndarray, window: int) -> np.ndarray:
     """Trailing moving average over the last `window` rows, ignoring NaNs (NaN only if all rows in it are NaN).
     `window=1` returns the input."""
@@ -63,8 +77,7 @@ def moving_average(y: np.ndarray, window: int) -> np.ndarray:
     valid = ~np.isnan(y)
 
     def in_window(values: np.ndarray) -> np.ndarray:
-        sums = np.cumsum(values)
-        return sums - np.concatenate([np.zeros(window), sums[:-window]])[: len(y)]
+        return trailing_sums(values, window)
 
     # Infinite rows (a diverged or damaged run) are counted apart: summed in, they would make every later window
     # inf - inf, and a window holding one is what a plain mean of it gives (inf, -inf, or NaN for both).
