@@ -22,6 +22,7 @@ from canter.use.curves import RunCurves, load_run, read_metrics
 from canter.use.experiments import Experiment, experiment_labels, experiments_of, method_labels
 from canter.use.plot import choose_metrics, draw, final_score, scoreboard_of, unused_diagnostic
 from canter.use.scoreboard import EVAL_SOURCE, TRAINING_SOURCE, RunScore, build_scoreboard
+from conftest import ARCHIVED_RUN, error_line
 
 
 @pytest.mark.parametrize(
@@ -566,3 +567,23 @@ def test_a_run_with_one_logged_row_shows_its_point():
     assert low <= -1200 and high >= -900 and len(fig.axes[0].collections) == 1
     longer = fake_run(np.array([2048, 4096]), [-1200.0, -1100.0])
     assert draw([Experiment("two", (longer,))], ["episodic_return"]).axes[0].get_lines()[0].get_marker() in ("None", "")
+
+
+def test_an_x_axis_that_a_run_did_not_log_is_named_not_drawn_empty(archived_run, tmp_path, capsys):
+    import csv
+
+    with (archived_run / "metrics.csv").open(newline="") as file:
+        rows = list(csv.reader(file))
+    wall = rows[0].index("wall_time")
+    with (archived_run / "metrics.csv").open("w", newline="") as file:
+        csv.writer(file).writerows(row[:wall] + row[wall + 1 :] for row in rows)
+    assert error_line(capsys, ["plot", str(archived_run), "--x", "wall", "--out", str(tmp_path / "a.png")]) == (
+        f"no wall_time values in the metrics.csv of {archived_run}, which --x wall draws against; plot with --x steps"
+    )
+    assert main(["plot", str(archived_run), "--out", str(tmp_path / "a.png")]) == 0
+    whole = tmp_path / "whole"
+    shutil.copytree(ARCHIVED_RUN, whole)
+    assert main(["plot", str(archived_run), str(whole), "--x", "wall", "--out", str(tmp_path / "b.png")]) == 0
+    assert f"canter: note: {archived_run} has no wall_time values in metrics.csv: left out of the panels" in (
+        capsys.readouterr().err
+    )

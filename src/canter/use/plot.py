@@ -181,8 +181,7 @@ def draw(
     from matplotlib.figure import Figure
     from matplotlib.ticker import EngFormatter
 
-    if x_axis not in X_AXES:
-        raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
+    _check_x_axis([run for group in groups for run in group.runs], x_axis)
     if not metrics:
         runs = ", ".join(str(run.run_dir) for group in groups for run in group.runs)
         raise CanterError(f"no metric with values to plot in {runs}; check their metrics.csv (damaged or empty?)")
@@ -322,6 +321,24 @@ def scoreboard_of(
     if all(cells.count(cell) < 2 for cell in cells):
         return None
     return build_scoreboard(rows, "; ".join(dict.fromkeys(sources)), seed=seed)
+
+
+def _check_x_axis(runs: Sequence[RunCurves], x_axis: str) -> None:
+    """Refuse an x axis that no run logged, and name the runs that the panels leave out for lacking it (a
+    metrics.csv that a user's script wrote or cut), rather than drawing panels without them in silence."""
+    if x_axis not in X_AXES:
+        raise CanterError(f"--x must be one of {', '.join(X_AXES)}, got {x_axis!r}")
+    column = X_AXES[x_axis][0]
+    lacking = [r.run_dir for r in runs if column not in r.columns or np.isnan(r.columns[column]).all()]
+    if lacking and len(lacking) == len(runs):
+        other = [name for name in X_AXES if name != x_axis]
+        raise CanterError(
+            f"no {column} values in the metrics.csv of {lacking[0]}"
+            + (f" or of the {len(lacking) - 1} other runs" if len(lacking) > 1 else "")
+            + f", which --x {x_axis} draws against; plot with --x {other[0]}"
+        )
+    if lacking:
+        _note_runs(lacking, f"no {column} values in metrics.csv: left out of the panels, which --x {x_axis} draws")
 
 
 def _note_runs(paths: Sequence[Path], what: str) -> None:
