@@ -86,6 +86,18 @@ def test_cells_have_deterministic_names_and_are_labelled_by_what_differs():
     assert algo_cells[3].name == "Hopper-v5__rpo__ppo.ent_coef=0.01"
 
 
+def test_an_axis_that_changes_only_the_outputs_is_noted_as_a_speed_axis(capsys):
+    grid = (("ppo.ent_coef", ("0", "0.01")), ("run.tensorboard", ("true", "false")), ("env.envpool_shards", ("0", "1")))
+    cells = make_cells(BenchSettings(("ppo",), ("Hopper-v5",), (0,), 1000, grid=grid))
+    assert len(cells) == 8
+    notes = capsys.readouterr().err.splitlines()
+    assert [line.split()[3] for line in notes] == ["run.tensorboard", "env.envpool_shards"]
+    assert notes[0] == (
+        "canter: note: --grid run.tensorboard changes how the work is done or written, not what is learned: its cells "
+        "learn the same numbers, so compare their speed, not their scores"
+    )
+
+
 def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
     cells = make_cells(BenchSettings(algos=("ppo", "td3", "sac"), envs=("Hopper-v5",), seeds=(0, 1), total_steps=1000))
     jobs = make_jobs(cells, (0, 1))

@@ -4,12 +4,14 @@ its validated config) and its jobs (the seeds of a cell that one child process t
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+import sys
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from canter.config.algorithms import reads_key, unread_key_error
 from canter.config.build import build_config
+from canter.config.fields import OUTPUT, role_of
 from canter.config.overrides import all_keys, unknown_key_error
 from canter.config.schema import Config, field_types
 from canter.config.values import coerce, is_tuple_field
@@ -212,7 +214,20 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
     for env_id, backend in dict.fromkeys((cell.env_id, cell.config.env.backend) for cell in cells):
         resolve_backend(env_id, backend)  # on the backend the cell runs it on (--backend, --set or a --grid axis)
         check_continuous(env_id, backend)  # last: it makes an env
+    for key in [key for key, _ in axes if _writes_only(key)]:
+        print(
+            f"canter: note: --grid {key} changes how the work is done or written, not what is learned: its cells "
+            "learn the same numbers, so compare their speed, not their scores",
+            file=sys.stderr,
+        )
     return cells
+
+
+def _writes_only(key: str) -> bool:
+    """A key whose role is OUTPUT: where and how results are written or the work split up (such as
+    env.envpool_shards, a fair speed axis), never the numbers."""
+    section, _, name = key.partition(".")
+    return any(f.name == name and role_of(f) == OUTPUT for f in fields(Config().section(section)))
 
 
 def varying_keys(cells: list[Cell]) -> list[str]:
