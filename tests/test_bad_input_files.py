@@ -80,6 +80,24 @@ def test_damaged_run_files_are_one_line_errors(archived_run, tmp_path, capsys):
     one_line(capsys, ["plot", str(archived_run), "--out", str(tmp_path / "a.png")], "metrics.csv is damaged")
     (archived_run / "metrics.csv").write_text("global_step\n1\n2\n")
     one_line(capsys, ["plot", str(archived_run), "--out", str(tmp_path / "a.png")], "no metric with values to plot")
+    # NUL bytes in place of a line's end join two rows into one: refused, not read with a row lost.
+    (archived_run / "metrics.csv").write_bytes(rows[:300] + b"\0" * 200 + rows[500:])
+    line = rows[:300].count(b"\n") + 1
+    for argv in (
+        ["plot", str(archived_run), "--out", str(tmp_path / "a.png")],
+        ["train", "--resume", str(archived_run), "--total-steps", "9000"],
+    ):
+        one_line(capsys, argv, f"metrics.csv is damaged (NUL bytes on line {line}); restore it from a copy, or move")
+    lines = rows.splitlines(keepends=True)
+    (archived_run / "metrics.csv").write_bytes(lines[0] + lines[1].rstrip() + b",7,8\r\n")
+    one_line(capsys, ["plot", str(archived_run), "--out", str(tmp_path / "a.png")], "line 2 has more cells than")
+    # A file zeroed whole: the one refusal, without the note that a resume logs on from its checkpoint.
+    (archived_run / "metrics.csv").write_bytes(b"\0" * len(rows))
+    one_line(
+        capsys,
+        ["train", "--resume", str(archived_run), "--total-steps", "9000"],
+        "metrics.csv is damaged (NUL bytes on line 1)",
+    )
 
 
 def test_a_report_shows_damaged_summary_values_as_dashes_and_skips_dangling_links(archived_run, tmp_path):
@@ -569,4 +587,8 @@ def test_text_nested_past_the_recursion_limit_reads_as_malformed(archived_run, t
         (archived_run / name).write_text("[" * 5000 + "]" * 5000)
     assert main(["report", str(archived_run), "--episodes", "0", "--out", str(tmp_path / "r.html")]) == 0
     (archived_run / "trackers.json").write_text("{" + '"a":{' * 5000 + "}" * 5001)
-    one_line(capsys, ["train", "--resume", str(archived_run)], "trackers.json is not the JSON canter writes")
+    one_line(
+        capsys,
+        ["train", "--resume", str(archived_run), "--total-steps", "9000"],
+        "trackers.json is not the JSON canter writes",
+    )

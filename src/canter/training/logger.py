@@ -83,11 +83,26 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     if not path.is_file():
         return [], []
     # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
-    reader = csv.DictReader(io.StringIO(_whole_lines(path).decode("utf-8-sig", errors="replace"), newline=""))
+    text = _whole_lines(path).decode("utf-8-sig", errors="replace")
+    # NUL bytes (a block that a crash or a bad copy zeroed) can replace a line's end, so that two rows read as one:
+    # not a file canter wrote, and rows would be lost without a word.
+    if "\0" in text:
+        raise _damaged(path, f"NUL bytes on line {text.count(chr(10), 0, text.index(chr(0))) + 1}")
+    reader = csv.DictReader(io.StringIO(text, newline=""))
     try:
-        return list(reader.fieldnames or []), [row for row in reader if row.get("global_step")]
-    except csv.Error as exc:  # a NUL byte, a field past the csv module's limit: not a file canter wrote
-        raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
+        header, rows = list(reader.fieldnames or []), []
+        for row in reader:
+            if None in row:  # the cells past the header's last column
+                raise _damaged(path, f"line {reader.line_num} has more cells than the header names")
+            if row.get("global_step"):
+                rows.append(row)
+        return header, rows
+    except csv.Error as exc:  # a field past the csv module's limit: not a file canter wrote
+        raise _damaged(path, str(exc)) from None
+
+
+def _damaged(path: Path, why: str) -> CanterError:
+    return CanterError(f"{path} is damaged ({why}); restore it from a copy, or move it away")
 
 
 def _header(path: Path) -> list[str]:
@@ -104,9 +119,12 @@ def _header(path: Path) -> list[str]:
 
 def _first_row(path: Path, lines: Any) -> list[str]:
     try:
-        return next(csv.reader(lines), [])
+        header = next(csv.reader(lines), [])
     except csv.Error as exc:
-        raise CanterError(f"{path} is damaged ({exc}); restore it from a copy, or move it away") from None
+        raise _damaged(path, str(exc)) from None
+    if any("\0" in name for name in header):
+        raise _damaged(path, "NUL bytes on line 1")
+    return header
 
 
 def _count(text: str | None) -> int:
@@ -262,10 +280,10 @@ class MetricsLogger:
         self.columns = columns_for(metric_names, info_keys, evaluates)
         packed = self.path.with_name(self.path.name + ".gz")
         source = packed if packed.is_file() and not self.path.exists() else self.path
-        if resume_step:
-            self._note_a_lost_history(source, resume_step)
         # Checked before anything is changed: a refused file, archived or not, stays as it is.
         self._check_header(source)
+        if resume_step:
+            self._note_a_lost_history(source, resume_step)
         if resume_step:
             self._refuse_rows_cut_back(source, resume_step)
         self._unpack_archived()
