@@ -87,7 +87,8 @@ def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     # NUL bytes (a block that a crash or a bad copy zeroed) can replace a line's end, so that two rows read as one:
     # not a file canter wrote, and rows would be lost without a word.
     if "\0" in text:
-        raise _damaged(path, f"NUL bytes on line {text.count(chr(10), 0, text.index(chr(0))) + 1}")
+        line = text.count("\n", 0, text.index("\0")) + 1
+        raise _damaged(path, f"NUL bytes on line {line}")
     reader = csv.DictReader(io.StringIO(text, newline=""))
     try:
         header, rows = list(reader.fieldnames or []), []
@@ -284,7 +285,6 @@ class MetricsLogger:
         self._check_header(source)
         if resume_step:
             self._note_a_lost_history(source, resume_step)
-        if resume_step:
             self._refuse_rows_cut_back(source, resume_step)
         self._unpack_archived()
         self._cut_half_written_line()
