@@ -412,6 +412,8 @@ def test_a_path_of_the_wrong_kind_says_what_is_wanted(archived_run, tmp_path, ca
 
 
 def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
+    import jax
+
     import canter
 
     policy = canter.load(archived_run)
@@ -423,8 +425,13 @@ def test_a_policy_refuses_observations_that_are_not_real_numbers(archived_run):
         policy(good + 1j)
     with pytest.raises(CanterError, match=rf"observations of shape \(batch, {policy.obs_dim}\), got \(2, 1\)"):
         policy(np.zeros((2, 1)))
-    with pytest.raises(CanterError, match="policy expects numeric observations of shape"):
-        policy([[1.0, 2.0, 3.0], [1.0, 2.0]])  # ragged
+    with pytest.raises(CanterError, match=r"shape \(batch, 4\), got rows of different lengths$"):
+        policy([[1.0, 2.0, 3.0, 4.0], [1.0, 2.0]])
+    with pytest.raises(CanterError, match=r"inside jax.jit, vmap or grad; use policy.traced\(\)"):
+        jax.jit(lambda obs: policy(obs))(np.zeros((1, policy.obs_dim), np.float32))
+    # The caller owns what it gets, a batch's actions or one observation's.
+    for actions in (policy(good), policy(good[0]), policy(good, deterministic=False, seed=1)):
+        actions += 1
     # numpy reads None as NaN, on which the policy would act
     with pytest.raises(CanterError, match=r"policy expects numeric observations of shape \(batch, \d+\), got None$"):
         policy(None)
@@ -452,6 +459,15 @@ def test_the_python_api_refuses_arguments_of_the_wrong_kind_in_one_line(archived
     import canter
 
     policy = canter.load(archived_run)
+    config = canter.build_config("InvertedPendulum-v5", sets=[f"run.out_dir={tmp_path}"])
+    for call in (
+        lambda: canter.train(config, quiet="no"),
+        lambda: canter.train_seeds(config, [0], quiet="no"),
+        lambda: canter.resume_seeds([archived_run], quiet="yes"),
+    ):
+        with pytest.raises(CanterError, match=r"quiet must be True or False, got '(no|yes)'$"):
+            call()
+    assert not any(tmp_path.glob("InvertedPendulum*"))
     for episodes in (2.5, True, "3", 0):
         with pytest.raises(CanterError, match=r"episodes must be a whole number >= 1, got "):
             canter.evaluate(policy, episodes=episodes)

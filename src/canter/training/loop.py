@@ -65,6 +65,7 @@ def train(
     in its budget: run.total_steps (the learning-rate schedule is stretched to the new total), run.max_minutes and
     run.stop_at_return, and in keys that do not change what is learned (outputs and bookkeeping,
     `canter.config.experiment`), but not in its seed or in what is learned."""
+    _need_quiet(quiet)
     _need_a_config(config)
     need_a_folder(run_dir, "run_dir")
     need_a_folder(resume, "resume")
@@ -90,6 +91,7 @@ def train_seeds(
     """Train one run per seed in a single vmapped program (see canter.training.seedgroup); `config.run.seed` is
     replaced by each seed. Every seed writes its own run folder, the same as `train(config with that seed)` would, and
     follows the same curve up to floating-point reassociation. Results are in the order of `seeds`."""
+    _need_quiet(quiet)
     _need_a_config(config)
     seeds = _checked_seeds(seeds)
     if not seeds:
@@ -103,6 +105,11 @@ def train_seeds(
     configs = [config.with_values("run", seed=seed) for seed in seeds]
     dirs: list[str | Path | None] = list(run_dirs) if run_dirs is not None else [None] * len(seeds)
     return _train_group(configs, [None] * len(seeds), dirs, quiet)
+
+
+def _need_quiet(quiet: object) -> None:
+    if not isinstance(quiet, bool | np.bool_):  # a string such as "no" would read as true
+        raise CanterError(f"quiet must be True or False, got {quiet!r}")
 
 
 def _need_a_config(config: object) -> None:
@@ -159,6 +166,7 @@ def resume_seeds(
     would resumed alone. Any folder can also be resumed alone with `train(..., resume=folder)`. A folder that has
     its budget already (a seed of the group that finished before a signal stopped the others) is left out with a
     note; the results are those of the folders resumed."""
+    _need_quiet(quiet)
     _need_folders(run_dirs)
     if not run_dirs:
         raise CanterError(

@@ -71,6 +71,12 @@ class Policy:
             raise CanterError(f"deterministic must be True or False, got {deterministic!r}")
         if seed is not None:
             seed = check_seed(seed)
+        given: object = obs_batch  # whatever the annotation says, a jitted caller passes a tracer
+        if isinstance(given, jax.core.Tracer):  # the policy runs a compiled program of its own, on host arrays
+            raise CanterError(
+                "a Policy cannot be called inside jax.jit, vmap or grad; use policy.traced(), a pure JAX function of "
+                "the same actions, there"
+            )
         try:
             if np.iscomplexobj(obs_batch):  # numpy would drop the imaginary part with a warning
                 raise CanterError("policy expects real-valued observations, got complex numbers")
@@ -81,6 +87,10 @@ class Policy:
                 )
             obs = np.asarray(obs_batch, np.float32)
         except (TypeError, ValueError):
+            if _ragged(obs_batch):
+                raise CanterError(
+                    f"policy expects observations of shape (batch, {self.obs_dim}), got rows of different lengths"
+                ) from None
             raise CanterError(
                 f"policy expects numeric observations of shape (batch, {self.obs_dim}), got {type(obs_batch).__name__} "
                 "that is not numbers"
@@ -97,8 +107,18 @@ class Policy:
             if seed is not None:
                 self._key = jax.random.key(seed)
             self._key, key = jax.random.split(self._key)
-        action = self._act(self.params, self.obs_stats, obs, key, deterministic)
+        # A copy: the caller owns it, and may write to it, where JAX's own buffer is read-only.
+        action = np.array(self._act(self.params, self.obs_stats, obs, key, deterministic))
         return action[0] if single else action
+
+
+def _ragged(obs_batch: Any) -> bool:
+    """Rows of different lengths, which numpy cannot stack into one array."""
+    try:
+        lengths = {len(row) for row in obs_batch}
+    except TypeError:
+        return False
+    return len(lengths) > 1
 
 
 def _holds_none(obs_batch: Any) -> bool:
