@@ -66,6 +66,17 @@ def test_a_policy_takes_numpy_bools_and_a_seed(policy):
     assert mean.shape == (policy.act_dim,) and np.array_equal(first, again)
 
 
+def test_a_sampled_evaluation_leaves_the_policys_own_stream_as_it_was(policy):
+    obs = np.zeros(policy.obs_dim, np.float32)
+    policy(obs, deterministic=False, seed=5)
+    expected = policy(obs, deterministic=False)
+    policy(obs, deterministic=False, seed=5)
+    first = canter.evaluate(policy, episodes=1, deterministic=False, seed=9)
+    assert np.array_equal(policy(obs, deterministic=False), expected)
+    again = canter.evaluate(policy, episodes=1, deterministic=False, seed=9)
+    assert np.array_equal(first.returns, again.returns)
+
+
 def test_a_policy_and_an_evaluation_show_what_they_are(policy):
     shown = repr(policy)
     assert shown.startswith(f"Policy({policy.facts.env_id}, {policy.config.run.algo}, step ")

@@ -468,6 +468,10 @@ def test_the_python_api_refuses_arguments_of_the_wrong_kind_in_one_line(archived
         with pytest.raises(CanterError, match=r"quiet must be True or False, got '(no|yes)'$"):
             call()
     assert not any(tmp_path.glob("InvertedPendulum*"))
+    for name, number in (("seed", 1.0), ("seed", "1"), ("total_steps", 1000.0), ("total_steps", "1000")):
+        with pytest.raises(CanterError, match=rf"^{name}= must be a whole number \(an int\) or None, got "):
+            canter.build_config("InvertedPendulum-v5", **{name: number})
+    assert canter.build_config("InvertedPendulum-v5", seed=np.int64(3), total_steps=np.int32(500)).run.seed == 3
     for episodes in (2.5, True, "3", 0):
         with pytest.raises(CanterError, match=r"episodes must be a whole number >= 1, got "):
             canter.evaluate(policy, episodes=episodes)
@@ -482,6 +486,9 @@ def test_the_python_api_refuses_arguments_of_the_wrong_kind_in_one_line(archived
     newest = sorted((archived_run / "checkpoints").glob("ckpt_*.npz"))[-1]
     with pytest.raises(CanterError, match=rf"checkpoint not found: {newest.name}; the run's own is {newest}: pass"):
         canter.load(archived_run, checkpoint=newest.name)
+    within = Path("checkpoints") / newest.name  # relative to the run folder, not to the working directory
+    with pytest.raises(CanterError, match=rf"checkpoint not found: {within}; the run's own is {newest}: pass"):
+        canter.load(archived_run, checkpoint=within)
     with pytest.raises(CanterError, match=r"metrics.csv is a file, not a run folder; pass the folder that holds it$"):
         canter.load(archived_run / "metrics.csv")
 

@@ -102,8 +102,10 @@ def evaluate(
     physics: Mapping[str, Any] | None = None,
 ) -> EvalResult:
     """Evaluate a `Policy` with frozen normalizer statistics; returns an `EvalResult` (returns, lengths, time). A
-    best checkpoint plays held-out env seeds, which the evaluations that chose it never played. `physics` changes the
-    eval envs' physics settings on mjx, e.g. `{"solver_iterations": 4}` (default: the run's own)."""
+    best checkpoint plays held-out env seeds, which the evaluations that chose it never played. With
+    `deterministic=False` the actions are sampled from a stream that `seed` starts, apart from the policy's own.
+    `physics` changes the eval envs' physics settings on mjx, e.g. `{"solver_iterations": 4}` (default: the run's
+    own)."""
     from canter.use.evaluate import evaluate as _evaluate
 
     return _evaluate(

@@ -6,6 +6,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from canter.config.algorithms import (
     algorithm_names,
     check_algorithm_name,
@@ -122,6 +124,10 @@ def build_config(
         raise CanterError(
             f"--algo (algo= from Python) is empty; give one of {', '.join(algorithm_names())}, or drop it"
         )
+    for name, number in (("seed", seed), ("total_steps", total_steps)):
+        # A float or a string would be converted as a TOML value is, where the API's other seeds refuse them.
+        if number is not None and (isinstance(number, bool) or not isinstance(number, int | np.integer)):
+            raise CanterError(f"{name}= must be a whole number (an int) or None, got {number!r}")
     file_data = flatten_toml(load_toml(config_file), str(config_file)) if config_file else {}
     set_data = parse_set_args([] if sets is None else sets)
     resolved_id = env_id or set_data.get("env.id") or file_data.get("env.id")

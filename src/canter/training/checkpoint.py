@@ -483,8 +483,12 @@ def resolve(run_dir: Path, which: str | Path = LAST) -> Path:
     need_run_folder(run_dir)
     if which != BEST:  # a file: a `Path` never equals a name
         path = Path(which)
-        inside = checkpoint_dir(run_dir) / path.name
-        if not path.exists() and len(path.parts) == 1 and inside.is_file():  # a name read from the run's listing
+        # A name read from the run's listing, or a path read from inside the run folder: both are read from the
+        # working directory.
+        meant = [checkpoint_dir(run_dir) / path.name] if len(path.parts) == 1 else []
+        meant += [run_dir / path] if not path.is_absolute() else []
+        inside = next((candidate for candidate in meant if candidate.is_file()), None)
+        if not path.exists() and inside is not None:
             raise CanterError(f"checkpoint not found: {path}; the run's own is {inside}: pass that path")
         return path
     _need_checkpoint_folder(run_dir)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -202,12 +203,13 @@ def evaluate(
     if env_id == policy.facts.env_id:
         note_replay(env_id, policy.facts.backend, backend)
     first_call = [not deterministic]
+    sampler = copy.copy(policy)  # a sampling stream of its own: evaluating leaves the caller's policy as it was
 
     def act(obs: np.ndarray) -> np.ndarray:
         if first_call[0]:
-            policy(obs[:1], deterministic=False, seed=seed)  # seed the sampling stream
+            sampler(obs[:1], deterministic=False, seed=seed)  # seed the sampling stream
             first_call[0] = False
-        return policy(obs, deterministic=deterministic)
+        return sampler(obs, deterministic=deterministic)
 
     purpose = HELD_OUT if policy.chosen_by_evaluation else EVAL
     traced = policy.traced() if deterministic and prepare_env is None else None
