@@ -11,15 +11,20 @@ import subprocess
 import sys
 from collections.abc import Iterator
 
+import optuna
 import pytest
+from optuna.trial import TrialState
 
 from canter import signals
 from canter.cli import main as cli
 from canter.config.build import build_config
+from canter.orchestrate.study import FAIL_REASON, Outcome, StorageSettings, open_storage, run_worker
+from canter.orchestrate.tune import announced
 from canter.training import loop
 from canter.training.progress import Progress
 from canter.training.seed_run import SeedRun
 from conftest import TINY
+from test_tune import tiny_args
 
 CANTER = [sys.executable, "-m", "canter.cli"]
 TINY_TRAIN = ["train", "Pendulum-v1", "--total-steps", "2048", "--set", "env.num_envs=4", "--set", "net.hidden=16,16"]
@@ -91,6 +96,61 @@ def test_eval_to_a_closed_stdout_writes_its_json_then_ends_quietly(archived_run,
     )
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert [run["run"] for run in json.loads(results.read_text())["runs"]] == [str(archived_run)]
+
+
+def _study(tmp_path):
+    storage = open_storage(StorageSettings(f"sqlite:///{tmp_path / 'study.db'}", 1, 3))
+    return storage, optuna.create_study(storage=storage, study_name="unread", direction="maximize")
+
+
+def test_a_worker_whose_stdout_nobody_reads_stops_and_queues_its_trial_again(tmp_path, monkeypatch, capsys):
+    """A print to a closed stdout (`canter tune | head -c 5`) failed the trial, and the next, until the worker gave
+    up: a study of 200 failed trials, each counted as a fault of its settings."""
+    storage, study = _study(tmp_path)
+    started = []
+
+    def prints_its_start(trial):
+        started.append(trial.number)
+        print(f"start trial {trial.number}", flush=True)
+        return Outcome("complete", value=1.0)
+
+    # Closing the stream flushes the line that failed, which fails again.
+    with closed_pipe() as closed, contextlib.suppress(BrokenPipeError), open(closed, "w", closefd=False) as stdout:
+        monkeypatch.setattr(sys, "stdout", stdout)
+        with pytest.raises(BrokenPipeError):
+            run_worker(study, storage, 5, prints_its_start, heartbeat_seconds=1, poll_seconds=0.01)
+    trials = study.get_trials()
+    assert started == [0]
+    assert [t.state for t in trials] == [TrialState.FAIL, TrialState.WAITING]
+    assert trials[0].user_attrs[FAIL_REASON] == "interrupted"
+
+
+def test_a_trial_whose_end_line_nobody_reads_keeps_its_outcome(tmp_path, monkeypatch):
+    storage, study = _study(tmp_path)
+    with closed_pipe() as closed, contextlib.suppress(BrokenPipeError), open(closed, "w", closefd=False) as stdout:
+        monkeypatch.setattr(sys, "stdout", stdout)
+        run_worker(
+            study,
+            storage,
+            2,
+            lambda trial: announced(trial.number, lambda: Outcome("complete", value=float(trial.number))),
+            heartbeat_seconds=1,
+            poll_seconds=0.01,
+        )
+    assert [(t.state, t.value) for t in study.get_trials()] == [(TrialState.COMPLETE, 0.0), (TrialState.COMPLETE, 1.0)]
+
+
+@pytest.mark.slow
+def test_canter_tune_to_a_closed_stdout_ends_quietly_with_no_failed_trial(tmp_path):
+    args = ["tune", "Pendulum-v1", *tiny_args(tmp_path), "--trials", "3"]
+    done = _canter_to_a_closed_stdout(args, buffered=False)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    (study_dir,) = (tmp_path / "tune").iterdir()
+    storage = open_storage(StorageSettings(f"sqlite:///{study_dir / 'study.db'}", 1, 3))
+    (summary,) = optuna.study.get_all_study_summaries(storage)
+    trials = optuna.load_study(study_name=summary.study_name, storage=storage).get_trials()
+    faults = [t.user_attrs.get(FAIL_REASON) for t in trials if t.state == TrialState.FAIL]
+    assert faults == ["interrupted"] and (study_dir / "summary.md").is_file(), faults
 
 
 def _tiny_config(out_dir, total_steps=2048):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import select
 import signal
 import sys
 import threading
@@ -16,6 +17,10 @@ from typing import Any, NoReturn
 # SIGHUP too: a dropped ssh session or a closed terminal stops a run as a scheduler's SIGTERM does, with a checkpoint.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
+# The exit code of a command whose stdout nobody reads any more (`canter eval RUN | head -1`, a terminal that hung
+# up): it ends quietly with 1, as in Python's own recipe (https://docs.python.org/3/library/signal.html#note-on-sigpipe)
+# and rich's.
+STDOUT_CLOSED = 1
 
 
 def ignore_stop_signals() -> None:
@@ -195,3 +200,23 @@ class StopFlag:
         where there was none, the default action ends the process by the signal (143 in a shell for SIGTERM)."""
         if self.signal is not None:
             signal.raise_signal(self.signal)
+
+
+def stdout_is_gone() -> bool:
+    """Whether nothing can read stdout any more: poll reports an error on a pipe whose reader is gone and on a
+    terminal that hung up. Where poll cannot tell (no poll on Windows, no stdout file), it is not."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def end_quietly_without_stdout() -> int:
+    """STDOUT_CLOSED, with stdout pointed at /dev/null: the interpreter's shutdown flushes what is still buffered for
+    it, which would fail again and print an error of its own."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return STDOUT_CLOSED

@@ -8,14 +8,21 @@ import errno
 import importlib
 import os
 import re
-import select
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
 from canter.errors import CanterError, error_line
-from canter.signals import INTERRUPTED, end_of_interrupts, exit_interrupted, ignore_stop_signals, interrupt_once
+from canter.signals import (
+    INTERRUPTED,
+    end_of_interrupts,
+    end_quietly_without_stdout,
+    exit_interrupted,
+    ignore_stop_signals,
+    interrupt_once,
+    stdout_is_gone,
+)
 
 # Subcommand modules under canter.cli, in help order. Each defines `register(subparsers)`, which adds its parser
 # and sets `func(args) -> exit code`.
@@ -196,12 +203,6 @@ def _shown(path: object, limit: int = 80) -> str:
     return text if len(text) <= limit else f"{text[: limit // 2]}...{text[-limit // 2 :]} ({len(text)} characters)"
 
 
-# The exit code of a command whose stdout nobody reads any more (`canter eval RUN | head -1`, a terminal that hung
-# up): it ends quietly with 1, as in Python's own recipe (https://docs.python.org/3/library/signal.html#note-on-sigpipe)
-# and rich's.
-STDOUT_CLOSED = 1
-
-
 def entry() -> None:
     interrupt_once()
     try:
@@ -215,32 +216,12 @@ def entry() -> None:
         print("canter: interrupted", file=sys.stderr)
         code = INTERRUPTED
     except OSError:  # a closed pipe (EPIPE) or a terminal that hung up (EIO); main passes on those with no path
-        if not _stdout_is_gone():
+        if not stdout_is_gone():
             raise  # a bug, which keeps its traceback
-        code = _end_quietly_without_stdout()
+        code = end_quietly_without_stdout()
     if code == INTERRUPTED:
         exit_interrupted()
     sys.exit(code)
-
-
-def _stdout_is_gone() -> bool:
-    """Whether nothing can read stdout any more: poll reports an error on a pipe whose reader is gone and on a
-    terminal that hung up. Where poll cannot tell (no poll on Windows, no stdout file), it is not."""
-    try:
-        poller = select.poll()
-        poller.register(sys.stdout.fileno(), select.POLLOUT)
-        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
-    except (AttributeError, OSError, ValueError):
-        return False
-
-
-def _end_quietly_without_stdout() -> int:
-    """STDOUT_CLOSED, with stdout pointed at /dev/null: the interpreter's shutdown flushes what is still buffered for
-    it, which would fail again and print an error of its own."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
-    os.close(devnull)
-    return STDOUT_CLOSED
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("runs", nargs="+", help="run folders")
     p.add_argument("--out", default="curves.png", help="output image; .png, .svg or .pdf (default curves.png)")
-    p.add_argument("--x", choices=tuple(X_AXES), default="steps", help="x axis: env steps or wall time")
+    p.add_argument("--x", choices=tuple(X_AXES), default="steps", help="x axis: env steps or wall time (default steps)")
     p.add_argument(
         "--smooth",
         type=whole_arg,
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="COL,COL",
         help="metrics.csv columns to draw, one panel each; globs work, e.g. 'info/*' (default: all but info/*)",
     )
-    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the bootstrap resampling")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the bootstrap resampling (default 0)")
     p.set_defaults(func=run)
 
 

@@ -25,8 +25,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--episodes", type=whole_arg, default=10, help="evaluation episodes per run (default 10); 0 skips evaluation"
     )
-    p.add_argument("--seed", type=seed_arg, default=0, help="evaluation seed (also seeds the curves' bootstrap)")
-    p.add_argument("--smooth", type=whole_arg, default=1, metavar="W", help="curve smoothing, as in `canter plot`")
+    p.add_argument(
+        "--seed", type=seed_arg, default=0, help="evaluation seed, also of the curves' bootstrap (default 0)"
+    )
+    p.add_argument(
+        "--smooth",
+        type=whole_arg,
+        default=1,
+        metavar="W",
+        help="curve smoothing, as in `canter plot` (default 1: none)",
+    )
     p.add_argument(
         "--video",
         action="store_true",

@@ -95,7 +95,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--sampler-seed",
         type=seed_arg,
         default=None,
-        help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own)",
+        help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own; default: none, so a "
+        "random one)",
     )
     add_track_args(t, "one tracker run per seed of each trial, named trial_NNNNN-sSEED, every trial in one group")
     t.set_defaults(func=run)

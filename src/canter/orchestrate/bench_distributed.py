@@ -18,7 +18,7 @@ from canter.orchestrate.bench_results import CellResult, SeedRecord, combine_see
 from canter.orchestrate.bench_runs import STOPPED_EARLY, job_spec, seed_progress, seeds_finished, start_text
 from canter.orchestrate.job_resources import warn_if_more_jobs_than_cores, worker_count
 from canter.orchestrate.jobs import exit_text, failure_reason, run_workers, start_job, stop_jobs
-from canter.orchestrate.study import claim_study, retrying, study_storage
+from canter.orchestrate.study import claim_study, retrying, say, study_storage
 
 if TYPE_CHECKING:
     from canter.orchestrate.study import Outcome
@@ -75,13 +75,13 @@ def _job_trial(study: Any, trial: Any, jobs: dict[str, Job], settings: BenchSett
         stop_jobs([proc])
     if code != 0:
         reason = failure_reason(folder, code)
-        print(f"FAIL  {job.name}: {reason}", flush=True)
+        say(f"FAIL  {job.name}: {reason}")
         return Outcome("fail", reason=reason)
     if not seeds_finished(job.cell, job.seeds, settings, bench_dir):
         # The child exits cleanly when a signal or run.max_minutes stops it early, checkpointed.
-        print(f"STOP  {job.name}: {STOPPED_EARLY}", flush=True)
+        say(f"STOP  {job.name}: {STOPPED_EARLY}")
         return Outcome("fail", reason=STOPPED_EARLY)
-    print(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min", flush=True)
+    say(f"done  {job.name} in {(time.monotonic() - started) / 60:.1f} min")
     # The records travel with the trial, so any machine can build the table from the storage alone.
     records = [read_seed(job.cell.run_dir(bench_dir, s), s) for s in job.seeds]
     # Waits out an outage of the storage, as every other storage call of a worker does: the cell is trained.

@@ -33,7 +33,14 @@ from canter.files import AppendFile, WriteError, atomic_write_bytes, is_write_er
 from canter.orchestrate.job_resources import apply_cpu_pinning, job_layout
 from canter.orchestrate.run_status import is_number, run_status
 from canter.run_layout import CHECKPOINT_NAME, EVAL_FILE, SUMMARY_FILE
-from canter.signals import die_with_parent, exit_interrupted, handling_stop_signals, stops_held
+from canter.signals import (
+    die_with_parent,
+    end_quietly_without_stdout,
+    exit_interrupted,
+    handling_stop_signals,
+    stdout_is_gone,
+    stops_held,
+)
 from canter.training.trackers.base import TrackSpec
 
 # --------------------------------------------------------------------------------------------------- child process
@@ -353,6 +360,10 @@ def _worker_main(work: Callable[..., None], args: tuple[Any, ...], thread_caps: 
         sys.exit(2)
     except KeyboardInterrupt:
         exit_interrupted()
+    except OSError:  # a print to a stdout nobody reads any more (`| head -1`), as the command's own process ends
+        if not stdout_is_gone():
+            raise
+        sys.exit(end_quietly_without_stdout())
 
 
 def main(argv: list[str]) -> int:

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from canter.errors import CanterError
-from canter.signals import StopFlag
+from canter.signals import StopFlag, stdout_is_gone
 
 SURPLUS = "surplus: the study already had its number of trials when this one started"
 FAIL_REASON = "fail_reason"
@@ -712,16 +712,36 @@ def run_worker(
                 try:
                     outcome = run_trial(trial)
                 except Exception as exc:  # the trial fails with the reason; the study goes on
+                    if unread_stdout(exc):
+                        raise
                     outcome = Outcome("fail", reason=f"{type(exc).__name__}: {exc}"[:500])
         except BaseException as exc:
-            # A stop fails the trial and queues it again (a queue of fixed work queues its failed items itself when
-            # run again); after an error, such as a storage gone for good, the trial is left to its heartbeat.
-            if asked and not isinstance(exc, Exception):
+            # A stop, or a stdout nobody reads any more, fails the trial and queues it again (a queue of fixed work
+            # queues its failed items itself when run again); after an error, such as a storage gone for good, the
+            # trial is left to its heartbeat.
+            if asked and (not isinstance(exc, Exception) or unread_stdout(exc)):
                 with contextlib.suppress(Exception):  # a trial left running is failed by heartbeat and retried
                     stopped = functools.partial(_stop_interrupted, study, asked[0], target if ask_new else None)
                     call("recording the stopped trial", stopped)
             raise
         _tell(study, trial, outcome, states[outcome.state], call)
+
+
+def unread_stdout(exc: BaseException) -> bool:
+    """Whether `exc` is a print that failed because nothing reads stdout any more (`canter tune | head -1`, a
+    terminal that hung up): no fault of the trial, so the worker stops as a stop signal stops it and the trial is
+    queued again, rather than fail trial after trial until it gives up."""
+    return isinstance(exc, OSError) and stdout_is_gone()
+
+
+def say(line: str) -> None:
+    """Print a line of a worker's progress. Where nothing reads stdout any more the line is dropped, so that the
+    outcome it reports is still recorded; the worker stops at the next print, when its next trial starts."""
+    try:
+        print(line, flush=True)
+    except OSError as exc:
+        if not unread_stdout(exc):
+            raise
 
 
 def _ask(study: Any, asked: list[Any]) -> StopFlag:

@@ -61,7 +61,9 @@ from canter.orchestrate.study import (
     restart_study,
     retrying,
     run_worker,
+    say,
     study_storage,
+    unread_stdout,
 )
 from canter.run_layout import METRICS_FILE
 from canter.training import run_lock
@@ -494,14 +496,15 @@ def announced(number: int, run: Callable[[], Outcome]) -> Outcome:
     try:
         outcome = run()
     except Exception as exc:  # the worker records the failure; the line says so here too
-        print(f"{TRIAL_ENDS['fail']} trial {number}: {type(exc).__name__}: {exc}"[:500], flush=True)
+        if not unread_stdout(exc):
+            say(f"{TRIAL_ENDS['fail']} trial {number}: {type(exc).__name__}: {exc}"[:500])
         raise
     except KeyboardInterrupt:
-        print(f"{TRIAL_ENDS['fail']} trial {number}: interrupted", flush=True)
+        say(f"{TRIAL_ENDS['fail']} trial {number}: interrupted")
         raise
     minutes = (time.monotonic() - started) / 60
     told = f"return {outcome.value:.1f}" if outcome.value is not None else (outcome.reason or "no reason recorded")
-    print(f"{TRIAL_ENDS[outcome.state]} trial {number} in {minutes:.1f} min: {told}", flush=True)
+    say(f"{TRIAL_ENDS[outcome.state]} trial {number} in {minutes:.1f} min: {told}")
     return outcome
 
 
@@ -669,8 +672,8 @@ def tune(settings: TuneSettings) -> Any:
             worker(settings, 0, trials_before)
         else:
             failed = run_workers(worker, [(settings, i, trials_before) for i in range(workers)], "canter-tune")
-    except (CanterError, KeyboardInterrupt):  # a worker that gives up, or a stop: what the study holds is written
-        write()
+    except (CanterError, KeyboardInterrupt, OSError):  # a worker that gives up, a stop, or a stdout nobody reads
+        write()  # what the study holds, in the files first
         raise
     # What the study holds is written even when a worker ended early: the others may have finished its trials.
     write()
@@ -743,11 +746,11 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
     from canter.files import write_output
 
     table = summary_table(study)
-    print(table)
     summary = settings.study_dir / STUDY_SUMMARY_FILE
-    write_output(summary, (table + "\n").encode())
+    write_output(summary, (table + "\n").encode())  # before the print, which fails where nothing reads stdout
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if not complete:
+        print(table)
         print(f"summary written to {summary}; no trial completed, so there is no best preset yet")
         return None
     best = max(complete, key=lambda t: t.value)
@@ -762,5 +765,6 @@ def write_results(study: Any, settings: TuneSettings) -> Path | None:
     body = best.user_attrs[PRESET_ATTR]
     path = settings.study_dir / BEST_FILE
     write_output(path, ("\n".join(f"# {line}" for line in header.splitlines()) + "\n" + body).encode())
+    print(table)
     print(f"best trial {best.number}: return {best.value:.1f}; preset written to {path}, summary to {summary}")
     return path
