@@ -113,9 +113,10 @@ class Scoreboard:
         tables = [
             Table(
                 "Final return per env",
-                f"Score of a run: {self.source}. IQM: mean of the middle 50% of runs. Optimality gap: mean shortfall "
-                "of the runs below the reference (the published 1M-step figure of the same algorithm), in return "
-                "units. " + self.interval_note(),
+                f"Score of a run: {self.source}. IQM: mean of the runs left once the lowest and the highest quarter "
+                "(rounded down) are cut, as rliable computes it. Optimality gap: mean shortfall of the runs below "
+                "the reference (the published 1M-step figure of the same algorithm), in return units. "
+                + self.interval_note(),
                 ("env", "method", "n", "IQM", "mean", "median", "optimality gap", "reference"),
                 tuple(
                     (
