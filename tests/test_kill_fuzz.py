@@ -3,7 +3,8 @@ loads and passes its hash check, metrics.csv parses, and the run resumes.
 
 A writer process does nothing but what the trainer writes, as fast as it can: metrics rows (metrics.csv and
 TensorBoard), a checkpoint every two rows, pruning, and on start the rewrite of metrics.csv that a resume does. So
-a kill at a random moment lands inside one of those writes. Writers are forked from a process that has imported
+a kill at a random moment lands inside one of those writes; every other kill is aimed at a checkpoint write, so
+that some land inside one however fast the machine is. Writers are forked from a process that has imported
 JAX and loaded the state once, so that a trial costs milliseconds, not a JAX start.
 """
 
@@ -76,6 +77,17 @@ for line in sys.stdin:
 """
 
 
+def _wait_for_a_checkpoint_write(run: Path) -> None:
+    """Returns as soon as a checkpoint's temp file exists. How many random kills land inside a write depends on the
+    machine's speed, so half the kills are aimed at one."""
+    folder = run / "checkpoints"
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        if any(name.startswith(".") and name.endswith(".tmp") for name in os.listdir(folder)):
+            return
+    raise AssertionError("the writer wrote no checkpoint for 10 s")
+
+
 def _check_after_a_kill(run: Path) -> tuple[int, bool]:
     """The newest checkpoint's step, and whether the kill left a half-written file, after checking the folder."""
     half_written = any(run.glob("checkpoints/.*.tmp")) or any(run.glob(".*.tmp"))
@@ -112,11 +124,14 @@ def test_sigkill_during_checkpoint_and_metrics_writes_loses_nothing(tmp_path):
     steps, half_written = [], 0
     try:
         assert zygote.stdout.readline() == "ready\n"
-        for _ in range(TRIALS):
+        for trial in range(TRIALS):
             zygote.stdin.write("fork\n")
             zygote.stdin.flush()
             pid = int(zygote.stdout.readline())
-            time.sleep(rng.uniform(0.03, 0.25))
+            if trial % 2:
+                _wait_for_a_checkpoint_write(run)
+            else:
+                time.sleep(rng.uniform(0.03, 0.25))
             os.kill(pid, signal.SIGKILL)
             zygote.stdin.write(f"reap {pid}\n")
             zygote.stdin.flush()
