@@ -92,3 +92,14 @@ def test_the_exported_classes_are_listed_and_reachable():
     assert canter.EvalResult is EvalResult
     with pytest.raises(AttributeError, match="module 'canter' has no attribute 'Nope'"):
         canter.Nope  # noqa: B018
+
+
+@pytest.mark.parametrize("backend", ["cuda", 3, ""])
+def test_load_refuses_a_backend_that_is_not_one(backend):
+    from canter.envs.registry import describe_backend_choices
+    from conftest import ARCHIVED_RUN
+
+    with pytest.raises(CanterError) as refused:
+        canter.load(ARCHIVED_RUN, backend=backend)
+    choices = describe_backend_choices()
+    assert str(refused.value) == f"backend must be a backend name ({choices}) or None for its own, got {backend!r}"

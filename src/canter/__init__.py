@@ -84,12 +84,13 @@ def resume_seeds(
     return _resume_seeds(run_dirs, total_steps, max_minutes=max_minutes, stop_at_return=target, quiet=quiet)
 
 
-def load(run_dir: str | Path, checkpoint: str | Path = "last") -> Policy:
+def load(run_dir: str | Path, checkpoint: str | Path = "last", backend: str | None = None) -> Policy:
     """Load a checkpoint of a run folder as a callable `Policy`: `"last"` (the newest), `"best"` (the best state
-    evaluated during training, `run.eval_every`) or a checkpoint file."""
+    evaluated during training, `run.eval_every`) or a checkpoint file. `backend`: where it will be evaluated, when
+    not on its own backend; an EnvPool run evaluated on `"mjx"` then steps MJX on the GPU where there is one."""
     from canter.use.policy import load as _load
 
-    return _load(run_dir, checkpoint)
+    return _load(run_dir, checkpoint, backend)
 
 
 def evaluate(

@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
         )
     check_distinct_runs(args.runs)
     check_one_run_for_a_file(args.checkpoint, args.runs)
-    policies = [load(run_dir, args.checkpoint) for run_dir in args.runs]
+    plays_on = single_env_backend().name if spec is not None else args.backend
+    policies = [load(run_dir, args.checkpoint, plays_on) for run_dir in args.runs]
     for policy in policies:  # before any sweep is set up or any env is built
         check_eval_env(policy.facts, args.env, args.backend, varied=spec is not None)
         check_eval_ends(policy, args.env, args.backend if spec is None else single_env_backend().name)

@@ -10,6 +10,7 @@ from typing import Any
 from canter.errors import CanterError, first_line
 
 _platform_chosen = False
+_cpu_fixed_for: str | None = None  # the host-stepped backend whose setup put this process's JAX on the CPU
 _cpu_notice_given = False
 
 # A folder for compiled programs, or off (0, false, no); default: $XDG_CACHE_HOME/canter/xla (~/.cache/canter/xla).
@@ -33,7 +34,7 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
 
     from canter.envs.functional import x64_enabled
 
-    global _platform_chosen
+    global _platform_chosen, _cpu_fixed_for
     native = _steps_in_jax(backend)
     if _platform_chosen and x64_enabled() == native:
         # Switching precision in a process that has traced programs: JAX's staging caches can hold a nested
@@ -43,6 +44,7 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     if not _platform_chosen:
         if not native and not os.environ.get("JAX_PLATFORMS"):
             jax.config.update("jax_platforms", "cpu")
+            _cpu_fixed_for = backend if backend not in (None, "auto") else "a host-stepped backend"
         use_compile_cache(jax)
         _platform_chosen = True
     try:
@@ -65,13 +67,26 @@ def _steps_in_jax(backend: str | None) -> bool:
 
 def announce_physics(backend: str | None) -> None:
     """The one-line notice (once per process) that a JAX-native backend steps its physics on the CPU, given where
-    that backend is about to step: a policy trained on mjx and evaluated on EnvPool loads as mjx but steps none."""
+    that backend is about to step: a policy trained on mjx and evaluated on EnvPool loads as mjx but steps none.
+    Where an earlier setup for a host-stepped backend put JAX on the CPU, it says so, since a GPU may be there: an
+    EnvPool run that evaluates on mjx during training steps MJX on the CPU, in the training program's float64."""
     import jax
 
+    from canter.envs.functional import x64_enabled
+
     global _cpu_notice_given
-    if _steps_in_jax(backend) and jax.default_backend() == "cpu" and not _cpu_notice_given:
-        print(f"canter: no GPU found, so {backend} steps its physics on the CPU (correct, but slow)", file=sys.stderr)
-        _cpu_notice_given = True
+    if not _steps_in_jax(backend) or _cpu_notice_given or jax.default_backend() != "cpu":
+        return
+    precision = ", in float64," if x64_enabled() else ""
+    if _cpu_fixed_for is None:
+        line = f"no GPU found, so {backend} steps its physics on the CPU{precision} (correct, but slow)"
+    else:
+        line = (
+            f"{backend} steps its physics on the CPU{precision} since this process set JAX up for {_cpu_fixed_for} "
+            "first, whose step runs only there (correct, but slow)"
+        )
+    print(f"canter: {line}", file=sys.stderr)
+    _cpu_notice_given = True
 
 
 def compile_cache_dir() -> str | None:

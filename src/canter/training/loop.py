@@ -237,6 +237,8 @@ def _train_checked(
     _check_resources(configs, backend)  # before a folder is made, and before the envs' seed lists are
     # The notes after the checks that refuse a run on its settings alone, so that such a refusal stays one line.
     announce_physics(backend)
+    if configs[0].run.eval_every:
+        announce_physics(played)
     note_replay(configs[0].env.id, backend, played)
     started = time.perf_counter()
     # From the moment a run folder exists, SIGINT and SIGTERM stop the run with a checkpoint to resume from: one

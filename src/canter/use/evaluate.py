@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from canter.core.runtime import announce_physics
+from canter.core.runtime import setup_jax
 from canter.core.seeding import EVAL, HELD_OUT, check_seed
 from canter.errors import CanterError
 from canter.training.evaluation import EvalResult, check_episodes_end, run_episodes
@@ -176,7 +176,7 @@ def evaluate(
 
     `physics` changes the physics settings of the eval envs, e.g. `{"solver_iterations": 4}` (`parse_physics`);
     without it they are the run's own on its env where the backend takes them, else the model's own."""
-    from canter.envs.registry import note_replay, single_env_backend
+    from canter.envs.registry import note_replay, resolve_backend, single_env_backend
 
     check_policy(policy)
     if not isinstance(deterministic, bool | np.bool_):  # a string such as "no" would read as true
@@ -211,8 +211,9 @@ def evaluate(
             first_call[0] = False
         return sampler(obs, deterministic=deterministic)
 
+    # The precision of the backend it plays on, not the one it loaded for: MJX in float32 for an EnvPool policy.
+    setup_jax(resolve_backend(env_id, backend))
     purpose = HELD_OUT if policy.chosen_by_evaluation else EVAL
     traced = policy.traced() if deterministic and prepare_env is None else None
     sizes = (policy.obs_dim, policy.act_dim)
-    announce_physics(backend)
     return run_episodes(act, env_id, backend, episodes, seed, purpose, sizes, extra, traced_act=traced)

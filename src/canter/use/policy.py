@@ -131,15 +131,24 @@ def _holds_none(obs_batch: Any) -> bool:
     return raw.dtype == object and any(value is None for value in raw.flat)
 
 
-def load(run_dir: str | Path, checkpoint: str | Path = LAST) -> Policy:
+def load(run_dir: str | Path, checkpoint: str | Path = LAST, backend: str | None = None) -> Policy:
     """Load a checkpoint of a run folder as a `Policy`: `last` (the newest), `best` (the best evaluated during
-    training) or a checkpoint file."""
+    training) or a checkpoint file. `backend`: where it will play, when not on the backend it trained on. JAX is
+    set up for that backend before anything loads, since the platform is fixed once: a run trained on EnvPool
+    (CPU only) and played on mjx then steps MJX on the GPU where there is one."""
     import jax
 
     from canter.algos import get_algorithm
+    from canter.core.runtime import setup_jax
+    from canter.envs.registry import backend_choices, describe_backend_choices
     from canter.training.loop import need_a_folder
 
     need_a_folder(run_dir, "run_dir", optional=False)
+    if backend is not None:
+        if backend not in backend_choices():
+            choices = describe_backend_choices()
+            raise CanterError(f"backend must be a backend name ({choices}) or None for its own, got {backend!r}")
+        setup_jax(backend, announce=False)
     config, facts, state, header = load_state(Path(run_dir), checkpoint)
     params = get_algorithm(config.run.algo).policy_params(state)
     return Policy(
