@@ -33,6 +33,7 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     import jax
 
     from canter.envs.functional import x64_enabled
+    from canter.envs.registry import AUTO
 
     global _platform_chosen, _cpu_fixed_for
     native = _steps_in_jax(backend)
@@ -44,7 +45,7 @@ def setup_jax(backend: str | None = None, announce: bool = True) -> None:
     if not _platform_chosen:
         if not native and not os.environ.get("JAX_PLATFORMS"):
             jax.config.update("jax_platforms", "cpu")
-            _cpu_fixed_for = backend if backend not in (None, "auto") else "a host-stepped backend"
+            _cpu_fixed_for = backend if backend not in (None, AUTO) else "a host-stepped backend"
         use_compile_cache(jax)
         _platform_chosen = True
     try:
