@@ -137,6 +137,15 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
         (["--seeds", "0,-1"], "expected seeds from 0 to 4294967295"),
         (["--envs", "Hopper-v5,Hopper-v5"], "each name may appear once"),
         (["--algos", "ppo,td3,ppo"], "each name may appear once"),
+        # The grid's own algo and env axes refuse repeats as --algos and --envs do: the cells would share run folders.
+        (["--grid", "run.algo=ppo,ppo"], "canter: error: --grid run.algo repeats ppo; give each value once"),
+        (["--grid", "env.id=Hopper-v5,Hopper-v5"], "--grid env.id repeats Hopper-v5; give each value once"),
+        # A run folder's name keeps only the env id's tail, so these two would train the same folders.
+        (
+            ["--envs", "Hopper-v5,gymnasium:Hopper-v5"],
+            "canter: error: cells (Hopper-v5, ppo) and (gymnasium:Hopper-v5, ppo) would share the run folders "
+            "Hopper-v5__ppo__s*; bench them in two benches with their own --out",
+        ),
         (["--heartbeat", "0", "--storage", "sqlite:///x.db"], "--heartbeat (heartbeat_seconds) must be >= 1, got 0"),
         (["--storage", "postgresql://u@host:abc/db"], "is not a database URL; use sqlite:///path/study.db"),
         (["--storage", "foo://host/db"], "foo"),  # parses, but no such driver: refused when opened
@@ -149,7 +158,7 @@ def test_off_policy_seeds_are_separate_jobs_and_on_policy_seeds_one_group():
 )
 def test_bad_grid_is_refused_before_any_cell_runs(tmp_path, capsys, argv, message):
     base = ["bench", "--seeds", "0", "--total-steps", "1000", "--out", str(tmp_path / "b")]
-    if "--envs" not in argv:
+    if "--envs" not in argv and not any(arg.startswith("env.id=") for arg in argv):
         base += ["--envs", "Hopper-v5"]
     code = main(base + argv)
     err = capsys.readouterr().err.strip()

@@ -158,6 +158,24 @@ def test_group_band_averages_runs_with_different_step_grids():
     assert experiment_band(Experiment("g", (a,)), "approx_kl") is None
 
 
+def test_an_evaluation_curve_starts_at_the_first_evaluation_not_a_metrics_row_before_it():
+    """Evaluations land on a few of the metrics rows: the grid and each run's hold come from the rows that hold one,
+    so no point shows a seed's first evaluation where none had run (one metrics row before it, at step 800 here)."""
+    steps = np.arange(0.0, 6401.0, 800.0)
+    runs = []
+    for seed, first in enumerate((1600.0, 2400.0)):  # the second seed's first evaluation is a row later
+        run = fake_run(steps, steps / 10, seed=seed)
+        evaluations = np.where((steps >= first) & (steps % 1600 == first % 1600), 100.0 * seed + steps, np.nan)
+        run.columns["eval/return_mean"] = evaluations
+        runs.append(run)
+    band = experiment_band(Experiment("g", tuple(runs)), "eval/return_mean")
+    assert band.x[0] == 1600.0  # seed 0's first evaluation; no point before it
+    np.testing.assert_allclose(band.x, [1600.0, 3200.0, 4800.0, 6400.0])  # spaced as the evaluations are
+    # Seed 1 (evaluated at 2400, 4000, 5600) holds its ends for one of its evaluation intervals (1600).
+    seed1 = np.interp(band.x, [2400.0, 4000.0, 5600.0], [2500.0, 4100.0, 5700.0])
+    np.testing.assert_allclose(band.mean, (band.x + seed1) / 2)
+
+
 def test_groups_of_fewer_than_five_runs_get_the_range_and_larger_ones_a_bootstrap_ci():
     steps = np.arange(0.0, 5000.0, 1000.0)
     runs = [fake_run(steps, steps / 100 + 10 * i, seed=i) for i in range(5)]

@@ -263,7 +263,6 @@ def test_bad_input_is_one_line_and_starts_nothing(tmp_path, capsys):
 
     for argv, message in [
         (["--sampler-seed", "-1"], "argument --sampler-seed: expected a seed from 0 to 4294967295"),
-        (["--sampler-seed", "4294967295", "--jobs", "2"], "--sampler-seed 4294967295 with 2 jobs passes 4294967295"),
         (["--seed", "4294967295", "--seeds-per-trial", "2"], "--seed 4294967295 with 2 seeds per trial passes"),
         (["--storage", "postgresql://u@host:abc/db"], "is not a database URL"),
     ]:
@@ -336,7 +335,11 @@ def test_a_resumed_study_does_not_replay_its_proposals(tmp_path):
     # Three sessions of one trial each: a sampler seeded alike every time proposed the same trial three times.
     proposals = [first_proposal() for _ in range(3)]
     assert proposals[0] != proposals[1] != proposals[2] != proposals[0]
-    assert sampler_seed(7, 1, 0) == 8 and sampler_seed(None, 0, 5) is None
+    assert sampler_seed(7, 0, 0) == 7 and sampler_seed(None, 0, 5) is None
+    # Machines given seeds a step apart, each with several jobs, share no job's seed (seed + job made 0's job 1 and
+    # 1's job 0 propose the same trials).
+    new_study_seeds = [sampler_seed(machine, job, 0) for machine in range(4) for job in range(4)]
+    assert len(set(new_study_seeds)) == len(new_study_seeds)
     assert len({sampler_seed(7, job, trials) for job in range(4) for trials in range(1, 50)}) == 4 * 49
     # The same study state gives the same seed, so a resume is reproducible.
     assert sampler_seed(7, 0, 3) == sampler_seed(7, 0, 3)
@@ -624,6 +627,14 @@ def test_a_resumed_study_with_other_settings_or_a_new_one_over_old_trial_folders
     with pytest.raises(CanterError, match=r"was run with the base config's ppo.clip 0.2, but this command gives 0.3"):
         clip = replace(settings, sets=(*settings.sets, "ppo.clip=0.3"))
         check_study_settings(study, study_settings(clip, *check_settings(clip)), trials)
+    # Not a learning key, but it picks the envs that play every evaluation, which is what the trials are scored on.
+    gym = replace(settings, sets=(*settings.sets, "run.eval_backend=gymnasium"))
+    with pytest.raises(CanterError) as refused:
+        check_study_settings(study, study_settings(gym, *check_settings(gym)), trials)
+    assert str(refused.value) == (
+        "study 's' was run with the base config's run.eval_backend (not set), but this command gives 'gymnasium'; "
+        "its trials would not compare: use the same settings, or a new --study"
+    )
 
     (trials / "trial_00000").mkdir(parents=True)
     with pytest.raises(CanterError, match=r"holds the trials of an earlier study that this database does not know"):

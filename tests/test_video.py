@@ -310,6 +310,29 @@ def test_a_frame_rate_the_format_cannot_play_is_refused(tmp_path, name, fps, ref
         video.check_video_args(out, 1, 480, 360, fps)
 
 
+@pytest.mark.parametrize("fps", [30, 20, 35, 50, 7])
+def test_a_gif_plays_at_the_frame_rate_asked_for(tmp_path, fps):
+    """A GIF stores each delay in whole hundredths of a second: at 30 fps its frames take 3 or 4 of them, so that
+    the video lasts frames / fps, where one delay of 1000 / 30 ms, cut to 3 hundredths, played it 11% fast."""
+    from PIL import Image
+
+    from canter.use.video_file import AtomicVideo
+
+    count = 3 * fps
+    out = tmp_path / "a.gif"
+    writer = AtomicVideo(out, fps)
+    for frame in np.random.default_rng(0).integers(0, 256, (count, 8, 8, 3), dtype=np.uint8):
+        writer.append(frame)
+    writer.commit()
+    with Image.open(out) as gif:
+        delays = []
+        for index in range(gif.n_frames):
+            gif.seek(index)
+            delays.append(gif.info["duration"])
+    assert len(delays) == count and sum(delays) == 3000  # 3 s to the millisecond
+    assert set(delays) <= {10 * (100 // fps), 10 * (-(-100 // fps))}  # every frame within a hundredth of 1 / fps
+
+
 @pytest.mark.slow
 def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(archived_run):
     """Such a snapshot is whole (it was saved before the render began): deleting it as half-written would lose that

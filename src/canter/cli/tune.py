@@ -95,8 +95,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--sampler-seed",
         type=seed_arg,
         default=None,
-        help="seed of the TPE sampler (job J of --jobs uses SEED+J; give each machine its own; default: none, so a "
-        "random one)",
+        help="seed of the TPE sampler (job 0 of --jobs uses SEED, job J one drawn from SEED and J; give each "
+        "machine its own; default: none, so a random one)",
     )
     add_track_args(t, "one tracker run per seed of each trial, named trial_NNNNN-sSEED, every trial in one group")
     t.set_defaults(func=run)
@@ -118,8 +118,6 @@ def run(args: argparse.Namespace) -> int:
         raise CanterError(f"--seeds-per-trial must be >= 1, got {args.seeds_per_trial}")
     if args.seed + args.seeds_per_trial > SEED_LIMIT:
         raise CanterError(f"--seed {args.seed} with {args.seeds_per_trial} seeds per trial passes {SEED_LIMIT - 1}")
-    if args.sampler_seed is not None and args.sampler_seed + args.jobs > SEED_LIMIT:
-        raise CanterError(f"--sampler-seed {args.sampler_seed} with {args.jobs} jobs passes {SEED_LIMIT - 1}")
     from canter.orchestrate.tune import TuneSettings, tune
 
     settings = TuneSettings(

@@ -158,11 +158,13 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             raise CanterError(
                 "--grid run.preset is not a grid axis (a preset sets many keys); run one bench per --preset"
             )
-        if key == "run.algo":
-            algos = list(raw)
-            continue
-        if key == "env.id":
-            envs = list(raw)
+        if key in ("run.algo", "env.id"):
+            if len(set(raw)) != len(raw):  # as --algos and --envs refuse: two cells would share run folders
+                raise CanterError(repeated_values_error(key, raw, list(raw), False))
+            if key == "run.algo":
+                algos = list(raw)
+            else:
+                envs = list(raw)
             continue
         if key not in known:
             raise unknown_key_error(key, "--grid")
@@ -211,6 +213,7 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
                 where = ", ".join([algo, env_id] + [f"{k}={v}" for k, v in pairs])
                 raise CanterError(f"cell ({where}): {exc}") from None
             cells.append(Cell(algo, env_id, pairs, config))
+    _refuse_shared_names(cells)
     for env_id, backend in dict.fromkeys((cell.env_id, cell.config.env.backend) for cell in cells):
         resolve_backend(env_id, backend)  # on the backend the cell runs it on (--backend, --set or a --grid axis)
         check_continuous(env_id, backend)  # last: it makes an env
@@ -221,6 +224,23 @@ def make_cells(settings: BenchSettings) -> list[Cell]:
             file=sys.stderr,
         )
     return cells
+
+
+def _refuse_shared_names(cells: list[Cell]) -> None:
+    """Two cells whose names agree would train and evaluate the same run folders, and the bench's statistics would
+    count each run twice. A folder name keeps only an env id's tail, so `pkg:Env-v0` and `Env-v0` are such a pair."""
+    first: dict[str, Cell] = {}
+    for cell in cells:
+        other = first.setdefault(cell.name, cell)
+        if other is not cell:
+            raise CanterError(
+                f"cells ({_describe(other)}) and ({_describe(cell)}) would share the run folders {cell.name}__s*; "
+                "bench them in two benches with their own --out"
+            )
+
+
+def _describe(cell: Cell) -> str:
+    return ", ".join([cell.env_id, cell.algo] + [f"{key}={value}" for key, value in cell.values])
 
 
 def _writes_only(key: str) -> bool:

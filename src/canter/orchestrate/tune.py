@@ -434,13 +434,15 @@ def run_trial(trial: Any, settings: TuneSettings, base: Config, space: SearchSpa
 
 
 def sampler_seed(seed: int | None, job: int, trials: int) -> int | None:
-    """The TPE seed of job `job` joining a study that holds `trials` trials: seed + job for a new study, so parallel
-    jobs do not propose the same random trials, and one drawn from (seed, job, trials) for a study that has trials,
-    so that a resumed worker does not replay the proposals the study already ran."""
+    """The TPE seed of job `job` joining a study that holds `trials` trials. For a new study: the seed itself for
+    job 0, and one drawn from (seed, job) for the others, so that parallel jobs do not propose the same random
+    trials, nor do the jobs of machines given seeds a step apart (seed + job gave machine 0's job 1 and machine 1's
+    job 0 the same seed). For a study that has trials, one drawn from (seed, job, trials), so that a resumed worker
+    does not replay the proposals the study already ran."""
     if seed is None:
         return None
     if trials == 0:
-        return seed + job
+        return seed if job == 0 else int(np.random.SeedSequence([seed, job]).generate_state(1)[0])
     return int(np.random.SeedSequence([seed, job, trials]).generate_state(1)[0])
 
 
@@ -538,6 +540,10 @@ def study_settings(settings: TuneSettings, base: Config, space: SearchSpace) -> 
         "--eval-episodes": str(settings.eval_episodes),
     }
     found |= {f"the base config's {key}": repr(value) for key, value in experiment_key(base)}
+    # Not a key that changes what is learned, but the backend of every evaluation: tune's objective and what the
+    # pruner judges. Kept only when set, so that a study stored before it was kept resumes as it was.
+    if base.run.eval_backend:
+        found["the base config's run.eval_backend"] = repr(base.run.eval_backend)
     found |= {f"the search space's [{p.key}]": _param_text(p) for p in space.params}
     return found
 

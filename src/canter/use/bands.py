@@ -9,7 +9,8 @@ The numerics are pure functions over numpy arrays, each tested against a plain r
 - `common_grid` / `interpolate`: runs of one group log at different steps (autoreset steps are not counted, so
   seeds drift apart; wall time starts after a compile of varying length), so each run is linearly interpolated
   onto one evenly spaced grid over the union of their x ranges (as fine as the finest run logs) before
-  averaging. A run counts inside its own range, and up to one of its own logging intervals beyond either end,
+  averaging. A run's range and spacing are those of its rows that hold a value: an evaluation column's are its
+  evaluations. A run counts inside its own range, and up to one of its own logging intervals beyond either end,
   where it holds its first or last value: seeds of one budget stop up to an iteration apart, and without that
   the last grid points would average only the seed that logged last, drawing a spike. Further out a run does
   not count (no extrapolation), so where only some runs reach, the mean and band are over those runs.
@@ -170,19 +171,26 @@ def experiment_band(
     ]
     if not runs:
         return None
-    xs = [r.columns[x_column] for r in runs]
     window = 1 if column.startswith(EVAL_PREFIX) else smooth
-    ys = [moving_average(r.columns[column], window) for r in runs]
-    if len(runs) == 1:
-        keep = ~(np.isnan(xs[0]) | np.isnan(ys[0]))
-        x, y = xs[0][keep], ys[0][keep]
-        return Band(x, y, y.copy(), y.copy(), 1, SINGLE)
+    # Each run's curve is its rows that hold a value: an evaluation column is empty on most rows, and the spacing
+    # of every row would let the hold draw a run's first evaluation a metrics row before it happened.
+    xs, ys = [], []
+    for r in runs:
+        x, y = r.columns[x_column], moving_average(r.columns[column], window)
+        keep = ~(np.isnan(x) | np.isnan(y))
+        if keep.any():
+            xs.append(x[keep])
+            ys.append(y[keep])
+    if not xs:
+        return None
+    if len(xs) == 1:
+        return Band(xs[0], ys[0], ys[0].copy(), ys[0].copy(), 1, SINGLE)
     grid = common_grid(xs)
     samples = np.stack([interpolate(x, y, grid, logging_interval(x)) for x, y in zip(xs, ys)])
-    if len(runs) < MIN_RUNS_FOR_INTERVAL:
-        return Band(grid, *range_band(samples), len(runs), RANGE)
+    if len(xs) < MIN_RUNS_FOR_INTERVAL:
+        return Band(grid, *range_band(samples), len(xs), RANGE)
     mean, low, high = bootstrap_band(samples, seed=seed)
-    return Band(grid, mean, low, high, len(runs), BOOTSTRAP)
+    return Band(grid, mean, low, high, len(xs), BOOTSTRAP)
 
 
 def band_kind(group: Experiment) -> str:

@@ -4,6 +4,7 @@ and readers of a videos/ folder tell such a temp file from a finished video."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import tempfile
 from pathlib import Path
@@ -31,8 +32,17 @@ class _GifWriter:
 
         frames, self.frames = self.frames, []
         if frames:
-            data = iio.imwrite("<bytes>", np.stack(frames), extension=".gif", duration=1000.0 / self.fps, loop=0)
+            delays = gif_frame_delays_ms(len(frames), self.fps)
+            data = iio.imwrite("<bytes>", np.stack(frames), extension=".gif", duration=delays, loop=0)
             self.path.write_bytes(data)
+
+
+def gif_frame_delays_ms(frames: int, fps: int) -> list[int]:
+    """Each frame's delay, in whole hundredths of a second as a GIF stores them, written in milliseconds: frame i
+    ends at floor(100 (i+1) / fps) hundredths, so the video lasts frames / fps to the hundredth. One delay of
+    1000 / fps would be cut to whole hundredths for every frame, playing 30 fps at 33.3."""
+    ends = [100 * i // fps for i in range(frames + 1)]
+    return [10 * (end - start) for start, end in itertools.pairwise(ends)]
 
 
 _TEMP_MARK = ".tmp"  # ends the stem of every temp video (`AtomicVideo`): what `is_unfinished_video` looks for
