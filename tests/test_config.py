@@ -281,6 +281,16 @@ def test_a_set_key_the_algorithm_ignores_is_refused(algo, key, fix):
     assert message.startswith(f"{key.split('=')[0]} has no effect on {algo}, which reads ") and message.endswith(fix)
 
 
+def test_a_config_files_key_is_checked_against_the_algorithm_that_trains(tmp_path):
+    """--algo replaces a config file's run.algo: the file's ppo.lr has no effect on td3, whatever the file names."""
+    config_file = tmp_path / "ppo.toml"
+    config_file.write_text('[run]\nalgo = "ppo"\n\n[ppo]\nlr = 0.001\n')
+    with pytest.raises(CanterError) as info:
+        build_config("Hopper-v5", config_file=str(config_file), algo="td3")
+    assert str(info.value).startswith("ppo.lr has no effect on td3, which reads ")
+    assert build_config("Hopper-v5", config_file=str(config_file)).ppo.lr == 0.001  # the file's own algorithm
+
+
 def test_keys_an_algorithm_reads_are_accepted():
     assert build_config("Hopper-v5", sets=["ppo.gamma=0.98", "net.hidden=32,32"], algo="trpo").ppo.gamma == 0.98
     assert build_config("Hopper-v5", sets=["td3.tau=0.01", "env.normalize_obs=true"], algo="td3").td3.tau == 0.01

@@ -271,7 +271,7 @@ def test_a_resume_of_a_run_stopped_before_its_summary_writes_it_and_trains_nothi
     assert "already has 1190 of run.total_steps=1024 steps; pass a --total-steps" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("damage", ["malformed", "missing", "cut"])
+@pytest.mark.parametrize("damage", ["malformed", "missing", "cut", "cut_in_a_number"])
 def test_a_resume_of_a_finished_run_with_a_damaged_config_writes_it_again_and_trains_nothing(
     archived_run, capsys, damage
 ):
@@ -284,13 +284,15 @@ def test_a_resume_of_a_finished_run_with_a_damaged_config_writes_it_again_and_tr
         config.unlink()
     elif damage == "cut":
         config.write_text(kept[: kept.index("\ntotal_steps = ") + 1])
+    elif damage == "cut_in_a_number":  # `total_steps = 1` of 1024 still parses; the missing newline shows the cut
+        config.write_text(kept[: kept.index("\ntotal_steps = ") + len("\ntotal_steps = 1")])
     else:
         config.write_text("[broken")
     summary = (archived_run / "summary.json").read_text()
     checkpoints = sorted((archived_run / "checkpoints").iterdir())
     assert main(["train", "--resume", str(archived_run)]) == 0
     captured = capsys.readouterr()
-    told = f"{config} lacks run.total_steps, " if damage == "cut" else "cannot be read"
+    told = f"{config} lacks run.total_steps, " if damage.startswith("cut") else "cannot be read"
     assert captured.err.count(told) == 1, captured.err
     assert (
         f"canter: note: {archived_run} has trained its budget (1,190 steps), so nothing is trained: its config.toml "

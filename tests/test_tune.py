@@ -442,9 +442,10 @@ def test_sqlite_parallel_jobs_and_best_preset_loads_back(tmp_path, capsys, monke
     assert experiment_key(loaded) == experiment_key(trained)
     assert loaded.run.total_steps == trained.run.total_steps
     assert loaded.ppo.lr == best.params["ppo.lr"] and loaded.ppo.n_steps == best.params["ppo.n_steps"]
-    # `canter train --config best.toml` resolves it with build_config as above, whatever the preset beneath.
-    under_cleanrl = build_config(None, preset="cleanrl", config_file=str(preset))
-    assert replace(under_cleanrl, run=replace(under_cleanrl.run, preset="fast")) == loaded
+    # A run trained from it is laid over the trials' preset and named by it; another preset is refused, not misnamed.
+    assert loaded.run.preset == trained.run.preset == "fast"
+    with pytest.raises(CanterError, match=r"sets run\.preset = 'fast', but the preset is cleanrl"):
+        build_config(None, preset="cleanrl", config_file=str(preset))
 
 
 @pytest.mark.slow

@@ -170,11 +170,6 @@ def build_config(
     config = apply_overrides(config, file_data, str(config_file))
     from_file = config
     config = apply_overrides(config, set_data, SET_SOURCE)
-    if check_unread:
-        for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
-            if not reads_key(config.run.algo, key):
-                raise CanterError(unread_key_error(config.run.algo, key))
-        check_ignored_keys(config)
     explicit: dict[str, Any] = {key: value for key, value in (("env.id", env_id), ("run.algo", algo)) if value}
     explicit |= {
         key: value for key, value in (("run.seed", seed), ("run.total_steps", total_steps)) if value is not None
@@ -184,6 +179,11 @@ def build_config(
         python = f" ({ARGUMENT_NAMES[key]}= and sets= from Python)" if key in ARGUMENT_NAMES else ""
         raise CanterError(f"{key} is given twice, by {flag_name(key)} and by --set {key}{python}; give it once")
     config = apply_overrides(config, explicit, "arguments")
+    if check_unread:  # after the flags: --algo replaces a config file's run.algo, and its algorithm is what trains
+        for key in [*file_data, *set_data]:  # a key the algorithm does not read would change nothing
+            if not reads_key(config.run.algo, key):
+                raise CanterError(unread_key_error(config.run.algo, key))
+        check_ignored_keys(config)
     try:
         validate(config)
     except CanterError as exc:

@@ -287,13 +287,14 @@ def trial_config(base: Config, values: dict[str, Any], trial_dir: Path, settings
 
 def config_file_toml(config: Config) -> str:
     """The config as a TOML file that `canter train --config FILE` takes as it is: the keys that define the
-    experiment (`canter.config.experiment`) and the step budget the trials trained for, which the learning-rate
-    schedule follows."""
+    experiment (`canter.config.experiment`), the step budget the trials trained for, which the learning-rate
+    schedule follows, and the preset they were built on, so that a run trained from the file is laid over that
+    preset and named by it, as the trials were."""
     from canter.config.experiment import flat_config, learning_keys
 
     flat = flat_config(config)
     tables: dict[str, list[tuple[str, Any]]] = {}
-    for key in [*learning_keys(config), "run.total_steps"]:
+    for key in [*learning_keys(config), "run.total_steps", "run.preset"]:
         section, _, name = key.partition(".")
         tables.setdefault(section, []).append((name, flat[key]))
     return toml_tables(tables.items())

@@ -408,7 +408,8 @@ def _cut_config(run_dir: Path) -> _CutConfig | None:
     still reads, and each key it lost would take canter's default (the run's budget among them, so a resume would
     train on to the default's 1M steps). A key counts where the checkpoint's config text holds it and a run of that
     config reads it: a format-1 checkpoint holds every section, and an older file leaves out the keys whose value is
-    none, as its checkpoint does. None where nothing is lost or no readable checkpoint can say."""
+    none, as its checkpoint does. A last line without its newline counts as lost (`_whole_lines`). None where nothing
+    is lost or no readable checkpoint can say."""
     import tomllib
 
     from canter.config.overrides import flatten_toml
@@ -421,12 +422,18 @@ def _cut_config(run_dir: Path) -> _CutConfig | None:
         newest = checkpoint.latest(run_dir)
         saved_text = checkpoint.config_text(checkpoint.read_header(newest), newest)
         saved = from_toml_text(saved_text, str(newest))
-        present = flatten_toml(toml_table(path.read_text(errors="replace")), str(path))
+        present = flatten_toml(toml_table(_whole_lines(path.read_text(errors="replace"))), str(path))
     except (CanterError, OSError, tomllib.TOMLDecodeError):
         return None  # the reading of that file or checkpoint by its own reader says what is wrong with it
     read = {f"{section}.{name}" for section, names in written_keys(saved) for name in names}
     lost = [key for key in flatten_toml(toml_table(saved_text), str(newest)) if key in read and key not in present]
     return _CutConfig(lost, saved, present, newest) if lost else None
+
+
+def _whole_lines(text: str) -> str:
+    """The text up to its last newline. canter writes config.toml whole, ending in a newline, so a last line without
+    one was cut, perhaps inside a number that still parses (`total_steps = 10` of 100000): its key counts as lost."""
+    return text if text.endswith("\n") else text[: text.rfind("\n") + 1]
 
 
 def _lost_keys_restored(run_dir: Path, config: Config, note: bool) -> Config:
