@@ -77,15 +77,21 @@ for line in sys.stdin:
 """
 
 
-def _wait_for_a_checkpoint_write(run: Path) -> None:
+def _wait_for_a_checkpoint_write(run: Path, after_one_lands: bool) -> None:
     """Returns as soon as a checkpoint's temp file exists. How many random kills land inside a write depends on the
-    machine's speed, so half the kills are aimed at one."""
+    machine's speed, so half the kills are aimed at one. With `after_one_lands`, only once the writer has finished
+    a checkpoint of its own: on a loaded machine the random kills can all come before a writer's first checkpoint,
+    and the aimed ones all inside it, so that no writer would go on from the last one."""
     folder = run / "checkpoints"
-    deadline = time.monotonic() + 10
+    newest = run_folder.list_checkpoints(run)[-1].name
+    deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
-        if any(name.startswith(".") and name.endswith(".tmp") for name in os.listdir(folder)):
+        names = os.listdir(folder)
+        if after_one_lands and max(n for n in names if n.startswith("ckpt_")) > newest:
+            after_one_lands = False
+        if not after_one_lands and any(name.startswith(".") and name.endswith(".tmp") for name in names):
             return
-    raise AssertionError("the writer wrote no checkpoint for 10 s")
+    raise AssertionError("the writer wrote no checkpoint for 30 s")
 
 
 def _check_after_a_kill(run: Path) -> tuple[int, bool]:
@@ -129,7 +135,7 @@ def test_sigkill_during_checkpoint_and_metrics_writes_loses_nothing(tmp_path):
             zygote.stdin.flush()
             pid = int(zygote.stdout.readline())
             if trial % 2:
-                _wait_for_a_checkpoint_write(run)
+                _wait_for_a_checkpoint_write(run, after_one_lands=trial % 4 == 3)
             else:
                 time.sleep(rng.uniform(0.03, 0.25))
             os.kill(pid, signal.SIGKILL)
