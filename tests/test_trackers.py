@@ -181,8 +181,45 @@ def test_resume_continues_the_same_tracker_runs(tracked, monkeypatch):
     steps = [m.step for m in client.get_metric_history(tracked_run.info.run_id, "sps")]
     assert steps == [int(r["global_step"]) for r in _rows(run)] and steps[-1] > steps_before
     assert tracked_run.info.status == "FINISHED"
+    # A parameter cannot change in MLflow: the budget the resume gave is a tag of the same name.
+    assert tracked_run.data.params["run.total_steps"] == "2048" and tracked_run.data.tags["run.total_steps"] == "4096"
+    assert "run.seed" not in tracked_run.data.tags
     _, history, _ = _wandb_run(root, before["wandb"]["run_id"])
     assert [h["_step"] for h in history] == steps
+
+
+@pytest.mark.slow
+def test_a_killed_run_keeps_in_wandb_the_rows_logged_before_its_last_second(tmp_path):
+    """W&B's run file was written every 15 s: a SIGKILL lost the rows since, checkpointed ones among them."""
+    import signal
+    import subprocess
+    import sys
+
+    from canter.training.trackers.wandb_tracker import WANDB_FLUSH_SECONDS
+
+    env = dict(os.environ, WANDB_MODE="offline", WANDB_DIR=str(tmp_path), WANDB_SILENT="true")
+    argv = [sys.executable, "-m", "canter.cli", "train", "InvertedPendulum-v4", "--out-dir", str(tmp_path / "runs")]
+    # A budget it never reaches before the kill, and rows a second or so apart, too few to fill W&B's write buffer.
+    slow = {"2048": "1e7", "ppo.n_steps=128": "ppo.n_steps=2048", "ppo.epochs=2": "ppo.epochs=10"}
+    tiny = [slow.get(a, a) for a in TINY_PPO]
+    trainer = subprocess.Popen([*argv, "--track", "wandb", *tiny], env=env, cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and trainer.poll() is None:
+            metrics = list(tmp_path.glob("runs/*/metrics.csv"))
+            if metrics and len(logged := _rows(metrics[0].parent)) >= 3:
+                break
+            time.sleep(0.2)
+        assert trainer.poll() is None, "the run ended before three rows"
+        time.sleep(WANDB_FLUSH_SECONDS + 1.5)
+        trainer.send_signal(signal.SIGKILL)
+        trainer.wait(timeout=60)
+    finally:
+        trainer.kill()
+    run = metrics[0].parent
+    _, history, _ = _wandb_run(tmp_path, json.loads((run / "trackers.json").read_text())["wandb"]["run_id"])
+    steps = {h["_step"] for h in history}
+    assert {int(row["global_step"]) for row in logged} <= steps, (len(logged), sorted(steps))
 
 
 # ------------------------------------------------------------------------------------------------------ failures

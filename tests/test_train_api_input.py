@@ -183,6 +183,14 @@ def test_runs_that_differ_in_their_budget_alone_are_told_the_python_argument_tha
     config.write_text(config.read_text().replace("total_steps = 1024", "total_steps = 2048", 1))
     line = refused(canter.resume_seeds, [archived_run, other])
     assert "(run.total_steps); pass --total-steps (total_steps= from Python) to give them one budget" in line
+    # A seed resumed alone with a time limit or a target differs in that budget key: the resume's own flags give one.
+    config.write_text(
+        config.read_text()
+        .replace("total_steps = 2048", "total_steps = 1024", 1)
+        .replace("[run]\n", "[run]\nmax_minutes = 5.0\n", 1)
+    )
+    line = refused(canter.resume_seeds, [archived_run, other])
+    assert "(run.max_minutes); pass --max-minutes (max_minutes= from Python) to give them one budget" in line
 
 
 def test_a_config_that_differs_from_the_resumed_runs_is_told_the_public_call_that_reads_the_runs_own(archived_run):

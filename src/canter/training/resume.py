@@ -53,6 +53,14 @@ class Saved(Enum):
     KEEP = "keep"
 
 
+# The budget keys that a resume sets for every folder it resumes, by the resume's Python argument.
+_BUDGET_ARGUMENTS = {
+    "run.total_steps": "total_steps",
+    "run.max_minutes": "max_minutes",
+    "run.stop_at_return": "stop_at_return",
+}
+
+
 def check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> None:
     """Folders resume together as one group when they are distinct runs of one config that differ in run.seed."""
     from canter.config.experiment import differing_keys, flat_config
@@ -74,8 +82,12 @@ def check_one_group(run_dirs: Sequence[str | Path], configs: list[Config]) -> No
             named = ", ".join(keys[:4]) + (f" and {len(keys) - 4} more keys" if len(keys) > 4 else "")
             if differing_keys([configs[0], config]):
                 fix = "they are runs of different experiments, which resume one at a time"
-            elif keys == ["run.total_steps"]:
-                fix = "pass --total-steps (total_steps= from Python) to give them one budget, or resume them one by one"
+            elif keys and set(keys) <= set(_BUDGET_ARGUMENTS):
+                flags = " and ".join(
+                    f"--{_BUDGET_ARGUMENTS[key].replace('_', '-')} ({_BUDGET_ARGUMENTS[key]}= from Python)"
+                    for key in keys
+                )
+                fix = f"pass {flags} to give them one budget, or resume them one by one"
             else:
                 fix = "resume them one at a time"
             raise CanterError(

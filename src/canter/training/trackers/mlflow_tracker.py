@@ -101,6 +101,7 @@ class MlflowTracker:
         try:
             if run_id is not None:
                 client.update_run(run_id, status="RUNNING")
+                _tag_changed_settings(client, run_id, context.config)
                 return _MlflowRun(client, run_id)
             experiment = _experiment_id(client)
             opened = context.spec.group_run("mlflow", context.group)
@@ -188,6 +189,15 @@ def absolute_store(uri: str) -> str:
     if ":" not in uri and (uri.startswith(".") or os.path.isdir(uri)):  # not a scheme such as databricks
         return os.path.abspath(uri)
     return uri
+
+
+def _tag_changed_settings(client: Any, run_id: str, config: dict[str, Any]) -> None:
+    """MLflow cannot change a logged parameter, so a setting that a resume changed (its budget, say) is a tag of
+    the same name holding the value the run now trains with."""
+    logged = client.get_run(run_id).data.params
+    for key, value in config.items():
+        if key in logged and logged[key] != str(value):
+            client.set_tag(run_id, key, str(value))
 
 
 class _MlflowRun:

@@ -40,6 +40,9 @@ def _has_credentials() -> bool:
         return False
 
 
+WANDB_FLUSH_SECONDS = 1.0
+
+
 class WandbTracker:
     def check(self, spec: TrackSpec) -> None:
         _wandb()
@@ -56,7 +59,15 @@ class WandbTracker:
     def start(self, context: RunContext, run_id: str | None) -> _WandbRun:
         wandb = _wandb()
         # The system monitor and the console capture cost seconds at start and add nothing canter does not log.
-        settings = wandb.Settings(silent=True, console="off", x_disable_stats=True, x_disable_meta=True)
+        # W&B writes its run file every 15 s by default, so a SIGKILL lost up to 15 s of rows, checkpointed ones
+        # among them; once a second bounds that to the last second.
+        settings = wandb.Settings(
+            silent=True,
+            console="off",
+            x_disable_stats=True,
+            x_disable_meta=True,
+            x_transaction_log_flush_interval=WANDB_FLUSH_SECONDS,
+        )
         try:
             run = wandb.init(
                 project=context.recorded.get("project") or os.environ.get("WANDB_PROJECT", "canter"),
