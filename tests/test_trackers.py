@@ -190,7 +190,7 @@ def test_resume_continues_the_same_tracker_runs(tracked, monkeypatch):
 
 @pytest.mark.slow
 def test_a_killed_run_keeps_in_wandb_the_rows_logged_before_its_last_second(tmp_path):
-    """W&B's run file was written every 15 s: a SIGKILL lost the rows since, checkpointed ones among them."""
+    """By default W&B writes its run file every 15 s, and a SIGKILL loses the rows since, checkpointed ones too."""
     import signal
     import subprocess
     import sys

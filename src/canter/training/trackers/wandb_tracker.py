@@ -59,8 +59,8 @@ class WandbTracker:
     def start(self, context: RunContext, run_id: str | None) -> _WandbRun:
         wandb = _wandb()
         # The system monitor and the console capture cost seconds at start and add nothing canter does not log.
-        # W&B writes its run file every 15 s by default, so a SIGKILL lost up to 15 s of rows, checkpointed ones
-        # among them; once a second bounds that to the last second.
+        # By default W&B writes its run file every 15 s, and a SIGKILL loses what it has not written, checkpointed
+        # rows among them; once a second bounds that to the last second.
         settings = wandb.Settings(
             silent=True,
             console="off",
