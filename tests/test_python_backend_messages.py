@@ -114,8 +114,21 @@ def test_evaluate_on_an_env_of_other_sizes_names_env_id(policy):
     assert message.endswith("the policy expects 4/1; pick a matching --env (env_id= for evaluate)"), message
 
 
-def test_an_uninstalled_backend_names_env_backend_and_backend(monkeypatch, policy):
+def test_an_uninstalled_backend_names_its_extra_and_the_backends_that_run_the_env(monkeypatch, policy):
+    """The extra to install, then the installed backends with a version of the env, named for Python too; a
+    backend of its own envs (Brax) has none such, so another --backend would only be refused in its turn."""
+    monkeypatch.setattr(type(get_backend("mjx")), "available", lambda self: False)
+    for call in (
+        _train("InvertedPendulum-v5", "env.backend=mjx"),
+        lambda: canter.evaluate(policy, episodes=1, backend="mjx", env_id="InvertedPendulum-v5"),
+    ):
+        message = _refusal(call, "env.backend from Python; backend= for evaluate")
+        assert message == (
+            "MJX is not installed here; pip install 'canter[mjx]', or use --backend envpool or gymnasium "
+            "(env.backend from Python; backend= for evaluate)"
+        )
     monkeypatch.setattr(type(get_backend("brax")), "available", lambda self: False)
     for call in (_train("ant", "env.backend=brax"), lambda: canter.evaluate(policy, episodes=1, backend="brax")):
-        message = _refusal(call, "env.backend from Python; backend= for evaluate")
-        assert message.startswith("Brax is not installed on this platform; use --backend "), message
+        with pytest.raises(CanterError) as refused:
+            call()
+        assert str(refused.value) == "Brax is not installed here; pip install 'canter[brax]'"

@@ -80,3 +80,33 @@ def test_a_tune_refused_a_benchs_study_leaves_no_study_folder(tmp_path, capsys):
     assert main([*argv, "--out-dir", str(out), "--trials", "1", "--total-steps", "2048"]) == 2
     assert "study 'S' holds a canter bench's jobs; give this tune another --study" in capsys.readouterr().err
     assert not (out / "S").exists()
+
+
+@pytest.mark.parametrize(
+    "url, hint",
+    [
+        (
+            "postgresql+asyncpg://u:p@127.0.0.1:5432/db",
+            "install the asyncpg driver, or use postgresql:// (psycopg2, from pip install 'canter[distributed]')",
+        ),
+        (
+            "postgresql+psycopg://u:p@127.0.0.1:5432/db",
+            "install the psycopg driver, or use postgresql:// (psycopg2, from pip install 'canter[distributed]')",
+        ),
+    ],
+)
+def test_a_storage_naming_a_driver_the_extra_lacks_is_told_to_install_that_driver(url, hint):
+    """The `distributed` extra brings psycopg2 only: a URL naming another PostgreSQL driver is not sent to it."""
+    with pytest.raises(CanterError) as refused:
+        open_storage(StorageSettings(url=url))
+    driver = url.split("://")[0]
+    assert str(refused.value) == (
+        f"cannot use the {driver} storage at 127.0.0.1:5432: its database driver is not installed; {hint}"
+    )
+
+
+def test_the_distributed_extra_is_the_fix_for_psycopg2_only():
+    from canter.orchestrate.study import driver_hint
+
+    assert driver_hint("postgresql+psycopg2") == "pip install 'canter[distributed]'"
+    assert driver_hint("mysql+pymysql").startswith("install a Python driver for mysql+pymysql")

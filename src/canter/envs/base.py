@@ -134,6 +134,8 @@ class Backend(Protocol):
     # Its envs observe differently from every other backend's (Brax's own models): a policy trained on it evaluates
     # on it and on the env it trained on only.
     own_observations: bool = False
+    # How a user gets its env library where it is missing (an extra to install), or "" where canter always has it.
+    install: str = ""
 
     def available(self) -> bool:
         """Whether its env library imports on this machine."""

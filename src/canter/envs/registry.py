@@ -144,10 +144,7 @@ def resolve_backend(env_id: str, backend: str) -> str:
         )
     chosen = get_backend(backend)
     if not chosen.available():
-        others = [other.name for other in backends() if other is not chosen and other.available()] or [AUTO]
-        raise CanterError(
-            f"{chosen.label} is not installed on this platform; {_python_backend(f'use --backend {_or(others)}')}"
-        )
+        raise _not_installed(env_id, chosen)
     ids = chosen.supported_ids()
     if env_id not in ids and chosen.jax_native:
         raise _not_ported(env_id, chosen, sorted(ids))
@@ -311,6 +308,20 @@ def _unknown(env_id: str, candidates: list[str], where: str) -> CanterError:
 
 def _or(items: list[str]) -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
+
+
+def _not_installed(env_id: str, chosen: Backend) -> CanterError:
+    """Its install command, and the installed backends that run env_id too (none runs a backend's own envs)."""
+    others = [
+        other.name
+        for other in backends()
+        if other is not chosen and not chosen.own_observations and other.available() and env_id in other.supported_ids()
+    ]
+    ways = [chosen.install] if chosen.install else []
+    if others:
+        ways.append(_python_backend(f"use --backend {_or(others)}"))
+    how = ", or ".join(ways) or "it cannot run here"
+    return CanterError(f"{chosen.label} is not installed here; {how}")
 
 
 def _python_backend(advice: str) -> str:

@@ -146,6 +146,17 @@ def normalize_url(url: str) -> str:
     return url
 
 
+def driver_hint(driver: str) -> str:
+    """How to get the driver a storage URL names: the `distributed` extra brings psycopg2 only, so another
+    PostgreSQL driver (postgresql+psycopg, +asyncpg) is the user's to install, or plain postgresql:// to use it."""
+    if driver == "postgresql+psycopg2":
+        return "pip install 'canter[distributed]'"
+    if driver.startswith("postgresql+"):
+        other = driver.split("+", 1)[1]
+        return f"install the {other} driver, or use postgresql:// (psycopg2, from pip install 'canter[distributed]')"
+    return f"install a Python driver for {driver} (pip install 'canter[distributed]' provides PostgreSQL's psycopg2)"
+
+
 def redacted(url: str) -> str:
     """The URL with its password, if any, replaced by ***: error messages end up in logs and terminals."""
     return re.sub(r"(://[^/@:]*:).*@", r"\1***@", url)
@@ -245,13 +256,8 @@ def open_storage(settings: StorageSettings) -> Any:
         engine = sqlalchemy.create_engine(url, **engine_kwargs)
         engine.connect().close()
     except (ImportError, ModuleNotFoundError):
-        hint = (
-            "pip install 'canter[distributed]'"
-            if driver.startswith("postgresql")
-            else f"install a Python driver for {driver} (canter[distributed] provides PostgreSQL's psycopg2)"
-        )
         raise CanterError(
-            f"cannot connect to the {driver} storage at {host}: its database driver is not installed; {hint}"
+            f"cannot use the {driver} storage at {host}: its database driver is not installed; {driver_hint(driver)}"
         ) from None
     except (sqlalchemy.exc.SQLAlchemyError, OSError, ValueError) as exc:
         raise CanterError(

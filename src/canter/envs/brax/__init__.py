@@ -19,6 +19,7 @@ NAME = "brax"
 class BraxBackend(Backend):
     name = NAME
     label = "Brax"
+    install = "pip install 'canter[brax]'"
     jax_native = True
     own_observations = True
 

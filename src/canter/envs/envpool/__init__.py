@@ -42,6 +42,7 @@ _CONTINUOUS_IDS = (
 class EnvPoolBackend(Backend):
     name = NAME
     label = "EnvPool"
+    install = "EnvPool has wheels for Linux only"
     pools = True
 
     def available(self) -> bool:

@@ -18,6 +18,7 @@ NAME = "mjx"
 class MjxBackend(Backend):
     name = NAME
     label = "MJX"
+    install = "pip install 'canter[mjx]'"
     jax_native = True
     solver_options = True
 

@@ -1,0 +1,3 @@
+from canter.cli.main import entry
+
+entry()
