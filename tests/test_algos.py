@@ -50,3 +50,21 @@ def test_env_dependent_checks_happen_before_any_work(tmp_path):
     with pytest.raises(CanterError, match=r"sym.coef has no effect on trpo, .*drop it"):
         build_config("Hopper-v4", algo="trpo", config_file=str(with_sym))
     assert list(tmp_path.iterdir()) == [with_sym]
+
+
+def test_an_algorithm_that_relabels_another_ones_plot_column_is_refused():
+    """Plot labels are one namespace (a plot titles a column once for all its runs): a new algorithm giving ppo's
+    grad_norm another title would silently retitle ppo's plots, so its registration is refused."""
+    import dataclasses
+
+    from canter.config.algorithms import algorithm_spec, all_plot_labels, register_algorithm
+
+    ppo = algorithm_spec("ppo")
+    assert "grad_norm" in ppo.plot_labels
+    before = all_plot_labels()
+    relabelled = dataclasses.replace(ppo, name="a2c", plot_labels={"grad_norm": ("Gradient norm", "L2")})
+    with pytest.raises(ValueError, match=r"algorithm 'a2c' labels the metrics column 'grad_norm'"):
+        register_algorithm(relabelled)
+    assert all_plot_labels() == before
+    with pytest.raises(CanterError, match=r"unknown algorithm 'a2c'"):
+        algorithm_spec("a2c")

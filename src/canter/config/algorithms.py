@@ -65,6 +65,15 @@ def register_algorithm(spec: AlgorithmSpec) -> None:
     known = _REGISTERED.get(spec.name)
     if known is not None and known is not spec:
         raise ValueError(f"algorithm '{spec.name}' is already registered")
+    # A plot titles a metrics column once for every run in it, whatever their algorithms (`all_plot_labels`).
+    for other in _REGISTERED.values():
+        for column, label in spec.plot_labels.items():
+            if other is not spec and other.plot_labels.get(column, label) != label:
+                raise ValueError(
+                    f"algorithm '{spec.name}' labels the metrics column '{column}' {label}, but '{other.name}' labels "
+                    f"it {other.plot_labels[column]}; one plot titles a column once, so give it the same label or "
+                    f"another column name"
+                )
     _REGISTERED[spec.name] = spec
 
 
