@@ -118,7 +118,7 @@ class Backend(Protocol):
     The optional capabilities default to absent; a backend that has one sets its flag and overrides its method."""
 
     name: str  # the value of env.backend and --backend
-    label: str  # how messages and docs name it
+    label: str  # how messages and docs name it: a short proper noun (Brax), also used as a possessive
     # Accepts `module:EnvId`: ids that a user's module registers when imported (`load_custom`).
     custom_ids: bool = False
     # Builds one Gymnasium-API env object at a time (`make_single`, and `on_make(env)` in `make`): robustness sweeps
