@@ -68,3 +68,23 @@ def test_an_algorithm_that_relabels_another_ones_plot_column_is_refused():
     assert all_plot_labels() == before
     with pytest.raises(CanterError, match=r"unknown algorithm 'a2c'"):
         algorithm_spec("a2c")
+
+
+@pytest.mark.parametrize("reads", [("net", "td3x"), ("td3", "ppo.norm_advantage")])
+def test_an_algorithm_reading_no_such_section_or_key_is_refused_at_registration(reads):
+    import dataclasses
+
+    from canter.config.algorithms import algorithm_spec, register_algorithm
+
+    typo = dataclasses.replace(algorithm_spec("td3"), name="td3typo", reads=reads)
+    with pytest.raises(ValueError, match=r"algorithm 'td3typo' reads '.*', which is no registered config section"):
+        register_algorithm(typo)
+
+
+def test_every_algorithm_section_is_read_by_an_algorithm():
+    """A section no algorithm lists in `reads` is left out of config.toml, and its keys are refused as read by none."""
+    from canter.config.algorithms import algorithm_names, algorithm_spec
+    from canter.config.schema import CORE_SECTIONS, section_names
+
+    read = {entry.split(".")[0] for name in algorithm_names() for entry in algorithm_spec(name).reads}
+    assert set(section_names()) - set(CORE_SECTIONS) - read == set()

@@ -12,7 +12,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from canter.config.schema import CORE_SECTIONS, field_names
+from canter.config.schema import CORE_SECTIONS, field_names, section_names
 from canter.errors import CanterError
 
 
@@ -65,6 +65,12 @@ def register_algorithm(spec: AlgorithmSpec) -> None:
     known = _REGISTERED.get(spec.name)
     if known is not None and known is not spec:
         raise ValueError(f"algorithm '{spec.name}' is already registered")
+    # A `reads` entry names what config.toml keeps and what --set may change for the algorithm: a typo there
+    # would surface as a traceback in training, and a missing own section as its keys refused.
+    for entry in spec.reads:
+        section, _, key = entry.partition(".")
+        if section not in section_names() or (key and key not in field_names(section)):
+            raise ValueError(f"algorithm '{spec.name}' reads {entry!r}, which is no registered config section or key")
     # A plot titles a metrics column once for every run in it, whatever their algorithms (`all_plot_labels`).
     for other in _REGISTERED.values():
         for column, label in spec.plot_labels.items():
