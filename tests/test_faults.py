@@ -456,7 +456,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     Usage = namedtuple("Usage", "total used free")
     for free, warns in ((needed, False), (needed - 1, True)):
         monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _, free=free: Usage(0, 0, free))
-        assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config, ("buffer",)) is warns
+        assert disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [state], config, ("buffer",)) is warns
     warning = capsys.readouterr().err
     assert warning.count("canter: warning:") == 1
     # The key that sizes the field best.npz leaves out, as td3's size_keys names it, is the other way to make room.
@@ -464,7 +464,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     assert "a checkpoint of this run takes 990.2 KiB and it needs room for 2.9 MiB of them" in warning
     # A state whose best.npz holds everything needs room for five whole ones.
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
-    assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config)
+    assert disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [state], config)
 
     # A checkpoint written before training began leaves the buffer out: it takes none of a whole one's room.
     from canter.training import checkpoint
@@ -472,7 +472,34 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     (tmp_path / "checkpoints").mkdir()
     checkpoint.save(run_folder.checkpoint_path(tmp_path, 0), state, {"global_step": 0}, leave_out=("buffer",))
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed - 1))
-    assert disk_room.warn_if_checkpoints_will_not_fit(tmp_path, state, config, ("buffer",))
+    assert disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [state], config, ("buffer",))
+
+
+def test_the_disk_warning_counts_every_seed_of_a_group_on_one_disk(tmp_path, monkeypatch, capsys):
+    """The seeds of a group write their checkpoints side by side: room for one seed's is not room for the group's."""
+    from collections import namedtuple
+
+    import numpy as np
+
+    from canter.config.build import build_config
+    from canter.training import disk_room
+
+    State = namedtuple("State", "buffer policy")
+    state = State(np.zeros(250_000, np.float32), np.zeros(2_500, np.float32))
+    config = build_config("Pendulum-v1", algo="td3", sets=["run.keep_checkpoints=2", "run.eval_every=0"])
+    one_seed = 3 * disk_room.state_bytes(state)
+    run_dirs = [tmp_path / f"s{seed}" for seed in range(4)]
+    for run_dir in run_dirs:
+        run_dir.mkdir()
+    Usage = namedtuple("Usage", "total used free")
+    monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, 2 * one_seed))
+    assert not disk_room.warn_if_checkpoints_will_not_fit(run_dirs[:1], [state], config, ("buffer",))
+    assert disk_room.warn_if_checkpoints_will_not_fit(run_dirs, [state] * 4, config, ("buffer",))
+    assert capsys.readouterr().err == (
+        f"canter: warning: a checkpoint of each of the 4 seeds of this group takes 990.2 KiB and they need room for "
+        f"11.6 MiB of them, but {tmp_path} has 5.8 MiB free; free space, lower run.keep_checkpoints or "
+        f"td3.buffer_size, or set run.compress_checkpoints=true\n"
+    )
 
 
 def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):

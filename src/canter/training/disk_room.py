@@ -11,8 +11,10 @@ less free space than that, rather than failing at the first checkpoint, possibly
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -75,34 +77,52 @@ def checkpoints_at_once(config: Config, existing: int) -> int:
 
 
 def warn_if_checkpoints_will_not_fit(
-    run_dir: Path, state: Any, config: Config, policy_leaves_out: tuple[str, ...] = (), env_carry_bytes: int = 0
+    run_dirs: Sequence[Path],
+    states: Sequence[Any],
+    config: Config,
+    policy_leaves_out: tuple[str, ...] = (),
+    env_carry_bytes: int = 0,
 ) -> bool:
-    """Print one warning line when the run folder's disk cannot hold the run's checkpoints; True if it did.
-    `policy_leaves_out`: the state's fields that best.npz and video snapshots leave out. `env_carry_bytes`: the
-    episodes in flight each checkpoint of a JAX-native backend also holds (its envs' whole physics state, which on
-    a GPU's thousands of envs outweighs the train state)."""
+    """Print one warning line when a disk cannot hold the checkpoints of the seeds whose run folders it holds (the
+    seeds of a group write theirs side by side); True if it did. `policy_leaves_out`: the state's fields that
+    best.npz and video snapshots leave out. `env_carry_bytes`: the episodes in flight each seed's checkpoint of a
+    JAX-native backend also holds (its envs' whole physics state, which on a GPU's thousands of envs outweighs the
+    train state)."""
     from canter.algos.registry import get_algorithm
     from canter.training.checkpoint import read_header
     from canter.training.host_memory import size_text
     from canter.training.run_folder import list_checkpoints
 
-    # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
-    existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
-    one = state_bytes(state) + env_carry_bytes
-    policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
-    needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)
-    free = shutil.disk_usage(run_dir).free
-    if free >= needed:
+    one = 0
+    needed_on: dict[int, tuple[Path, int, int]] = {}  # device -> (first run folder on it, seeds, bytes)
+    for run_dir, state in zip(run_dirs, states):
+        # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
+        existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
+        one = state_bytes(state) + env_carry_bytes
+        policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
+        needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)
+        device = os.stat(run_dir).st_dev
+        first, seeds, total = needed_on.get(device, (Path(run_dir), 0, 0))
+        needed_on[device] = (first, seeds + 1, total + needed)
+    short = [
+        (first, seeds, total) for first, seeds, total in needed_on.values() if shutil.disk_usage(first).free < total
+    ]
+    if not short:
         return False
+    first, seeds, needed = short[0]
+    free = shutil.disk_usage(first).free
     # The fields that only further training reads (a replay buffer) are the bulk of a checkpoint that has any, so
     # the keys that size them (the algorithm's `size_keys`) are the other way to make room.
     sizing = [key for name, key in get_algorithm(config.run.algo).size_keys if name in policy_leaves_out]
     how = " or ".join(["lower run.keep_checkpoints", *sizing])
     if not config.run.compress_checkpoints:
         how += ", or set run.compress_checkpoints=true"
+    whose = "this run takes" if seeds == 1 else f"each of the {seeds} seeds of this group takes"
+    they = "it needs" if seeds == 1 else "they need"
+    where = first if seeds == 1 else first.parent
     print(
-        f"canter: warning: a checkpoint of this run takes {size_text(one)} and it needs room for "
-        f"{size_text(needed)} of them, but {run_dir} has {size_text(free)} free; free space, {how}",
+        f"canter: warning: a checkpoint of {whose} {size_text(one)} and {they} "
+        f"room for {size_text(needed)} of them, but {where} has {size_text(free)} free; free space, {how}",
         file=sys.stderr,
     )
     return True

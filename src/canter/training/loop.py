@@ -258,10 +258,10 @@ def _train_checked(
             jax_env = isinstance(env, JaxVecEnv)
             carry_bytes = disk_room.state_bytes(env.state_shapes()) // len(configs) if jax_env else 0
             initial_state = initial_state_program(algorithm, configs[0], spec)
-            states = [
-                _prepare_seed(config, start, initial_state, spec, algorithm, carry_bytes)
-                for config, start in zip(configs, starts)
-            ]
+            states = [_prepare_seed(config, start, initial_state) for config, start in zip(configs, starts)]
+            run_dirs = [start.run_dir for start in starts]
+            leaves_out = algorithm.policy_checkpoint_leaves_out
+            disk_room.warn_if_checkpoints_will_not_fit(run_dirs, states, configs[0], leaves_out, carry_bytes)
             # The resumed states read from the checkpoints live on in `states` alone (a replay buffer twice over
             # for the whole run otherwise).
             starts = [replace(start, state=None) for start in starts]
@@ -340,9 +340,7 @@ def _make_env(config: Config, backend: str, seeds: list[int]) -> Any:
         ) from None
 
 
-def _prepare_seed(
-    config: Config, start: SeedStart, initial_state: Callable[[int], Any], spec: Any, algorithm: Any, carry_bytes: int
-) -> Any:
+def _prepare_seed(config: Config, start: SeedStart, initial_state: Callable[[int], Any]) -> Any:
     """Migrate a resumed seed's run folder (a new one was made as it was locked), and return the state it trains
     from: its checkpoint's, or `initial_state(seed)`."""
     state = start.state if start.state is not None else initial_state(config.run.seed)
@@ -355,9 +353,6 @@ def _prepare_seed(
         if unreadable_config(start.run_dir):
             run_folder.write_config(start.run_dir, config)
         run_folder.migrate(start.run_dir)
-    disk_room.warn_if_checkpoints_will_not_fit(
-        start.run_dir, state, config, algorithm.policy_checkpoint_leaves_out, carry_bytes
-    )
     return state
 
 
