@@ -74,6 +74,27 @@ def test_bootstrap_band_matches_a_numpy_loop():
     np.testing.assert_array_equal(bootstrap_band(samples, 0.9, 300, 11)[1], low)
 
 
+def test_bootstrap_band_resamples_in_slices_of_bounded_memory(monkeypatch):
+    """The resampled sets are averaged a slice at a time: the same band, and memory that does not grow with the
+    number of resamples (whole, 30 runs on a 1,000-point grid took 480 MB at once)."""
+    import tracemalloc
+
+    import canter.use.bands
+
+    samples = np.random.default_rng(2).normal(size=(30, 1000))
+    samples[3, :40] = np.nan
+    tracemalloc.start()
+    try:
+        whole_slices = bootstrap_band(samples, seed=4)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 3 * canter.use.bands.RESAMPLE_SLICE_BYTES, peak
+    monkeypatch.setattr(canter.use.bands, "RESAMPLE_SLICE_BYTES", 7 * 8 * samples.size)  # slices of 7 resamples
+    for ours, sliced in zip(whole_slices, bootstrap_band(samples, seed=4)):
+        np.testing.assert_array_equal(ours, sliced)
+
+
 def test_bootstrap_band_width_is_about_the_normal_interval():
     samples = np.random.default_rng(0).normal(size=(40, 200))
     _mean, low, high = bootstrap_band(samples, seed=1)
