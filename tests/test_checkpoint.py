@@ -79,7 +79,7 @@ def test_left_out_fields_are_not_written_and_read_back_as_zeros(tmp_path):
     arrays, header = checkpoint.read(path)
     assert sorted(arrays) == ["policy"] and header["left_out"] == ["buffer/obs", "buffer/size"]
     # A reader from before `left_out` names the release to use, rather than calling it another config's.
-    assert header["format_version"] == checkpoint.LEFT_OUT_FORMAT_VERSION != checkpoint.FORMAT_VERSION
+    assert header["format_version"] == checkpoint.FORMAT_VERSION > max(checkpoint.WHOLE_FILE_HASH_VERSIONS) == 2
     assert path.stat().st_size < 2000  # the 20 kB buffer is not in the file
     back = checkpoint.restore(state, arrays, path, left_out=header["left_out"])
     np.testing.assert_array_equal(back["policy"], state["policy"])
@@ -159,3 +159,95 @@ def test_the_digest_copies_no_array():
     finally:
         tracemalloc.stop()
     assert peak < (1 << 20), peak
+
+
+def _flip_byte_of(path, needle: bytes) -> None:
+    data = bytearray(path.read_bytes())
+    at = data.find(needle)
+    assert at >= 0
+    data[at] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _no_buffer(name: str) -> bool:
+    return not name.startswith("buffer/")
+
+
+def test_each_array_is_checked_on_its_own_so_a_policy_is_read_without_the_buffer(tmp_path):
+    """A damaged replay buffer fails a whole read (a resume), but not a reader of the policy, which never reads it;
+    a damaged policy fails both."""
+    state = {"buffer": {"obs": np.full((4096, 16), 0.5, np.float32)}, "policy": np.array([1.25, 2.5, 3.75])}
+    path = tmp_path / "c.npz"
+    checkpoint.save(path, state, {"global_step": 3})
+    arrays, header = checkpoint.read(path, wanted=_no_buffer)
+    assert sorted(arrays) == ["policy"] and header["leaves"] == ["buffer/obs", "policy"]
+
+    buffer_damaged = tmp_path / "b.npz"
+    buffer_damaged.write_bytes(path.read_bytes())
+    _flip_byte_of(buffer_damaged, np.full(64, 0.5, np.float32).tobytes())
+    np.testing.assert_array_equal(checkpoint.read(buffer_damaged, wanted=_no_buffer)[0]["policy"], state["policy"])
+    with pytest.raises(checkpoint.DamagedCheckpoint, match="corrupt"):  # the zip's own CRC says so first
+        checkpoint.read(buffer_damaged)
+
+    # A policy changed in a sound zip (rewritten by a tool): only its own hash tells.
+    with np.load(path) as data:
+        payload = {name: data[name] for name in data.files}
+    policy_damaged = tmp_path / "p.npz"
+    np.savez(policy_damaged, **dict(payload, **{"leaf:policy": state["policy"] + 1}))
+    for wanted in (None, _no_buffer):
+        with pytest.raises(checkpoint.DamagedCheckpoint, match=r"fails its content hash \(corrupt\)"):
+            checkpoint.read(policy_damaged, wanted=wanted)
+
+
+def test_a_header_edited_or_an_array_added_fails_the_hash(tmp_path):
+    path = tmp_path / "c.npz"
+    checkpoint.save(path, {"policy": np.arange(3.0)}, {"global_step": 3})
+    with np.load(path) as data:
+        payload = {name: data[name] for name in data.files}
+    header = json.loads(bytes(payload["header"]).decode())
+    edited = dict(payload, header=np.frombuffer(json.dumps(dict(header, global_step=4)).encode(), np.uint8))
+    added = dict(payload, **{"leaf:extra": np.zeros(2)})
+    for name, changed in (("edited", edited), ("added", added)):
+        np.savez(tmp_path / f"{name}.npz", **changed)
+        with pytest.raises(checkpoint.DamagedCheckpoint, match=r"fails its content hash"):
+            checkpoint.read(tmp_path / f"{name}.npz", wanted=lambda name: name == "policy")
+
+
+def test_reading_the_policy_reads_none_of_the_buffer(tmp_path):
+    """An off-policy checkpoint is mostly its replay buffer (2.7 GiB for Humanoid): playing its policy once read and
+    hashed all of it."""
+    import tracemalloc
+
+    state = {"buffer": {"obs": np.ones((1 << 14, 1 << 10), np.float32)}, "policy": np.arange(3.0)}  # 64 MiB
+    path = tmp_path / "c.npz"
+    checkpoint.save(path, state, {})
+    tracemalloc.start()
+    try:
+        arrays, _ = checkpoint.read(path, wanted=_no_buffer)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert sorted(arrays) == ["policy"] and peak < 4 << 20, peak
+
+
+def test_saving_a_header_read_back_works_out_its_own_fields_again(tmp_path):
+    state = {"buffer": np.ones(4), "policy": np.arange(3.0)}
+    checkpoint.save(tmp_path / "best.npz", state, {"global_step": 1}, leave_out=("buffer",))
+    _, header = checkpoint.read(tmp_path / "best.npz")
+    checkpoint.save(tmp_path / "c.npz", state, dict(header, global_step=2))
+    arrays, again = checkpoint.read(tmp_path / "c.npz")
+    assert sorted(arrays) == ["buffer", "policy"] and "left_out" not in again and again["global_step"] == 2
+
+
+def test_a_policy_loads_from_an_off_policy_checkpoint_without_its_buffer(tmp_path):
+    from canter.training.restore import load_state
+
+    run = tmp_path / "td3"
+    shutil.copytree(ARCHIVED_RUN.parent / "td3", run)
+    newest = checkpoint.latest(run)
+    _, _, state, header = load_state(run)
+    checkpoint.save(newest, state, header)  # in this canter's format, which hashes each array
+    _, _, whole, _ = load_state(run)
+    _, _, policy, _ = load_state(run, policy_only=True)
+    assert np.asarray(whole.buffer.data.obs).any() and not np.asarray(policy.buffer.data.obs).any()
+    assert _equal(whole.learner, policy.learner) and _equal(whole.obs_stats, policy.obs_stats)

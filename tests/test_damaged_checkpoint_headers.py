@@ -27,7 +27,8 @@ def _rewrite_header(path: Path, header: object, rehash: bool) -> None:
     if rehash:
         assert isinstance(header, dict)
         arrays = {name[5:]: value for name, value in payload.items() if name.startswith("leaf:")}
-        header = dict(header, sha256=checkpoint._digest(arrays, header))
+        whole = header.get("format_version") in checkpoint.WHOLE_FILE_HASH_VERSIONS  # else it holds each array's
+        header = dict(header, sha256=checkpoint._digest(arrays, header) if whole else checkpoint._header_digest(header))
     payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     with path.open("wb") as f:
         np.savez(f, **payload)

@@ -3,14 +3,16 @@
 Run with canter's interpreter from the repository root:
 
     .venv/bin/python benchmarks/load_cost/run.py --before REF [--algo td3] [--env HalfCheetah-v5] [--pairs 5]
-                                                 [--no-write]
+                                                 [--resave] [--no-write]
 
 It trains one short run with the tree of REF (so that both trees can read it), then times `canter eval RUN
 --episodes 2` alternately with REF's `src/` and with this working tree's, A B A B, from outside: interpreter start,
 imports, reading and restoring the checkpoint, the policy's compile and two episodes. Each process's peak memory is
 the kernel's account of that child. Pairing keeps the ratio meaningful on a machine whose speed drifts. It writes the
 raw timings (timings.jsonl) beside this file and appends a dated section with the machine, the commits and the
-medians to results.md.
+medians to results.md. `--resave` is for a tree that writes a newer checkpoint format than REF reads: the tree
+under test then plays a copy of the run whose newest checkpoint it has written again, the same state in its own
+format.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -37,6 +40,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--algo", default="td3")
     p.add_argument("--env", default="HalfCheetah-v5")
     p.add_argument("--pairs", type=int, default=5)
+    p.add_argument("--resave", action="store_true", help="this tree plays a copy resaved in its checkpoint format")
     p.add_argument("--no-write", action="store_true", help="print only; write no files")
     return p.parse_args(argv)
 
@@ -60,6 +64,23 @@ def timed(command: list[str]) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 1024
 
 
+RESAVE = """
+import sys
+from canter.training import checkpoint
+from canter.training.restore import load_state
+_, _, state, header = load_state(sys.argv[1])
+checkpoint.save(checkpoint.latest(sys.argv[1]), state, header)
+"""
+
+
+def resaved_copy(run: Path) -> Path:
+    """A copy of the run whose newest checkpoint this tree has written again."""
+    copy = run.with_name(run.name + "-resaved")
+    shutil.copytree(run, copy)
+    subprocess.run(["env", f"PYTHONPATH={ROOT / 'src'}", sys.executable, "-c", RESAVE, str(copy)], check=True)
+    return copy
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     before, now = git("rev-parse", "--short", args.before), git("rev-parse", "--short", "HEAD")
@@ -73,10 +94,11 @@ def main(argv: list[str] | None = None) -> int:
         subprocess.run(canter(old / "src", *train, "--set", f"{args.algo}.learning_starts=1000"), check=True)
         run = next(out.iterdir())
         trees = {"before": old / "src", "now": ROOT / "src"}
+        runs = {"before": run, "now": resaved_copy(run) if args.resave else run}
         rows = []
         for pair in range(args.pairs):
             for label in ("before", "now") if pair % 2 == 0 else ("now", "before"):
-                wall, peak = timed(canter(trees[label], "eval", str(run), "--episodes", "2"))
+                wall, peak = timed(canter(trees[label], "eval", str(runs[label]), "--episodes", "2"))
                 rows.append({"pair": pair, "tree": label, "wall_s": round(wall, 3), "peak_mib": round(peak, 1)})
                 print(rows[-1], flush=True)
     walls = {label: [r["wall_s"] for r in rows if r["tree"] == label] for label in trees}
@@ -87,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{os.cpu_count()} cores, {now} against {before}",
         "",
         f"`canter eval RUN --episodes 2` of a {args.algo} {args.env} run (2,000 steps, its default replay buffer), "
-        f"{args.pairs} pairs of whole processes:",
+        f"{args.pairs} pairs of whole processes"
+        + (", the tree under test playing a copy resaved in its checkpoint format:" if args.resave else ":"),
         "",
         "| tree | wall s (median) | peak MiB (median) |",
         "|---|---:|---:|",

@@ -2,7 +2,9 @@
 
 A checkpoint is one `.npz` file: the train state's leaves as arrays (named by their pytree path), plus a JSON
 header with the format version, the resolved config, env facts needed to rebuild the policy without the env, the
-step count and a SHA-256 over everything else. It is written to a temp file in the same folder, fsynced and
+step count, a SHA-256 of each array (`leaf_sha256`) and a SHA-256 of the header (`sha256`), which thereby vouches
+for every array. A reader that needs only some arrays (a policy, without its replay buffer) reads and checks only
+those. It is written to a temp file in the same folder, fsynced and
 renamed, so a reader sees either the old file or the new one, never half of one.
 
 A run folder keeps its newest `run.keep_checkpoints` checkpoints as `checkpoints/ckpt_<step>.npz` and, when it
@@ -19,7 +21,7 @@ import json
 import os
 import sys
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,10 +52,12 @@ from canter.training.run_folder import (
     read_config,
 )
 
-FORMAT_VERSION = 1
-# A checkpoint that leaves fields out (best.npz, a video's snapshot): a reader that predates `left_out` would take
-# it for a checkpoint of another config, so it says which canter reads it instead.
-LEFT_OUT_FORMAT_VERSION = 2
+# Versions 1 and 2 hash all arrays together, so a file is only checked whole; version 2 marked a checkpoint that
+# leaves fields out (`left_out`), which a version-1 reader would take for a checkpoint of another config.
+WHOLE_FILE_HASH_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+# What `save` works out itself: a header given with them (one read back, edited) has them replaced.
+_DERIVED_FIELDS = ("format_version", "leaves", "left_out", "env_carry_leaves", "leaf_sha256", "sha256")
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 _CHECKPOINT_TAKES = f"{with_python('--checkpoint', 'checkpoint=')} takes {LAST}, {BEST} or a .npz file"
@@ -158,16 +162,31 @@ def _path_name(path: tuple) -> str:
     return "/".join(str(getattr(p, "key", getattr(p, "idx", getattr(p, "name", p)))) for p in path)
 
 
+def _hash_array(h: Any, name: str, array: np.ndarray) -> None:
+    a = np.ascontiguousarray(array)
+    h.update(name.encode())
+    h.update(str(a.dtype).encode())
+    h.update(str(a.shape).encode())
+    h.update(a.reshape(-1).view(np.uint8).data)  # its bytes in place: a replay buffer is gigabytes
+
+
 def _digest(arrays: dict[str, np.ndarray], header: dict[str, Any]) -> str:
+    """The whole-file hash of format versions 1 and 2: the header, then every array."""
     h = hashlib.sha256()
     h.update(json.dumps(header, sort_keys=True).encode())
     for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(name.encode())
-        h.update(str(a.dtype).encode())
-        h.update(str(a.shape).encode())
-        h.update(a.reshape(-1).view(np.uint8).data)  # its bytes in place: a replay buffer is gigabytes
+        _hash_array(h, name, arrays[name])
     return h.hexdigest()
+
+
+def _leaf_digest(name: str, array: np.ndarray) -> str:
+    h = hashlib.sha256()
+    _hash_array(h, name, array)
+    return h.hexdigest()
+
+
+def _header_digest(header: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(header, sort_keys=True).encode()).hexdigest()
 
 
 def named_leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
@@ -196,14 +215,16 @@ def save(
     left_out = [name for name, _ in named if name.split("/", 1)[0] in leave_out]
     # Only the kept leaves leave the device: a replay buffer left out stays where it is.
     arrays = _to_host([(name, leaf) for name, leaf in named if name not in left_out])
-    header = dict(header, format_version=LEFT_OUT_FORMAT_VERSION if left_out else FORMAT_VERSION, leaves=list(arrays))
+    header = {key: value for key, value in header.items() if key not in _DERIVED_FIELDS}
+    header.update(format_version=FORMAT_VERSION, leaves=list(arrays))
     if left_out:
         header["left_out"] = left_out
     if env_carry is not None:
         carry = _to_host(named_leaves(env_carry, ENV_CARRY))
         arrays.update(carry)
         header["env_carry_leaves"] = list(carry)
-    header["sha256"] = _digest(arrays, header)
+    header["leaf_sha256"] = {name: _leaf_digest(name, value) for name, value in arrays.items()}
+    header["sha256"] = _header_digest(header)
     payload = {f"leaf:{k}": v for k, v in arrays.items()}
     payload["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
     writer = np.savez_compressed if compress else np.savez
@@ -295,30 +316,50 @@ def read_header(path: Path) -> dict[str, Any]:
     return _checked_header(header, Path(path))
 
 
-def read(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint."""
+def read(path: Path, wanted: Callable[[str], bool] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Arrays and header of a checkpoint, verified; a one-line CanterError if it is not a sound canter checkpoint.
+    `wanted` picks the arrays to return by name (all by default): only those are read and checked, where the file
+    hashes each array on its own (an older file is still read and checked whole)."""
     path = Path(path)
     _refuse_not_a_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
-            header = json_value(bytes(data["header"]).decode())
-            arrays = {k[5:]: data[k] for k in data.files if k.startswith("leaf:")}
-    except PermissionError:
-        raise
+            header = _checked_header(json_value(bytes(data["header"]).decode()), path)
+            version = header.get("format_version")
+            readable = (*WHOLE_FILE_HASH_VERSIONS, FORMAT_VERSION)
+            if version not in readable:
+                raise CanterError(
+                    f"checkpoint {path} has format version {version}, this canter reads versions "
+                    f"{', '.join(map(str, readable))}; use the canter release that wrote it"
+                )
+            names = [k[5:] for k in data.files if k.startswith("leaf:")]
+            whole = version in WHOLE_FILE_HASH_VERSIONS
+            arrays = {name: data[f"leaf:{name}"] for name in names if whole or wanted is None or wanted(name)}
+    except (PermissionError, CanterError):
+        raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
         raise DamagedCheckpoint(path, "is corrupt or truncated") from None
-    header = _checked_header(header, path)
-    version = header.get("format_version")
-    if version not in (FORMAT_VERSION, LEFT_OUT_FORMAT_VERSION):
-        raise CanterError(
-            f"checkpoint {path} has format version {version}, this canter reads versions {FORMAT_VERSION} and "
-            f"{LEFT_OUT_FORMAT_VERSION}; use the canter release that wrote it"
-        )
     expected = header.pop("sha256", None)
-    if expected != _digest(arrays, header):
-        raise DamagedCheckpoint(path, "fails its content hash (corrupt)")
+    sound = expected == _digest(arrays, header) if whole else _header_and_arrays_sound(header, expected, names, arrays)
     header["sha256"] = expected
+    if not sound:
+        raise DamagedCheckpoint(path, "fails its content hash (corrupt)")
+    if whole and wanted is not None:
+        arrays = {name: value for name, value in arrays.items() if wanted(name)}
     return arrays, header
+
+
+def _header_and_arrays_sound(
+    header: dict[str, Any], expected: Any, names: list[str], arrays: dict[str, np.ndarray]
+) -> bool:
+    """Whether a header matches its hash, the file holds the arrays its header lists, and those read match theirs."""
+    digests = header.get("leaf_sha256")
+    return (
+        expected == _header_digest(header)
+        and isinstance(digests, dict)
+        and sorted(names) == sorted(digests)
+        and all(digests[name] == _leaf_digest(name, value) for name, value in arrays.items())
+    )
 
 
 def restore(
@@ -349,7 +390,7 @@ def restore(
 def restore_env_carry(fresh: Any, path: Path) -> Any:
     """The episodes in flight saved in checkpoint `path`, in the structure of `fresh` (a new env's carry); `fresh`
     itself when the checkpoint holds none (it was written by a backend that restarts its episodes)."""
-    arrays, header = read(path)
+    arrays, header = read(path, wanted=lambda name: name.startswith(ENV_CARRY))
     if not header.get("env_carry_leaves"):
         return fresh
     return restore(fresh, arrays, path, ENV_CARRY)

@@ -45,9 +45,9 @@ def _stored_bytes(name: str, shape: tuple[int, ...], dtype: Any) -> int:
 
 def state_bytes(state: Any) -> int:
     """Bytes of the checkpoint file of `state` written uncompressed, from its leaves' shapes (nothing leaves the
-    device): each leaf's entry, and the JSON header, which lists every leaf's name. It counts what is written, not
-    a padded allowance, so a warning quotes the size the files will have. The episodes in flight that a JAX-native
-    backend adds are counted by the caller, from the env's shapes (`warn_if_checkpoints_will_not_fit`)."""
+    device): each leaf's entry, and the JSON header, which lists every leaf's name and hash. It counts what is
+    written, not a padded allowance, so a warning quotes the size the files will have. The episodes in flight that
+    a JAX-native backend adds are counted by the caller, from the env's shapes (`warn_if_checkpoints_will_not_fit`)."""
     import json
 
     import numpy as np
@@ -60,7 +60,8 @@ def state_bytes(state: Any) -> int:
         array = leaf if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else np.asarray(leaf)
         names.append(name)
         total += _stored_bytes(f"leaf:{name}.npy", tuple(array.shape), array.dtype)
-    header = HEADER_BYTES + len(json.dumps(names))
+    digests = dict.fromkeys(names, "0" * 64)  # each leaf's SHA-256, in hex
+    header = HEADER_BYTES + len(json.dumps(names)) + len(json.dumps(digests))
     return total + _stored_bytes("header.npy", (header,), np.uint8)
 
 

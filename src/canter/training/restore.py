@@ -10,6 +10,7 @@ import numpy as np
 
 from canter.config.schema import Config
 from canter.config.serialize import from_toml_text
+from canter.errors import CanterError
 from canter.training import checkpoint
 
 
@@ -50,15 +51,19 @@ def _text(value: Any) -> str:
     return value
 
 
-def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
+def load_state(
+    run_dir: Path, which: str | Path = checkpoint.LAST, policy_only: bool = False
+) -> tuple[Config, PolicyFacts, Any, dict[str, Any]]:
     """(config, facts, train state, header) from a checkpoint of a run folder: `which` is `last` (the newest),
-    `best` or a checkpoint file (`checkpoint.resolve`)."""
+    `best` or a checkpoint file (`checkpoint.resolve`). `policy_only` leaves unread the fields that only training
+    reads (the algorithm's `policy_checkpoint_leaves_out`, a replay buffer): they come back as zeros."""
     from canter.algos import get_algorithm
     from canter.core.runtime import setup_jax
 
     run_dir = Path(run_dir)
     path = checkpoint.resolve(run_dir, which)
-    arrays, header = checkpoint.read(path)
+    skip = _training_only_fields(path) if policy_only else ()
+    arrays, header = checkpoint.read(path, wanted=lambda name: name.split("/", 1)[0] not in skip)
     config = from_toml_text(checkpoint.config_text(header, path), str(path))
     checkpoint.check_of_run(run_dir, config, path, header)
     facts = policy_facts(header, path)
@@ -68,5 +73,18 @@ def load_state(run_dir: Path, which: str | Path = checkpoint.LAST) -> tuple[Conf
     import jax
 
     template = jax.eval_shape(lambda: get_algorithm(config.run.algo).init_state(config, facts, config.run.seed))
-    state = checkpoint.restore(template, arrays, path, left_out=header.get("left_out", ()))
+    unread = [name for name in header.get("leaves", ()) if name not in arrays]
+    state = checkpoint.restore(template, arrays, path, left_out=[*header.get("left_out", ()), *unread])
     return config, facts, state, header
+
+
+def _training_only_fields(path: Path) -> tuple[str, ...]:
+    """The state's fields that a policy does not read, by the algorithm that the checkpoint's header names; none
+    where the header does not say, so that the whole read gives its error."""
+    from canter.algos import get_algorithm
+
+    try:
+        config = from_toml_text(checkpoint.config_text(checkpoint.read_header(path), path), str(path))
+        return get_algorithm(config.run.algo).policy_checkpoint_leaves_out
+    except (CanterError, KeyError, ImportError):
+        return ()

@@ -32,7 +32,7 @@ def load_actor(run_dir: str | Path, checkpoint: str | Path) -> tuple[ExportedAct
     from canter.training.checkpoint import BEST, LAST
     from canter.training.restore import load_state
 
-    config, facts, state, _ = load_state(Path(run_dir), checkpoint)
+    config, facts, state, _ = load_state(Path(run_dir), checkpoint, policy_only=True)
     actor = get_algorithm(config.run.algo).export_actor(config, state, facts)
     meta = {
         "producer": f"canter {__version__}",

@@ -149,7 +149,7 @@ def load(run_dir: str | Path, checkpoint: str | Path = LAST, backend: str | None
             choices = describe_backend_choices()
             raise CanterError(f"backend must be a backend name ({choices}) or None for its own, got {backend!r}")
         setup_jax(backend, announce=False)
-    config, facts, state, header = load_state(Path(run_dir), checkpoint)
+    config, facts, state, header = load_state(Path(run_dir), checkpoint, policy_only=True)
     params = get_algorithm(config.run.algo).policy_params(state)
     return Policy(
         config,
