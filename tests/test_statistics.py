@@ -116,6 +116,35 @@ def test_probability_of_improvement_and_profiles_match_rliable():
     np.testing.assert_allclose(statistics.normalized([10.0, 55.0], 10.0, 100.0), [0.0, 0.5])
 
 
+def _rliables_probability_of_improvement(x, y, reps, seed):
+    """The plain reference: rliable's bootstrap, one resample after another, each scored by improvement_probability
+    (equal to rliable's own to the last bit, above)."""
+    np.random.seed(seed)
+    points, intervals = library.get_interval_estimates(
+        {"p": [x, y]}, lambda a, b: np.array([statistics.improvement_probability(a, b)]), reps=reps
+    )
+    return statistics.Interval(float(points["p"][0]), float(intervals["p"][0][0]), float(intervals["p"][1][0]))
+
+
+def test_probabilities_of_improvement_are_rliables_to_the_last_bit_for_every_pair_at_once():
+    # Shapes that share draws (the same runs and tasks) and shapes that do not: unequal runs, one run, one task,
+    # more tasks than numpy's pairwise sum takes in one block of 8, and ties.
+    rng = np.random.default_rng(11)
+    shapes = [(5, 5, 5), (5, 5, 5), (3, 3, 1), (1, 4, 2), (6, 2, 3), (5, 5, 5), (4, 7, 12), (2, 2, 20)]
+    pairs = []
+    for runs_x, runs_y, tasks in shapes:
+        for draw in (rng.normal, lambda size: rng.integers(0, 3, size).astype(float)):
+            pairs.append((draw(size=(runs_x, tasks)) * 100, draw(size=(runs_y, tasks)) * 100))
+    np.random.seed(123)
+    before = np.random.get_state()[1].copy()
+    found = statistics.probabilities_of_improvement(pairs, reps=REPS, seed=6)
+    assert (np.random.get_state()[1] == before).all()
+    assert found == [_rliables_probability_of_improvement(x, y, REPS, 6) for x, y in pairs]
+    assert statistics.probability_of_improvement(*pairs[0], reps=REPS, seed=6) == found[0]
+    with pytest.raises(ValueError, match="same tasks"):
+        statistics.probabilities_of_improvement([pairs[0], (pairs[0][0], pairs[0][1][:, :1])])
+
+
 def test_shipped_random_scores_carry_their_command_and_cover_the_published_envs():
     data = tomllib.loads(resources.files("canter.data").joinpath("random.toml").read_text())
     assert data["command"].startswith("python -m canter.use.random_score --episodes 100")

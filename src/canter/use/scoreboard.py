@@ -327,7 +327,7 @@ def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None =
             )
         )
     profiles = statistics.performance_profiles(matrices, PROFILE_TAUS, reps, seed) if matrices else {}
-    comparisons = []
+    pairs, matched = [], []
     for x, y in itertools.combinations(method_names, 2):
         by_env_x = {c.env_id: c for c in cells if c.method == x}
         by_env_y = {c.env_id: c for c in cells if c.method == y}
@@ -337,8 +337,10 @@ def build_scoreboard(scores: Sequence[RunScore], source: str, reps: int | None =
         # P(X > Y) takes a matrix per method: X and Y may differ in runs, but each needs as many runs per env.
         px = _runs_by_env([by_env_x[e].scores for e in common])
         py = _runs_by_env([by_env_y[e].scores for e in common])
-        probability = statistics.probability_of_improvement(px, py, reps, seed)
-        comparisons.append(Comparison(x, y, tuple(common), probability, (px.shape[0], py.shape[0])))
+        pairs.append((x, y, tuple(common), (px.shape[0], py.shape[0])))
+        matched.append((px, py))
+    probabilities = statistics.probabilities_of_improvement(matched, reps, seed)
+    comparisons = [Comparison(x, y, envs, p, runs) for (x, y, envs, runs), p in zip(pairs, probabilities)]
     return Scoreboard(source, tuple(cells), tuple(methods), profiles, tuple(comparisons), reps, seed)
 
 

@@ -7,6 +7,11 @@ Scores are matrices [runs, tasks] (tasks: envs). The bootstrap resamples runs wi
 its resamples from numpy's global generator, so each call seeds that generator and restores its state afterwards:
 the same seed gives the same interval, and nothing else that uses the global generator is disturbed.
 
+The probability of improvement replays those draws rather than have rliable make them: they depend only on the
+shapes of X and Y, so every pair of methods of the same shapes shares them, and a resample's statistic is then a
+weighted sum over the runs, computed for all resamples at once. Its intervals are rliable's to the last bit, in a
+under a millisecond a pair instead of about 75 ms (a grid of 100 methods has 4,950 pairs).
+
 The statistics of each resample are rliable's definitions written in plain numpy (`interquartile_mean`,
 `task_mean`, `task_median`, `optimality_gap`, `improvement_probability`), equal to rliable's own to the last bit
 (tests/test_statistics.py). rliable's versions go through scipy's trim_mean and mannwhitneyu, whose argument
@@ -204,11 +209,64 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, reps: int = REPS, s
     """P(X > Y): the probability that a run of X scores higher than a run of Y on the same task (ties count half),
     averaged over tasks, with an interval that resamples the runs of X and of Y independently within each task.
     X and Y need the same tasks, in the same order, and may have different numbers of runs."""
-    x, y = _matrix(x), _matrix(y)
-    if x.shape[1] != y.shape[1]:
-        raise ValueError(f"X and Y need the same tasks; got {x.shape[1]} and {y.shape[1]}")
-    points, intervals = _estimates({"pair": [x, y]}, lambda a, b: np.array([improvement_probability(a, b)]), reps, seed)
-    return Interval(float(points["pair"][0]), float(intervals["pair"][0][0]), float(intervals["pair"][1][0]))
+    return probabilities_of_improvement([(x, y)], reps, seed)[0]
+
+
+def probabilities_of_improvement(
+    pairs: Sequence[tuple[np.ndarray, np.ndarray]], reps: int = REPS, seed: int = 0
+) -> list[Interval]:
+    """`probability_of_improvement` of each pair (X, Y), to the last bit, without rliable's loop over resamples.
+
+    rliable's bootstrap draws, for each resample, the runs of X [runs, tasks] and then those of Y from numpy's
+    global generator, seeded anew for each pair: the draws depend only on the shapes of X and Y, so pairs of the same
+    shapes share them, and are drawn once. A resample's U statistic on a task is then a sum over the runs of X and Y
+    of how often each was drawn times whether it wins, which numpy computes for all resamples at once."""
+    matrices = [(_matrix(x), _matrix(y)) for x, y in pairs]
+    for x, y in matrices:
+        if x.shape[1] != y.shape[1]:
+            raise ValueError(f"X and Y need the same tasks; got {x.shape[1]} and {y.shape[1]}")
+    draws: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+    alpha = (1.0 - CONFIDENCE) / 2  # arch's percentile interval, as rliable calls it
+    found = []
+    for x, y in matrices:
+        shape = (x.shape[0], y.shape[0], x.shape[1])
+        if shape not in draws:
+            draws[shape] = _resample_counts(*shape, reps, seed)
+        resampled = _resampled_improvement(x, y, *draws[shape])
+        low, high = np.percentile(resampled, [100 * alpha, 100 * (1.0 - alpha)])
+        found.append(Interval(improvement_probability(x, y), float(low), float(high)))
+    return found
+
+
+def _resample_counts(runs_x: int, runs_y: int, tasks: int, reps: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """How many times each run of X and of Y is drawn on each task in each resample, [reps, tasks, runs] each: the
+    draws of rliable's StratifiedIndependentBootstrap (one np.random.choice of run indices [runs, tasks] for X, then
+    one for Y, per resample), made in the same order from the same seed."""
+    with seeded_global_generator(seed):
+        drawn = [
+            (np.random.choice(runs_x, (runs_x, tasks)), np.random.choice(runs_y, (runs_y, tasks))) for _ in range(reps)
+        ]
+    return _counts(np.stack([d[0] for d in drawn]), runs_x), _counts(np.stack([d[1] for d in drawn]), runs_y)
+
+
+def _counts(indices: np.ndarray, runs: int) -> np.ndarray:
+    """[reps, tasks, runs]: how often each run index occurs in each resample's [runs, tasks] indices."""
+    reps, _, tasks = indices.shape
+    cell = (np.arange(reps)[:, None, None] * tasks + np.arange(tasks)[None, None, :]) * runs
+    return np.bincount((cell + indices).ravel(), minlength=reps * tasks * runs).reshape(reps, tasks, runs).astype(float)
+
+
+def _resampled_improvement(x: np.ndarray, y: np.ndarray, counts_x: np.ndarray, counts_y: np.ndarray) -> np.ndarray:
+    """`improvement_probability` of each resample [reps], from the runs' draw counts [reps, tasks, runs]."""
+    # Twice a task's U statistic over the runs as drawn: each pair of runs (k of X, l of Y) adds 2 when X is higher
+    # and 1 on a tie, times how often both were drawn. The sums are small integers, exact in float64, and half of
+    # them is exactly improvement_probability's higher + 0.5 * tied, so what follows is its arithmetic.
+    wins = 2 * (x[:, None, :] > y[None, :, :]) + (x[:, None, :] == y[None, :, :])
+    weighted = np.matmul(counts_x.transpose(1, 0, 2), wins.transpose(2, 0, 1).astype(float))  # [tasks, reps, runs_y]
+    # Contiguous rows, so that np.mean sums each resample's tasks as it sums improvement_probability's (pairwise
+    # from 8 tasks on); down a column it would add them one by one, and differ in the last bit.
+    doubled = np.ascontiguousarray((weighted * counts_y.transpose(1, 0, 2)).sum(axis=2).T)  # [reps, tasks]
+    return np.mean(doubled * 0.5 / (x.shape[0] * y.shape[0]), axis=1)
 
 
 def normalized(raw: np.ndarray | Sequence[float] | float, random: float, reference: float) -> np.ndarray:
