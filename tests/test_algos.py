@@ -88,3 +88,22 @@ def test_every_algorithm_section_is_read_by_an_algorithm():
 
     read = {entry.split(".")[0] for name in algorithm_names() for entry in algorithm_spec(name).reads}
     assert set(section_names()) - set(CORE_SECTIONS) - read == set()
+
+
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ({"ppo": {"n_step": 8}}, r"unknown config key 'ppo\.n_step' in ppo's table \[ppo\.fast\] for preset fast"),
+        ({"ppo": {"n_steps": "eight"}}, r"\(in ppo's table \[ppo\.fast\] for preset fast \(its presets\.toml\)\)"),
+    ],
+)
+def test_a_bad_key_in_an_algorithms_preset_table_names_that_table(monkeypatch, table, message):
+    """An algorithm's table for a preset lives in its own folder, not in the preset file, so its errors name it."""
+    import dataclasses
+
+    from canter.config import algorithms
+
+    ppo = algorithms.algorithm_spec("ppo")
+    monkeypatch.setitem(algorithms._REGISTERED, "ppo", dataclasses.replace(ppo, preset_overrides={"fast": table}))
+    with pytest.raises(CanterError, match=message):
+        build_config("Hopper-v5", algo="ppo", preset="fast")

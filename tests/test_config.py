@@ -166,10 +166,17 @@ def test_apply_overrides_coerces_types():
     assert config.run.total_steps == 1_000_000
 
 
+def _preset_keys(name, env_id, algo):
+    """A preset's keys for the env and algorithm, its layers merged as build_config lays them."""
+    from canter.config.presets import preset_layers
+
+    return {key: value for _, layer in preset_layers(name, env_id, algo) for key, value in layer.items()}
+
+
 def test_preset_layers_env_then_algo():
     import tomllib
 
-    from canter.config.presets import preset_layer, preset_overrides
+    from canter.config.presets import preset_layer
 
     table = tomllib.loads("""
 [env]
@@ -182,12 +189,12 @@ num_envs = 2
     assert preset_layer(table, "Hopper-v5", "t") == {"env.num_envs": 2, "ppo.lr": 1e-4}
     assert preset_layer(table, "Walker2d-v5", "t") == {"env.num_envs": 16}
     # An algorithm's own table for a preset (its folder's presets.toml) lies over the preset file.
-    assert preset_overrides("fast", "Hopper-v5", "ppo")["ppo.minibatch_size"] == 64
-    assert preset_overrides("fast", "Hopper-v5", "trpo")["ppo.minibatch_size"] == 512
-    assert preset_overrides("fast", "Hopper-v5", "rpo")["rpo.alpha"] == 0.1
-    assert preset_overrides("fast", "Ant-v5", "rpo")["rpo.alpha"] == 0.01
-    assert preset_overrides("fast", "Hopper-v5", "td3")["env.num_envs"] == 1
-    assert preset_overrides("fast", "Hopper-v5", "ppo")["env.num_envs"] == 16
+    assert _preset_keys("fast", "Hopper-v5", "ppo")["ppo.minibatch_size"] == 64
+    assert _preset_keys("fast", "Hopper-v5", "trpo")["ppo.minibatch_size"] == 512
+    assert _preset_keys("fast", "Hopper-v5", "rpo")["rpo.alpha"] == 0.1
+    assert _preset_keys("fast", "Ant-v5", "rpo")["rpo.alpha"] == 0.01
+    assert _preset_keys("fast", "Hopper-v5", "td3")["env.num_envs"] == 1
+    assert _preset_keys("fast", "Hopper-v5", "ppo")["env.num_envs"] == 16
 
 
 def test_a_preset_that_extends_another_lays_its_keys_over_the_others(monkeypatch):
@@ -207,19 +214,19 @@ def test_a_preset_that_extends_another_lays_its_keys_over_the_others(monkeypatch
     shipped = presets.shipped_preset_text
     monkeypatch.setattr(presets, "shipped_preset_text", lambda name: extra.get(name) or shipped(name))
 
-    child = presets.preset_overrides("child", "Hopper-v5", "ppo")
+    child = _preset_keys("child", "Hopper-v5", "ppo")
     # The child's minibatch wins over fast's ppo table for Hopper; fast's env layer stays.
     assert (child["ppo.minibatch_size"], child["ppo.lr"], child["env.num_envs"]) == (128, 1e-4, 16)
-    assert presets.preset_overrides("child", "Hopper-v5", "td3")["env.num_envs"] == 1
+    assert _preset_keys("child", "Hopper-v5", "td3")["env.num_envs"] == 1
     # The whole chain, base first: fast's layer, then the child's, then the grandchild's own.
-    grandchild = presets.preset_overrides("grandchild", "Hopper-v5", "ppo")
+    grandchild = _preset_keys("grandchild", "Hopper-v5", "ppo")
     assert (grandchild["net.log_std_init"], grandchild["ppo.lr"], grandchild["env.num_envs"]) == (-1.0, 1e-4, 4)
     with pytest.raises(CanterError, match="preset grandchild holds settings for ppo only, not td3"):
-        presets.preset_overrides("grandchild", "Hopper-v5", "td3")
+        _preset_keys("grandchild", "Hopper-v5", "td3")
     with pytest.raises(CanterError, match="preset heir holds settings for td3 only, not ppo"):
-        presets.preset_overrides("heir", "Hopper-v5", "ppo")
+        _preset_keys("heir", "Hopper-v5", "ppo")
     with pytest.raises(CanterError, match=r"preset loop-a extends itself \(loop-a -> loop-b -> loop-a\)"):
-        presets.preset_overrides("loop-a", "Hopper-v5", "ppo")
+        _preset_keys("loop-a", "Hopper-v5", "ppo")
 
 
 @pytest.mark.parametrize(

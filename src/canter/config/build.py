@@ -26,8 +26,8 @@ from canter.config.presets import (
     canonical_preset,
     note_other_env,
     preset_algorithm,
+    preset_layers,
     preset_names,
-    preset_overrides,
 )
 from canter.config.schema import Config
 from canter.config.validate import validate
@@ -162,9 +162,9 @@ def build_config(
     config = apply_overrides(config, first, "arguments")
     if config_file and holds_every_section(config_file):  # a format-1 run folder's config.toml
         file_data = {key: value for key, value in file_data.items() if reads_key(config.run.algo, key)}
-    config = apply_overrides(
-        config, preset_overrides(preset, str(resolved_id), config.run.algo, named_by), f"preset {preset}"
-    )
+    for source, layer in preset_layers(preset, str(resolved_id), config.run.algo, named_by):
+        # the algorithm asked for wins over the one a preset names
+        config = apply_overrides(config, {**layer, "run.algo": config.run.algo}, source)
     if notes:
         note_other_env(preset, str(resolved_id))
     config = apply_overrides(config, file_data, str(config_file))

@@ -116,11 +116,14 @@ def preset_algorithm(name: str, env_id: str) -> str | None:
     return None if algo is None else str(algo)
 
 
-def preset_overrides(name: str, env_id: str, algo: str = "ppo", named_by: str | None = None) -> dict[str, Any]:
-    """A preset's keys for this env and algorithm: for each preset in its chain, base first, that preset's file
-    layer, then the algorithm's own table for it. A preset whose `algos` list names the algorithms it holds
-    settings for refuses the others, which would otherwise get the bare defaults under its name. `named_by` is the
-    config file whose run.preset chose the preset, where no --preset did."""
+def preset_layers(
+    name: str, env_id: str, algo: str = "ppo", named_by: str | None = None
+) -> list[tuple[str, dict[str, Any]]]:
+    """A preset's keys for this env and algorithm, layer by layer, later layers winning: for each preset in its
+    chain, base first, that preset's file layer, then the algorithm's own table for it; each with the source that
+    an error in it names (an algorithm's table is not in the preset file). A preset whose `algos` list names the
+    algorithms it holds settings for refuses the others, which would otherwise get the bare defaults under its name.
+    `named_by` is the config file whose run.preset chose the preset, where no --preset did."""
     chain = _read_chain(name)
     supported = _nearest_algorithms(chain)
     if supported and algo not in supported:
@@ -135,14 +138,14 @@ def preset_overrides(name: str, env_id: str, algo: str = "ppo", named_by: str | 
             f"preset {name}, named by {named_by}'s run.preset, {holds}, or drop run.preset from {named_by} and pass "
             f"another preset, e.g. --preset fast (preset='fast' from Python)"
         )
-    flat: dict[str, Any] = {}
+    layers: list[tuple[str, dict[str, Any]]] = []
     for link, table, _ in chain:
-        flat.update(preset_layer(table, env_id, f"preset {link}"))
+        layers.append((f"preset {link}", preset_layer(table, env_id, f"preset {link}")))
         own = algorithm_spec(algo).preset_overrides.get(link)
         if own:
-            flat.update(preset_layer(dict(own), env_id, f"{algo}'s table for preset {link}"))
-    flat["run.algo"] = algo  # the algorithm asked for wins over the one a preset names
-    return flat
+            source = f"{algo}'s table [{algo}.{link}] for preset {link} (its presets.toml)"
+            layers.append((source, preset_layer(dict(own), env_id, source)))
+    return layers
 
 
 def algorithm_preset_tables(package: str, algo: str) -> dict[str, Any]:
