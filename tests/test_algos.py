@@ -107,3 +107,25 @@ def test_a_bad_key_in_an_algorithms_preset_table_names_that_table(monkeypatch, t
     monkeypatch.setitem(algorithms._REGISTERED, "ppo", dataclasses.replace(ppo, preset_overrides={"fast": table}))
     with pytest.raises(CanterError, match=message):
         build_config("Hopper-v5", algo="ppo", preset="fast")
+
+
+def test_a_runtime_record_keyed_by_another_name_is_refused_before_a_run_folder_is_made(monkeypatch, tmp_path):
+    """`ALGORITHMS = {"PPO": ...}` in the runtime module: one line that names the dict and its keys, and no
+    half-made run folder."""
+    import dataclasses
+    import sys
+    import types
+
+    from canter.config import algorithms
+    from canter.training.loop import train
+
+    runtime = types.ModuleType("misfiled_runtime")
+    runtime.ALGORITHMS = {"PPO": get_algorithm("ppo")}  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "misfiled_runtime", runtime)
+    ppo = algorithms.algorithm_spec("ppo")
+    monkeypatch.setitem(algorithms._REGISTERED, "ppo", dataclasses.replace(ppo, runtime="misfiled_runtime"))
+    config = build_config("InvertedPendulum-v4", sets=[f"run.out_dir={tmp_path}", "env.num_envs=4"])
+    message = r"misfiled_runtime\.ALGORITHMS has no 'ppo' \(it has 'PPO'\); key its Algorithm record by"
+    with pytest.raises(CanterError, match=message):
+        train(config)
+    assert not any(tmp_path.iterdir())

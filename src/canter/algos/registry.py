@@ -10,6 +10,7 @@ from canter.config.algorithms import (
     algorithm_spec,
     check_algorithm_name,
 )
+from canter.errors import CanterError
 
 DECLARATIONS = (
     "canter.algos.ppo.sections",  # ppo, rpo
@@ -24,8 +25,14 @@ __all__ = ["algorithm_names", "check_algorithm_name", "get_algorithm", "seeds_tr
 
 def get_algorithm(name: str) -> Algorithm:
     """The runtime record (imports the algorithm's JAX code)."""
-    module = importlib.import_module(algorithm_spec(name).runtime)
-    return module.ALGORITHMS[name]
+    runtime = algorithm_spec(name).runtime
+    records = getattr(importlib.import_module(runtime), "ALGORITHMS", {})
+    if name not in records:  # a packaging slip of the algorithm's own, which a KeyError would not name
+        raise CanterError(
+            f"algorithm '{name}' names {runtime} as its runtime, but {runtime}.ALGORITHMS has no '{name}' (it has "
+            f"{', '.join(map(repr, records)) or 'none'}); key its Algorithm record by the AlgorithmSpec's name"
+        )
+    return records[name]
 
 
 def seeds_train_apart(name: str) -> bool:

@@ -225,6 +225,7 @@ def _train_checked(
     setup_jax(backend, announce=False)
     for config in configs:
         validate(config)
+    algorithm = get_algorithm(configs[0].run.algo)  # before a folder is made
     played = evaluation_backend(configs[0].env.id, configs[0].run.eval_backend, backend)  # before a folder is made
     if configs[0].run.video_every and all(resume is None for resume in resumes):  # a resume cannot change its config
         refuse_mujoco_py_replay(  # the videos play on the single-env backend
@@ -250,7 +251,6 @@ def _train_checked(
             seeds = [seed for config, start in zip(configs, starts) for seed in start.env_seeds(config)]
             env = _make_env(configs[0], backend, seeds)
             spec = replace(env.spec, num_envs=configs[0].env.num_envs)  # what one seed sees
-            algorithm = get_algorithm(configs[0].run.algo)
             algorithm.validate(configs[0], spec)
             if all(start.state is None for start in starts):  # a resumed state was checked when its run started
                 host_memory.check_state_fits(algorithm, configs[0], spec, len(configs), device_memory.free_bytes())
