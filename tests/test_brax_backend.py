@@ -44,6 +44,8 @@ def test_names_are_brax_own_and_only_those_on_mjx():
     assert set(ids) | set(LEFT_OUT) == set(brax_envs()._envs)
     assert not set(ids) & set(LEFT_OUT)
     assert resolve_backend("ant", "brax") == "brax"
+    # The names known without brax, which the error where it is missing names its extra for.
+    assert BRAX.installable_ids == tuple(ids)
 
 
 @needs_brax

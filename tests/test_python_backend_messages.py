@@ -132,3 +132,22 @@ def test_an_uninstalled_backend_names_its_extra_and_the_backends_that_run_the_en
         with pytest.raises(CanterError) as refused:
             call()
         assert str(refused.value) == "Brax is not installed here; pip install 'canter[brax]'"
+
+
+@pytest.mark.parametrize("backend", ["auto", "envpool", "mjx"])
+def test_an_id_of_an_uninstalled_backend_names_its_extra_rather_than_calling_it_unknown(monkeypatch, backend):
+    """`canter train ant` without brax: Brax's env names are known without it, so the error names the extra."""
+    if backend != "auto":
+        _need(backend)  # else its own absence is said first
+    monkeypatch.setattr(type(get_backend("brax")), "available", lambda self: False)
+    message = _refusal(_train("ant", f"env.backend={backend}"), "env.backend from Python")
+    fix = "pip install 'canter[brax]' and pass --backend brax"
+    if backend == "mjx":
+        assert message.endswith(
+            f"; {fix}, or use Ant-v5 with --backend mjx (env.backend from Python; backend= for evaluate)"
+        ), message
+    else:
+        assert message == (
+            f"'ant' is an env id of Brax, which is not installed here; {fix} (env.backend from Python; backend= for "
+            "evaluate)"
+        )

@@ -136,6 +136,9 @@ class Backend(Protocol):
     own_observations: bool = False
     # How a user gets its env library where it is missing (an extra to install), or "" where canter always has it.
     install: str = ""
+    # The ids it runs that no other backend has, known without its env library (Brax's env names), so that where
+    # the library is missing an id of them names `install` rather than being called unknown.
+    installable_ids: tuple[str, ...] = ()
 
     def available(self) -> bool:
         """Whether its env library imports on this machine."""

@@ -139,8 +139,10 @@ def resolve_backend(env_id: str, backend: str) -> str:
         for candidate in _auto_backends():
             if env_id in candidate.supported_ids():
                 return candidate.name
-        raise _elsewhere(env_id) or _unknown(
-            env_id, sorted({i for b in _auto_backends() for i in b.supported_ids()}), "canter"
+        raise (
+            _elsewhere(env_id)
+            or _not_installed_home(env_id)
+            or _unknown(env_id, sorted({i for b in _auto_backends() for i in b.supported_ids()}), "canter")
         )
     chosen = get_backend(backend)
     if not chosen.available():
@@ -149,7 +151,7 @@ def resolve_backend(env_id: str, backend: str) -> str:
     if env_id not in ids and chosen.jax_native:
         raise _not_ported(env_id, chosen, sorted(ids))
     if env_id not in ids:
-        raise _elsewhere(env_id, chosen) or _unknown(env_id, sorted(ids), chosen.label)
+        raise _elsewhere(env_id, chosen) or _not_installed_home(env_id) or _unknown(env_id, sorted(ids), chosen.label)
     return chosen.name
 
 
@@ -234,13 +236,32 @@ def _elsewhere(env_id: str, chosen: Backend | None = None) -> CanterError | None
     return CanterError(f"{chosen.label} does not run {env_id}; {advice}")
 
 
+def _not_installed_homes(env_id: str, chosen: Backend | None = None) -> list[Backend]:
+    """The backends other than `chosen`, not installed here, that would run env_id (`installable_ids`)."""
+    return [b for b in backends() if b is not chosen and env_id in b.installable_ids and not b.available()]
+
+
+def _install_and_pass(home: Backend) -> str:
+    return f"{home.install} and pass --backend {home.name}"
+
+
+def _not_installed_home(env_id: str) -> CanterError | None:
+    """The error for an id that only a backend not installed here runs: its install, and --backend."""
+    homes = _not_installed_homes(env_id)
+    if not homes:
+        return None
+    advice = _python_backend(_install_and_pass(homes[0]))
+    return CanterError(f"'{env_id}' is an env id of {homes[0].label}, which is not installed here; {advice}")
+
+
 def _not_ported(env_id: str, chosen: Backend, ids: list[str]) -> CanterError:
     """The error for an id that a JAX-native backend does not run, with the ids it runs (few, unlike a CPU
-    backend's): the backends that run it, and the chosen one's id of the same task, which backends spell differently
-    (hopper, Hopper-v5); for an id none runs, its nearest ids."""
+    backend's): the backends that run it (or would, once installed), and the chosen one's id of the same task, which
+    backends spell differently (hopper, Hopper-v5); for an id none runs, its nearest ids."""
     runs = f"--backend {chosen.name} runs {_or(ids)}"
     others = [b for b in backends() if b is not chosen and b.available() and env_id in b.supported_ids()]
-    if not others:
+    homes = _not_installed_homes(env_id, chosen)
+    if not others and not homes:
         lowered = {known.lower(): known for known in ids}
         close = [lowered[match] for match in difflib.get_close_matches(env_id.lower(), list(lowered), n=3, cutoff=0.6)]
         hint = f"did you mean {', '.join(close)}? ({runs})" if close else runs
@@ -249,6 +270,7 @@ def _not_ported(env_id: str, chosen: Backend, ids: list[str]) -> CanterError:
     native = [b.name for b in others if b.jax_native]
     if native:
         fixes.append(f"pass --backend {_or(native)}")
+    fixes.extend(_install_and_pass(home) for home in homes)
     if len(native) < len(others):  # `auto` finds it on a backend that steps it on the host
         fixes.append("drop --backend to run it on the CPU")
     same_task = [known for known in ids if _task(known) == _task(env_id)]

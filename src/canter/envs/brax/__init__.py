@@ -14,6 +14,19 @@ from canter.envs.base import Backend, VecEnv, loads
 from canter.errors import CanterError
 
 NAME = "brax"
+# Brax's env names that canter offers (`env.env_names()` of the pinned brax), for the error where brax is missing.
+IDS = (
+    "ant",
+    "halfcheetah",
+    "hopper",
+    "humanoid",
+    "humanoidstandup",
+    "inverted_double_pendulum",
+    "inverted_pendulum",
+    "pusher",
+    "reacher",
+    "walker2d",
+)
 
 
 class BraxBackend(Backend):
@@ -22,6 +35,7 @@ class BraxBackend(Backend):
     install = "pip install 'canter[brax]'"
     jax_native = True
     own_observations = True
+    installable_ids = IDS
 
     def available(self) -> bool:
         from canter.envs.brax.env import brax_envs
