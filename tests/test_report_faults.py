@@ -4,6 +4,7 @@ dir, neither the half-written video nor the folder it renders into."""
 import os
 import shutil
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -54,3 +55,25 @@ def test_a_report_that_plays_nothing_still_tells_a_missing_folder_and_a_benchs(t
     ):
         assert main(["report", str(folder), "--episodes", "0", "--out", out]) == 2
         assert capsys.readouterr().err == f"canter: error: {expected}\n"
+
+
+def test_a_report_of_a_run_on_an_uninstalled_backend_names_its_extra_and_no_backend_flag(
+    archived_run, tmp_path, capsys, monkeypatch
+):
+    """A run evaluates on the backend it trained on; report has no --backend (canter eval's fix) to pass instead, so
+    it names the extra, and --episodes 0 to report without playing."""
+    from canter.config.build import build_config
+    from canter.envs.registry import get_backend
+    from canter.use import report
+    from conftest import error_line
+
+    # The archived run as a run of the mjx backend (its checkpoint says EnvPool, so its config is not edited).
+    trained_on_mjx = build_config("InvertedPendulum-v5", sets=["env.backend=mjx"])
+    monkeypatch.setattr(
+        report, "run_facts", lambda run_dir, which: report.RunFacts(Path(run_dir), trained_on_mjx, {}, (), ())
+    )
+    monkeypatch.setattr(type(get_backend("mjx")), "available", lambda self: False)
+    assert error_line(capsys, ["report", str(archived_run), "--out", str(tmp_path / "report.html")]) == (
+        f"MJX is not installed here, and the report evaluates {archived_run} on it, as it trained; "
+        "pip install 'canter[mjx]', or pass --episodes 0 to report it without an evaluation"
+    )

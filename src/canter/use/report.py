@@ -424,6 +424,23 @@ def _checkpoint_note(which: str) -> str:
     return "Newest checkpoints" if which == checkpoint.LAST else f"Checkpoint {Path(which).name}"
 
 
+def _refuse_uninstalled_backends(facts: Sequence[RunFacts]) -> None:
+    """A run evaluates on the backend it trained on, which the report has no flag to change (as `canter eval`'s
+    --backend does): where that backend is not installed, the one line says so and names --episodes 0."""
+    from canter.envs.registry import AUTO, get_backend
+
+    for f in facts:
+        if f.config.env.backend == AUTO:
+            continue
+        backend = get_backend(f.config.env.backend)
+        if not backend.available():
+            install = f"{backend.install}, or " if backend.install else ""
+            raise CanterError(
+                f"{backend.label} is not installed here, and the report evaluates {f.run_dir} on it, as it trained; "
+                f"{install}pass --episodes 0 to report it without an evaluation"
+            )
+
+
 def build_report(
     run_dirs: Sequence[str | Path],
     episodes: int = 10,
@@ -456,6 +473,8 @@ def build_report(
             refuse_mujoco_py_replay(
                 f.config.env.id, "report --video renders its video", "drop --video, or report a run of {newer}"
             )
+    if episodes:
+        _refuse_uninstalled_backends(facts)
     runs = [load_run(f.run_dir) for f in facts]  # a folder the curves cannot be read from fails now, not later
     rows = evaluate_runs([f.run_dir for f in facts], episodes, seed, which) if episodes else None
     # The statistics use this report's evaluation where there is one, else each run's own final score.
