@@ -212,6 +212,19 @@ def test_cli_vary_bad_inputs(tiny_hopper_run, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing partial left behind
 
 
+def test_varying_an_env_gymnasium_lacks_names_the_backend_that_has_it():
+    """A DM Control env is EnvPool's alone, and --vary edits Gymnasium's MuJoCo models."""
+    from canter.errors import CanterError
+    from canter.use.vary import check_spec, parse_spec
+
+    with pytest.raises(CanterError) as refused:
+        check_spec("CheetahRun-v1", parse_spec("gravity=0.5,1"))
+    assert str(refused.value) == (
+        "--vary edits the MuJoCo model of CheetahRun-v1 in Gymnasium, which has no such env (only EnvPool has it); "
+        "drop --vary, which varies only Gymnasium's envs"
+    )
+
+
 def test_an_overflowing_observation_of_diverged_physics_prints_no_numpy_warning(archived_run, tmp_path, capfd):
     """InvertedPendulum's observation is its raw state, which a diverged model pushes past float32's range."""
     with warnings.catch_warnings(record=True) as caught:

@@ -350,6 +350,18 @@ def test_a_resume_renders_the_video_whose_render_a_killed_trainer_took_with_it(a
     assert len(frames_of(folder / "step_000000000714.mp4")) > 1
 
 
+def test_a_run_of_an_env_gymnasium_lacks_is_told_which_backend_alone_has_it():
+    """A DM Control env is EnvPool's alone: its video is refused in its own words, not in Brax's."""
+    from canter.use.video_players import GymnasiumPlayer
+
+    with pytest.raises(CanterError) as refused:
+        GymnasiumPlayer("CheetahRun-v1", 64, 64, None)
+    assert str(refused.value) == (
+        "cannot replay CheetahRun-v1: canter renders through Gymnasium's envs, and Gymnasium has no such env (only "
+        "EnvPool has it), so a run of it has no video; canter eval scores it"
+    )
+
+
 def test_a_run_on_brax_own_envs_is_told_it_has_no_video(archived_run, monkeypatch, capsys):
     """canter renders through Gymnasium's envs, which Brax's own models are not: `canter video`, `report --video` and
     training with videos say so in one line, before anything renders."""
@@ -359,7 +371,8 @@ def test_a_run_on_brax_own_envs_is_told_it_has_no_video(archived_run, monkeypatc
     from canter.training import restore
     from canter.use.video_players import GymnasiumPlayer
 
-    with pytest.raises(CanterError, match=r"cannot replay ant: .*Brax's own envs has no video; canter eval scores it"):
+    held = r"\(only Brax has it\)" if get_backend("brax").available() else r"\(no backend installed here has it\)"
+    with pytest.raises(CanterError, match=rf"cannot replay ant: .*{held}, so a run of it has no video; canter eval"):
         GymnasiumPlayer("ant", 64, 64, None)
     real = restore.policy_facts
     monkeypatch.setattr(restore, "policy_facts", lambda *a: dataclasses.replace(real(*a), env_id="ant", backend="brax"))

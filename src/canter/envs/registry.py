@@ -93,6 +93,14 @@ def single_env_backend() -> Backend:
     return next(backend for backend in backends() if backend.single_envs)
 
 
+def held_only_elsewhere(env_id: str) -> str:
+    """For an id the single-env backend lacks, which renders videos and is what --vary edits: the installed
+    backends that have it, as a phrase for the error that says so."""
+    single = single_env_backend()
+    labels = [b.label for b in backends() if b is not single and b.available() and env_id in b.supported_ids()]
+    return f"only {_or(labels)} has it" if labels else "no backend installed here has it"
+
+
 def replay_note(env_id: str, trained_on: str, played_on: str) -> str | None:
     """A one-line note where a run is played on another backend than it trained on, whose env of that id differs
     (either way round: the difference is between a backend and the single-env one)."""

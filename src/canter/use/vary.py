@@ -178,15 +178,15 @@ def check_scaled_values(spec: VarySpec, original: np.ndarray) -> None:
 
 
 def _make_gymnasium(env_id: str) -> Any:
-    from canter.envs.registry import resolve_backend, single_env_backend
+    from canter.envs.registry import held_only_elsewhere, resolve_backend, single_env_backend
 
     backend = single_env_backend()
     try:
         resolve_backend(env_id, backend.name)
     except CanterError:
         raise CanterError(
-            f"--vary needs the Gymnasium version of {env_id}, and Gymnasium has no such env "
-            f"(DM Control and other EnvPool-only envs cannot be varied)"
+            f"--vary edits the MuJoCo model of {env_id} in {backend.label}, which has no such env "
+            f"({held_only_elsewhere(env_id)}); drop --vary, which varies only {backend.label}'s envs"
         ) from None
     from canter.use.evaluate import refuse_mujoco_py_sweep
 

@@ -36,15 +36,15 @@ class GymnasiumPlayer:
     def __init__(self, env_id: str, width: int, height: int, camera: str | None) -> None:
         import gymnasium as gym
 
-        from canter.envs.registry import resolve_backend, single_env_backend
+        from canter.envs.registry import held_only_elsewhere, resolve_backend, single_env_backend
 
         backend = single_env_backend()
         try:
             resolve_backend(env_id, backend.name)
         except CanterError:
             raise CanterError(
-                f"cannot replay {env_id}: Gymnasium has no such env to render, and canter renders through Gymnasium "
-                f"(a run on Brax's own envs has no video; canter eval scores it)"
+                f"cannot replay {env_id}: canter renders through {backend.label}'s envs, and {backend.label} has no "
+                f"such env ({held_only_elsewhere(env_id)}), so a run of it has no video; canter eval scores it"
             ) from None
         entry = str(gym.spec(env_id.partition(":")[2] or env_id).entry_point)
         self.env_id = env_id
