@@ -89,7 +89,8 @@ def test_every_peer_name_gives_its_hint():
     """A row whose keys were renamed, or whose name became a canter key, would never give its hint."""
     known = set(all_keys())
     for peer in PEER_NAMES:
-        written = [f"{section}.{peer.name}" for section in peer.sections] if peer.sections else [peer.name]
+        sections = peer.written_under()
+        written = [f"{section}.{peer.name}" for section in sections] if sections else [peer.name]
         assert not any(key in known for key in written), peer
         assert any((found := peer_keys(key, known)) is not None and found[0] is peer for key in written), peer
 
@@ -154,3 +155,19 @@ def test_name_lists_refuse_an_empty_entry(argv, capsys):
 def test_an_empty_metrics_list_is_refused(capsys):
     line = _cli_error(["plot", str(ARCHIVED_RUN), "--metrics", ""], capsys)
     assert "--metrics is empty; give metrics.csv columns" in line
+
+
+def test_a_new_algorithm_reading_ppos_rollout_keys_is_told_them_by_peer_name(monkeypatch):
+    """The peer names follow what each algorithm reads: a new one that reuses the on-policy rollout, as trpo does,
+    is told ppo's keys for CleanRL's names without a line of its own here."""
+    import dataclasses
+
+    from canter.config import algorithms
+
+    a2c = dataclasses.replace(algorithms.algorithm_spec("trpo"), name="a2c", reads=("net", "ppo.gamma", "ppo.n_steps"))
+    monkeypatch.setitem(algorithms._REGISTERED, "a2c", a2c)
+    assert key_suggestion("a2c.gamma") == (
+        "did you mean ppo.gamma? (CleanRL's and SB3-Contrib's gamma; a2c reads it from ppo)"
+    )
+    assert key_suggestion("a2c.num_steps") == "did you mean ppo.n_steps? (CleanRL's num_steps)"
+    assert not (key_suggestion("a2c.clip_coef") or "").startswith("did you mean ppo.clip?")  # a2c reads no ppo.clip

@@ -10,7 +10,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from canter.config.peer_names import peer_keys
+from canter.config.peer_names import peer_keys, written_section
 from canter.config.schema import Config, field_names, field_types, section_names
 from canter.config.values import coerce
 from canter.errors import CanterError, joined
@@ -33,7 +33,7 @@ def key_suggestion(key: str) -> str | None:
     if peer is not None:
         names, keys = peer
         libraries = joined([f"{library}'s" for library in names.libraries])
-        return f"did you mean {joined(keys)}? ({libraries} {names.name}{names.note})"
+        return f"did you mean {joined(keys)}? ({libraries} {names.name}{names.note_under(written_section(key)[0])})"
     close = close_keys(key)
     return f"did you mean {', '.join(close)}?" if close else None
 

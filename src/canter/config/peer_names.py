@@ -6,12 +6,20 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from canter.config.algorithms import algorithm_names, reads_key
+
 _SB3, _CLEANRL, _CONTRIB, _ZOO = "Stable-Baselines3", "CleanRL", "SB3-Contrib", "RL Zoo"
-_PPO = ("ppo", "rpo")  # rpo trains with ppo's keys
-_ROLLOUT = ("ppo", "rpo", "trpo")  # trpo's rollout and GAE keys are ppo's too
 _TD3_DDPG = ("td3", "ddpg")
-_READS_PPO = "; rpo and trpo read it from ppo"
+_READS_PPO = "; {s} reads it from ppo"
 _OFF_POLICY = ("td3", "ddpg", "sac")
+
+
+@dataclass(frozen=True)
+class Readers:
+    """The algorithms that read `key` (their `AlgorithmSpec.reads`), as the sections a user writes a peer name under:
+    one that trains with another's keys (rpo with ppo's, trpo with ppo's rollout keys) is told the key it reads."""
+
+    key: str
 
 
 @dataclass(frozen=True)
@@ -19,10 +27,22 @@ class PeerName:
     """A hyperparameter as other libraries name it, and the canter keys that mean the same."""
 
     name: str
-    sections: tuple[str, ...] | None  # the sections a user writes it under; None: any, or none at all
+    sections: tuple[str, ...] | Readers | None  # the sections a user writes it under; None: any, or none at all
     keys: tuple[str, ...]  # "{s}": the section it was written under
     libraries: tuple[str, ...]
     note: str = ""  # said after the peer's name: where it sets several keys, or the key lives in another section
+
+    def written_under(self) -> tuple[str, ...] | None:
+        """The sections a user writes it under, `Readers` as the registered algorithms read the key (but the key's
+        own section, where the peer's name is canter's: ppo.gamma is no unknown key)."""
+        if not isinstance(self.sections, Readers):
+            return self.sections
+        key = self.sections.key
+        own = key.partition(".")[0] if key.partition(".")[2] == self.name else None
+        return tuple(algo for algo in algorithm_names() if algo != own and reads_key(algo, key))
+
+    def note_under(self, section: str) -> str:
+        return self.note.format(s=section)
 
 
 # Users coming from these libraries write their names (`ppo.learning_rate`), which difflib matches to unrelated
@@ -36,7 +56,7 @@ PEER_NAMES = (
     PeerName("n_envs", None, ("env.num_envs",), (_SB3,)),
     PeerName("seed", None, ("run.seed",), (_SB3, _CLEANRL)),
     PeerName("env_id", None, ("env.id",), (_CLEANRL,)),
-    PeerName("learning_rate", _PPO, ("ppo.lr",), (_SB3, _CLEANRL)),
+    PeerName("learning_rate", Readers("ppo.lr"), ("ppo.lr",), (_SB3, _CLEANRL)),
     PeerName("learning_rate", ("trpo",), ("trpo.critic_lr",), (_CONTRIB,), ", the critic's"),
     PeerName("learning_rate", _TD3_DDPG, ("{s}.actor_lr", "{s}.critic_lr"), (_SB3, _CLEANRL), ", which sets both"),
     PeerName(
@@ -45,17 +65,17 @@ PEER_NAMES = (
     PeerName("policy_lr", _OFF_POLICY, ("{s}.actor_lr",), (_CLEANRL,)),
     PeerName("q_lr", _TD3_DDPG, ("{s}.critic_lr",), (_CLEANRL,)),
     PeerName("q_lr", ("sac",), ("sac.critic_lr", "sac.alpha_lr"), (_CLEANRL,), ", which sets both"),
-    PeerName("n_epochs", _PPO, ("ppo.epochs",), (_SB3,)),
-    PeerName("update_epochs", _PPO, ("ppo.epochs",), (_CLEANRL,)),
-    PeerName("batch_size", _PPO, ("ppo.minibatch_size",), (_SB3,)),
-    PeerName("clip_range", _PPO, ("ppo.clip",), (_SB3,)),
-    PeerName("clip_coef", _PPO, ("ppo.clip",), (_CLEANRL,)),
-    PeerName("num_steps", _ROLLOUT, ("ppo.n_steps",), (_CLEANRL,)),
-    PeerName("n_steps", ("rpo", "trpo"), ("ppo.n_steps",), (_CONTRIB,), _READS_PPO),
-    PeerName("gamma", ("rpo", "trpo"), ("ppo.gamma",), (_CLEANRL, _CONTRIB), _READS_PPO),
-    PeerName("gae_lambda", ("rpo", "trpo"), ("ppo.gae_lambda",), (_CLEANRL, _CONTRIB), _READS_PPO),
-    PeerName("normalize_advantage", _ROLLOUT, ("ppo.norm_adv",), (_SB3,)),
-    PeerName("rpo_alpha", _PPO, ("rpo.alpha",), (_CLEANRL,)),
+    PeerName("n_epochs", Readers("ppo.epochs"), ("ppo.epochs",), (_SB3,)),
+    PeerName("update_epochs", Readers("ppo.epochs"), ("ppo.epochs",), (_CLEANRL,)),
+    PeerName("batch_size", Readers("ppo.minibatch_size"), ("ppo.minibatch_size",), (_SB3,)),
+    PeerName("clip_range", Readers("ppo.clip"), ("ppo.clip",), (_SB3,)),
+    PeerName("clip_coef", Readers("ppo.clip"), ("ppo.clip",), (_CLEANRL,)),
+    PeerName("num_steps", Readers("ppo.n_steps"), ("ppo.n_steps",), (_CLEANRL,)),
+    PeerName("n_steps", Readers("ppo.n_steps"), ("ppo.n_steps",), (_CONTRIB,), _READS_PPO),
+    PeerName("gamma", Readers("ppo.gamma"), ("ppo.gamma",), (_CLEANRL, _CONTRIB), _READS_PPO),
+    PeerName("gae_lambda", Readers("ppo.gae_lambda"), ("ppo.gae_lambda",), (_CLEANRL, _CONTRIB), _READS_PPO),
+    PeerName("normalize_advantage", Readers("ppo.norm_adv"), ("ppo.norm_adv",), (_SB3,)),
+    PeerName("rpo_alpha", ("ppo", "rpo"), ("rpo.alpha",), (_CLEANRL,)),
     PeerName("target_kl", ("trpo",), ("trpo.max_kl",), (_CONTRIB,)),
     PeerName("cg_max_steps", ("trpo",), ("trpo.cg_iters",), (_CONTRIB,)),
     PeerName("line_search_max_iter", ("trpo",), ("trpo.line_search_iters",), (_CONTRIB,)),
@@ -71,14 +91,20 @@ PEER_NAMES = (
 )
 
 
+def written_section(key: str) -> tuple[str, str]:
+    """(section, name) of a key as a peer's user writes it; CleanRL's flags are dashed (--learning-rate)."""
+    section, _, name = key.strip().lower().replace("-", "_").rpartition(".")
+    return section, name
+
+
 def peer_keys(key: str, known_keys: Iterable[str]) -> tuple[PeerName, list[str]] | None:
     """The canter keys (of `known_keys`) that `key`, written as another library names the hyperparameter, stands
     for; None where no library names it so."""
-    # CleanRL's flags are dashed (--learning-rate).
-    section, _, name = key.strip().lower().replace("-", "_").rpartition(".")
+    section, name = written_section(key)
     known = set(known_keys)
     for peer in PEER_NAMES:
-        if peer.name == name and (peer.sections is None or section in peer.sections):
+        sections = peer.written_under()
+        if peer.name == name and (sections is None or section in sections):
             keys = [template.format(s=section) for template in peer.keys]
             if all(k in known for k in keys):
                 return peer, keys
