@@ -116,6 +116,61 @@ def test_probability_of_improvement_and_profiles_match_rliable():
     np.testing.assert_allclose(statistics.normalized([10.0, 55.0], 10.0, 100.0), [0.0, 0.5])
 
 
+def test_aggregates_are_rliables_to_the_last_bit_from_every_resample_at_once():
+    # The plain reference: rliable's bootstrap, one resample after another, each scored by rliable's own metrics
+    # (the median of a single task is of its runs, canter's definition).
+    for scores in _score_matrices():
+        for gamma in (None, 0.5):
+            found = statistics.aggregates(scores, gamma, reps=REPS, seed=8)
+
+            def rliables(s, gamma=gamma):
+                median = statistics.run_median(s) if s.shape[1] == 1 else metrics.aggregate_median(s)
+                values = [metrics.aggregate_iqm(s), metrics.aggregate_mean(s), median]
+                return np.array(values + ([] if gamma is None else [metrics.aggregate_optimality_gap(s, gamma)]))
+
+            np.random.seed(8)
+            points, intervals = library.get_interval_estimates({"s": scores}, rliables, reps=REPS)
+            low, high = intervals["s"]
+            names = ["iqm", "mean", "median"] + ([] if gamma is None else ["optimality_gap"])
+            for i, name in enumerate(names):
+                interval = getattr(found, name)
+                assert (interval.estimate, interval.low, interval.high) == (points["s"][i], low[i], high[i])
+
+
+def test_profiles_are_rliables_to_the_last_bit_from_every_resample_at_once():
+    # Methods of different shapes, drawn in turn from one seeding, as rliable draws them; ties on the thresholds.
+    rng = np.random.default_rng(9)
+    shapes = [(5, 5), (3, 1), (5, 5), (1, 2), (10, 4), (7, 9)]
+    scores = {f"m{i}": np.round(rng.normal(1.0, 0.6, size=shape), 1) for i, shape in enumerate(shapes)}
+    taus = np.linspace(0.0, 2.0, 41)
+    np.random.seed(123)
+    before = np.random.get_state()[1].copy()
+    profiles = statistics.performance_profiles(scores, taus, reps=REPS, seed=10)
+    assert (np.random.get_state()[1] == before).all()
+    np.random.seed(10)
+    fractions, intervals = library.create_performance_profile(scores, taus, reps=REPS)
+    for name in scores:
+        assert profiles[name].fraction == tuple(fractions[name])
+        assert (profiles[name].low, profiles[name].high) == (tuple(intervals[name][0]), tuple(intervals[name][1]))
+
+
+def test_a_scoreboard_is_built_without_rliables_loop_over_resamples(monkeypatch):
+    # rliable scores resamples one at a time: 600 aggregates and 100 profiles of a grid of 100 methods took minutes.
+    def refuse(*args, **kwargs):
+        raise AssertionError("rliable's bootstrap loop was called")
+
+    monkeypatch.setattr(library, "get_interval_estimates", refuse)
+    monkeypatch.setattr(library, "create_performance_profile", refuse)
+    scores = [
+        RunScore(method, env, "ppo", 1000.0 + 100 * s + (method == "b"), f"{method}{env}{s}")
+        for method in ("a", "b")
+        for env in ("Hopper-v4", "Walker2d-v4")
+        for s in range(5)
+    ]
+    board = build_scoreboard(scores, TRAINING_SOURCE, reps=REPS)
+    assert set(board.profiles) == {"a", "b"} and len(board.cells) == 4
+
+
 def _rliables_probability_of_improvement(x, y, reps, seed):
     """The plain reference: rliable's bootstrap, one resample after another, each scored by improvement_probability
     (equal to rliable's own to the last bit, above)."""
