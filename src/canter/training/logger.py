@@ -27,12 +27,15 @@ from __future__ import annotations
 import csv
 import gzip
 import io
+import itertools
 import math
+import os
 import sys
-from collections.abc import Mapping
+from array import array
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -75,31 +78,162 @@ def lost_rows(path: Path, step: int) -> str:
     )
 
 
-def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    """The header and the rows of a metrics.csv or an archived metrics.csv.gz (none for a missing file), without a
-    half-written last line."""
+def _text_lines(path: Path) -> Iterator[str]:
+    """The lines of a metrics.csv (read a line at a time) or an archived metrics.csv.gz, as text, up to its last
+    newline: a half-written last line is left out."""
+    # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
+    if path.suffix == ".gz":  # an archived copy: small, and read whole
+        source: IO[str] = io.StringIO(_whole_lines(path).decode("utf-8-sig", errors="replace"), newline="")
+    else:
+        source = open(path, encoding="utf-8-sig", errors="replace", newline="")  # noqa: SIM115 (closed below)
+    with source:
+        line_number, pending = 1, []
+        for line in source:
+            pending.append(line)
+            if not line.endswith("\n"):  # a line that ends in a lone \r, or the half-written last line
+                continue
+            for whole in pending:
+                # NUL bytes (a block that a crash or a bad copy zeroed) can replace a line's end, so that two rows
+                # read as one: not a file canter wrote, and rows would be lost without a word.
+                if "\0" in whole:
+                    raise _damaged(path, f"NUL bytes on line {line_number}")
+                line_number += whole.count("\n")
+                yield whole
+            pending.clear()
+
+
+def _positions(header: list[str]) -> dict[str, int]:
+    """Where each column of a header is; a name the header repeats reads from its last column, as a csv.DictReader
+    row does."""
+    return {name: at for at, name in enumerate(header)}
+
+
+def _records(path: Path) -> Iterator[list[str]]:
+    """The header of a metrics.csv or an archived metrics.csv.gz (none for a missing file), then the cells of each
+    row that has a global_step, without a half-written last line."""
     path = Path(path)
     refuse_not_regular(path)
     if not path.is_file():
-        return [], []
-    # utf-8-sig: a spreadsheet that saved the file may have put a byte-order mark before the first column's name.
-    text = _whole_lines(path).decode("utf-8-sig", errors="replace")
-    # NUL bytes (a block that a crash or a bad copy zeroed) can replace a line's end, so that two rows read as one:
-    # not a file canter wrote, and rows would be lost without a word.
-    if "\0" in text:
-        line = text.count("\n", 0, text.index("\0")) + 1
-        raise _damaged(path, f"NUL bytes on line {line}")
-    reader = csv.DictReader(io.StringIO(text, newline=""))
+        return
+    lines = _text_lines(path)
+    reader = csv.reader(lines)
     try:
-        header, rows = list(reader.fieldnames or []), []
+        header = next(reader, [])
+        yield header
+        step = _positions(header).get("global_step")
         for row in reader:
-            if None in row:  # the cells past the header's last column
-                raise _damaged(path, f"line {reader.line_num} has more cells than the header names")
-            if row.get("global_step"):
-                rows.append(row)
-        return header, rows
-    except csv.Error as exc:  # a field past the csv module's limit: not a file canter wrote
+            if len(row) > len(header):
+                raise csv.Error(f"line {reader.line_num} has more cells than the header names")
+            if step is not None and step < len(row) and row[step]:
+                yield row
+    except csv.Error as exc:  # also a field past the csv module's limit: not a file canter wrote
+        for _ in lines:  # NUL bytes further on are named instead, as when the whole text was looked at first
+            pass
         raise _damaged(path, str(exc)) from None
+
+
+def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """The header and the rows of a metrics.csv or an archived metrics.csv.gz (none for a missing file), without a
+    half-written last line. A row's cells past its end read as None. `read_table` reads large files."""
+    records = _records(Path(path))
+    header = next(records, [])
+    rows = []
+    for row in records:
+        cells: dict[str, Any] = dict(zip(header, row))
+        cells.update(dict.fromkeys(header[len(row) :]))  # None, as csv.DictReader gives
+        rows.append(cells)
+    return header, rows
+
+
+@dataclass(frozen=True)
+class Table:
+    """The rows `read_rows` reads, by column: one float64 array holds every cell as a number, far less memory than a
+    dict of strings per row."""
+
+    header: list[str]
+    numbers: np.ndarray  # one row per header column: `cell_number` of its cell in each row (NaN past a row's end)
+    text: list[tuple[int, int]]  # (column, row) of each cell that holds text that is not a number
+    unreadable: list[tuple[int, str]]  # (line, cell) of each row whose global_step is not a finite number
+    cells: dict[str, list[str]]  # the cells as written, of the columns read_table was asked to keep so
+
+    @property
+    def rows(self) -> int:
+        return int(self.numbers.shape[1])
+
+    @property
+    def positions(self) -> dict[str, int]:
+        """Which row of `numbers` holds each column (`_positions`)."""
+        return _positions(self.header)
+
+    def column(self, name: str) -> np.ndarray:
+        """A column's numbers; NaN for a column the header does not name."""
+        at = self.positions.get(name)
+        return self.numbers[at] if at is not None else np.full(self.rows, math.nan)
+
+
+def read_table(path: Path, cells: tuple[str, ...] = ()) -> Table:
+    """The rows of a metrics.csv or an archived metrics.csv.gz that `read_rows` reads, read by column in one pass,
+    keeping the cells as written of the columns named in `cells`."""
+    records = _records(Path(path))
+    header = next(records, [])
+    width, positions = len(header), _positions(header)
+    step = positions.get("global_step", 0)  # a file without one has no rows
+    kept = {name: positions[name] for name in cells if name in positions}
+    written: dict[str, list[str]] = {name: [] for name in kept}
+    blocks: list[np.ndarray] = []
+    block: list[list[float]] = []
+    text: list[tuple[int, int]] = []
+    unreadable: list[tuple[int, str]] = []
+    for index, row in enumerate(records):
+        if len(row) < width:
+            row += [""] * (width - len(row))
+        try:
+            numbers = [float(cell) if cell else math.nan for cell in row]
+        except ValueError:  # a cell with text: an edited file, or a column of names
+            numbers = [cell_number(cell) for cell in row]
+            text += [(at, index) for at, cell in enumerate(row) if cell.strip() and not _is_number(cell)]
+        if not math.isfinite(numbers[step]):
+            unreadable.append((index + 2, row[step]))
+        for name, at in kept.items():
+            written[name].append(row[at])
+        block.append(numbers)
+        if len(block) == 1024:  # a block of rows at a time: a Python float per cell takes four times its 8 bytes
+            blocks.append(np.array(block).T)
+            block = []
+    if block:
+        blocks.append(np.array(block).T)
+    numbers_by_column = np.concatenate(blocks, axis=1) if blocks else np.empty((width, 0))
+    return Table(header, numbers_by_column, text, unreadable, written)
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _two_lines(path: Path) -> bool:
+    """Whether a file holds two whole lines, reading no further than their end."""
+    if path.suffix == ".gz":  # an archived copy: small, and read whole as every reader reads it
+        return _whole_lines(path).count(b"\n") >= 2
+    with open(path, "rb") as f:
+        return sum(line.endswith(b"\n") for line in itertools.islice(f, 2)) == 2
+
+
+def _whole_length(path: Path) -> int:
+    """How many bytes of a file its whole lines take: up to its last newline, found by reading back from its end."""
+    with open(path, "rb") as f:
+        end = f.seek(0, os.SEEK_END)
+        while end > 0:
+            start = max(end - 65536, 0)
+            f.seek(start)
+            newline = f.read(end - start).rfind(b"\n")
+            if newline >= 0:
+                return start + newline + 1
+            end = start
+    return 0
 
 
 def _damaged(path: Path, why: str) -> CanterError:
@@ -128,12 +262,6 @@ def _first_row(path: Path, lines: Any) -> list[str]:
     return header
 
 
-def _count(text: str | None) -> int:
-    """A whole count from a cell; 0 for an empty or unreadable one."""
-    value = cell_number(text)
-    return int(value) if math.isfinite(value) else 0
-
-
 def cell_number(text: str | None) -> float:
     """A metrics.csv cell as a number: NaN where it is empty or not a number (an edited or damaged file)."""
     try:
@@ -147,50 +275,52 @@ def row_steps(rows: list[dict[str, str]]) -> list[float]:
     return [step for step in (cell_number(row.get("global_step")) for row in rows) if math.isfinite(step)]
 
 
-def unreadable_steps(rows: list[dict[str, str]]) -> list[tuple[int, str]]:
-    """(line number, cell) of each row whose global_step is not a finite number: an edited or damaged file, whose
-    rows canter can neither place nor plot."""
-    return [
-        (line, row.get("global_step") or "")
-        for line, row in enumerate(rows, start=2)
-        if not math.isfinite(cell_number(row.get("global_step")))
-    ]
+@dataclass(frozen=True)
+class History:
+    """The rows of the training a run kept (`run_history`), in the file's order, with the run's totals so far at
+    each."""
+
+    rows: np.ndarray  # which rows of the table
+    global_step: np.ndarray
+    wall_seconds: np.ndarray  # the row's wall_time, counted from the run's start
+    train_seconds: np.ndarray
+    episodes: np.ndarray
 
 
-def run_history(rows: list[dict[str, str]]) -> list[tuple[dict[str, str], dict[str, float]]]:
-    """The rows of the training a run kept, each with its run totals so far (wall seconds, training seconds,
-    episodes), `wall_time` rewritten to count from the run's start.
+def run_history(table: Table, rows: np.ndarray | None = None) -> History:
+    """The rows (of `rows`, by default all) of the training a run kept, each with its run totals so far (wall
+    seconds, training seconds, episodes).
 
     Rows logged after a run's last checkpoint are lost work when the process dies without saving. A resume drops
     them (`MetricsLogger`), but a format-1 run folder (docs/architecture.md) can still hold them, followed by the
     resumed session's rows, whose `iteration` restarts below theirs; such a folder may also restart `wall_time` at
     0 on every resume."""
-    kept: list[tuple[dict[str, str], dict[str, float]]] = []
+    rows = np.arange(table.rows) if rows is None else rows
+    steps, iterations, raw_walls, speeds, counts = (
+        table.column(name)[rows].tolist() for name in ("global_step", "iteration", "wall_time", "sps", "episodes")
+    )
+    kept: list[int] = []  # positions in `rows`, and each one's totals:
+    global_step, wall_seconds, train_seconds = array("d"), array("d"), array("d")
+    episodes: list[int] = []
     wall_offset = previous_wall = 0.0
-    for row in rows:
-        iteration, raw_wall = cell_number(row.get("iteration")), cell_number(row.get("wall_time"))
-        if kept and iteration <= cell_number(kept[-1][0].get("iteration")):
-            while kept and cell_number(kept[-1][0].get("iteration")) >= iteration:
-                kept.pop()
-            wall_offset = kept[-1][1]["wall_seconds"] if kept else 0.0
+    for at, (step, iteration, raw_wall, sps, count) in enumerate(zip(steps, iterations, raw_walls, speeds, counts)):
+        if kept and iteration <= iterations[kept[-1]]:
+            while kept and iterations[kept[-1]] >= iteration:
+                for totals in (kept, global_step, wall_seconds, train_seconds, episodes):
+                    totals.pop()
+            wall_offset = wall_seconds[-1] if kept else 0.0
         elif kept and raw_wall < previous_wall:  # a resume after a clean stop, which loses no rows
-            wall_offset = kept[-1][1]["wall_seconds"]
+            wall_offset = wall_seconds[-1]
         previous_wall = raw_wall if raw_wall == raw_wall else previous_wall
-        before = kept[-1][1] if kept else {"global_step": 0.0, "wall_seconds": 0.0, "train_seconds": 0.0, "episodes": 0}
-        step, wall, sps = (
-            cell_number(row["global_step"]),
-            cell_number(row.get("wall_time")),
-            cell_number(row.get("sps")),
-        )
-        wall = wall_offset + wall if wall == wall else before["wall_seconds"]
-        totals = {
-            "global_step": step,
-            "wall_seconds": wall,
-            "train_seconds": before["train_seconds"] + ((step - before["global_step"]) / sps if sps > 0 else 0.0),
-            "episodes": before["episodes"] + _count(row.get("episodes")),
-        }
-        kept.append((dict(row, wall_time=f"{wall:.3f}"), totals))
-    return kept
+        before = (global_step[-1], wall_seconds[-1], train_seconds[-1], episodes[-1]) if kept else (0.0, 0.0, 0.0, 0)
+        kept.append(at)
+        global_step.append(step)
+        wall_seconds.append(wall_offset + raw_wall if raw_wall == raw_wall else before[1])
+        train_seconds.append(before[2] + ((step - before[0]) / sps if sps > 0 else 0.0))
+        episodes.append(before[3] + (int(count) if math.isfinite(count) else 0))
+    return History(
+        rows[kept], np.array(global_step), np.array(wall_seconds), np.array(train_seconds), np.array(episodes)
+    )
 
 
 @dataclass(frozen=True)
@@ -230,13 +360,15 @@ class Totals:
 def totals_until(path: Path, step: int) -> Totals:
     """Wall seconds, training seconds and episodes of a run up to its checkpoint at `step`. A resume reads these
     from the checkpoint; this rebuilds them from metrics.csv for a format-1 checkpoint that does not hold them."""
-    _, rows = read_rows(Path(path))
-    history = [totals for _, totals in run_history(rows) if totals["global_step"] <= step]
-    if not history:
+    history = run_history(read_table(Path(path)))
+    within = np.flatnonzero(history.global_step <= step)
+    if not within.size:
         return Totals()
-    last = history[-1]
+    last = within[-1]
     return Totals(
-        wall_seconds=last["wall_seconds"], train_seconds=last["train_seconds"], episodes=int(last["episodes"])
+        wall_seconds=float(history.wall_seconds[last]),
+        train_seconds=float(history.train_seconds[last]),
+        episodes=int(history.episodes[last]),
     )
 
 
@@ -283,13 +415,17 @@ class MetricsLogger:
         source = packed if packed.is_file() and not self.path.exists() else self.path
         # Checked before anything is changed: a refused file, archived or not, stays as it is.
         self._check_header(source)
+        table = None  # read once: a resumed run's file can hold a million rows
         if resume_step:
             self._note_a_lost_history(source, resume_step)
-            self._refuse_rows_cut_back(source, resume_step)
+            table = read_table(source, cells=("wall_time",))
+            self._refuse_rows_cut_back(source, table, resume_step)
         self._unpack_archived()
         self._cut_half_written_line()
         if resume_step is not None:
-            self._drop_rows_after(resume_step)
+            if table is None:  # else the same rows: unpacking or cutting a half-written line changes none
+                table = read_table(self.path, cells=("wall_time",))
+            self._drop_rows_after(resume_step, table)
         self._widen_header()
         exists = self.path.is_file() and self.path.stat().st_size > 0
         self._file = AppendFile(self.path)  # held open until close()
@@ -321,20 +457,21 @@ class MetricsLogger:
         """A file without a row, of a run that trained to a checkpoint at `step`: emptied or damaged, or begun again
         by a resume that was killed before its first row, after the file had been moved away (canter's own advice).
         The two cannot be told apart, so the resume logs on from the checkpoint and says what the file lacks."""
-        if source.is_file() and _whole_lines(source).count(b"\n") < 2:  # the header and a row at least
+        if source.is_file() and not _two_lines(source):  # the header and a row at least
             print(
                 f"canter: note: {lost_rows(source, step)} to keep the rows before step {step:,}; the resume logs "
                 f"its rows from there",
                 file=sys.stderr,
             )
 
-    def _refuse_rows_cut_back(self, source: Path, step: int) -> None:
+    def _refuse_rows_cut_back(self, source: Path, table: Table, step: int) -> None:
         """A file whose last row comes before the checkpoint's own row was cut back by something else than a stopped
         process (which stops after the row it had logged before its checkpoint): the rows it lost are not logged
         again, and appending after them would hide the gap. Rows with unreadable steps are noted when dropped."""
-        rows = read_rows(source)[1]
-        last = max(row_steps(rows), default=0.0)
-        if rows and last < step and not unreadable_steps(rows):
+        steps = table.column("global_step")
+        steps = steps[np.isfinite(steps)]
+        last = float(steps.max()) if steps.size else 0.0
+        if table.rows and last < step and not table.unreadable:
             raise CanterError(
                 f"{source} ends at step {last:,.0f}, before the row of step {step:,} that the checkpoint the run "
                 f"goes on from follows: the file was cut back; restore it from a copy, or "
@@ -344,7 +481,7 @@ class MetricsLogger:
     def _cut_half_written_line(self) -> None:
         if not self.path.is_file():
             return
-        whole = len(_whole_lines(self.path))
+        whole = _whole_length(self.path)
         if whole >= self.path.stat().st_size:
             return
         with open(self.path, "r+b") as f:
@@ -368,14 +505,16 @@ class MetricsLogger:
                 f"header line (canter writes global_step first), or move the file away to start a new one"
             )
 
-    def _drop_rows_after(self, step: int) -> None:
-        header, rows = read_rows(self.path)
-        damaged = unreadable_steps(rows)
-        placed = [row for row in rows if math.isfinite(cell_number(row.get("global_step")))]
-        kept = [row for row, totals in run_history(placed) if totals["global_step"] <= step]
-        if not header or kept == rows:
+    def _drop_rows_after(self, step: int, table: Table) -> None:
+        """Keep the rows of the training the run kept up to its checkpoint at `step`, their wall_time counted from the
+        run's start (`run_history`) and written with three decimals; rows whose global_step is not a step go."""
+        history = run_history(table, np.flatnonzero(np.isfinite(table.column("global_step"))))
+        within = history.global_step <= step
+        kept, walls = history.rows[within], history.wall_seconds[within].tolist()
+        written = table.cells.get("wall_time", [""] * table.rows)  # a row without one gets one
+        if not table.header or (len(kept) == table.rows and all(f"{w:.3f}" == c for w, c in zip(walls, written))):
             return
-        if damaged:
+        if damaged := table.unreadable:
             line, cell = damaged[0]
             more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
             print(
@@ -383,7 +522,10 @@ class MetricsLogger:
                 f"{cell!r}{more}); the run's state is in its checkpoint, and only those rows' metrics are lost",
                 file=sys.stderr,
             )
-        self._rewrite(header, kept)
+        wall_times: list[float | None] = [None] * table.rows
+        for row, wall in zip(kept.tolist(), walls):
+            wall_times[row] = wall
+        self._rewrite(table.header, wall_times)
 
     def _widen_header(self) -> None:
         """Give the file of a run made by another canter version one header that fits the rows this logger
@@ -394,15 +536,31 @@ class MetricsLogger:
             return
         self.columns += [c for c in header if c not in self.columns]
         if header != self.columns:
-            self._rewrite(self.columns, read_rows(self.path)[1])
+            self._rewrite(self.columns)
 
-    def _rewrite(self, header: list[str], rows: list[dict[str, str]]) -> None:
+    def _rewrite(self, header: list[str], wall_times: list[float | None] | None = None) -> None:
+        """Write the file again, a row at a time, under `header`: each row that has a global_step, with its cells
+        under the columns of their names (empty under a column the file has not). With `wall_times`, one per row,
+        only the rows that have one, with it as their wall_time."""
+
         def write(f: Any) -> None:
-            text = io.StringIO(newline="")
-            writer = csv.DictWriter(text, fieldnames=header, extrasaction="ignore")
-            writer.writeheader()
-            writer.writerows(rows)
-            f.write(text.getvalue().encode())
+            text = io.TextIOWrapper(f, encoding="utf-8", newline="")
+            writer = csv.writer(text)
+            writer.writerow(header)
+            records = _records(self.path)
+            positions = _positions(next(records, []))
+            columns = [positions.get(name) for name in header]
+            walls = [at for at, name in enumerate(header) if name == "wall_time"]
+            for index, row in enumerate(records):
+                cells = [row[at] if at is not None and at < len(row) else "" for at in columns]
+                if wall_times is not None:
+                    wall = wall_times[index]
+                    if wall is None:
+                        continue
+                    for at in walls:
+                        cells[at] = f"{wall:.3f}"
+                writer.writerow(cells)
+            text.detach()  # flushed, and `f` left open for atomic_write_bytes to sync
 
         atomic_write_bytes(self.path, write)
 

@@ -3,7 +3,6 @@ cannot be read (a folder in its place, missing, damaged, no rows yet) and what t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import numpy as np
 from canter.config.schema import Config
 from canter.errors import CanterError
 from canter.files import refuse_not_regular
-from canter.training.logger import lost_rows, read_rows, run_history, unreadable_steps
+from canter.training.logger import lost_rows, read_table, run_history
 from canter.training.run_folder import list_checkpoints, metrics_file, read_config, step_of
 
 
@@ -48,30 +47,34 @@ def read_metrics(path: Path) -> dict[str, np.ndarray]:
         refuse_a_folder_of_runs(path.parent)
         # plot and report both read curves here, so the message names no command.
         raise CanterError(f"no metrics.csv in {path.parent}; pass a run folder written by `canter train`")
-    header, rows = read_rows(path)  # a half-written last line is left out
+    table = read_table(path)  # a half-written last line is left out
+    header = table.header
     if header and "global_step" not in header:
         raise CanterError(
             f"{path} has no global_step column in its first line, so it is not a metrics file canter wrote, or it "
             f"was edited or damaged; restore it from a copy"
         )
-    if not header or not rows:
+    if not header or not table.rows:
         raise CanterError(_no_rows(path))
-    if damaged := unreadable_steps(rows):
-        line, cell = damaged[0]
+    if table.unreadable:
+        line, cell = table.unreadable[0]
         raise CanterError(
             f"{path} has a row whose global_step is {cell!r} (line {line}), not a step: the file was edited or "
             f"damaged; delete that row or restore the file from a copy"
         )
-    if "iteration" in header:
-        rows = [row for row, _ in run_history(rows)]  # a format-1 run may hold rows of work lost before a resume
-    columns: dict[str, np.ndarray] = {}
-    for name in header:
-        cells = [row.get(name) or "" for row in rows]
-        try:
-            columns[name] = np.array([float(c) if c.strip() else math.nan for c in cells])
-        except ValueError:
-            continue
-    return columns
+    positions = table.positions
+    numbers, text = table.numbers, {column for column, _ in table.text}
+    if "iteration" in header:  # a format-1 run may hold rows of work lost before a resume
+        history = run_history(table)
+        kept = np.zeros(table.rows, dtype=bool)
+        kept[history.rows] = True
+        text = {column for column, row in table.text if kept[row]}
+        if len(history.rows) < table.rows:
+            numbers = numbers[:, history.rows]
+        if "wall_time" in positions:  # counted from the run's start, to the millisecond, as a resume writes it
+            numbers[positions["wall_time"]] = [float(f"{wall:.3f}") for wall in history.wall_seconds.tolist()]
+            text.discard(positions["wall_time"])
+    return {name: numbers[at] for name, at in positions.items() if at not in text}
 
 
 def load_run(run_dir: str | Path) -> RunCurves:
