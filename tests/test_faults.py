@@ -231,14 +231,16 @@ def test_a_video_that_does_not_fit_is_one_line_and_leaves_no_file(tmp_path):
 
 
 @pytest.mark.parametrize("algo", ["ppo", "td3", "sac"])
-def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo):
+def test_a_checkpoints_size_is_known_from_the_state_before_it_is_written(algo, tmp_path):
     """The warning's estimate: a checkpoint file is the state's bytes plus a header of less than HEADER_BYTES."""
     from canter.training.disk_room import HEADER_BYTES, state_bytes
     from canter.training.restore import load_state
 
     run = Path(__file__).parent / "fixtures" / "runs-v1" / algo
-    _, facts, state, _ = load_state(run)
-    size = checkpoint.latest(run).stat().st_size
+    _, facts, state, header = load_state(run)
+    written = tmp_path / "ckpt_000000000001.npz"  # in this canter's format, which the estimate is of
+    checkpoint.save(written, state, header)
+    size = written.stat().st_size
     assert state_bytes(state) - HEADER_BYTES <= size <= state_bytes(state)
     if algo != "ppo":  # the replay buffer: 4 * (2 * obs_dim + act_dim + 2) bytes per transition of its capacity
         buffer = state.buffer.data
@@ -461,7 +463,7 @@ def test_the_disk_warning_counts_best_and_snapshots_without_the_fields_they_leav
     assert warning.count("canter: warning:") == 1
     # The key that sizes the field best.npz leaves out, as td3's size_keys names it, is the other way to make room.
     assert "lower run.keep_checkpoints or td3.buffer_size, or set run.compress_checkpoints=true" in warning
-    assert "a checkpoint of this run takes 990.2 KiB and it needs room for 2.9 MiB of them" in warning
+    assert "a checkpoint of this run takes 990.3 KiB and it needs room for 2.9 MiB of them" in warning
     # A state whose best.npz holds everything needs room for five whole ones.
     monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, needed))
     assert disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [state], config)
@@ -496,7 +498,7 @@ def test_the_disk_warning_counts_every_seed_of_a_group_on_one_disk(tmp_path, mon
     assert not disk_room.warn_if_checkpoints_will_not_fit(run_dirs[:1], [state], config, ("buffer",))
     assert disk_room.warn_if_checkpoints_will_not_fit(run_dirs, [state] * 4, config, ("buffer",))
     assert capsys.readouterr().err == (
-        f"canter: warning: a checkpoint of each of the 4 seeds of this group takes 990.2 KiB and they need room for "
+        f"canter: warning: a checkpoint of each of the 4 seeds of this group takes 990.3 KiB and they need room for "
         f"11.6 MiB of them, but {tmp_path} has 5.8 MiB free; free space, lower run.keep_checkpoints or "
         f"td3.buffer_size, or set run.compress_checkpoints=true\n"
     )

@@ -28,7 +28,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from canter.training.logger import read_rows, run_history
+from canter.training.logger import read_table, run_history
 from canter.training.run_folder import metrics_file
 from canter.training.seed_run import RECENT_EPISODES
 
@@ -204,11 +204,13 @@ def first_crossing(
 def training_rows(run_dir: Path) -> list[tuple[float, int, float, float]]:
     """(env step, episodes, mean return, wall seconds from the run's start over all its sessions) per metrics row
     that ended an episode."""
-    _, rows = read_rows(metrics_file(run_dir))
+    table = read_table(metrics_file(run_dir))
+    history = run_history(table)
+    episodes, returns = (table.column(name)[history.rows] for name in ("episodes", "episodic_return"))
     return [
-        (float(row["global_step"]), int(float(row["episodes"])), float(row["episodic_return"]), totals["wall_seconds"])
-        for row, totals in run_history(rows)
-        if row.get("episodes") and float(row["episodes"]) > 0 and row.get("episodic_return")
+        (float(step), int(count), float(mean_return), float(wall))
+        for step, count, mean_return, wall in zip(history.global_step, episodes, returns, history.wall_seconds)
+        if count > 0 and not math.isnan(mean_return)
     ]
 
 
