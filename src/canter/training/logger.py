@@ -512,7 +512,9 @@ class MetricsLogger:
         within = history.global_step <= step
         kept, walls = history.rows[within], history.wall_seconds[within].tolist()
         written = table.cells.get("wall_time", [""] * table.rows)  # a row without one gets one
-        if not table.header or (len(kept) == table.rows and all(f"{w:.3f}" == c for w, c in zip(walls, written))):
+        # Compared as numbers: the logger writes 12.5 for the 12.500 a rewrite writes, and both hold the same time.
+        unchanged = all(float(f"{w:.3f}") == cell_number(c) for w, c in zip(walls, written))
+        if not table.header or (len(kept) == table.rows and unchanged):
             return
         if damaged := table.unreadable:
             line, cell = damaged[0]
