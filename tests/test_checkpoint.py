@@ -110,7 +110,7 @@ def test_prune_keeps_newest(tmp_path):
 
 def test_compressed_checkpoint_reads_back_the_same_and_is_smaller(tmp_path):
     ckpt = checkpoint
-    state = {"buffer": np.zeros((5000, 40), np.float32), "w": np.arange(6, dtype=np.float32)}
+    state = {"buffer": np.full((5000, 40), 0.5, np.float32), "w": np.arange(6, dtype=np.float32)}
     plain, packed = tmp_path / "plain" / "ckpt_000000000001.npz", tmp_path / "packed" / "ckpt_000000000001.npz"
     ckpt.save(plain, state, {"global_step": 1})
     ckpt.save(packed, state, {"global_step": 1}, compress=True)
@@ -251,3 +251,80 @@ def test_a_policy_loads_from_an_off_policy_checkpoint_without_its_buffer(tmp_pat
     _, _, policy, _ = load_state(run, policy_only=True)
     assert np.asarray(whole.buffer.data.obs).any() and not np.asarray(policy.buffer.data.obs).any()
     assert _equal(whole.learner, policy.learner) and _equal(whole.obs_stats, policy.obs_stats)
+
+
+def _zero_tail_by_loop(array):
+    """The reference: rows dropped from the end, one at a time, while every byte of the last one is zero."""
+    rows = array.shape[0]
+    while rows and not np.ascontiguousarray(array[rows - 1]).view(np.uint8).any():
+        rows -= 1
+    return array[:rows]
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32, np.bool_])
+def test_an_arrays_zero_tail_is_found_as_a_row_by_row_loop_finds_it(dtype):
+    rng = np.random.default_rng(0)
+    for rows, filled in ((10_000, 0), (10_000, 1), (10_000, 1234), (10_000, 9_999), (10_000, 10_000), (70_000, 65_537)):
+        array = np.zeros((rows, 7), dtype)
+        array[:filled] = rng.integers(1, 3, (filled, 7)).astype(dtype)
+        if filled > 40:
+            array[filled - 40 : filled - 20] = 0  # zero rows inside the filled part stay
+        found = checkpoint.without_zero_tail(array)
+        assert found.shape[0] == _zero_tail_by_loop(array).shape[0] == filled
+        assert np.shares_memory(found, array) or filled == 0  # no copy of a buffer of gigabytes
+        np.testing.assert_array_equal(checkpoint.with_zero_tail(found, rows), array)
+    negative_zero = np.zeros((20_000, 3), np.float32)
+    negative_zero[12_345, 1] = -0.0  # equal to 0.0, but other bits: kept, so the rows read back are the same bits
+    assert checkpoint.without_zero_tail(negative_zero).shape[0] == 12_346
+    small = np.zeros((100, 3), np.float32)  # under 64 KiB: written whole
+    assert checkpoint.without_zero_tail(small) is small
+
+
+def test_a_part_filled_buffer_is_written_as_far_as_it_is_filled_and_read_back_whole(tmp_path):
+    """A replay buffer a tenth filled took a checkpoint of its whole capacity: 2.7 GiB for Humanoid from the first
+    checkpoint on."""
+    capacity, filled = 100_000, 10_000
+    rng = np.random.default_rng(1)
+    buffer = {"obs": np.zeros((capacity, 17), np.float32), "done": np.zeros(capacity, np.float32)}
+    buffer["obs"][:filled] = rng.normal(size=(filled, 17))
+    buffer["done"][filled - 1] = 1.0
+    state = {"buffer": buffer, "policy": rng.normal(size=(64, 64)).astype(np.float32)}
+    path = tmp_path / "ckpt_000000010000.npz"
+    checkpoint.save(path, state, {"global_step": filled})
+    full = tmp_path / "full.npz"
+    checkpoint.save(full, dict(state, buffer={k: v + 1 for k, v in buffer.items()}), {"global_step": filled})
+    assert path.stat().st_size < 0.12 * full.stat().st_size
+    arrays, header = checkpoint.read(path)
+    assert header["zero_tail"] == {"buffer/done": capacity, "buffer/obs": capacity}
+    assert header["format_version"] == checkpoint.FORMAT_VERSION == 4
+    assert _equal(checkpoint.restore(state, arrays, path), state)
+    policy, _ = checkpoint.read(path, wanted=_no_buffer)
+    np.testing.assert_array_equal(policy["policy"], state["policy"])
+
+
+def test_a_zero_tail_that_gives_fewer_rows_than_written_is_damage(tmp_path):
+    state = {"buffer": np.zeros((20_000, 4), np.float32)}
+    state["buffer"][:5] = 1.0
+    path = tmp_path / "c.npz"
+    checkpoint.save(path, state, {"global_step": 1})
+    with np.load(path) as data:
+        payload = {name: data[name] for name in data.files}
+    header = json.loads(bytes(payload["header"]).decode())
+    for rows in (3, "many"):
+        edited = dict(header, zero_tail={"buffer": rows})
+        edited["sha256"] = checkpoint._header_digest({k: v for k, v in edited.items() if k != "sha256"})
+        np.savez(tmp_path / "e.npz", **dict(payload, header=np.frombuffer(json.dumps(edited).encode(), np.uint8)))
+        with pytest.raises(checkpoint.DamagedCheckpoint, match=r"its header gives 'buffer'"):
+            checkpoint.read(tmp_path / "e.npz")
+
+
+def test_a_checkpoint_of_format_3_still_reads(tmp_path, monkeypatch):
+    """Written as the release before wrote it: each array whole, and format version 3."""
+    state = {"buffer": np.zeros((20_000, 4), np.float32), "policy": np.arange(3.0)}
+    monkeypatch.setattr(checkpoint, "FORMAT_VERSION", 3)
+    monkeypatch.setattr(checkpoint, "ZERO_TAIL_MIN_BYTES", 1 << 40)
+    checkpoint.save(tmp_path / "c.npz", state, {"global_step": 1})
+    monkeypatch.undo()
+    arrays, header = checkpoint.read(tmp_path / "c.npz")
+    assert header["format_version"] == 3 and "zero_tail" not in header
+    assert _equal(checkpoint.restore(state, arrays, tmp_path / "c.npz"), state)

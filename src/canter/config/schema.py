@@ -80,7 +80,9 @@ class RunConfig:
     )
     keep_checkpoints: int = setting("Keep the newest K checkpoints.", default=3, role=OUTPUT)
     compress_checkpoints: bool = setting(
-        "Deflate checkpoint arrays (worth it for off-policy replay buffers).", default=False, role=OUTPUT
+        "Deflate checkpoint arrays (smaller, slower; a replay buffer of observations shrinks little).",
+        default=False,
+        role=OUTPUT,
     )
     stop_at_return: float | None = setting(
         "Stop once the mean return of the last 20 training episodes reaches this.", default=None, role=BUDGET

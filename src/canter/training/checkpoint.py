@@ -4,8 +4,10 @@ A checkpoint is one `.npz` file: the train state's leaves as arrays (named by th
 header with the format version, the resolved config, env facts needed to rebuild the policy without the env, the
 step count, a SHA-256 of each array (`leaf_sha256`) and a SHA-256 of the header (`sha256`), which thereby vouches
 for every array. A reader that needs only some arrays (a policy, without its replay buffer) reads and checks only
-those. It is written to a temp file in the same folder, fsynced and
-renamed, so a reader sees either the old file or the new one, never half of one.
+those. An array of 64 KiB or more is written without its trailing rows of zeros (the unfilled part of a replay
+buffer); the header's `zero_tail` gives such an array's whole row count, and reading it gives the rows back. It is
+written to a temp file in the same folder, fsynced and renamed, so a reader sees either the old file or the new
+one, never half of one.
 
 A run folder keeps its newest `run.keep_checkpoints` checkpoints as `checkpoints/ckpt_<step>.npz` and, when it
 evaluates during training, the best evaluated state as `checkpoints/best.npz`, whose header also records the
@@ -55,9 +57,15 @@ from canter.training.run_folder import (
 # Versions 1 and 2 hash all arrays together, so a file is only checked whole; version 2 marked a checkpoint that
 # leaves fields out (`left_out`), which a version-1 reader would take for a checkpoint of another config.
 WHOLE_FILE_HASH_VERSIONS = (1, 2)
-FORMAT_VERSION = 3
+# Version 3 hashes each array on its own; version 4 also writes a large array without its trailing zero rows, which
+# a version-3 reader would take for an array of another config's shape.
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (*WHOLE_FILE_HASH_VERSIONS, 3, FORMAT_VERSION)
 # What `save` works out itself: a header given with them (one read back, edited) has them replaced.
-_DERIVED_FIELDS = ("format_version", "leaves", "left_out", "env_carry_leaves", "leaf_sha256", "sha256")
+_DERIVED_FIELDS = ("format_version", "leaves", "left_out", "env_carry_leaves", "zero_tail", "leaf_sha256", "sha256")
+# Smaller arrays are written whole: what their zero rows would save is less than a header entry costs to read.
+ZERO_TAIL_MIN_BYTES = 1 << 16
+_SCAN_BYTES = 1 << 20  # looked at per step of the scan for an array's last set row
 ENV_CARRY = "env_carry/"
 LAST, BEST = "last", "best"
 _CHECKPOINT_TAKES = f"{with_python('--checkpoint', 'checkpoint=')} takes {LAST}, {BEST} or a .npz file"
@@ -194,6 +202,33 @@ def named_leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
     return [(prefix + _path_name(p), leaf) for p, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]]
 
 
+def without_zero_tail(array: np.ndarray) -> np.ndarray:
+    """`array` up to its last row (along the first axis) that has a bit set: a replay buffer is written only as far
+    as it is filled. Scanned from the end a block at a time, so a full buffer costs one block and no copy is made;
+    -0.0 is not zero here, so the rows read back are the same bits."""
+    if array.ndim == 0 or array.nbytes < ZERO_TAIL_MIN_BYTES:
+        return array
+    rows = np.ascontiguousarray(array).reshape(array.shape[0], -1).view(np.uint8)
+    block = max(1, _SCAN_BYTES // max(rows.shape[1], 1))
+    end = rows.shape[0]
+    while end > 0:
+        start = max(0, end - block)
+        set_rows = np.flatnonzero(rows[start:end].any(axis=1))
+        if set_rows.size:
+            return array[: start + int(set_rows[-1]) + 1]
+        end = start
+    return array[:0]
+
+
+def with_zero_tail(array: np.ndarray, rows: int) -> np.ndarray:
+    """An array written without its trailing zero rows, given back its `rows` rows."""
+    if rows == array.shape[0]:
+        return array
+    whole = np.zeros((rows, *array.shape[1:]), array.dtype)
+    whole[: array.shape[0]] = array
+    return whole
+
+
 def _to_host(named: list[tuple[str, Any]]) -> dict[str, np.ndarray]:
     """Named leaves as host arrays, fetched from the device in one transfer."""
     return {name: np.asarray(value) for (name, _), value in zip(named, jax.device_get([leaf for _, leaf in named]))}
@@ -223,6 +258,11 @@ def save(
         carry = _to_host(named_leaves(env_carry, ENV_CARRY))
         arrays.update(carry)
         header["env_carry_leaves"] = list(carry)
+    shortened = {name: without_zero_tail(value) for name, value in arrays.items()}
+    zero_tail = {name: value.shape[0] for name, value in arrays.items() if shortened[name].shape != value.shape}
+    if zero_tail:
+        header["zero_tail"] = zero_tail
+    arrays = shortened
     header["leaf_sha256"] = {name: _leaf_digest(name, value) for name, value in arrays.items()}
     header["sha256"] = _header_digest(header)
     payload = {f"leaf:{k}": v for k, v in arrays.items()}
@@ -267,6 +307,7 @@ _FIELD_TYPES: dict[str, tuple[type, str]] = {
     "env": (dict, "an object"),
     "global_step": (int, "a whole number"),
     "left_out": (list, "a list"),
+    "zero_tail": (dict, "an object"),
 }
 
 
@@ -326,11 +367,10 @@ def read(path: Path, wanted: Callable[[str], bool] | None = None) -> tuple[dict[
         with np.load(path, allow_pickle=False) as data:
             header = _checked_header(json_value(bytes(data["header"]).decode()), path)
             version = header.get("format_version")
-            readable = (*WHOLE_FILE_HASH_VERSIONS, FORMAT_VERSION)
-            if version not in readable:
+            if version not in READABLE_VERSIONS:
                 raise CanterError(
                     f"checkpoint {path} has format version {version}, this canter reads versions "
-                    f"{', '.join(map(str, readable))}; use the canter release that wrote it"
+                    f"{', '.join(map(str, READABLE_VERSIONS))}; use the canter release that wrote it"
                 )
             names = [k[5:] for k in data.files if k.startswith("leaf:")]
             whole = version in WHOLE_FILE_HASH_VERSIONS
@@ -346,7 +386,21 @@ def read(path: Path, wanted: Callable[[str], bool] | None = None) -> tuple[dict[
         raise DamagedCheckpoint(path, "fails its content hash (corrupt)")
     if whole and wanted is not None:
         arrays = {name: value for name, value in arrays.items() if wanted(name)}
-    return arrays, header
+    return _with_zero_tails(arrays, header, path), header
+
+
+def _with_zero_tails(arrays: dict[str, np.ndarray], header: dict[str, Any], path: Path) -> dict[str, np.ndarray]:
+    """The arrays with the zero rows their writer left out given back (its header's `zero_tail`, which its hash
+    vouches for)."""
+    rows = header.get("zero_tail", {})
+    for name, value in arrays.items():
+        if name not in rows:
+            continue
+        whole = rows[name]
+        if not isinstance(whole, int) or isinstance(whole, bool) or value.ndim == 0 or whole < value.shape[0]:
+            raise DamagedCheckpoint(path, f"is corrupt (its header gives '{name}' {whole!r} rows)")
+        arrays[name] = with_zero_tail(value, whole)
+    return arrays
 
 
 def _header_and_arrays_sound(

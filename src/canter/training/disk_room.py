@@ -1,8 +1,10 @@
 """Checkpoint size, known before the first checkpoint.
 
-A checkpoint holds the whole train state uncompressed, so its size is the state's bytes: small for on-policy
+A checkpoint holds the whole train state uncompressed, so its size is at most the state's bytes: small for on-policy
 algorithms, and for off-policy ones mostly the replay buffer, 4 * (2 * obs_dim + act_dim + 2) bytes per
-transition of `buffer_size` whether filled or not (docs/algorithms-offpolicy.md has a table per env). A run keeps
+transition of `buffer_size` once the buffer is full (docs/algorithms-offpolicy.md has a table per env); a
+checkpoint holds only the filled part of a buffer, and the room counted here is for full ones, which a run reaches
+whenever it trains longer than its buffer holds. A run keeps
 `run.keep_checkpoints` of them and writes the next before it deletes the oldest, plus best.npz when it evaluates
 during training and a snapshot while a video renders; those two hold the state without the fields its algorithm
 leaves out of them (the replay buffer). Training warns in one line when the run folder's disk has
@@ -116,8 +118,6 @@ def warn_if_checkpoints_will_not_fit(
     # the keys that size them (the algorithm's `size_keys`) are the other way to make room.
     sizing = [key for name, key in get_algorithm(config.run.algo).size_keys if name in policy_leaves_out]
     how = " or ".join(["lower run.keep_checkpoints", *sizing])
-    if not config.run.compress_checkpoints:
-        how += ", or set run.compress_checkpoints=true"
     whose = "this run takes" if seeds == 1 else f"each of the {seeds} seeds of this group takes"
     they = "it needs" if seeds == 1 else "they need"
     where = first if seeds == 1 else first.parent
