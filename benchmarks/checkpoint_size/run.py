@@ -14,18 +14,17 @@ machine and the commits to results.md.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE.parent))  # benchmarks/, for two_trees
+
+from two_trees import append_results, commits, extract_src, heading  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -37,10 +36,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--every", type=int, default=4_000)
     p.add_argument("--no-write", action="store_true", help="print only; write no files")
     return p.parse_args(argv)
-
-
-def git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True, text=True).stdout.strip()
 
 
 def train(src: Path, out: Path, args: argparse.Namespace) -> tuple[float, dict[str, int]]:
@@ -57,14 +52,10 @@ def train(src: Path, out: Path, args: argparse.Namespace) -> tuple[float, dict[s
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    before, now = git("rev-parse", "--short", args.before), git("rev-parse", "--short", "HEAD")
+    before, now = commits(args.before)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        old = Path(tmp) / "old"
-        old.mkdir()
-        archive = subprocess.run(["git", "archive", before, "src"], cwd=ROOT, check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
-        for label, src in (("before", old / "src"), ("now", ROOT / "src")):
+        for label, src in (("before", extract_src(before, Path(tmp))), ("now", ROOT / "src")):
             wall, sizes = train(src, Path(tmp) / f"runs-{label}", args)
             rows.append({"tree": label, "train_wall_s": round(wall, 2), "checkpoint_bytes": sizes})
             print(rows[-1], flush=True)
@@ -72,8 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     walls = {row["tree"]: row["train_wall_s"] for row in rows}
     names = sorted(set(mib["before"]) | set(mib["now"]))
     lines = [
-        f"## {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores, {now} against {before}",
+        heading(now, before),
         "",
         f"A {args.algo} {args.env} run of {args.steps:,} steps (default replay buffer, learning_starts 1000), a "
         f"checkpoint every {args.every:,} steps, trained once by each tree (one whole process each):",
@@ -87,13 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     ]
     print("\n".join(lines))
     if not args.no_write:
-        with (HERE / "sizes.jsonl").open("a") as f:
-            for row in rows:
-                f.write(json.dumps(dict(row, before=before, now=now, algo=args.algo, env=args.env)) + "\n")
-        results = HERE / "results.md"
-        head = "" if results.exists() else "# How large an off-policy run's checkpoints are\n\n"
-        with results.open("a") as f:
-            f.write(head + "\n".join(lines) + "\n")
+        shared = dict(before=before, now=now, algo=args.algo, env=args.env)
+        append_results(HERE, "How large an off-policy run's checkpoints are", lines, "sizes.jsonl", rows, **shared)
     return 0
 
 

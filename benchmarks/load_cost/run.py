@@ -18,20 +18,20 @@ format.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 from statistics import median
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE.parent))  # benchmarks/, for two_trees
+
+from two_trees import append_results, commits, extract_src, heading  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -43,10 +43,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--resave", action="store_true", help="this tree plays a copy resaved in its checkpoint format")
     p.add_argument("--no-write", action="store_true", help="print only; write no files")
     return p.parse_args(argv)
-
-
-def git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True, text=True).stdout.strip()
 
 
 def canter(src: Path, *args: str) -> list[str]:
@@ -83,17 +79,14 @@ def resaved_copy(run: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    before, now = git("rev-parse", "--short", args.before), git("rev-parse", "--short", "HEAD")
+    before, now = commits(args.before)
     with tempfile.TemporaryDirectory() as tmp:
-        old = Path(tmp) / "old"
-        old.mkdir()
-        archive = subprocess.run(["git", "archive", before, "src"], cwd=ROOT, check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
+        old = extract_src(before, Path(tmp))
         out = Path(tmp) / "runs"
         train = ["train", args.env, "--algo", args.algo, "--total-steps", "2000", "--quiet", "--out-dir", str(out)]
-        subprocess.run(canter(old / "src", *train, "--set", f"{args.algo}.learning_starts=1000"), check=True)
+        subprocess.run(canter(old, *train, "--set", f"{args.algo}.learning_starts=1000"), check=True)
         run = next(out.iterdir())
-        trees = {"before": old / "src", "now": ROOT / "src"}
+        trees = {"before": old, "now": ROOT / "src"}
         runs = {"before": run, "now": resaved_copy(run) if args.resave else run}
         rows = []
         for pair in range(args.pairs):
@@ -105,8 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     peaks = {label: [r["peak_mib"] for r in rows if r["tree"] == label] for label in trees}
     ratios = [n / b for n, b in zip(walls["now"], walls["before"])]
     lines = [
-        f"## {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores, {now} against {before}",
+        heading(now, before),
         "",
         f"`canter eval RUN --episodes 2` of a {args.algo} {args.env} run (2,000 steps, its default replay buffer), "
         f"{args.pairs} pairs of whole processes"
@@ -122,13 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     ]
     print("\n".join(lines))
     if not args.no_write:
-        with (HERE / "timings.jsonl").open("a") as f:
-            for row in rows:
-                f.write(json.dumps(dict(row, before=before, now=now, algo=args.algo, env=args.env)) + "\n")
-        results = HERE / "results.md"
-        head = "" if results.exists() else "# What loading a run costs: whole `canter eval` processes\n\n"
-        with results.open("a") as f:
-            f.write(head + "\n".join(lines) + "\n")
+        title = "What loading a run costs: whole `canter eval` processes"
+        shared = dict(before=before, now=now, algo=args.algo, env=args.env)
+        append_results(HERE, title, lines, "timings.jsonl", rows, **shared)
     return 0
 
 

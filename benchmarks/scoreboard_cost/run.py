@@ -16,15 +16,16 @@ import argparse
 import hashlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
-from datetime import UTC, datetime
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE.parent))  # benchmarks/, for two_trees
+
+from two_trees import append_results, commits, extract_src, heading  # noqa: E402
 
 BUILD = """
 import json, sys, time
@@ -45,10 +46,6 @@ print(json.dumps({"seconds": round(seconds, 3), "comparisons": len(board.compari
 """
 
 
-def git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True, text=True).stdout.strip()
-
-
 def build(src: Path, methods: int, seeds: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(src))
     out = subprocess.run(
@@ -64,12 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--no-write", action="store_true", help="print only; write no files")
     args = p.parse_args(argv)
-    before, now = git("rev-parse", "--short", args.before), git("rev-parse", "--short", "HEAD")
+    before, now = commits(args.before)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        archive = subprocess.run(["git", "archive", before, "src"], cwd=ROOT, check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        trees = {"before": Path(tmp) / "src", "now": ROOT / "src"}
+        trees = {"before": extract_src(before, Path(tmp)), "now": ROOT / "src"}
         for methods in args.methods:
             built = {label: build(src, methods, args.seeds) for label, src in trees.items()}
             same = built["before"]["json"] == built["now"]["json"]
@@ -88,8 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 print(rows[-1], flush=True)
     lines = [
-        f"## {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.processor() or platform.machine()}, "
-        f"{os.cpu_count()} cores, {now} against {before}",
+        heading(now, before),
         "",
         f"`build_scoreboard` of synthetic final scores: 5 envs, {args.seeds} seeds per method and env.",
         "",
@@ -102,13 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     lines.append("")
     print("\n".join(lines))
     if not args.no_write:
-        with (HERE / "timings.jsonl").open("a") as f:
-            for row in rows:
-                f.write(json.dumps(dict(row, before=before, now=now)) + "\n")
-        results = HERE / "results.md"
-        head = "" if results.exists() else "# What building a scoreboard costs for many methods\n\n"
-        with results.open("a") as f:
-            f.write(head + "\n".join(lines) + "\n")
+        title = "What building a scoreboard costs for many methods"
+        append_results(HERE, title, lines, "timings.jsonl", rows, before=before, now=now)
     return 0
 
 
