@@ -374,7 +374,14 @@ def read(path: Path, wanted: Callable[[str], bool] | None = None) -> tuple[dict[
                 )
             names = [k[5:] for k in data.files if k.startswith("leaf:")]
             whole = version in WHOLE_FILE_HASH_VERSIONS
-            arrays = {name: data[f"leaf:{name}"] for name in names if whole or wanted is None or wanted(name)}
+            tails = _zero_tail_rows(header, path)
+            arrays, padded = {}, {}  # as the file holds them (for their hashes), and given back their zero rows
+            for name in names:
+                if whole or wanted is None or wanted(name):
+                    if name in tails:
+                        padded[name], arrays[name] = _read_into_rows(data, f"leaf:{name}", tails[name], path)
+                    else:
+                        arrays[name] = data[f"leaf:{name}"]
     except (PermissionError, CanterError):
         raise  # a file this user may not read is not damaged; the CLI says so in one line
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError, UnicodeDecodeError):
@@ -384,23 +391,54 @@ def read(path: Path, wanted: Callable[[str], bool] | None = None) -> tuple[dict[
     header["sha256"] = expected
     if not sound:
         raise DamagedCheckpoint(path, "fails its content hash (corrupt)")
+    arrays.update(padded)
     if whole and wanted is not None:
         arrays = {name: value for name, value in arrays.items() if wanted(name)}
-    return _with_zero_tails(arrays, header, path), header
+    return arrays, header
 
 
-def _with_zero_tails(arrays: dict[str, np.ndarray], header: dict[str, Any], path: Path) -> dict[str, np.ndarray]:
-    """The arrays with the zero rows their writer left out given back (its header's `zero_tail`, which its hash
-    vouches for)."""
+def _zero_tail_rows(header: dict[str, Any], path: Path) -> dict[str, int]:
+    """The whole row count of each array written without its trailing zero rows (the header's `zero_tail`)."""
     rows = header.get("zero_tail", {})
-    for name, value in arrays.items():
-        if name not in rows:
-            continue
-        whole = rows[name]
-        if not isinstance(whole, int) or isinstance(whole, bool) or value.ndim == 0 or whole < value.shape[0]:
-            raise DamagedCheckpoint(path, f"is corrupt (its header gives '{name}' {whole!r} rows)")
-        arrays[name] = with_zero_tail(value, whole)
-    return arrays
+    for name, count in rows.items():
+        if not isinstance(count, int) or isinstance(count, bool) or count < 0:
+            raise DamagedCheckpoint(path, f"is corrupt (its header gives '{name}' {count!r} rows)")
+    return rows
+
+
+_READ_BYTES = 1 << 22  # read per step into an array given back its zero rows
+
+
+def _read_into_rows(data: Any, key: str, rows: int, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The array `key` of an open .npz, read straight into one of `rows` rows whose rows after the file's are zero,
+    and the view of the rows the file holds. A buffer of gigabytes nearly full is thus held once, not twice."""
+    with data.zip.open(f"{key}.npy") as f:
+        version = np.lib.format.read_magic(f)
+        if version not in ((1, 0), (2, 0)):  # numpy writes these; any other it reads the usual way
+            return _padded_as_numpy_reads(data[key], rows, key, path)
+        header_of = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran_order, dtype = header_of(f)
+        if fortran_order or dtype.hasobject or not shape or rows < shape[0]:
+            raise DamagedCheckpoint(path, f"is corrupt (its header gives '{key[5:]}' {rows} rows)")
+        whole = np.zeros((rows, *shape[1:]), dtype)
+        stored = whole[: shape[0]]
+        target = stored.reshape(-1).view(np.uint8)
+        done = 0
+        while done < target.size:
+            chunk = f.read(min(_READ_BYTES, target.size - done))
+            if not chunk:
+                raise EOFError
+            target[done : done + len(chunk)] = np.frombuffer(chunk, np.uint8)
+            done += len(chunk)
+    return whole, stored
+
+
+def _padded_as_numpy_reads(stored: np.ndarray, rows: int, key: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """`stored`, read by numpy, given back its zero rows, and itself; refused where the header gives it fewer rows
+    than it has."""
+    if stored.ndim == 0 or rows < stored.shape[0]:
+        raise DamagedCheckpoint(path, f"is corrupt (its header gives '{key[5:]}' {rows} rows)")
+    return with_zero_tail(stored, rows), stored
 
 
 def _header_and_arrays_sound(
