@@ -509,6 +509,47 @@ def test_the_disk_warning_counts_every_seed_of_a_group_on_one_disk(tmp_path, mon
     )
 
 
+def test_the_disk_warning_counts_the_buffer_rows_a_run_can_fill(tmp_path, monkeypatch, capsys):
+    """A checkpoint leaves out a buffer's unfilled rows, so a run whose budget is below the buffer's capacity never
+    writes a full one: a 10,000-step Humanoid td3 run was warned about room for three 2.66 GiB checkpoints."""
+    from collections import namedtuple
+
+    from canter.algos.registry import get_algorithm
+    from canter.config.build import build_config
+    from canter.training import disk_room
+    from canter.training.host_memory import size_text
+
+    State = namedtuple("State", "buffer policy")
+    rows, filled = 50_000, 12_345
+    empty = State({"obs": np.zeros((rows, 17), np.float32), "done": np.zeros(rows, np.float32)}, np.ones(2_500))
+    part = State({name: array.copy() for name, array in empty.buffer.items()}, empty.policy)
+    for array in part.buffer.values():
+        array[:filled] = 1.0
+    written = tmp_path / "part.npz"
+    checkpoint.save(written, part, {"global_step": filled})
+    # The estimate for `filled` rows is the file a buffer filled that far makes; the whole buffer is 4 times that.
+    assert abs(disk_room.state_bytes(empty, {"buffer": filled}) / written.stat().st_size - 1) < 0.01
+    assert disk_room.state_bytes(empty) > 3.9 * written.stat().st_size
+    # An array under checkpoint.ZERO_TAIL_MIN_BYTES is written whole, and a field without a bound counts whole.
+    small = {"obs": np.zeros((100, 17), np.float32)}
+    assert disk_room.state_bytes(small, {"obs": 1}) == disk_room.state_bytes(small)
+    assert disk_room.state_bytes(empty, {"policy": 1}) == disk_room.state_bytes(empty)
+
+    # td3 counts one row per env step, up to the end of the iteration that reaches the budget.
+    td3 = get_algorithm("td3")
+    sets = ["run.keep_checkpoints=2", "run.eval_every=0", "td3.steps_per_call=1000", "td3.buffer_size=50000"]
+    short = build_config("Pendulum-v1", algo="td3", total_steps=10_000, sets=sets)
+    assert td3.filled_rows is not None and td3.filled_rows(short) == {"buffer": 10_000 - 1 + 1000}
+    assert td3.filled_rows(short.with_values("run", total_steps=200_000)) == {"buffer": 50_000}
+    Usage = namedtuple("Usage", "total used free")
+    reached = 3 * disk_room.state_bytes(empty, {"buffer": 10_999})
+    monkeypatch.setattr(disk_room.shutil, "disk_usage", lambda _: Usage(0, 0, reached))
+    assert not disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [empty], short, ("buffer",))
+    long = short.with_values("run", total_steps=200_000)
+    assert disk_room.warn_if_checkpoints_will_not_fit([tmp_path], [empty], long, ("buffer",))
+    assert f"a checkpoint of this run takes {size_text(disk_room.state_bytes(empty))}" in capsys.readouterr().err
+
+
 def test_a_second_ctrl_c_during_compilation_exits_130_not_by_a_crash(tmp_path):
     """The first Ctrl-C in a run's compilation is held until it ends; a second one means now, and lands inside the
     compile. The interpreter's shutdown after it could then segfault (exit -11, about half the runs here), or end by

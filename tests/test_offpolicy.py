@@ -21,6 +21,7 @@ from canter.envs.episodes import init_env_carry
 from canter.errors import CanterError
 from canter.run_layout import read_summary
 from canter.training import checkpoint, run_folder
+from canter.training.disk_room import state_bytes
 from canter.training.loop import train
 from canter.training.restore import load_state
 from canter.training.resume import resume_config
@@ -423,6 +424,14 @@ def test_best_checkpoint_holds_the_policy_without_the_replay_buffer(tmp_path):
     assert best.stat().st_size + buffer_bytes <= full_path.stat().st_size
     for name, value in arrays.items():
         np.testing.assert_array_equal(value, full[name])
+    # The disk warning counted the rows this 2,000-step run can fill (up to the end of the iteration that reaches
+    # it), not the buffer's 20,000: its estimate is the largest checkpoint written, give or take Pendulum's terminal
+    # flags, which stay zero, and the rows the run's last iteration left unfilled.
+    config, _, state, _ = load_state(result.run_dir)
+    estimate = state_bytes(state, get_algorithm("td3").filled_rows(config))
+    largest = max(path.stat().st_size for path in run_folder.list_checkpoints(result.run_dir))
+    assert largest <= estimate < 1.1 * largest, (largest, estimate)
+    assert state_bytes(state) > 2.5 * largest  # the whole buffer: 640 KB of transitions
     obs = np.random.default_rng(0).normal(size=(8, 3)).astype(np.float32)
     np.testing.assert_array_equal(load(result.run_dir, checkpoint="best")(obs), load(result.run_dir, full_path)(obs))
     # A resume reads the newest full checkpoint, never best.npz, and carries on.

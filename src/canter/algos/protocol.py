@@ -25,7 +25,7 @@ Every algorithm plugs into the same trainer, run folder, checkpoints, logging an
   to the action bounds; `policy_params(state)` picks what it needs out of the train state.
 - `export_actor(config, state, spec)` describes the deterministic actor as plain arrays (`ExportedActor`), for ONNX and
   npz export.
-- `donate_state`, `policy_checkpoint_leaves_out`, `size_keys`: see the fields' comments.
+- `donate_state`, `policy_checkpoint_leaves_out`, `size_keys`, `filled_rows`: see the fields' comments.
 - `validate(config, spec)` refuses a config that makes no sense for this algorithm or env, before any work starts;
   the trainer passes the env's `EnvSpec`.
 
@@ -91,6 +91,10 @@ class Algorithm:
     # The config key that sets the size of each large field of the train state (("buffer", "td3.buffer_size"), ...):
     # a train state too large for the memory is refused naming the key behind most of it (canter.algos.state_size).
     size_keys: tuple[tuple[str, str], ...] = ()
+    # The most leading rows that each field filling one row per env step from the front (a replay buffer) holds when
+    # the run ends, from its config: {"buffer": rows}. A checkpoint writes only the filled rows of such a field, so a
+    # run whose run.total_steps stays below the capacity never writes it whole, and the disk warning counts these.
+    filled_rows: Callable[[Config], dict[str, int]] | None = None
 
 
 def export_mlp_actor(

@@ -2,9 +2,9 @@
 
 A checkpoint holds the whole train state uncompressed, so its size is at most the state's bytes: small for on-policy
 algorithms, and for off-policy ones mostly the replay buffer, 4 * (2 * obs_dim + act_dim + 2) bytes per
-transition of `buffer_size` once the buffer is full (docs/algorithms-offpolicy.md has a table per env); a
-checkpoint holds only the filled part of a buffer, and the room counted here is for full ones, which a run reaches
-whenever it trains longer than its buffer holds. A run keeps
+transition held (docs/algorithms-offpolicy.md has a table per env). A checkpoint holds only the filled part of a
+buffer, so the room counted here is for the rows the run can fill by its end (`Algorithm.filled_rows`): the whole
+buffer when the run trains longer than the buffer holds, and its run.total_steps rows otherwise. A run keeps
 `run.keep_checkpoints` of them and writes the next before it deletes the oldest, plus best.npz when it evaluates
 during training and a snapshot while a video renders; those two hold the state without the fields its algorithm
 leaves out of them (the replay buffer). Training warns in one line when the run folder's disk has
@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import shutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,11 +45,28 @@ def _stored_bytes(name: str, shape: tuple[int, ...], dtype: Any) -> int:
     return _ZIP_ENTRY_BYTES + 2 * len(name.encode()) + len(npy_header.getvalue()) + size
 
 
-def state_bytes(state: Any) -> int:
+def written_shape(name: str, shape: tuple[int, ...], dtype: Any, filled_rows: Mapping[str, int]) -> tuple[int, ...]:
+    """The shape the leaf `name` is written with when its field (the name's first part) holds at most
+    `filled_rows[field]` leading rows: a checkpoint leaves out the unfilled rows of an array of
+    `ZERO_TAIL_MIN_BYTES` or more (checkpoint.without_zero_tail), and writes a smaller one whole."""
+    import numpy as np
+
+    from canter.training.checkpoint import ZERO_TAIL_MIN_BYTES
+
+    rows = filled_rows.get(name.split("/", 1)[0])
+    whole = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+    if rows is None or not shape or whole < ZERO_TAIL_MIN_BYTES:
+        return shape
+    return (min(shape[0], rows), *shape[1:])
+
+
+def state_bytes(state: Any, filled_rows: Mapping[str, int] | None = None) -> int:
     """Bytes of the checkpoint file of `state` written uncompressed, from its leaves' shapes (nothing leaves the
     device): each leaf's entry, and the JSON header, which lists every leaf's name and hash. It counts what is
-    written, not a padded allowance, so a warning quotes the size the files will have. The episodes in flight that
-    a JAX-native backend adds are counted by the caller, from the env's shapes (`warn_if_checkpoints_will_not_fit`)."""
+    written, not a padded allowance, so a warning quotes the size the files will have. `filled_rows`: the most
+    leading rows each field that fills from the front can hold (`Algorithm.filled_rows`); without it, every array
+    counts whole. The episodes in flight that a JAX-native backend adds are counted by the caller, from the env's
+    shapes (`warn_if_checkpoints_will_not_fit`)."""
     import json
 
     import numpy as np
@@ -61,7 +78,8 @@ def state_bytes(state: Any) -> int:
     for name, leaf in named_leaves(state):
         array = leaf if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else np.asarray(leaf)
         names.append(name)
-        total += _stored_bytes(f"leaf:{name}.npy", tuple(array.shape), array.dtype)
+        shape = written_shape(name, tuple(array.shape), array.dtype, filled_rows or {})
+        total += _stored_bytes(f"leaf:{name}.npy", shape, array.dtype)
     digests = dict.fromkeys(names, "0" * 64)  # each leaf's SHA-256, in hex
     header = HEADER_BYTES + len(json.dumps(names)) + len(json.dumps(digests))
     return total + _stored_bytes("header.npy", (header,), np.uint8)
@@ -96,12 +114,14 @@ def warn_if_checkpoints_will_not_fit(
     from canter.training.host_memory import size_text
     from canter.training.run_folder import list_checkpoints
 
+    algorithm = get_algorithm(config.run.algo)
+    filled_rows = algorithm.filled_rows(config) if algorithm.filled_rows else None
     one = 0
     needed_on: dict[int, tuple[Path, int, int]] = {}  # device -> (first run folder on it, seeds, bytes)
     for run_dir, state in zip(run_dirs, states):
         # A checkpoint that leaves fields out (one written before training began) holds little of a full one's size.
         existing = sum("left_out" not in read_header(path) for path in list_checkpoints(Path(run_dir)))
-        one = state_bytes(state) + env_carry_bytes
+        one = state_bytes(state, filled_rows) + env_carry_bytes
         policy = state_bytes({k: v for k, v in state._asdict().items() if k not in policy_leaves_out})
         needed = one * checkpoints_at_once(config, existing) + policy * policy_files(config)
         device = os.stat(run_dir).st_dev
@@ -116,7 +136,7 @@ def warn_if_checkpoints_will_not_fit(
     free = shutil.disk_usage(first).free
     # The fields that only further training reads (a replay buffer) are the bulk of a checkpoint that has any, so
     # the keys that size them (the algorithm's `size_keys`) are the other way to make room.
-    sizing = [key for name, key in get_algorithm(config.run.algo).size_keys if name in policy_leaves_out]
+    sizing = [key for name, key in algorithm.size_keys if name in policy_leaves_out]
     how = " or ".join(["lower run.keep_checkpoints", *sizing])
     whose = "this run takes" if seeds == 1 else f"each of the {seeds} seeds of this group takes"
     they = "it needs" if seeds == 1 else "they need"

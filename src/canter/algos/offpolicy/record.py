@@ -12,6 +12,7 @@ from canter.algos.offpolicy.iteration import init_train_state, make_iteration
 from canter.algos.offpolicy.learner import LOOP_METRICS, OffPolicyLearner
 from canter.algos.offpolicy.sections import OffPolicyConfig
 from canter.algos.protocol import Algorithm, ExportedActor, export_mlp_actor
+from canter.config.algorithms import algorithm_spec
 from canter.config.schema import Config
 from canter.envs.base import EnvSpec
 from canter.errors import CanterError
@@ -37,6 +38,12 @@ def offpolicy_algorithm(
     def validate(config: Config, spec: EnvSpec) -> None:
         _validate_bounded_actions(name, spec)
 
+    def filled_rows(config: Config) -> dict[str, int]:
+        # One buffer row per env step the run counts, and the run ends with the iteration that reaches its budget:
+        # at most one iteration's steps past the last step below it.
+        reached = config.run.total_steps - 1 + algorithm_spec(name).iteration_steps(config)
+        return {"buffer": min(config.section(name).buffer_size, reached)}
+
     return Algorithm(
         name=name,
         init_state=init_state,
@@ -49,6 +56,7 @@ def offpolicy_algorithm(
         donate_state=True,
         policy_checkpoint_leaves_out=("buffer",),
         size_keys=(("buffer", f"{name}.buffer_size"), ("learner", f"{name}.hidden"), ("ou_state", "env.num_envs")),
+        filled_rows=filled_rows,
     )
 
 
