@@ -45,7 +45,7 @@ def _stored_bytes(name: str, shape: tuple[int, ...], dtype: Any) -> int:
     return _ZIP_ENTRY_BYTES + 2 * len(name.encode()) + len(npy_header.getvalue()) + size
 
 
-def written_shape(name: str, shape: tuple[int, ...], dtype: Any, filled_rows: Mapping[str, int]) -> tuple[int, ...]:
+def _written_shape(name: str, shape: tuple[int, ...], dtype: Any, filled_rows: Mapping[str, int]) -> tuple[int, ...]:
     """The shape the leaf `name` is written with when its field (the name's first part) holds at most
     `filled_rows[field]` leading rows: a checkpoint leaves out the unfilled rows of an array of
     `ZERO_TAIL_MIN_BYTES` or more (checkpoint.without_zero_tail), and writes a smaller one whole."""
@@ -78,7 +78,7 @@ def state_bytes(state: Any, filled_rows: Mapping[str, int] | None = None) -> int
     for name, leaf in named_leaves(state):
         array = leaf if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else np.asarray(leaf)
         names.append(name)
-        shape = written_shape(name, tuple(array.shape), array.dtype, filled_rows or {})
+        shape = _written_shape(name, tuple(array.shape), array.dtype, filled_rows or {})
         total += _stored_bytes(f"leaf:{name}.npy", shape, array.dtype)
     digests = dict.fromkeys(names, "0" * 64)  # each leaf's SHA-256, in hex
     header = HEADER_BYTES + len(json.dumps(names)) + len(json.dumps(digests))
